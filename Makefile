@@ -1,0 +1,39 @@
+# viewfuse — see README.md. Every target creates .venv and installs the project on first use.
+SHELL   := /bin/bash
+PYTHON  ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+CONFIG  ?= configs/synthetic.toml
+# Extra flags for viewfuse, e.g. make evaluate ARGS="--force --device cpu"
+ARGS    ?=
+STAGES  := data classifier features models evaluate report simulate
+
+.PHONY: help venv $(STAGES) test bench clean distclean
+
+help:
+	@echo "make features models evaluate   run the main job on CONFIG (default $(CONFIG))"
+	@echo "make <stage>                    one stage (+ stale upstream): $(STAGES)"
+	@echo "make test | bench | clean | distclean"
+
+$(VENV)/.installed: pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	@touch $@
+
+venv: $(VENV)/.installed
+
+$(STAGES): $(VENV)/.installed
+	$(BIN)/viewfuse $@ --config $(CONFIG) $(ARGS)
+
+test: $(VENV)/.installed
+	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+bench: $(VENV)/.installed
+	$(BIN)/python tests/bench/run_all.py $(BENCH_ARGS)
+
+clean:
+	rm -rf artifacts .pytest_cache .hypothesis
+	find . -name __pycache__ -type d -prune -not -path './$(VENV)/*' -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV) *.egg-info

@@ -1,0 +1,408 @@
+"""Typed, validated TOML configuration.
+
+Every section is a frozen dataclass. Loading checks each key against the dataclass: an unknown
+key, a wrong type or an out-of-range value raises ``ConfigError`` naming the file and the dotted
+key. Stages hash only the sections they declare (see ``stages.registry``), so an edit to one
+section reruns only the stages that read it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+try:  # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+
+class ConfigError(ValueError):
+    """A config file is malformed; the message names the file and the key."""
+
+
+def _f(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
+       choices: tuple | None = None, factory: Any = None, doc: str = "") -> Any:
+    meta = {"lo": lo, "hi": hi, "choices": choices, "doc": doc}
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# The real AVD instance names used by the synthetic stand-ins (all are BigBIRD folder names).
+DEFAULT_INSTANCES = (
+    "aunt_jemima_original_syrup",
+    "cholula_chipotle_hot_sauce",
+    "crystal_hot_sauce",
+    "honey_bunches_of_oats_honey_roasted",
+    "mahatma_rice",
+    "pepto_bismol",
+    "softsoap_white",
+    "progresso_new_england_clam_chowder",
+)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    name: str = _f("synthetic", doc="run name; outputs go to <artifacts>/<name>/<stage>/")
+    artifacts: str = _f("artifacts", doc="artifacts root, relative to the config's project root")
+    device: str = _f("auto", choices=("auto", "cpu", "cuda"))
+    threads: int = _f(0, lo=0, hi=256, doc="torch/BLAS threads; 0 = number of cores")
+
+
+@dataclass(frozen=True)
+class SyntheticDataConfig:
+    instances: tuple[str, ...] = _f(factory=lambda: DEFAULT_INSTANCES)
+    bigbird_cameras: tuple[int, ...] = _f(factory=lambda: (1,))
+    angle_step_deg: int = _f(3, lo=3, hi=120, doc="turntable step; a multiple of 3 as in BigBIRD")
+    bigbird_width: int = _f(1280, lo=64, hi=4096)
+    bigbird_height: int = _f(1024, lo=64, hi=4096)
+    write_depth: bool = _f(False)
+    avd_width: int = _f(640, lo=64, hi=1920)
+    avd_height: int = _f(360, lo=36, hi=1080)
+    grid_step_m: float = _f(0.3, lo=0.05, hi=2.0)
+    room_size_m: tuple[float, ...] = _f(factory=lambda: (3.6, 3.0))
+    distractors: int = _f(6, lo=0, hi=100, doc="clutter boxes in the AVD room")
+    interpolated_fraction: float = _f(0.25, lo=0.0, hi=0.9,
+                                      doc="share of AVD images left unregistered (empty R, t)")
+    jpeg_quality: int = _f(92, lo=50, hi=100)
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    source: str = _f("synthetic", choices=("synthetic", "real"))
+    bigbird_root: str = _f("", doc="real data: folder holding BigBIRD object folders")
+    avd_root: str = _f("", doc="real data: AVD root holding instance_id_map.txt and scan folders")
+    scan: str = _f("Home_001_1")
+    seed: int = _f(0, lo=0)
+    skip_bad_views: bool = _f(True, doc="skip (count and log) unreadable views instead of failing")
+    synthetic: SyntheticDataConfig = _f(factory=SyntheticDataConfig)
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    categories: int = _f(12, lo=2, hi=64, doc="synthetic source-domain categories")
+    train_images: int = _f(6000, lo=10)
+    val_images: int = _f(1200, lo=10)
+    epochs: int = _f(4, lo=1, hi=200)
+    batch_size: int = _f(64, lo=1, hi=4096)
+    lr: float = _f(2e-4, lo=0.0, hi=1.0)
+    weight_decay: float = _f(1e-4, lo=0.0, hi=1.0)
+    min_accuracy: float = _f(0.9, lo=0.0, hi=1.0, doc="fail the stage below this held-out top-1")
+
+
+@dataclass(frozen=True)
+class ClassifierConfig:
+    weights: str = _f("synthetic", choices=("synthetic", "imagenet", "path"))
+    path: str = _f("", doc="state-dict file for weights = 'path'")
+    num_classes: int = _f(0, lo=0, doc="output size for weights = 'path'; 0 = read from the file")
+    dropout: float = _f(0.5, lo=0.0, hi=0.99, doc="dropout p of the two head Dropout layers")
+    input_size: int = _f(128, lo=63, hi=512, doc="square crop side fed to the network, pixels")
+    seed: int = _f(0, lo=0)
+    training: TrainingConfig = _f(factory=TrainingConfig)
+
+
+@dataclass(frozen=True)
+class FeaturesConfig:
+    margin: float = _f(0.10, lo=0.0, hi=2.0, doc="crop margin, fraction of the box's longer side")
+    square: bool = _f(True, doc="grow the crop to a square around the box centre")
+    max_difficulty: int = _f(4, lo=1, hi=5, doc="AVD boxes up to this difficulty are scored")
+    bigbird_cameras: tuple[int, ...] = _f(factory=lambda: (1,))
+    n_samples: int = _f(10, lo=1, hi=1000, doc="N_s dropout samples per AVD crop")
+    seed: int = _f(0, lo=0)
+    batch_size: int = _f(64, lo=1, hi=4096)
+
+
+@dataclass(frozen=True)
+class ModelsConfig:
+    classes: tuple[str, ...] = _f(factory=lambda: DEFAULT_INSTANCES[:4],
+                                  doc="candidate classes (one GP set each)")
+    n_components: int = _f(4, lo=1, hi=1000)
+    component_rule: str = _f("top_mean", choices=("top_mean", "top_min", "explicit"))
+    components: tuple[int, ...] = _f(factory=tuple, doc="score indices for rule 'explicit'")
+    camera: int = _f(1, lo=1, hi=5, doc="BigBIRD camera ring used for training")
+    restarts: int = _f(5, lo=0, hi=100)
+    amplitude_bounds: tuple[float, ...] = _f(factory=lambda: (1e-4, 1e2))
+    length_scale_bounds: tuple[float, ...] = _f(factory=lambda: (0.05, 10.0))
+    noise_bounds: tuple[float, ...] = _f(factory=lambda: (1e-6, 1.0))
+    seed: int = _f(0, lo=0)
+
+
+@dataclass(frozen=True)
+class BiasedConfig:
+    bias_m: tuple[float, ...] = _f(factory=lambda: (-0.30, 0.20))
+    sigma_m: float = _f(0.30, lo=0.0, hi=10.0)
+    n_loc_samples: int = _f(100, lo=1, hi=100000)
+
+
+@dataclass(frozen=True)
+class RandomizedConfig:
+    bias_m: tuple[float, ...] = _f(factory=lambda: (0.0, 0.0))
+    sigma_m: float = _f(0.30, lo=0.0, hi=10.0)
+    realizations: int = _f(500, lo=1, hi=1000000)
+    n_loc_samples: int = _f(100, lo=1, hi=100000)
+
+
+@dataclass(frozen=True)
+class SensitivityConfig:
+    sigmas_m: tuple[float, ...] = _f(factory=lambda: (0.05, 0.1, 0.2, 0.3, 0.5))
+    realizations: int = _f(100, lo=1, hi=1000000)
+    n_loc_samples: int = _f(50, lo=1, hi=100000)
+
+
+@dataclass(frozen=True)
+class BiasMapsConfig:
+    extent_m: float = _f(0.6, lo=0.01, hi=10.0, doc="bias grid spans [-extent, extent] in x and y")
+    steps: int = _f(25, lo=3, hi=401)
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    target: str = _f("aunt_jemima_original_syrup")
+    track_images: tuple[str, ...] = _f(factory=tuple, doc="explicit track; empty = build one")
+    track_length: int = _f(9, lo=2, hi=200)
+    max_difficulty: int = _f(4, lo=1, hi=5)
+    yaw_source: str = _f("truth", choices=("truth", "config"))
+    yaw_deg: float = _f(0.0, lo=-360.0, hi=360.0)
+    variance_floor: float = _f(1e-6, lo=0.0, hi=1.0)
+    experiments: tuple[str, ...] = _f(
+        factory=lambda: ("gp_models", "biased", "randomized", "sensitivity", "bias_maps"))
+    seed: int = _f(0, lo=0)
+    biased: BiasedConfig = _f(factory=BiasedConfig)
+    randomized: RandomizedConfig = _f(factory=RandomizedConfig)
+    sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
+    bias_maps: BiasMapsConfig = _f(factory=BiasMapsConfig)
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    title: str = _f("viewfuse report")
+    dpi: int = _f(110, lo=30, hi=600)
+
+
+@dataclass(frozen=True)
+class SimulateConfig:
+    seed: int = _f(0, lo=0)
+    realizations: int = _f(300, lo=1, hi=1000000)
+
+
+@dataclass(frozen=True)
+class Config:
+    run: RunConfig = _f(factory=RunConfig)
+    data: DataConfig = _f(factory=DataConfig)
+    classifier: ClassifierConfig = _f(factory=ClassifierConfig)
+    features: FeaturesConfig = _f(factory=FeaturesConfig)
+    models: ModelsConfig = _f(factory=ModelsConfig)
+    evaluate: EvaluateConfig = _f(factory=EvaluateConfig)
+    report: ReportConfig = _f(factory=ReportConfig)
+    simulate: SimulateConfig = _f(factory=SimulateConfig)
+    # Where the config file lives; relative paths in it resolve against its project root.
+    source_path: str = field(default="", compare=False, metadata={"internal": True})
+
+    # -- derived locations -------------------------------------------------------------------
+    @property
+    def root(self) -> Path:
+        """Project root: the parent of ``configs/`` for files there, else the file's folder."""
+        if not self.source_path:
+            return Path.cwd()
+        p = Path(self.source_path).resolve().parent
+        return p.parent if p.name == "configs" else p
+
+    def resolve(self, path: str) -> Path:
+        p = Path(path).expanduser()
+        return p if p.is_absolute() else self.root / p
+
+    @property
+    def run_dir(self) -> Path:
+        return self.resolve(self.run.artifacts) / self.run.name
+
+    def stage_dir(self, stage: str) -> Path:
+        return self.run_dir / stage
+
+    def section(self, name: str) -> Any:
+        return getattr(self, name)
+
+    def section_hash(self, name: str) -> str:
+        return hashlib.sha256(canonical_json(to_dict(self.section(name))).encode()).hexdigest()
+
+
+# ----------------------------------------------------------------------------------------------
+def to_dict(obj: Any) -> Any:
+    """Plain (JSON-able) form of a config or section."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if not f.metadata.get("internal")}
+    if isinstance(obj, (tuple, list)):
+        return [to_dict(v) for v in obj]
+    return obj
+
+
+def canonical_json(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+def _check_scalar(value: Any, tp: Any, key: str, where: str) -> Any:
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: '{key}' must be true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: '{key}' must be an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: '{key}' must be a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise ConfigError(f"{where}: '{key}' must be finite, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: '{key}' must be a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {tp} for {key}")  # pragma: no cover
+
+
+def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        allowed = ", ".join(sorted(fields))
+        raise ConfigError(f"{where}: unknown key '{prefix}{unknown[0]}' (allowed here: {allowed})")
+    kwargs = {}
+    for name, f in fields.items():
+        if name not in table:
+            continue
+        key = prefix + name
+        tp = hints[name]
+        value = table[name]
+        if dataclasses.is_dataclass(tp):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{where}: '{key}' must be a table")
+            kwargs[name] = _build(tp, value, where, key + ".")
+            continue
+        if typing.get_origin(tp) is tuple:
+            inner = typing.get_args(tp)[0]
+            if not isinstance(value, list):
+                raise ConfigError(f"{where}: '{key}' must be a list, got {value!r}")
+            items = tuple(_check_scalar(v, inner, f"{key}[{i}]", where) for i, v in enumerate(value))
+            for i, v in enumerate(items):
+                _check_range(v, f, f"{key}[{i}]", where)
+            kwargs[name] = items
+            continue
+        value = _check_scalar(value, tp, key, where)
+        _check_range(value, f, key, where)
+        kwargs[name] = value
+    return cls(**kwargs)
+
+
+def _check_range(value: Any, f: dataclasses.Field, key: str, where: str) -> None:
+    lo, hi, choices = f.metadata.get("lo"), f.metadata.get("hi"), f.metadata.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"{where}: '{key}' = {value!r} is not one of {', '.join(map(repr, choices))}")
+    if lo is not None and value < lo:
+        raise ConfigError(f"{where}: '{key}' = {value!r} is below the minimum {lo}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{where}: '{key}' = {value!r} is above the maximum {hi}")
+
+
+def _cross_checks(cfg: Config, where: str) -> None:
+    """Checks that span keys; each names the keys involved."""
+    def need(ok: bool, msg: str) -> None:
+        if not ok:
+            raise ConfigError(f"{where}: {msg}")
+
+    s = cfg.data.synthetic
+    need(s.angle_step_deg % 3 == 0, f"'data.synthetic.angle_step_deg' = {s.angle_step_deg} must be a multiple of 3 (BigBIRD angles are 0, 3, ..., 357)")
+    need(360 % s.angle_step_deg == 0, f"'data.synthetic.angle_step_deg' = {s.angle_step_deg} must divide 360")
+    need(all(1 <= c <= 5 for c in s.bigbird_cameras) and s.bigbird_cameras,
+         "'data.synthetic.bigbird_cameras' must list cameras among 1..5")
+    need(len(s.room_size_m) == 2 and min(s.room_size_m) > 0, "'data.synthetic.room_size_m' must be two positive numbers")
+    need(len(set(s.instances)) == len(s.instances) and len(s.instances) >= 2,
+         "'data.synthetic.instances' must list at least two distinct instance names")
+    need(all(1 <= c <= 5 for c in cfg.features.bigbird_cameras) and cfg.features.bigbird_cameras,
+         "'features.bigbird_cameras' must list cameras among 1..5")
+    if cfg.data.source == "real":
+        need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
+        need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
+    else:
+        for c in cfg.models.classes:
+            need(c in s.instances, f"'models.classes' names {c!r}, which is not in 'data.synthetic.instances'")
+        need(cfg.models.camera in s.bigbird_cameras,
+             f"'models.camera' = {cfg.models.camera} is not among 'data.synthetic.bigbird_cameras'")
+    need(cfg.models.camera in cfg.features.bigbird_cameras,
+         f"'models.camera' = {cfg.models.camera} is not among 'features.bigbird_cameras'")
+    if cfg.classifier.weights == "path":
+        need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
+    need(len(set(cfg.models.classes)) == len(cfg.models.classes) and len(cfg.models.classes) >= 2,
+         "'models.classes' must list at least two distinct classes")
+    if cfg.models.component_rule == "explicit":
+        need(len(cfg.models.components) == cfg.models.n_components,
+             "'models.components' must list exactly 'models.n_components' indices for rule 'explicit'")
+    for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds"):
+        b = getattr(cfg.models, key)
+        need(len(b) == 2 and 0 < b[0] < b[1], f"'models.{key}' must be [low, high] with 0 < low < high")
+    need(cfg.evaluate.target in cfg.models.classes,
+         f"'evaluate.target' = {cfg.evaluate.target!r} is not among 'models.classes'")
+    known = ("gp_models", "biased", "randomized", "sensitivity", "bias_maps")
+    for e in cfg.evaluate.experiments:
+        need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")
+    for key in ("biased", "randomized"):
+        need(len(getattr(cfg.evaluate, key).bias_m) == 2, f"'evaluate.{key}.bias_m' must be [x, y]")
+    need(len(cfg.evaluate.sensitivity.sigmas_m) >= 1 and min(cfg.evaluate.sensitivity.sigmas_m) >= 0,
+         "'evaluate.sensitivity.sigmas_m' must list non-negative values")
+
+
+def load_config(path: str | Path, overrides: dict | None = None) -> Config:
+    """Read, type-check and validate a TOML config.
+
+    ``overrides`` is a nested dict merged over the file's tables (used by tests and ``--set``).
+    """
+    path = Path(path)
+    where = str(path)
+    if not path.is_file():
+        raise ConfigError(f"{where}: config file not found")
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{where}: not valid TOML: {e}") from None
+    if overrides:
+        table = _merge(table, overrides)
+    cfg = _build(Config, table, where, "")
+    cfg = dataclasses.replace(cfg, source_path=str(path.resolve()))
+    _cross_checks(cfg, where)
+    return cfg
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def parse_override(text: str) -> dict:
+    """``a.b.c=VALUE`` (VALUE in TOML syntax) -> nested dict, for ``--set`` on the command line."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE")
+    key, raw = text.split("=", 1)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw  # bare words are strings
+    out: dict = {}
+    cur = out
+    parts = key.strip().split(".")
+    for p in parts[:-1]:
+        cur = cur.setdefault(p, {})
+    cur[parts[-1]] = value
+    return out

@@ -1,0 +1,32 @@
+"""Device and thread choice, shared by every torch-using stage."""
+from __future__ import annotations
+
+import os
+
+
+def resolve_device(requested: str = "auto") -> str:
+    """'auto' -> 'cuda' when a GPU is visible, else 'cpu'. 'cuda' without a GPU is an error."""
+    import torch
+
+    if requested == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if requested == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("device 'cuda' requested (config run.device or --device) but no CUDA GPU is visible")
+    if requested not in ("cpu", "cuda"):
+        raise ValueError(f"unknown device {requested!r}; use auto, cpu or cuda")
+    return requested
+
+
+def configure_threads(threads: int = 0) -> int:
+    """Use every core by default (2 here); intra-op threads beyond the cores only thrash."""
+    import torch
+
+    n = max(1, int(threads or available_cores()))
+    torch.set_num_threads(n)
+    return n
+
+
+def available_cores() -> int:
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
