@@ -1,0 +1,87 @@
+import dataclasses
+
+import pytest
+
+from pipeline.config import ConfigError, load_config, parse_override, to_dict
+from tests.conftest import DEFAULT_CONFIG, ROOT
+
+
+def write(tmp_path, text):
+    p = tmp_path / "c.toml"
+    p.write_text(text)
+    return p
+
+
+def test_default_config_loads_and_matches_dataclass_defaults():
+    cfg = load_config(DEFAULT_CONFIG)
+    assert cfg.run.name == "synthetic"
+    assert cfg.evaluate.target in cfg.models.classes
+    assert cfg.root == ROOT
+    assert cfg.run_dir == ROOT / "artifacts" / "synthetic"
+    # The file spells out the defaults: an empty config gives the same sections.
+    assert to_dict(cfg) == to_dict(dataclasses.replace(cfg))
+
+
+def test_unknown_key_names_key_and_file(tmp_path):
+    p = write(tmp_path, "[features]\nmargn = 0.1\n")
+    with pytest.raises(ConfigError) as e:
+        load_config(p)
+    assert "features.margn" in str(e.value) and str(p) in str(e.value)
+
+
+def test_unknown_nested_key(tmp_path):
+    p = write(tmp_path, "[evaluate.randomized]\nrealisations = 5\n")
+    with pytest.raises(ConfigError, match="evaluate.randomized.realisations"):
+        load_config(p)
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[features]\nn_samples = 0\n", "features.n_samples"),
+    ("[classifier]\ndropout = 1.5\n", "classifier.dropout"),
+    ("[run]\ndevice = 'tpu'\n", "run.device"),
+    ("[features]\nmax_difficulty = 'easy'\n", "features.max_difficulty"),
+    ("[data.synthetic]\nangle_step_deg = 4\n", "data.synthetic.angle_step_deg"),
+    ("[evaluate]\ntarget = 'red_cup'\n", "evaluate.target"),
+    ("[models]\nlength_scale_bounds = [1.0, 0.5]\n", "models.length_scale_bounds"),
+    ("[data.synthetic]\nbigbird_cameras = [6]\n", "data.synthetic.bigbird_cameras"),
+])
+def test_out_of_range_values_are_errors(tmp_path, text, key):
+    p = write(tmp_path, text)
+    with pytest.raises(ConfigError) as e:
+        load_config(p)
+    assert key in str(e.value) and str(p) in str(e.value)
+
+
+def test_bool_is_not_an_int(tmp_path):
+    with pytest.raises(ConfigError, match="features.n_samples"):
+        load_config(write(tmp_path, "[features]\nn_samples = true\n"))
+
+
+def test_missing_file_and_bad_toml(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(write(tmp_path, "[run\n"))
+
+
+def test_overrides_and_section_hash(tmp_path):
+    a = load_config(DEFAULT_CONFIG)
+    b = load_config(DEFAULT_CONFIG, parse_override("features.margin=0.3"))
+    assert b.features.margin == 0.3
+    assert a.section_hash("features") != b.section_hash("features")
+    assert a.section_hash("models") == b.section_hash("models")
+
+
+def test_parse_override_types():
+    assert parse_override("a.b=3") == {"a": {"b": 3}}
+    assert parse_override("x=[1, 2]") == {"x": [1, 2]}
+    assert parse_override("name=hello") == {"name": "hello"}
+    with pytest.raises(ConfigError):
+        parse_override("novalue")
+
+
+def test_real_template_is_valid():
+    cfg = load_config(ROOT / "configs" / "avd.toml")
+    assert cfg.data.source == "real"
+    assert cfg.classifier.weights == "imagenet"
+    assert cfg.evaluate.target == "aunt_jemima_original_syrup"

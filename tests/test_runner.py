@@ -1,0 +1,106 @@
+"""Stage runner: manifests, skipping, staleness propagation, atomic output."""
+import sys
+import types
+
+import pytest
+
+import stages.registry as registry
+import stages.runner as runner
+from stages.registry import StageSpec
+
+
+@pytest.fixture
+def fake_stages(monkeypatch):
+    """Two fake stages a -> b reading sections 'features' and 'models'; counts runs."""
+    calls = []
+
+    def make(name, fail=False):
+        mod = types.ModuleType(f"fake_stage_{name}")
+
+        def run(ctx):
+            calls.append(name)
+            (ctx.out / "out.txt").write_text(name)
+            if fail:
+                (ctx.out / "half.txt").write_text("half")
+                raise RuntimeError("boom")
+            return f"wrote {name}"
+        mod.run = run
+        monkeypatch.setitem(sys.modules, mod.__name__, mod)
+        return mod
+
+    make("a"), make("b")
+    specs = {
+        "a": StageSpec("a", "fake_stage_a", (), ("features",), ("pipeline.config",)),
+        "b": StageSpec("b", "fake_stage_b", ("a",), ("models",), ("pipeline.config",)),
+    }
+    monkeypatch.setattr(runner, "STAGES", specs)
+    monkeypatch.setattr(registry, "STAGES", specs)
+    monkeypatch.setattr(runner, "_module_exists", lambda n: n in sys.modules)
+    return calls, make
+
+
+def test_runs_upstream_then_skips(tmp_config, fake_stages, capsys):
+    calls, _ = fake_stages
+    cfg = tmp_config()
+    runner.ensure(cfg, "b")
+    assert calls == ["a", "b"]
+    assert (cfg.stage_dir("b") / "out.txt").read_text() == "b"
+    m = runner.read_manifest(cfg, "b")
+    assert m["summary"] == "wrote b" and m["seconds"] >= 0
+    runner.ensure(cfg, "b")
+    assert calls == ["a", "b"]
+    assert "up to date" in capsys.readouterr().out
+
+
+def test_section_change_reruns_only_dependents(tmp_config, fake_stages):
+    calls, _ = fake_stages
+    runner.ensure(tmp_config(), "b")
+    calls.clear()
+    runner.ensure(tmp_config({"models": {"restarts": 2}}), "b")
+    assert calls == ["b"]          # 'a' does not read [models]
+    calls.clear()
+    runner.ensure(tmp_config({"models": {"restarts": 2}, "features": {"margin": 0.5}}), "b")
+    assert calls == ["a", "b"]     # upstream change propagates
+    calls.clear()
+    runner.ensure(tmp_config({"models": {"restarts": 2}, "features": {"margin": 0.5},
+                              "evaluate": {"seed": 7}}), "b")
+    assert calls == []             # unrelated section
+
+
+def test_force_reruns_only_requested(tmp_config, fake_stages):
+    calls, _ = fake_stages
+    cfg = tmp_config()
+    runner.ensure(cfg, "b")
+    calls.clear()
+    runner.ensure(cfg, "b", force=True)
+    assert calls == ["b"]
+
+
+def test_failed_stage_leaves_no_output(tmp_config, fake_stages):
+    calls, make = fake_stages
+    cfg = tmp_config()
+    runner.ensure(cfg, "b")
+    before = runner.read_manifest(cfg, "b")
+    make("b", fail=True)
+    with pytest.raises(RuntimeError, match="boom"):
+        runner.ensure(cfg, "b", force=True)
+    # The previous complete output is intact; no temp folder or half file remains.
+    assert runner.read_manifest(cfg, "b") == before
+    assert not (cfg.stage_dir("b") / "half.txt").exists()
+    assert not any(p.name.startswith(".") for p in cfg.run_dir.iterdir())
+
+
+def test_unimplemented_stage_message(tmp_config, monkeypatch):
+    spec = StageSpec("zz", "stages.does_not_exist", (), (), ())
+    monkeypatch.setitem(runner.STAGES, "zz", spec)
+    with pytest.raises(runner.StageNotImplemented, match="not implemented yet"):
+        runner.ensure(tmp_config(), "zz")
+
+
+def test_cli_reports_config_errors(tmp_path, capsys):
+    from stages.cli import main
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[run]\ncolour = 1\n")
+    assert main(["data", "--config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "run.colour" in err and str(bad) in err
