@@ -1,0 +1,308 @@
+"""Reader for BigBIRD object folders (formats/bigbird.md).
+
+One object folder holds ``calibration.h5``, Carmine RGB views ``NP{c}_{a}.jpg`` (unpadded
+turntable angle ``a``), masks ``masks/NP{c}_{a}_mask.pbm`` (object = bit 1) and reference-camera
+poses ``poses/NP5_{a}_pose.h5``. Camera NPc at angle a sits in the table frame (z up, metres) at
+``H_table_from_NPc(a) = H_table_from_NP5(a) @ inv(H_NPc_from_NP5)``.
+
+The JPEG helpers here (``read_rgb``, ``jpeg_size``) are shared with the AVD reader.
+"""
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import h5py
+import numpy as np
+from tqdm import tqdm
+
+from loaders.errors import BadInputError, SkipLog
+from loaders.pbm import read_pbm
+
+_VIEW_RE = re.compile(r"^NP([1-5])_(0|[1-9][0-9]*)\.jpg$")  # angles are unpadded
+POSE_KEY = "H_table_from_reference_camera"
+
+
+# --------------------------------------------------------------------------------------------
+# JPEG helpers (shared with loaders.avd)
+
+def _check_jpeg_complete(data: bytes, path: Path) -> None:
+    """OpenCV decodes a truncated JPEG into a grey-padded image with only a warning, so check the
+    markers ourselves: SOI first, and an EOI after the first scan (SOS). Entropy-coded data
+    byte-stuffs 0xFF, so FF D9 after SOS can only be the real end marker (EXIF thumbnails, which
+    carry their own EOI, sit before the first SOS)."""
+    if data[:2] != b"\xff\xd8":
+        raise BadInputError(path, "not a JPEG (no SOI marker); file is corrupt")
+    sos = data.find(b"\xff\xda", 2)
+    if sos < 0:
+        raise BadInputError(path, "corrupt JPEG: no image scan (SOS marker) found")
+    if data.find(b"\xff\xd9", sos) < 0:
+        raise BadInputError(path, "corrupt JPEG: truncated (no end-of-image marker after the scan)")
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """Decode a JPEG into RGB uint8 (H, W, 3); BadInputError naming the file if missing/corrupt."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise BadInputError(path, "image file is missing") from None
+    except OSError as e:
+        raise BadInputError(path, f"cannot read image file ({e.strerror or e})") from None
+    _check_jpeg_complete(data, path)
+    try:
+        bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error as e:
+        raise BadInputError(path, f"corrupt JPEG: OpenCV failed to decode it ({e})") from None
+    if bgr is None or bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.size == 0:
+        raise BadInputError(path, "corrupt JPEG: OpenCV could not decode it")
+    return np.ascontiguousarray(bgr[:, :, ::-1])  # OpenCV gives BGR
+
+
+# SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
+_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def jpeg_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) from a JPEG's frame header, without decoding the image."""
+    path = Path(path)
+    try:
+        f = open(path, "rb")
+    except FileNotFoundError:
+        raise BadInputError(path, "image file is missing") from None
+    with f:
+        if f.read(2) != b"\xff\xd8":
+            raise BadInputError(path, "not a JPEG (no SOI marker); file is corrupt")
+        while True:
+            b = f.read(1)
+            if not b:
+                break
+            if b != b"\xff":
+                continue  # tolerate garbage between segments, as decoders do
+            m = f.read(1)
+            while m == b"\xff":  # fill bytes
+                m = f.read(1)
+            if not m:
+                break
+            code = m[0]
+            if code in (0x01,) or 0xD0 <= code <= 0xD8:
+                continue  # stand-alone markers: no length field
+            if code in (0xD9, 0xDA):
+                break  # EOI / start of scan before any frame header
+            seg = f.read(2)
+            if len(seg) < 2:
+                break
+            (length,) = struct.unpack(">H", seg)
+            if code in _SOF:
+                body = f.read(5)
+                if len(body) < 5:
+                    break
+                h, w = struct.unpack(">HH", body[1:5])
+                if w == 0 or h == 0:
+                    raise BadInputError(path, f"corrupt JPEG: frame size {w}x{h}")
+                return int(w), int(h)
+            f.seek(length - 2, 1)
+    raise BadInputError(path, "corrupt JPEG: no frame header (SOF marker) found")
+
+
+# --------------------------------------------------------------------------------------------
+# HDF5 helpers
+
+def _read_h5_matrix(path: Path, key: str, shape: tuple[int, ...]) -> np.ndarray:
+    """A float64 dataset of the given shape, finite; errors name the file and the key."""
+    if not path.is_file():
+        raise BadInputError(path, "HDF5 file is missing")
+    try:
+        with h5py.File(path, "r") as f:
+            if key not in f:
+                raise BadInputError(path, f"missing HDF5 dataset '{key}'")
+            ds = f[key]
+            if not isinstance(ds, h5py.Dataset):
+                raise BadInputError(path, f"HDF5 key '{key}' is a group, expected a dataset")
+            arr = np.asarray(ds[()], dtype=np.float64)
+    except OSError as e:
+        raise BadInputError(path, f"cannot open HDF5 file ({e})") from None
+    if arr.shape != shape:
+        raise BadInputError(path, f"HDF5 dataset '{key}' has shape {arr.shape}, expected {shape}")
+    if not np.all(np.isfinite(arr)):
+        raise BadInputError(path, f"HDF5 dataset '{key}' contains NaN or inf")
+    return arr
+
+
+def _check_homogeneous(m: np.ndarray, path: Path, key: str) -> np.ndarray:
+    if not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0), atol=1e-6):
+        raise BadInputError(path, f"HDF5 dataset '{key}' is not a homogeneous transform "
+                                  f"(last row {m[3].tolist()})")
+    return m
+
+
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BigBirdView:
+    object: str
+    camera: int
+    angle: int
+    image_path: Path
+    mask_path: Path
+
+
+@dataclass(frozen=True)
+class ViewRecord:
+    """One fully read view: RGB image, object mask, object box (x0, y0, x1, y1; exclusive ends)
+    and the 4x4 camera pose H_table_from_NPc(a)."""
+    view: BigBirdView
+    image: np.ndarray
+    mask: np.ndarray
+    box: tuple[int, int, int, int]
+    pose: np.ndarray
+
+
+def list_objects(root: str | Path) -> list[str]:
+    """Sorted names of the object folders under ``root`` (those holding calibration.h5)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise BadInputError(root, "BigBIRD root folder is missing")
+    return sorted(p.name for p in root.iterdir() if (p / "calibration.h5").is_file())
+
+
+class BigBirdObject:
+    """One BigBIRD object folder.
+
+    ``open_px``: side of the square opening that removes mask specks before the largest
+    component is taken (None: about 0.5 % of the shorter image side, at least 3 px).
+    """
+
+    def __init__(self, folder: str | Path, open_px: int | None = None):
+        self.folder = Path(folder)
+        self.name = self.folder.name
+        if not self.folder.is_dir():
+            raise BadInputError(self.folder, "BigBIRD object folder is missing")
+        self.calibration_path = self.folder / "calibration.h5"
+        if not self.calibration_path.is_file():
+            raise BadInputError(self.calibration_path, "calibration file is missing")
+        if open_px is not None and open_px < 1:
+            raise ValueError(f"open_px must be >= 1, got {open_px}")
+        self.open_px = open_px
+        self._calib: dict[str, np.ndarray] = {}
+        self._poses: dict[int, np.ndarray] = {}
+
+    def __repr__(self) -> str:
+        return f"BigBirdObject({str(self.folder)!r})"
+
+    # ---- listing / reading -----------------------------------------------------------------
+    def views(self, cameras=(1,)) -> list[BigBirdView]:
+        """Views whose NP{c}_{a}.jpg exists, sorted by (camera, angle)."""
+        cams = {int(c) for c in cameras}
+        out = []
+        for p in self.folder.iterdir():
+            m = _VIEW_RE.match(p.name)
+            if m and int(m.group(1)) in cams:
+                c, a = int(m.group(1)), int(m.group(2))
+                out.append(BigBirdView(self.name, c, a, p, self.folder / "masks" / f"NP{c}_{a}_mask.pbm"))
+        out.sort(key=lambda v: (v.camera, v.angle))
+        return out
+
+    def read_image(self, view: BigBirdView) -> np.ndarray:
+        return read_rgb(view.image_path)
+
+    def read_mask(self, view: BigBirdView, shape: tuple[int, int] | None = None) -> np.ndarray:
+        """Bool mask (True = object). ``shape`` = the image's (H, W); read from the JPEG header
+        when not given. A mask whose size differs from its image is an error."""
+        mask = read_pbm(view.mask_path)
+        if shape is None:
+            w, h = jpeg_size(view.image_path)
+            shape = (h, w)
+        if mask.shape != tuple(shape[:2]):
+            raise BadInputError(view.mask_path, f"mask is {mask.shape[1]}x{mask.shape[0]} but its "
+                                                f"image is {shape[1]}x{shape[0]}")
+        return mask
+
+    # ---- calibration and poses ---------------------------------------------------------------
+    def _calib_matrix(self, key: str, shape: tuple[int, int]) -> np.ndarray:
+        if key not in self._calib:
+            self._calib[key] = _read_h5_matrix(self.calibration_path, key, shape)
+        return self._calib[key]
+
+    def intrinsics(self, camera: int) -> np.ndarray:
+        """NP{c}_rgb_K (3x3) for the 1280x1024 Carmine RGB image."""
+        return self._calib_matrix(f"NP{int(camera)}_rgb_K", (3, 3)).copy()
+
+    def reference_pose(self, angle: int) -> np.ndarray:
+        """H_table_from_NP5(a), from poses/NP5_{a}_pose.h5."""
+        a = int(angle)
+        if a not in self._poses:
+            path = self.folder / "poses" / f"NP5_{a}_pose.h5"
+            if not path.is_file():
+                raise BadInputError(path, f"pose file for angle {a} is missing")
+            self._poses[a] = _check_homogeneous(_read_h5_matrix(path, POSE_KEY, (4, 4)), path, POSE_KEY)
+        return self._poses[a].copy()
+
+    def camera_pose(self, camera: int, angle: int) -> np.ndarray:
+        """4x4 H_table_from_NPc(a) = H_table_from_NP5(a) @ inv(H_NPc_from_NP5)."""
+        key = f"H_NP{int(camera)}_from_NP5"
+        h_c5 = _check_homogeneous(self._calib_matrix(key, (4, 4)), self.calibration_path, key)
+        try:
+            inv = np.linalg.inv(h_c5)
+        except np.linalg.LinAlgError:
+            raise BadInputError(self.calibration_path, f"HDF5 dataset '{key}' is singular") from None
+        return self.reference_pose(angle) @ inv
+
+    def camera_position(self, camera: int, angle: int) -> np.ndarray:
+        """(3,) camera centre in the table frame, metres, z up."""
+        return self.camera_pose(camera, angle)[:3, 3].copy()
+
+    # ---- boxes -------------------------------------------------------------------------------
+    def _kernel_px(self, shape: tuple[int, int]) -> int:
+        if self.open_px is not None:
+            return self.open_px
+        return max(3, int(round(min(shape) * 0.005)))
+
+    def object_box(self, mask: np.ndarray, path: str | Path | None = None) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1), exclusive ends, of the largest 8-connected component after a
+        square opening (BigBIRD masks carry spurious specks). ``path`` only names the mask in
+        errors."""
+        where = path if path is not None else f"{self.folder} (mask)"
+        mask = np.asarray(mask, dtype=bool)
+        if mask.ndim != 2:
+            raise ValueError(f"mask must be 2-D, got shape {mask.shape}")
+        if not mask.any():
+            raise BadInputError(where, "mask is empty (no object pixels)")
+        k = self._kernel_px(mask.shape)
+        opened = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN,
+                                  cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+        n, _, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
+        if n <= 1:
+            raise BadInputError(where, f"mask has only specks: nothing survives a {k}x{k} opening")
+        best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        x0, y0 = int(stats[best, cv2.CC_STAT_LEFT]), int(stats[best, cv2.CC_STAT_TOP])
+        x1 = x0 + int(stats[best, cv2.CC_STAT_WIDTH])
+        y1 = y0 + int(stats[best, cv2.CC_STAT_HEIGHT])
+        if x1 <= x0 or y1 <= y0:  # cannot happen for a non-empty component; guard anyway
+            raise BadInputError(where, f"degenerate object box {(x0, y0, x1, y1)}")
+        return x0, y0, x1, y1
+
+    # ---- iteration -----------------------------------------------------------------------------
+    def read_view(self, view: BigBirdView) -> ViewRecord:
+        image = self.read_image(view)
+        mask = self.read_mask(view, image.shape[:2])
+        box = self.object_box(mask, view.mask_path)
+        pose = self.camera_pose(view.camera, view.angle)
+        return ViewRecord(view, image, mask, box, pose)
+
+    def iter_views(self, cameras=(1,), skip: SkipLog | None = None) -> Iterator[ViewRecord]:
+        """Read every view of the given cameras. A bad view raises BadInputError, or, with
+        ``skip``, is counted and logged there and the iteration goes on."""
+        for view in tqdm(self.views(cameras), desc=f"bigbird {self.name}", unit="view", leave=False):
+            try:
+                rec = self.read_view(view)
+            except BadInputError as err:
+                if skip is None:
+                    raise
+                skip.skip(err)
+                continue
+            yield rec
