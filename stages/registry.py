@@ -20,7 +20,9 @@ class StageSpec:
 
 
 STAGES: dict[str, StageSpec] = {s.name: s for s in (
-    StageSpec("data", "stages.data", (), ("data",), ("stages.data", "loaders"),
+    StageSpec("data", "stages.data", (), ("data",),
+              ("stages.data", "loaders.synthetic", "loaders.pbm", "loaders.errors", "loaders.avd",
+               "loaders.bigbird"),
               "render the synthetic BigBIRD/AVD stand-ins, or validate the real dataset paths"),
     StageSpec("classifier", "stages.classifier", (), ("classifier",),
               ("stages.classifier", "pipeline.classifier"),
@@ -29,16 +31,19 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
               ("stages.features", "pipeline.classifier", "loaders"),
               "crop every needed view and score it (deterministic pass + MC dropout) -> Parquet"),
     StageSpec("models", "stages.models", ("features",), ("models",),
-              ("stages.models",),
+              ("stages.models", "pipeline.gp", "pipeline.components"),
               "choose feature components and fit one GP per (class, component)"),
     StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate",),
-              ("stages.evaluate",),
+              ("stages.evaluate", "pipeline.experiments", "pipeline.track", "pipeline.fusion",
+               "pipeline.gp", "pipeline.geometry", "pipeline.metrics", "pipeline.features", "loaders.avd"),
               "build the AVD track and run the localization-error experiments", after=("report",)),
     StageSpec("report", "stages.report", ("models", "evaluate"), ("report",),
-              ("stages.report", "reports"),
+              ("stages.report", "reports", "loaders.errors", "pipeline.cache"),
               "render the HTML + PNG report from existing results"),
     StageSpec("simulate", "stages.simulate", (), ("simulate",),
-              ("stages.simulate",),
+              ("stages.simulate", "pipeline.simulation", "pipeline.fusion", "pipeline.gp",
+               "pipeline.geometry", "pipeline.metrics", "reports.simulate_report", "reports.html",
+               "reports.figures"),
               "simulation scenarios of the paper's section 5.3 (synthetic GP measurements)"),
 )}
 

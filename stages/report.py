@@ -1,0 +1,24 @@
+"""Stage ``report``: re-render index.html + one PNG per figure from existing results.
+
+Reads ``evaluate/`` (results, track, GP rasters, bias maps, summary) and ``models/index.json``;
+computes nothing but plotting percentiles. ``make report`` therefore re-renders in seconds.
+"""
+from __future__ import annotations
+
+from pipeline.config import to_dict
+from reports.main_report import build_main_report
+from stages.runner import stage_timings
+
+
+def run(ctx) -> str:
+    cfg = ctx.cfg
+    res = build_main_report(
+        ctx.input("evaluate"), ctx.input("models"), ctx.out,
+        title=cfg.report.title, dpi=cfg.report.dpi, run_name=cfg.run.name,
+        config=to_dict(cfg), timings=stage_timings(cfg),
+    )
+    ctx.extra["figures"] = res.figures
+    ctx.extra["sections"] = res.sections
+    ctx.extra["notes"] = res.notes
+    final = cfg.stage_dir(ctx.stage) / "index.html"
+    return f"index.html + {len(res.figures)} figures; open {final}"
