@@ -1,0 +1,122 @@
+"""The §5.5 experiments as pure functions, on small hand-made class models."""
+import numpy as np
+import pytest
+
+from pipeline import experiments as E
+from pipeline.fusion import fuse_model_based
+from pipeline.gp import GPClassModels
+
+
+def ring_models(n=24, F=2, C=3):
+    """Class c's component f peaks at a class-specific bearing: views disambiguate classes."""
+    th = np.linspace(-np.pi, np.pi, n, endpoint=False)
+    X = np.stack([np.cos(th), np.sin(th)], 1)
+    Y = []
+    for c in range(C):
+        Y.append(np.stack([0.5 + 0.4 * np.cos(th - (2 * np.pi * c / C) - f) for f in range(F)]))
+    ones = np.ones((C, F))
+    return GPClassModels([f"c{c}" for c in range(C)], list(range(F)), [X] * C, Y,
+                         0.5 * ones, 0.08 * ones, 0.7 * ones, 1e-3 * ones)
+
+
+def make_track(models, truth=0, K=6, n_s=5, seed=0):
+    rng = np.random.default_rng(seed)
+    obj = np.array([1.0, 2.0])
+    yaw = 0.4
+    ang = np.linspace(0.2, 2.2, K)
+    cam = obj + 1.5 * np.stack([np.cos(ang + yaw), np.sin(ang + yaw)], 1)
+    tr = E.TrackData(images=tuple(f"im{k}" for k in range(K)), cam_xy=cam, obj_xy=obj, yaw=yaw,
+                     dropout=np.zeros((K, n_s, models.n_components)))
+    mu, _ = models.marginal(tr.inputs(cam))                     # (K, C, F)
+    drop = mu[:, truth, None, :] + rng.normal(0, 0.02, (K, n_s, models.n_components))
+    return E.TrackData(tr.images, cam, obj, yaw, drop)
+
+
+def test_inputs_are_unit_vectors_in_the_object_frame():
+    m = ring_models()
+    tr = make_track(m)
+    u = tr.inputs(tr.cam_xy)
+    np.testing.assert_allclose(np.linalg.norm(u, axis=-1), 1.0)
+    # Object frame: bearing of the camera relative to the object, minus the yaw.
+    rel = tr.cam_xy - tr.obj_xy
+    np.testing.assert_allclose(np.arctan2(u[:, 1], u[:, 0]),
+                               np.angle(np.exp(1j * (np.arctan2(rel[:, 1], rel[:, 0]) - tr.yaw))))
+
+
+def test_no_error_both_methods_find_the_truth():
+    m = ring_models()
+    tr = make_track(m, truth=1)
+    posts = E.biased(m, tr, (0.0, 0.0), 0.0, 3, np.random.default_rng(0), var_floor=1e-6)
+    for p in posts.values():
+        assert p.shape == (1, tr.k, 3)
+        np.testing.assert_allclose(p.sum(-1), 1.0)
+        assert p[0, -1].argmax() == 1
+
+
+def test_model_based_uses_biased_estimates():
+    m = ring_models()
+    tr = make_track(m)
+    bias = np.array([0.3, -0.2])
+    posts = E.biased(m, tr, bias, 0.3, 4, np.random.default_rng(0), var_floor=1e-6)
+    direct = fuse_model_based(m, tr.inputs(tr.cam_xy + bias), tr.measurement, progress=False)
+    np.testing.assert_allclose(posts[E.MODEL_BASED][0], direct, atol=1e-12)
+
+
+def test_randomized_is_deterministic_and_chunk_independent():
+    m = ring_models()
+    tr = make_track(m)
+    a = E.randomized(m, tr, (0.1, 0.0), 0.2, 7, 5, np.random.default_rng(3), var_floor=1e-6, chunk=7)
+    b = E.randomized(m, tr, (0.1, 0.0), 0.2, 7, 5, np.random.default_rng(3), var_floor=1e-6, chunk=7)
+    for k in E.METHODS:
+        assert a[k].shape == (7, tr.k, 3)
+        np.testing.assert_array_equal(a[k], b[k])
+    # Realizations differ from each other (the estimates are random).
+    assert np.ptp(np.log(a[E.MODEL_BASED][:, 0, 2])) > 1.0
+
+
+def test_long_rows_and_summary():
+    m = ring_models()
+    tr = make_track(m, truth=2)
+    posts = E.randomized(m, tr, (0.0, 0.0), 0.1, 4, 3, np.random.default_rng(0), var_floor=1e-6)
+    df = E.long_rows("randomized", "s", 0.1, (0.0, 0.0), posts, 2)
+    assert len(df) == 2 * 4 * tr.k
+    row = df.iloc[5]
+    p = posts[row["method"]][row["realization"], row["step"]]
+    np.testing.assert_allclose(row["posterior"], p)
+    assert row["p_truth"] == pytest.approx(p[2])
+    assert row["log_mgr"] == pytest.approx(np.log(p.max() / p[2]))
+    assert row["correct"] == (p.argmax() == 2)
+    s = E.summarize(posts, 2)
+    for meth, v in s.items():
+        corr = posts[meth].argmax(-1) == 2
+        assert v["correct_final"] == pytest.approx(corr[:, -1].mean())
+        assert v["correct_overall"] == pytest.approx(corr.mean())
+        lm = np.log(posts[meth].max(-1) / posts[meth][..., 2])
+        assert v["mgr95_final"] == pytest.approx(np.exp(np.percentile(lm[:, -1], 95)))
+        assert v["mgr75_final"] >= 1.0
+
+
+def test_bias_maps_zero_bias_matches_single_view():
+    m = ring_models()
+    tr = make_track(m)
+    axis, post = E.bias_maps(m, tr, 0.4, 5)
+    assert post.shape == (tr.k, 3, 5, 5)
+    np.testing.assert_allclose(post.sum(1), 1.0)
+    k = 2
+    single = fuse_model_based(m, tr.inputs(tr.cam_xy[k:k + 1]), tr.measurement[k:k + 1], progress=False)[0]
+    np.testing.assert_allclose(post[k, :, 2, 2], single, atol=1e-12)   # centre of the grid = no bias
+    # [iy, ix] layout: bias (axis[ix], axis[iy])
+    shifted = fuse_model_based(m, tr.inputs(tr.cam_xy[k:k + 1] + [axis[4], axis[0]]),
+                               tr.measurement[k:k + 1], progress=False)[0]
+    np.testing.assert_allclose(post[k, :, 0, 4], shifted, atol=1e-12)
+
+
+def test_gp_rasters_match_marginal_predictions():
+    m = ring_models()
+    r = E.gp_rasters(m, grid_n=5, ring_n=8)
+    assert r["raster_mean"].shape == (3, 2, 5, 5)
+    g = r["grid"]
+    mu, var = m.marginal(np.array([[g[3], g[1]]]))              # x = g[3], y = g[1] -> [iy=1, ix=3]
+    np.testing.assert_allclose(r["raster_mean"][:, :, 1, 3], mu[0])
+    np.testing.assert_allclose(r["raster_std"][:, :, 1, 3], np.sqrt(var[0]))
+    assert r["train_y"].shape == (3, 2, 24)
