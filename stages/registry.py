@@ -22,7 +22,7 @@ class StageSpec:
 STAGES: dict[str, StageSpec] = {s.name: s for s in (
     StageSpec("data", "stages.data", (), ("data",),
               ("stages.data", "loaders.synthetic", "loaders.pbm", "loaders.errors", "loaders.avd",
-               "loaders.bigbird"),
+               "loaders.bigbird", "pipeline.cache"),
               "render the synthetic BigBIRD/AVD stand-ins, or validate the real dataset paths"),
     StageSpec("classifier", "stages.classifier", (), ("classifier",),
               ("stages.classifier", "pipeline.classifier"),

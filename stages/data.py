@@ -1,0 +1,212 @@
+"""Stage ``data``: render the synthetic stand-ins, or check the real dataset paths.
+
+Synthetic (``data.source = "synthetic"``) writes, under the stage folder,
+``bigbird/<object>/...`` (BigBIRD object folders), ``avd/instance_id_map.txt`` and
+``avd/<scan>/...`` (an AVD root), and ``truth.json`` (object poses in the scan; no reader needs
+it). Views are rendered by ``data.synthetic.workers`` processes; every view draws its randomness
+from (seed, its own name), so the files do not depend on the worker count or order.
+
+Real (``data.source = "real"``) only checks that the configured roots hold what the readers need
+and writes ``roots.json``; nothing is copied. ``data_roots(cfg)`` tells later stages where the
+BigBIRD and AVD roots are in either case.
+"""
+from __future__ import annotations
+
+import hashlib
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from tqdm import tqdm
+
+from loaders.errors import BadInputError
+from pipeline.cache import tree_fingerprint, write_json
+
+CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
+
+
+def data_roots(cfg) -> tuple[Path, Path]:
+    """(BigBIRD root, AVD root): the stage's subfolders for synthetic data, the config paths for
+    real data."""
+    if cfg.data.source == "real":
+        return cfg.resolve(cfg.data.bigbird_root), cfg.resolve(cfg.data.avd_root)
+    d = cfg.stage_dir("data")
+    return d / "bigbird", d / "avd"
+
+
+def extra_key(cfg) -> str:
+    """Real data: a cheap fingerprint of the inputs, so edits to them rerun the pipeline. The scan
+    folder is fingerprinted file by file; each BigBIRD object folder by its calibration file and
+    the modification times of the folder and of masks/ and poses/ (files added, removed or
+    renamed; an in-place rewrite keeping the name needs --force)."""
+    if cfg.data.source != "real":
+        return ""
+    bb, avd = data_roots(cfg)
+    h = hashlib.sha256()
+    scan = avd / cfg.data.scan
+    h.update(tree_fingerprint(scan).encode() if scan.is_dir() else b"no scan")
+    for p in (avd / "instance_id_map.txt", bb):
+        h.update(_stat_line(p))
+    if bb.is_dir():
+        for obj in sorted(bb.iterdir()):
+            if (obj / "calibration.h5").is_file():
+                for p in (obj, obj / "calibration.h5", obj / "masks", obj / "poses"):
+                    h.update(_stat_line(p))
+    return h.hexdigest()
+
+
+def _stat_line(p: Path) -> bytes:
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        return f"{p}|missing\n".encode()
+    return f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode()
+
+
+def run(ctx) -> str:
+    cfg = ctx.cfg
+    if cfg.data.source == "real":
+        return _check_real(ctx)
+    return _write_synthetic(ctx)
+
+
+# ----------------------------------------------------------------------------------------------
+# Real data
+
+def _check_real(ctx) -> str:
+    from loaders.bigbird import list_objects
+
+    cfg = ctx.cfg
+    bb, avd = data_roots(cfg)
+    if not bb.is_dir():
+        raise BadInputError(bb, "'data.bigbird_root' is not an existing folder")
+    objects = list_objects(bb)
+    if not objects:
+        raise BadInputError(bb, "'data.bigbird_root' holds no BigBIRD object folder "
+                                "(a folder with calibration.h5, e.g. aunt_jemima_original_syrup/)")
+    if not avd.is_dir():
+        raise BadInputError(avd, "'data.avd_root' is not an existing folder")
+    if not (avd / "instance_id_map.txt").is_file():
+        raise BadInputError(avd / "instance_id_map.txt",
+                            "missing: the AVD root must hold instance_id_map.txt (downloaded separately)")
+    scan = avd / cfg.data.scan
+    if not scan.is_dir():
+        raise BadInputError(scan, f"scan folder for 'data.scan' = {cfg.data.scan!r} is missing from 'data.avd_root'")
+    for part in ("jpg_rgb", "annotations.json", "image_structs.mat"):
+        if not (scan / part).exists():
+            raise BadInputError(scan / part, f"missing from the scan folder {scan}")
+    n_images = sum(1 for p in (scan / "jpg_rgb").iterdir() if p.suffix.lower() == ".jpg")
+    if n_images == 0:
+        raise BadInputError(scan / "jpg_rgb", "holds no .jpg image")
+    write_json(ctx.out / "roots.json", {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
+                                        "scan": cfg.data.scan, "bigbird_objects": objects,
+                                        "avd_images": n_images})
+    ctx.extra.update({"bigbird_objects": len(objects), "avd_images": n_images})
+    return f"real data: {len(objects)} BigBIRD objects in {bb}; {cfg.data.scan}: {n_images} images in {avd}"
+
+
+# ----------------------------------------------------------------------------------------------
+# Synthetic stand-ins
+
+def _work(task: tuple):
+    """One worker task (module-level so processes can import it)."""
+    kind = task[0]
+    if kind == "bigbird-meta":
+        from loaders.synthetic.bigbird_writer import make_rig, write_object_metadata
+        _, folder, syn, _seed = task
+        write_object_metadata(Path(folder), make_rig(syn.bigbird_width, syn.bigbird_height), syn.angle_step_deg)
+        return kind, 0, None
+    if kind == "bigbird-views":
+        from loaders.synthetic.bigbird_writer import make_rig, write_view
+        from loaders.synthetic.objects import make_instance
+        _, folder, syn, seed, name, views = task
+        rig = make_rig(syn.bigbird_width, syn.bigbird_height)
+        inst = make_instance(name, seed)
+        for c, a in views:
+            write_view(Path(folder), inst, rig, c, a, seed=seed, quality=syn.jpeg_quality,
+                       write_depth=syn.write_depth)
+        return kind, len(views), None
+    if kind == "avd-shots":
+        from loaders.synthetic.avd_writer import plan_scan, write_shot
+        _, folder, syn, scan, seed, indices = task
+        plan = plan_scan(syn, scan, seed)
+        boxes = {}
+        for i in indices:
+            shot = plan.shots[i]
+            boxes[shot.name], _ = write_shot(Path(folder), plan, shot)
+        return kind, len(indices), boxes
+    raise ValueError(f"unknown task {kind!r}")  # pragma: no cover
+
+
+def _init_worker() -> None:
+    import cv2
+    cv2.setNumThreads(1)  # one process per core already
+
+
+def _write_synthetic(ctx) -> str:
+    from loaders.synthetic.avd_writer import plan_scan, truth, write_scan_metadata
+    from loaders.synthetic.bigbird_writer import angles
+    from loaders.synthetic.objects import CATEGORY_NAMES, make_instance
+
+    cfg = ctx.cfg
+    syn, seed, scan = cfg.data.synthetic, cfg.data.seed, cfg.data.scan
+    bb_root, avd_root = ctx.out / "bigbird", ctx.out / "avd"
+    t0 = time.perf_counter()
+    plan = plan_scan(syn, scan, seed)  # validates names, room and grid before any work starts
+
+    tasks: list[tuple] = []
+    views = [(c, a) for c in syn.bigbird_cameras for a in angles(syn.angle_step_deg)]
+    for name in syn.instances:
+        folder = str(bb_root / name)
+        tasks.append(("bigbird-meta", folder, syn, seed))
+        for k in range(0, len(views), CHUNK):
+            tasks.append(("bigbird-views", folder, syn, seed, name, views[k:k + CHUNK]))
+    n_shots = len(plan.shots)
+    for k in range(0, n_shots, CHUNK):
+        tasks.append(("avd-shots", str(avd_root / scan), syn, scan, seed, list(range(k, min(k + CHUNK, n_shots)))))
+    total = len(views) * len(syn.instances) + n_shots
+
+    boxes: dict[str, list] = {}
+    bar = tqdm(total=total, desc="data: render views", unit="view")
+    if syn.workers > 1:
+        ctx_mp = multiprocessing.get_context("spawn")  # no fork after OpenCV threads started
+        with ProcessPoolExecutor(syn.workers, mp_context=ctx_mp, initializer=_init_worker) as pool:
+            results = pool.map(_work, tasks)
+            for kind, n, res in results:
+                if kind == "avd-shots":
+                    boxes.update(res)
+                bar.update(n)
+    else:
+        for task in tasks:
+            kind, n, res = _work(task)
+            if kind == "avd-shots":
+                boxes.update(res)
+            bar.update(n)
+    bar.close()
+    write_scan_metadata(avd_root, plan, boxes)
+    sidecar = truth(plan)
+    sidecar["seed"] = seed
+    sidecar["bigbird"] = {"cameras": list(syn.bigbird_cameras), "angles": angles(syn.angle_step_deg),
+                          "image_size": [syn.bigbird_width, syn.bigbird_height]}
+    for name in syn.instances:
+        inst = make_instance(name, seed)
+        sidecar["instances"][name].update({
+            "height_m": inst.height,
+            "faces": {r: {"texture": key, "family": CATEGORY_NAMES[fam]} for r, (key, fam) in inst.spec.paint.items()},
+        })
+    write_json(ctx.out / "truth.json", sidecar)
+    write_json(ctx.out / "roots.json", {"source": "synthetic", "bigbird_root": "bigbird", "avd_root": "avd",
+                                        "scan": scan, "bigbird_objects": sorted(syn.instances)})
+    mb = _folder_bytes(ctx.out) / 1e6
+    n_boxes = sum(len(b) for b in boxes.values())
+    interp = sidecar["interpolated"]
+    ctx.extra.update({"bigbird_views": len(views) * len(syn.instances), "avd_images": n_shots,
+                      "avd_interpolated": interp, "avd_boxes": n_boxes, "megabytes": round(mb, 1),
+                      "workers": syn.workers, "seconds": round(time.perf_counter() - t0, 2)})
+    return (f"synthetic: {len(syn.instances)} BigBIRD objects x {len(views)} views, {scan}: {n_shots} images "
+            f"({interp} interpolated, {n_boxes} boxes); {mb:.0f} MB")
+
+
+def _folder_bytes(root: Path) -> int:
+    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())

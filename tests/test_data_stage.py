@@ -1,0 +1,131 @@
+"""Stage ``data`` through the runner: outputs, manifest, skip-on-rerun, workers, real-data checks."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from loaders.avd import AVDScan
+from loaders.bigbird import BigBirdObject, list_objects
+from loaders.errors import BadInputError
+from loaders.synthetic.avd_writer import plan_scan
+from pipeline.config import _merge
+from stages.data import data_roots, extra_key
+from stages.runner import ensure, read_manifest
+
+TINY = {"data": {"synthetic": {
+    "bigbird_width": 128, "bigbird_height": 96, "angle_step_deg": 120, "avd_width": 96, "avd_height": 54,
+    "room_size_m": [2.4, 2.1], "grid_step_m": 0.6, "distractors": 2, "workers": 1}}}
+
+
+def _files(root):
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.name != "manifest.json"}
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    from pipeline.config import load_config
+    from tests.conftest import DEFAULT_CONFIG
+
+    art = tmp_path_factory.mktemp("art")
+    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(art)}}))
+    ensure(cfg, "data")
+    return cfg
+
+
+def test_stage_writes_both_roots_truth_and_manifest(built):
+    cfg = built
+    out = cfg.stage_dir("data")
+    m = read_manifest(cfg, "data")
+    assert m["stage"] == "data" and "synthetic" in m["summary"]
+    assert m["extra"]["bigbird_views"] == 6 * 3 and m["extra"]["avd_images"] % 12 == 0
+    bb, avd = data_roots(cfg)
+    assert (bb, avd) == (out / "bigbird", out / "avd")
+    assert list_objects(bb) == sorted(cfg.data.synthetic.instances)
+    assert len(BigBirdObject(bb / "pepto_bismol").views()) == 3
+    scan = AVDScan(avd, cfg.data.scan)
+    assert len(scan.images) == m["extra"]["avd_images"]
+    assert sum(len(i.boxes) for i in scan.images.values()) == m["extra"]["avd_boxes"]
+    roots = json.loads((out / "roots.json").read_text())
+    assert roots["source"] == "synthetic" and roots["scan"] == "Home_001_1"
+
+
+def test_truth_sidecar_matches_the_generator(built):
+    cfg = built
+    truth = json.loads((cfg.stage_dir("data") / "truth.json").read_text())
+    plan = plan_scan(cfg.data.synthetic, cfg.data.scan, cfg.data.seed)
+    assert truth["scan"] == cfg.data.scan and truth["image_size"] == [96, 54]
+    assert np.allclose(truth["intrinsics"], plan.K)
+    assert np.allclose(truth["grid_points"], plan.room.grid_xy)
+    assert set(truth["instances"]) == set(cfg.data.synthetic.instances)
+    for p in plan.room.placements:
+        t = truth["instances"][p.name]
+        assert t["id"] == p.instance_id and np.allclose(t["position"], p.position)
+        assert t["yaw_deg"] == p.yaw_deg and t["base_height_m"] == p.base_height
+        assert set(t["faces"]) == {"front", "left", "back", "right"}
+    # Two instances share a face texture (single views alias between classes).
+    keys = [f["texture"] for t in truth["instances"].values() for f in t["faces"].values()]
+    shared = {k for k in keys if k.startswith("shared/")}
+    owners = {k: {n for n, t in truth["instances"].items() if any(f["texture"] == k for f in t["faces"].values())}
+              for k in shared}
+    assert any(len(o) >= 2 for o in owners.values())
+
+
+def test_rerun_is_skipped_and_force_rewrites(built, capsys):
+    cfg = built
+    out = cfg.stage_dir("data")
+    jpg = out / "bigbird" / "mahatma_rice" / "NP1_0.jpg"
+    before_m, before_t = read_manifest(cfg, "data"), jpg.stat().st_mtime_ns
+    capsys.readouterr()
+    ensure(cfg, "data")
+    assert "up to date" in capsys.readouterr().out
+    assert read_manifest(cfg, "data") == before_m and jpg.stat().st_mtime_ns == before_t
+    ensure(cfg, "data", force=True)
+    assert jpg.stat().st_mtime_ns != before_t
+    assert read_manifest(cfg, "data")["key"] == before_m["key"]
+
+
+def test_output_does_not_depend_on_worker_count(built, tmp_config):
+    two = tmp_config(_merge(TINY, {"data": {"synthetic": {"workers": 2}}}))
+    ensure(two, "data")
+    a, b = _files(built.stage_dir("data")), _files(two.stage_dir("data"))
+    assert a.keys() == b.keys()
+    assert [k for k in a if a[k] != b[k]] == []
+    # A different seed is a different data set, and a different cache key.
+    other = tmp_config(_merge(TINY, {"data": {"seed": 1}}))
+    ensure(other, "data")
+    assert read_manifest(other, "data")["key"] != read_manifest(built, "data")["key"]
+    c = _files(other.stage_dir("data"))
+    assert c["truth.json"] != a["truth.json"]
+
+
+def test_real_source_validates_paths_and_fingerprints_inputs(built, tmp_config, tmp_path):
+    src_bb, src_avd = data_roots(built)
+    bb, avd = tmp_path / "bb", tmp_path / "avd"
+    shutil.copytree(src_bb, bb)
+    shutil.copytree(src_avd, avd)
+    real = tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd)}})
+    assert data_roots(real) == (bb, avd)
+    ensure(real, "data")
+    roots = json.loads((real.stage_dir("data") / "roots.json").read_text())
+    assert roots["bigbird_objects"] == list_objects(bb) and roots["avd_root"] == str(avd)
+    assert not (real.stage_dir("data") / "bigbird").exists()  # nothing copied
+    key = extra_key(real)
+    assert key == extra_key(real)
+    (avd / "Home_001_1" / "jpg_rgb" / "extra.txt").write_text("x")
+    assert extra_key(real) != key
+    assert extra_key(built) == ""
+
+    (avd / "Home_001_1" / "annotations.json").unlink()
+    with pytest.raises(BadInputError, match="annotations.json"):
+        ensure(real, "data", force=True)
+    missing = tmp_config({"data": {"source": "real", "bigbird_root": str(tmp_path / "nope"), "avd_root": str(avd)}})
+    with pytest.raises(BadInputError, match="nope"):
+        ensure(missing, "data")
+    wrong_scan = tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
+                                      "scan": "Home_002_1"}})
+    with pytest.raises(BadInputError, match="Home_002_1"):
+        ensure(wrong_scan, "data")
