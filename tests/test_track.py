@@ -1,0 +1,74 @@
+import numpy as np
+import pytest
+
+from pipeline.track import (TrackError, bearing_rays, facing_error, intersect_rays,
+                            select_track)
+
+
+def project_cx(cam_xy, heading, obj_xy, fx, cx):
+    """Column of the object in each camera (pinhole, no roll): right of centre = clockwise."""
+    rel = obj_xy - cam_xy
+    ang = np.arctan2(rel[:, 1], rel[:, 0]) - heading
+    return cx - fx * np.tan(ang)
+
+
+def ring(n, radius, centre, rng, jitter=0.0):
+    th = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    p = centre + radius * np.stack([np.cos(th), np.sin(th)], 1)
+    rel = centre - p
+    heading = np.arctan2(rel[:, 1], rel[:, 0]) + rng.uniform(-jitter, jitter, n)
+    return p, heading
+
+
+def test_rays_intersect_at_the_object():
+    rng = np.random.default_rng(0)
+    obj = np.array([1.3, -0.4])
+    cam, heading = ring(9, 1.2, obj, rng, jitter=0.4)
+    fx, cx = 500.0, 320.0
+    u = project_cx(cam, heading, obj, fx, cx)
+    o, d = bearing_rays(cam, heading, u, fx, cx)
+    np.testing.assert_allclose(intersect_rays(o, d), obj, atol=1e-9)
+
+
+def test_intersection_with_pixel_noise_is_close():
+    rng = np.random.default_rng(1)
+    obj = np.array([0.0, 2.0])
+    cam, heading = ring(12, 1.5, obj, rng, jitter=0.3)
+    u = project_cx(cam, heading, obj, 500.0, 320.0) + rng.normal(0, 2.0, 12)
+    est = intersect_rays(*bearing_rays(cam, heading, u, 500.0, 320.0))
+    assert np.linalg.norm(est - obj) < 0.03
+
+
+def test_parallel_rays_are_rejected():
+    o = np.array([[0.0, 0.0], [0.0, 1.0]])
+    d = np.array([[1.0, 0.0], [1.0, 0.0]])
+    with pytest.raises(TrackError, match="parallel"):
+        intersect_rays(o, d)
+    with pytest.raises(TrackError, match="at least 2"):
+        intersect_rays(o[:1], d[:1])
+
+
+def test_select_track_distinct_points_ordered_by_bearing():
+    rng = np.random.default_rng(2)
+    obj = np.array([0.0, 0.0])
+    # a 0.3 m grid around the object, 12 headings per point
+    g = np.arange(-1.5, 1.51, 0.3)
+    pts = np.array([(x, y) for x in g for y in g if np.hypot(x, y) > 0.6])
+    cam = np.repeat(pts, 12, axis=0)
+    heading = np.tile(np.radians(np.arange(12) * 30.0), len(pts))
+    err = facing_error(cam, heading, obj)
+    keep = err < np.radians(25)
+    cam, heading, err = cam[keep], heading[keep], err[keep]
+    choice = select_track(cam, obj, err, 9, grid_step=0.3, max_arc_deg=180)
+    chosen = cam[choice.index]
+    assert len({tuple(np.round(p, 3)) for p in chosen}) == 9         # distinct grid points
+    b = np.unwrap(np.radians(choice.bearing_deg))
+    assert np.all(np.diff(b) > 0)                                     # ordered along the arc
+    assert 150 <= choice.arc_deg <= 180.0 + 1e-9                      # spread over the arc
+    assert np.all(err[choice.index] <= np.radians(25))
+
+
+def test_select_track_too_few_views():
+    cam = np.array([[1.0, 0.0], [0.0, 1.0]])
+    with pytest.raises(TrackError, match="only 2 distinct viewpoints"):
+        select_track(cam, np.zeros(2), np.zeros(2), 5)
