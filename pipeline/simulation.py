@@ -1,0 +1,339 @@
+"""Simulation scenarios of the paper's §5.3: GP class models from hand-specified responses, a
+straight track past the object, the measurement generator of Algorithm 2 and the realization loop.
+
+Pure functions over arrays and the ``[simulate]`` config section; the ``simulate`` stage does the
+I/O and ``reports.simulate_report`` the figures.
+
+Frames: the object sits at the origin with yaw 0, so a robot position *is* its relative position
+``r`` and the GP input (plain 2D, not projected on the unit circle). The robot moves east (+x).
+
+Scenarios (all three methods, many realizations, deterministic for a seed):
+
+* ``model_uncertainty`` (Algorithm 2): per step k a *nominal* measurement drawn from the
+  ground-truth class's GP conditioned on the past nominal measurements; an uncertainty level
+  σ_u² ~ U(0, σ_max²); a *noised* measurement ~ N(nominal, σ_u² I); N_s samples ~ N(noised,
+  σ_u² I). Model Based and Simple Bayes get the noised measurement, Model with Uncertainty the
+  samples. Exact poses (N_x = 1).
+* ``localization_bias``: no model uncertainty (measurement = nominal, drawn at the true poses);
+  every pose estimate shifted by a constant easting bias. Model Based uses the biased estimates;
+  Model with Uncertainty gets the single measurement (its sample variance 0 is floored) and N_x
+  localization samples N(biased estimate, σ² I) with the σ it is told.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+
+from pipeline import metrics as M
+from pipeline.config import ConfigError, SimulateConfig
+from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
+from pipeline.geometry import sample_localization
+from pipeline.gp import GPClassModels, fit_class_models
+
+SCENARIOS = ("model_uncertainty", "localization_bias")
+WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES = "with_uncertainty", "model_based", "simple_bayes"
+METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
+N_CLASSES = 3  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)
+
+
+# -- class models ----------------------------------------------------------------------------------
+def class_scores(sim: SimulateConfig) -> np.ndarray:
+    """The hand-specified score vectors, (C, A, F): class, view angle, component."""
+    return np.stack([np.asarray(getattr(sim, f"scores_class{c + 1}"), float).reshape(-1, N_CLASSES)
+                     for c in range(N_CLASSES)])
+
+
+def validate(sim: SimulateConfig, where: str = "config") -> None:
+    """Cross-key checks of the ``[simulate]`` section; errors name the file and the key."""
+    def need(ok: bool, msg: str) -> None:
+        if not ok:
+            raise ConfigError(f"{where}: {msg}")
+
+    A = len(sim.view_angles_deg)
+    need(A >= 2, "'simulate.view_angles_deg' must list at least two angles")
+    need(len(set(sim.view_angles_deg)) == A, "'simulate.view_angles_deg' has repeated angles")
+    need(len(sim.view_radii) >= 1 and min(sim.view_radii) > 0,
+         "'simulate.view_radii' must list positive radii")
+    for c in range(N_CLASSES):
+        key = f"scores_class{c + 1}"
+        v = getattr(sim, key)
+        need(len(v) == N_CLASSES * A,
+             f"'simulate.{key}' must hold {N_CLASSES} scores per angle of 'simulate.view_angles_deg' "
+             f"({N_CLASSES} x {A} = {N_CLASSES * A} values), got {len(v)}")
+        rows = np.asarray(v, float).reshape(A, N_CLASSES)
+        bad = np.flatnonzero(np.abs(rows.sum(axis=1) - 1.0) > 0.05)
+        need(bad.size == 0, f"'simulate.{key}': the score vector at angle "
+             f"{sim.view_angles_deg[bad[0]] if bad.size else 0:g}° sums to "
+             f"{rows[bad[0]].sum() if bad.size else 1:.3f}, not 1 (scores must be probability-like)")
+    need(len(sim.class_names) == N_CLASSES and len(set(sim.class_names)) == N_CLASSES,
+         f"'simulate.class_names' must list {N_CLASSES} distinct names")
+    need(len(sim.track_start) == 2, "'simulate.track_start' must be [x, y]")
+    need(len(set(sim.scenarios)) == len(sim.scenarios) and len(sim.scenarios) >= 1,
+         "'simulate.scenarios' must list distinct scenarios")
+    for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds"):
+        b = getattr(sim, key)
+        need(len(b) == 2 and 0 < b[0] < b[1], f"'simulate.{key}' must be [low, high] with 0 < low < high")
+    need(sim.example_realization < sim.realizations,
+         f"'simulate.example_realization' = {sim.example_realization} must be below "
+         f"'simulate.realizations' = {sim.realizations}")
+
+
+def model_points(sim: SimulateConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Training inputs X (P, 2) (every angle at every radius) and targets Y (C, F, P)."""
+    ang = np.deg2rad(np.asarray(sim.view_angles_deg, float))
+    rad = np.asarray(sim.view_radii, float)
+    X = np.concatenate([np.stack([r * np.cos(ang), r * np.sin(ang)], -1) for r in rad])
+    S = class_scores(sim)                                   # (C, A, F)
+    Y = np.concatenate([S] * len(rad), axis=1).transpose(0, 2, 1)   # (C, F, P)
+    return X, np.ascontiguousarray(Y)
+
+
+def fit_models(sim: SimulateConfig, *, progress: bool = True) -> tuple[GPClassModels, list[dict]]:
+    """One GP per (class, component), fitted with scikit-learn to the hand-specified responses."""
+    X, Y = model_points(sim)
+    return fit_class_models([X] * N_CLASSES, list(Y), list(sim.class_names), list(range(N_CLASSES)),
+                            restarts=sim.restarts, amplitude_bounds=tuple(sim.amplitude_bounds),
+                            length_scale_bounds=tuple(sim.length_scale_bounds),
+                            noise_bounds=tuple(sim.noise_bounds), seed=sim.seed,
+                            component_names=[f"score {n}" for n in sim.class_names], progress=progress)
+
+
+def track_positions(start, length: float, steps: int) -> np.ndarray:
+    """K evenly spaced positions (K, 2) on a straight eastward line from ``start``."""
+    x0, y0 = (float(v) for v in start)
+    xs = x0 + np.linspace(0.0, float(length), int(steps))
+    return np.stack([xs, np.full_like(xs, y0)], axis=-1)
+
+
+# -- the measurement generator (Algorithm 2) --------------------------------------------------------
+def draw_nominal(mu: np.ndarray, cov: np.ndarray, rng: np.random.Generator, n: int | None = None,
+                 *, jitter: float = 1e-10) -> np.ndarray:
+    """Nominal measurements along the track: mu (F, K), cov (F, K, K) -> (K, F), or (n, K, F).
+
+    Algorithm 2 draws step k from the GP conditioned on the nominal draws of steps 0..k-1. With
+    the lower Cholesky factor ``cov = L Lᵀ`` and z ~ N(0, I), ``x = mu + L z`` is exactly that
+    sequence: x_k depends on z_0..z_k only, and given x_0..x_{k-1} (equivalently z_0..z_{k-1})
+    it is ``mu_k + Σ_{j<k} L_kj z_j + L_kk z_k`` = N(conditional mean, L_kk²), the GP conditional
+    ``Σ_{k,past} Σ_past⁻¹`` regression and Schur complement. So one triangular product draws all
+    steps in order. Components are independent (paper Eq. 17).
+    """
+    mu = np.asarray(mu, float)
+    cov = np.asarray(cov, float)
+    F, K = mu.shape
+    if cov.shape != (F, K, K):
+        raise ValueError(f"draw_nominal: cov must be ({F}, {K}, {K}) for mu {mu.shape}, got {cov.shape}")
+    L = np.linalg.cholesky(cov + jitter * np.eye(K))
+    z = rng.standard_normal((1 if n is None else n, F, K))
+    x = mu[None] + np.einsum("fkj,nfj->nfk", L, z)
+    x = x.transpose(0, 2, 1)                                # (n, K, F)
+    return x[0] if n is None else x
+
+
+def conditional(mu: np.ndarray, cov: np.ndarray, k: int, past: np.ndarray) -> tuple[float, float]:
+    """GP conditional of step k given the values ``past`` (k,) at steps 0..k-1, one component.
+
+    Written out literally (explicit solve, no Cholesky) as the reference the generator is tested
+    against: mean ``mu_k + Σ_{k,p} Σ_p⁻¹ (past - mu_p)``, variance ``Σ_kk - Σ_{k,p} Σ_p⁻¹ Σ_{p,k}``.
+    """
+    if k == 0:
+        return float(mu[0]), float(cov[0, 0])
+    Sp = cov[:k, :k]
+    s = cov[k, :k]
+    w = np.linalg.solve(Sp, s)
+    return float(mu[k] + w @ (np.asarray(past, float) - mu[:k])), float(cov[k, k] - w @ s)
+
+
+def draw_sigma_u2(shape, sigma_max: float, rng: np.random.Generator) -> np.ndarray:
+    """Per-step uncertainty levels σ_u² ~ U(0, σ_max²)."""
+    return rng.uniform(0.0, float(sigma_max) ** 2, size=shape)
+
+
+def perturb(nominal: np.ndarray, sigma_u2: np.ndarray, n_samples: int,
+            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Noised measurements ~ N(nominal, σ_u² I) and N_s samples ~ N(noised, σ_u² I) per step.
+
+    nominal (..., K, F), sigma_u2 (..., K) -> noised (..., K, F), samples (..., K, N_s, F).
+    """
+    nominal = np.asarray(nominal, float)
+    sd = np.sqrt(np.asarray(sigma_u2, float))[..., None]   # (..., K, 1)
+    if sd.shape[:-1] != nominal.shape[:-1]:
+        raise ValueError(f"perturb: sigma_u2 {np.shape(sigma_u2)} does not match nominal {nominal.shape[:-1]}")
+    noised = nominal + sd * rng.standard_normal(nominal.shape)
+    eps = rng.standard_normal(nominal.shape[:-1] + (int(n_samples),) + nominal.shape[-1:])
+    samples = noised[..., None, :] + sd[..., None] * eps
+    return noised, samples
+
+
+def to_simplex(scores: np.ndarray, floor: float) -> np.ndarray:
+    """Simple Bayes needs probability vectors: clip each score to >= ``floor`` (a Gaussian
+    measurement can go negative, and a zero would rule a class out for good), then normalise."""
+    s = np.maximum(np.asarray(scores, float), float(floor))
+    return s / s.sum(axis=-1, keepdims=True)
+
+
+# -- realizations ---------------------------------------------------------------------------------------
+@dataclass
+class Draws:
+    """What the methods get in one batch of realizations (R = batch size)."""
+    nominal: np.ndarray        # (R, K, F) draws from the truth's GP at the true poses
+    sigma_u2: np.ndarray       # (R, K) uncertainty levels (zeros without model uncertainty)
+    noised: np.ndarray         # (R, K, F) Model Based / Simple Bayes measurement
+    samples: np.ndarray        # (R, K, N_s, F) Model with Uncertainty's measurement samples
+    estimates: np.ndarray      # (R, K, 2) pose estimates (Model Based)
+    loc_samples: np.ndarray    # (R, N_x, K, 2) localization samples (Model with Uncertainty)
+
+
+def realization_rng(seed: int, scenario: str, r: int) -> np.random.Generator:
+    """One generator per (scenario, realization): results do not depend on the batch size."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), SCENARIOS.index(scenario), int(r)]))
+
+
+def draw_realization(scenario: str, sim: SimulateConfig, mu: np.ndarray, cov: np.ndarray,
+                     true_xy: np.ndarray, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """One realization's inputs for the three methods. ``mu`` (F, K), ``cov`` (F, K, K): the
+    ground-truth class's joint predictive at the true poses ``true_xy`` (K, 2)."""
+    K = len(true_xy)
+    nominal = draw_nominal(mu, cov, rng)                    # (K, F)
+    if scenario == "model_uncertainty":
+        s2 = draw_sigma_u2(K, sim.sigma_max, rng)
+        noised, samples = perturb(nominal, s2, sim.n_samples, rng)
+        est = true_xy.copy()
+        loc = true_xy[None].copy()                          # N_x = 1: exact poses
+    elif scenario == "localization_bias":
+        s2 = np.zeros(K)
+        noised = nominal.copy()
+        samples = nominal[:, None, :].copy()                # one sample: variance 0, floored by the fusion
+        est = true_xy + np.array([sim.bias_east, 0.0])
+        loc = sample_localization(est, sim.sigma_loc, sim.n_loc_samples, rng)
+    else:
+        raise ValueError(f"unknown scenario {scenario!r} (known: {', '.join(SCENARIOS)})")
+    return {"nominal": nominal, "sigma_u2": s2, "noised": noised, "samples": samples,
+            "estimates": est, "loc_samples": loc}
+
+
+def draw_batch(scenario: str, sim: SimulateConfig, mu, cov, true_xy, realizations) -> Draws:
+    parts = [draw_realization(scenario, sim, mu, cov, true_xy, realization_rng(sim.seed, scenario, r))
+             for r in realizations]
+    return Draws(**{k: np.stack([p[k] for p in parts]) for k in parts[0]})
+
+
+def fuse_batch(models: GPClassModels, d: Draws, sim: SimulateConfig) -> dict[str, np.ndarray]:
+    """The three methods on one batch: posteriors (R, K, C) per method (prior uniform)."""
+    return {
+        WITH_UNCERTAINTY: fuse_with_uncertainty(models, d.loc_samples, d.samples,
+                                                var_floor=sim.variance_floor, progress=False),
+        MODEL_BASED: fuse_model_based(models, d.estimates, d.noised, progress=False),
+        SIMPLE_BAYES: simple_bayes(to_simplex(d.noised, sim.simple_bayes_floor)),
+    }
+
+
+@dataclass
+class ScenarioResult:
+    scenario: str
+    posteriors: dict[str, np.ndarray]          # method -> (R, K, C)
+    example: dict[str, np.ndarray]             # the example realization's draws (see Draws)
+    true_xy: np.ndarray                        # (K, 2)
+    truth: int                                 # 0-based ground-truth class
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def run_scenario(models: GPClassModels, scenario: str, sim: SimulateConfig, *,
+                 realizations: int | None = None,
+                 progress: Callable[[int], None] | None = None) -> ScenarioResult:
+    """All realizations of one scenario, fused in batches of ``sim.chunk``."""
+    R = sim.realizations if realizations is None else int(realizations)
+    truth = sim.truth_class - 1
+    true_xy = track_positions(sim.track_start, sim.track_length, sim.track_steps)
+    mu, cov = models.predict(true_xy)                       # (C, F, K), (C, F, K, K)
+    mu_t, cov_t = mu[truth], cov[truth]
+    out: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
+    example: dict[str, np.ndarray] = {}
+    ex = min(sim.example_realization, R - 1)
+    for a in range(0, R, sim.chunk):
+        idx = range(a, min(R, a + sim.chunk))
+        d = draw_batch(scenario, sim, mu_t, cov_t, true_xy, idx)
+        post = fuse_batch(models, d, sim)
+        for m in METHODS:
+            out[m].append(post[m])
+        if a <= ex < idx.stop:
+            example = {k: getattr(d, k)[ex - a] for k in Draws.__dataclass_fields__}
+        if progress:
+            progress(len(idx))
+    posts = {m: np.concatenate(v) for m, v in out.items()}
+    for m, p in posts.items():
+        if not np.all(np.isfinite(p)):
+            raise RuntimeError(f"simulate/{scenario}: {m} produced non-finite posteriors")
+    return ScenarioResult(scenario, posts, example, true_xy, truth)
+
+
+# -- tables -------------------------------------------------------------------------------------------
+def long_rows(res: ScenarioResult) -> pd.DataFrame:
+    """One row per (realization, step, method): posterior and its metrics (like evaluate's)."""
+    frames = []
+    for method in METHODS:
+        p = res.posteriors[method]
+        R, K, C = p.shape
+        frames.append(pd.DataFrame({
+            "scenario": res.scenario,
+            "realization": np.repeat(np.arange(R, dtype=np.int32), K),
+            "step": np.tile(np.arange(K, dtype=np.int16), R),
+            "method": method,
+            "posterior": list(p.reshape(R * K, C)),
+            "p_truth": M.prob_truth(p, res.truth).ravel(),
+            "log_mgr": M.log_mgr(p, res.truth).ravel(),
+            "msde": M.msde(p, res.truth).ravel(),
+            "correct": M.correct(p, res.truth).ravel(),
+        }))
+    return pd.concat(frames, ignore_index=True)
+
+
+def example_rows(res: ScenarioResult, models: GPClassModels) -> pd.DataFrame:
+    """The example realization per (step, component), with every class's GP mean and std at the
+    true and at the estimated poses (the measurement figures, paper Figs. 2 and 4)."""
+    e = res.example
+    K, F = e["nominal"].shape
+    mu_t, var_t = models.marginal(res.true_xy)              # (K, C, F)
+    mu_e, var_e = models.marginal(e["estimates"])
+    rows = []
+    for k in range(K):
+        for f in range(F):
+            rows.append({
+                "scenario": res.scenario, "step": k, "component": f,
+                "true_x": float(res.true_xy[k, 0]), "true_y": float(res.true_xy[k, 1]),
+                "est_x": float(e["estimates"][k, 0]), "est_y": float(e["estimates"][k, 1]),
+                "nominal": float(e["nominal"][k, f]), "noised": float(e["noised"][k, f]),
+                "sigma_u2": float(e["sigma_u2"][k]),
+                "samples": e["samples"][k, :, f].astype(float),
+                "class_mean": mu_t[k, :, f].astype(float),
+                "class_std": np.sqrt(np.maximum(var_t[k, :, f], 0.0)),
+                "class_mean_est": mu_e[k, :, f].astype(float),
+            })
+    return pd.DataFrame(rows)
+
+
+def _mgr(log_mgr: pd.Series, q: float) -> float:
+    """MGR percentile as a ratio; +inf log MGR (truth probability underflowed) counts as a value."""
+    with np.errstate(over="ignore"):
+        return float(np.exp(M.percentile(log_mgr.to_numpy(float), q)))
+
+
+def summarize(df: pd.DataFrame) -> pd.DataFrame:
+    """Per (scenario, method): correct ratio final/overall, MGR 75%/95% final/overall.
+
+    MGR is the ratio max_c P(c) / P(truth) (1 = truth most likely): exp of log-MGR percentiles.
+    """
+    rows = []
+    for (scenario, method), g in df.groupby(["scenario", "method"], sort=False):
+        last = g[g["step"] == g["step"].max()]
+        rows.append({
+            "scenario": scenario, "method": method,
+            "correct_final": float(last["correct"].mean()),
+            "correct_overall": float(g["correct"].mean()),
+            "mgr75_final": _mgr(last["log_mgr"], 75), "mgr95_final": _mgr(last["log_mgr"], 95),
+            "mgr75_overall": _mgr(g["log_mgr"], 75), "mgr95_overall": _mgr(g["log_mgr"], 95),
+            "realizations": int(g["realization"].nunique()),
+        })
+    return pd.DataFrame(rows)
