@@ -1,0 +1,443 @@
+"""Per-class, viewpoint-dependent GP models of classifier scores (DESIGN §5, paper Eq. 13-17).
+
+One GP per (class c, component f): constant prior mean m (the training mean), kernel
+``k(x, x') = a·exp(-‖x - x'‖² / (2ℓ²))`` and white noise σ_n² on training *and* test
+measurements. Inputs are 2D: unit-circle viewing directions (real data) or plain relative positions
+(simulation scenarios); nothing here assumes the circle.
+
+``GPClassModels.predict`` is the joint predictive the fusion engine is built on; it equals
+scikit-learn's ``GaussianProcessRegressor(C*RBF + White).predict(X, return_cov=True)`` (fitted on
+Y - m, plus m). Train-test kernels are formed as large matrix products and the training solve is
+one triangular solve with the training Cholesky factor over all test rows, so a whole batch of
+trajectories costs a few BLAS calls per (class, component).
+
+Files: ``index.json`` plus one ``<class>.npz`` per class (arrays only; loading never unpickles).
+"""
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from pipeline.cache import atomic_path, write_json
+
+FORMAT = "viewfuse.gp_class_models"
+VERSION = 1
+KERNEL_TEXT = "a*exp(-|x-x'|^2/(2*l^2)) + noise*delta(x,x'), constant mean m"
+
+
+class ModelFileError(ValueError):
+    """A model folder or file is missing or malformed; the message names the file."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path, self.problem = str(path), problem
+        super().__init__(f"{path}: {problem}")
+
+
+@dataclass
+class _ClassFactors:
+    center: np.ndarray      # (d,) training-input centre: distances are computed on centred inputs
+    T: np.ndarray           # (N, d) centred training inputs
+    tsq: np.ndarray         # (N,) squared norms of T
+    alpha: np.ndarray       # (F, N) H (y - m)
+    L: list[np.ndarray]     # F Fortran-ordered lower Cholesky factors of K_T + σ_n² I
+
+
+class GPClassModels:
+    """C classes × F components of GPs; each class has its own training inputs.
+
+    Attributes: ``classes`` (C names), ``components`` (F score indices), ``X`` list of (N_c, d)
+    training inputs, ``Y`` list of (F, N_c) targets, ``mean``, ``amplitude``, ``length_scale``,
+    ``noise`` (C, F) hyperparameters (raw units), ``component_names`` (F or None), ``meta`` (dict).
+    """
+
+    def __init__(self, classes: Sequence[str], components: Sequence[int], X: Sequence[np.ndarray],
+                 Y: Sequence[np.ndarray], mean, amplitude, length_scale, noise, *,
+                 component_names: Sequence[str] | None = None, meta: dict | None = None):
+        self.classes = [str(c) for c in classes]
+        self.components = [int(i) for i in components]
+        C, F = len(self.classes), len(self.components)
+        if C < 1 or F < 1:
+            raise ValueError(f"GPClassModels: need at least one class and one component, got {C} and {F}")
+        if len(set(self.classes)) != C:
+            raise ValueError(f"GPClassModels: duplicate class names in {self.classes}")
+        if len(X) != C or len(Y) != C:
+            raise ValueError(f"GPClassModels: {C} classes but {len(X)} input sets and {len(Y)} target sets")
+        self.X = [np.ascontiguousarray(x, dtype=float) for x in X]
+        self.Y = [np.ascontiguousarray(y, dtype=float) for y in Y]
+        d = self.X[0].shape[-1] if self.X[0].ndim == 2 else -1
+        for c, (x, y) in enumerate(zip(self.X, self.Y)):
+            name = self.classes[c]
+            if x.ndim != 2 or x.shape[1] != d or len(x) < 1:
+                raise ValueError(f"GPClassModels: class {name!r}: inputs must be (N, {d}), got {x.shape}")
+            if y.shape != (F, len(x)):
+                raise ValueError(f"GPClassModels: class {name!r}: targets must be ({F}, {len(x)}), got {y.shape}")
+            if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+                raise ValueError(f"GPClassModels: class {name!r}: non-finite training inputs or targets")
+        self.mean = self._param(mean, "mean", C, F, positive=False)
+        self.amplitude = self._param(amplitude, "amplitude", C, F)
+        self.length_scale = self._param(length_scale, "length_scale", C, F)
+        self.noise = self._param(noise, "noise", C, F)
+        self.component_names = None if component_names is None else [str(s) for s in component_names]
+        if self.component_names is not None and len(self.component_names) != F:
+            raise ValueError(f"GPClassModels: {F} components but {len(self.component_names)} component names")
+        self.meta = dict(meta or {})
+        self._factors: list[_ClassFactors] | None = None
+
+    @staticmethod
+    def _param(v, name: str, C: int, F: int, positive: bool = True) -> np.ndarray:
+        a = np.array(v, dtype=float)
+        if a.shape != (C, F):
+            raise ValueError(f"GPClassModels: '{name}' must have shape ({C}, {F}), got {a.shape}")
+        if not np.all(np.isfinite(a)) or (positive and np.any(a <= 0)):
+            raise ValueError(f"GPClassModels: '{name}' must be finite{' and > 0' if positive else ''}: {a.tolist()}")
+        return a
+
+    # -- shape helpers ----------------------------------------------------------------------
+    @property
+    def n_classes(self) -> int:
+        return len(self.classes)
+
+    @property
+    def n_components(self) -> int:
+        return len(self.components)
+
+    @property
+    def input_dim(self) -> int:
+        return self.X[0].shape[1]
+
+    def __repr__(self) -> str:
+        return (f"GPClassModels(classes={self.classes}, components={self.components}, "
+                f"n_train={[len(x) for x in self.X]})")
+
+    def select(self, classes: Sequence[str]) -> "GPClassModels":
+        """The models of ``classes`` (a subset or reordering); training arrays are shared, not copied."""
+        idx = []
+        for c in classes:
+            if c not in self.classes:
+                raise KeyError(f"class {c!r} is not modelled (classes: {', '.join(self.classes)})")
+            idx.append(self.classes.index(c))
+        return GPClassModels([self.classes[i] for i in idx], self.components,
+                             [self.X[i] for i in idx], [self.Y[i] for i in idx],
+                             self.mean[idx], self.amplitude[idx], self.length_scale[idx], self.noise[idx],
+                             component_names=self.component_names, meta=self.meta)
+
+    # -- training-side factors (computed once) ----------------------------------------------
+    def factors(self) -> list[_ClassFactors]:
+        if self._factors is None:
+            from scipy.linalg import cho_solve
+
+            out = []
+            for c, (x, y) in enumerate(zip(self.X, self.Y)):
+                center = x.mean(axis=0)
+                T = x - center
+                diff = T[:, None, :] - T[None, :, :]
+                D2 = np.einsum("ijk,ijk->ij", diff, diff)
+                N, F = len(T), self.n_components
+                alpha = np.empty((F, N))
+                Ls = []
+                for f in range(F):
+                    a, ell, sn2 = self.amplitude[c, f], self.length_scale[c, f], self.noise[c, f]
+                    Ktt = a * np.exp(-D2 / (2.0 * ell * ell))
+                    Ktt[np.diag_indices(N)] += sn2
+                    try:
+                        L = np.linalg.cholesky(Ktt)
+                    except np.linalg.LinAlgError:
+                        raise ValueError(
+                            f"GP of class {self.classes[c]!r}, component {self.components[f]}: training "
+                            f"covariance is not positive definite (amplitude {a:g}, length scale {ell:g}, "
+                            f"noise {sn2:g}); raise the noise lower bound") from None
+                    alpha[f] = cho_solve((L, True), y[f] - self.mean[c, f])
+                    Ls.append(np.asfortranarray(L))
+                out.append(_ClassFactors(center, T, np.einsum("ij,ij->i", T, T), alpha, Ls))
+            self._factors = out
+        return self._factors
+
+    def _sqdist_train(self, c: int, flat: np.ndarray) -> np.ndarray:
+        """‖x - x_T‖² for test rows (n, d) against class c's training inputs: one GEMM."""
+        fc = self.factors()[c]
+        x = flat - fc.center
+        D2 = x @ (-2.0 * fc.T.T)
+        D2 += np.einsum("ij,ij->i", x, x)[:, None]
+        D2 += fc.tsq[None, :]
+        np.maximum(D2, 0.0, out=D2)
+        return D2
+
+    def _kernel_from_sqdist(self, c: int, f: int, D2: np.ndarray, out: np.ndarray | None = None):
+        ell = self.length_scale[c, f]
+        out = np.multiply(D2, -0.5 / (ell * ell), out=out)
+        out += np.log(self.amplitude[c, f])      # a·exp(t) as exp(t + log a): one pass fewer
+        return np.exp(out, out=out)
+
+    def whitened(self, c: int, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predictive mean (n, F) and whitened cross terms V (F, n, N_c) of class c at rows X (n, d).
+
+        ``V[f] @ V[f].T = K(X, X_T) H K(X_T, X)``, so cov = K(X, X) + σ_n² I - V Vᵀ.
+        (Rows of V are L⁻¹ k(X_T, x) with L the training Cholesky factor.)
+        """
+        X = np.ascontiguousarray(X, dtype=float)
+        fc = self.factors()[c]
+        D2 = self._sqdist_train(c, X)
+        F, N = self.n_components, len(fc.T)
+        mu = np.empty((len(X), F))
+        V = np.empty((F, len(X), N))
+        for f in range(F):
+            self._kernel_from_sqdist(c, f, D2, out=V[f])
+            mu[:, f] = V[f] @ fc.alpha[f] + self.mean[c, f]
+            _whiten_rows(fc.L[f], V[f])
+        return mu, V
+
+    def kernel(self, c: int, f: int, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """k_{c,f}(A, B) without the white noise, by explicit differences (small blocks)."""
+        A, B = np.asarray(A, float), np.asarray(B, float)
+        diff = A[..., :, None, :] - B[..., None, :, :]
+        return self.amplitude[c, f] * np.exp(-np.sum(diff * diff, axis=-1) / (2.0 * self.length_scale[c, f] ** 2))
+
+    # -- predictive ---------------------------------------------------------------------------
+    def predict(self, Xs) -> tuple[np.ndarray, np.ndarray]:
+        """Joint predictive per trajectory: Xs (..., K, d) -> mu (..., C, F, K), cov (..., C, F, K, K).
+
+        ``cov`` includes the white noise σ_n² I (test measurements carry it, DESIGN §5).
+        """
+        Xs = np.asarray(Xs, dtype=float)
+        if Xs.ndim < 2 or Xs.shape[-1] != self.input_dim:
+            raise ValueError(f"predict: inputs must be (..., K, {self.input_dim}), got {Xs.shape}")
+        if not np.all(np.isfinite(Xs)):
+            raise ValueError("predict: inputs contain NaN or infinite values")
+        lead, (K, d) = Xs.shape[:-2], Xs.shape[-2:]
+        flat3 = np.ascontiguousarray(Xs.reshape(-1, K, d))
+        B, C, F = len(flat3), self.n_classes, self.n_components
+        flat = flat3.reshape(B * K, d)
+        mu = np.empty((B, C, F, K))
+        cov = np.empty((B, C, F, K, K))
+        diff = flat3[:, :, None, :] - flat3[:, None, :, :]
+        D2tt = np.einsum("bkld,bkld->bkl", diff, diff)          # within-trajectory distances
+        diag = np.arange(K)
+        kk = np.empty((B, K, K))
+        for c in range(C):
+            fc = self.factors()[c]
+            N = len(fc.T)
+            D2 = self._sqdist_train(c, flat)                      # (B·K, N), one GEMM per class
+            V = np.empty_like(D2)
+            for f in range(F):
+                self._kernel_from_sqdist(c, f, D2, out=V)
+                mu[:, c, f, :] = (V @ fc.alpha[f] + self.mean[c, f]).reshape(B, K)
+                _whiten_rows(fc.L[f], V)                          # the dominant cost: O(B·K·N²)
+                V3 = V.reshape(B, K, N)
+                S = np.matmul(V3, V3.transpose(0, 2, 1))
+                ell = self.length_scale[c, f]
+                np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
+                np.exp(kk, out=kk)
+                kk *= self.amplitude[c, f]
+                kk[:, diag, diag] += self.noise[c, f]
+                np.subtract(kk, S, out=cov[:, c, f])
+        return mu.reshape(lead + (C, F, K)), cov.reshape(lead + (C, F, K, K))
+
+    def marginal(self, X) -> tuple[np.ndarray, np.ndarray]:
+        """Pointwise predictive mean and variance (incl. σ_n²): X (..., d) -> (..., C, F) each."""
+        X = np.asarray(X, dtype=float)
+        lead = X.shape[:-1]
+        flat = np.ascontiguousarray(X.reshape(-1, X.shape[-1]))
+        C, F = self.n_classes, self.n_components
+        mu = np.empty((len(flat), C, F))
+        var = np.empty((len(flat), C, F))
+        for c in range(C):
+            m, V = self.whitened(c, flat)
+            mu[:, c] = m
+            var[:, c] = self.amplitude[c] + self.noise[c] - np.einsum("fnj,fnj->nf", V, V)
+        return mu.reshape(lead + (C, F)), var.reshape(lead + (C, F))
+
+    # -- files -----------------------------------------------------------------------------------
+    def hyperparameters(self) -> dict:
+        """{class: {component: {mean, amplitude, length_scale, noise}}} as plain floats."""
+        return {cls: {str(comp): {"mean": float(self.mean[c, f]), "amplitude": float(self.amplitude[c, f]),
+                                  "length_scale": float(self.length_scale[c, f]),
+                                  "noise": float(self.noise[c, f])}
+                      for f, comp in enumerate(self.components)}
+                for c, cls in enumerate(self.classes)}
+
+    def save(self, folder: str | Path, extra: dict | None = None) -> Path:
+        """Write ``index.json`` + one ``<class>.npz`` per class into ``folder`` (atomic per file)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        files = _file_names(self.classes)
+        for c, cls in enumerate(self.classes):
+            with atomic_path(folder / files[cls]) as tmp:
+                with open(tmp, "wb") as fh:  # a file object: np.savez must not append ".npz"
+                    np.savez(fh, X=self.X[c], Y=self.Y[c], mean=self.mean[c], amplitude=self.amplitude[c],
+                             length_scale=self.length_scale[c], noise=self.noise[c],
+                             components=np.asarray(self.components, dtype=np.int64))
+        index = {
+            "format": FORMAT, "version": VERSION, "kernel": KERNEL_TEXT,
+            "classes": self.classes, "components": self.components,
+            "component_names": self.component_names, "input_dim": self.input_dim,
+            "files": files, "hyperparameters": self.hyperparameters(), "meta": self.meta,
+        }
+        for k, v in (extra or {}).items():
+            if k in index:
+                raise ValueError(f"save: extra key {k!r} would overwrite a reserved index key")
+            index[k] = v
+        write_json(folder / "index.json", index)
+        return folder / "index.json"
+
+    @classmethod
+    def load(cls, folder: str | Path) -> "GPClassModels":
+        folder = Path(folder)
+        ipath = folder / "index.json"
+        if not ipath.is_file():
+            raise ModelFileError(ipath, "model index not found (run the 'models' stage)")
+        try:
+            index = json.loads(ipath.read_text())
+        except json.JSONDecodeError as e:
+            raise ModelFileError(ipath, f"not valid JSON: {e}") from None
+        if not isinstance(index, dict) or index.get("format") != FORMAT:
+            fmt = index.get("format") if isinstance(index, dict) else None
+            raise ModelFileError(ipath, f"not a viewfuse model index (format {fmt!r}, expected {FORMAT!r})")
+        if index.get("version") != VERSION:
+            raise ModelFileError(ipath, f"unsupported model index version {index.get('version')!r} "
+                                        f"(expected {VERSION})")
+        for key in ("classes", "components", "files"):
+            if key not in index:
+                raise ModelFileError(ipath, f"missing key '{key}'")
+        comps = [int(i) for i in index["components"]]
+        arrays: dict[str, list] = {k: [] for k in ("X", "Y", "mean", "amplitude", "length_scale", "noise")}
+        for name in index["classes"]:
+            fname = index["files"].get(name)
+            if not fname or "/" in fname or "\\" in fname:
+                raise ModelFileError(ipath, f"no valid file entry for class {name!r}")
+            path = folder / fname
+            if not path.is_file():
+                raise ModelFileError(path, f"model file of class {name!r} not found")
+            try:
+                with np.load(path, allow_pickle=False) as z:
+                    data = {k: z[k] for k in z.files}
+            except Exception as e:  # zip/format errors of a corrupt file
+                raise ModelFileError(path, f"unreadable model file: {e}") from None
+            for k in list(arrays) + ["components"]:
+                if k not in data:
+                    raise ModelFileError(path, f"missing array '{k}'")
+            if [int(i) for i in data["components"]] != comps:
+                raise ModelFileError(path, f"components {data['components'].tolist()} differ from the index {comps}")
+            for k in arrays:
+                arrays[k].append(data[k])
+        try:
+            return cls(index["classes"], comps, arrays["X"], arrays["Y"],
+                       np.stack(arrays["mean"]), np.stack(arrays["amplitude"]),
+                       np.stack(arrays["length_scale"]), np.stack(arrays["noise"]),
+                       component_names=index.get("component_names"), meta=index.get("meta"))
+        except ValueError as e:
+            raise ModelFileError(folder, f"inconsistent model files: {e}") from None
+
+
+def _whiten_rows(L: np.ndarray, V: np.ndarray) -> None:
+    """In place: rows v of V (n, N, C-ordered) become L⁻¹ v, i.e. V <- V L⁻ᵀ (what scikit-learn's
+    ``solve_triangular(L, K_trans.T)`` computes), as one BLAS triangular solve on all rows at once."""
+    from scipy.linalg.blas import dtrsm
+
+    out = dtrsm(1.0, L, V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
+    if not np.shares_memory(out, V):  # pragma: no cover - BLAS wrapper made a copy after all
+        V[...] = out.T
+
+
+def _file_names(classes: Sequence[str]) -> dict[str, str]:
+    """A safe, unique file name per class (class names are folder names, but be careful)."""
+    out, used = {}, set()
+    for i, cls in enumerate(classes):
+        base = re.sub(r"[^A-Za-z0-9._-]", "_", cls).strip(".") or f"class_{i}"
+        name = f"{base}.npz"
+        if name.lower() in used or name == "index.json":
+            name = f"{base}_{i}.npz"
+        used.add(name.lower())
+        out[cls] = name
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.ndarray],
+                     classes: Sequence[str], components: Sequence[int], *, restarts: int = 5,
+                     amplitude_bounds: tuple[float, float] = (1e-4, 1e2),
+                     length_scale_bounds: tuple[float, float] = (0.05, 10.0),
+                     noise_bounds: tuple[float, float] = (1e-6, 1.0), seed: int = 0,
+                     component_names: Sequence[str] | None = None, progress: bool = True,
+                     ) -> tuple[GPClassModels, list[dict[str, Any]]]:
+    """Fit one GP per (class, component) with scikit-learn by marginal likelihood.
+
+    ``X_by_class[c]`` (N_c, d) inputs, ``Y_by_class[c]`` (F, N_c) targets. Constant mean = the
+    training mean; kernel ``ConstantKernel * RBF + WhiteKernel`` within the given bounds;
+    ``restarts`` extra L-BFGS-B starts drawn log-uniformly in the bounds, seeded per fit from
+    ``seed``. Returns the models and one diagnostics dict per fit (hyperparameters, log marginal
+    likelihood, the optimizer's warnings, which hyperparameters ended at a bound).
+    """
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+    from tqdm.auto import tqdm
+
+    C, F = len(classes), len(components)
+    if len(X_by_class) != C or len(Y_by_class) != C:
+        raise ValueError(f"fit_class_models: {C} classes but {len(X_by_class)} input and {len(Y_by_class)} target sets")
+    for name, b in (("amplitude_bounds", amplitude_bounds), ("length_scale_bounds", length_scale_bounds),
+                    ("noise_bounds", noise_bounds)):
+        if len(b) != 2 or not 0 < b[0] < b[1]:
+            raise ValueError(f"fit_class_models: {name} must be (low, high) with 0 < low < high, got {b}")
+    mean, amp, ell, noise = (np.zeros((C, F)) for _ in range(4))
+    diags: list[dict[str, Any]] = []
+    bar = tqdm(total=C * F, desc="GP fits", unit="fit", disable=not progress)
+    for c in range(C):
+        X = np.asarray(X_by_class[c], dtype=float)
+        Y = np.asarray(Y_by_class[c], dtype=float)
+        if X.ndim != 2 or len(X) < 2:
+            raise ValueError(f"fit_class_models: class {classes[c]!r} needs (N >= 2, d) inputs, got {X.shape}")
+        if Y.shape != (F, len(X)):
+            raise ValueError(f"fit_class_models: class {classes[c]!r} targets must be ({F}, {len(X)}), got {Y.shape}")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+            raise ValueError(f"fit_class_models: class {classes[c]!r} has non-finite inputs or targets")
+        for f in range(F):
+            y = Y[f]
+            m = float(y.mean())
+            # Starting point: the data's own scale, clipped into the bounds.
+            v = float(y.var())
+            a0 = float(np.clip(v if v > 0 else amplitude_bounds[0], *amplitude_bounds))
+            l0 = float(np.clip(1.0, *length_scale_bounds))
+            n0 = float(np.clip(0.1 * v if v > 0 else noise_bounds[0], *noise_bounds))
+            kernel = (ConstantKernel(a0, tuple(amplitude_bounds)) * RBF(l0, tuple(length_scale_bounds))
+                      + WhiteKernel(n0, tuple(noise_bounds)))
+            rs = int(np.random.SeedSequence([seed, c, f]).generate_state(1)[0])
+            gpr = GaussianProcessRegressor(kernel, alpha=0.0, normalize_y=False,
+                                           n_restarts_optimizer=restarts, random_state=rs)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                gpr.fit(X, y - m)
+            k = gpr.kernel_
+            mean[c, f] = m
+            amp[c, f] = k.k1.k1.constant_value
+            ell[c, f] = k.k1.k2.length_scale
+            noise[c, f] = k.k2.noise_level
+            fitted = {"amplitude": amp[c, f], "length_scale": ell[c, f], "noise": noise[c, f]}
+            bounds = {"amplitude": amplitude_bounds, "length_scale": length_scale_bounds, "noise": noise_bounds}
+            at_bound = [f"{n} at {'lower' if abs(np.log(val / bounds[n][0])) < 0.01 else 'upper'} bound"
+                        for n, val in fitted.items()
+                        if min(abs(np.log(val / bounds[n][0])), abs(np.log(val / bounds[n][1]))) < 0.01]
+            msgs = sorted({f"{w.category.__name__}: {w.message}" for w in caught
+                           if issubclass(w.category, (ConvergenceWarning, UserWarning, RuntimeWarning))})
+            diags.append({
+                "class": str(classes[c]), "component": int(components[f]),
+                "component_name": None if component_names is None else str(component_names[f]),
+                "n_train": int(len(X)), "mean": m,
+                **{n: float(val) for n, val in fitted.items()},
+                "log_marginal_likelihood": float(gpr.log_marginal_likelihood_value_),
+                "init": {"amplitude": a0, "length_scale": l0, "noise": n0},
+                "restarts": int(restarts), "random_state": rs,
+                "at_bound": at_bound, "warnings": msgs,
+            })
+            bar.update(1)
+    bar.close()
+    models = GPClassModels(classes, components, [np.asarray(x, float) for x in X_by_class],
+                           [np.asarray(y, float) for y in Y_by_class], mean, amp, ell, noise,
+                           component_names=component_names)
+    return models, diags
