@@ -50,24 +50,28 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float) -> dict[str, np.ndarray]:
-    """Both methods on realizations of pose estimates (R, K, 2) -> posteriors (R, K, C) each.
+    """Both methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each.
+
+    Log space all the way to the metrics: a confident posterior's smallest entries underflow as
+    probabilities, and log MGR must stay finite.
 
     Model Based trusts the estimates; Model with Uncertainty samples N_x trajectories around them
     with the stated σ (the same σ the estimate error was drawn with, as in the paper).
     """
     r = len(estimates)
     mb = fuse_model_based(models, track.inputs(estimates),
-                          np.broadcast_to(track.measurement, (r,) + track.measurement.shape), progress=False)
+                          np.broadcast_to(track.measurement, (r,) + track.measurement.shape),
+                          return_log=True, progress=False)
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
     wu = fuse_with_uncertainty(models, track.inputs(samples),
                                np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
-                               var_floor=var_floor, progress=False)
+                               var_floor=var_floor, return_log=True, progress=False)
     return {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
            *, var_floor: float) -> dict[str, np.ndarray]:
-    """Every estimate shifted by the same bias (one realization): posteriors (1, K, C)."""
+    """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
     return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor)
 
@@ -75,7 +79,7 @@ def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.rando
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25,
                progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
-    """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: (R, K, C) each."""
+    """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C)."""
     out: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
     for a, b in _chunks(realizations, chunk):
         noise = rng.normal(0.0, sigma, size=(b - a, track.k, 2)) if sigma > 0 else np.zeros((b - a, track.k, 2))
@@ -140,7 +144,10 @@ def gp_rasters(models, *, grid_n: int = 61, extent: float = 1.5, ring_n: int = 1
 # -- results tables ------------------------------------------------------------------------------
 def long_rows(experiment: str, setting: str, sigma: float, bias, posts: dict[str, np.ndarray],
               truth: int) -> pd.DataFrame:
-    """One row per (realization, step, method) with the posterior and its metrics."""
+    """One row per (realization, step, method) with the posterior and its metrics.
+
+    ``posts`` maps method -> log posteriors (R, K, C); rows hold probabilities.
+    """
     frames = []
     for method, p in posts.items():
         R, K, C = p.shape
@@ -153,11 +160,11 @@ def long_rows(experiment: str, setting: str, sigma: float, bias, posts: dict[str
             "realization": np.repeat(np.arange(R, dtype=np.int32), K),
             "step": np.tile(np.arange(K, dtype=np.int16), R),
             "method": method,
-            "posterior": list(p.reshape(R * K, C)),
-            "p_truth": M.prob_truth(p, truth).ravel(),
-            "log_mgr": M.log_mgr(p, truth).ravel(),
-            "msde": M.msde(p, truth).ravel(),
-            "correct": M.correct(p, truth).ravel(),
+            "posterior": list(np.exp(p).reshape(R * K, C)),
+            "p_truth": M.prob_truth(p, truth, is_log=True).ravel(),
+            "log_mgr": M.log_mgr(p, truth, is_log=True).ravel(),
+            "msde": M.msde(p, truth, is_log=True).ravel(),
+            "correct": M.correct(p, truth, is_log=True).ravel(),
         }))
     return pd.concat(frames, ignore_index=True)
 
@@ -166,11 +173,11 @@ def summarize(posts: dict[str, np.ndarray], truth: int) -> dict[str, dict[str, f
     """The paper's Tables 1-2 per method: correct ratio and MGR 75%/95%, final step and overall.
 
     MGR is reported as the ratio max_c P(c) / P(truth) (1 = truth most likely), i.e. exp of the
-    percentile of log MGR.
+    percentile of log MGR. ``posts`` maps method -> log posteriors (R, K, C).
     """
     out = {}
     for method, p in posts.items():
-        row = M.summary_row(p, truth)
+        row = M.summary_row(p, truth, is_log=True)
         out[method] = {
             "correct_final": row["correct_final"],
             "correct_overall": row["correct_overall"],

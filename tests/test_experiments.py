@@ -48,6 +48,7 @@ def test_no_error_both_methods_find_the_truth():
     tr = make_track(m, truth=1)
     posts = E.biased(m, tr, (0.0, 0.0), 0.0, 3, np.random.default_rng(0), var_floor=1e-6)
     for p in posts.values():
+        p = np.exp(p)
         assert p.shape == (1, tr.k, 3)
         np.testing.assert_allclose(p.sum(-1), 1.0)
         assert p[0, -1].argmax() == 1
@@ -59,7 +60,7 @@ def test_model_based_uses_biased_estimates():
     bias = np.array([0.3, -0.2])
     posts = E.biased(m, tr, bias, 0.3, 4, np.random.default_rng(0), var_floor=1e-6)
     direct = fuse_model_based(m, tr.inputs(tr.cam_xy + bias), tr.measurement, progress=False)
-    np.testing.assert_allclose(posts[E.MODEL_BASED][0], direct, atol=1e-12)
+    np.testing.assert_allclose(np.exp(posts[E.MODEL_BASED][0]), direct, atol=1e-12)
 
 
 def test_randomized_is_deterministic_and_chunk_independent():
@@ -71,27 +72,29 @@ def test_randomized_is_deterministic_and_chunk_independent():
         assert a[k].shape == (7, tr.k, 3)
         np.testing.assert_array_equal(a[k], b[k])
     # Realizations differ from each other (the estimates are random).
-    assert np.ptp(np.log(a[E.MODEL_BASED][:, 0, 2])) > 1.0
+    assert np.ptp(a[E.MODEL_BASED][:, 0, 2]) > 1.0
 
 
 def test_long_rows_and_summary():
     m = ring_models()
     tr = make_track(m, truth=2)
-    posts = E.randomized(m, tr, (0.0, 0.0), 0.1, 4, 3, np.random.default_rng(0), var_floor=1e-6)
-    df = E.long_rows("randomized", "s", 0.1, (0.0, 0.0), posts, 2)
+    logs = E.randomized(m, tr, (0.0, 0.0), 0.1, 4, 3, np.random.default_rng(0), var_floor=1e-6)
+    posts = {k: np.exp(v) for k, v in logs.items()}
+    df = E.long_rows("randomized", "s", 0.1, (0.0, 0.0), logs, 2)
     assert len(df) == 2 * 4 * tr.k
+    assert np.isfinite(df["log_mgr"]).all()      # log space: no inf even where P(truth) underflows
     row = df.iloc[5]
     p = posts[row["method"]][row["realization"], row["step"]]
     np.testing.assert_allclose(row["posterior"], p)
     assert row["p_truth"] == pytest.approx(p[2])
     assert row["log_mgr"] == pytest.approx(np.log(p.max() / p[2]))
     assert row["correct"] == (p.argmax() == 2)
-    s = E.summarize(posts, 2)
+    s = E.summarize(logs, 2)
     for meth, v in s.items():
         corr = posts[meth].argmax(-1) == 2
         assert v["correct_final"] == pytest.approx(corr[:, -1].mean())
         assert v["correct_overall"] == pytest.approx(corr.mean())
-        lm = np.log(posts[meth].max(-1) / posts[meth][..., 2])
+        lm = logs[meth].max(-1) - logs[meth][..., 2]
         assert v["mgr95_final"] == pytest.approx(np.exp(np.percentile(lm[:, -1], 95)))
         assert v["mgr75_final"] >= 1.0
 
