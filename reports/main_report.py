@@ -23,6 +23,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from loaders.errors import BadInputError
+from reports.results_io import read_result_table
 from reports.figures import (METHOD_ORDER, class_colors, method_style, new_figure, new_subplots,
                              percentile_bands, save)
 from reports.html import HtmlReport
@@ -100,23 +101,7 @@ def _read_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray]:
 
 def read_results(path: Path) -> tuple[pd.DataFrame, dict]:
     """results.parquet and its viewfuse.* metadata (classes parsed from JSON)."""
-    import pyarrow.parquet as pq
-    try:
-        table = pq.read_table(path)
-    except Exception as e:  # pyarrow raises several types for corrupt files
-        raise BadInputError(path, f"not a readable Parquet file ({e})") from None
-    missing = [c for c in RESULT_COLUMNS if c not in table.column_names]
-    if missing:
-        raise BadInputError(path, f"missing column(s) {', '.join(missing)}")
-    raw = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
-           if k.startswith(b"viewfuse.")}
-    meta: dict[str, Any] = {k.removeprefix("viewfuse."): v for k, v in raw.items()}
-    if "classes" in meta:
-        try:
-            meta["classes"] = json.loads(meta["classes"])
-        except json.JSONDecodeError:
-            raise BadInputError(path, "metadata 'viewfuse.classes' is not a JSON list") from None
-    df = table.to_pandas()
+    df, meta = read_result_table(path, RESULT_COLUMNS)
     if len(df) and not np.isin(df["method"].unique(), list(METHOD_ORDER)).all():
         unknown = sorted(set(df["method"].unique()) - set(METHOD_ORDER))
         log.warning("%s: unknown method(s) %s are shown in grey", path, unknown)

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from loaders.errors import BadInputError
+from reports.results_io import read_result_table
 from pipeline.metrics import percentile
 from pipeline.simulation import summarize
 
@@ -65,24 +66,7 @@ class ReportResult:
 
 # -- loading ----------------------------------------------------------------------------------------
 def _read_parquet(path: Path, required: tuple[str, ...]) -> tuple[pd.DataFrame, dict]:
-    import pyarrow.parquet as pq
-    if not path.is_file():
-        raise BadInputError(path, "not found; run `viewfuse simulate` first")
-    try:
-        table = pq.read_table(path)
-    except Exception as e:  # pyarrow raises several types for corrupt files
-        raise BadInputError(path, f"not a readable Parquet file ({e})") from None
-    missing = [c for c in required if c not in table.column_names]
-    if missing:
-        raise BadInputError(path, f"missing column(s) {', '.join(missing)}")
-    meta = {k.decode().removeprefix("viewfuse."): v.decode() for k, v in (table.schema.metadata or {}).items()
-            if k.startswith(b"viewfuse.")}
-    if "classes" in meta:
-        try:
-            meta["classes"] = json.loads(meta["classes"])
-        except json.JSONDecodeError:
-            raise BadInputError(path, "metadata 'viewfuse.classes' is not a JSON list") from None
-    return table.to_pandas(), meta
+    return read_result_table(path, required, missing_hint="run `viewfuse simulate` first")
 
 
 def load_simulate(folder: str | Path) -> SimOutputs:
