@@ -87,14 +87,17 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class TrainingConfig:
-    categories: int = _f(12, lo=2, hi=64, doc="synthetic source-domain categories")
-    train_images: int = _f(6000, lo=10)
+    categories: int = _f(12, lo=2, hi=12, doc="synthetic source-domain categories (texture families)")
+    train_images: int = _f(8000, lo=10)
     val_images: int = _f(1200, lo=10)
-    epochs: int = _f(4, lo=1, hi=200)
-    batch_size: int = _f(64, lo=1, hi=4096)
-    lr: float = _f(2e-4, lo=0.0, hi=1.0)
+    epochs: int = _f(7, lo=1, hi=200)
+    batch_size: int = _f(128, lo=1, hi=4096)
+    lr: float = _f(5e-4, lo=0.0, hi=1.0)
     weight_decay: float = _f(1e-4, lo=0.0, hi=1.0)
     min_accuracy: float = _f(0.9, lo=0.0, hi=1.0, doc="fail the stage below this held-out top-1")
+    warmup_steps: int = _f(40, lo=0, hi=100000, doc="linear LR warmup steps before the cosine decay")
+    precision: str = _f("auto", choices=("auto", "fp32", "bf16"),
+                        doc="training arithmetic; auto = bf16 autocast where the hardware has it")
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,10 @@ class ClassifierConfig:
     num_classes: int = _f(0, lo=0, doc="output size for weights = 'path'; 0 = read from the file")
     dropout: float = _f(0.5, lo=0.0, hi=0.99, doc="dropout p of the two head Dropout layers")
     input_size: int = _f(128, lo=63, hi=512, doc="square crop side fed to the network, pixels")
+    mean: tuple[float, ...] = _f(factory=lambda: (0.485, 0.456, 0.406), lo=0.0, hi=1.0,
+                                 doc="input normalisation mean (RGB, 0..1); ImageNet's by default")
+    std: tuple[float, ...] = _f(factory=lambda: (0.229, 0.224, 0.225), lo=1e-6, hi=10.0,
+                                doc="input normalisation std (RGB)")
     seed: int = _f(0, lo=0)
     training: TrainingConfig = _f(factory=TrainingConfig)
 
@@ -117,6 +124,12 @@ class FeaturesConfig:
     n_samples: int = _f(10, lo=1, hi=1000, doc="N_s dropout samples per AVD crop")
     seed: int = _f(0, lo=0)
     batch_size: int = _f(64, lo=1, hi=4096)
+    pad: str = _f("mean", choices=("mean", "edge", "reflect"),
+                  doc="fill where a crop leaves the image; mean = the normalisation mean (zero input)")
+    interpolation: str = _f("auto", choices=("auto", "area", "linear", "cubic"),
+                            doc="crop resize; auto = area when shrinking, linear when enlarging")
+    bigbird_objects: tuple[str, ...] = _f(factory=tuple, doc="BigBIRD object folders to score; empty = all")
+    avd_instances: tuple[str, ...] = _f(factory=tuple, doc="AVD instances to score; empty = all present")
 
 
 @dataclass(frozen=True)
@@ -402,6 +415,8 @@ def _cross_checks(cfg: Config, where: str) -> None:
          f"'models.camera' = {cfg.models.camera} is not among 'features.bigbird_cameras'")
     if cfg.classifier.weights == "path":
         need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
+    need(len(cfg.classifier.mean) == 3 and len(cfg.classifier.std) == 3,
+         "'classifier.mean' and 'classifier.std' must list three (RGB) values each")
     need(len(set(cfg.models.classes)) == len(cfg.models.classes) and len(cfg.models.classes) >= 2,
          "'models.classes' must list at least two distinct classes")
     if cfg.models.component_rule == "explicit":

@@ -178,11 +178,13 @@ def summarize(posts: dict[str, np.ndarray], truth: int) -> dict[str, dict[str, f
     out = {}
     for method, p in posts.items():
         row = M.summary_row(p, truth, is_log=True)
+        with np.errstate(over="ignore"):  # a truth probability that underflowed is MGR = inf
+            mgr = {f"mgr{q}_{w}": float(np.exp(row[f"log_mgr_p{q}_{w}"]))
+                   for q in (75, 95) for w in ("final", "overall")}
         out[method] = {
             "correct_final": row["correct_final"],
             "correct_overall": row["correct_overall"],
-            **{f"mgr{q}_{w}": float(np.exp(row[f"log_mgr_p{q}_{w}"]))
-               for q in (75, 95) for w in ("final", "overall")},
+            **mgr,
             "prob_truth_final": row["prob_truth_final"],
             "msde_final": row["msde_final"],
             "n_realizations": int(p.shape[0]),

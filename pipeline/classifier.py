@@ -1,0 +1,500 @@
+"""Dropout AlexNet: building it, the weights policy, training on the source domain, MC-dropout scoring.
+
+Weights never travel as pickles: our checkpoints are ``.npz`` (plain arrays, read with
+``allow_pickle=False``); torch checkpoint files are read with ``torch.load(weights_only=True)``,
+which refuses to run code. Nothing is downloaded.
+
+MC dropout (paper §4.3): torchvision's AlexNet is ``features -> avgpool -> flatten -> classifier``
+with ``classifier = (Dropout, Linear, ReLU, Dropout, Linear, ReLU, Linear)``. The dropout layers are
+all in the head, so ``N_s`` stochastic passes share one trunk output: we run the trunk once per crop,
+then the head on ``(B * N_s)`` rows with independent Bernoulli(1 - p) masks scaled by ``1/(1 - p)``
+(exactly what ``nn.Dropout`` does in train mode). Masks come from a per-crop seeded generator, so a
+crop's samples depend only on (seed, crop key), not on batch size, order or device.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import zipfile
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from pipeline.cache import atomic_path, hash_json, sha256_file
+
+IMAGENET_FILE = "alexnet-owt-7be5be79.pth"   # torchvision AlexNet_Weights.IMAGENET1K_V1
+ARCHITECTURE = "torchvision.models.alexnet"
+CARD = "card.json"
+WEIGHTS_NPZ = "weights.npz"
+
+
+class WeightsError(ValueError):
+    """A weights file is unreadable or does not fit the architecture; names the file."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path, self.problem = str(path), problem
+        super().__init__(f"{path}: {problem}")
+
+
+class WeightsNotFoundError(FileNotFoundError):
+    """The requested weights file is not on disk (and will not be downloaded)."""
+
+
+# -- architecture ------------------------------------------------------------------------------
+def build_alexnet(num_classes: int, dropout: float = 0.5) -> nn.Module:
+    """torchvision's AlexNet (random init), ``num_classes`` outputs, head dropout ``p``."""
+    from torchvision.models import alexnet
+
+    if num_classes < 1:
+        raise ValueError(f"num_classes must be >= 1, got {num_classes}")
+    if not 0.0 <= dropout < 1.0:
+        raise ValueError(f"dropout p must be in [0, 1), got {dropout}")
+    return alexnet(weights=None, num_classes=num_classes, dropout=dropout)
+
+
+def init_for_training(model: nn.Module, seed: int) -> nn.Module:
+    """He (fan-in, ReLU) init: torch's default init starts AlexNet (no batch norm) with vanishing
+    activations, and from-scratch training then idles for an epoch at chance level."""
+    g = torch.Generator().manual_seed(int(seed))
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, (nn.Conv2d, nn.Linear)):
+                fan_in = m.weight[0].numel()
+                m.weight.normal_(0.0, math.sqrt(2.0 / fan_in), generator=g)
+                m.bias.zero_()
+        last = model.classifier[-1]
+        last.weight.mul_(0.1)  # start near uniform class scores
+    return model
+
+
+def imagenet_dir() -> Path:
+    return Path(torch.hub.get_dir()) / "checkpoints"
+
+
+def imagenet_checkpoint() -> Path:
+    """The local IMAGENET1K_V1 file, or a clear error: viewfuse never downloads weights."""
+    folder = imagenet_dir()
+    path = folder / IMAGENET_FILE
+    if not path.is_file():
+        raise WeightsNotFoundError(
+            f"classifier.weights = 'imagenet' needs torchvision's AlexNet IMAGENET1K_V1 file "
+            f"'{IMAGENET_FILE}' in '{folder}' (torch.hub.get_dir()/checkpoints; set TORCH_HOME to "
+            f"move it), and it is not there. Nothing is downloaded at run time: copy the file there "
+            f"from a machine with network access, or use classifier.weights = 'synthetic' or 'path'.")
+    return path
+
+
+def imagenet_names(n: int) -> list[str]:
+    """ImageNet class names when torchvision ships them (offline metadata), else imagenet_{i}."""
+    try:
+        from torchvision.models import AlexNet_Weights
+
+        cats = list(AlexNet_Weights.IMAGENET1K_V1.meta["categories"])
+        if len(cats) == n:
+            return cats
+    except Exception:  # pragma: no cover - older torchvision
+        pass
+    return [f"imagenet_{i}" for i in range(n)]
+
+
+# -- state dict files (no pickles) ---------------------------------------------------------------
+def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
+    """A state dict from ``.npz`` (ours) or a torch file read with the safe loader."""
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsNotFoundError(f"{path}: weights file not found")
+    if path.suffix == ".npz":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                state = {k: torch.from_numpy(np.array(z[k])) for k in z.files}
+        except (ValueError, OSError, zipfile.BadZipFile) as e:
+            raise WeightsError(path, f"not a readable .npz state dict ({e})") from None
+    else:
+        try:
+            obj = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # the safe loader raises UnpicklingError/RuntimeError on anything odd
+            raise WeightsError(path, f"not a tensor-only torch state dict (loaded with weights_only=True): "
+                                     f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+        if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
+            obj = obj["state_dict"]
+        if not isinstance(obj, dict):
+            raise WeightsError(path, f"expected a dict of tensors, got {type(obj).__name__}")
+        state = obj
+    out = {}
+    for k, v in state.items():
+        if not isinstance(v, torch.Tensor):
+            raise WeightsError(path, f"entry {k!r} is not a tensor ({type(v).__name__})")
+        out[k[7:] if k.startswith("module.") else k] = v  # DataParallel prefix
+    if not out:
+        raise WeightsError(path, "empty state dict")
+    return out
+
+
+def num_classes_of(state: dict[str, torch.Tensor], path: str | Path) -> int:
+    w = state.get("classifier.6.weight")
+    if w is None or w.ndim != 2:
+        raise WeightsError(path, "no 'classifier.6.weight' matrix: not an AlexNet state dict")
+    return int(w.shape[0])
+
+
+def load_into(model: nn.Module, state: dict[str, torch.Tensor], path: str | Path) -> nn.Module:
+    """Strict load with an error that names the file and the first mismatches."""
+    own = model.state_dict()
+    missing = sorted(set(own) - set(state))
+    unexpected = sorted(set(state) - set(own))
+    bad = [k for k in own if k in state and tuple(state[k].shape) != tuple(own[k].shape)]
+    if missing or unexpected or bad:
+        parts = []
+        if missing:
+            parts.append(f"missing keys {missing[:4]}")
+        if unexpected:
+            parts.append(f"unexpected keys {unexpected[:4]}")
+        if bad:
+            k = bad[0]
+            parts.append(f"shape mismatch for {k!r}: file {tuple(state[k].shape)} vs AlexNet {tuple(own[k].shape)}")
+        raise WeightsError(path, "does not fit torchvision's AlexNet: " + "; ".join(parts))
+    model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)
+    return model
+
+
+def save_state_dict_npz(model_or_state, path: str | Path) -> str:
+    """Write a state dict as ``.npz`` atomically and reproducibly; returns the file's sha256.
+
+    Each array goes in as ``<name>.npy`` with a fixed zip timestamp, so identical weights give an
+    identical file (and hash). ``np.load(path, allow_pickle=False)`` reads it back.
+    """
+    state = model_or_state.state_dict() if isinstance(model_or_state, nn.Module) else model_or_state
+    with atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for k in sorted(state):
+                arr = np.ascontiguousarray(state[k].detach().cpu().numpy())
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, arr, allow_pickle=False)
+                info = zipfile.ZipInfo(k + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+                zf.writestr(info, buf.getvalue())
+    return sha256_file(path)
+
+
+# -- card: the identity of a scorer --------------------------------------------------------------
+def card_hash(card: dict) -> str:
+    """Hash of everything that changes a score (not timings or accuracy bookkeeping)."""
+    keys = ("architecture", "weights_sha256", "num_classes", "output_names", "dropout", "input_size", "mean", "std")
+    return hash_json({k: card.get(k) for k in keys})
+
+
+def read_card(folder: str | Path) -> dict:
+    p = Path(folder) / CARD
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: classifier card not found (run `viewfuse classifier` first)")
+    try:
+        card = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{p}: not valid JSON ({e})") from None
+    for k in ("weights_file", "weights_sha256", "num_classes", "output_names", "dropout", "hash"):
+        if k not in card:
+            raise ValueError(f"{p}: classifier card lacks key {k!r}")
+    return card
+
+
+def weights_path(folder: str | Path, card: dict) -> Path:
+    p = Path(card["weights_file"])
+    return p if p.is_absolute() else Path(folder) / p
+
+
+def load_classifier(folder: str | Path, device: str = "cpu", verify: bool = True) -> tuple[nn.Module, dict]:
+    """Model (eval mode, on ``device``) and card from a classifier artifact folder."""
+    card = read_card(folder)
+    wp = weights_path(folder, card)
+    if not wp.is_file():
+        raise WeightsNotFoundError(f"{wp}: weights file named by {Path(folder) / CARD} is missing")
+    if verify and sha256_file(wp) != card["weights_sha256"]:
+        raise WeightsError(wp, f"sha256 differs from the one recorded in {Path(folder) / CARD}: the file "
+                               f"changed since the classifier stage ran (rerun it)")
+    model = build_alexnet(int(card["num_classes"]), float(card["dropout"]))
+    load_into(model, load_state_dict_file(wp), wp)
+    return model.eval().to(device), card
+
+
+# -- training on the source domain -----------------------------------------------------------------
+def lr_at(step: int, total: int, base: float, warmup: int) -> float:
+    """Linear warmup, then cosine decay to zero (AlexNet has no batch norm: warmup keeps Adam calm)."""
+    if warmup > 0 and step < warmup:
+        return base * (step + 1) / warmup
+    t = (step - warmup) / max(1, total - warmup)
+    return base * 0.5 * (1 + math.cos(math.pi * min(1.0, t)))
+
+
+def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *, epochs: int,
+                     batch_size: int, lr: float, weight_decay: float, warmup_steps: int, seed: int,
+                     mean, std, device: str = "cpu", precision: str = "auto", progress: bool = True,
+                     log: Callable[[str], None] | None = None) -> list[dict]:
+    """Adam + warmup/cosine on uint8 images, ``augment``ed per batch. Returns per-epoch history.
+
+    ``precision`` "bf16" = autocast mixed precision (fp32 master weights), several times faster on
+    CPUs with native bf16; "auto" picks it where the hardware has it.
+    """
+    from tqdm import tqdm
+
+    torch.manual_seed(seed)
+    gen = np.random.default_rng([seed, 7])
+    use_bf16 = resolve_precision(precision, device) == "bf16"
+    # channels_last: oneDNN's fast convolution layout on CPU (and tensor-core friendly on GPU).
+    model.to(device).to(memory_format=torch.channels_last).train()
+    kw = {"fused": True} if device in ("cpu", "cuda") else {}
+    opt = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay, **kw)
+    n = len(images)
+    steps_per_epoch = math.ceil(n / batch_size)
+    total = epochs * steps_per_epoch
+    step = 0
+    history = []
+    bar = tqdm(total=total, desc="train classifier", unit="step", disable=not progress)
+    for ep in range(epochs):
+        order = gen.permutation(n)
+        loss_sum, correct, seen = 0.0, 0, 0
+        for b in range(steps_per_epoch):
+            idx = np.sort(order[b * batch_size:(b + 1) * batch_size])
+            x = augment(images[idx], gen, mean, std).to(device).contiguous(memory_format=torch.channels_last)
+            y = torch.from_numpy(labels[idx]).to(device)
+            for g in opt.param_groups:
+                g["lr"] = lr_at(step, total, lr, warmup_steps)
+            with torch.autocast(device_type=device, dtype=torch.bfloat16, enabled=use_bf16):
+                out = model(x)
+            loss = F.cross_entropy(out.float(), y)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            loss_sum += float(loss.detach()) * len(idx)
+            correct += int((out.argmax(1) == y).sum())
+            seen += len(idx)
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}")
+        history.append({"epoch": ep + 1, "loss": loss_sum / seen, "train_accuracy": correct / seen})
+        if log:
+            log(f"epoch {ep + 1}/{epochs}: loss {loss_sum / seen:.4f}, train top-1 {correct / seen:.4f}")
+    bar.close()
+    model.eval().to(memory_format=torch.contiguous_format)
+    return history
+
+
+def augment(xb: np.ndarray, gen: np.random.Generator, mean, std) -> torch.Tensor:
+    """Cheap batch augmentation on top of the rendered variety: the 8 flips/quarter turns (texture
+    families have no preferred orientation) and a per-image contrast/brightness jitter."""
+    from pipeline.crops import to_tensor
+
+    xb = xb.copy()
+    n = len(xb)
+    k = gen.integers(0, 4, n)
+    flip = gen.random(n) < 0.5
+    for i in range(n):
+        if k[i]:
+            xb[i] = np.rot90(xb[i], k[i])
+        if flip[i]:
+            xb[i] = xb[i, :, ::-1]
+    x = to_tensor(xb, mean, std)
+    c = torch.from_numpy(gen.uniform(0.8, 1.2, (n, 1, 1, 1)).astype(np.float32))
+    b = torch.from_numpy(gen.uniform(-0.2, 0.2, (n, 1, 1, 1)).astype(np.float32))
+    return x * c + b
+
+
+def resolve_precision(precision: str, device: str) -> str:
+    if precision not in ("auto", "fp32", "bf16"):
+        raise ValueError(f"precision must be auto, fp32 or bf16, got {precision!r}")
+    if precision != "auto":
+        return precision
+    if device == "cuda":
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    try:
+        return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
+    except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
+        return "fp32"
+
+
+@torch.no_grad()
+def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int = 128,
+            device: str = "cpu", progress: bool = False) -> np.ndarray:
+    """Eval-mode logits (n, D) for uint8 images."""
+    from tqdm import tqdm
+
+    from pipeline.crops import to_tensor
+
+    model.eval().to(device)
+    outs = []
+    for s in tqdm(range(0, len(images), batch_size), desc="validate", unit="batch", disable=not progress, leave=False):
+        outs.append(model(to_tensor(images[s:s + batch_size], mean, std).to(device)).float().cpu())
+    return torch.cat(outs).numpy()
+
+
+def confusion_matrix(y_true: np.ndarray, y_pred: np.ndarray, k: int) -> np.ndarray:
+    cm = np.zeros((k, k), np.int64)
+    np.add.at(cm, (y_true, y_pred), 1)
+    return cm
+
+
+# -- MC dropout ----------------------------------------------------------------------------------
+def crop_seed(seed: int, key: str) -> int:
+    """64-bit seed for one crop's dropout masks: depends only on (seed, crop key)."""
+    h = hashlib.blake2b(f"{int(seed)}|{key}".encode(), digest_size=8).digest()
+    return int.from_bytes(h, "little")
+
+
+class OneDNNLinear(nn.Module):
+    """``nn.Linear`` through oneDNN's fp32 inner product with the weight packed once.
+
+    Same weights and arithmetic precision as the layer it wraps; on this CPU it runs the big head
+    matmuls about twice as fast as the default BLAS path (the head dominates MC-dropout scoring).
+    """
+
+    def __init__(self, linear: nn.Linear):
+        super().__init__()
+        self.in_features, self.out_features = linear.in_features, linear.out_features
+        w = linear.weight.detach().float().contiguous()
+        b = linear.bias.detach().float() if linear.bias is not None else torch.zeros(w.shape[0])
+        self.weight = w.to_mkldnn()
+        self.bias = b.contiguous().to_mkldnn()
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch._C._nn.mkldnn_linear(x.contiguous().to_mkldnn(), self.weight, self.bias).to_dense()
+
+
+def onednn_available() -> bool:
+    try:
+        if not torch.backends.mkldnn.is_available():
+            return False
+        lin = nn.Linear(4, 3)
+        x = torch.randn(2, 4)
+        return bool(torch.allclose(OneDNNLinear(lin)(x), lin(x), atol=1e-5))
+    except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
+        return False
+
+
+def fast_head(classifier: nn.Module, device: str, onednn: bool = True) -> list[nn.Module]:
+    """The head's layers, Linear ones swapped for oneDNN on CPU when available (same weights)."""
+    use = onednn and device == "cpu" and onednn_available()
+    return [OneDNNLinear(m) if use and isinstance(m, nn.Linear) else m for m in classifier]
+
+
+class MCDropoutScorer:
+    """Trunk once per crop, then the head in eval mode and/or ``N_s`` times with dropout masks.
+
+    ``p`` is read from the model's Dropout layers. ``masks`` are lists (one per Dropout layer, in
+    order) of float tensors ``(B, N_s, F_k)`` with entries 0 or ``1/(1-p)``. ``onednn``: run the
+    head's matmuls through oneDNN on CPU (see ``OneDNNLinear``).
+    """
+
+    def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True):
+        for attr in ("features", "avgpool", "classifier"):
+            if not hasattr(model, attr):
+                raise TypeError(f"model has no '{attr}': not a torchvision AlexNet")
+        self.model = model.eval().to(device)
+        self.device = device
+        self.head = fast_head(model.classifier, device, onednn)
+        self.dropout_dims: list[int] = []
+        self.p: list[float] = []
+        for i, m in enumerate(self.head):
+            if isinstance(m, nn.Dropout):
+                nxt = next((l for l in self.head[i + 1:] if hasattr(l, "in_features")), None)
+                if nxt is None:
+                    raise TypeError("a Dropout layer without a following Linear layer in the head")
+                self.dropout_dims.append(nxt.in_features)
+                self.p.append(float(m.p))
+
+    # The parts, separately (the benchmark times them one by one).
+    @torch.no_grad()
+    def trunk(self, x: torch.Tensor) -> torch.Tensor:
+        m = self.model
+        return torch.flatten(m.avgpool(m.features(x.to(self.device))), 1)
+
+    @torch.no_grad()
+    def head_eval(self, f: torch.Tensor) -> torch.Tensor:
+        for m in self.head:
+            if not isinstance(m, nn.Dropout):
+                f = m(f)
+        return f
+
+    def draw_masks(self, seeds: Sequence[int], n_samples: int) -> list[torch.Tensor]:
+        """Bernoulli(1-p)/(1-p) masks, one seeded generator per crop (device-independent).
+
+        Each crop draws ``n_samples x sum(F_k)`` float32 uniforms from its own PCG64 stream and
+        keeps a unit where the uniform is below 1 - p: the same law as ``nn.Dropout``, several
+        times cheaper than torch's per-generator ``bernoulli_`` on CPU.
+        """
+        B = len(seeds)
+        dims = self.dropout_dims
+        total = sum(dims)
+        keep = np.concatenate([np.full(d, 1.0 - p, np.float32) for d, p in zip(dims, self.p)])
+        bits = np.empty((B, n_samples, total), dtype=bool)
+        for b, s in enumerate(seeds):
+            u = np.random.default_rng(int(s)).random((n_samples, total), dtype=np.float32)
+            np.less(u, keep, out=bits[b])
+        masks, start = [], 0
+        for d, p in zip(dims, self.p):
+            m = torch.from_numpy(bits[:, :, start:start + d]).to(self.device, non_blocking=True).float()
+            masks.append(m.mul_(1.0 / (1.0 - p)) if p > 0 else m)
+            start += d
+        return masks
+
+    @torch.no_grad()
+    def head_samples(self, f: torch.Tensor, masks: Sequence[torch.Tensor]) -> torch.Tensor:
+        """Logits (B, N_s, D): the head on B*N_s rows, one mask row each, one matmul chain."""
+        B = f.shape[0]
+        n = masks[0].shape[1]
+        h = f.unsqueeze(1)  # (B, 1, F): broadcast over samples at the first mask
+        k = 0
+        for m in self.head:
+            if isinstance(m, nn.Dropout):
+                mk = masks[k]
+                h = (h.reshape(B, -1, mk.shape[2]) * mk).reshape(B * n, mk.shape[2])
+                k += 1
+            else:
+                h = m(h if h.dim() == 2 else h.reshape(B, -1))
+        return h.reshape(B, n, -1)
+
+    @torch.no_grad()
+    def score(self, x: torch.Tensor, seeds: Sequence[int] | None = None, n_samples: int = 0
+              ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Softmax scores: deterministic (B, D) and, if ``n_samples``, MC samples (B, N_s, D)."""
+        f = self.trunk(x)
+        det = F.softmax(self.head_eval(f), dim=-1)
+        if not n_samples:
+            return det, None
+        if seeds is None or len(seeds) != f.shape[0]:
+            raise ValueError("score: one mask seed per crop is needed for MC samples")
+        mc = F.softmax(self.head_samples(f, self.draw_masks(seeds, n_samples)), dim=-1)
+        return det, mc
+
+
+class FixedMaskDropout(nn.Module):
+    """Dropout with a given mask (0 or 1/(1-p) entries): the reference route in tests/benchmarks."""
+
+    def __init__(self, mask: torch.Tensor):
+        super().__init__()
+        self.mask = mask
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.mask
+
+
+@torch.no_grad()
+def full_passes_with_masks(model: nn.Module, x: torch.Tensor, masks: Sequence[torch.Tensor]) -> torch.Tensor:
+    """Logits (B, N_s, D) from ``N_s`` complete forward passes per crop (trunk included), with the
+    Dropout layers replaced by fixed-mask modules: the literal definition MC dropout must match."""
+    B, n = masks[0].shape[:2]
+    xr = x.repeat_interleave(n, dim=0)  # row b*n + s = crop b, sample s
+    layers, k = [], 0
+    for m in model.classifier:
+        if isinstance(m, nn.Dropout):
+            layers.append(FixedMaskDropout(masks[k].reshape(B * n, -1)))
+            k += 1
+        else:
+            layers.append(m)
+    head = nn.Sequential(*layers)
+    f = torch.flatten(model.avgpool(model.features(xr)), 1)
+    return head(f).reshape(B, n, -1)
+

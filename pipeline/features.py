@@ -1,0 +1,219 @@
+"""Feature tables: score crops with the MC-dropout AlexNet and write/read the Parquet contract.
+
+``bigbird.parquet``: one row per (object, camera, angle, pass); ``avd.parquet``: one row per
+(scan, image, instance, pass). ``pass`` = -1 is the deterministic (eval-mode) pass, 0..N_s-1 the
+dropout samples; ``scores`` is a fixed-size float32 list of softmax probabilities over the
+classifier's D outputs. Key-value metadata: ``viewfuse.config_hash`` (sha256 of [features]),
+``viewfuse.classifier_hash``, ``viewfuse.seed``, ``viewfuse.score_dim``,
+``viewfuse.output_names`` (JSON list), ``viewfuse.n_samples`` (plus ``viewfuse.crop_policy``).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from pipeline.cache import atomic_path
+
+BOX_COLS = ("box_x0", "box_y0", "box_x1", "box_y1")
+CROP_COLS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
+
+
+def _fields(kind: str) -> list[tuple[str, Any]]:
+    import pyarrow as pa
+
+    i32, f64 = pa.int32(), pa.float64()
+    if kind == "bigbird":
+        head = [("object", pa.string()), ("camera", i32), ("angle_deg", i32), ("image", pa.string())]
+        tail = [("cam_x", f64), ("cam_y", f64), ("cam_z", f64), ("u_x", f64), ("u_y", f64)]
+    elif kind == "avd":
+        head = [("scan", pa.string()), ("image", pa.string()), ("instance", pa.string()),
+                ("instance_id", i32), ("difficulty", pa.int8())]
+        tail = [("cam_x", f64), ("cam_y", f64), ("heading", f64), ("registered", pa.bool_())]
+    else:
+        raise ValueError(f"unknown feature table kind {kind!r} (bigbird or avd)")
+    return head + [(c, i32) for c in BOX_COLS] + [(c, i32) for c in CROP_COLS] + tail
+
+
+def meta_columns(kind: str) -> list[str]:
+    """Per-crop columns a caller supplies (everything but ``pass`` and ``scores``)."""
+    return [n for n, _ in _fields(kind)]
+
+
+def schema(kind: str, dim: int, metadata: dict[str, str] | None = None):
+    import pyarrow as pa
+
+    fields = [pa.field(n, t, nullable=False) for n, t in _fields(kind)]
+    fields += [pa.field("pass", pa.int16(), nullable=False),
+               pa.field("scores", pa.list_(pa.field("item", pa.float32(), nullable=False), dim), nullable=False)]
+    md = None if metadata is None else {k.encode(): str(v).encode() for k, v in metadata.items()}
+    return pa.schema(fields, metadata=md)
+
+
+def metadata(*, config_hash: str, classifier_hash: str, seed: int, output_names: list[str],
+             n_samples: int, crop_policy: dict | None = None) -> dict[str, str]:
+    md = {"viewfuse.config_hash": config_hash, "viewfuse.classifier_hash": classifier_hash,
+          "viewfuse.seed": str(int(seed)), "viewfuse.score_dim": str(len(output_names)),
+          "viewfuse.output_names": json.dumps(list(output_names)), "viewfuse.n_samples": str(int(n_samples))}
+    if crop_policy is not None:
+        md["viewfuse.crop_policy"] = json.dumps(crop_policy, sort_keys=True)
+    return md
+
+
+def build_table(kind: str, columns: dict[str, Iterable], det: np.ndarray, mc: np.ndarray | None,
+                md: dict[str, str] | None = None):
+    """Expand per-crop columns into rows: each crop gives its pass -1 row, then passes 0..N_s-1.
+
+    ``det``: (n, D) deterministic scores; ``mc``: (n, N_s, D) dropout samples or None.
+    """
+    import pyarrow as pa
+
+    det = np.asarray(det, dtype=np.float32)
+    if det.ndim != 2:
+        raise ValueError(f"deterministic scores must be (n, D), got {det.shape}")
+    n, D = det.shape
+    if mc is not None:
+        mc = np.asarray(mc, dtype=np.float32)
+        if mc.ndim != 3 or mc.shape[0] != n or mc.shape[2] != D:
+            raise ValueError(f"dropout scores must be (n, N_s, D) = ({n}, N_s, {D}), got {mc.shape}")
+        ns = mc.shape[1]
+        scores = np.concatenate([det[:, None, :], mc], axis=1).reshape(n * (1 + ns), D)
+    else:
+        ns = 0
+        scores = det
+    per = 1 + ns
+    rep = np.repeat(np.arange(n), per)
+    passes = np.tile(np.arange(-1, ns, dtype=np.int16), n)
+    sch = schema(kind, D, md)
+    arrays = []
+    for f in sch:
+        if f.name == "pass":
+            arrays.append(pa.array(passes, type=f.type))
+        elif f.name == "scores":
+            flat = pa.array(np.ascontiguousarray(scores).reshape(-1), type=pa.float32())
+            arrays.append(pa.FixedSizeListArray.from_arrays(flat, D).cast(f.type))
+        else:
+            if f.name not in columns:
+                if n == 0:  # nothing scored (e.g. no box up to the difficulty): an empty table
+                    arrays.append(pa.array([], type=f.type))
+                    continue
+                raise KeyError(f"{kind} feature table: column {f.name!r} missing")
+            col = np.asarray(list(columns[f.name]) if not isinstance(columns[f.name], np.ndarray) else columns[f.name])
+            if len(col) != n:
+                raise ValueError(f"{kind} feature table: column {f.name!r} has {len(col)} values for {n} crops")
+            arrays.append(pa.array(col[rep], type=f.type))
+    return pa.Table.from_arrays(arrays, schema=sch)
+
+
+def write_table(table, path: str | Path) -> None:
+    import pyarrow.parquet as pq
+
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+
+
+def read_features(path: str | Path) -> tuple["Any", np.ndarray, dict[str, str]]:
+    """(DataFrame of every column but ``scores`` (RangeIndex = row number), scores (n, D) float32,
+    ``viewfuse.*`` metadata as strings)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: features file not found (run the 'features' stage)")
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as e:
+        raise ValueError(f"{path}: not a readable Parquet file ({e})") from None
+    if "scores" not in table.column_names:
+        raise ValueError(f"{path}: no 'scores' column")
+    meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
+            if k.decode().startswith("viewfuse.")}
+    col = table.column("scores").combine_chunks()
+    if not pa.types.is_fixed_size_list(col.type):
+        raise ValueError(f"{path}: 'scores' is {col.type}, expected fixed_size_list<float32>")
+    if col.null_count:
+        raise ValueError(f"{path}: {col.null_count} row(s) have no scores")
+    D = col.type.list_size
+    scores = col.flatten().to_numpy(zero_copy_only=False).astype(np.float32, copy=False).reshape(len(col), D)
+    if "viewfuse.score_dim" in meta and int(meta["viewfuse.score_dim"]) != D:
+        raise ValueError(f"{path}: metadata score_dim {meta['viewfuse.score_dim']} != scores width {D}")
+    df = table.drop_columns(["scores"]).to_pandas()
+    return df, scores, meta
+
+
+# -- scoring -----------------------------------------------------------------------------------
+@dataclass
+class CropJob:
+    """One crop to score: the image, the object box, a key (seeds its dropout masks) and the
+    per-crop table columns (everything but crop box, pass and scores)."""
+    key: str
+    image: np.ndarray
+    box: tuple[int, int, int, int]
+    columns: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Scored:
+    columns: dict[str, list] = field(default_factory=dict)
+    det: list[np.ndarray] = field(default_factory=list)
+    mc: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def n(self) -> int:
+        return sum(len(d) for d in self.det)
+
+    def arrays(self, dim: int, n_samples: int) -> tuple[np.ndarray, np.ndarray | None]:
+        det = np.concatenate(self.det) if self.det else np.zeros((0, dim), np.float32)
+        if not n_samples:
+            return det, None
+        mc = np.concatenate(self.mc) if self.mc else np.zeros((0, n_samples, dim), np.float32)
+        return det, mc
+
+
+def score_jobs(jobs: Iterator[CropJob], scorer, policy, *, n_samples: int, seed: int, batch_size: int,
+               dim: int) -> Scored:
+    """Crop every job with ``policy``, score in batches: deterministic pass and, if ``n_samples``,
+    that many dropout samples per crop (masks seeded by (seed, job.key))."""
+    from pipeline.classifier import crop_seed
+
+    out = Scored()
+    pending: list[tuple[CropJob, np.ndarray, tuple]] = []
+
+    def flush() -> None:
+        if not pending:
+            return
+        x = policy.to_tensor(np.stack([c for _, c, _ in pending]))
+        seeds = [crop_seed(seed, j.key) for j, _, _ in pending] if n_samples else None
+        det, mc = scorer.score(x, seeds, n_samples)
+        out.det.append(det.float().cpu().numpy())
+        if mc is not None:
+            out.mc.append(mc.float().cpu().numpy())
+        for j, _, cb in pending:
+            for k, v in j.columns.items():
+                out.columns.setdefault(k, []).append(v)
+            for k, v in zip(CROP_COLS, cb):
+                out.columns.setdefault(k, []).append(int(v))
+        pending.clear()
+
+    for job in jobs:
+        crop, cb = policy.crop(job.image, job.box)
+        pending.append((job, crop, cb))
+        if len(pending) >= batch_size:
+            flush()
+    flush()
+    for d in out.det:
+        if d.shape[1] != dim:
+            raise ValueError(f"classifier gave {d.shape[1]} scores per crop, its card says {dim}")
+    return out
+
+
+def unit_circle(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GP input: the direction of (x, y) on the unit circle (paper Eq. 47)."""
+    r = np.hypot(x, y)
+    if np.any(r <= 0):
+        raise ValueError("a camera sits on the object's vertical axis: its direction is undefined")
+    return x / r, y / r

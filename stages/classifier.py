@@ -1,0 +1,163 @@
+"""Stage ``classifier``: resolve the dropout AlexNet's weights and write its card.
+
+- ``synthetic`` (default): train torchvision's AlexNet on the synthetic source domain
+  (``pipeline.source_domain``), report held-out top-1, fail below ``training.min_accuracy``, and
+  store ``weights.npz`` (plain arrays, no pickle) beside ``card.json``.
+- ``imagenet``: torchvision's IMAGENET1K_V1 file from the local torch cache (never downloaded).
+- ``path``: any AlexNet state dict (``.npz`` or a tensor-only torch file).
+
+``card.json`` records the weights file and its sha256, output names, input size, normalisation,
+dropout p, accuracy/confusion (synthetic), training settings and timings; its ``hash`` is the
+identity of the scorer that the features stage records in its Parquet metadata.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.cache import sha256_file, write_json
+from pipeline.config import to_dict
+
+log = logging.getLogger("viewfuse.classifier")
+
+
+def extra_key(cfg) -> str:
+    """For file-based weights: the file's identity (path, size, mtime), so a replaced file reruns."""
+    c = cfg.classifier
+    if c.weights == "synthetic":
+        return ""
+    from pipeline.classifier import imagenet_dir, IMAGENET_FILE
+
+    p = imagenet_dir() / IMAGENET_FILE if c.weights == "imagenet" else cfg.resolve(c.path)
+    try:
+        st = p.stat()
+        return f"{p}|{st.st_size}|{st.st_mtime_ns}"
+    except FileNotFoundError:
+        return f"{p}|missing"
+
+
+def run(ctx) -> str:
+    c = ctx.cfg.classifier
+    device = ctx.device
+    if c.weights == "synthetic":
+        return _train_synthetic(ctx, device)
+    return _file_weights(ctx, device)
+
+
+def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
+    from pipeline.classifier import ARCHITECTURE
+
+    return {"architecture": ARCHITECTURE, "weights": c.weights, "weights_file": weights_file,
+            "weights_sha256": sha, "num_classes": int(num_classes), "output_names": names,
+            "dropout": float(c.dropout), "input_size": int(c.input_size),
+            "mean": [float(v) for v in c.mean], "std": [float(v) for v in c.std]}
+
+
+def _file_weights(ctx, device: str) -> str:
+    import torch
+
+    from pipeline.classifier import (build_alexnet, card_hash, imagenet_checkpoint, imagenet_names,
+                                     load_into, load_state_dict_file, num_classes_of, read_card)
+
+    cfg, c = ctx.cfg, ctx.cfg.classifier
+    t0 = time.perf_counter()
+    path = imagenet_checkpoint() if c.weights == "imagenet" else cfg.resolve(c.path)
+    state = load_state_dict_file(path)
+    n = num_classes_of(state, path)
+    if c.weights == "path" and c.num_classes and c.num_classes != n:
+        from pipeline.classifier import WeightsError
+        raise WeightsError(path, f"has {n} outputs but 'classifier.num_classes' = {c.num_classes}")
+    model = load_into(build_alexnet(n, c.dropout), state, path)  # validates the fit now, not later
+    # A quick forward pass at the configured input size catches an unusable size early.
+    with torch.no_grad():
+        model.eval()(torch.zeros(1, 3, c.input_size, c.input_size))
+    sha = sha256_file(path)
+    if c.weights == "imagenet":
+        names = imagenet_names(n)
+    else:
+        names = [f"class_{i}" for i in range(n)]
+        side = Path(path).parent / "card.json"
+        if side.is_file():  # our own .npz with its card beside it: keep the real output names
+            try:
+                other = read_card(side.parent)
+                if other.get("weights_sha256") == sha and len(other["output_names"]) == n:
+                    names = list(other["output_names"])
+            except (ValueError, FileNotFoundError):
+                pass
+    card = _base_card(c, n, names, str(Path(path).resolve()), sha)
+    card.update({"accuracy": None, "seconds": round(time.perf_counter() - t0, 2), "device": device,
+                 "torch": torch.__version__})
+    card["hash"] = card_hash(card)
+    write_json(ctx.out / "card.json", card)
+    ctx.extra.update({"weights": c.weights, "hash": card["hash"], "num_classes": n})
+    return f"{c.weights} weights {path} ({n} outputs, sha256 {sha[:12]})"
+
+
+def _train_synthetic(ctx, device: str) -> str:
+    import torch
+
+    from pipeline.classifier import (WEIGHTS_NPZ, build_alexnet, card_hash, confusion_matrix,
+                                     init_for_training, predict, resolve_precision, save_state_dict_npz,
+                                     train_classifier)
+    from pipeline.source_domain import TRAIN_STREAM, VAL_STREAM, category_names, render_set
+
+    c = ctx.cfg.classifier
+    t = c.training
+    names = category_names(t.categories)
+    timings = {}
+    t0 = time.perf_counter()
+    xtr, ytr = render_set(t.train_images, c.input_size, t.categories, c.seed, TRAIN_STREAM, progress=True,
+                          desc="classifier: render train")
+    xva, yva = render_set(t.val_images, c.input_size, t.categories, c.seed, VAL_STREAM, progress=True,
+                          desc="classifier: render val")
+    timings["render_s"] = round(time.perf_counter() - t0, 2)
+
+    t1 = time.perf_counter()
+    model = init_for_training(build_alexnet(t.categories, c.dropout), c.seed)
+    precision = resolve_precision(t.precision, device)
+    history = train_classifier(model, xtr, ytr, epochs=t.epochs, batch_size=t.batch_size, lr=t.lr,
+                               weight_decay=t.weight_decay, warmup_steps=t.warmup_steps, seed=c.seed,
+                               mean=c.mean, std=c.std, device=device, precision=precision,
+                               log=log.info)
+    timings["train_s"] = round(time.perf_counter() - t1, 2)
+
+    t2 = time.perf_counter()
+    logits = predict(model, xva, mean=c.mean, std=c.std, device=device, progress=True)
+    pred = logits.argmax(1)
+    acc = float(np.mean(pred == yva))
+    cm = confusion_matrix(yva, pred, t.categories)
+    timings["validate_s"] = round(time.perf_counter() - t2, 2)
+    log.info("held-out top-1 on the source domain: %.4f (%d images)", acc, len(yva))
+
+    model = model.cpu().float()
+    sha = save_state_dict_npz(model, ctx.out / WEIGHTS_NPZ)
+    card = _base_card(c, t.categories, names, WEIGHTS_NPZ, sha)
+    card.update({
+        "accuracy": acc,
+        "val_images": int(len(yva)),
+        "per_class_accuracy": {n: float(cm[i, i] / max(1, cm[i].sum())) for i, n in enumerate(names)},
+        "confusion": cm.tolist(),
+        "training": {**to_dict(t), "precision_used": precision, "seed": c.seed, "optimizer": "Adam (fused)",
+                     "schedule": "linear warmup + cosine", "augment": "dihedral flips, contrast/brightness",
+                     "init": "He normal (fan-in)", "history": history},
+        "timings": timings,
+        "device": device,
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+    })
+    card["hash"] = card_hash(card)
+    write_json(ctx.out / "card.json", card)
+    ctx.extra.update({"accuracy": acc, "hash": card["hash"], **timings})
+    if acc < t.min_accuracy:
+        log.error("confusion matrix (rows = truth, columns = prediction; %s):\n%s", ", ".join(names), cm)
+        raise RuntimeError(
+            f"classifier: held-out top-1 on the synthetic source domain is {acc:.3f}, below "
+            f"'classifier.training.min_accuracy' = {t.min_accuracy} (raise classifier.training.train_images "
+            f"or epochs; confusion matrix in the log)")
+    total = sum(timings.values())
+    return (f"synthetic AlexNet: {t.categories} categories, held-out top-1 {acc:.3f} on {len(yva)} images; "
+            f"render {timings['render_s']:.0f} s + train {timings['train_s']:.0f} s ({precision}, {device}) "
+            f"= {total:.0f} s; sha256 {sha[:12]}")

@@ -1,0 +1,193 @@
+"""Stage ``features``: crop every needed view and score it -> ``bigbird.parquet``, ``avd.parquet``.
+
+BigBIRD (GP training) views get the deterministic pass; AVD (test) boxes up to
+``features.max_difficulty`` get the deterministic pass and ``features.n_samples`` MC-dropout
+samples. One crop policy for both (``pipeline.crops``). Bad views follow ``data.skip_bad_views``:
+counted, logged and listed in the manifest, or a named error.
+
+Cache key: [features] + the data and classifier stages' keys (images, dropout p, input size,
+normalisation, training) + the classifier card hash (the weights themselves), via ``extra_key``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from typing import Iterator
+
+import numpy as np
+from tqdm import tqdm
+
+log = logging.getLogger("viewfuse.features")
+
+
+def extra_key(cfg) -> str:
+    """The weights' identity: the classifier card hash. The runner brings the classifier stage up
+    to date before it computes this stage's key, so the card read here is the one used."""
+    card = cfg.stage_dir("classifier") / "card.json"
+    try:
+        return "classifier=" + str(json.loads(card.read_text()).get("hash"))
+    except (FileNotFoundError, json.JSONDecodeError):
+        return "classifier=missing"
+
+
+def _bigbird_jobs(cfg, root, skip, bar) -> Iterator:
+    from loaders.bigbird import BigBirdObject, list_objects
+    from pipeline.features import CropJob, unit_circle
+
+    f = cfg.features
+    present = list_objects(root)
+    if f.bigbird_objects:
+        missing = [o for o in f.bigbird_objects if o not in present]
+        if missing:
+            raise ValueError(f"'features.bigbird_objects' names {missing[0]!r}, which is not a BigBIRD object "
+                             f"folder (with calibration.h5) in {root}")
+        names = list(f.bigbird_objects)
+    else:
+        names = present
+    objs = [BigBirdObject(root / n) for n in names]
+    bar.reset(total=sum(len(o.views(f.bigbird_cameras)) for o in objs))
+    for o in objs:
+        seen = 0
+        for rec in o.iter_views(f.bigbird_cameras, skip=skip):
+            seen += 1
+            bar.update(1)
+            x, y, z = (float(v) for v in rec.pose[:3, 3])
+            ux, uy = unit_circle(np.array([x]), np.array([y]))
+            v = rec.view
+            yield CropJob(key=f"bigbird/{v.object}/NP{v.camera}_{v.angle}", image=rec.image, box=rec.box,
+                          columns={"object": v.object, "camera": v.camera, "angle_deg": v.angle,
+                                   "image": v.image_path.relative_to(root).as_posix(),
+                                   "box_x0": rec.box[0], "box_y0": rec.box[1], "box_x1": rec.box[2],
+                                   "box_y1": rec.box[3], "cam_x": x, "cam_y": y, "cam_z": z,
+                                   "u_x": float(ux[0]), "u_y": float(uy[0])})
+        # Views skipped by the reader still count on the bar.
+        bar.update(len(o.views(f.bigbird_cameras)) - seen)
+
+
+def _avd_jobs(cfg, scan, skip, bar) -> Iterator:
+    from loaders.errors import BadInputError
+    from pipeline.features import CropJob
+
+    f = cfg.features
+    if f.avd_instances:
+        unknown = [n for n in f.avd_instances if n not in scan.instance_ids]
+        if unknown:
+            raise ValueError(f"'features.avd_instances' names {unknown[0]!r}, which is not in "
+                             f"{scan.root / 'instance_id_map.txt'}")
+        names = list(f.avd_instances)
+    else:
+        names = list(scan.present_instances)
+    ids = {scan.instance_ids[n] for n in names}
+    todo = [(img, [b for b in img.boxes if b.instance_id in ids and b.difficulty <= f.max_difficulty])
+            for img in scan.images.values()]
+    todo = [(img, boxes) for img, boxes in todo if boxes]
+    bar.reset(total=len(todo))
+    for img, boxes in todo:
+        bar.update(1)
+        try:
+            image = scan.read_image(img.name)
+        except BadInputError as err:
+            if skip is None:
+                raise
+            skip.skip(err)
+            continue
+        for b in boxes:
+            inst = scan.instance_names[b.instance_id]
+            yield CropJob(key=f"avd/{scan.scan}/{img.name}/{inst}/{b.x0},{b.y0},{b.x1},{b.y1}", image=image,
+                          box=(b.x0, b.y0, b.x1, b.y1),
+                          columns={"scan": scan.scan, "image": img.name, "instance": inst,
+                                   "instance_id": b.instance_id, "difficulty": b.difficulty,
+                                   "box_x0": b.x0, "box_y0": b.y0, "box_x1": b.x1, "box_y1": b.y1,
+                                   "cam_x": float(img.position[0]), "cam_y": float(img.position[1]),
+                                   "heading": float(img.heading), "registered": bool(img.registered)})
+
+
+def viewpoint_spread(objects: np.ndarray, scores: np.ndarray, names: list[str]) -> dict:
+    """Per object: how much its deterministic scores move with the viewpoint (std over views)."""
+    out = {}
+    for obj in sorted(set(objects)):
+        s = scores[objects == obj].astype(np.float64)
+        if len(s) < 2:
+            continue
+        std = s.std(axis=0)
+        mean = s.mean(axis=0)
+        top = np.argsort(mean)[::-1][:4]
+        arg = s.argmax(1)
+        out[obj] = {"views": int(len(s)),
+                    "top_components": [names[i] for i in top],
+                    "top_mean": [round(float(mean[i]), 4) for i in top],
+                    "top_std": [round(float(std[i]), 4) for i in top],
+                    "max_std": round(float(std.max()), 4),
+                    "mean_std_top4": round(float(std[top].mean()), 4),
+                    "argmax_classes_seen": int(len(np.unique(arg)))}
+    return out
+
+
+def run(ctx) -> str:
+    import torch
+
+    from loaders.avd import AVDScan
+    from loaders.errors import SkipLog
+    from pipeline.classifier import MCDropoutScorer, load_classifier
+    from pipeline.crops import CropPolicy
+    from pipeline.features import build_table, metadata, score_jobs, write_table
+    from stages.data import data_roots
+
+    cfg = ctx.cfg
+    f = cfg.features
+    device = ctx.device
+    t0 = time.perf_counter()
+    bb_root, avd_root = data_roots(cfg)
+    model, card = load_classifier(ctx.input("classifier"), device)
+    policy = CropPolicy.from_config(cfg)
+    for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
+        if card.get(key) is not None and card[key] != mine:
+            raise ValueError(f"{ctx.input('classifier') / 'card.json'}: classifier {key} {card[key]} differs "
+                             f"from 'classifier.{key}' = {mine} (rerun the classifier stage)")
+    scorer = MCDropoutScorer(model, device)
+    names = list(card["output_names"])
+    dim = len(names)
+    md = metadata(config_hash=cfg.section_hash("features"), classifier_hash=card["hash"], seed=f.seed,
+                  output_names=names, n_samples=f.n_samples, crop_policy=policy.as_dict())
+    skipping = cfg.data.skip_bad_views
+    timings = {}
+
+    # BigBIRD: deterministic pass only (GP training views, as in the paper).
+    skip_bb = SkipLog("BigBIRD view") if skipping else None
+    t1 = time.perf_counter()
+    with tqdm(desc="features: BigBIRD views", unit="view") as bar:
+        bb = score_jobs(_bigbird_jobs(cfg, bb_root, skip_bb, bar), scorer, policy, n_samples=0, seed=f.seed,
+                        batch_size=f.batch_size, dim=dim)
+    det_bb, _ = bb.arrays(dim, 0)
+    write_table(build_table("bigbird", bb.columns, det_bb, None, md), ctx.out / "bigbird.parquet")
+    timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
+
+    # AVD: deterministic pass + N_s dropout samples per box.
+    skip_avd = SkipLog("AVD entry") if skipping else None
+    t2 = time.perf_counter()
+    scan = AVDScan(avd_root, cfg.data.scan, skip=skip_avd)
+    with tqdm(desc="features: AVD images", unit="image") as bar:
+        av = score_jobs(_avd_jobs(cfg, scan, skip_avd, bar), scorer, policy, n_samples=f.n_samples,
+                        seed=f.seed, batch_size=f.batch_size, dim=dim)
+    det_av, mc_av = av.arrays(dim, f.n_samples)
+    write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / "avd.parquet")
+    timings["avd_s"] = round(time.perf_counter() - t2, 2)
+    if av.n == 0:
+        log.warning("no AVD box up to difficulty %d in scan %s: avd.parquet is empty", f.max_difficulty, cfg.data.scan)
+
+    spread = viewpoint_spread(np.asarray(bb.columns.get("object", []), dtype=object), det_bb, names)
+    for obj, s in spread.items():
+        log.info("viewpoint spread %s: top components %s, std over views %s (max %.3f, %d argmax classes)",
+                 obj, s["top_components"], s["top_std"], s["max_std"], s["argmax_classes_seen"])
+    timings["total_s"] = round(time.perf_counter() - t0, 2)
+    ctx.extra.update({
+        "bigbird_crops": bb.n, "avd_crops": av.n, "n_samples": f.n_samples, "score_dim": dim,
+        "classifier_hash": card["hash"], "crop_policy": policy.as_dict(),
+        "skipped": {"bigbird": skip_bb.summary() if skip_bb else None,
+                    "avd": skip_avd.summary() if skip_avd else None},
+        "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": torch.get_num_threads(),
+    })
+    n_skip = (skip_bb.count if skip_bb else 0) + (skip_avd.count if skip_avd else 0)
+    return (f"{bb.n} BigBIRD crops (1 pass) + {av.n} AVD crops (1 + {f.n_samples} passes), D = {dim}, "
+            f"{n_skip} skipped; BigBIRD {timings['bigbird_s']:.0f} s, AVD {timings['avd_s']:.0f} s on {device}")

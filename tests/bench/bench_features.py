@@ -1,0 +1,129 @@
+"""Feature-extraction throughput at N_s = 10 (printed, never asserted).
+
+Three timings on the same crops, the same model and the same machine, in one run:
+  A. trunk once + batched head on B*N_s rows with per-crop seeded masks (mask drawing and softmax
+     included); also shown with the deterministic pass added (``MCDropoutScorer.score``, what the
+     features stage runs);
+  B. N_s full stochastic passes (trunk + head each time, torch's own Dropout), the literal
+     definition of MC dropout, with the same kernels as A (also shown: torchvision's module as is);
+  L. the lower bound: one trunk pass + N_s eval-mode head passes, each timed on its own.
+Goals: A at least 3x faster than B, and within 15% of L. Each time is the best of ``--repeats``
+interleaved rounds (the machine is shared).
+
+    python tests/bench/bench_features.py [--crops 64] [--samples 10] [--size 128] [--repeats 5]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+import torch  # noqa: E402
+
+from pipeline.classifier import (MCDropoutScorer, build_alexnet, crop_seed, fast_head,  # noqa: E402
+                                 init_for_training)
+from pipeline.device import configure_threads  # noqa: E402
+
+
+def _interleaved_times(fns: dict, repeats: int) -> dict[str, float]:
+    """Best time of each function over ``repeats`` rounds, the functions taking turns in every
+    round: on a shared machine a burst of load then hits all routes alike instead of one."""
+    for fn in fns.values():
+        fn()  # warm-up (allocator, oneDNN primitive cache)
+    ts: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            ts[k].append(time.perf_counter() - t0)
+    return {k: min(v) for k, v in ts.items()}
+
+
+def measure(crops: int = 64, samples: int = 10, size: int = 128, repeats: int = 5, classes: int = 12,
+            device: str = "cpu") -> dict:
+    torch.manual_seed(0)
+    model = init_for_training(build_alexnet(classes, 0.5), 0).eval().to(device)
+    sc = MCDropoutScorer(model, device)
+    x = torch.randn(crops, 3, size, size, generator=torch.Generator().manual_seed(1)).to(device)
+    seeds = [crop_seed(0, f"crop{i}") for i in range(crops)]
+    sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
+
+    def ours():
+        # The N_s samples alone (what the bound and B compute): trunk, masks, batched head, softmax.
+        f = sc.trunk(x)
+        torch.softmax(sc.head_samples(f, sc.draw_masks(seeds, samples)), -1)
+        sync()
+
+    def stage():
+        sc.score(x, seeds, samples)  # as the features stage runs it: + the deterministic pass
+        sync()
+
+    def full_torchvision():
+        model.train()
+        with torch.no_grad():
+            outs = [torch.softmax(model(x), -1) for _ in range(samples)]
+        model.eval()
+        sync()
+        return outs
+
+    # The fair baseline: the same kernels as A (oneDNN head on CPU), torch's own Dropout.
+    head_train = torch.nn.Sequential(*fast_head(model.classifier, device)).train()
+
+    def full():
+        with torch.no_grad():
+            outs = [torch.softmax(head_train(sc.trunk(x)), -1) for _ in range(samples)]
+        sync()
+        return outs
+
+    f = sc.trunk(x)
+
+    def trunk():
+        sc.trunk(x)
+        sync()
+
+    def head():
+        with torch.no_grad():
+            sc.head_eval(f)
+        sync()
+
+    t = _interleaved_times({"ours": ours, "stage": stage, "full": full, "full_tv": full_torchvision,
+                            "trunk": trunk, "head": head}, repeats)
+    t_ours, t_stage, t_full, t_full_tv, t_trunk, t_head = (
+        t["ours"], t["stage"], t["full"], t["full_tv"], t["trunk"], t["head"])
+    bound = t_trunk + samples * t_head
+    return {"crops": crops, "samples": samples, "size": size, "threads": torch.get_num_threads(),
+            "t_ours": t_ours, "t_stage": t_stage, "t_full": t_full, "t_full_tv": t_full_tv, "t_trunk": t_trunk, "t_head": t_head, "t_bound": bound,
+            "speedup_vs_full": t_full / t_ours, "over_bound": t_ours / bound - 1.0}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--crops", type=int, default=64)
+    ap.add_argument("--samples", type=int, default=10)
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    args = ap.parse_args(argv if argv is not None else [])
+    configure_threads(0)
+    r = measure(args.crops, args.samples, args.size, args.repeats, device=args.device)
+    B = r["crops"]
+    print(f"features throughput, AlexNet at {r['size']}px, batch {B} crops, N_s = {r['samples']}, "
+          f"{r['threads']} threads, {args.device}")
+    print(f"  A trunk once + batched head : {r['t_ours'] * 1e3:8.1f} ms  {B / r['t_ours']:7.1f} crops/s"
+          f"   (+ deterministic pass, as the stage runs: {r['t_stage'] * 1e3:.1f} ms, {B / r['t_stage']:.1f} crops/s)")
+    print(f"  B N_s full passes           : {r['t_full'] * 1e3:8.1f} ms  {B / r['t_full']:7.1f} crops/s"
+          f"   (torchvision module as is: {r['t_full_tv'] * 1e3:.1f} ms, {B / r['t_full_tv']:.1f} crops/s)")
+    print(f"  L bound (trunk {r['t_trunk'] * 1e3:.1f} ms + {r['samples']} x head {r['t_head'] * 1e3:.1f} ms)"
+          f": {r['t_bound'] * 1e3:6.1f} ms  {B / r['t_bound']:7.1f} crops/s")
+    ok1 = "ok" if r["speedup_vs_full"] >= 3 else "MISSED"
+    ok2 = "ok" if r["over_bound"] <= 0.15 else "MISSED"
+    print(f"  speed-up A vs B: {r['speedup_vs_full']:.2f}x (goal >= 3x: {ok1}); "
+          f"A vs bound: {100 * r['over_bound']:+.1f}% (goal <= +15%: {ok2}); "
+          f"A vs torchvision full passes: {r['t_full_tv'] / r['t_ours']:.2f}x")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
