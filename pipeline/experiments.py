@@ -173,14 +173,15 @@ def summarize(posts: dict[str, np.ndarray], truth: int) -> dict[str, dict[str, f
     """The paper's Tables 1-2 per method: correct ratio and MGR 75%/95%, final step and overall.
 
     MGR is reported as the ratio max_c P(c) / P(truth) (1 = truth most likely), i.e. exp of the
-    percentile of log MGR. ``posts`` maps method -> log posteriors (R, K, C).
+    percentile of log MGR, and as its log10 (see ``metrics.mgr_fields``). ``posts`` maps method -> log posteriors (R, K, C).
     """
     out = {}
     for method, p in posts.items():
         row = M.summary_row(p, truth, is_log=True)
-        with np.errstate(over="ignore"):  # a truth probability that underflowed is MGR = inf
-            mgr = {f"mgr{q}_{w}": float(np.exp(row[f"log_mgr_p{q}_{w}"]))
-                   for q in (75, 95) for w in ("final", "overall")}
+        mgr = {}
+        for q in (75, 95):
+            for w in ("final", "overall"):
+                mgr.update(M.mgr_fields(row[f"log_mgr_p{q}_{w}"], f"{q}_{w}"))
         out[method] = {
             "correct_final": row["correct_final"],
             "correct_overall": row["correct_overall"],

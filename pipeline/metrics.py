@@ -118,3 +118,18 @@ def summary_table(posteriors: Mapping[str, np.ndarray], truth, *, is_log: bool =
 
     rows = [{"method": name, **summary_row(p, truth, is_log=is_log)} for name, p in posteriors.items()]
     return pd.DataFrame(rows).set_index("method")
+
+
+# exp() of a natural log above this overflows float64; such an MGR is kept only as log10.
+_LN_MAX = float(np.log(np.finfo(float).max))
+
+
+def mgr_fields(log_mgr: float, suffix: str) -> dict[str, float | None]:
+    """``mgr<suffix>`` as a ratio (None where it overflows float64) and ``log10_mgr<suffix>``.
+
+    Model Based can be wrong with a truth probability of 1e-3000: that is still a number in log
+    space, and JSON has no infinity, so the log10 is always written and the ratio when it fits.
+    """
+    lm = float(log_mgr)
+    return {f"mgr{suffix}": float(np.exp(lm)) if lm < _LN_MAX else None,
+            f"log10_mgr{suffix}": lm / float(np.log(10.0)) if np.isfinite(lm) else None}

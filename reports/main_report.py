@@ -23,6 +23,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from loaders.errors import BadInputError
+from pipeline.metrics import mgr_fields
 from reports.results_io import read_result_table
 from reports.figures import (METHOD_ORDER, class_colors, method_style, new_figure, new_subplots,
                              percentile_bands, save)
@@ -173,17 +174,36 @@ def summary_from_results(df: pd.DataFrame) -> dict:
         out.setdefault(setting, {})[method] = {
             "correct_final": float(fin["correct"].mean()),
             "correct_overall": float(g["correct"].mean()),
-            "mgr75_final": _exp_pct(fin["log_mgr"], 75), "mgr95_final": _exp_pct(fin["log_mgr"], 95),
-            "mgr75_overall": _exp_pct(g["log_mgr"], 75), "mgr95_overall": _exp_pct(g["log_mgr"], 95),
+            **_mgr_pct(fin["log_mgr"], 75, "final"), **_mgr_pct(fin["log_mgr"], 95, "final"),
+            **_mgr_pct(g["log_mgr"], 75, "overall"), **_mgr_pct(g["log_mgr"], 95, "overall"),
             "n_realizations": int(g["realization"].nunique()),
         }
     return out
 
 
-def _exp_pct(s: pd.Series, q: float) -> float:
+def _mgr_pct(s: pd.Series, q: float, where: str) -> dict:
     v = s.to_numpy(dtype=float)
-    with np.errstate(over="ignore"):
-        return float(np.exp(np.percentile(v, q))) if len(v) else float("nan")
+    if not len(v):
+        return {f"mgr{q}_{where}": float("nan"), f"log10_mgr{q}_{where}": float("nan")}
+    return mgr_fields(float(np.percentile(v, q)), f"{q}_{where}")
+
+
+def mgr_cell(ratio, log10) -> float | str | None:
+    """An MGR table cell: the ratio, or '1.3e+3530' built from its log10 where it overflows."""
+    if ratio is not None and np.isfinite(float(ratio)):
+        return float(ratio)
+    if log10 is not None and np.isfinite(float(log10)):
+        e = math.floor(float(log10))
+        return f"{10 ** (float(log10) - e):.3g}e+{e}"
+    return ratio
+
+
+def mgr95_log10(m: dict) -> float:
+    """log10 of the final-step 95th-percentile MGR of one summary entry (nan if absent)."""
+    if m.get("log10_mgr95_final") is not None:
+        return float(m["log10_mgr95_final"])
+    r = m.get("mgr95_final")
+    return float(np.log10(r)) if r is not None and float(r) > 0 else float("nan")
 
 
 def experiment_summary(ev: EvaluateOutputs, exp: str) -> dict:
@@ -381,6 +401,10 @@ def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[A
     axes[0, 0].set_ylabel(ylabel)
     if column == "p_truth":
         axes[0, 0].set_ylim(-0.02, 1.02)
+    elif cap > 10.0:
+        # Shared axis spanning 0..thousands: symlog keeps the near-zero method readable too.
+        axes[0, 0].set_yscale("symlog", linthresh=1.0)
+        axes[0, 0].set_ylim(bottom=-0.05)  # log MGR >= 0; no empty negative half
     fig.suptitle(title)
     return fig, clipped
 
@@ -395,7 +419,7 @@ def fig_sensitivity(summ: dict, sigma_of: dict[str, float]) -> Any:
         st = method_style(m)
         cf = np.array([summ[s].get(m, {}).get("correct_final", np.nan) for s in settings], float)
         co = np.array([summ[s].get(m, {}).get("correct_overall", np.nan) for s in settings], float)
-        mg = np.array([summ[s].get(m, {}).get("mgr95_final", np.nan) for s in settings], float)
+        mg = np.array([mgr95_log10(summ[s].get(m, {})) for s in settings], float)
         axes[0, 0].plot(sig, cf, "-o", color=st["color"], label=f"{st['label']}: final", ms=4)
         axes[0, 0].plot(sig, co, "--", color=st["color"], label=f"{st['label']}: overall", lw=1, alpha=0.8)
         axes[0, 1].plot(sig, mg, "-o", color=st["color"], label=st["label"], ms=4)
@@ -404,10 +428,11 @@ def fig_sensitivity(summ: dict, sigma_of: dict[str, float]) -> Any:
     axes[0, 0].set_ylabel("correct classification ratio")
     axes[0, 0].set_title("Correct ratio vs σ")
     axes[0, 0].legend(loc="best", fontsize=7.5)
-    axes[0, 1].set_yscale("log")
-    axes[0, 1].axhline(1.0, color="#777777", ls="--", lw=1)
+    # log10 MGR on a symlog axis: ours sits near 0-1 while Model Based can reach 10^3000.
+    axes[0, 1].set_yscale("symlog", linthresh=1.0)
+    axes[0, 1].axhline(0.0, color="#777777", ls="--", lw=1)
     axes[0, 1].set_xlabel("localization noise σ (m)")
-    axes[0, 1].set_ylabel("MGR 95th percentile, final step (ratio)")
+    axes[0, 1].set_ylabel("log10 MGR, 95th pct., final step")
     axes[0, 1].set_title("Confident misclassification vs σ (lower is better)")
     axes[0, 1].legend(loc="best", fontsize=7.5)
     return fig
@@ -478,7 +503,9 @@ def summary_rows(summ: dict, sigma_of: dict[str, float] | None = None) -> list[l
         ms = [m for m in METHOD_ORDER if m in summ[s]] + sorted(set(summ[s]) - set(METHOD_ORDER))
         for m in ms:
             v = summ[s][m]
-            rows.append([s, method_style(m)["label"]] + [v.get(k) for k in SUMMARY_KEYS])
+            rows.append([s, method_style(m)["label"]]
+                        + [mgr_cell(v.get(k), v.get(f"log10_{k}")) if k.startswith("mgr") else v.get(k)
+                           for k in SUMMARY_KEYS])
     return rows
 
 
@@ -523,13 +550,18 @@ def hyperparameter_table(index: dict) -> tuple[list[str], list[list], list[str]]
     header = [_HP_NAMES.get(k, k) for k in id_keys + cols] + ["warnings"]
     rows, warns = [], []
     for f in fits:
-        w: list[str] = []
+        lists = {}
         for key in ("at_bound", "warnings"):
             v = f.get(key) or []
-            w += [v] if isinstance(v, str) else [str(x) for x in v]
+            lists[key] = [v] if isinstance(v, str) else [str(x) for x in v]
         ident = " / ".join(str(f.get(k)) for k in id_keys if f.get(k) is not None)
-        warns += [f"{ident}: {x}" for x in w]
-        rows.append([f.get(k) for k in id_keys] + [f.get(k) for k in cols] + ["; ".join(w)])
+        warns += [f"{ident}: {x}" for x in lists["at_bound"] + lists["warnings"]]
+        # The cell stays short (bound flags); the optimizer's full messages are listed below.
+        cell = list(lists["at_bound"])
+        if lists["warnings"]:
+            n = len(lists["warnings"])
+            cell.append(f"{n} optimizer message{'s' if n > 1 else ''} (below)")
+        rows.append([f.get(k) for k in id_keys] + [f.get(k) for k in cols] + ["; ".join(cell)])
     warns += [str(w) for w in (index.get("warnings") or [])]
     return header, rows, warns
 

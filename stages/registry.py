@@ -40,7 +40,7 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
                "pipeline.gp", "pipeline.geometry", "pipeline.metrics", "pipeline.features", "loaders.avd"),
               "build the AVD track and run the localization-error experiments", after=("report",)),
     StageSpec("report", "stages.report", ("models", "evaluate"), ("report",),
-              ("stages.report", "reports", "loaders.errors", "pipeline.cache"),
+              ("stages.report", "reports", "loaders.errors", "pipeline.cache", "pipeline.metrics"),
               "render the HTML + PNG report from existing results"),
     StageSpec("simulate", "stages.simulate", (), ("simulate",),
               ("stages.simulate", "pipeline.simulation", "pipeline.fusion", "pipeline.gp",

@@ -97,6 +97,20 @@ def test_long_rows_and_summary():
         lm = logs[meth].max(-1) - logs[meth][..., 2]
         assert v["mgr95_final"] == pytest.approx(np.exp(np.percentile(lm[:, -1], 95)))
         assert v["mgr75_final"] >= 1.0
+        assert v["log10_mgr95_final"] == pytest.approx(np.percentile(lm[:, -1], 95) / np.log(10))
+
+
+def test_summary_keeps_an_overflowing_mgr_as_log10_and_stays_strict_json():
+    import json
+    C = 3
+    logp = np.full((4, 2, C), -1e-300)
+    logp[..., 0] = -5000.0                      # truth probability e^-5000: MGR overflows float64
+    s = E.summarize({"model_based": logp}, 0)["model_based"]
+    assert s["mgr95_final"] is None
+    assert s["log10_mgr95_final"] == pytest.approx(5000 / np.log(10), rel=1e-12)
+    json.dumps(s, allow_nan=False)              # no Infinity/NaN tokens in summary.json
+    ok = E.summarize({"model_based": logp}, 1)["model_based"]   # truth among the likely ones
+    assert ok["mgr95_final"] == pytest.approx(1.0) and ok["log10_mgr95_final"] == pytest.approx(0.0)
 
 
 def test_bias_maps_zero_bias_matches_single_view():

@@ -331,3 +331,11 @@ def test_report_stage_renders_from_existing_results(tmp_config, tmp_path):
     assert ctx.extra["figures"] and all((out / f).is_file() for f in ctx.extra["figures"])
     # It only read the evaluate outputs: nothing there changed or was added.
     assert {p.name: p.read_bytes() for p in (cfg.run_dir / "evaluate").iterdir()} == before
+
+
+def test_mgr_cells_show_an_overflowing_ratio_from_its_log10():
+    from reports.main_report import mgr_cell
+    assert mgr_cell(3.5, 0.544) == 3.5
+    assert mgr_cell(None, 3530.30103) == "2e+3530"
+    assert float(mgr_cell(None, 400.0)) == float("inf")   # still parses as a (huge) number
+    assert mgr_cell(None, None) is None
