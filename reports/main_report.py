@@ -795,7 +795,8 @@ def build_main_report(evaluate_dir: str | Path, models_dir: str | Path | None, o
         page.paragraph("The randomized experiment repeated over a sweep of localization noise σ "
                        "(paper Figs. 12–13).")
         page.figure("sensitivity.png", "Left: correct ratio (solid: final step, dashed: all steps). "
-                                       "Right: 95th percentile of MGR at the final step, log scale.")
+                                       "Right: log10 of the 95th-percentile MGR at the final step "
+                                       "(symlog axis; 0 = truth most likely).")
         page.table(SUMMARY_HEADER, summary_rows(experiment_summary(ev, "sensitivity"), sens_sigma),
                    cls="summary sensitivity", caption="Sensitivity sweep, per σ and method.")
 
