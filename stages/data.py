@@ -79,14 +79,15 @@ def _check_real(ctx) -> str:
 
     cfg = ctx.cfg
     bb, avd = data_roots(cfg)
+    where = f" (set it in {cfg.source_path}; see README, Real data)" if cfg.source_path else ""
     if not bb.is_dir():
-        raise BadInputError(bb, "'data.bigbird_root' is not an existing folder")
+        raise BadInputError(bb, f"'data.bigbird_root' is not an existing folder{where}")
     objects = list_objects(bb)
     if not objects:
         raise BadInputError(bb, "'data.bigbird_root' holds no BigBIRD object folder "
                                 "(a folder with calibration.h5, e.g. aunt_jemima_original_syrup/)")
     if not avd.is_dir():
-        raise BadInputError(avd, "'data.avd_root' is not an existing folder")
+        raise BadInputError(avd, f"'data.avd_root' is not an existing folder{where}")
     if not (avd / "instance_id_map.txt").is_file():
         raise BadInputError(avd / "instance_id_map.txt",
                             "missing: the AVD root must hold instance_id_map.txt (downloaded separately)")

@@ -123,8 +123,9 @@ def test_real_source_validates_paths_and_fingerprints_inputs(built, tmp_config, 
     with pytest.raises(BadInputError, match="annotations.json"):
         ensure(real, "data", force=True)
     missing = tmp_config({"data": {"source": "real", "bigbird_root": str(tmp_path / "nope"), "avd_root": str(avd)}})
-    with pytest.raises(BadInputError, match="nope"):
+    with pytest.raises(BadInputError, match="nope") as err:
         ensure(missing, "data")
+    assert "data.bigbird_root" in str(err.value) and missing.source_path in str(err.value)
     wrong_scan = tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
                                       "scan": "Home_002_1"}})
     with pytest.raises(BadInputError, match="Home_002_1"):
