@@ -104,9 +104,24 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise
 
 
+def _strict(o: Any) -> Any:
+    """Non-finite floats -> None: JSON has no inf/NaN, and browsers and jq reject the tokens."""
+    if isinstance(o, dict):
+        return {k: _strict(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_strict(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _strict(o.tolist())
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    return o
+
+
 def write_json(path: str | Path, obj: Any) -> None:
+    """Atomic, strict JSON (inf/NaN written as null; summaries keep log10 values where that matters)."""
+    text = json.dumps(_strict(obj), indent=2, sort_keys=True, default=_json_default, allow_nan=False)
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n")
+        tmp.write_text(text + "\n")
 
 
 def write_text(path: str | Path, text: str) -> None:

@@ -104,3 +104,17 @@ def test_cli_reports_config_errors(tmp_path, capsys):
     assert main(["data", "--config", str(bad)]) == 2
     err = capsys.readouterr().err
     assert "run.colour" in err and str(bad) in err
+
+
+def test_write_json_is_strict_json(tmp_path):
+    import json
+
+    import numpy as np
+
+    from pipeline.cache import write_json
+    p = tmp_path / "s.json"
+    write_json(p, {"inf": float("inf"), "nan": np.float64("nan"), "f32": np.float32(-np.inf),
+                   "arr": np.array([1.0, np.nan]), "ok": 2.5, "n": np.int64(3)})
+    text = p.read_text()
+    assert "Infinity" not in text and "NaN" not in text
+    assert json.loads(text) == {"inf": None, "nan": None, "f32": None, "arr": [1.0, None], "ok": 2.5, "n": 3}
