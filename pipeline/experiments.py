@@ -173,19 +173,17 @@ def summarize(posts: dict[str, np.ndarray], truth: int) -> dict[str, dict[str, f
     """The paper's Tables 1-2 per method: correct ratio and MGR 75%/95%, final step and overall.
 
     MGR is reported as the ratio max_c P(c) / P(truth) (1 = truth most likely), i.e. exp of the
-    percentile of log MGR, and as its log10 (see ``metrics.mgr_fields``). ``posts`` maps method -> log posteriors (R, K, C).
+    percentile of log MGR, and as its log10 (see ``metrics.mgr_fields``). ``posts`` maps method ->
+    log posteriors (R, K, C).
     """
     out = {}
     for method, p in posts.items():
         row = M.summary_row(p, truth, is_log=True)
-        mgr = {}
-        for q in (75, 95):
-            for w in ("final", "overall"):
-                mgr.update(M.mgr_fields(row[f"log_mgr_p{q}_{w}"], f"{q}_{w}"))
+        lm = M.log_mgr(p, truth, is_log=True)
         out[method] = {
             "correct_final": row["correct_final"],
             "correct_overall": row["correct_overall"],
-            **mgr,
+            **M.mgr_percentile_fields(lm[:, -1], lm),
             "prob_truth_final": row["prob_truth_final"],
             "msde_final": row["msde_final"],
             "n_realizations": int(p.shape[0]),

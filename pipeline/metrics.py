@@ -131,5 +131,17 @@ def mgr_fields(log_mgr: float, suffix: str) -> dict[str, float | None]:
     space, and JSON has no infinity, so the log10 is always written and the ratio when it fits.
     """
     lm = float(log_mgr)
+    if np.isnan(lm):  # no values: stays "not available"
+        return {f"mgr{suffix}": lm, f"log10_mgr{suffix}": lm}
     return {f"mgr{suffix}": float(np.exp(lm)) if lm < _LN_MAX else None,
             f"log10_mgr{suffix}": lm / float(np.log(10.0)) if np.isfinite(lm) else None}
+
+
+def mgr_percentile_fields(log_mgr_final, log_mgr_all) -> dict[str, float | None]:
+    """The paper's table MGR entries: 75th/95th percentiles of log MGR at the final step and over
+    all steps, each as ``mgr<q>_<where>`` and ``log10_mgr<q>_<where>`` (see ``mgr_fields``)."""
+    out: dict[str, float | None] = {}
+    for where, x in (("final", log_mgr_final), ("overall", log_mgr_all)):
+        for q in (75, 95):
+            out.update(mgr_fields(float(percentile(x, q)), f"{q}_{where}"))
+    return out

@@ -314,16 +314,11 @@ def example_rows(res: ScenarioResult, models: GPClassModels) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _mgr(log_mgr: pd.Series, q: float) -> float:
-    """MGR percentile as a ratio; +inf log MGR (truth probability underflowed) counts as a value."""
-    with np.errstate(over="ignore"):
-        return float(np.exp(M.percentile(log_mgr.to_numpy(float), q)))
-
-
 def summarize(df: pd.DataFrame) -> pd.DataFrame:
     """Per (scenario, method): correct ratio final/overall, MGR 75%/95% final/overall.
 
-    MGR is the ratio max_c P(c) / P(truth) (1 = truth most likely): exp of log-MGR percentiles.
+    MGR is the ratio max_c P(c) / P(truth) (1 = truth most likely): exp of log-MGR percentiles,
+    with its log10 beside it (``metrics.mgr_percentile_fields``).
     """
     rows = []
     for (scenario, method), g in df.groupby(["scenario", "method"], sort=False):
@@ -332,8 +327,7 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
             "scenario": scenario, "method": method,
             "correct_final": float(last["correct"].mean()),
             "correct_overall": float(g["correct"].mean()),
-            "mgr75_final": _mgr(last["log_mgr"], 75), "mgr95_final": _mgr(last["log_mgr"], 95),
-            "mgr75_overall": _mgr(g["log_mgr"], 75), "mgr95_overall": _mgr(g["log_mgr"], 95),
+            **M.mgr_percentile_fields(last["log_mgr"].to_numpy(float), g["log_mgr"].to_numpy(float)),
             "realizations": int(g["realization"].nunique()),
         })
     return pd.DataFrame(rows)

@@ -87,6 +87,16 @@ def format_cell(value: Any) -> tuple[str, bool]:
     return str(value), False
 
 
+def mgr_cell(ratio, log10) -> float | str | None:
+    """An MGR table cell: the ratio, or '1.3e+3530' built from its log10 where it overflows."""
+    if ratio is not None and math.isfinite(float(ratio)):
+        return float(ratio)
+    if log10 is not None and math.isfinite(float(log10)):
+        e = math.floor(float(log10))
+        return f"{10 ** (float(log10) - e):.3g}e+{e}"
+    return ratio
+
+
 @dataclass
 class _Section:
     title: str

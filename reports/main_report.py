@@ -23,11 +23,11 @@ import pandas as pd
 from tqdm import tqdm
 
 from loaders.errors import BadInputError
-from pipeline.metrics import mgr_fields
+from pipeline.metrics import mgr_percentile_fields
 from reports.results_io import read_result_table
 from reports.figures import (METHOD_ORDER, class_colors, method_style, new_figure, new_subplots,
                              percentile_bands, save)
-from reports.html import HtmlReport
+from reports.html import HtmlReport, mgr_cell
 
 log = logging.getLogger("viewfuse.report")
 
@@ -174,28 +174,10 @@ def summary_from_results(df: pd.DataFrame) -> dict:
         out.setdefault(setting, {})[method] = {
             "correct_final": float(fin["correct"].mean()),
             "correct_overall": float(g["correct"].mean()),
-            **_mgr_pct(fin["log_mgr"], 75, "final"), **_mgr_pct(fin["log_mgr"], 95, "final"),
-            **_mgr_pct(g["log_mgr"], 75, "overall"), **_mgr_pct(g["log_mgr"], 95, "overall"),
+            **mgr_percentile_fields(fin["log_mgr"].to_numpy(float), g["log_mgr"].to_numpy(float)),
             "n_realizations": int(g["realization"].nunique()),
         }
     return out
-
-
-def _mgr_pct(s: pd.Series, q: float, where: str) -> dict:
-    v = s.to_numpy(dtype=float)
-    if not len(v):
-        return {f"mgr{q}_{where}": float("nan"), f"log10_mgr{q}_{where}": float("nan")}
-    return mgr_fields(float(np.percentile(v, q)), f"{q}_{where}")
-
-
-def mgr_cell(ratio, log10) -> float | str | None:
-    """An MGR table cell: the ratio, or '1.3e+3530' built from its log10 where it overflows."""
-    if ratio is not None and np.isfinite(float(ratio)):
-        return float(ratio)
-    if log10 is not None and np.isfinite(float(log10)):
-        e = math.floor(float(log10))
-        return f"{10 ** (float(log10) - e):.3g}e+{e}"
-    return ratio
 
 
 def mgr95_log10(m: dict) -> float:
@@ -522,6 +504,12 @@ _HP_PREFERRED = ("mean", "amplitude", "length_scale", "noise", "log_marginal_lik
 _HP_HIDDEN = {"warnings", "at_bound", "init", "restarts", "random_state"}
 
 
+def _str_list(v) -> list[str]:
+    """A JSON field that holds one string or a list of them, as a list of strings."""
+    v = v or []
+    return [v] if isinstance(v, str) else [str(x) for x in v]
+
+
 def hyperparameter_table(index: dict) -> tuple[list[str], list[list], list[str]]:
     """Header, rows and warnings from models/index.json.
 
@@ -550,17 +538,12 @@ def hyperparameter_table(index: dict) -> tuple[list[str], list[list], list[str]]
     header = [_HP_NAMES.get(k, k) for k in id_keys + cols] + ["warnings"]
     rows, warns = [], []
     for f in fits:
-        lists = {}
-        for key in ("at_bound", "warnings"):
-            v = f.get(key) or []
-            lists[key] = [v] if isinstance(v, str) else [str(x) for x in v]
+        at_bound, messages = (_str_list(f.get(key)) for key in ("at_bound", "warnings"))
         ident = " / ".join(str(f.get(k)) for k in id_keys if f.get(k) is not None)
-        warns += [f"{ident}: {x}" for x in lists["at_bound"] + lists["warnings"]]
+        warns += [f"{ident}: {x}" for x in at_bound + messages]
         # The cell stays short (bound flags); the optimizer's full messages are listed below.
-        cell = list(lists["at_bound"])
-        if lists["warnings"]:
-            n = len(lists["warnings"])
-            cell.append(f"{n} optimizer message{'s' if n > 1 else ''} (below)")
+        cell = at_bound + ([f"{len(messages)} optimizer message{'s' if len(messages) > 1 else ''} (below)"]
+                           if messages else [])
         rows.append([f.get(k) for k in id_keys] + [f.get(k) for k in cols] + ["; ".join(cell)])
     warns += [str(w) for w in (index.get("warnings") or [])]
     return header, rows, warns

@@ -26,7 +26,7 @@ from pipeline.metrics import percentile
 from pipeline.simulation import summarize
 
 from reports.figures import class_colors, method_style, new_subplots, percentile_bands, save
-from reports.html import HtmlReport
+from reports.html import HtmlReport, mgr_cell
 
 log = logging.getLogger("viewfuse.simulate")
 
@@ -406,8 +406,9 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
         t = tab[tab["scenario"] == s]
         page.table(["method", "correct final", "correct overall", "MGR 75% final", "MGR 95% final",
                     "MGR 75% overall", "MGR 95% overall"],
-                   [[method_style(r["method"])["label"], r["correct_final"], r["correct_overall"],
-                     r["mgr75_final"], r["mgr95_final"], r["mgr75_overall"], r["mgr95_overall"]]
+                   [[method_style(r["method"])["label"], r["correct_final"], r["correct_overall"]]
+                    + [mgr_cell(r[k], r[f"log10_{k}"])
+                       for k in ("mgr75_final", "mgr95_final", "mgr75_overall", "mgr95_overall")]
                     for _, r in t.iterrows()],
                    caption=f"{SCENARIO_TITLES.get(s, s)}: correct ratio and MGR percentiles "
                            f"(final step and all steps), {R} realizations", cls="summary")

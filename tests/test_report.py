@@ -334,7 +334,7 @@ def test_report_stage_renders_from_existing_results(tmp_config, tmp_path):
 
 
 def test_mgr_cells_show_an_overflowing_ratio_from_its_log10():
-    from reports.main_report import mgr_cell
+    from reports.html import mgr_cell
     assert mgr_cell(3.5, 0.544) == 3.5
     assert mgr_cell(None, 3530.30103) == "2e+3530"
     assert float(mgr_cell(None, 400.0)) == float("inf")   # still parses as a (huge) number
