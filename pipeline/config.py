@@ -122,6 +122,10 @@ class FeaturesConfig:
     max_difficulty: int = _f(4, lo=1, hi=5, doc="AVD boxes up to this difficulty are scored")
     bigbird_cameras: tuple[int, ...] = _f(factory=lambda: (1,))
     n_samples: int = _f(10, lo=1, hi=1000, doc="N_s dropout samples per AVD crop")
+    bigbird_samples: int = _f(10, lo=0, hi=1000,
+                              doc="dropout samples per BigBIRD view besides the deterministic pass (GP "
+                                  "training uses the deterministic pass; models.noise_floor = 'dropout' "
+                                  "uses these); 0 = deterministic pass only")
     seed: int = _f(0, lo=0)
     batch_size: int = _f(64, lo=1, hi=4096)
     pad: str = _f("mean", choices=("mean", "edge", "reflect"),

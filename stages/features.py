@@ -1,7 +1,8 @@
 """Stage ``features``: crop every needed view and score it -> ``bigbird.parquet``, ``avd.parquet``.
 
-BigBIRD (GP training) views get the deterministic pass; AVD (test) boxes up to
-``features.max_difficulty`` get the deterministic pass and ``features.n_samples`` MC-dropout
+BigBIRD (GP training) views get the deterministic pass (the GP targets, as in the paper) and
+``features.bigbird_samples`` MC-dropout samples (the data-driven GP noise floor); AVD (test) boxes
+up to ``features.max_difficulty`` get the deterministic pass and ``features.n_samples`` MC-dropout
 samples. One crop policy for both (``pipeline.crops``). Bad views follow ``data.skip_bad_views``:
 counted, logged and listed in the manifest, or a named error.
 
@@ -153,14 +154,14 @@ def run(ctx) -> str:
     skipping = cfg.data.skip_bad_views
     timings = {}
 
-    # BigBIRD: deterministic pass only (GP training views, as in the paper).
+    # BigBIRD: the deterministic pass (GP training targets, as in the paper) plus dropout samples.
     skip_bb = SkipLog("BigBIRD view") if skipping else None
     t1 = time.perf_counter()
     with tqdm(desc="features: BigBIRD views", unit="view") as bar:
-        bb = score_jobs(_bigbird_jobs(cfg, bb_root, skip_bb, bar), scorer, policy, n_samples=0, seed=f.seed,
-                        batch_size=f.batch_size, dim=dim)
-    det_bb, _ = bb.arrays(dim, 0)
-    write_table(build_table("bigbird", bb.columns, det_bb, None, md), ctx.out / "bigbird.parquet")
+        bb = score_jobs(_bigbird_jobs(cfg, bb_root, skip_bb, bar), scorer, policy,
+                        n_samples=f.bigbird_samples, seed=f.seed, batch_size=f.batch_size, dim=dim)
+    det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
+    write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / "bigbird.parquet")
     timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
 
     # AVD: deterministic pass + N_s dropout samples per box.
@@ -182,12 +183,13 @@ def run(ctx) -> str:
                  obj, s["top_components"], s["top_std"], s["max_std"], s["argmax_classes_seen"])
     timings["total_s"] = round(time.perf_counter() - t0, 2)
     ctx.extra.update({
-        "bigbird_crops": bb.n, "avd_crops": av.n, "n_samples": f.n_samples, "score_dim": dim,
+        "bigbird_crops": bb.n, "avd_crops": av.n, "n_samples": f.n_samples,
+        "bigbird_samples": f.bigbird_samples, "score_dim": dim,
         "classifier_hash": card["hash"], "crop_policy": policy.as_dict(),
         "skipped": {"bigbird": skip_bb.summary() if skip_bb else None,
                     "avd": skip_avd.summary() if skip_avd else None},
         "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": torch.get_num_threads(),
     })
     n_skip = (skip_bb.count if skip_bb else 0) + (skip_avd.count if skip_avd else 0)
-    return (f"{bb.n} BigBIRD crops (1 pass) + {av.n} AVD crops (1 + {f.n_samples} passes), D = {dim}, "
+    return (f"{bb.n} BigBIRD crops (1 + {f.bigbird_samples} passes) + {av.n} AVD crops (1 + {f.n_samples} passes), D = {dim}, "
             f"{n_skip} skipped; BigBIRD {timings['bigbird_s']:.0f} s, AVD {timings['avd_s']:.0f} s on {device}")
