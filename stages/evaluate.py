@@ -96,11 +96,12 @@ def run(ctx) -> str:
                          f"(classes: {', '.join(models.classes)})")
     truth_idx = models.classes.index(ev.target)
     avd, scores, meta = read_features(ctx.input("features") / "avd.parquet")
+    avd = avd[avd["scan"] == cfg.data.scans[0]]  # one track in one scan (the first of data.scans)
 
     from loaders.avd import AVDScan
     from stages.data import data_roots
     _, avd_root = data_roots(cfg)
-    scan = AVDScan(avd_root, cfg.data.scan)
+    scan = AVDScan(avd_root, cfg.data.scans[0])
     truth_path = ctx.input("data") / "truth.json"
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
     yaw = object_yaw(cfg, truth, ev.target)
@@ -109,7 +110,7 @@ def run(ctx) -> str:
     obj_truth = None
     if truth is not None and ev.target in truth.get("instances", {}):
         obj_truth = np.asarray(truth["instances"][ev.target]["position"], float)
-    info.update(scan=cfg.data.scan, target=ev.target, classes=list(models.classes),
+    info.update(scan=cfg.data.scans[0], target=ev.target, classes=list(models.classes),
                 object_xy_truth=None if obj_truth is None else obj_truth.tolist(),
                 localization_error_m=None if obj_truth is None else float(np.linalg.norm(track.obj_xy - obj_truth)))
     write_json(ctx.out / "track.json", info)

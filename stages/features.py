@@ -167,15 +167,20 @@ def run(ctx) -> str:
     # AVD: deterministic pass + N_s dropout samples per box.
     skip_avd = SkipLog("AVD entry") if skipping else None
     t2 = time.perf_counter()
-    scan = AVDScan(avd_root, cfg.data.scan, skip=skip_avd)
+    scans = [AVDScan(avd_root, name, skip=skip_avd) for name in cfg.data.scans]
     with tqdm(desc="features: AVD images", unit="image") as bar:
-        av = score_jobs(_avd_jobs(cfg, scan, skip_avd, bar), scorer, policy, n_samples=f.n_samples,
+        def jobs():  # every scan of data.scans in turn; rows carry their scan
+            for scan in scans:
+                bar.set_description(f"features: AVD {scan.scan}")
+                yield from _avd_jobs(cfg, scan, skip_avd, bar)
+        av = score_jobs(jobs(), scorer, policy, n_samples=f.n_samples,
                         seed=f.seed, batch_size=f.batch_size, dim=dim)
     det_av, mc_av = av.arrays(dim, f.n_samples)
     write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / "avd.parquet")
     timings["avd_s"] = round(time.perf_counter() - t2, 2)
     if av.n == 0:
-        log.warning("no AVD box up to difficulty %d in scan %s: avd.parquet is empty", f.max_difficulty, cfg.data.scan)
+        log.warning("no AVD box up to difficulty %d in scans %s: avd.parquet is empty", f.max_difficulty,
+                    ", ".join(cfg.data.scans))
 
     spread = viewpoint_spread(np.asarray(bb.columns.get("object", []), dtype=object), det_bb, names)
     for obj, s in spread.items():

@@ -25,7 +25,7 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
                "loaders.bigbird", "pipeline.cache"),
               "render the synthetic BigBIRD/AVD stand-ins, or validate the real dataset paths"),
     StageSpec("classifier", "stages.classifier", (), ("classifier",),
-              ("stages.classifier", "pipeline.classifier", "pipeline.source_domain", "pipeline.crops",
+              ("stages.classifier", "pipeline.classifier", "loaders.synthetic.source_domain", "pipeline.crops",
                "pipeline.cache", "loaders.synthetic.textures"),
               "resolve the dropout AlexNet weights (train the synthetic source-domain model)"),
     StageSpec("features", "stages.features", ("data", "classifier"), ("features",),

@@ -9,7 +9,7 @@ import torch
 from pipeline.classifier import (IMAGENET_FILE, WeightsError, WeightsNotFoundError, build_alexnet,
                                  card_hash, init_for_training, load_classifier, load_into,
                                  load_state_dict_file, lr_at, save_state_dict_npz)
-from pipeline.source_domain import TRAIN_STREAM, VAL_STREAM, labels_for, render, render_set
+from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, labels_for, render, render_set
 
 TINY_TRAIN = {"classifier": {"input_size": 64, "training": {
     "train_images": 48, "val_images": 24, "epochs": 1, "batch_size": 16, "min_accuracy": 0.0}}}
