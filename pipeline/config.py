@@ -312,6 +312,13 @@ class SimulateConfig:
 
 
 @dataclass(frozen=True)
+class StudyConfig:
+    seeds: tuple[int, ...] = _f(factory=lambda: (0, 1, 2), lo=0,
+                                doc="classifier seeds: classifier -> features -> models -> evaluate once "
+                                    "per seed under <run>/study/seed-<n>/ (data shared with the run)")
+
+
+@dataclass(frozen=True)
 class Config:
     run: RunConfig = _f(factory=RunConfig)
     data: DataConfig = _f(factory=DataConfig)
@@ -321,6 +328,7 @@ class Config:
     evaluate: EvaluateConfig = _f(factory=EvaluateConfig)
     report: ReportConfig = _f(factory=ReportConfig)
     simulate: SimulateConfig = _f(factory=SimulateConfig)
+    study: StudyConfig = _f(factory=StudyConfig)
     # Where the config file lives; relative paths in it resolve against its project root.
     source_path: str = field(default="", compare=False, metadata={"internal": True})
 
@@ -483,6 +491,8 @@ def _cross_checks(cfg: Config, where: str) -> None:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")
     for key in ("biased", "randomized"):
         need(len(getattr(cfg.evaluate, key).bias_m) == 2, f"'evaluate.{key}.bias_m' must be [x, y]")
+    need(len(cfg.study.seeds) >= 1 and len(set(cfg.study.seeds)) == len(cfg.study.seeds),
+         "'study.seeds' must list at least one seed, each once")
     need(len(cfg.evaluate.sensitivity.sigmas_m) >= 1 and min(cfg.evaluate.sensitivity.sigmas_m) >= 0,
          "'evaluate.sensitivity.sigmas_m' must list non-negative values")
 

@@ -22,7 +22,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="stages: " + "; ".join(f"{n}: {STAGES[n].help}" for n in ORDER),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("stage", choices=ORDER, help="stage to run")
+    p.add_argument("stage", choices=ORDER + ("study",),
+                   help="stage to run; study = classifier -> evaluate once per study.seeds classifier seed")
     p.add_argument("--config", default=DEFAULT_CONFIG, help=f"TOML config (default: {DEFAULT_CONFIG})")
     p.add_argument("--force", action="store_true", help="rerun this stage even if its manifest is up to date")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
@@ -49,6 +50,10 @@ def main(argv: list[str] | None = None) -> int:
     device = args.device or cfg.run.device
     threads = cfg.run.threads if args.threads is None else args.threads
     try:
+        if args.stage == "study":  # not a stage: many runs of the chain (stages/study.py)
+            from stages.study import run_study
+            run_study(cfg, device=device, threads=threads, force=args.force)
+            return 0
         keys: dict[str, str] = {}
         ensure(cfg, args.stage, force=args.force, device=device, threads=threads, _keys=keys)
         for after in STAGES[args.stage].after:
