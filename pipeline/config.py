@@ -126,14 +126,14 @@ class DataConfig:
 @dataclass(frozen=True)
 class TrainingConfig:
     categories: int = _f(12, lo=2, hi=12, doc="synthetic source-domain categories (texture families)")
-    train_images: int = _f(8000, lo=10)
+    train_images: int = _f(6400, lo=10)
     val_images: int = _f(1200, lo=10)
-    epochs: int = _f(7, lo=1, hi=200)
+    epochs: int = _f(5, lo=1, hi=200)
     batch_size: int = _f(128, lo=1, hi=4096)
     lr: float = _f(5e-4, lo=0.0, hi=1.0)
     weight_decay: float = _f(1e-4, lo=0.0, hi=1.0)
     min_accuracy: float = _f(0.9, lo=0.0, hi=1.0, doc="fail the stage below this held-out top-1")
-    warmup_steps: int = _f(40, lo=0, hi=100000, doc="linear LR warmup steps before the cosine decay")
+    warmup_steps: int = _f(30, lo=0, hi=100000, doc="linear LR warmup steps before the cosine decay")
     precision: str = _f("auto", choices=("auto", "fp32", "bf16"),
                         doc="training arithmetic; auto = bf16 autocast where the hardware has it")
     render_workers: int = _f(2, lo=1, hi=64,
@@ -147,7 +147,7 @@ class ClassifierConfig:
     path: str = _f("", doc="state-dict file for weights = 'path'")
     num_classes: int = _f(0, lo=0, doc="output size for weights = 'path'; 0 = read from the file")
     dropout: float = _f(0.5, lo=0.0, hi=0.99, doc="dropout p of the two head Dropout layers")
-    input_size: int = _f(128, lo=63, hi=512, doc="square crop side fed to the network, pixels")
+    input_size: int = _f(112, lo=63, hi=512, doc="square crop side fed to the network, pixels")
     mean: tuple[float, ...] = _f(factory=lambda: (0.485, 0.456, 0.406), lo=0.0, hi=1.0,
                                  doc="input normalisation mean (RGB, 0..1); ImageNet's by default")
     std: tuple[float, ...] = _f(factory=lambda: (0.229, 0.224, 0.225), lo=1e-6, hi=10.0,

@@ -29,7 +29,7 @@ def test_ray_intersection_finds_each_instance(small_scan):
 
     cfg = small_scan
     _, avd_root = data_roots(cfg)
-    scan = AVDScan(avd_root, cfg.data.scan)
+    scan = AVDScan(avd_root, cfg.data.scans[0])
     truth = json.loads((cfg.stage_dir("data") / "truth.json").read_text())
     K = scan.intrinsics()
     checked = 0

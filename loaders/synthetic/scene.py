@@ -8,7 +8,9 @@ the surfaces, the first one (the default target) on the coffee table so the capt
 surrounds it; each gets a random yaw. An object point p maps into the room as
 ``Rot(yaw) p[:2] + position`` and ``p[2] + base height``.
 
-Clutter boxes and wall posters carry "clutter" textures (smooth noise with print blocks), never
+Each scan name is another home: the layout jitter, placements and clutter are drawn from (seed,
+scan). ``occluders`` small boxes stand right beside instances so some views see them partly
+hidden. Clutter boxes and wall posters carry "clutter" textures (smooth noise with print blocks), never
 the instances' face textures; the floor is planks. The capture grid covers the free floor at
 ``grid_step_m`` spacing, keeping clear of walls and furniture.
 """
