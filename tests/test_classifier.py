@@ -134,7 +134,12 @@ def test_synthetic_stage_trains_caches_and_enforces_min_accuracy(tmp_config):
     assert card["output_names"] == list(CATEGORY_NAMES) and card["num_classes"] == 12
     assert 0.0 <= card["accuracy"] <= 1.0 and np.array(card["confusion"]).sum() == 24
     assert card["training"]["train_images"] == 48 and card["hash"] == card_hash(card)
-    assert set(card["timings"]) >= {"render_s", "train_s"}
+    assert set(card["timings"]) >= {"render_s", "train_s"} and set(card["cpu_seconds"]) >= {"render_s", "train_s"}
+    det = card["determinism"]
+    assert set(det["versions"]) >= {"torch", "torchvision", "numpy"} and det["versions"]["numpy"] == np.__version__
+    assert isinstance(det["cpu_flags"], list) and "machine" in det["cross_machine"].lower()
+    summary = read_manifest(cfg, "classifier")["summary"]
+    assert "render" in summary and "train" in summary and "top-1" in summary
     model, _ = load_classifier(folder)
     assert model(torch.zeros(2, 3, 64, 64)).shape == (2, 12)
     assert read_manifest(cfg, "classifier")["extra"]["accuracy"] == card["accuracy"]
@@ -162,6 +167,15 @@ def test_source_domain_is_deterministic_balanced_and_streams_differ():
     assert not np.array_equal(labels_for(24, 12, 5, TRAIN_STREAM), labels_for(24, 12, 6, TRAIN_STREAM))
     with pytest.raises(ValueError, match="category"):
         render(12, np.random.default_rng(0), 32)
+
+
+def test_parallel_rendering_gives_the_same_images_as_serial():
+    from loaders.synthetic.source_domain import render_set_parallel
+
+    a, ya = render_set(30, 40, 12, seed=2, stream=TRAIN_STREAM)
+    b, yb = render_set_parallel(30, 40, 12, seed=2, stream=TRAIN_STREAM, workers=2, chunk=8)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(ya, yb)
 
 
 def test_lr_schedule_warms_up_then_decays_to_zero():

@@ -239,11 +239,16 @@ def category_names(categories: int) -> list[str]:
 
 
 def _render_chunk(args: tuple) -> tuple[int, np.ndarray]:
-    """One worker task of ``render_set_parallel`` (module level so spawned processes import it)."""
-    n, size, categories, seed, stream, start = args
+    """One worker task of ``render_set_parallel`` (module level so spawned processes import it):
+    images ``start..`` of a stream with their labels given (the label order depends on the set's
+    size, so workers must not draw it themselves)."""
+    labels, size, categories, seed, stream, start = args
     import cv2
     cv2.setNumThreads(1)  # one process per core already
-    return start, render_set(n, size, categories, seed, stream, start=start)[0]
+    out = np.empty((len(labels), size, size, 3), np.uint8)
+    for i, lab in enumerate(labels):
+        out[i] = render(int(lab), _rng(seed, stream, start + i), size, categories)
+    return start, out
 
 
 def render_set_parallel(n: int, size: int, categories: int, seed: int, stream: int, workers: int,
@@ -261,7 +266,7 @@ def render_set_parallel(n: int, size: int, categories: int, seed: int, stream: i
     from concurrent.futures import ProcessPoolExecutor
 
     images = np.empty((n, size, size, 3), np.uint8)
-    tasks = [(min(chunk, n - s), size, categories, seed, stream, s) for s in range(0, n, chunk)]
+    tasks = [(labels[s:s + chunk], size, categories, seed, stream, s) for s in range(0, n, chunk)]
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         for start, block in pool.map(_render_chunk, tasks):
             images[start:start + len(block)] = block
