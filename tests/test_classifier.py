@@ -178,6 +178,19 @@ def test_parallel_rendering_gives_the_same_images_as_serial():
     np.testing.assert_array_equal(ya, yb)
 
 
+def test_same_seed_same_machine_gives_byte_identical_weights():
+    from pipeline.classifier import train_classifier
+
+    x, y = render_set(24, 64, 12, seed=1, stream=TRAIN_STREAM)
+    states = []
+    for _ in range(2):
+        m = init_for_training(build_alexnet(12, 0.5), 3)
+        train_classifier(m, x, y, epochs=1, batch_size=12, lr=1e-4, weight_decay=0.0, warmup_steps=1, seed=3,
+                         mean=(0.5, 0.5, 0.5), std=(0.25, 0.25, 0.25), precision="auto", progress=False)
+        states.append({k: v.detach().clone() for k, v in m.state_dict().items()})
+    assert all(torch.equal(states[0][k], states[1][k]) for k in states[0])
+
+
 def test_lr_schedule_warms_up_then_decays_to_zero():
     lrs = [lr_at(s, 100, 1.0, 10) for s in range(100)]
     assert lrs[0] == pytest.approx(0.1) and lrs[9] == pytest.approx(1.0)

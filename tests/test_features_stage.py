@@ -13,7 +13,7 @@ from pipeline.features import build_table, read_features
 
 N_S = 3
 TINY = {
-    "data": {"scans": ["Home_001_1"], "synthetic": {"angle_step_deg": 60, "bigbird_width": 160, "bigbird_height": 128,
+    "data": {"scans": ["Home_001_1"], "synthetic": {"instances_per_scan": 0, "angle_step_deg": 60, "bigbird_width": 160, "bigbird_height": 128,
                            "avd_width": 320, "avd_height": 180, "room_size_m": [2.4, 2.1],
                            "grid_step_m": 0.6, "distractors": 2, "workers": 1}},
     "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
