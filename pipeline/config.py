@@ -132,7 +132,9 @@ class TrainingConfig:
     batch_size: int = _f(128, lo=1, hi=4096)
     lr: float = _f(5e-4, lo=0.0, hi=1.0)
     weight_decay: float = _f(1e-4, lo=0.0, hi=1.0)
-    min_accuracy: float = _f(0.9, lo=0.0, hi=1.0, doc="fail the stage below this held-out top-1")
+    min_accuracy: float = _f(0.85, lo=0.0, hi=1.0,
+                             doc="fail the stage below this held-out top-1 (a broken run; the quality goal is "
+                                 "0.90, checked by tests/bench/bench_classifier.py)")
     warmup_steps: int = _f(30, lo=0, hi=100000, doc="linear LR warmup steps before the cosine decay")
     precision: str = _f("auto", choices=("auto", "fp32", "bf16"),
                         doc="training arithmetic; auto = bf16 autocast where the hardware has it")
