@@ -203,18 +203,6 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
     return out[0] if single else out
 
 
-def fuse_with_uncertainty_sampled(models: GPClassModels, cam_estimates, sigma: float, dropout, *,
-                                  obj_xy, yaw: float, n_samples: int, seed=0, unit_circle: bool = True,
-                                  **kwargs) -> np.ndarray:
-    """Model with Uncertainty from pose estimates: draw ``n_samples`` localization samples around
-    each estimate (N(0, σ²I), one trajectory per sample), turn them into GP inputs relative to the
-    object (``obj_xy``, ``yaw``), then ``fuse_with_uncertainty``. ``cam_estimates`` (K, 2) or
-    (R, K, 2); ``seed`` an int or a ``numpy.random.Generator``."""
-    samples = sample_localization(cam_estimates, sigma, n_samples, seed)
-    return fuse_with_uncertainty(models, relative_inputs(samples, obj_xy, yaw, unit_circle=unit_circle),
-                                 dropout, **kwargs)
-
-
 # -- Model Based ---------------------------------------------------------------------------------
 def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None, return_log: bool = False,
                      block: int = DEFAULT_BLOCK, threads: int | None = None,
@@ -308,13 +296,13 @@ def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progres
     from concurrent.futures import ThreadPoolExecutor
     from contextlib import nullcontext
 
-    from tqdm.auto import tqdm
-
     from pipeline.device import available_cores
+    from pipeline.progress import bar as progress_bar
 
     n = max(1, min(int(threads or available_cores()), len(spans)))
     models.factors()  # build the shared training factors once, before any worker reads them
-    bar = tqdm(total=len(spans), desc=desc, unit="block", disable=not progress or len(spans) < 2, leave=False)
+    bar = progress_bar(total=len(spans), desc=desc, unit="block", leave=False,
+                       enabled=progress and len(spans) >= 2)
     try:  # installed with scikit-learn
         from threadpoolctl import threadpool_limits
         one_blas_thread = threadpool_limits(limits=1, user_api="blas")
