@@ -18,29 +18,15 @@ import json
 import logging
 import time
 
-import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
-from tqdm import tqdm
 
 from pipeline import simulation as S
-from pipeline.cache import atomic_path, write_json
+from pipeline.cache import write_json, write_results_parquet
 from pipeline.config import Config, to_dict
+from pipeline.progress import bar as progress_bar
 from reports.simulate_report import build_simulate_report, findings
 
 log = logging.getLogger("viewfuse.simulate")
-
-
-def write_parquet(df: pd.DataFrame, path, meta: dict[str, str], fixed_list: dict[str, int] | None = None) -> None:
-    """Atomic Parquet write with ``viewfuse.*`` metadata; listed columns as fixed-size float lists."""
-    table = pa.Table.from_pandas(df, preserve_index=False)
-    for col, n in (fixed_list or {}).items():
-        arr = pa.array(df[col].map(lambda v: np.asarray(v, np.float64)).tolist(), type=pa.list_(pa.float64(), n))
-        table = table.set_column(table.schema.get_field_index(col), col, arr)
-    table = table.replace_schema_metadata({f"viewfuse.{k}": v for k, v in meta.items()})
-    with atomic_path(path) as tmp:
-        pq.write_table(table, tmp)
 
 
 def run(ctx) -> str:
@@ -65,7 +51,7 @@ def run(ctx) -> str:
             log.warning("GP %s / component %d: %s", d["class"], d["component"], "; ".join(other))
 
     frames, examples = [], []
-    with tqdm(total=sim.realizations * len(sim.scenarios), desc="simulate", unit="realization") as bar:
+    with progress_bar(total=sim.realizations * len(sim.scenarios), desc="simulate", unit="realization") as bar:
         for scenario in sim.scenarios:
             t0 = time.perf_counter()
             res = S.run_scenario(models, scenario, sim, progress=bar.update)
@@ -80,8 +66,8 @@ def run(ctx) -> str:
         "config_hash": cfg.section_hash("simulate"),
         "seed": str(sim.seed),
     }
-    write_parquet(df, ctx.out / "results.parquet", meta, {"posterior": S.N_CLASSES})
-    write_parquet(ex, ctx.out / "example.parquet",
+    write_results_parquet(df, ctx.out / "results.parquet", meta, {"posterior": S.N_CLASSES})
+    write_results_parquet(ex, ctx.out / "example.parquet",
                   {**meta, "example_realization": str(sim.example_realization)},
                   {"class_mean": S.N_CLASSES, "class_std": S.N_CLASSES, "class_mean_est": S.N_CLASSES})
 

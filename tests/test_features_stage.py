@@ -124,7 +124,7 @@ def test_avd_rows_cover_every_box_with_the_dropout_samples(chain):
 
 def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
     from stages.registry import STAGES
-    from stages.runner import ensure, read_manifest, stage_key
+    from stages.runner import ensure, plan, read_manifest, stage_key
     from pipeline.config import load_config
     from tests.conftest import DEFAULT_CONFIG
 
@@ -132,8 +132,8 @@ def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
         return load_config(DEFAULT_CONFIG, _merge(_merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
 
     def key(cfg):
-        # Upstream keys computed, not run: data and classifier have no upstream of their own.
-        up = {u: stage_key(cfg, STAGES[u], {})[0] for u in STAGES["features"].upstream}
+        # Upstream digests planned, not run: the key the runner would compute now.
+        up = {u: plan(cfg, u)["digest"] for u in STAGES["features"].upstream}
         return stage_key(cfg, STAGES["features"], up)[0]
 
     base = read_manifest(chain, "features")["key"]
@@ -167,7 +167,7 @@ def test_weights_identity_is_in_the_key(chain, tmp_path):
 
 
 def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path):
-    from loaders.errors import BadInputError
+    from loaders.errors import BadInputError, SkipPolicy
     from stages.features import _bigbird_jobs
     from stages.runner import ensure, read_manifest
 
@@ -185,11 +185,19 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
     obj = sorted(cfg.data.synthetic.instances)[0]
     bad = cfg.stage_dir("data") / "bigbird" / obj / "NP1_60.jpg"
     bad.write_bytes(bad.read_bytes()[:200])              # truncated JPEG
-    ensure(cfg, "features", device="cpu", force=True)
+    # ensure() would see the data stage's output changed and render it again: run features alone.
+    from stages.registry import STAGES
+    from stages.runner import plan, run_stage, stage_key
+    up = {u: read_manifest(cfg, u) for u in STAGES["features"].upstream}
+    from stages.runner import digest
+    key, parts = stage_key(cfg, STAGES["features"], {u: digest(m) for u, m in up.items()})
+    run_stage(cfg, STAGES["features"], key, parts, device="cpu", threads=0)
+    assert plan(cfg, "data")["state"] == "stale"         # the runner knows the image changed
     m = read_manifest(cfg, "features")
     assert m["extra"]["skipped"]["bigbird"]["skipped"] == 1
     assert "NP1_60.jpg" in m["extra"]["skipped"]["bigbird"]["examples"][0]
     df = read_features(cfg.stage_dir("features") / "bigbird.parquet")[0]
+    df = df[df["pass"] == -1]
     assert len(df) == len(cfg.data.synthetic.instances) * 6 - 1
     assert not ((df["object"] == obj) & (df["angle_deg"] == 60)).any()
 
@@ -197,7 +205,7 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
         def reset(self, total): pass
         def update(self, n): pass
     with pytest.raises(BadInputError, match="NP1_60.jpg"):
-        list(_bigbird_jobs(cfg, cfg.stage_dir("data") / "bigbird", None, Bar()))
+        list(_bigbird_jobs(cfg, cfg.stage_dir("data") / "bigbird", SkipPolicy(False), Bar()))
 
 
 def test_build_table_checks_shapes_and_orders_passes():
@@ -226,6 +234,7 @@ def test_build_table_checks_shapes_and_orders_passes():
 
 def test_object_and_instance_selection_keys_are_checked(chain):
     from loaders.avd import AVDScan
+    from loaders.errors import SkipPolicy
     from pipeline.config import load_config
     from stages.data import data_roots
     from stages.features import _avd_jobs, _bigbird_jobs
@@ -241,12 +250,12 @@ def test_object_and_instance_selection_keys_are_checked(chain):
 
     bb, avd = data_roots(chain)
     one = sorted(chain.data.synthetic.instances)[1]
-    jobs = list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": [one]}}), bb, None, Bar()))
+    jobs = list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": [one]}}), bb, SkipPolicy(False), Bar()))
     assert len(jobs) == 6 and {j.columns["object"] for j in jobs} == {one}
     with pytest.raises(ValueError, match="'features.bigbird_objects' names 'nope'"):
-        list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": ["nope"]}}), bb, None, Bar()))
+        list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": ["nope"]}}), bb, SkipPolicy(False), Bar()))
     scan = AVDScan(avd, chain.data.scan)
-    jobs = list(_avd_jobs(cfg_with({"features": {"avd_instances": [one], "max_difficulty": 3}}), scan, None, Bar()))
+    jobs = list(_avd_jobs(cfg_with({"features": {"avd_instances": [one], "max_difficulty": 3}}), scan, SkipPolicy(False), Bar()))
     assert {j.columns["instance"] for j in jobs} <= {one} and all(j.columns["difficulty"] <= 3 for j in jobs)
     with pytest.raises(ValueError, match="'features.avd_instances' names 'nope'"):
-        list(_avd_jobs(cfg_with({"features": {"avd_instances": ["nope"]}}), scan, None, Bar()))
+        list(_avd_jobs(cfg_with({"features": {"avd_instances": ["nope"]}}), scan, SkipPolicy(False), Bar()))

@@ -265,5 +265,7 @@ def test_stage_writes_results_example_and_report(tmp_config):
         assert f'src="{p}"' in html
     assert "MGR 95% overall" in html
     # A rerun with the same config is skipped (manifest up to date); a changed key reruns.
-    key = json.loads((out / "manifest.json").read_text())["key"]
-    assert ensure(cfg, "simulate") == key
+    from stages.runner import digest
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert ensure(cfg, "simulate") == digest(manifest)
+    assert json.loads((out / "manifest.json").read_text()) == manifest
