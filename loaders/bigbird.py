@@ -69,7 +69,11 @@ def _c_stderr_captured() -> Iterator[list[str]]:
             sys.stderr.flush()
         except (AttributeError, ValueError):
             pass
-        saved = os.dup(2)
+        try:
+            saved = os.dup(2)
+        except OSError:  # no stderr at all (closed descriptor): nothing to capture from
+            yield lines
+            return
         try:
             with tempfile.TemporaryFile() as tf:
                 os.dup2(tf.fileno(), 2)
