@@ -20,6 +20,7 @@ from pathlib import Path
 
 from loaders.errors import BadInputError
 from pipeline.cache import tree_fingerprint, write_json
+from pipeline.outputs import name as out_name
 from pipeline.progress import bar as progress_bar
 
 CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
@@ -31,7 +32,7 @@ def data_roots(cfg) -> tuple[Path, Path]:
     if cfg.data.source == "real":
         return cfg.resolve(cfg.data.bigbird_root), cfg.resolve(cfg.data.avd_root)
     d = cfg.stage_dir("data")
-    return d / "bigbird", d / "avd"
+    return d / out_name("data", "bigbird"), d / out_name("data", "avd")
 
 
 def extra_key(cfg) -> str:
@@ -100,7 +101,7 @@ def _check_real(ctx) -> str:
     if n_images == 0:
         raise BadInputError(scan / "jpg_rgb", "holds no .jpg image")
     _validate_real(ctx, bb, avd, objects)
-    write_json(ctx.out / "roots.json", {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
+    write_json(ctx.out / out_name("data", "roots"), {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
                                         "scan": cfg.data.scan, "bigbird_objects": objects,
                                         "avd_images": n_images})
     ctx.extra.update({"bigbird_objects": len(objects), "avd_images": n_images})
@@ -169,7 +170,7 @@ def _write_synthetic(ctx) -> str:
 
     cfg = ctx.cfg
     syn, seed, scan = cfg.data.synthetic, cfg.data.seed, cfg.data.scan
-    bb_root, avd_root = ctx.out / "bigbird", ctx.out / "avd"
+    bb_root, avd_root = ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd")
     t0 = time.perf_counter()
     plan = plan_scan(syn, scan, seed)  # validates names, room and grid before any work starts
 
@@ -213,8 +214,8 @@ def _write_synthetic(ctx) -> str:
             "height_m": inst.height,
             "faces": {r: {"texture": key, "family": CATEGORY_NAMES[fam]} for r, (key, fam) in inst.spec.paint.items()},
         })
-    write_json(ctx.out / "truth.json", sidecar)
-    write_json(ctx.out / "roots.json", {"source": "synthetic", "bigbird_root": "bigbird", "avd_root": "avd",
+    write_json(ctx.out / out_name("data", "truth"), sidecar)
+    write_json(ctx.out / out_name("data", "roots"), {"source": "synthetic", "bigbird_root": "bigbird", "avd_root": "avd",
                                         "scan": scan, "bigbird_objects": sorted(syn.instances)})
     mb = _folder_bytes(ctx.out) / 1e6
     n_boxes = sum(len(b) for b in boxes.values())

@@ -26,7 +26,8 @@ log = logging.getLogger("viewfuse.features")
 def extra_key(cfg) -> str:
     """The weights' identity: the classifier card hash. The runner brings the classifier stage up
     to date before it computes this stage's key, so the card read here is the one used."""
-    card = cfg.stage_dir("classifier") / "card.json"
+    from pipeline.outputs import name as out_name
+    card = cfg.stage_dir("classifier") / out_name("classifier", "card")
     try:
         return "classifier=" + str(json.loads(card.read_text()).get("hash"))
     except (FileNotFoundError, json.JSONDecodeError):
@@ -148,6 +149,7 @@ def run(ctx) -> str:
     from pipeline.classifier import MCDropoutScorer, load_classifier
     from pipeline.crops import CropPolicy
     from pipeline.features import build_table, metadata, score_jobs, write_table
+    from pipeline.outputs import name as out_name
     from stages.data import data_roots
 
     cfg = ctx.cfg
@@ -169,23 +171,25 @@ def run(ctx) -> str:
     skips = ctx.skips  # data.skip_bad_views; the runner writes the counts into the manifest
     timings = {}
 
+    # The scan first: its files (JSON, .mat, instance map) fail fast, before minutes of scoring.
+    scan = AVDScan(avd_root, cfg.data.scan, skip=skips.log("avd", "AVD entry"))
+
     # BigBIRD: the deterministic pass (GP training targets, as in the paper) plus dropout samples.
     t1 = time.perf_counter()
     with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
         bb = score_jobs(_bigbird_jobs(cfg, bb_root, skips, bar), scorer, policy,
                         n_samples=f.bigbird_samples, seed=f.seed, batch_size=f.batch_size, dim=dim)
     det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
-    write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / "bigbird.parquet")
+    write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
     timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
 
     # AVD: deterministic pass + N_s dropout samples per box.
     t2 = time.perf_counter()
-    scan = AVDScan(avd_root, cfg.data.scan, skip=skips.log("avd", "AVD entry"))
     with progress_bar(desc="features: AVD images", unit="image") as bar:
         av = score_jobs(_avd_jobs(cfg, scan, skips, bar), scorer, policy, n_samples=f.n_samples,
                         seed=f.seed, batch_size=f.batch_size, dim=dim)
     det_av, mc_av = av.arrays(dim, f.n_samples)
-    write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / "avd.parquet")
+    write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))
     timings["avd_s"] = round(time.perf_counter() - t2, 2)
     if av.n == 0:
         log.warning("no AVD box up to difficulty %d in scan %s: avd.parquet is empty", f.max_difficulty, cfg.data.scan)

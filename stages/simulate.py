@@ -23,6 +23,7 @@ import pandas as pd
 from pipeline import simulation as S
 from pipeline.cache import write_json, write_results_parquet
 from pipeline.config import Config, to_dict
+from pipeline.outputs import name as out_name
 from pipeline.progress import bar as progress_bar
 from reports.simulate_report import build_simulate_report, findings
 
@@ -38,7 +39,7 @@ def run(ctx) -> str:
 
     t0 = time.perf_counter()
     models, diags = S.fit_models(sim)
-    models.save(ctx.out / "models", extra={"fit_diagnostics": diags, "source": "simulate"})
+    models.save(ctx.out / out_name("simulate", "models"), extra={"fit_diagnostics": diags, "source": "simulate"})
     timings["fit"] = time.perf_counter() - t0
     # Hyperparameters at a bound are expected here (the bounds are tight on purpose, see the
     # config); they are listed in summary.json and the report. Other optimizer warnings are not.
@@ -66,14 +67,14 @@ def run(ctx) -> str:
         "config_hash": cfg.section_hash("simulate"),
         "seed": str(sim.seed),
     }
-    write_results_parquet(df, ctx.out / "results.parquet", meta, {"posterior": S.N_CLASSES})
-    write_results_parquet(ex, ctx.out / "example.parquet",
+    write_results_parquet(df, ctx.out / out_name("simulate", "results"), meta, {"posterior": S.N_CLASSES})
+    write_results_parquet(ex, ctx.out / out_name("simulate", "example"),
                   {**meta, "example_realization": str(sim.example_realization)},
                   {"class_mean": S.N_CLASSES, "class_std": S.N_CLASSES, "class_mean_est": S.N_CLASSES})
 
     table = S.summarize(df)
     found = findings(df, ex, sim.truth_class - 1)
-    write_json(ctx.out / "summary.json", {
+    write_json(ctx.out / out_name("simulate", "summary"), {
         "table": table.to_dict(orient="records"),
         "findings": found,
         "classes": list(sim.class_names), "truth": sim.truth_class - 1,
@@ -93,5 +94,5 @@ def run(ctx) -> str:
     parts = [f"{len(sim.scenarios)} scenario(s) x {sim.realizations} realizations, {len(df)} rows"]
     for _, r in table.iterrows():
         parts.append(f"{r['scenario']}/{r['method']} correct(final)={r['correct_final']:.2f}")
-    final = cfg.stage_dir(ctx.stage) / "index.html"
+    final = cfg.stage_dir(ctx.stage) / out_name("simulate", "html")
     return "; ".join(parts) + f"; {len(rep.figures)} figures in {took:.1f} s; open {final}"
