@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline.geometry import relative_inputs, sample_localization
 from pipeline.gp import GPClassModels
+from pipeline.labels import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
 # Elements per working array in one block (a few such arrays live at once): ~8 MB each. Blocks
 # this size keep the train-test kernel passes near the caches; more blocks cost little.
@@ -195,7 +196,7 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
         r0, r1, x0, x1 = span
         return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], Z[r0:r1], logp0, var_floor), axis=1)
 
-    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, "Model with Uncertainty"):
+    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
     acc -= math.log(Nx)
     acc = acc - logsumexp(acc, axis=-1, keepdims=True)  # exact already; removes rounding drift
@@ -240,7 +241,7 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         return _recursion(ll[..., None], logp0)
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
-    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, "Model Based"):
+    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED]):
         out[r0:r1] = lp
     out = out - logsumexp(out, axis=-1, keepdims=True)
     out = out if return_log else np.exp(out)
