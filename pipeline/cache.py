@@ -131,10 +131,12 @@ class InputRecorder:
                 # Hash now when the bytes are at hand (they are about to be dropped).
                 self._data[key] = sha256_bytes(data) if data is not None else None  # type: ignore[assignment]
 
-    def records(self) -> dict[str, dict]:
+    def records(self, exclude: str | Path | None = None) -> dict[str, dict]:
+        """{absolute path: file_record} of the files read, except those under ``exclude``."""
+        skip = os.path.abspath(exclude) + os.sep if exclude is not None else None
         out = {}
         for key, digest in sorted(self._data.items()):
-            if not os.path.isfile(key):
+            if (skip and key.startswith(skip)) or not os.path.isfile(key):
                 continue
             st = os.stat(key)
             out[key] = ({"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns}

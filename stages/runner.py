@@ -203,7 +203,9 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         with recording_inputs() as rec:
             summary = mod.run(ctx)
         (tmp / OWNER).unlink()
-        inputs = {p: r for p, r in rec.records().items() if not _inside(p, tmp)}
+        # Files in the run folder are upstream outputs, already covered by the upstream digests;
+        # leaving them out also keeps a moved artifacts folder valid.
+        inputs = rec.records(exclude=cfg.run_dir)
         outputs = folder_records(tmp, skip=(MANIFEST,))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -231,10 +233,6 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         echo(f"[{spec.name}] {ctx.skips.count} bad entr{'y' if ctx.skips.count == 1 else 'ies'} skipped "
              f"(data.skip_bad_views); see {final / MANIFEST} 'extra.skipped'")
     return manifest
-
-
-def _inside(path: str, folder: Path) -> bool:
-    return os.path.abspath(path).startswith(os.path.abspath(folder) + os.sep)
 
 
 def remove_orphans(cfg: Config) -> list[Path]:
