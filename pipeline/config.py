@@ -53,6 +53,11 @@ class RunConfig:
     artifacts: str = _f("artifacts", doc="artifacts root, relative to the config's project root")
     device: str = _f("auto", choices=("auto", "cpu", "cuda"))
     threads: int = _f(0, lo=0, hi=256, doc="torch/BLAS threads; 0 = number of cores")
+    executor: str = _f("local", choices=("local", "ray"),
+                       doc="where the features batches and the evaluation grid run: local (this process) "
+                           "or ray (pip install -e '.[ray]')")
+    ray_address: str = _f("", doc="executor = ray: empty = start a local Ray instance; 'auto' or "
+                                  "'ray://host:port' = join a cluster")
 
 
 @dataclass(frozen=True)
