@@ -269,19 +269,3 @@ def replace_dir(tmp_dir: Path, final_dir: Path) -> None:
         shutil.rmtree(trash, ignore_errors=True)
     else:
         os.replace(tmp_dir, final_dir)
-
-
-def write_results_parquet(df, path: str | Path, meta: dict[str, str],
-                          fixed_list: dict[str, int] | None = None) -> None:
-    """The one results writer (evaluate, simulate): atomic Parquet with ``viewfuse.<key>``
-    metadata; the columns in ``fixed_list`` (name -> length) become fixed-size float64 lists."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    table = pa.Table.from_pandas(df, preserve_index=False)
-    for col, n in (fixed_list or {}).items():
-        arr = pa.array(df[col].map(lambda v: np.asarray(v, np.float64)).tolist(), type=pa.list_(pa.float64(), n))
-        table = table.set_column(table.schema.get_field_index(col), col, arr)
-    table = table.replace_schema_metadata({f"viewfuse.{k}": str(v) for k, v in meta.items()})
-    with atomic_path(path) as tmp:
-        pq.write_table(table, tmp)

@@ -23,8 +23,21 @@ def version() -> str:
 
 
 def config_keys_help(section: str) -> str:
-    """One line per key of a config section (nested sections dotted): type, default, range, doc."""
+    """One line per config key a stage reads: a section (nested sections dotted) or, dotted, one
+    key (``evaluate.targets``); each with its default, range or choices and its doc."""
     lines: list[str] = []
+
+    def line(f: dataclasses.Field, value, name: str) -> str:
+        md = f.metadata
+        rng = ""
+        if md.get("choices"):
+            rng = " one of " + "|".join(map(str, md["choices"]))
+        elif md.get("lo") is not None or md.get("hi") is not None:
+            lo, hi = md.get("lo"), md.get("hi")
+            rng = f" in [{'' if lo is None else lo}, {'' if hi is None else hi}]"
+        doc = f": {md['doc']}" if md.get("doc") else ""
+        shown = list(value) if isinstance(value, tuple) else value
+        return f"  {name} = {shown!r}{rng}{doc}"
 
     def walk(obj, prefix: str) -> None:
         for f in dataclasses.fields(obj):
@@ -33,18 +46,17 @@ def config_keys_help(section: str) -> str:
             value = getattr(obj, f.name)
             if dataclasses.is_dataclass(value):
                 walk(value, f"{prefix}{f.name}.")
-                continue
-            md = f.metadata
-            rng = ""
-            if md.get("choices"):
-                rng = " one of " + "|".join(map(str, md["choices"]))
-            elif md.get("lo") is not None or md.get("hi") is not None:
-                rng = f" in [{md.get('lo', '')}, {md.get('hi', '')}]".replace("None", "")
-            doc = f": {md['doc']}" if md.get("doc") else ""
-            shown = list(value) if isinstance(value, tuple) else value
-            lines.append(f"  {prefix}{f.name} = {shown!r}{rng}{doc}")
+            else:
+                lines.append(line(f, value, prefix + f.name))
 
-    walk(getattr(Config(), section), f"{section}.")
+    parent_path, _, last = section.rpartition(".")
+    parent = Config().section(parent_path) if parent_path else Config()
+    value = getattr(parent, last)
+    if dataclasses.is_dataclass(value):
+        walk(value, f"{section}.")
+    else:
+        f = next(f for f in dataclasses.fields(parent) if f.name == last)
+        lines.append(line(f, value, section))
     return "\n".join(lines)
 
 
@@ -73,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="stage", metavar="STAGE", required=True)
     for name in ORDER:
         spec = STAGES[name]
-        keys = "\n\n".join(f"[{s}] config keys:\n{config_keys_help(s)}" for s in spec.sections)
+        keys = "config keys this stage reads:\n" + "\n".join(config_keys_help(s) for s in spec.sections)
         sp = sub.add_parser(name, help=spec.help, description=f"{name}: {spec.help}. Needs: "
                             f"{', '.join(spec.upstream) or 'nothing upstream'}.", epilog=keys,
                             formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -102,7 +102,7 @@ def _key_reason(old: dict, new: dict) -> str:
     oldp, newp = old.get("parts") or {}, new
     for s, v in newp.get("sections", {}).items():
         if (oldp.get("sections") or {}).get(s) != v:
-            return f"config section [{s}] changed"
+            return f"config [{s}] changed"
     for u, v in newp.get("upstream", {}).items():
         if (oldp.get("upstream") or {}).get(u) != v:
             return f"upstream stage '{u}' changed"

@@ -18,16 +18,33 @@ import json
 import logging
 import time
 
+import numpy as np
 import pandas as pd
 
 from pipeline import simulation as S
-from pipeline.cache import write_json, write_results_parquet
+from pipeline.cache import atomic_path, write_json
 from pipeline.config import Config, to_dict
 from pipeline.outputs import name as out_name
 from pipeline.progress import bar as progress_bar
 from reports.simulate_report import build_simulate_report, findings
 
 log = logging.getLogger("viewfuse.simulate")
+
+
+def write_parquet(df: pd.DataFrame, path, meta: dict[str, str], fixed_list: dict[str, int] | None = None) -> None:
+    """Atomic Parquet write with ``viewfuse.*`` metadata; listed columns as fixed-size float lists.
+    (The evaluate stage writes through ``pipeline.results.write_results``; the simulation's tables
+    move there once ``pipeline.simulation`` builds result blocks.)"""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    for col, n in (fixed_list or {}).items():
+        arr = pa.array(df[col].map(lambda v: np.asarray(v, np.float64)).tolist(), type=pa.list_(pa.float64(), n))
+        table = table.set_column(table.schema.get_field_index(col), col, arr)
+    table = table.replace_schema_metadata({f"viewfuse.{k}": v for k, v in meta.items()})
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp)
 
 
 def run(ctx) -> str:
@@ -67,8 +84,8 @@ def run(ctx) -> str:
         "config_hash": cfg.section_hash("simulate"),
         "seed": str(sim.seed),
     }
-    write_results_parquet(df, ctx.out / out_name("simulate", "results"), meta, {"posterior": S.N_CLASSES})
-    write_results_parquet(ex, ctx.out / out_name("simulate", "example"),
+    write_parquet(df, ctx.out / out_name("simulate", "results"), meta, {"posterior": S.N_CLASSES})
+    write_parquet(ex, ctx.out / out_name("simulate", "example"),
                   {**meta, "example_realization": str(sim.example_realization)},
                   {"class_mean": S.N_CLASSES, "class_std": S.N_CLASSES, "class_mean_est": S.N_CLASSES})
 
