@@ -34,8 +34,7 @@ from pipeline.geometry import sample_localization
 from pipeline.gp import GPClassModels, fit_class_models
 
 SCENARIOS = ("model_uncertainty", "localization_bias")
-WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES = "with_uncertainty", "model_based", "simple_bayes"
-METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
+from pipeline.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
 N_CLASSES = 3  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)
 
 

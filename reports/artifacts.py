@@ -86,6 +86,13 @@ def read_result_table(path: Path, required: Iterable[str], *, optional: Iterable
     return df, _metadata(path, schema.metadata)
 
 
+def with_log10_mgr(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with a ``log10_mgr`` column (derived from a natural-log ``log_mgr`` where needed)."""
+    if "log10_mgr" in df or "log_mgr" not in df:
+        return df
+    return df.assign(log10_mgr=df["log_mgr"] / math.log(10.0))
+
+
 def _metadata(path: Path, raw) -> dict[str, Any]:
     meta: dict[str, Any] = {k.decode().removeprefix("viewfuse."): v.decode()
                             for k, v in (raw or {}).items() if k.startswith(b"viewfuse.")}

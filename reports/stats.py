@@ -68,14 +68,14 @@ def bootstrap_track(mats: dict[str, np.ndarray], n_boot: int = BOOTSTRAP, seed: 
     return out
 
 
-def track_summary(df: pd.DataFrame, *, n_boot: int = BOOTSTRAP, seed: int = 0) -> dict:
-    """{setting: {"sigma_m", "n_realizations", "methods": {method: {metric: Estimate}}}}, settings
-    in order of first appearance; the seed is the same for every cell so reruns agree."""
+def track_summary(df: pd.DataFrame, *, n_boot: int = BOOTSTRAP, seed: int = 0, by: str = "setting") -> dict:
+    """{setting: {"sigma_m", "n_realizations", "methods": {method: {metric: Estimate}}}}, groups of
+    ``by`` in order of first appearance; the seed is the same for every cell so reruns agree."""
     out: dict = {}
-    for setting in dict.fromkeys(df["setting"]):
-        g = df[df["setting"] == setting]
-        cell = {"sigma_m": float(g["sigma_m"].iloc[0]), "n_realizations": int(g["realization"].nunique()),
-                "methods": {}}
+    for setting in dict.fromkeys(df[by]):
+        g = df[df[by] == setting]
+        sigma = float(g["sigma_m"].iloc[0]) if "sigma_m" in g else float("nan")
+        cell = {"sigma_m": sigma, "n_realizations": int(g["realization"].nunique()), "methods": {}}
         for m in ordered_methods(g["method"].unique()):
             cell["methods"][m] = bootstrap_track(matrices(g[g["method"] == m]), n_boot, seed)
         out[setting] = cell

@@ -40,12 +40,12 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
                "pipeline.gp", "pipeline.geometry", "pipeline.metrics", "pipeline.features", "loaders.avd"),
               "build the AVD track and run the localization-error experiments", after=("report",)),
     StageSpec("report", "stages.report", ("models", "evaluate"), ("report",),
-              ("stages.report", "reports", "loaders.errors", "pipeline.cache", "pipeline.metrics"),
+              ("stages.report", "reports", "loaders.errors", "pipeline.cache", "pipeline.metrics",
+               "pipeline.labels"),
               "render the HTML + PNG report from existing results"),
     StageSpec("simulate", "stages.simulate", (), ("simulate",),
               ("stages.simulate", "pipeline.simulation", "pipeline.fusion", "pipeline.gp",
-               "pipeline.geometry", "pipeline.metrics", "reports.simulate_report", "reports.html",
-               "reports.figures"),
+               "pipeline.geometry", "pipeline.metrics", "pipeline.labels", "reports"),
               "simulation scenarios of the paper's section 5.3 (synthetic GP measurements)"),
 )}
 

@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -238,3 +239,16 @@ def write_fake_run(run_dir: Path, *, T: int = 3, tracks: int = 2, K: int = 5, F:
     return {"K": K, "C": len(CLASSES), "F": F, "R": R, "B": B, "T": T, "tracks": tracks, "rows": df,
             "summary": summary, "track": track, "index": index, "card": card, "run": run_dir,
             "evaluate": ev, "models": md}
+
+
+@pytest.fixture(scope="session")
+def rendered_run(tmp_path_factory):
+    """One fake population run and its rendered report, shared by the report and browser tests."""
+    from reports.main_report import build_main_report
+    root = tmp_path_factory.mktemp("report")
+    facts = write_fake_run(root / "run", K=4, R=5)
+    res = build_main_report(facts["run"], root / "out", run_name="fake", dpi=50, progress=False, n_boot=300,
+                            config={"data": {"source": "synthetic"}, "evaluate": {"seed": 7},
+                                    "report": {"dpi": 50}},
+                            timings={"models": 1.5, "evaluate": 12.0})
+    return facts, res
