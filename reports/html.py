@@ -174,9 +174,13 @@ class HtmlReport:
             body = f"<details><summary>{_esc(collapsed)}</summary>{body}</details>"
         self._target().append(body)
 
-    def bullets(self, items: list[str], cls: str = "") -> None:
+    def bullets(self, items: list[str], cls: str = "", collapsed: str = "") -> None:
+        """A bulleted list; with ``collapsed``, inside a closed <details> whose summary is that text."""
         c = f' class="{_esc(cls)}"' if cls else ""
-        self._target().append(f"<ul{c}>" + "".join(f"<li>{_esc(i)}</li>" for i in items) + "</ul>")
+        body = f"<ul{c}>" + "".join(f"<li>{_esc(i)}</li>" for i in items) + "</ul>"
+        if collapsed:
+            body = f"<details><summary>{_esc(collapsed)}</summary>{body}</details>"
+        self._target().append(body)
 
     def preformatted(self, text: str, caption: str = "") -> None:
         cap = f'<div class="precap">{_esc(caption)}</div>' if caption else ""

@@ -11,6 +11,9 @@ from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
 from reports.tables import bound_counts, hyperparameter_table
 
+# The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
+# in a collapsed list right under the pooled table.
+HEADLINE = ("correct_final", "log10_mgr95_final")
 VERDICT_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "log10_mgr95_final")
 TARGET_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PAIRED_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_final",
@@ -47,10 +50,12 @@ def context_sentence(ctx: ReportContext) -> str:
             else "real data (BigBIRD + AVD)" if src == "real" else f"data source '{src}'")
     pop = ctx.population
     if pop:
+        reps = sorted({int(s["realizations"]) for s in pop.get("settings") or [] if s.get("realizations")}
+                      or {pop.get("realizations")} - {None})
+        r_text = (f"{reps[0]}" if len(reps) == 1 else f"{reps[0]}–{reps[-1]}" if reps else "?")
         size = (f"{pop.get('n_targets')} targets × {pop.get('n_tracks')} tracks "
                 f"({pop.get('tracks_per_target')} per target) × {len(pop.get('settings') or [])} "
-                f"localization settings × {pop.get('realizations')} realizations, "
-                f"{len(pop.get('methods') or [])} methods")
+                f"localization settings × {r_text} realizations, {len(pop.get('methods') or [])} methods")
     else:
         size = f"one target ({ctx.ev.target or '?'}) on one track"
     return f"What was evaluated: {what}; {size}; {classifier_text(ctx.run.card)}."
@@ -68,17 +73,32 @@ def verdict_section(ctx: ReportContext) -> None:
         ctx.notes.append(msg)
         page.paragraph(msg, cls="warn")
         return
-    page.bullets([str(s) for s in pop.get("verdict") or ["(the verdict list is empty)"]], cls="verdict")
+    sentences = [str(s) for s in pop.get("verdict") or []]
+    head = headline(sentences, pop.get("verdict_table") or [])
+    page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
     methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
     rows = [[method_label(m)] + [Estimate.of(((pop.get("pooled") or {}).get(m) or {}).get(k)) for k in VERDICT_METRICS]
             for m in methods]
+    unit = str(pop.get("unit") or "")
     page.table(["method"] + [metric_label(k, short=True) for k in VERDICT_METRICS], rows, cls="summary pooled",
-               caption=f"Pooled over the population: value [95 % CI]. {pop.get('unit', '')} CIs: bootstrap "
-                       f"({pop.get('bootstrap', '?')} resamples) over tracks within targets and over targets. "
-                       "log10 MGR: 0 when the truth is the most likely class.")
+               caption=f"Pooled over the population: value [95 % CI]. {unit[:1].upper() + unit[1:]} "
+                       f"({pop.get('bootstrap', '?')} bootstrap resamples.) log10 MGR: 0 when the truth is the "
+                       "most likely class.")
+    if len(head) < len(sentences):
+        page.bullets(sentences, cls="verdict-all", collapsed=f"All {len(sentences)} verdict sentences "
+                                                             "(every metric, both comparisons)")
     ceiling = _ceiling_line(pop)
     if ceiling:
         page.paragraph(ceiling, cls="note")
+
+
+def headline(sentences: list[str], table: list[dict]) -> list[str]:
+    """The verdict sentences of the headline metrics (the table rows pair 1:1 with the sentences);
+    all of them where the pairing is not there."""
+    if len(table) != len(sentences):
+        return sentences
+    head = [s for s, r in zip(sentences, table) if r.get("metric") in HEADLINE]
+    return head or sentences
 
 
 def _ceiling_line(pop: dict) -> str:

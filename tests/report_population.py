@@ -86,10 +86,11 @@ def _stats(df: pd.DataFrame, n_boot: int, seed: int) -> dict:
 
 
 def verdict(paired: dict, n_targets: int, n_tracks: int, wide: pd.DataFrame) -> tuple[list[str], list[dict]]:
+    """One sentence and table row per (comparison, metric), in the same order (as pipeline/popstats.py)."""
     sentences, table = [], []
     for a, b in COMPARISONS:
         key = f"{a}-{b}"
-        for k in ("correct_final", "log10_mgr95_final"):
+        for k in METRICS:
             d = paired[key][k]
             higher = METRICS[k]
             if d["ci_low"] > 0 or d["ci_high"] < 0:
@@ -101,8 +102,9 @@ def verdict(paired: dict, n_targets: int, n_tracks: int, wide: pd.DataFrame) -> 
             floor = int((both == 0).all(axis=1).sum()) if k.startswith("correct") else 0
             word = f"{outcome} than" if outcome != "not distinguishable" else "not distinguishable from"
             sentences.append(f"{LABEL[a]} is {word} {LABEL[b]} on {k.replace('_', ' ')} (difference "
-                             f"{d['value']:+.3g}, 95 % CI [{d['ci_low']:.3g}, {d['ci_high']:.3g}], over "
-                             f"{n_targets} targets × {n_tracks} tracks).")
+                             f"{d['value']:+.3g}, 95 % CI [{d['ci_low']:+.3g}, {d['ci_high']:+.3g}], over "
+                             f"{n_targets} targets x {n_tracks} tracks; better in {d['wins']:.0%} of cells, "
+                             f"worse in {d['losses']:.0%}).")
             table.append({"comparison": key, "metric": k, "outcome": outcome, "value": d["value"],
                           "ci_low": d["ci_low"], "ci_high": d["ci_high"], "n_cells": d["n_cells"],
                           "ceiling_cells": ceiling, "floor_cells": floor})
@@ -150,8 +152,9 @@ def population(df: pd.DataFrame, targets, candidates_of, families, *, n_boot: in
                      for s, g in rnd.groupby("setting", sort=False)],
         "targets": list(targets), "candidates": {t: candidates_of(t) for t in targets},
         "components": {t: [f"{families[k]} (score {k})" for k in (2, 7)] for t in targets},
-        "unit": "A cell is one (target, track, setting); its value averages the realizations; the pooled value "
-                "averages the cells.",
+        "unit": "a cell is one (target, track, setting); its metric is computed over its realizations. Pooled "
+                "values average the cells within each target, then targets; 95 % CIs resample targets, then "
+                "tracks within targets (per-target CIs: tracks).",
         "pooled": st["pooled"], "per_target": st["per_target"], "paired": st["paired"],
         "paired_per_target": st["paired_per_target"], "by_setting": by_setting, "verdict": sentences,
         "verdict_table": vtable, "difficulty": {"tracks": tracks, "summary": diff_summary}, "cells": cells,

@@ -228,7 +228,11 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     first = text[text.index('id="verdict"'):text.index('id="population"')]
     assert "synthetic data (stand-ins rendered" in first and "3 targets × 6 tracks (2 per target)" in first
     assert "2 localization settings × 5 realizations" in first and "held-out top-1 0.940 [" in first
-    assert page.verdict == pop["verdict"]                     # the computed sentences, verbatim
+    # The headline sentences (computed, verbatim) on the first screen; all of them collapsed below.
+    head = [s for s, r in zip(pop["verdict"], pop["verdict_table"]) if r["metric"] in ("correct_final", "log10_mgr95_final")]
+    assert len(head) == 4 and len(pop["verdict"]) == 16
+    assert page.verdict == head + pop["verdict"]
+    assert first.index(head[-1]) < first.index('class="summary pooled"') < first.index("All 16 verdict sentences")
     pooled = page.table("pooled")
     assert pooled["section"] == "verdict"
     header, *rows = pooled["rows"]
