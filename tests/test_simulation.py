@@ -269,7 +269,7 @@ def test_stage_writes_results_example_and_report(tmp_config):
     import re
     cells = re.findall(r'<td class="num">([^<]*)</td>', html)
     est = [c for c in cells if "[" in c]
-    assert len(est) >= 2 * 3 * 5          # 2 scenarios x 3 methods x 5 metrics, each 'v [lo, hi]'
+    assert len(est) >= 2 * 3 * 4          # 2 scenarios x 3 methods x 4 metrics, each 'v [lo, hi]'
     for c in est:
         v, lo, hi = (float(x) for x in re.findall(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", c)[:3])
         assert lo <= v <= hi and abs(v) < 1e6
