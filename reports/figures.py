@@ -45,13 +45,6 @@ def step_ticks(ax, steps) -> None:
         ax.xaxis.set_major_locator(MaxNLocator(nbins=10, integer=True))
 
 
-def sig_formatter(sig: int = 3):
-    """Axis tick formatter with the reports' one number format (``reports.numbers.fmt``)."""
-    from matplotlib.ticker import FuncFormatter
-    from reports.numbers import fmt
-    return FuncFormatter(lambda v, _pos: fmt(v, sig).replace("−", "-"))
-
-
 def _apply_rc() -> None:
     import matplotlib
     matplotlib.rcParams.update(_RC)

@@ -116,7 +116,8 @@ def bias_map_rgb(post: np.ndarray, colors: list[str]) -> tuple[np.ndarray, np.nd
 def _bias_map_key(ax, classes: list[str], colors: list[str], truth: int) -> None:
     """The colour scale of the bias maps: per class (row), brightness vs winning probability."""
     C = len(colors)
-    p = np.linspace(1.0 / C, 1.0, 64)
+    # Start just above 1/C: at exactly 1/C every class ties and argmax would pick another hue.
+    p = np.linspace(1.0 / C, 1.0, 65)[1:]
     post = np.zeros((C, C, p.size))
     for c in range(C):
         post[:, c, :] = (1 - p) / max(C - 1, 1)

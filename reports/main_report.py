@@ -50,7 +50,7 @@ def _population_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
     plan = []
     if pop.get("paired_per_target") or pop.get("paired"):
         plan.append(("forest.png", lambda: fig_forest(pop)))
-    if pop.get("per_target") or pop.get("pooled"):
+    if pop.get("per_target"):
         plan.append(("per_target.png", lambda: fig_per_target(pop)))
     return plan
 

@@ -124,9 +124,14 @@ def population_section(ctx: ReportContext) -> None:
                _paired_rows(pop), cls="paired",
                caption="Paired differences, pooled. Won/lost: share of (target, track, setting) cells where "
                        "With Uncertainty is strictly better / worse.")
-    ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
-    page.table(["target", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS], _target_rows(pop),
-               cls="per-target", caption="Per target: value [95 % CI] over that target's tracks.")
+    if pop.get("per_target"):
+        ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
+        page.table(["target", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS], _target_rows(pop),
+                   cls="per-target", caption="Per target: value [95 % CI] over that target's tracks.")
+    else:
+        note = "summary.json's population.per_target is empty: no per-method values per target to show."
+        ctx.notes.append(note)
+        page.paragraph(note, cls="warn")
     _by_setting(ctx, pop)
     _difficulty(ctx, pop)
     for s in pop.get("skipped_targets") or []:
@@ -230,8 +235,10 @@ def _ablations(ctx: ReportContext) -> None:
     for name, a in abl.items():
         over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
         d = (a.get("paired") or {}).get(key) or {}
+        said = headline([str(s) for s in a.get("verdict") or []], a.get("verdict_table") or [])
         rows.append([over, Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True),
-                     " ".join(str(s) for s in a.get("verdict") or []) or "—"])
+                     " ".join(said) or "—"])
     ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],
                    rows, cls="ablations", caption=f"Ablations on the same population: "
-                   f"{comparison_label(key)}, 95 % CIs; each row's verdict is computed as the main one.")
+                   f"{comparison_label(key)}, 95 % CIs; each row's verdict is computed as the main one (headline "
+                   "metrics here; every metric in summary.json, population.ablations).")
