@@ -24,7 +24,7 @@ from pipeline.labels import MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_col
 from reports.artifacts import load_simulate
 from reports.figures import new_subplots, percentile_bands, save
 from reports.html import HtmlReport
-from reports.simulate_findings import OTHERS, OURS, findings, findings_text, matrix  # noqa: F401 (stages.simulate)
+from reports.simulate_findings import OTHERS, OURS, findings, findings_text, matrix
 from reports.stats import BOOTSTRAP, track_summary
 
 log = logging.getLogger("viewfuse.simulate")
