@@ -121,7 +121,6 @@ def fig_class_maps(models, true_xy: np.ndarray, est_xy: np.ndarray | None, class
     """Per class: which class its GP mean score vector favours around the object (colour), its
     margin (opacity), the model points, the track and the biased estimates."""
     from matplotlib.colors import to_rgb
-    from matplotlib.patches import Patch
 
     pts_all = np.concatenate([models.X[0], true_xy] + ([est_xy] if est_xy is not None else []))
     lim = float(np.abs(pts_all).max()) * 1.08
@@ -130,7 +129,7 @@ def fig_class_maps(models, true_xy: np.ndarray, est_xy: np.ndarray | None, class
     mean, _ = models.marginal(np.stack([gx.ravel(), gy.ravel()], -1))   # (G², C, F)
     C = len(classes)
     colors = np.array([to_rgb(c) for c in class_colors(C)])
-    fig, axes = new_subplots(1, C, w=0.8 + 3.6 * C, h=3.8, sharey=True)
+    fig, axes = new_subplots(2, C, w=0.8 + 3.6 * C, h=4.6, height_ratios=[1.0, 0.09 * C + 0.08])
     for c in range(C):
         ax = axes[0, c]
         m = mean[:, c, :]                                  # (G², F): class c's expected scores
@@ -154,11 +153,25 @@ def fig_class_maps(models, true_xy: np.ndarray, est_xy: np.ndarray | None, class
         ax.grid(False)
     axes[0, 0].set_ylabel("y (north)")
     axes[0, 0].legend(loc="lower left", fontsize=6.5)
-    handles = [Patch(color=colors[c], label=f"looks like {n}") for c, n in enumerate(classes)]
-    fig.legend(handles=handles, loc="outside lower center", ncol=C, fontsize=7.5)
+    gs = axes[1, 0].get_gridspec()
+    for ax in axes[1]:
+        ax.remove()
+    _class_map_key(fig.add_subplot(gs[1, :]), classes, colors)
     fig.suptitle("What each class looks like around the object (colour: highest expected score; "
                  "pale: ambiguous); dots: model points")
     return fig
+
+
+def _class_map_key(ax, classes: list[str], colors: np.ndarray) -> None:
+    """The class maps' colour scale: per class (row), the colour vs the score margin it encodes."""
+    margin = np.linspace(0.0, 0.5, 101)
+    strength = np.clip(margin / 0.4, 0.15, 1.0)
+    rgb = 1 - strength[None, :, None] * (1 - colors[:, None, :])
+    ax.grid(False)
+    ax.imshow(rgb, aspect="auto", extent=(0.0, 0.5, len(classes) - 0.5, -0.5), interpolation="nearest")
+    ax.set_yticks(range(len(classes)))
+    ax.set_yticklabels([f"looks like {n}" for n in classes], fontsize=7.5)
+    ax.set_xlabel("score margin of the favoured class over the next (colour scale; pale = ambiguous)")
 
 
 # -- page ---------------------------------------------------------------------------------------------------
