@@ -30,10 +30,10 @@ class LocalExecutor:
     name = "local"
 
     def map(self, fn, items, *, shared=None, desc: str = "", unit: str = "task") -> list:
-        from tqdm.auto import tqdm
+        from pipeline.progress import bar as progress_bar
 
         out = []
-        with tqdm(total=len(items), desc=desc or None, unit=unit, disable=None, leave=False) as bar:
+        with progress_bar(total=len(items), desc=desc, unit=unit, leave=False) as bar:
             for item in items:
                 out.append(fn(shared, item))
                 bar.update(1)

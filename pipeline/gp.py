@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipeline.cache import atomic_path, write_json
+from pipeline.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
 
 FORMAT = "viewfuse.gp_class_models"
 VERSION = 1
@@ -126,6 +126,19 @@ class GPClassModels:
                              [self.X[i] for i in idx], [self.Y[i] for i in idx],
                              self.mean[idx], self.amplitude[idx], self.length_scale[idx], self.noise[idx],
                              component_names=self.component_names, meta=self.meta)
+
+    def subset(self, classes: Sequence[str], components: Sequence[int]) -> "GPClassModels":
+        """The models of ``classes`` restricted to score ``components`` (both subsets or reorderings):
+        one model bank serves every candidate set."""
+        sub = self.select(classes)
+        try:
+            fi = [self.components.index(int(i)) for i in components]
+        except ValueError:
+            raise KeyError(f"components {list(components)} are not all modelled (have {self.components})") from None
+        names = None if self.component_names is None else [self.component_names[i] for i in fi]
+        return GPClassModels(sub.classes, [self.components[i] for i in fi], sub.X, [y[fi] for y in sub.Y],
+                             sub.mean[:, fi], sub.amplitude[:, fi], sub.length_scale[:, fi], sub.noise[:, fi],
+                             component_names=names, meta=self.meta)
 
     # -- training-side factors (computed once) ----------------------------------------------
     def factors(self) -> list[_ClassFactors]:
@@ -266,17 +279,19 @@ class GPClassModels:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         files = _file_names(self.classes)
+        digests = {}
         for c, cls in enumerate(self.classes):
             with atomic_path(folder / files[cls]) as tmp:
                 with open(tmp, "wb") as fh:  # a file object: np.savez must not append ".npz"
                     np.savez(fh, X=self.X[c], Y=self.Y[c], mean=self.mean[c], amplitude=self.amplitude[c],
                              length_scale=self.length_scale[c], noise=self.noise[c],
                              components=np.asarray(self.components, dtype=np.int64))
+                digests[files[cls]] = sha256_file(tmp)
         index = {
             "format": FORMAT, "version": VERSION, "kernel": KERNEL_TEXT,
             "classes": self.classes, "components": self.components,
             "component_names": self.component_names, "input_dim": self.input_dim,
-            "files": files, "hyperparameters": self.hyperparameters(), "meta": self.meta,
+            "files": files, "sha256": digests, "hyperparameters": self.hyperparameters(), "meta": self.meta,
         }
         for k, v in (extra or {}).items():
             if k in index:
@@ -313,11 +328,11 @@ class GPClassModels:
             path = folder / fname
             if not path.is_file():
                 raise ModelFileError(path, f"model file of class {name!r} not found")
+            _check_digest(ipath, index, fname)
             try:
-                with np.load(path, allow_pickle=False) as z:
-                    data = {k: z[k] for k in z.files}
-            except Exception as e:  # zip/format errors of a corrupt file
-                raise ModelFileError(path, f"unreadable model file: {e}") from None
+                data = load_npz(path)
+            except NpzFileError as e:
+                raise ModelFileError(path, f"unreadable model file: {e.problem}") from None
             for k in list(arrays) + ["components"]:
                 if k not in data:
                     raise ModelFileError(path, f"missing array '{k}'")
@@ -332,6 +347,26 @@ class GPClassModels:
                        component_names=index.get("component_names"), meta=index.get("meta"))
         except ValueError as e:
             raise ModelFileError(folder, f"inconsistent model files: {e}") from None
+
+
+def _check_digest(ipath: Path, index: dict, fname: str) -> None:
+    """The file's sha256 must be the one index.json recorded when the models were saved: a file
+    swapped with another class's, or rewritten, is an error naming both files."""
+    recorded = index.get("sha256")
+    if recorded is None:
+        return  # written before digests were recorded
+    if not isinstance(recorded, dict) or fname not in recorded:
+        raise ModelFileError(ipath, f"no sha256 recorded for {fname!r}")
+    path = ipath.parent / fname
+    actual = sha256_file(path)
+    if actual == recorded[fname]:
+        return
+    other = [f for f, h in recorded.items() if h == actual and f != fname]
+    if other:
+        raise ModelFileError(path, f"holds the content index.json records for {ipath.parent / other[0]} "
+                                   f"(files swapped or copied?); rerun the 'models' stage")
+    raise ModelFileError(path, f"content differs from the sha256 recorded in {ipath} "
+                               "(file changed after the models were saved); rerun the 'models' stage")
 
 
 def _whiten_rows(L: np.ndarray, V: np.ndarray) -> None:
@@ -364,6 +399,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                      length_scale_bounds: tuple[float, float] = (0.05, 10.0),
                      noise_bounds: tuple[float, float] = (1e-6, 1.0), seed: int = 0,
                      component_names: Sequence[str] | None = None, progress: bool = True,
+                     noise_floor: np.ndarray | None = None,
                      ) -> tuple[GPClassModels, list[dict[str, Any]]]:
     """Fit one GP per (class, component) with scikit-learn by marginal likelihood.
 
@@ -371,7 +407,9 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
     training mean; kernel ``ConstantKernel * RBF + WhiteKernel`` within the given bounds;
     ``restarts`` extra L-BFGS-B starts drawn log-uniformly in the bounds, seeded per fit from
     ``seed``. Returns the models and one diagnostics dict per fit (hyperparameters, log marginal
-    likelihood, the optimizer's warnings, which hyperparameters ended at a bound).
+    likelihood, the optimizer's warnings, which hyperparameters ended at a bound, the training
+    scores' std over the views). ``noise_floor`` (C, F), when given, replaces the lower noise bound
+    of each fit (a data-driven floor; values at or above the upper bound are an error).
     """
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
@@ -385,6 +423,12 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                     ("noise_bounds", noise_bounds)):
         if len(b) != 2 or not 0 < b[0] < b[1]:
             raise ValueError(f"fit_class_models: {name} must be (low, high) with 0 < low < high, got {b}")
+    if noise_floor is not None:
+        noise_floor = np.asarray(noise_floor, dtype=float)
+        if noise_floor.shape != (C, F) or not np.all(np.isfinite(noise_floor)) or np.any(noise_floor <= 0):
+            raise ValueError(f"fit_class_models: noise_floor must be ({C}, {F}) positive finite values")
+        if np.any(noise_floor >= noise_bounds[1]):
+            raise ValueError(f"fit_class_models: a noise floor reaches the upper noise bound {noise_bounds[1]}")
     mean, amp, ell, noise = (np.zeros((C, F)) for _ in range(4))
     diags: list[dict[str, Any]] = []
     bar = tqdm(total=C * F, desc="GP fits", unit="fit", disable=not progress)
@@ -400,13 +444,14 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
         for f in range(F):
             y = Y[f]
             m = float(y.mean())
+            nb = noise_bounds if noise_floor is None else (float(noise_floor[c, f]), noise_bounds[1])
             # Starting point: the data's own scale, clipped into the bounds.
             v = float(y.var())
             a0 = float(np.clip(v if v > 0 else amplitude_bounds[0], *amplitude_bounds))
             l0 = float(np.clip(1.0, *length_scale_bounds))
-            n0 = float(np.clip(0.1 * v if v > 0 else noise_bounds[0], *noise_bounds))
+            n0 = float(np.clip(0.1 * v if v > 0 else nb[0], *nb))
             kernel = (ConstantKernel(a0, tuple(amplitude_bounds)) * RBF(l0, tuple(length_scale_bounds))
-                      + WhiteKernel(n0, tuple(noise_bounds)))
+                      + WhiteKernel(n0, tuple(nb)))
             rs = int(np.random.SeedSequence([seed, c, f]).generate_state(1)[0])
             gpr = GaussianProcessRegressor(kernel, alpha=0.0, normalize_y=False,
                                            n_restarts_optimizer=restarts, random_state=rs)
@@ -419,7 +464,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
             ell[c, f] = k.k1.k2.length_scale
             noise[c, f] = k.k2.noise_level
             fitted = {"amplitude": amp[c, f], "length_scale": ell[c, f], "noise": noise[c, f]}
-            bounds = {"amplitude": amplitude_bounds, "length_scale": length_scale_bounds, "noise": noise_bounds}
+            bounds = {"amplitude": amplitude_bounds, "length_scale": length_scale_bounds, "noise": nb}
             at_bound = [f"{n} at {'lower' if abs(np.log(val / bounds[n][0])) < 0.01 else 'upper'} bound"
                         for n, val in fitted.items()
                         if min(abs(np.log(val / bounds[n][0])), abs(np.log(val / bounds[n][1]))) < 0.01]
@@ -428,7 +473,8 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
             diags.append({
                 "class": str(classes[c]), "component": int(components[f]),
                 "component_name": None if component_names is None else str(component_names[f]),
-                "n_train": int(len(X)), "mean": m,
+                "n_train": int(len(X)), "mean": m, "train_std": float(y.std()),
+                "noise_bounds": [float(nb[0]), float(nb[1])],
                 **{n: float(val) for n, val in fitted.items()},
                 "log_marginal_likelihood": float(gpr.log_marginal_likelihood_value_),
                 "init": {"amplitude": a0, "length_scale": l0, "noise": n0},
