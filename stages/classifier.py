@@ -111,7 +111,7 @@ def _cpu_s() -> float:
 def _render_sets(c, t) -> tuple:
     """Train and validation images, rendered by ``training.render_workers`` processes."""
     from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, render_set_parallel
-    from pipeline.progress import progress_bar
+    from pipeline.progress import bar as progress_bar
 
     with progress_bar(total=t.train_images + t.val_images, desc="classifier: render source domain", unit="img") as bar:
         xtr, ytr = render_set_parallel(t.train_images, c.input_size, t.categories, c.seed, TRAIN_STREAM,
