@@ -519,3 +519,13 @@ def test_cli_status_version_and_stage_help(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "features.n_samples = 10 in [1, 1000]: N_s dropout samples per AVD crop" in out
     assert "models.restarts" not in out and "--progress {auto,on,off}" in out
+
+
+def test_many_skips_are_counted_but_not_all_logged(caplog):
+    skip = SkipLog("AVD entry")
+    with caplog.at_level("WARNING", logger="viewfuse.loaders"):
+        for i in range(500):
+            skip.skip(BadInputError(f"img{i}.jpg", "corrupt JPEG"))
+    assert skip.count == 500 and skip.reasons == {"corrupt JPEG": 500} and len(skip.examples) == 20
+    assert len(caplog.records) == SkipLog.LOG_FIRST + 1
+    assert "counted, not logged" in caplog.records[-1].getMessage()
