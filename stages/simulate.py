@@ -10,7 +10,7 @@ Fits the three hand-specified class models, runs every configured scenario over
 - ``summary.json``: the table (correct ratio, MGR 75%/95%, final/overall), the findings checks,
   GP fit diagnostics, seeds and timings.
 - ``models/``: the fitted simulation GPs (``index.json`` + ``.npz``, no pickles).
-- ``index.html`` + PNGs (``reports.simulate_report``).
+- ``index.html`` + PNGs (``reports.simulate_report``: log10 MGR, shared method names, CIs over realizations).
 """
 from __future__ import annotations
 
@@ -26,7 +26,8 @@ from pipeline.cache import atomic_path, write_json
 from pipeline.config import Config, to_dict
 from pipeline.outputs import name as out_name
 from pipeline.progress import bar as progress_bar
-from reports.simulate_report import build_simulate_report, findings
+from reports.simulate_findings import findings
+from reports.simulate_report import build_simulate_report
 
 log = logging.getLogger("viewfuse.simulate")
 

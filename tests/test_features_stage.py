@@ -18,7 +18,7 @@ TINY = {
                            "grid_step_m": 0.6, "distractors": 2, "workers": 1}},
     "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
                                                   "batch_size": 12, "min_accuracy": 0.0}},
-    "features": {"n_samples": N_S, "max_difficulty": 5, "batch_size": 16},
+    "features": {"n_samples": N_S, "bigbird_samples": 2, "max_difficulty": 5, "batch_size": 16},
 }
 
 
@@ -71,13 +71,18 @@ def test_parquet_metadata_names_config_classifier_and_seed(chain):
         assert json.loads(md["viewfuse.output_names"]) == card["output_names"]
 
 
-def test_bigbird_rows_are_one_deterministic_pass_per_view(chain):
+def test_bigbird_rows_are_the_deterministic_pass_then_dropout_passes_per_view(chain):
     from loaders.bigbird import BigBirdObject
     from stages.data import data_roots
 
-    df, scores, meta = read_features(chain.stage_dir("features") / "bigbird.parquet")
+    full, all_scores, meta = read_features(chain.stage_dir("features") / "bigbird.parquet")
     root, _ = data_roots(chain)
-    assert (df["pass"] == -1).all()
+    # Each view: pass -1 (the GP training target) then features.bigbird_samples dropout passes.
+    assert full["pass"].tolist() == [-1, 0, 1] * (len(full) // 3)
+    drop = all_scores[full["pass"].to_numpy() >= 0]
+    assert not np.array_equal(drop[0::2], drop[1::2])                    # the dropout passes differ
+    det = (full["pass"] == -1).to_numpy()
+    df, scores = full[det].reset_index(drop=True), all_scores[det]
     assert len(df) == len(chain.data.synthetic.instances) * 6            # 360 / 60 angles each
     assert not df.duplicated(["object", "camera", "angle_deg"]).any()
     assert scores.shape == (len(df), 12) and scores.dtype == np.float32
