@@ -28,6 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
                    help="torch device (default: config run.device; auto = cuda when present)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: config run.threads; 0 = all cores)")
+    p.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="where features and evaluate run their tasks (default: config run.executor; "
+                        "ray: local Ray instance, or the cluster in run.ray_address)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. --set evaluate.randomized.realizations=50")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -42,6 +45,8 @@ def main(argv: list[str] | None = None) -> int:
         overrides: dict = {}
         for o in args.overrides:
             overrides = _merge(overrides, parse_override(o))
+        if args.executor:
+            overrides = _merge(overrides, {"run": {"executor": args.executor}})
         cfg = load_config(args.config, overrides or None)
     except ConfigError as e:
         print(f"viewfuse: config error: {e}", file=sys.stderr)

@@ -1,0 +1,169 @@
+"""The Ray executor on a local Ray instance (2 worker CPUs, loopback only): item order, Ray's
+retries, failures that name the task, and the features stage giving the same Parquet files through
+Ray as in this process. Skipped when Ray is not installed, unless VIEWFUSE_REQUIRE_RAY=1 (CI).
+
+Bounded in time: if the Ray part hangs, faulthandler dumps every thread's stack and ends the run
+after ``LIMIT_S`` instead of letting CI sit until its own limit.
+"""
+import faulthandler
+import importlib.util
+import os
+import shutil
+import time
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline.config import _merge
+from pipeline.executor import LocalExecutor, TransientError, make_executor, task_cpus
+
+LIMIT_S = 600
+HAVE_RAY = importlib.util.find_spec("ray") is not None
+if not HAVE_RAY and os.environ.get("VIEWFUSE_REQUIRE_RAY") == "1":
+    raise RuntimeError("VIEWFUSE_REQUIRE_RAY=1 but Ray is not installed (pip install -e '.[ray]')")
+needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray not installed (pip install -e '.[ray]')")
+
+# The tiny world of tests/test_features_stage.py, with dropout samples on both tables.
+TINY = {
+    "data": {"synthetic": {"angle_step_deg": 60, "bigbird_width": 160, "bigbird_height": 128,
+                           "avd_width": 320, "avd_height": 180, "room_size_m": [2.4, 2.1],
+                           "grid_step_m": 0.6, "distractors": 2, "workers": 1}},
+    "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
+                                                  "batch_size": 12, "min_accuracy": 0.0}},
+    "features": {"n_samples": 3, "bigbird_samples": 2, "max_difficulty": 5, "batch_size": 7},
+}
+
+
+# -- task functions (module level: Ray workers import them by name) ----------------------------
+def _slow_square(shared, i):
+    time.sleep(shared * (5 - i % 5))          # early items finish last
+    return i * i
+
+
+def _seeded(shared, item):
+    """Randomness from the item's identity only: the same on any worker, in any order."""
+    return float(np.random.default_rng([shared, item]).normal()), task_cpus()
+
+
+def _flaky(folder, item):
+    """Fails with TransientError on its first ``item`` attempts (counted in files), then works."""
+    n = len(os.listdir(folder))
+    open(os.path.join(folder, f"try{n}"), "w").close()
+    if n < item:
+        raise TransientError(f"flaky attempt {n}")
+    return n
+
+
+def _bad(shared, item):
+    if item == 3:
+        raise ValueError(f"bad item {item}: its box is empty")
+    return item
+
+
+@pytest.fixture(scope="module")
+def ray_ex():
+    if not HAVE_RAY:
+        pytest.skip("Ray not installed")
+    faulthandler.dump_traceback_later(LIMIT_S, exit=True)
+    ex = make_executor("ray", workers=2)
+    try:
+        yield ex
+    finally:
+        ex.close()
+        faulthandler.cancel_dump_traceback_later()
+
+
+@needs_ray
+def test_local_instance_is_loopback_only_with_two_cpus(ray_ex):
+    assert ray_ex.node_address == "127.0.0.1"
+    assert ray_ex.cpus == 2 and ray_ex.slots() == 2
+
+
+@needs_ray
+def test_results_come_back_in_item_order(ray_ex):
+    items = list(range(10))
+    assert ray_ex.map(_slow_square, items, shared=0.05, desc="squares") == [i * i for i in items]
+    # imap reads a generator lazily and keeps the order with a window smaller than the items.
+    assert list(ray_ex.imap(_slow_square, (i for i in items), shared=0.01, window=3)) == [i * i for i in items]
+    assert ray_ex.map(_slow_square, [], shared=0.0) == []
+
+
+@needs_ray
+def test_seeded_tasks_give_the_local_numbers(ray_ex):
+    items = list(range(12))
+    remote = ray_ex.map(_seeded, items, shared=7)
+    local = LocalExecutor().map(_seeded, items, shared=7)
+    assert [v for v, _ in remote] == [v for v, _ in local]
+    assert {c for _, c in remote} == {1} and {c for _, c in local} == {0}   # task_cpus()
+
+
+@needs_ray
+def test_transient_errors_are_retried(ray_ex, tmp_path):
+    folder = tmp_path / "tries"
+    folder.mkdir()
+    assert ray_ex.map(_flaky, [2], shared=str(folder)) == [2]       # third attempt works
+    assert len(os.listdir(folder)) == 3
+
+
+@needs_ray
+def test_a_task_that_keeps_failing_stops_with_its_own_message(ray_ex, tmp_path):
+    folder = tmp_path / "tries"
+    folder.mkdir()
+    with pytest.raises(RuntimeError, match=r"flaky: task 1 of 1 \(99\) failed \(after 3 retries\): "
+                                           r"TransientError: flaky attempt 3"):
+        ray_ex.map(_flaky, [99], shared=str(folder), desc="flaky")
+    assert len(os.listdir(folder)) == 1 + ray_ex.retries
+    # A plain error is not retried: it names the task and keeps the task's message.
+    with pytest.raises(RuntimeError, match=r"cells: task 4 of 5 \(3\) failed: ValueError: bad item 3: its box is empty"):
+        ray_ex.map(_bad, range(5), desc="cells")
+
+
+# -- the features stage through Ray -----------------------------------------------------------
+@pytest.fixture(scope="module")
+def upstream(tmp_path_factory):
+    """data + classifier once, copied into a folder per executor."""
+    from pipeline.config import load_config
+    from stages.runner import ensure
+    from tests.conftest import DEFAULT_CONFIG
+
+    base = tmp_path_factory.mktemp("ray") / "base"
+    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(base), "device": "cpu"}}))
+    ensure(cfg, "classifier", device="cpu")
+    ensure(cfg, "data", device="cpu")
+    return base
+
+
+def _run(upstream, name, stage, executor, **over):
+    from pipeline.config import load_config
+    from stages.runner import ensure
+    from tests.conftest import DEFAULT_CONFIG
+
+    art = upstream.parent / name
+    if not art.exists():
+        shutil.copytree(upstream, art)
+    cfg = load_config(DEFAULT_CONFIG, _merge(_merge(TINY, over), {"run": {
+        "artifacts": str(art), "device": "cpu", "executor": executor, "ray_workers": 2}}))
+    ensure(cfg, stage, device="cpu")
+    return cfg
+
+
+def assert_same_parquet(a, b):
+    ta, tb = pq.read_table(a), pq.read_table(b)
+    assert ta.schema.metadata == tb.schema.metadata, a.name
+    assert ta.schema == tb.schema and ta.num_rows == tb.num_rows and ta.num_rows > 0, a.name
+    assert ta.equals(tb), f"{a.name}: values differ"
+
+
+@needs_ray
+def test_features_through_ray_equal_the_local_run(ray_ex, upstream):
+    from stages.runner import read_manifest
+
+    local = _run(upstream, "local", "features", "local")
+    ray_ = _run(upstream, "ray", "features", "ray")
+    for name in ("bigbird.parquet", "avd.parquet"):
+        assert_same_parquet(local.stage_dir("features") / name, ray_.stage_dir("features") / name)
+    assert read_manifest(ray_, "features")["extra"]["executor"] == "ray"
+    # Batches of 7 do not divide the crops: the last, short batch is scored too.
+    n = read_manifest(ray_, "features")["extra"]["avd_crops"]
+    assert n % 7 and len(pq.read_table(ray_.stage_dir("features") / "avd.parquet")) == n * 4
