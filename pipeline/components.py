@@ -5,6 +5,9 @@ that score high across the candidate classes' training views. Rules:
 - ``top_mean``: highest mean score over all candidate classes' training views pooled;
 - ``top_min``: highest minimum over classes of the per-class mean score (components every class
   responds to);
+- ``target_informative``: as the paper describes its choice: components that score non-negligibly
+  (per-class mean >= ``informative_min``) for every candidate, ranked by the target's own mean
+  score; when fewer than n qualify, the rest follow in ``top_min`` order;
 - ``explicit``: the given indices.
 Ties break towards the lower index, so the choice is deterministic.
 """
@@ -14,14 +17,16 @@ from typing import Sequence
 
 import numpy as np
 
-RULES = ("top_mean", "top_min", "explicit")
+RULES = ("top_mean", "top_min", "target_informative", "explicit")
 
 
 def choose_components(scores_by_class: Sequence[np.ndarray], n: int, rule: str = "top_mean",
-                      explicit: Sequence[int] = ()) -> tuple[list[int], dict]:
+                      explicit: Sequence[int] = (), *, target: int = 0,
+                      informative_min: float = 0.02) -> tuple[list[int], dict]:
     """Pick ``n`` component indices from per-class training scores (N_c, D).
 
-    Returns the indices (in rank order) and a record of the choice for the model index.
+    ``target`` is the index of the target class (rule ``target_informative``). Returns the indices
+    (in rank order) and a record of the choice for the model index.
     """
     if rule not in RULES:
         raise ValueError(f"unknown component rule {rule!r} (known: {', '.join(RULES)})")
@@ -42,6 +47,12 @@ def choose_components(scores_by_class: Sequence[np.ndarray], n: int, rule: str =
         if len(set(comps)) != n or any(not 0 <= i < D for i in comps):
             raise ValueError(f"choose_components: explicit components {comps} must be distinct indices in [0, {D})")
         key = pooled
+    elif rule == "target_informative":
+        floor = per_class.min(axis=0)
+        eligible = floor >= informative_min
+        # Eligible components first (by the target's mean), then the rest by their weakest class.
+        key = np.where(eligible, 1.0 + per_class[target], floor)
+        comps = [int(i) for i in np.argsort(-key, kind="stable")[:n]]
     else:
         key = pooled if rule == "top_mean" else per_class.min(axis=0)
         comps = [int(i) for i in np.argsort(-key, kind="stable")[:n]]

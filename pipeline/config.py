@@ -27,8 +27,10 @@ class ConfigError(ValueError):
 
 
 def _f(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
-       choices: tuple | None = None, factory: Any = None, doc: str = "") -> Any:
-    meta = {"lo": lo, "hi": hi, "choices": choices, "doc": doc}
+       choices: tuple | None = None, factory: Any = None, doc: str = "", words: tuple = ()) -> Any:
+    # ``words``: for a list-valued key, bare strings that stand for a rule instead of a list
+    # (e.g. ``targets = "all"``); the field then holds that string.
+    meta = {"lo": lo, "hi": hi, "choices": choices, "doc": doc, "words": words}
     if factory is not None:
         return field(default_factory=factory, metadata=meta)
     return field(default=default, metadata=meta)
@@ -144,10 +146,18 @@ class FeaturesConfig:
 
 @dataclass(frozen=True)
 class ModelsConfig:
-    classes: tuple[str, ...] = _f(factory=lambda: DEFAULT_INSTANCES[:4],
-                                  doc="candidate classes (one GP set each)")
-    n_components: int = _f(4, lo=1, hi=1000)
-    component_rule: str = _f("top_mean", choices=("top_mean", "top_min", "explicit"))
+    classes: tuple[str, ...] = _f("all", words=("all",),
+                                  doc="modelled classes, the candidate pool: 'all' = every BigBIRD object "
+                                      "in the features, or a list of object names")
+    n_components: int = _f(4, lo=1, hi=1000, doc="N_f score components per candidate set")
+    component_rule: str = _f("top_mean", choices=("top_mean", "top_min", "target_informative", "explicit"),
+                             doc="how each candidate set's N_f components are chosen (pipeline/components.py)")
+    informative_min: float = _f(0.02, lo=0.0, hi=1.0,
+                                doc="target_informative: a component is eligible when every candidate's mean "
+                                    "training score reaches this")
+    noise_floor: str = _f("bound", choices=("bound", "dropout"),
+                          doc="lower bound of each GP's noise variance: 'bound' = noise_bounds[0]; 'dropout' = "
+                              "the mean MC-dropout variance of that component over the class's BigBIRD views")
     components: tuple[int, ...] = _f(factory=tuple, doc="score indices for rule 'explicit'")
     camera: int = _f(1, lo=1, hi=5, doc="BigBIRD camera ring used for training")
     restarts: int = _f(5, lo=0, hi=100)
@@ -168,9 +178,10 @@ class BiasedConfig:
 @dataclass(frozen=True)
 class RandomizedConfig:
     bias_m: tuple[float, ...] = _f(factory=lambda: (0.0, 0.0))
-    sigma_m: float = _f(0.30, lo=0.0, hi=10.0)
-    realizations: int = _f(500, lo=1, hi=1000000)
-    n_loc_samples: int = _f(100, lo=1, hi=100000)
+    sigmas_m: tuple[float, ...] = _f(factory=lambda: (0.1, 0.3, 0.5), lo=0.0, hi=10.0,
+                                     doc="one population setting per sigma: estimate = truth + bias + N(0, sigma^2 I)")
+    realizations: int = _f(40, lo=1, hi=1000000)
+    n_loc_samples: int = _f(40, lo=1, hi=100000)
 
 
 @dataclass(frozen=True)
@@ -188,16 +199,30 @@ class BiasMapsConfig:
 
 @dataclass(frozen=True)
 class EvaluateConfig:
-    target: str = _f("aunt_jemima_original_syrup")
-    track_images: tuple[str, ...] = _f(factory=tuple, doc="explicit track; empty = build one")
+    targets: tuple[str, ...] = _f("all", words=("all",),
+                                  doc="'all' = every modelled instance present in the scanned AVD features, "
+                                      "or a list of instance names")
+    n_candidates: int = _f(4, lo=2, hi=1000, doc="candidate classes per target, the target included")
+    candidates: tuple[str, ...] = _f("sampled", words=("sampled", "all"),
+                                     doc="'sampled' = the target + n_candidates - 1 others drawn per target; "
+                                         "'all' = every modelled class; or a list of the other candidates")
+    candidate_seed: int = _f(0, lo=0, doc="seeds the per-target candidate draw")
+    tracks_per_target: int = _f(8, lo=1, hi=1000, doc="distinct tracks per target")
+    track_images: tuple[str, ...] = _f(factory=tuple, doc="explicit track (one target only); empty = build tracks")
     track_length: int = _f(9, lo=2, hi=200)
     max_difficulty: int = _f(4, lo=1, hi=5)
     yaw_source: str = _f("truth", choices=("truth", "config"))
-    yaw_deg: float = _f(0.0, lo=-360.0, hi=360.0)
+    yaw_deg: float = _f(0.0, lo=-360.0, hi=360.0, doc="yaw_source = 'config' with a single target")
+    yaws_deg: tuple[float, ...] = _f(factory=tuple, lo=-360.0, hi=360.0,
+                                     doc="yaw_source = 'config': one yaw per entry of 'targets'")
     variance_floor: float = _f(1e-6, lo=0.0, hi=1.0)
     experiments: tuple[str, ...] = _f(
         factory=lambda: ("gp_models", "biased", "randomized", "sensitivity", "bias_maps"))
     seed: int = _f(0, lo=0)
+    bootstrap: int = _f(2000, lo=100, hi=1000000, doc="bootstrap resamples for every 95 % confidence interval")
+    ablations: tuple[str, ...] = _f(factory=tuple,
+                                    doc="'models.KEY=VALUE' variants evaluated on the same population "
+                                        "(KEY: component_rule, noise_floor, n_components, informative_min)")
     biased: BiasedConfig = _f(factory=BiasedConfig)
     randomized: RandomizedConfig = _f(factory=RandomizedConfig)
     sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
@@ -310,7 +335,11 @@ class Config:
         return self.run_dir / stage
 
     def section(self, name: str) -> Any:
-        return getattr(self, name)
+        """A section or, dotted, one key (``evaluate.candidates``): a stage may depend on single keys."""
+        obj = self
+        for part in name.split("."):
+            obj = getattr(obj, part)
+        return obj
 
     def section_hash(self, name: str) -> str:
         return hashlib.sha256(canonical_json(to_dict(self.section(name))).encode()).hexdigest()
@@ -374,6 +403,13 @@ def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
             continue
         if typing.get_origin(tp) is tuple:
             inner = typing.get_args(tp)[0]
+            words = f.metadata.get("words") or ()
+            if isinstance(value, str) and words:
+                if value not in words:
+                    raise ConfigError(f"{where}: '{key}' = {value!r} must be a list or one of "
+                                      f"{', '.join(map(repr, words))}")
+                kwargs[name] = value
+                continue
             if not isinstance(value, list):
                 raise ConfigError(f"{where}: '{key}' must be a list, got {value!r}")
             items = tuple(_check_scalar(v, inner, f"{key}[{i}]", where) for i, v in enumerate(value))
@@ -416,7 +452,7 @@ def _cross_checks(cfg: Config, where: str) -> None:
     if cfg.data.source == "real":
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
-    else:
+    elif not isinstance(cfg.models.classes, str):
         for c in cfg.models.classes:
             need(c in s.instances, f"'models.classes' names {c!r}, which is not in 'data.synthetic.instances'")
         need(cfg.models.camera in s.bigbird_cameras,
@@ -427,23 +463,59 @@ def _cross_checks(cfg: Config, where: str) -> None:
         need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
     need(len(cfg.classifier.mean) == 3 and len(cfg.classifier.std) == 3,
          "'classifier.mean' and 'classifier.std' must list three (RGB) values each")
-    need(len(set(cfg.models.classes)) == len(cfg.models.classes) and len(cfg.models.classes) >= 2,
-         "'models.classes' must list at least two distinct classes")
+    if not isinstance(cfg.models.classes, str):
+        need(len(set(cfg.models.classes)) == len(cfg.models.classes) and len(cfg.models.classes) >= 2,
+             "'models.classes' must list at least two distinct classes")
     if cfg.models.component_rule == "explicit":
         need(len(cfg.models.components) == cfg.models.n_components,
              "'models.components' must list exactly 'models.n_components' indices for rule 'explicit'")
     for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds"):
         b = getattr(cfg.models, key)
         need(len(b) == 2 and 0 < b[0] < b[1], f"'models.{key}' must be [low, high] with 0 < low < high")
-    need(cfg.evaluate.target in cfg.models.classes,
-         f"'evaluate.target' = {cfg.evaluate.target!r} is not among 'models.classes'")
+    ev = cfg.evaluate
+    if not isinstance(ev.targets, str):
+        need(len(ev.targets) >= 1 and len(set(ev.targets)) == len(ev.targets),
+             "'evaluate.targets' must be 'all' or a list of distinct instance names")
+        if not isinstance(cfg.models.classes, str):
+            for t in ev.targets:
+                need(t in cfg.models.classes, f"'evaluate.targets' names {t!r}, which is not among 'models.classes'")
+    if ev.yaws_deg:
+        need(not isinstance(ev.targets, str) and len(ev.yaws_deg) == len(ev.targets),
+             "'evaluate.yaws_deg' must give one yaw per entry of 'evaluate.targets'")
+    if ev.track_images:
+        need(not isinstance(ev.targets, str) and len(ev.targets) == 1,
+             "'evaluate.track_images' gives one track of one target: set 'evaluate.targets' to that one instance")
+    if not isinstance(ev.candidates, str):
+        need(len(set(ev.candidates)) == len(ev.candidates) and len(ev.candidates) >= 1,
+             "'evaluate.candidates' must be 'sampled', 'all' or a list of distinct class names")
+    for a in ev.ablations:
+        key = a.split("=", 1)[0].strip()
+        need("=" in a and key in ABLATION_KEYS,
+             f"'evaluate.ablations' entry {a!r} must be 'KEY=VALUE' with KEY one of {', '.join(ABLATION_KEYS)}")
     known = ("gp_models", "biased", "randomized", "sensitivity", "bias_maps")
     for e in cfg.evaluate.experiments:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")
     for key in ("biased", "randomized"):
         need(len(getattr(cfg.evaluate, key).bias_m) == 2, f"'evaluate.{key}.bias_m' must be [x, y]")
+    need(len(ev.randomized.sigmas_m) >= 1, "'evaluate.randomized.sigmas_m' must list at least one sigma")
     need(len(cfg.evaluate.sensitivity.sigmas_m) >= 1 and min(cfg.evaluate.sensitivity.sigmas_m) >= 0,
          "'evaluate.sensitivity.sigmas_m' must list non-negative values")
+
+
+ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min")
+
+
+def ablation_config(cfg: Config, ablation: str) -> Config:
+    """``cfg`` with one ``evaluate.ablations`` entry (``models.KEY=VALUE``) applied and validated."""
+    key, raw = (t.strip() for t in ablation.split("=", 1))
+    if key not in ABLATION_KEYS:
+        raise ConfigError(f"evaluate.ablations: {ablation!r}: KEY must be one of {', '.join(ABLATION_KEYS)}")
+    table = _merge({"models": to_dict(cfg.models)}, parse_override(f"{key}={raw}"))
+    where = f"{cfg.source_path or 'config'} (evaluate.ablations entry {ablation!r})"
+    models = _build(ModelsConfig, table["models"], where, "models.")
+    out = dataclasses.replace(cfg, models=models)
+    _cross_checks(out, where)
+    return out
 
 
 def load_config(path: str | Path, overrides: dict | None = None) -> Config:

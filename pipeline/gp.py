@@ -127,6 +127,19 @@ class GPClassModels:
                              self.mean[idx], self.amplitude[idx], self.length_scale[idx], self.noise[idx],
                              component_names=self.component_names, meta=self.meta)
 
+    def subset(self, classes: Sequence[str], components: Sequence[int]) -> "GPClassModels":
+        """The models of ``classes`` restricted to score ``components`` (both subsets or reorderings):
+        one model bank serves every candidate set."""
+        sub = self.select(classes)
+        try:
+            fi = [self.components.index(int(i)) for i in components]
+        except ValueError:
+            raise KeyError(f"components {list(components)} are not all modelled (have {self.components})") from None
+        names = None if self.component_names is None else [self.component_names[i] for i in fi]
+        return GPClassModels(sub.classes, [self.components[i] for i in fi], sub.X, [y[fi] for y in sub.Y],
+                             sub.mean[:, fi], sub.amplitude[:, fi], sub.length_scale[:, fi], sub.noise[:, fi],
+                             component_names=names, meta=self.meta)
+
     # -- training-side factors (computed once) ----------------------------------------------
     def factors(self) -> list[_ClassFactors]:
         if self._factors is None:
@@ -364,6 +377,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                      length_scale_bounds: tuple[float, float] = (0.05, 10.0),
                      noise_bounds: tuple[float, float] = (1e-6, 1.0), seed: int = 0,
                      component_names: Sequence[str] | None = None, progress: bool = True,
+                     noise_floor: np.ndarray | None = None,
                      ) -> tuple[GPClassModels, list[dict[str, Any]]]:
     """Fit one GP per (class, component) with scikit-learn by marginal likelihood.
 
@@ -371,7 +385,9 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
     training mean; kernel ``ConstantKernel * RBF + WhiteKernel`` within the given bounds;
     ``restarts`` extra L-BFGS-B starts drawn log-uniformly in the bounds, seeded per fit from
     ``seed``. Returns the models and one diagnostics dict per fit (hyperparameters, log marginal
-    likelihood, the optimizer's warnings, which hyperparameters ended at a bound).
+    likelihood, the optimizer's warnings, which hyperparameters ended at a bound, the training
+    scores' std over the views). ``noise_floor`` (C, F), when given, replaces the lower noise bound
+    of each fit (a data-driven floor; values at or above the upper bound are an error).
     """
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
@@ -385,6 +401,12 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                     ("noise_bounds", noise_bounds)):
         if len(b) != 2 or not 0 < b[0] < b[1]:
             raise ValueError(f"fit_class_models: {name} must be (low, high) with 0 < low < high, got {b}")
+    if noise_floor is not None:
+        noise_floor = np.asarray(noise_floor, dtype=float)
+        if noise_floor.shape != (C, F) or not np.all(np.isfinite(noise_floor)) or np.any(noise_floor <= 0):
+            raise ValueError(f"fit_class_models: noise_floor must be ({C}, {F}) positive finite values")
+        if np.any(noise_floor >= noise_bounds[1]):
+            raise ValueError(f"fit_class_models: a noise floor reaches the upper noise bound {noise_bounds[1]}")
     mean, amp, ell, noise = (np.zeros((C, F)) for _ in range(4))
     diags: list[dict[str, Any]] = []
     bar = tqdm(total=C * F, desc="GP fits", unit="fit", disable=not progress)
@@ -400,13 +422,14 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
         for f in range(F):
             y = Y[f]
             m = float(y.mean())
+            nb = noise_bounds if noise_floor is None else (float(noise_floor[c, f]), noise_bounds[1])
             # Starting point: the data's own scale, clipped into the bounds.
             v = float(y.var())
             a0 = float(np.clip(v if v > 0 else amplitude_bounds[0], *amplitude_bounds))
             l0 = float(np.clip(1.0, *length_scale_bounds))
-            n0 = float(np.clip(0.1 * v if v > 0 else noise_bounds[0], *noise_bounds))
+            n0 = float(np.clip(0.1 * v if v > 0 else nb[0], *nb))
             kernel = (ConstantKernel(a0, tuple(amplitude_bounds)) * RBF(l0, tuple(length_scale_bounds))
-                      + WhiteKernel(n0, tuple(noise_bounds)))
+                      + WhiteKernel(n0, tuple(nb)))
             rs = int(np.random.SeedSequence([seed, c, f]).generate_state(1)[0])
             gpr = GaussianProcessRegressor(kernel, alpha=0.0, normalize_y=False,
                                            n_restarts_optimizer=restarts, random_state=rs)
@@ -419,7 +442,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
             ell[c, f] = k.k1.k2.length_scale
             noise[c, f] = k.k2.noise_level
             fitted = {"amplitude": amp[c, f], "length_scale": ell[c, f], "noise": noise[c, f]}
-            bounds = {"amplitude": amplitude_bounds, "length_scale": length_scale_bounds, "noise": noise_bounds}
+            bounds = {"amplitude": amplitude_bounds, "length_scale": length_scale_bounds, "noise": nb}
             at_bound = [f"{n} at {'lower' if abs(np.log(val / bounds[n][0])) < 0.01 else 'upper'} bound"
                         for n, val in fitted.items()
                         if min(abs(np.log(val / bounds[n][0])), abs(np.log(val / bounds[n][1]))) < 0.01]
@@ -428,7 +451,8 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
             diags.append({
                 "class": str(classes[c]), "component": int(components[f]),
                 "component_name": None if component_names is None else str(component_names[f]),
-                "n_train": int(len(X)), "mean": m,
+                "n_train": int(len(X)), "mean": m, "train_std": float(y.std()),
+                "noise_bounds": [float(nb[0]), float(nb[1])],
                 **{n: float(val) for n, val in fitted.items()},
                 "log_marginal_likelihood": float(gpr.log_marginal_likelihood_value_),
                 "init": {"amplitude": a0, "length_scale": l0, "noise": n0},

@@ -1,23 +1,30 @@
-"""``models`` stage: choose N_f score components and fit one GP per (class, component).
+"""``models`` stage: plan each target's candidate set and components, fit the GPs they need.
 
 Reads ``features/bigbird.parquet`` (training views: rows with camera == models.camera and the
-deterministic pass, pass == -1; GP inputs (u_x, u_y); targets = the chosen score components),
-writes ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.gp.GPClassModels``).
+deterministic pass, pass == -1; GP inputs (u_x, u_y); targets = score components; the dropout
+passes for ``models.noise_floor = "dropout"``). Writes one model bank, ``models/index.json`` + one
+``<class>.npz`` per class (``pipeline.gp.GPClassModels``): every modelled class x every component
+that some target's candidate set uses, with the plan in the index (``candidate_sets``). Each
+``evaluate.ablations`` entry gets its own bank under ``models/ablations/``.
 """
 from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
-from pipeline.components import choose_components
-from pipeline.config import ModelsConfig, to_dict
+from pipeline.candidates import candidate_sets, own_components, plan_components
+from pipeline.config import ModelsConfig, ablation_config, to_dict
 from pipeline.gp import GPClassModels, fit_class_models
 
 log = logging.getLogger("viewfuse.models")
+
+# A component "varies" with the viewpoint when its training scores' std over the views exceeds this.
+VARYING_STD = 0.01
 
 REQUIRED = ("object", "camera", "angle_deg", "pass", "u_x", "u_y", "scores")
 
@@ -74,15 +81,39 @@ def _scores_matrix(col, path: Path) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64).reshape(len(rows), -1)
 
 
-def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, progress: bool = True
-                      ) -> tuple[GPClassModels, dict[str, Any]]:
-    """The stage's pure function: features Parquet + [models] config -> fitted models, index extras."""
-    path = Path(path)
+def dropout_variance(path: str | Path, camera: int) -> dict[str, np.ndarray]:
+    """Per object: the MC-dropout variance of every score component, averaged over its views
+    (rows with pass >= 0 of one camera ring); empty when the features hold no dropout passes."""
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path, columns=["object", "camera", "angle_deg", "pass", "scores"])
+    pas = table.column("pass").to_numpy()
+    keep = np.nonzero((table.column("camera").to_numpy() == camera) & (pas >= 0))[0]
+    if len(keep) == 0:
+        return {}
+    import pyarrow as pa
+    table = table.take(pa.array(keep))
+    scores = _scores_matrix(table.column("scores"), Path(path))
+    objects = table.column("object").to_numpy(zero_copy_only=False).astype(str)
+    angles = table.column("angle_deg").to_numpy()
+    out = {}
+    for obj in np.unique(objects):
+        rows = objects == obj
+        var = [scores[rows & (angles == a)].var(axis=0) for a in np.unique(angles[rows])]
+        out[str(obj)] = np.mean(var, axis=0)
+    return out
+
+
+def _training_sets(path: Path, mcfg: ModelsConfig):
+    """Per modelled class: GP inputs (N, 2), deterministic scores (N, D), angles; plus names, meta."""
     cols, scores, meta = read_training_views(path, mcfg.camera)
     objects = cols["object"].astype(str)
     present = sorted(set(objects))
-    X_by, S_by, angles = [], [], {}
-    for cls in mcfg.classes:
+    pool = present if isinstance(mcfg.classes, str) else list(mcfg.classes)
+    if len(pool) < 2:
+        raise FeaturesError(path, f"models need at least two classes; the features hold {len(pool)}")
+    X_by, S_by, angles = {}, {}, {}
+    for cls in pool:
         rows = np.nonzero(objects == cls)[0]
         if len(rows) == 0:
             raise FeaturesError(path, f"class {cls!r} (models.classes) has no training views for camera "
@@ -97,9 +128,7 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, progress: bool = 
         X = np.stack([cols["u_x"][rows], cols["u_y"][rows]], axis=1).astype(np.float64)
         if not np.all(np.isfinite(X)):
             raise FeaturesError(path, f"class {cls!r}: non-finite GP inputs (u_x, u_y)")
-        X_by.append(X)
-        S_by.append(scores[rows])
-        angles[cls] = [int(a) for a in ang]
+        X_by[cls], S_by[cls], angles[cls] = X, scores[rows], [int(a) for a in ang]
     names = None
     if "viewfuse.output_names" in meta:
         try:
@@ -111,40 +140,95 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, progress: bool = 
                                       f"names for {scores.shape[1]} score components")
     else:
         log.warning("%s: no 'viewfuse.output_names' metadata; component names left empty", path)
-    comps, choice = choose_components(S_by, mcfg.n_components, mcfg.component_rule, mcfg.components)
+    return pool, X_by, S_by, angles, names, meta
+
+
+def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
+                      n_candidates: int = 4, candidates: str | Sequence[str] = "all", candidate_seed: int = 0,
+                      progress: bool = True) -> tuple[GPClassModels, dict[str, Any]]:
+    """The stage's pure function: features Parquet + [models] config + the candidate plan -> one
+    model bank (every modelled class x every component any candidate set uses) and index extras.
+
+    ``targets``/``n_candidates``/``candidates``/``candidate_seed`` are the ``evaluate`` keys of the
+    same names; the plan (candidate classes and components per target) goes into the index, and
+    the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
+    """
+    path = Path(path)
+    pool, X_by, S_by, angles, names, meta = _training_sets(path, mcfg)
+    tlist = pool if isinstance(targets, str) else [t for t in targets if t in pool]
+    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed)
+    plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
+                           mcfg.informative_min)
+    comps = sorted({i for p in plan.values() for i in p["components"]})
+    for p in plan.values():
+        p["component_names"] = None if names is None else [str(names[i]) for i in p["components"]]
     comp_names = None if names is None else [str(names[i]) for i in comps]
+    floor = None
+    if mcfg.noise_floor == "dropout":
+        var = dropout_variance(path, mcfg.camera)
+        missing = [c for c in pool if c not in var]
+        if missing:
+            raise FeaturesError(path, f"models.noise_floor = 'dropout' needs MC-dropout passes of the BigBIRD views "
+                                      f"(features.bigbird_samples > 0); class {missing[0]!r} has none")
+        floor = np.maximum(np.array([[var[c][i] for i in comps] for c in pool]), mcfg.noise_bounds[0])
+        floor = np.minimum(floor, 0.5 * mcfg.noise_bounds[1])
     models, diags = fit_class_models(
-        X_by, [s[:, comps].T for s in S_by], mcfg.classes, comps, restarts=mcfg.restarts,
+        [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], pool, comps, restarts=mcfg.restarts,
         amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
-        noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress)
+        noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
+        noise_floor=floor)
     for d in diags:
-        log.info("GP %s / %s: a=%.4g l=%.4g noise=%.3g lml=%.2f%s", d["class"], d["component_name"] or d["component"],
-                 d["amplitude"], d["length_scale"], d["noise"], d["log_marginal_likelihood"],
-                 f" [{'; '.join(d['at_bound'])}]" if d["at_bound"] else "")
+        log.debug("GP %s / %s: a=%.4g l=%.4g noise=%.3g lml=%.2f%s", d["class"], d["component_name"] or d["component"],
+                  d["amplitude"], d["length_scale"], d["noise"], d["log_marginal_likelihood"],
+                  f" [{'; '.join(d['at_bound'])}]" if d["at_bound"] else "")
+    varying = [d for d in diags if d["train_std"] > VARYING_STD]
     extra = {
-        "component_choice": choice,
+        "candidate_sets": plan,
+        "own_components": own_components(S_by),
+        "component_choice": next(iter(plan.values()))["choice"] if len(plan) == 1 else
+        {"rule": mcfg.component_rule, "n_components": mcfg.n_components, "per_target": True},
         "camera": mcfg.camera,
         "training_angles_deg": angles,
-        "features": {"file": path.name, "rows_used": int(sum(len(x) for x in X_by)),
-                     "score_dim": int(scores.shape[1]), "metadata": meta},
+        "features": {"file": path.name, "rows_used": int(sum(len(x) for x in X_by.values())),
+                     "score_dim": int(S_by[pool[0]].shape[1]), "metadata": meta},
         "fit": {"restarts": mcfg.restarts, "amplitude_bounds": list(mcfg.amplitude_bounds),
                 "length_scale_bounds": list(mcfg.length_scale_bounds),
-                "noise_bounds": list(mcfg.noise_bounds), "seed": mcfg.seed},
+                "noise_bounds": list(mcfg.noise_bounds), "noise_floor": mcfg.noise_floor, "seed": mcfg.seed},
         "config": to_dict(mcfg),
         "diagnostics": diags,
         "fits_with_warnings": sum(1 for d in diags if d["warnings"] or d["at_bound"]),
+        "varying_fits_at_bound": sum(1 for d in varying if d["at_bound"]),
+        "varying_std_threshold": VARYING_STD,
     }
     return models, extra
 
 
+def ablation_dir(ablation: str) -> str:
+    """Folder (under models/) of one evaluate.ablations variant's model bank."""
+    return "ablations/" + re.sub(r"[^A-Za-z0-9._-]+", "-", ablation).strip("-")
+
+
 def run(ctx) -> str:
-    mcfg: ModelsConfig = ctx.cfg.models
-    models, extra = fit_from_features(ctx.input("features") / "bigbird.parquet", mcfg)
+    cfg = ctx.cfg
+    ev = cfg.evaluate
+    feats = ctx.input("features") / "bigbird.parquet"
+    plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
+                     candidate_seed=ev.candidate_seed)
+    models, extra = fit_from_features(feats, cfg.models, **plan_keys)
+    extra["ablations"] = {a: ablation_dir(a) for a in ev.ablations}
     models.save(ctx.out, extra=extra)
+    for a in ev.ablations:
+        vcfg = ablation_config(cfg, a)
+        log.info("ablation %s: fitting its model bank", a)
+        vm, vextra = fit_from_features(feats, vcfg.models, **plan_keys)
+        vm.save(ctx.out / ablation_dir(a), extra={**vextra, "ablation": a})
     ctx.extra.update({"classes": models.classes, "components": models.components,
                       "component_names": models.component_names,
-                      "fits_with_warnings": extra["fits_with_warnings"]})
-    names = models.component_names or [str(i) for i in models.components]
-    return (f"{models.n_classes} classes x {models.n_components} components "
-            f"({mcfg.component_rule}: {', '.join(names)}) fitted on {extra['features']['rows_used']} views; "
-            f"{extra['fits_with_warnings']} fit(s) with warnings")
+                      "candidate_sets": len(extra["candidate_sets"]),
+                      "fits_with_warnings": extra["fits_with_warnings"],
+                      "varying_fits_at_bound": extra["varying_fits_at_bound"]})
+    return (f"{models.n_classes} classes x {models.n_components} components for "
+            f"{len(extra['candidate_sets'])} candidate sets ({cfg.models.component_rule}) fitted on "
+            f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
+            f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
+            + (f"; {len(ev.ablations)} ablation bank(s)" if ev.ablations else ""))

@@ -15,7 +15,7 @@ def write(tmp_path, text):
 def test_default_config_loads_and_matches_dataclass_defaults():
     cfg = load_config(DEFAULT_CONFIG)
     assert cfg.run.name == "synthetic"
-    assert cfg.evaluate.target in cfg.models.classes
+    assert cfg.evaluate.targets == "all" and cfg.models.classes == "all"
     assert cfg.root == ROOT
     assert cfg.run_dir == ROOT / "artifacts" / "synthetic"
     # The file spells out the defaults: an empty config gives the same sections.
@@ -42,6 +42,10 @@ def test_unknown_nested_key(tmp_path):
     ("[features]\nmax_difficulty = 'easy'\n", "features.max_difficulty"),
     ("[data.synthetic]\nangle_step_deg = 4\n", "data.synthetic.angle_step_deg"),
     ("[evaluate]\ntarget = 'red_cup'\n", "evaluate.target"),
+    ("[evaluate]\ntargets = 'every'\n", "evaluate.targets"),
+    ("[models]\nclasses = ['pepto_bismol', 'mahatma_rice']\n[evaluate]\ntargets = ['red_cup']\n", "evaluate.targets"),
+    ("[evaluate]\nablations = ['models.restarts=3']\n", "evaluate.ablations"),
+    ("[evaluate]\nrandomized.sigmas_m = [-0.1]\n", "evaluate.randomized.sigmas_m"),
     ("[models]\nlength_scale_bounds = [1.0, 0.5]\n", "models.length_scale_bounds"),
     ("[data.synthetic]\nbigbird_cameras = [6]\n", "data.synthetic.bigbird_cameras"),
 ])
@@ -84,4 +88,20 @@ def test_real_template_is_valid():
     cfg = load_config(ROOT / "configs" / "avd.toml")
     assert cfg.data.source == "real"
     assert cfg.classifier.weights == "imagenet"
-    assert cfg.evaluate.target == "aunt_jemima_original_syrup"
+    assert cfg.evaluate.targets == ("aunt_jemima_original_syrup",) and cfg.evaluate.yaws_deg == (0.0,)
+
+
+def test_ablation_config_applies_and_validates_one_models_key(tmp_path):
+    from pipeline.config import ablation_config
+    cfg = load_config(DEFAULT_CONFIG)
+    v = ablation_config(cfg, "models.noise_floor=dropout")
+    assert v.models.noise_floor == "dropout" and v.evaluate == cfg.evaluate
+    assert ablation_config(cfg, "models.component_rule=top_min").models.component_rule == "top_min"
+    with pytest.raises(ConfigError, match="models.component_rule"):
+        ablation_config(cfg, "models.component_rule=best")
+
+
+def test_dotted_section_is_one_key():
+    cfg = load_config(DEFAULT_CONFIG)
+    assert cfg.section("evaluate.n_candidates") == 4
+    assert cfg.section("evaluate.randomized.sigmas_m") == cfg.evaluate.randomized.sigmas_m

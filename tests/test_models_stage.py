@@ -71,7 +71,8 @@ def mcfg(**kw):
 
 
 def test_stage_writes_models(tmp_config):
-    cfg = tmp_config({"models": {"classes": CLASSES, "n_components": 2, "restarts": 1}})
+    cfg = tmp_config({"models": {"classes": CLASSES, "n_components": 2, "restarts": 1},
+                      "evaluate": {"n_candidates": 3, "targets": [CLASSES[0]]}})
     feat = cfg.stage_dir("features")
     truth = write_features(feat / "bigbird.parquet")
     (feat / "manifest.json").write_text(json.dumps({"stage": "features", "key": "fake"}))
@@ -83,6 +84,12 @@ def test_stage_writes_models(tmp_config):
     assert index["components"] == [int(i) for i in expected]
     assert index["component_names"] == [NAMES[i] for i in expected]
     assert index["component_choice"]["rule"] == "top_mean" and index["camera"] == 1
+    assert index["candidate_sets"] == {CLASSES[0]: {
+        "classes": sorted(CLASSES), "components": index["components"], "component_names": index["component_names"],
+        "choice": index["component_choice"]}}
+    for d in index["diagnostics"]:   # the training scores' spread is recorded per fit
+        c, f = CLASSES.index(d["class"]), index["components"].index(d["component"])
+        assert d["train_std"] == pytest.approx(float(truth[d["class"]][1][:, d["component"]].std()), rel=1e-5)
     assert index["features"]["rows_used"] == 3 * 24
     assert len(index["diagnostics"]) == 6
     for d in index["diagnostics"]:
@@ -113,7 +120,9 @@ def test_component_rules(tmp_path, rule):
     else:
         key = per_class.min(0)
     expected = [5, 0] if rule == "explicit" else [int(i) for i in np.argsort(-key, kind="stable")[:2]]
-    assert models.components == expected
+    # The plan keeps the rule's rank order; the bank holds the components in index order.
+    assert all(p["components"] == expected for p in extra["candidate_sets"].values())
+    assert models.components == sorted(expected)
     assert extra["component_choice"]["rule"] == rule
 
 
