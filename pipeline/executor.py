@@ -16,6 +16,7 @@ cluster has GPUs; ``local`` ignores it (the stage's own device setting applies).
 """
 from __future__ import annotations
 
+import time
 from typing import Any, Callable, Iterable, Iterator, Protocol, Sequence
 
 KINDS = ("local", "ray")
@@ -35,6 +36,21 @@ def task_cpus() -> int:
     """CPUs the current task may use (0 = all cores): thread pools inside a task should size to it,
     or a cluster node running one task per CPU oversubscribes."""
     return _TASK_CPUS
+
+
+# One record per finished map/imap call, for benchmarks and manifests: executor, desc, tasks,
+# slots (tasks that could run at once), wall_s (the call), task_s (sum of the tasks' own times
+# measured inside them), task_max_s.
+STATS: list[dict] = []
+
+
+def record(executor: str, desc: str, slots: int, wall_s: float, task_times: list[float]) -> dict:
+    rec = {"executor": executor, "desc": desc, "tasks": len(task_times), "slots": int(slots),
+           "wall_s": round(wall_s, 4), "task_s": round(float(sum(task_times)), 4),
+           "task_max_s": round(max(task_times, default=0.0), 4)}
+    STATS.append(rec)
+    del STATS[:-1000]  # bounded: a long-lived process keeps the latest
+    return rec
 
 
 def item_label(item: Any, limit: int = 80) -> str:
@@ -66,10 +82,16 @@ class LocalExecutor:
              gpu: bool = False) -> Iterator:
         from tqdm.auto import tqdm
 
+        times: list[float] = []
         with tqdm(total=total, desc=desc or None, unit=unit, disable=None, leave=False) as bar:
             for item in items:
-                yield fn(shared, item)
+                t = time.perf_counter()
+                out = fn(shared, item)
+                times.append(time.perf_counter() - t)
+                yield out
                 bar.update(1)
+        # Wall = the tasks alone: the consumer's work between them is not the executor's.
+        record(self.name, desc, 1, sum(times), times)
 
     def map(self, fn, items, *, shared=None, desc: str = "", unit: str = "task", gpu: bool = False) -> list:
         return list(self.imap(fn, items, shared=shared, desc=desc, unit=unit, total=len(items)))

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from pipeline.executor import TransientError, item_label
+from pipeline.executor import TransientError, item_label, record
 
 log = logging.getLogger("viewfuse.executor")
 
@@ -41,12 +42,14 @@ def code_root() -> Path:
 
 
 def _run_task(fn: Callable[[Any, Any], Any], shared: Any, item: Any, cpus: int) -> Any:
-    """Runs inside a Ray worker: ``fn(shared, item)`` with ``task_cpus()`` telling it its CPUs."""
+    """Runs inside a Ray worker: (``fn(shared, item)``, seconds it took), ``task_cpus()`` telling
+    ``fn`` its CPUs."""
     import pipeline.executor as ex
 
     ex._TASK_CPUS = cpus
+    t0 = time.perf_counter()
     try:
-        return fn(shared, item)
+        return fn(shared, item), time.perf_counter() - t0
     finally:
         ex._TASK_CPUS = 0
 
@@ -127,6 +130,7 @@ class RayExecutor:
         inflight: dict = {}            # ObjectRef -> (index, label)
         ready: dict[int, Any] = {}     # finished, waiting for the earlier ones
         nxt, exhausted = 0, False
+        t0, times = time.perf_counter(), []
         bar = tqdm(total=total, desc=desc or None, unit=unit, disable=None, leave=False)
         try:
             while True:
@@ -142,13 +146,15 @@ class RayExecutor:
                     nxt += 1
                 if not inflight:
                     if exhausted and not ready:
+                        record(self.name, desc, self.slots(gpu), time.perf_counter() - t0, times)
                         return
                     continue
                 done, _ = ray.wait(list(inflight), num_returns=1)
                 more, _ = ray.wait([r for r in inflight if r not in done], num_returns=len(inflight) - len(done), timeout=0)
                 for ref in done + more:
                     i, label = inflight.pop(ref)
-                    ready[i] = self._get(ref, i, total, label, what)
+                    ready[i], took = self._get(ref, i, total, label, what)
+                    times.append(took)
                     bar.update(1)
         finally:
             bar.close()

@@ -90,6 +90,19 @@ def test_results_come_back_in_item_order(ray_ex):
 
 
 @needs_ray
+def test_calls_are_recorded_for_the_bench(ray_ex):
+    from pipeline import executor as ex
+
+    ray_ex.map(_slow_square, [0, 1, 2, 3], shared=0.02, desc="timed")
+    rec = ex.STATS[-1]
+    assert (rec["executor"], rec["desc"], rec["tasks"], rec["slots"]) == ("ray", "timed", 4, 2)
+    # Tasks sleep 0.1, 0.08, 0.06, 0.04 s: measured inside the workers, the map call takes longer.
+    assert 0.28 <= rec["task_s"] < rec["wall_s"] * 2 and rec["task_max_s"] >= 0.1
+    LocalExecutor().map(_slow_square, [0, 1], shared=0.02, desc="here")
+    assert ex.STATS[-1]["executor"] == "local" and ex.STATS[-1]["tasks"] == 2
+
+
+@needs_ray
 def test_seeded_tasks_give_the_local_numbers(ray_ex):
     items = list(range(12))
     remote = ray_ex.map(_seeded, items, shared=7)
