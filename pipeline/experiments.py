@@ -1,8 +1,9 @@
-"""The localization-error experiments of the paper's §5.5 (DESIGN §6), as pure functions.
+"""The localization-error experiments of the paper's section 5.5, as pure functions.
 
 Inputs are a ``TrackData`` (true camera positions along the track, the object's position and yaw,
-and the MC-dropout score samples of each view) and fitted ``GPClassModels``. Outputs are posterior
-arrays per method, turned into long-format rows and summary tables by ``long_rows`` / ``summarize``.
+the MC-dropout score samples of each view, and each candidate's own score for Simple Bayes) and
+fitted ``GPClassModels``. Outputs are log posterior arrays (R, K, C) per method, turned into result
+rows by ``pipeline.results`` and into the single-track tables by ``summarize``.
 """
 from __future__ import annotations
 
@@ -13,12 +14,12 @@ import numpy as np
 import pandas as pd
 
 from pipeline import metrics as M
-from pipeline.fusion import fuse_model_based, fuse_with_uncertainty
+from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
 from pipeline.geometry import relative_inputs, sample_localization
+from pipeline.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 
-WITH_UNCERTAINTY = "with_uncertainty"
-MODEL_BASED = "model_based"
-METHODS = (WITH_UNCERTAINTY, MODEL_BASED)
+__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "biased",
+           "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,7 @@ class TrackData:
     obj_xy: np.ndarray       # (2,) object position (m)
     yaw: float               # object yaw (rad): object frame -> ground frame
     dropout: np.ndarray      # (K, N_s, F) MC-dropout scores of the chosen components
+    own: np.ndarray | None = None  # (K, N_s, C) each candidate's own score component (Simple Bayes)
 
     @property
     def k(self) -> int:
@@ -50,13 +52,15 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float) -> dict[str, np.ndarray]:
-    """Both methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each.
+    """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each.
 
     Log space all the way to the metrics: a confident posterior's smallest entries underflow as
     probabilities, and log MGR must stay finite.
 
     Model Based trusts the estimates; Model with Uncertainty samples N_x trajectories around them
-    with the stated σ (the same σ the estimate error was drawn with, as in the paper).
+    with the stated σ (the same σ the estimate error was drawn with, as in the paper). Simple Bayes
+    (when the track carries ``own`` scores) ignores the poses: the same posterior for every
+    realization, repeated so that the methods pair up realization by realization.
     """
     r = len(estimates)
     mb = fuse_model_based(models, track.inputs(estimates),
@@ -66,7 +70,10 @@ def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x
     wu = fuse_with_uncertainty(models, track.inputs(samples),
                                np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
                                var_floor=var_floor, return_log=True, progress=False)
-    return {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
+    out = {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
+    if track.own is not None:
+        out[SIMPLE_BAYES] = np.broadcast_to(simple_bayes(track.own.mean(axis=1), return_log=True), wu.shape).copy()
+    return out
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
@@ -80,13 +87,13 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25,
                progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C)."""
-    out: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
+    out: dict[str, list[np.ndarray]] = {}
     for a, b in _chunks(realizations, chunk):
         noise = rng.normal(0.0, sigma, size=(b - a, track.k, 2)) if sigma > 0 else np.zeros((b - a, track.k, 2))
         est = track.cam_xy[None] + np.asarray(bias, float) + noise
         res = run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor)
-        for m in METHODS:
-            out[m].append(res[m])
+        for m, v in res.items():
+            out.setdefault(m, []).append(v)
         if progress:
             progress(b - a)
     return {m: np.concatenate(v, axis=0) for m, v in out.items()}
@@ -141,32 +148,19 @@ def gp_rasters(models, *, grid_n: int = 61, extent: float = 1.5, ring_n: int = 1
     }
 
 
-# -- results tables ------------------------------------------------------------------------------
-def long_rows(experiment: str, setting: str, sigma: float, bias, posts: dict[str, np.ndarray],
-              truth: int) -> pd.DataFrame:
-    """One row per (realization, step, method) with the posterior and its metrics.
-
-    ``posts`` maps method -> log posteriors (R, K, C); rows hold probabilities.
-    """
-    frames = []
-    for method, p in posts.items():
-        R, K, C = p.shape
-        frames.append(pd.DataFrame({
-            "experiment": experiment,
-            "setting": setting,
-            "sigma_m": float(sigma),
-            "bias_x": float(bias[0]),
-            "bias_y": float(bias[1]),
-            "realization": np.repeat(np.arange(R, dtype=np.int32), K),
-            "step": np.tile(np.arange(K, dtype=np.int16), R),
-            "method": method,
-            "posterior": list(np.exp(p).reshape(R * K, C)),
-            "p_truth": M.prob_truth(p, truth, is_log=True).ravel(),
-            "log_mgr": M.log_mgr(p, truth, is_log=True).ravel(),
-            "msde": M.msde(p, truth, is_log=True).ravel(),
-            "correct": M.correct(p, truth, is_log=True).ravel(),
-        }))
-    return pd.concat(frames, ignore_index=True)
+def single_view_first(models, track: TrackData, truth: int, *, var_floor: float = 1e-6) -> dict[str, float]:
+    """How hard a track is: per method, the share of its views whose posterior from that view
+    alone, at the true pose, ranks the truth first (1 = every view alone is enough)."""
+    K = track.k
+    pos = track.cam_xy[:, None, None, :]                                  # (K, N_x=1, 1, 2)
+    wu = fuse_with_uncertainty(models, track.inputs(pos), track.dropout[:, None], var_floor=var_floor,
+                               return_log=True, progress=False)[:, 0]     # (K, C)
+    mb = fuse_model_based(models, track.inputs(track.cam_xy[:, None, :]), track.measurement[:, None, :],
+                          return_log=True, progress=False)[:, 0]
+    out = {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
+    if track.own is not None:
+        out[SIMPLE_BAYES] = simple_bayes(track.own.mean(axis=1)[:, None, :], return_log=True)[:, 0]
+    return {m: float(np.mean(M.correct(p, truth, is_log=True))) for m, p in out.items()} | {"views": K}
 
 
 def summarize(posts: dict[str, np.ndarray], truth: int) -> dict[str, dict[str, float]]:

@@ -1,204 +1,288 @@
-"""Stage ``evaluate``: build the AVD track, locate the object, run the experiments (DESIGN §6).
+"""Stage ``evaluate``: the population evaluation (every target x several tracks x the settings),
+its statistics and verdict, and the single-track figures for the first target's first track.
 
-I/O at the edges: read the models, the AVD features and the scan's geometry; the experiments
-themselves are pure functions in ``pipeline.experiments``.
+I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
+experiments and the statistics are pure functions in ``pipeline.population``,
+``pipeline.experiments`` and ``pipeline.popstats``; cells run on ``run.executor``.
 """
 from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
-from tqdm import tqdm
 
 from pipeline import experiments as E
+from pipeline import population as P
 from pipeline.cache import atomic_path, write_json
 from pipeline.config import Config
 from pipeline.features import read_features
 from pipeline.gp import GPClassModels
-from pipeline.track import TrackError, bearing_rays, facing_error, intersect_rays, select_track
+from pipeline.labels import COMPARISONS, METHODS, METRICS
+from pipeline.popstats import population_block
+from pipeline.results import cell_metrics, metadata, result_block, write_results
+from pipeline.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
 
+DEFAULT = "default"
 
-def object_yaw(cfg: Config, truth: dict | None, target: str) -> float:
-    """Object yaw (rad): from the synthetic ground-truth sidecar or from the config."""
+
+def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
+    """{variant: model bank} and {variant: models/index.json} for the default and every ablation."""
+    index = json.loads((models_dir / "index.json").read_text())
+    banks, indexes = {DEFAULT: GPClassModels.load(models_dir)}, {DEFAULT: index}
+    for a in ablations:
+        sub = index.get("ablations", {}).get(a)
+        if sub is None:
+            raise ValueError(f"{models_dir / 'index.json'}: no model bank for ablation {a!r} (rerun the models stage)")
+        banks[a] = GPClassModels.load(models_dir / sub)
+        indexes[a] = json.loads((models_dir / sub / "index.json").read_text())
+    return banks, indexes
+
+
+def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame) -> tuple[dict, dict]:
+    """Per scan: (fx, cx) of the camera and the capture grid's spacing read off the positions."""
+    from loaders.avd import AVDScan
+    from stages.data import data_roots
+
+    _, avd_root = data_roots(cfg)
+    intr, steps = {}, {}
+    for s in scans:
+        K = AVDScan(avd_root, s).intrinsics()
+        intr[s] = (float(K[0, 0]), float(K[0, 2]))
+        cams = avd.loc[avd["scan"] == s, ["cam_x", "cam_y"]].to_numpy(float)
+        steps[s] = grid_step(cams)
+    return intr, steps
+
+
+def choose_targets(cfg: Config, avd: pd.DataFrame, plan: dict) -> list[str]:
     ev = cfg.evaluate
-    if ev.yaw_source == "config":
-        return math.radians(ev.yaw_deg)
-    if truth is None:
-        raise FileNotFoundError("evaluate.yaw_source = 'truth' needs the data stage's truth.json "
-                                "(synthetic data only); for real data set yaw_source = 'config' and yaw_deg")
-    try:
-        return math.radians(float(truth["instances"][target]["yaw_deg"]))
-    except KeyError:
-        raise ValueError(f"truth.json has no yaw for the target {target!r}") from None
+    seen = sorted(avd.loc[(avd["difficulty"] <= ev.max_difficulty), "instance"].unique())
+    if isinstance(ev.targets, str):
+        return [t for t in seen if t in plan]
+    missing = [t for t in ev.targets if t not in plan]
+    if missing:
+        raise ValueError(f"evaluate.targets names {missing[0]!r}, for which the models stage planned no "
+                         f"candidate set (modelled: {', '.join(sorted(plan))})")
+    return list(ev.targets)
 
 
-def build_track(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, components: list[int],
-                intrinsics: np.ndarray, grid_step: float, yaw: float) -> tuple[E.TrackData, dict]:
-    """Choose the track views and gather their dropout samples (K, N_s, F)."""
+def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
+                intr: dict, steps: dict) -> tuple[list[P.Cell], list[P.TrackInfo], list[dict]]:
+    """Every (variant, target, track) cell; targets without a usable track are skipped with a reason."""
     ev = cfg.evaluate
-    tgt = avd[(avd["instance"] == ev.target) & (avd["difficulty"] <= ev.max_difficulty)]
-    det = tgt[tgt["pass"] == -1].drop_duplicates("image").set_index("image")
-    if len(det) < 2:
-        raise TrackError(f"the AVD features hold {len(det)} view(s) of the target {ev.target!r} up to "
-                         f"difficulty {ev.max_difficulty}; at least 2 are needed "
-                         "(raise evaluate.max_difficulty / features.max_difficulty?)")
-    fx, cx = float(intrinsics[0, 0]), float(intrinsics[0, 2])
-    cam = det[["cam_x", "cam_y"]].to_numpy(float)
-    heading = det["heading"].to_numpy(float)
-    box_cx = 0.5 * (det["box_x0"].to_numpy(float) + det["box_x1"].to_numpy(float))
-    # Locate the object from every view that sees it (more rays, smaller error).
-    obj = intersect_rays(*bearing_rays(cam, heading, box_cx, fx, cx))
-    if ev.track_images:
-        missing = [n for n in ev.track_images if n not in det.index]
-        if missing:
-            raise TrackError(f"evaluate.track_images names {missing[0]!r}, which has no scored box of "
-                             f"{ev.target!r} up to difficulty {ev.max_difficulty}")
-        names = list(ev.track_images)
-    else:
-        err = facing_error(cam, heading, obj)
-        choice = select_track(cam, obj, err, ev.track_length, grid_step=grid_step)
-        names = list(det.index[choice.index])
-    # Dropout samples of the chosen components, per view, in pass order.
-    samples = []
-    for name in names:
-        rows = tgt[(tgt["image"] == name) & (tgt["pass"] >= 0)].sort_values("pass")
-        if rows.empty:
-            raise TrackError(f"view {name} has no MC-dropout samples in avd.parquet")
-        samples.append(scores[rows.index.to_numpy()][:, components])
-    n_s = {len(s) for s in samples}
-    if len(n_s) != 1:
-        raise TrackError(f"track views have different numbers of dropout samples: {sorted(n_s)}")
-    sel = det.loc[names]
-    track = E.TrackData(images=tuple(names), cam_xy=sel[["cam_x", "cam_y"]].to_numpy(float),
-                        obj_xy=obj, yaw=yaw, dropout=np.stack(samples).astype(np.float64))
-    info = {"images": names, "camera_xy": track.cam_xy.tolist(), "heading_rad": sel["heading"].tolist(),
-            "object_xy_est": obj.tolist(), "yaw_deg": math.degrees(yaw),
-            "gp_inputs": track.inputs(track.cam_xy).tolist(), "n_views_seeing_target": int(len(det))}
-    return track, info
+    plan = indexes[DEFAULT]["candidate_sets"]
+    own = indexes[DEFAULT]["own_components"]
+    settings = tuple(P.population_settings(ev))
+    cells, tracks, skipped = [], [], []
+    for target in choose_targets(cfg, avd, plan):
+        det = P.target_views(avd, target, ev.max_difficulty)
+        try:
+            infos = P.plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
+                                  tuple(ev.track_images))
+        except TrackError as e:
+            skipped.append({"target": target, "reason": str(e)})
+            log.warning("target %s skipped: %s", target, e)
+            continue
+        classes = plan[target]["classes"]
+        for info in infos:
+            yaw = P.yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
+            for variant, index in indexes.items():
+                comps = index["candidate_sets"][target]["components"]
+                drop, mine = P.gather_scores(avd, scores, info, comps, [own[c] for c in classes], ev.max_difficulty)
+                data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
+                                   dropout=drop, own=mine)
+                cells.append(P.Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
+                                    classes.index(target), data, settings, ev.seed, ev.variance_floor,
+                                    difficulty=variant == DEFAULT))
+            tracks.append(info)
+        log.info("target %s: %d track(s) in %s; candidates %s", target, len(infos),
+                 ", ".join(sorted({i.scan for i in infos})), ", ".join(classes))
+    if not cells:
+        raise TrackError("no target has a usable track: " + "; ".join(f"{s['target']}: {s['reason']}" for s in skipped))
+    return cells, tracks, skipped
+
+
+def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
+    """One row per (variant, target, track, setting, method) with the cell's metrics."""
+    rows = []
+    for cell, res in zip(cells, results):
+        for (experiment, label), posts in res["posts"].items():
+            for method, lp in posts.items():
+                rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
+                             "experiment": experiment, "setting": label, "method": method,
+                             **cell_metrics(lp, cell.truth)})
+    return pd.DataFrame(rows)
+
+
+def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
+    out = []
+    for cell, res in zip(cells, results):
+        by_label = {(s.experiment, s.label): s for s in cell.settings}
+        for key, posts in res["posts"].items():
+            s = by_label[key]
+            out.append(result_block(posts, cell.truth, variant=cell.variant, experiment=s.experiment, setting=s.label,
+                                    sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
+                                    scan=cell.scan, target=cell.target, track=cell.track,
+                                    candidates=",".join(cell.classes), truth=cell.truth))
+    return out
+
+
+def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
+                       tracks: list[P.TrackInfo], skipped: list[dict]) -> dict:
+    ev = cfg.evaluate
+    metrics = list(METRICS)
+    methods = [m for m in METHODS if m in set(table["method"])]
+    settings = P.population_settings(ev)
+    default = table[table["variant"] == DEFAULT]
+    n_targets = default["target"].nunique()
+    n_tracks = len(tracks)
+    scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
+    block = population_block(default, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope)
+    by_setting = {}
+    for s in settings:
+        sub = default[default["setting"] == s.label]
+        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
+                             f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False)
+        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}
+    ablations = {}
+    for a in ev.ablations:
+        sub = table[table["variant"] == a]
+        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope, per_target=False)
+        key, value = (t.strip() for t in a.split("=", 1))
+        ablations[a] = {"override": {key: value}, **{k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}}
+    difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
+                  for c, r in zip(cells, results) if r["difficulty"] is not None]
+    spread = {}
+    for m in methods:
+        v = np.array([d["single_view_first"][m] for d in difficulty])
+        spread[m] = {"min": float(v.min()), "q25": float(np.percentile(v, 25)), "median": float(np.median(v)),
+                     "q75": float(np.percentile(v, 75)), "max": float(v.max()), "mean": float(v.mean())}
+    first = {c.target: c for c in cells if c.variant == DEFAULT}
+    cell_rows = [{"target": t, "track": int(tr), "experiment": e, "setting": s,
+                  "values": {r["method"]: {k: r[k] for k in metrics} for _, r in g.iterrows()}}
+                 for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
+    return {
+        "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
+        "n_cells": int(len(default) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
+        "realizations": ev.randomized.realizations, "n_loc_samples": ev.randomized.n_loc_samples,
+        "methods": methods, "metrics": metrics,
+        "settings": [{"experiment": s.experiment, "setting": s.label, "sigma_m": s.sigma, "bias_m": list(s.bias),
+                      "realizations": s.realizations, "n_loc_samples": s.n_x} for s in settings],
+        "targets": sorted(first), "candidates": {t: list(c.classes) for t, c in sorted(first.items())},
+        "components": {t: list(c.components) for t, c in sorted(first.items())},
+        "unit": ("a cell is one (target, track, setting); its metric is computed over its realizations. "
+                 "Pooled values average tracks' means (over settings) within each target, then targets; "
+                 "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks)."),
+        **block,
+        "by_setting": by_setting,
+        "difficulty": {"tracks": difficulty, "summary": spread,
+                       "meaning": "share of a track's views whose single-view posterior at the true pose ranks "
+                                  "the target first"},
+        "cells": cell_rows,
+        "tracks": [t.as_dict() for t in tracks],
+        "ablations": ablations,
+        "skipped_targets": skipped,
+    }
+
+
+def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
+    """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
+    ev = cfg.evaluate
+    models = banks[DEFAULT].subset(first.classes, first.components)
+    if "gp_models" in ev.experiments:
+        t0 = time.perf_counter()
+        with atomic_path(ctx.out / "gp_models.npz") as tmp, open(tmp, "wb") as f:
+            np.savez(f, **E.gp_rasters(models))
+        timings["gp_models"] = time.perf_counter() - t0
+    if "sensitivity" in ev.experiments:
+        t0 = time.perf_counter()
+        for s in P.sensitivity_settings(ev):
+            posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
+                                 P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor)
+            blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
+                                       sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
+                                       scan=first.scan, target=first.target, track=first.track,
+                                       candidates=",".join(first.classes), truth=first.truth))
+            summary.setdefault("sensitivity", {})[s.label] = E.summarize(posts, first.truth)
+        timings["sensitivity"] = time.perf_counter() - t0
+    if "bias_maps" in ev.experiments:
+        t0 = time.perf_counter()
+        axis, post = E.bias_maps(models, first.data, ev.bias_maps.extent_m, ev.bias_maps.steps)
+        with atomic_path(ctx.out / "bias_maps.npz") as tmp, open(tmp, "wb") as f:
+            np.savez(f, bias_x=axis, bias_y=axis, posterior=post, classes=np.array(first.classes),
+                     images=np.array(first.data.images))
+        timings["bias_maps"] = time.perf_counter() - t0
 
 
 def run(ctx) -> str:
+    from pipeline.executor import make_executor
+
     cfg: Config = ctx.cfg
     ev = cfg.evaluate
     t_start = time.perf_counter()
-    models = GPClassModels.load(ctx.input("models"))
-    if ev.target not in models.classes:
-        raise ValueError(f"target {ev.target!r} has no GP model in {ctx.input('models')} "
-                         f"(classes: {', '.join(models.classes)})")
-    truth_idx = models.classes.index(ev.target)
+    banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
     avd, scores, meta = read_features(ctx.input("features") / "avd.parquet")
-
-    from loaders.avd import AVDScan
-    from stages.data import data_roots
-    _, avd_root = data_roots(cfg)
-    scan = AVDScan(avd_root, cfg.data.scan)
+    if avd.empty:
+        raise TrackError(f"{ctx.input('features') / 'avd.parquet'} holds no AVD box: nothing to evaluate")
+    scans = sorted(avd["scan"].unique())
+    intr, steps = scan_geometry(cfg, scans, avd)
     truth_path = ctx.input("data") / "truth.json"
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    yaw = object_yaw(cfg, truth, ev.target)
-    grid_step = cfg.data.synthetic.grid_step_m if cfg.data.source == "synthetic" else 0.3
-    track, info = build_track(cfg, avd, scores, list(models.components), scan.intrinsics(), grid_step, yaw)
-    obj_truth = None
-    if truth is not None and ev.target in truth.get("instances", {}):
-        obj_truth = np.asarray(truth["instances"][ev.target]["position"], float)
-    info.update(scan=cfg.data.scan, target=ev.target, classes=list(models.classes),
-                object_xy_truth=None if obj_truth is None else obj_truth.tolist(),
-                localization_error_m=None if obj_truth is None else float(np.linalg.norm(track.obj_xy - obj_truth)))
+    cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps)
+
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    executor = make_executor(cfg.run.executor, address=cfg.run.ray_address)
+    try:
+        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell")
+    finally:
+        executor.close()
+    timings["population"] = time.perf_counter() - t0
+    log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
+             len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
+
+    t0 = time.perf_counter()
+    table = cell_table(cells, results)
+    population = population_summary(cfg, table, cells, results, tracks, skipped)
+    timings["statistics"] = time.perf_counter() - t0
+
+    # The first target's first track: its biased/randomized tables as before, plus the figures.
+    first = cells[0]
+    summary: dict = {}
+    for (experiment, label), posts in results[0]["posts"].items():
+        summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
+    blocks = result_blocks(cells, results)
+    single_track(cfg, ctx, banks, first, blocks, summary, timings)
+    n_rows = write_results(blocks, ctx.out / "results.parquet", metadata(
+        config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
+        target=first.target))
+    info = tracks[0].as_dict()
+    obj_truth = P.truth_entry(truth, first.scan, first.target)
+    info.update(classes=list(first.classes), yaw_deg=float(np.degrees(first.data.yaw)),
+                gp_inputs=first.data.inputs(first.data.cam_xy).tolist(),
+                n_views_seeing_target=int(len(P.target_views(avd, first.target, ev.max_difficulty)
+                                              .query("scan == @first.scan"))),
+                object_xy_truth=None if obj_truth is None else list(obj_truth["position"]),
+                localization_error_m=None if obj_truth is None else
+                float(np.linalg.norm(first.data.obj_xy - np.asarray(obj_truth["position"], float))))
     write_json(ctx.out / "track.json", info)
-    log.info("track: %d views, object at (%.3f, %.3f) m%s", track.k, *track.obj_xy,
-             "" if obj_truth is None else f", {info['localization_error_m'] * 100:.1f} cm from the truth")
-
-    # One generator per experiment, derived from the evaluate seed: adding or removing one
-    # experiment does not change the others' draws.
-    seeds = {name: [ev.seed, i] for i, name in enumerate(("biased", "randomized", "sensitivity"))}
-    rng = {name: np.random.default_rng(s) for name, s in seeds.items()}
-    frames, summary, timings = [], {}, {}
-
-    if "gp_models" in ev.experiments:
-        t0 = time.perf_counter()
-        arrays = E.gp_rasters(models)
-        with atomic_path(ctx.out / "gp_models.npz") as tmp:
-            with open(tmp, "wb") as f:
-                np.savez(f, **arrays)
-        timings["gp_models"] = time.perf_counter() - t0
-
-    if "biased" in ev.experiments:
-        t0 = time.perf_counter()
-        b = ev.biased
-        posts = E.biased(models, track, b.bias_m, b.sigma_m, b.n_loc_samples, rng["biased"],
-                         var_floor=ev.variance_floor)
-        setting = f"bias=({b.bias_m[0]:+.2f}, {b.bias_m[1]:+.2f}) m, sigma={b.sigma_m:.2f} m"
-        frames.append(E.long_rows("biased", setting, b.sigma_m, b.bias_m, posts, truth_idx))
-        summary.setdefault("biased", {})[setting] = E.summarize(posts, truth_idx)
-        timings["biased"] = time.perf_counter() - t0
-
-    def randomized_block(name: str, sigma: float, bias, realizations: int, n_x: int, gen):
-        setting = f"sigma={sigma:.2f} m"
-        with tqdm(total=realizations, desc=f"{name} {setting}", unit="real", leave=False) as bar:
-            posts = E.randomized(models, track, bias, sigma, realizations, n_x, gen,
-                                 var_floor=ev.variance_floor, progress=bar.update)
-        frames.append(E.long_rows(name, setting, sigma, bias, posts, truth_idx))
-        summary.setdefault(name, {})[setting] = E.summarize(posts, truth_idx)
-
-    if "randomized" in ev.experiments:
-        t0 = time.perf_counter()
-        r = ev.randomized
-        randomized_block("randomized", r.sigma_m, r.bias_m, r.realizations, r.n_loc_samples, rng["randomized"])
-        timings["randomized"] = time.perf_counter() - t0
-
-    if "sensitivity" in ev.experiments:
-        t0 = time.perf_counter()
-        s = ev.sensitivity
-        for sigma in s.sigmas_m:
-            randomized_block("sensitivity", sigma, ev.randomized.bias_m, s.realizations, s.n_loc_samples,
-                             rng["sensitivity"])
-        timings["sensitivity"] = time.perf_counter() - t0
-
-    if "bias_maps" in ev.experiments:
-        t0 = time.perf_counter()
-        axis, post = E.bias_maps(models, track, ev.bias_maps.extent_m, ev.bias_maps.steps)
-        with atomic_path(ctx.out / "bias_maps.npz") as tmp:
-            with open(tmp, "wb") as f:
-                np.savez(f, bias_x=axis, bias_y=axis, posterior=post, classes=np.array(models.classes),
-                         images=np.array(track.images))
-        timings["bias_maps"] = time.perf_counter() - t0
-
-    n_rows = 0
-    if frames:
-        df = pd.concat(frames, ignore_index=True)
-        n_rows = len(df)
-        C = len(models.classes)
-        table = pa.Table.from_pandas(df, preserve_index=False)
-        post_col = pa.array(df["posterior"].map(lambda v: np.asarray(v, np.float64)).tolist(),
-                            type=pa.list_(pa.float64(), C))
-        table = table.set_column(table.schema.get_field_index("posterior"), "posterior", post_col)
-        table = table.replace_schema_metadata({
-            "viewfuse.classes": json.dumps(list(models.classes)),
-            "viewfuse.target": ev.target,
-            "viewfuse.config_hash": cfg.section_hash("evaluate"),
-            "viewfuse.seed": str(ev.seed),
-        })
-        with atomic_path(ctx.out / "results.parquet") as tmp:
-            pq.write_table(table, tmp)
     write_json(ctx.out / "summary.json", {
-        "experiments": summary, "classes": list(models.classes), "target": ev.target,
-        "seeds": {"evaluate": ev.seed, **{k: v for k, v in seeds.items()}},
+        "experiments": summary, "classes": list(first.classes), "target": first.target,
+        "seeds": {"evaluate": ev.seed, "candidates": ev.candidate_seed},
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "features_meta": {k: v for k, v in meta.items() if k != "viewfuse.output_names"},
+        "population": population,
     })
-    ctx.extra["timings_s"] = timings
+    ctx.extra.update(timings_s={k: round(v, 3) for k, v in timings.items()}, n_cells=len(cells),
+                     skipped_targets=len(skipped))
     took = time.perf_counter() - t_start
-    parts = [f"{track.k}-view track", f"{n_rows} result rows"]
-    if "randomized" in summary:
-        s = next(iter(summary["randomized"].values()))
-        parts.append("randomized correct(final) " + ", ".join(
-            f"{m}={v['correct_final']:.2f}" for m, v in s.items()))
-    return "; ".join(parts) + f" ({took:.1f} s of experiments)"
+    pooled = population["pooled"]
+    return (f"{population['n_targets']} targets x {population['n_tracks']} tracks x {len(population['settings'])} "
+            f"settings, {n_rows} result rows; pooled correct(final) "
+            + ", ".join(f"{m}={pooled[m]['correct_final']['value']:.2f}" for m in population["methods"])
+            + f" ({took:.1f} s)")

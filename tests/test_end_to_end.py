@@ -14,9 +14,10 @@ TINY = {
                                 "min_accuracy": 0.0}},
     "features": {"n_samples": 3, "max_difficulty": 5, "batch_size": 32},
     "models": {"restarts": 0},
-    "evaluate": {"track_length": 4, "max_difficulty": 5,
+    "evaluate": {"track_length": 4, "max_difficulty": 5, "tracks_per_target": 2, "n_candidates": 3,
+                 "bootstrap": 200, "ablations": ["models.noise_floor=dropout"],
                  "biased": {"n_loc_samples": 5},
-                 "randomized": {"realizations": 6, "n_loc_samples": 5},
+                 "randomized": {"sigmas_m": [0.1, 0.3], "realizations": 6, "n_loc_samples": 5},
                  "sensitivity": {"sigmas_m": [0.1, 0.4], "realizations": 3, "n_loc_samples": 4},
                  "bias_maps": {"steps": 5}},
 }
@@ -43,26 +44,50 @@ def test_every_stage_wrote_its_manifest(run_all):
         assert m is not None and m["key"], stage
 
 
-def test_results_cover_the_experiments(run_all):
+def test_results_cover_the_population(run_all):
     cfg = run_all
     ev = cfg.stage_dir("evaluate")
     t = pq.read_table(ev / "results.parquet")
     df = t.to_pandas()
-    meta = {k.decode(): v.decode() for k, v in t.schema.metadata.items()}
-    classes = json.loads(meta["viewfuse.classes"])
-    assert classes == list(cfg.models.classes) and meta["viewfuse.target"] == cfg.evaluate.target
+    summary = json.loads((ev / "summary.json").read_text())
+    pop = summary["population"]
+    # Every target the scan shows, two distinct tracks each, three methods, every setting.
+    assert pop["n_targets"] == len(cfg.data.synthetic.instances) and pop["skipped_targets"] == []
+    assert pop["n_tracks"] == 2 * pop["n_targets"]
     assert set(df["experiment"]) == {"biased", "randomized", "sensitivity"}
-    assert set(df["method"]) == {"with_uncertainty", "model_based"}
-    rnd = df[df["experiment"] == "randomized"]
-    assert len(rnd) == 6 * 4 * 2
+    assert set(df["method"]) == {"with_uncertainty", "model_based", "simple_bayes"}
+    assert set(df["variant"]) == {"default", "models.noise_floor=dropout"}
+    for target, cands in pop["candidates"].items():
+        assert target in cands and len(cands) == 3
+        rows = df[(df["target"] == target) & (df["experiment"] == "randomized") & (df["variant"] == "default")]
+        assert set(rows["track"]) == {0, 1} and (rows["candidates"] == ",".join(cands)).all()
+        assert (rows["truth"] == cands.index(target)).all()
+        assert len(rows) == 2 * 2 * 6 * 4 * 3          # tracks x sigmas x realizations x steps x methods
+    imgs = {}
+    for tr in pop["tracks"]:
+        assert len(tr["images"]) == 4 and len(set(tr["images"])) == 4
+        imgs.setdefault(tr["target"], set()).add(frozenset(tr["images"]))
+    assert all(len(v) == 2 for v in imgs.values())      # tracks of a target are distinct
     post = np.stack(df["posterior"].to_numpy())
     np.testing.assert_allclose(post.sum(1), 1.0, atol=1e-9)
-    assert np.isfinite(df["log_mgr"]).all() and (df["log_mgr"] >= 0).all()
+    assert np.isfinite(df["log10_mgr"]).all() and (df["log10_mgr"] >= 0).all()
+    # The contract of the population block.
+    metrics = {"correct_final", "correct_overall", "prob_truth_final", "msde_final", "log10_mgr75_final",
+               "log10_mgr95_final", "log10_mgr75_overall", "log10_mgr95_overall"}
+    for m in pop["methods"]:
+        assert set(pop["pooled"][m]) == metrics
+        for est in pop["pooled"][m].values():
+            assert est["ci_low"] <= est["value"] <= est["ci_high"]
+    assert set(pop["paired"]) == {"with_uncertainty-model_based", "with_uncertainty-simple_bayes"}
+    assert len(pop["verdict"]) == 2 * len(metrics) and all("95 % CI" in s for s in pop["verdict"])
+    assert set(pop["ablations"]) == {"models.noise_floor=dropout"}
+    assert len(pop["difficulty"]["tracks"]) == pop["n_tracks"]
     track = json.loads((ev / "track.json").read_text())
     assert len(track["images"]) == 4 and len(set(track["images"])) == 4
     assert track["localization_error_m"] < 0.05
-    for name in ("gp_models.npz", "bias_maps.npz", "summary.json"):
+    for name in ("gp_models.npz", "bias_maps.npz"):
         assert (ev / name).is_file(), name
+    json.loads((ev / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
 
 
 def test_report_references_existing_figures(run_all):

@@ -1,4 +1,4 @@
-"""The §5.5 experiments as pure functions, on small hand-made class models."""
+"""The paper's section 5.5 experiments as pure functions, on small hand-made class models."""
 import numpy as np
 import pytest
 
@@ -68,27 +68,31 @@ def test_randomized_is_deterministic_and_chunk_independent():
     tr = make_track(m)
     a = E.randomized(m, tr, (0.1, 0.0), 0.2, 7, 5, np.random.default_rng(3), var_floor=1e-6, chunk=7)
     b = E.randomized(m, tr, (0.1, 0.0), 0.2, 7, 5, np.random.default_rng(3), var_floor=1e-6, chunk=7)
-    for k in E.METHODS:
+    for k in a:
         assert a[k].shape == (7, tr.k, 3)
         np.testing.assert_array_equal(a[k], b[k])
     # Realizations differ from each other (the estimates are random).
     assert np.ptp(a[E.MODEL_BASED][:, 0, 2]) > 1.0
 
 
-def test_long_rows_and_summary():
+def test_result_block_rows_and_summary():
+    from pipeline.results import cell_metrics, result_block
     m = ring_models()
     tr = make_track(m, truth=2)
     logs = E.randomized(m, tr, (0.0, 0.0), 0.1, 4, 3, np.random.default_rng(0), var_floor=1e-6)
     posts = {k: np.exp(v) for k, v in logs.items()}
-    df = E.long_rows("randomized", "s", 0.1, (0.0, 0.0), logs, 2)
-    assert len(df) == 2 * 4 * tr.k
-    assert np.isfinite(df["log_mgr"]).all()      # log space: no inf even where P(truth) underflows
-    row = df.iloc[5]
-    p = posts[row["method"]][row["realization"], row["step"]]
-    np.testing.assert_allclose(row["posterior"], p)
-    assert row["p_truth"] == pytest.approx(p[2])
-    assert row["log_mgr"] == pytest.approx(np.log(p.max() / p[2]))
-    assert row["correct"] == (p.argmax() == 2)
+    cols = result_block(logs, 2, experiment="randomized", setting="s", sigma_m=0.1)
+    n = 2 * 4 * tr.k
+    assert all(len(v) == n for v in cols.values())
+    assert np.isfinite(cols["log10_mgr"]).all()  # log space: no inf even where P(truth) underflows
+    i = 4 * tr.k + 5                              # second method, realization 0, step 5
+    meth, r, k = cols["method"][i], cols["realization"][i], cols["step"][i]
+    assert (meth, r, k) == (list(logs)[1], 0, 5) and cols["experiment"][i] == "randomized"
+    p = posts[meth][r, k]
+    np.testing.assert_allclose(cols["posterior"][i], p)
+    assert cols["p_truth"][i] == pytest.approx(p[2])
+    assert cols["log10_mgr"][i] == pytest.approx(np.log10(p.max() / p[2]))
+    assert cols["correct"][i] == (p.argmax() == 2)
     s = E.summarize(logs, 2)
     for meth, v in s.items():
         corr = posts[meth].argmax(-1) == 2
@@ -98,6 +102,43 @@ def test_long_rows_and_summary():
         assert v["mgr95_final"] == pytest.approx(np.exp(np.percentile(lm[:, -1], 95)))
         assert v["mgr75_final"] >= 1.0
         assert v["log10_mgr95_final"] == pytest.approx(np.percentile(lm[:, -1], 95) / np.log(10))
+        cm = cell_metrics(logs[meth], 2)
+        assert cm["log10_mgr95_final"] == pytest.approx(v["log10_mgr95_final"])
+        assert cm["correct_final"] == v["correct_final"]
+
+
+def test_simple_bayes_uses_own_scores_and_repeats_over_realizations():
+    from pipeline.fusion import simple_bayes
+    m = ring_models()
+    base = make_track(m, truth=1)
+    rng = np.random.default_rng(5)
+    own = rng.dirichlet(np.ones(3), size=(base.k, 4))               # (K, N_s, C)
+    tr = E.TrackData(base.images, base.cam_xy, base.obj_xy, base.yaw, base.dropout, own)
+    logs = E.randomized(m, tr, (0.0, 0.0), 0.2, 5, 3, np.random.default_rng(0), var_floor=1e-6)
+    assert set(logs) == set(E.METHODS)
+    sb = logs[E.SIMPLE_BAYES]
+    assert sb.shape == (5, tr.k, 3)
+    np.testing.assert_allclose(sb[0], simple_bayes(own.mean(axis=1), return_log=True))
+    np.testing.assert_array_equal(sb[0], sb[4])                      # pose noise does not touch it
+    # Without own scores only the two GP methods run.
+    assert set(E.randomized(m, base, (0.0, 0.0), 0.2, 2, 3, np.random.default_rng(0), var_floor=1e-6)) == \
+        {E.WITH_UNCERTAINTY, E.MODEL_BASED}
+
+
+def test_single_view_difficulty():
+    m = ring_models()
+    tr = make_track(m, truth=0)
+    own = np.zeros((tr.k, 4, 3))
+    own[:, :, 0] = 0.8
+    own[:, :, 1:] = 0.1
+    tr = E.TrackData(tr.images, tr.cam_xy, tr.obj_xy, tr.yaw, tr.dropout, own)
+    d = E.single_view_first(m, tr, 0)
+    assert d[E.SIMPLE_BAYES] == 1.0 and d["views"] == tr.k
+    # Each GP view alone, at the true pose, with the truth's own mean response: mostly right.
+    assert d[E.MODEL_BASED] >= 0.5 and d[E.WITH_UNCERTAINTY] >= 0.5
+    # Against a wrong truth index the shares fall.
+    w = E.single_view_first(m, tr, 2)
+    assert w[E.MODEL_BASED] < d[E.MODEL_BASED] and w[E.SIMPLE_BAYES] == 0.0
 
 
 def test_summary_keeps_an_overflowing_mgr_as_log10_and_stays_strict_json():

@@ -1,0 +1,224 @@
+"""The population grid: targets x tracks x localization settings, as independent cells.
+
+Pure functions: the evaluate stage reads the files and hands over the AVD feature rows, the model
+banks and the plan; an executor (``pipeline.executor``) runs ``run_cell`` on every cell. Each cell
+draws its localization noise from a generator seeded by (evaluate seed, target, track, setting),
+never by its position in the grid or the worker it runs on, so results do not depend on how the
+grid is split or scheduled, and an ablation variant sees the same noise as the default.
+"""
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from pipeline import experiments as E
+from pipeline.track import TrackError, TrackPlan, bearing_rays, facing_error, intersect_rays, select_tracks
+
+
+@dataclass(frozen=True)
+class Setting:
+    experiment: str          # "biased" | "randomized" | "sensitivity"
+    label: str
+    sigma: float
+    bias: tuple[float, float]
+    realizations: int
+    n_x: int
+
+
+def setting_label(sigma: float, bias) -> str:
+    # ``g`` keeps every digit a user typed: sigmas 0.001 and 0.004 stay two settings.
+    return f"sigma={sigma:g} m, bias=({bias[0]:+g}, {bias[1]:+g}) m"
+
+
+def population_settings(ev) -> list[Setting]:
+    """The settings every (target, track) runs: the biased experiment and one randomized setting
+    per sigma, from the ``evaluate`` config section."""
+    out = []
+    if "biased" in ev.experiments:
+        b = ev.biased
+        out.append(Setting("biased", setting_label(b.sigma_m, b.bias_m), b.sigma_m, tuple(b.bias_m), 1,
+                           b.n_loc_samples))
+    if "randomized" in ev.experiments:
+        r = ev.randomized
+        for s in r.sigmas_m:
+            out.append(Setting("randomized", setting_label(s, r.bias_m), s, tuple(r.bias_m), r.realizations,
+                               r.n_loc_samples))
+    labels = [(s.experiment, s.label) for s in out]
+    if len(set(labels)) != len(labels):
+        raise ValueError("evaluate.randomized.sigmas_m lists the same sigma twice")
+    return out
+
+
+def sensitivity_settings(ev) -> list[Setting]:
+    s = ev.sensitivity
+    out = [Setting("sensitivity", setting_label(sig, ev.randomized.bias_m), sig, tuple(ev.randomized.bias_m),
+                   s.realizations, s.n_loc_samples) for sig in s.sigmas_m]
+    if len({x.label for x in out}) != len(out):
+        raise ValueError("evaluate.sensitivity.sigmas_m lists the same sigma twice")
+    return out
+
+
+# -- tracks ------------------------------------------------------------------------------------------
+def target_views(avd: pd.DataFrame, target: str, max_difficulty: int) -> pd.DataFrame:
+    """Deterministic-pass rows of the target's boxes up to ``max_difficulty``: one per (scan, image)."""
+    tgt = avd[(avd["instance"] == target) & (avd["difficulty"] <= max_difficulty) & (avd["pass"] == -1)]
+    return tgt.drop_duplicates(["scan", "image"])
+
+
+def locate(det: pd.DataFrame, fx: float, cx: float) -> np.ndarray:
+    """The object's 2D position from the rays through its box centres in every view that sees it."""
+    box_cx = 0.5 * (det["box_x0"].to_numpy(float) + det["box_x1"].to_numpy(float))
+    return intersect_rays(*bearing_rays(det[["cam_x", "cam_y"]].to_numpy(float), det["heading"].to_numpy(float),
+                                        box_cx, fx, cx))
+
+
+@dataclass(frozen=True)
+class TrackInfo:
+    target: str
+    scan: str
+    track: int
+    images: tuple[str, ...]
+    cam_xy: np.ndarray
+    heading: np.ndarray
+    obj_xy: np.ndarray
+    plan: TrackPlan | None = None
+
+    def as_dict(self) -> dict:
+        d = {"target": self.target, "scan": self.scan, "track": self.track, "images": list(self.images),
+             "camera_xy": self.cam_xy.tolist(), "heading_rad": self.heading.tolist(),
+             "object_xy_est": self.obj_xy.tolist()}
+        if self.plan is not None:
+            d.update(start_bearing_deg=round(self.plan.start_deg, 2), direction=self.plan.direction,
+                     distance=self.plan.distance, arc_deg=round(self.plan.arc_deg, 2),
+                     bearings_deg=[round(float(b), 2) for b in self.plan.bearing_deg])
+        return d
+
+
+def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int,
+                intrinsics: dict[str, tuple[float, float]], grid_steps: dict[str, float],
+                explicit: tuple[str, ...] = ()) -> list[TrackInfo]:
+    """``n_tracks`` tracks of ``k`` views of one target, spread over the scans that see it (track j
+    goes to the j-th scan in turn). ``explicit`` image names give exactly one track."""
+    scans = sorted(det["scan"].unique())
+    if not scans:
+        raise TrackError(f"no AVD view of {target!r}")
+    out: list[TrackInfo] = []
+    if explicit:
+        for scan in scans:
+            d = det[det["scan"] == scan].set_index("image")
+            if all(n in d.index for n in explicit):
+                sel = d.loc[list(explicit)]
+                obj = locate(d, *intrinsics[scan])
+                return [TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
+                                  sel["heading"].to_numpy(float), obj)]
+        raise TrackError(f"evaluate.track_images: not every image has a scored box of {target!r} in one scan")
+    per_scan = {s: len(range(i, n_tracks, len(scans))) for i, s in enumerate(scans)}
+    errors = []
+    for scan in scans:
+        d = det[det["scan"] == scan].reset_index(drop=True)
+        if len(d) < 2:
+            errors.append(f"{scan}: {len(d)} view(s)")
+            continue
+        try:
+            obj = locate(d, *intrinsics[scan])
+            cam = d[["cam_x", "cam_y"]].to_numpy(float)
+            err = facing_error(cam, d["heading"].to_numpy(float), obj)
+            plans = select_tracks(cam, obj, err, k, per_scan[scan], seed=[seed, zlib.crc32(f"{scan}/{target}".encode())],
+                                  grid_step=grid_steps[scan])
+        except TrackError as e:
+            errors.append(f"{scan}: {e}")
+            continue
+        for p in plans:
+            sel = d.iloc[p.index]
+            out.append(TrackInfo(target, scan, len(out), tuple(sel["image"]), sel[["cam_x", "cam_y"]].to_numpy(float),
+                                 sel["heading"].to_numpy(float), obj, p))
+    if not out:
+        raise TrackError(f"no usable track of {target!r}: " + "; ".join(errors))
+    return out
+
+
+def gather_scores(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, components, own,
+                  max_difficulty: int) -> tuple[np.ndarray, np.ndarray]:
+    """Dropout samples of the track's views: (K, N_s, F) of ``components`` and (K, N_s, C) of
+    each candidate's ``own`` component (Simple Bayes)."""
+    rows = avd[(avd["instance"] == info.target) & (avd["scan"] == info.scan) & (avd["pass"] >= 0)
+               & (avd["difficulty"] <= max_difficulty)]
+    drop, mine = [], []
+    for name in info.images:
+        r = rows[rows["image"] == name].sort_values("pass")
+        if r.empty:
+            raise TrackError(f"view {info.scan}/{name} has no MC-dropout samples in avd.parquet")
+        s = scores[r.index.to_numpy()]
+        drop.append(s[:, list(components)])
+        mine.append(s[:, list(own)])
+    if len({len(x) for x in drop}) != 1:
+        raise TrackError(f"the views of track {info.track} of {info.target!r} have different numbers of dropout samples")
+    return np.stack(drop).astype(np.float64), np.stack(mine).astype(np.float64)
+
+
+# -- cells -------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Cell:
+    """One (variant, target, track): every setting runs on it. Arrays are small (K views)."""
+    variant: str
+    target: str
+    track: int
+    scan: str
+    classes: tuple[str, ...]
+    components: tuple[int, ...]
+    truth: int
+    data: E.TrackData
+    settings: tuple[Setting, ...]
+    seed: int
+    var_floor: float
+    difficulty: bool = True
+    extra: dict = field(default_factory=dict, compare=False)
+
+
+def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
+    key = zlib.crc32(f"{setting.experiment}/{setting.label}".encode())
+    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, key])
+
+
+def run_cell(banks, cell: Cell) -> dict:
+    """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
+    "difficulty": {method: share of views that alone rank the truth first} or None}."""
+    models = banks[cell.variant].subset(cell.classes, cell.components)
+    posts = {}
+    for s in cell.settings:
+        rng = cell_rng(cell.seed, cell.target, cell.track, s)
+        if s.experiment == "biased":
+            posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
+                                                      var_floor=cell.var_floor)
+        else:
+            posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
+                                                          rng, var_floor=cell.var_floor)
+    diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None
+    return {"posts": posts, "difficulty": diff}
+
+
+def yaw_for(target: str, scan: str, truth: dict | None, source: str, yaw_deg: float,
+            targets, yaws_deg) -> float:
+    """Object yaw (rad): from the synthetic ground-truth sidecar or from the config."""
+    if source == "config":
+        if yaws_deg:
+            return math.radians(yaws_deg[list(targets).index(target)])
+        return math.radians(yaw_deg)
+    entry = truth_entry(truth, scan, target)
+    if entry is None:
+        raise ValueError(f"truth.json has no yaw for {target!r} in scan {scan} (evaluate.yaw_source = 'truth' "
+                         "needs the data stage's synthetic sidecar; for real data set yaw_source = 'config')")
+    return math.radians(float(entry["yaw_deg"]))
+
+
+def truth_entry(truth: dict | None, scan: str, target: str) -> dict | None:
+    """The synthetic sidecar's record of one instance in one scan (per-scan layout, or one layout
+    shared by every scan)."""
+    if not truth:
+        return None
+    per_scan = truth.get("scans", {}).get(scan, {}).get("instances", {})
+    return per_scan.get(target) or truth.get("instances", {}).get(target)
