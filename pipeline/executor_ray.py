@@ -86,7 +86,7 @@ class RayExecutor:
                 from pipeline.device import available_cores
                 # Workers import the same checkout as this process, whatever is installed.
                 path = os.pathsep.join(p for p in (str(code_root()), os.environ.get("PYTHONPATH", "")) if p)
-                ray.init(num_cpus=int(workers) or available_cores(), runtime_env={"env_vars": {"PYTHONPATH": path}}, **kw)
+                ray.init(address="local", num_cpus=int(workers) or available_cores(), runtime_env={"env_vars": {"PYTHONPATH": path}}, **kw)
                 self._check_loopback()
             self._started = True
         res = ray.cluster_resources()

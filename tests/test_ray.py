@@ -24,14 +24,23 @@ if not HAVE_RAY and os.environ.get("VIEWFUSE_REQUIRE_RAY") == "1":
     raise RuntimeError("VIEWFUSE_REQUIRE_RAY=1 but Ray is not installed (pip install -e '.[ray]')")
 needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray not installed (pip install -e '.[ray]')")
 
-# The tiny world of tests/test_features_stage.py, with dropout samples on both tables.
+# A tiny world (the small room of tests/test_features_stage.py, 8 turntable views per object, 73
+# AVD boxes): six targets, one ablation, dropout samples on both feature tables, and a batch size
+# that does not divide the crops.
 TINY = {
-    "data": {"synthetic": {"angle_step_deg": 60, "bigbird_width": 160, "bigbird_height": 128,
+    "data": {"synthetic": {"angle_step_deg": 45, "bigbird_width": 160, "bigbird_height": 128,
                            "avd_width": 320, "avd_height": 180, "room_size_m": [2.4, 2.1],
                            "grid_step_m": 0.6, "distractors": 2, "workers": 1}},
     "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
                                                   "batch_size": 12, "min_accuracy": 0.0}},
     "features": {"n_samples": 3, "bigbird_samples": 2, "max_difficulty": 5, "batch_size": 7},
+    "models": {"restarts": 0},
+    "evaluate": {"track_length": 4, "max_difficulty": 5, "tracks_per_target": 2, "n_candidates": 3,
+                 "bootstrap": 100, "ablations": ["models.noise_floor=dropout"],
+                 "biased": {"n_loc_samples": 4},
+                 "randomized": {"sigmas_m": [0.1, 0.3], "realizations": 4, "n_loc_samples": 4},
+                 "sensitivity": {"sigmas_m": [0.1, 0.4], "realizations": 3, "n_loc_samples": 3},
+                 "bias_maps": {"steps": 5}},
 }
 
 
@@ -132,7 +141,7 @@ def test_a_task_that_keeps_failing_stops_with_its_own_message(ray_ex, tmp_path):
         ray_ex.map(_bad, range(5), desc="cells")
 
 
-# -- the features stage through Ray -----------------------------------------------------------
+# -- the features and evaluate stages through Ray ---------------------------------------------
 @pytest.fixture(scope="module")
 def upstream(tmp_path_factory):
     """data + classifier once, copied into a folder per executor."""
@@ -147,7 +156,7 @@ def upstream(tmp_path_factory):
     return base
 
 
-def _run(upstream, name, stage, executor, **over):
+def _run(upstream, name, stage, executor):
     from pipeline.config import load_config
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
@@ -155,7 +164,7 @@ def _run(upstream, name, stage, executor, **over):
     art = upstream.parent / name
     if not art.exists():
         shutil.copytree(upstream, art)
-    cfg = load_config(DEFAULT_CONFIG, _merge(_merge(TINY, over), {"run": {
+    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {
         "artifacts": str(art), "device": "cpu", "executor": executor, "ray_workers": 2}}))
     ensure(cfg, stage, device="cpu")
     return cfg
@@ -180,3 +189,46 @@ def test_features_through_ray_equal_the_local_run(ray_ex, upstream):
     # Batches of 7 do not divide the crops: the last, short batch is scored too.
     n = read_manifest(ray_, "features")["extra"]["avd_crops"]
     assert n % 7 and len(pq.read_table(ray_.stage_dir("features") / "avd.parquet")) == n * 4
+
+
+@needs_ray
+def test_evaluate_through_ray_equals_the_local_run(ray_ex, upstream):
+    import json
+
+    from pipeline import executor as ex
+
+    local = _run(upstream, "local", "evaluate", "local")
+    del ex.STATS[:]
+    ray_ = _run(upstream, "ray", "evaluate", "ray")
+    cells = [r for r in ex.STATS if r["executor"] == "ray" and r["desc"].startswith("evaluate")]
+    assert cells and cells[0]["tasks"] >= 2 * 2          # the grid really ran as Ray tasks
+    a, b = local.stage_dir("evaluate"), ray_.stage_dir("evaluate")
+    names = sorted(p.name for p in a.iterdir() if p.suffix in (".parquet", ".json", ".npz"))
+    assert names == sorted(p.name for p in b.iterdir() if p.suffix in (".parquet", ".json", ".npz"))
+    assert "results.parquet" in names and "summary.json" in names
+    for name in names:
+        if name.endswith(".parquet"):
+            assert_same_parquet(a / name, b / name)
+        elif name.endswith(".npz"):
+            with np.load(a / name) as x, np.load(b / name) as y:
+                assert sorted(x.files) == sorted(y.files), name
+                for k in x.files:
+                    np.testing.assert_array_equal(x[k], y[k], err_msg=f"{name}: {k}")
+        elif name != "manifest.json":
+            ja, jb = json.loads((a / name).read_text()), json.loads((b / name).read_text())
+            for j in (ja, jb):
+                j.pop("timings_s", None)
+            assert ja == jb, name
+
+
+def test_executor_flag_overrides_the_config(monkeypatch):
+    import stages.cli as cli
+    from tests.conftest import DEFAULT_CONFIG
+
+    seen = []
+    monkeypatch.setattr(cli, "ensure", lambda cfg, stage, **kw: seen.append(cfg.run.executor))
+    assert cli.main(["report", "--config", str(DEFAULT_CONFIG), "--executor", "ray"]) == 0
+    assert cli.main(["report", "--config", str(DEFAULT_CONFIG)]) == 0
+    assert seen[0] == "ray" and seen[-1] == "local"
+    with pytest.raises(SystemExit):
+        cli.build_parser().parse_args(["report", "--executor", "dask"])
