@@ -52,7 +52,9 @@ def _slow_square(shared, i):
 
 def _seeded(shared, item):
     """Randomness from the item's identity only: the same on any worker, in any order."""
-    return float(np.random.default_rng([shared, item]).normal()), task_cpus()
+    from pipeline.device import available_cores
+
+    return float(np.random.default_rng([shared, item]).normal()), task_cpus(), available_cores()
 
 
 def _flaky(folder, item):
@@ -116,8 +118,9 @@ def test_seeded_tasks_give_the_local_numbers(ray_ex):
     items = list(range(12))
     remote = ray_ex.map(_seeded, items, shared=7)
     local = LocalExecutor().map(_seeded, items, shared=7)
-    assert [v for v, _ in remote] == [v for v, _ in local]
-    assert {c for _, c in remote} == {1} and {c for _, c in local} == {0}   # task_cpus()
+    assert [r[0] for r in remote] == [r[0] for r in local]
+    # Inside a Ray task: one CPU, and thread pools (the fusion engine's) size to it.
+    assert {r[1:] for r in remote} == {(1, 1)} and {r[1] for r in local} == {0}
 
 
 @needs_ray
