@@ -60,6 +60,17 @@ def item_label(item: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def preload(modules: Sequence[str], item: Any = None) -> int:
+    """A task that imports ``modules`` and returns its process id: warms a worker before timing it
+    (the benchmark), or shows which worker processes exist."""
+    import importlib
+    import os
+
+    for m in modules:
+        importlib.import_module(m)
+    return os.getpid()
+
+
 class Executor(Protocol):
     name: str
 
