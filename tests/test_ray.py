@@ -235,3 +235,31 @@ def test_executor_flag_overrides_the_config(monkeypatch):
     assert seen[0] == "ray" and seen[-1] == "local"
     with pytest.raises(SystemExit):
         cli.build_parser().parse_args(["report", "--executor", "dask"])
+
+
+def test_scoring_goes_to_cluster_gpus_unless_the_device_is_cpu(upstream):
+    """The features stage's choice for Ray (no GPU here: a stand-in executor reports them)."""
+    from types import SimpleNamespace
+
+    from pipeline.crops import CropPolicy
+    from pipeline.config import load_config
+    from stages.features import _scoring
+    from tests.conftest import DEFAULT_CONFIG
+
+    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(upstream)}}))
+    policy = CropPolicy.from_config(cfg)
+
+    def choose(request, gpus):
+        ctx = SimpleNamespace(device_request=request, input=cfg.stage_dir)
+        return _scoring(ctx, SimpleNamespace(name="ray", gpus=gpus), policy)
+
+    sm, card, gpu, _ = choose("auto", 2)
+    assert (sm.device, gpu) == ("cuda", True) and sm.key.endswith("@cuda")
+    assert sm.weights is not None and sm.num_classes == card["num_classes"] == 12
+    assert all(isinstance(v, np.ndarray) for v in sm.weights.values())   # plain arrays, no pickled code
+    sm, _, gpu, _ = choose("cpu", 2)
+    assert (sm.device, gpu) == ("cpu", False)
+    sm, _, gpu, _ = choose("auto", 0)
+    assert (sm.device, gpu) == ("cpu", False)
+    with pytest.raises(RuntimeError, match="run.device = 'cuda'.*no GPU"):
+        choose("cuda", 0)
