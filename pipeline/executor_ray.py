@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
@@ -29,8 +30,8 @@ log = logging.getLogger("viewfuse.executor")
 RETRIES = 3
 RETRY_ON = (TransientError, ConnectionError, TimeoutError)
 PACKAGES = ("pipeline", "loaders", "stages", "reports")
-# Ray decides a node's address from its default route; this switch makes it use 127.0.0.1 (it is
-# read when ``ray`` is imported, so it is also applied to the module below when already imported).
+# Ray takes a node's address from the default route; this switch (read at import, hence also set on
+# the imported module) makes a new local instance use 127.0.0.1.
 _LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 
 
@@ -54,17 +55,31 @@ def _run_task(fn: Callable[[Any, Any], Any], shared: Any, item: Any, cpus: int) 
         ex._TASK_CPUS = 0
 
 
-def _import_ray(local: bool):
-    if local:
-        os.environ[_LOOPBACK_ENV] = "0"
+def _import_ray():
     try:
         import ray
     except ImportError:
         raise RuntimeError("run.executor = 'ray' needs Ray: pip install -e '.[ray]' (or make venv-ray)") from None
-    if local:
-        from ray._private import ray_constants
-        ray_constants.ENABLE_RAY_CLUSTER = False
     return ray
+
+
+@contextmanager
+def _loopback():
+    """While a local instance starts: its processes (which inherit the environment) bind to
+    127.0.0.1. Restored afterwards, so a later cluster connection in this process is unaffected."""
+    from ray._private import ray_constants
+
+    old_env, old = os.environ.get(_LOOPBACK_ENV), ray_constants.ENABLE_RAY_CLUSTER
+    os.environ[_LOOPBACK_ENV] = "0"
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = old
+        if old_env is None:
+            os.environ.pop(_LOOPBACK_ENV, None)
+        else:
+            os.environ[_LOOPBACK_ENV] = old_env
 
 
 class RayExecutor:
@@ -72,7 +87,7 @@ class RayExecutor:
     name = "ray"
 
     def __init__(self, address: str = "", workers: int = 0, *, retries: int = RETRIES, cpus_per_task: int = 1):
-        ray = _import_ray(local=not address)
+        ray = _import_ray()
         self._ray = ray
         self.retries = int(retries)
         self.cpus_per_task = max(1, int(cpus_per_task))
@@ -86,7 +101,9 @@ class RayExecutor:
                 from pipeline.device import available_cores
                 # Workers import the same checkout as this process, whatever is installed.
                 path = os.pathsep.join(p for p in (str(code_root()), os.environ.get("PYTHONPATH", "")) if p)
-                ray.init(address="local", num_cpus=int(workers) or available_cores(), runtime_env={"env_vars": {"PYTHONPATH": path}}, **kw)
+                with _loopback():
+                    ray.init(address="local", num_cpus=int(workers) or available_cores(),
+                             runtime_env={"env_vars": {"PYTHONPATH": path}}, **kw)
                 self._check_loopback()
             self._started = True
         res = ray.cluster_resources()
@@ -150,7 +167,8 @@ class RayExecutor:
                         return
                     continue
                 done, _ = ray.wait(list(inflight), num_returns=1)
-                more, _ = ray.wait([r for r in inflight if r not in done], num_returns=len(inflight) - len(done), timeout=0)
+                rest = [r for r in inflight if r not in done]
+                more = ray.wait(rest, num_returns=len(rest), timeout=0)[0] if rest else []
                 for ref in done + more:
                     i, label = inflight.pop(ref)
                     ready[i], took = self._get(ref, i, total, label, what)

@@ -87,8 +87,21 @@ def ray_ex():
 
 @needs_ray
 def test_local_instance_is_loopback_only_with_two_cpus(ray_ex):
+    import psutil
+
     assert ray_ex.node_address == "127.0.0.1"
     assert ray_ex.cpus == 2 and ray_ex.slots() == 2
+    ray_ex.map(_slow_square, [0, 1], shared=0.0)               # worker processes exist
+    # Every socket the instance's processes (GCS, raylet, agents, workers) listen on is loopback.
+    listening = []
+    for proc in psutil.Process().children(recursive=True):
+        try:
+            conns = proc.net_connections(kind="inet")
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+        listening += [(proc.name(), c.laddr.ip) for c in conns if c.status == psutil.CONN_LISTEN]
+    assert len(listening) >= 3, listening
+    assert all(ip in ("127.0.0.1", "::1", "::ffff:127.0.0.1") for _, ip in listening), listening
 
 
 @needs_ray
