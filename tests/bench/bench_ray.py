@@ -17,9 +17,10 @@ tasks' own times measured inside them. From these:
                        (tracks, bootstrap, writing files), the same for every worker count.
 Projection (on paper): tasks_full = tasks here x full_targets / targets here (same tracks,
 settings and realizations per target); with t = mean task time measured with 2 workers (one core
-per task, as on a cluster node running a task per core), o = overhead per task and serial = the
-local driver-side time scaled by the same factor (an upper bound: the single-track figures in it
-do not grow with the population),
+per task, as on a cluster node running a task per core), o = overhead per task with 1 worker, and
+serial = the driver's work outside the grid in the local run: its statistics (bootstrap; the
+summary's ``timings_s.statistics``) scaled by the same factor, plus the rest (reading inputs,
+tracks, the single-track sensitivity sweep and figures), which does not grow with the targets,
   T(N machines x c cores) = serial + ceil(tasks_full / (N c)) x (t + o).
 Features likewise: crops_full x seconds per crop (this machine's features manifest) / (N c).
 
@@ -76,9 +77,9 @@ def _run_evaluate(base_cfg, executor: str, workers: int) -> dict:
     recs = [r for r in ex.STATS if r["executor"] == executor]
     ev = cfg.stage_dir("evaluate")
     summary = json.loads((ev / "summary.json").read_text())
-    summary.pop("timings_s", None)
+    timings = summary.pop("timings_s", None) or {}
     return {"name": executor if executor == "local" else f"ray x{workers}", "wall": wall, "start": start + stop,
-            "recs": recs, "table": pq.read_table(ev / "results.parquet"), "summary": summary,
+            "recs": recs, "table": pq.read_table(ev / "results.parquet"), "summary": summary, "timings": timings,
             "load": f"{before} / {_load()}"}
 
 
@@ -114,6 +115,8 @@ def main(argv: list[str] | None = None) -> None:
     cfg = load_config(ROOT / "configs" / "synthetic.toml", over)
     print(f"default population in {cfg.run_dir}; upstream stages first if stale ({_load()})", flush=True)
     ensure(cfg, "models", device="cpu")
+    from pipeline.executor import preload
+    preload(["pipeline.population", "pipeline.popstats", "stages.evaluate"])   # the local run starts warm too
     runs = [_run_evaluate(cfg, "local", 0), _run_evaluate(cfg, "ray", 1), _run_evaluate(cfg, "ray", 2)]
     local = runs[0]
     if not local["recs"]:
@@ -139,10 +142,12 @@ def main(argv: list[str] | None = None) -> None:
     targets = len(local["summary"].get("population", {}).get("targets", [])) or 1
     scale = args.full_targets / targets
     tasks_full = math.ceil(n * scale)
-    serial = (local["wall"] - _grid(local)[1]) * scale
+    stats_s = float(local["timings"].get("statistics", 0.0))
+    fixed = max(0.0, local["wall"] - _grid(local)[1] - stats_s)
+    serial = stats_s * scale + fixed
     print(f"\nfull-AVD projection: {args.full_targets} targets = {scale:.0f} x the {targets} here -> {tasks_full} tasks "
-          f"of {t:.2f} s (+ {1000 * over:.0f} ms overhead) = {tasks_full * t / 3600:.1f} CPU-hours; "
-          f"serial driver part ~{_hms(serial)}")
+          f"of {t:.2f} s (+ {1000 * over:.0f} ms overhead) = {tasks_full * t / 3600:.1f} CPU-hours; serial driver "
+          f"part ~{_hms(serial)} (statistics {stats_s:.1f} s x {scale:.0f} + {fixed:.1f} s that does not grow)")
     fm = (read_manifest(cfg, "features") or {}).get("extra", {})
     per_crop = fm.get("timings", {}).get("avd_s", 0.0) / max(fm.get("avd_crops", 0), 1)
     print(f"features: {args.full_crops} crops x {per_crop * 1000:.0f} ms per crop (this machine, "
