@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 import scipy.io
-from tqdm import tqdm
 
 from loaders.bigbird import jpeg_size, read_rgb
 from loaders.errors import BadInputError, SkipLog
+from pipeline.cache import note_read
+from pipeline.progress import bar
 
 log = logging.getLogger("viewfuse.loaders")
 
@@ -84,6 +85,9 @@ def read_instance_map(path: str | Path) -> dict[str, int]:
         text = path.read_text()
     except FileNotFoundError:
         raise BadInputError(path, "instance id map is missing") from None
+    except UnicodeDecodeError as e:
+        raise BadInputError(path, f"not a text file ({e})") from None
+    note_read(path)
     out: dict[str, int] = {}
     seen: dict[int, str] = {}
     for no, line in enumerate(text.splitlines(), start=1):
@@ -132,6 +136,7 @@ def _cell(value, fname: str):
 def _read_structs(path: Path) -> tuple[float, dict[str, dict]]:
     if not path.is_file():
         raise BadInputError(path, "image_structs.mat is missing")
+    note_read(path)
     try:
         m = scipy.io.loadmat(path)
     except Exception as e:  # scipy raises several types on malformed files
@@ -254,7 +259,7 @@ class AVDScan:
         mm_to_m = self.scale / 1000.0
 
         self.images: dict[str, AVDImage] = {}
-        for name in tqdm(sorted(files), desc=f"avd {scan}", unit="image", leave=False):
+        for name in bar(sorted(files), desc=f"read AVD scan {scan}", unit="image", leave=False):
             path = files[name]
             if name not in annotations:
                 self._bad(BadInputError(ann_path, f"no annotation entry for image {name!r}"))
@@ -293,6 +298,7 @@ class AVDScan:
     def _read_annotations(self, path: Path) -> dict:
         try:
             data = json.loads(path.read_text())
+            note_read(path)
         except FileNotFoundError:
             raise BadInputError(path, "annotations.json is missing") from None
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -314,6 +320,7 @@ class AVDScan:
                           if len(b) == 6 and int(b[4]) in self.instance_names})
             log.warning("%s: missing; using the %d instances seen in annotations.json", path, len(ids))
             return [self.instance_names[i] for i in ids]
+        note_read(path)
         names = [ln.strip() for ln in path.read_text().splitlines() if ln.strip()]
         for n in names:
             if n not in self.instance_ids:
@@ -399,6 +406,7 @@ class AVDScan:
 
 def _read_colmap_camera(path: Path) -> tuple[tuple[int, int], np.ndarray]:
     """((width, height), K) from the first camera in a COLMAP cameras.txt."""
+    note_read(path)
     for line in path.read_text().splitlines():
         toks = line.split()
         if not toks or toks[0].startswith("#"):

@@ -9,8 +9,13 @@ The JPEG helpers here (``read_rgb``, ``jpeg_size``) are shared with the AVD read
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import re
 import struct
+import sys
+import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -18,10 +23,10 @@ from typing import Iterator
 import cv2
 import h5py
 import numpy as np
-from tqdm import tqdm
 
 from loaders.errors import BadInputError, SkipLog
 from loaders.pbm import read_pbm
+from pipeline.cache import note_read
 
 _VIEW_RE = re.compile(r"^NP([1-5])_(0|[1-9][0-9]*)\.jpg$")  # angles are unpadded
 POSE_KEY = "H_table_from_reference_camera"
@@ -44,6 +49,79 @@ def _check_jpeg_complete(data: bytes, path: Path) -> None:
         raise BadInputError(path, "corrupt JPEG: truncated (no end-of-image marker after the scan)")
 
 
+# libjpeg reports damaged entropy-coded data ("Corrupt JPEG data: premature end of data
+# segment", bad Huffman codes) only as a warning printed on the C-level stderr, then returns grey
+# or garbage pixels; OpenCV passes neither the warning nor a status back. So the decode runs with
+# file descriptor 2 redirected into a temporary file, and a warning there makes the image corrupt.
+# "N extraneous bytes before marker" is left out: the decoder skipped padding between segments
+# and the pixels are intact.
+_STDERR_LOCK = threading.Lock()
+_CORRUPT_MARKS = ("Corrupt JPEG data", "Premature end of JPEG file", "Inconsistent progression")
+
+
+@contextlib.contextmanager
+def _c_stderr_captured() -> Iterator[list[str]]:
+    """Collect what C code writes to file descriptor 2 meanwhile (lines go into the yielded list);
+    lines that are not libjpeg messages are passed on to the real stderr afterwards."""
+    lines: list[str] = []
+    with _STDERR_LOCK:
+        try:
+            sys.stderr.flush()
+        except (AttributeError, ValueError):
+            pass
+        try:
+            saved = os.dup(2)
+        except OSError:  # no stderr at all (closed descriptor): nothing to capture from
+            yield lines
+            return
+        try:
+            with tempfile.TemporaryFile() as tf:
+                os.dup2(tf.fileno(), 2)
+                try:
+                    yield lines
+                finally:
+                    os.dup2(saved, 2)
+                    tf.seek(0)
+                    text = tf.read().decode("utf-8", "replace")
+                    lines.extend(ln for ln in text.splitlines() if ln.strip())
+        finally:
+            os.close(saved)
+    other = [ln for ln in lines if not _is_jpeg_message(ln)]
+    if other:
+        os.write(2, ("\n".join(other) + "\n").encode())
+
+
+def _is_jpeg_message(line: str) -> bool:
+    return "JPEG" in line or "jpeg" in line or "marker" in line or "Huffman" in line
+
+
+def _jpeg_problem(lines: list[str]) -> str | None:
+    for ln in lines:
+        if "extraneous bytes before marker" in ln:
+            continue
+        if any(m in ln for m in _CORRUPT_MARKS):
+            return ln.strip()
+    return None
+
+
+def decode_jpeg(data: bytes, path: str | Path) -> np.ndarray:
+    """Decode JPEG bytes into RGB uint8 (H, W, 3); BadInputError naming ``path`` when the file is
+    truncated or libjpeg reports corrupt data."""
+    path = Path(path)
+    _check_jpeg_complete(data, path)
+    with _c_stderr_captured() as lines:
+        try:
+            bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        except cv2.error as e:
+            raise BadInputError(path, f"corrupt JPEG: OpenCV failed to decode it ({e})") from None
+    problem = _jpeg_problem(lines)
+    if problem is not None:
+        raise BadInputError(path, f"corrupt JPEG: libjpeg reports {problem!r}")
+    if bgr is None or bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.size == 0:
+        raise BadInputError(path, "corrupt JPEG: OpenCV could not decode it")
+    return np.ascontiguousarray(bgr[:, :, ::-1])  # OpenCV gives BGR
+
+
 def read_rgb(path: str | Path) -> np.ndarray:
     """Decode a JPEG into RGB uint8 (H, W, 3); BadInputError naming the file if missing/corrupt."""
     path = Path(path)
@@ -53,14 +131,8 @@ def read_rgb(path: str | Path) -> np.ndarray:
         raise BadInputError(path, "image file is missing") from None
     except OSError as e:
         raise BadInputError(path, f"cannot read image file ({e.strerror or e})") from None
-    _check_jpeg_complete(data, path)
-    try:
-        bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
-    except cv2.error as e:
-        raise BadInputError(path, f"corrupt JPEG: OpenCV failed to decode it ({e})") from None
-    if bgr is None or bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.size == 0:
-        raise BadInputError(path, "corrupt JPEG: OpenCV could not decode it")
-    return np.ascontiguousarray(bgr[:, :, ::-1])  # OpenCV gives BGR
+    note_read(path, data)
+    return decode_jpeg(data, path)
 
 
 # SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
@@ -116,6 +188,7 @@ def _read_h5_matrix(path: Path, key: str, shape: tuple[int, ...]) -> np.ndarray:
     """A float64 dataset of the given shape, finite; errors name the file and the key."""
     if not path.is_file():
         raise BadInputError(path, "HDF5 file is missing")
+    note_read(path)
     try:
         with h5py.File(path, "r") as f:
             if key not in f:
@@ -168,6 +241,18 @@ def list_objects(root: str | Path) -> list[str]:
     if not root.is_dir():
         raise BadInputError(root, "BigBIRD root folder is missing")
     return sorted(p.name for p in root.iterdir() if (p / "calibration.h5").is_file())
+
+
+def uncalibrated_objects(root: str | Path) -> list[Path]:
+    """calibration.h5 paths missing from folders under ``root`` that hold BigBIRD views
+    (``NP{c}_{a}.jpg``): object folders that ``list_objects`` cannot use."""
+    root = Path(root)
+    out = []
+    for p in sorted(root.iterdir()) if root.is_dir() else ():
+        if p.is_dir() and not (p / "calibration.h5").is_file() and any(
+                _VIEW_RE.match(q.name) for q in p.iterdir()):
+            out.append(p / "calibration.h5")
+    return out
 
 
 class BigBirdObject:
@@ -223,6 +308,13 @@ class BigBirdObject:
         return mask
 
     # ---- calibration and poses ---------------------------------------------------------------
+    def check_calibration(self, cameras=(1,)) -> None:
+        """Read the calibration every view of ``cameras`` needs, once: a missing or malformed key
+        is one error for the object (naming the file and key), not one per view."""
+        for c in cameras:
+            key = f"H_NP{int(c)}_from_NP5"
+            _check_homogeneous(self._calib_matrix(key, (4, 4)), self.calibration_path, key)
+
     def _calib_matrix(self, key: str, shape: tuple[int, int]) -> np.ndarray:
         if key not in self._calib:
             self._calib[key] = _read_h5_matrix(self.calibration_path, key, shape)
@@ -297,7 +389,7 @@ class BigBirdObject:
     def iter_views(self, cameras=(1,), skip: SkipLog | None = None) -> Iterator[ViewRecord]:
         """Read every view of the given cameras. A bad view raises BadInputError, or, with
         ``skip``, is counted and logged there and the iteration goes on."""
-        for view in tqdm(self.views(cameras), desc=f"bigbird {self.name}", unit="view", leave=False):
+        for view in self.views(cameras):  # the caller's bar counts the views
             try:
                 rec = self.read_view(view)
             except BadInputError as err:

@@ -39,3 +39,39 @@ class SkipLog:
 
     def __str__(self) -> str:
         return f"{self.count} {self.what}(s) skipped" if self.count else f"no {self.what} skipped"
+
+
+class SkipPolicy:
+    """``data.skip_bad_views`` for one stage run: with skips on, each dataset part gets a SkipLog
+    (``log("avd")``) and the runner writes ``summary()`` into the stage manifest; with skips off,
+    ``log`` returns None and the readers raise on the first bad entry."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = bool(enabled)
+        self.logs: dict[str, SkipLog] = {}
+
+    @classmethod
+    def from_config(cls, cfg) -> "SkipPolicy":
+        return cls(cfg.data.skip_bad_views)
+
+    def log(self, part: str, what: str | None = None) -> SkipLog | None:
+        """The SkipLog of one dataset part (``"bigbird"``, ``"avd"``), or None when skips are off."""
+        if not self.enabled:
+            return None
+        if part not in self.logs:
+            self.logs[part] = SkipLog(what or f"{part} entry")
+        return self.logs[part]
+
+    def handle(self, err: BadInputError, part: str, what: str | None = None) -> None:
+        """Skip ``err`` (counted under ``part``) or, with skips off, raise it."""
+        sl = self.log(part, what)
+        if sl is None:
+            raise err
+        sl.skip(err)
+
+    @property
+    def count(self) -> int:
+        return sum(s.count for s in self.logs.values())
+
+    def summary(self) -> dict:
+        return {part: s.summary() for part, s in sorted(self.logs.items())}

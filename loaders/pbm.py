@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from loaders.errors import BadInputError
+from pipeline.cache import note_read
 
 
 def _tokens(data: bytes, path: Path) -> tuple[list[bytes], int]:
@@ -43,6 +44,7 @@ def read_pbm(path: str | Path) -> np.ndarray:
         data = path.read_bytes()
     except FileNotFoundError:
         raise BadInputError(path, "mask file is missing") from None
+    note_read(path, data)
     toks, off = _tokens(data, path)
     if toks[0] != b"P4":
         raise BadInputError(path, f"not a raw PBM (magic {toks[0][:8]!r}, expected b'P4')")

@@ -8,6 +8,8 @@ import json
 import os
 import shutil
 import tempfile
+import threading
+import zipfile
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -73,6 +75,127 @@ def code_hash(modules: tuple[str, ...] | list[str]) -> str:
             h.update(f.name.encode())
             h.update(f.read_bytes())
     return h.hexdigest()
+
+
+# ------------------------------------------------------------------------------------------------
+# File records: what a manifest keeps of each input it read and each output it wrote.
+
+def file_record(path: str | Path, data: bytes | None = None, known: dict | None = None) -> dict:
+    """{sha256, size, mtime_ns} of a file. ``data``: its bytes when already in memory; ``known``:
+    a previous record, whose hash is reused when size and mtime are unchanged (no re-read)."""
+    st = os.stat(path)
+    if known and known.get("size") == st.st_size and known.get("mtime_ns") == st.st_mtime_ns:
+        return dict(known)
+    digest = sha256_bytes(data) if data is not None else sha256_file(path)
+    return {"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def record_changed(path: str | Path, rec: dict) -> str | None:
+    """Why ``path`` no longer matches ``rec`` ("missing", "content changed"), or None. Same size and
+    mtime is trusted; otherwise the bytes are hashed, so a touched but identical file matches."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "missing"
+    if st.st_size == rec.get("size") and st.st_mtime_ns == rec.get("mtime_ns"):
+        return None
+    if st.st_size != rec.get("size"):
+        return f"content changed (size {rec.get('size')} -> {st.st_size} bytes)"
+    return None if sha256_file(path) == rec.get("sha256") else "content changed (sha256 differs)"
+
+
+def folder_records(folder: str | Path, skip: tuple[str, ...] = (), previous: dict | None = None) -> dict:
+    """{relative path: file_record} of every file under ``folder`` except the names in ``skip``."""
+    folder = Path(folder)
+    previous = previous or {}
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        rel = p.relative_to(folder).as_posix()
+        if p.is_file() and rel not in skip:
+            out[rel] = file_record(p, known=previous.get(rel))
+    return out
+
+
+class InputRecorder:
+    """Files a stage read (dataset images, masks, HDF5, annotations): the readers call
+    ``note_read``; the runner records them in the manifest and checks them on the next run."""
+
+    def __init__(self) -> None:
+        self._data: dict[str, bytes | None] = {}
+        self._lock = threading.Lock()
+
+    def add(self, path: str | Path, data: bytes | None = None) -> None:
+        key = os.path.abspath(path)
+        with self._lock:
+            if key not in self._data or data is not None:
+                # Hash now when the bytes are at hand (they are about to be dropped).
+                self._data[key] = sha256_bytes(data) if data is not None else None  # type: ignore[assignment]
+
+    def records(self, exclude: str | Path | None = None) -> dict[str, dict]:
+        """{absolute path: file_record} of the files read, except those under ``exclude``."""
+        skip = os.path.abspath(exclude) + os.sep if exclude is not None else None
+        out = {}
+        for key, digest in sorted(self._data.items()):
+            if (skip and key.startswith(skip)) or not os.path.isfile(key):
+                continue
+            st = os.stat(key)
+            out[key] = ({"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+                        if digest is not None else file_record(key))
+        return out
+
+
+_recorders: list[InputRecorder] = []
+
+
+def note_read(path: str | Path, data: bytes | None = None) -> None:
+    """Tell the running stage (if any) that it read ``path`` (``data``: the bytes, if in memory)."""
+    for r in _recorders:
+        r.add(path, data)
+
+
+@contextlib.contextmanager
+def recording_inputs() -> Iterator[InputRecorder]:
+    rec = InputRecorder()
+    _recorders.append(rec)
+    try:
+        yield rec
+    finally:
+        _recorders.remove(rec)
+
+
+# ------------------------------------------------------------------------------------------------
+# .npz files
+
+class NpzFileError(ValueError):
+    """An .npz file is missing or not a readable, pickle-free .npz; the message names the file."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path, self.problem = str(path), problem
+        super().__init__(f"{path}: {problem}")
+
+
+def load_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """All arrays of an .npz file, never unpickling; NpzFileError naming the file otherwise
+    (missing, truncated, random bytes, object arrays)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except FileNotFoundError:
+        raise NpzFileError(path, "file not found") from None
+    except OSError as e:
+        raise NpzFileError(path, f"cannot read file ({e.strerror or e})") from None
+    if head[:2] != b"PK":
+        raise NpzFileError(path, "not a valid .npz file (no zip header; corrupt or not written by numpy)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except ValueError as e:
+        if "pickle" in str(e):
+            raise NpzFileError(path, "holds object arrays, which would need unpickling; not loaded") from None
+        raise NpzFileError(path, f"not a valid .npz file ({e})") from None
+    except (zipfile.BadZipFile, OSError, EOFError, KeyError) as e:
+        raise NpzFileError(path, f"not a valid .npz file (truncated or corrupt: {e})") from None
 
 
 def tree_fingerprint(root: str | Path, pattern: str = "*") -> str:

@@ -469,32 +469,3 @@ class MCDropoutScorer:
         mc = F.softmax(self.head_samples(f, self.draw_masks(seeds, n_samples)), dim=-1)
         return det, mc
 
-
-class FixedMaskDropout(nn.Module):
-    """Dropout with a given mask (0 or 1/(1-p) entries): the reference route in tests/benchmarks."""
-
-    def __init__(self, mask: torch.Tensor):
-        super().__init__()
-        self.mask = mask
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x * self.mask
-
-
-@torch.no_grad()
-def full_passes_with_masks(model: nn.Module, x: torch.Tensor, masks: Sequence[torch.Tensor]) -> torch.Tensor:
-    """Logits (B, N_s, D) from ``N_s`` complete forward passes per crop (trunk included), with the
-    Dropout layers replaced by fixed-mask modules: the literal definition MC dropout must match."""
-    B, n = masks[0].shape[:2]
-    xr = x.repeat_interleave(n, dim=0)  # row b*n + s = crop b, sample s
-    layers, k = [], 0
-    for m in model.classifier:
-        if isinstance(m, nn.Dropout):
-            layers.append(FixedMaskDropout(masks[k].reshape(B * n, -1)))
-            k += 1
-        else:
-            layers.append(m)
-    head = nn.Sequential(*layers)
-    f = torch.flatten(model.avgpool(model.features(xr)), 1)
-    return head(f).reshape(B, n, -1)
-

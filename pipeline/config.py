@@ -89,7 +89,8 @@ class DataConfig:
     avd_root: str = _f("", doc="real data: AVD root holding instance_id_map.txt and scan folders")
     scan: str = _f("Home_001_1")
     seed: int = _f(0, lo=0)
-    skip_bad_views: bool = _f(True, doc="skip (count and log) unreadable views instead of failing")
+    skip_bad_views: bool = _f(True, doc="every stage reading the data counts, logs and skips bad entries "
+                                         "(images, boxes, poses) in its manifest; false = the first one stops the stage")
     synthetic: SyntheticDataConfig = _f(factory=SyntheticDataConfig)
 
 

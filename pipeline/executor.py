@@ -91,10 +91,10 @@ class LocalExecutor:
 
     def imap(self, fn, items, *, shared=None, desc: str = "", unit: str = "task", total=None,
              gpu: bool = False) -> Iterator:
-        from tqdm.auto import tqdm
+        from pipeline.progress import bar as progress_bar
 
         times: list[float] = []
-        with tqdm(total=total, desc=desc or None, unit=unit, disable=None, leave=False) as bar:
+        with progress_bar(total=total, desc=desc, unit=unit, leave=False) as bar:
             for item in items:
                 t = time.perf_counter()
                 out = fn(shared, item)

@@ -136,7 +136,7 @@ class RayExecutor:
              total: int | None = None, gpu: bool = False, window: int = 0) -> Iterator:
         """Results in item order. At most ``window`` tasks (default twice the slots) are submitted
         and not yet yielded, so items are read as the cluster keeps up."""
-        from tqdm.auto import tqdm
+        from pipeline.progress import bar as progress_bar
 
         ray = self._ray
         what = desc or getattr(fn, "__name__", "task")
@@ -148,7 +148,7 @@ class RayExecutor:
         ready: dict[int, Any] = {}     # finished, waiting for the earlier ones
         nxt, exhausted = 0, False
         t0, times = time.perf_counter(), []
-        bar = tqdm(total=total, desc=desc or None, unit=unit, disable=None, leave=False)
+        bar = progress_bar(total=total, desc=desc, unit=unit, leave=False)
         try:
             while True:
                 while not exhausted and len(inflight) + len(ready) < window:

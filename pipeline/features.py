@@ -38,11 +38,6 @@ def _fields(kind: str) -> list[tuple[str, Any]]:
     return head + [(c, i32) for c in BOX_COLS] + [(c, i32) for c in CROP_COLS] + tail
 
 
-def meta_columns(kind: str) -> list[str]:
-    """Per-crop columns a caller supplies (everything but ``pass`` and ``scores``)."""
-    return [n for n, _ in _fields(kind)]
-
-
 def schema(kind: str, dim: int, metadata: dict[str, str] | None = None):
     import pyarrow as pa
 

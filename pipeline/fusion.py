@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline.geometry import relative_inputs, sample_localization
 from pipeline.gp import GPClassModels
+from pipeline.labels import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
 # Elements per working array in one block (a few such arrays live at once): ~8 MB each. Blocks
 # this size keep the train-test kernel passes near the caches; more blocks cost little.
@@ -195,24 +196,12 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
         r0, r1, x0, x1 = span
         return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], Z[r0:r1], logp0, var_floor), axis=1)
 
-    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, "Model with Uncertainty"):
+    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
     acc -= math.log(Nx)
     acc = acc - logsumexp(acc, axis=-1, keepdims=True)  # exact already; removes rounding drift
     out = acc if return_log else np.exp(acc)
     return out[0] if single else out
-
-
-def fuse_with_uncertainty_sampled(models: GPClassModels, cam_estimates, sigma: float, dropout, *,
-                                  obj_xy, yaw: float, n_samples: int, seed=0, unit_circle: bool = True,
-                                  **kwargs) -> np.ndarray:
-    """Model with Uncertainty from pose estimates: draw ``n_samples`` localization samples around
-    each estimate (N(0, σ²I), one trajectory per sample), turn them into GP inputs relative to the
-    object (``obj_xy``, ``yaw``), then ``fuse_with_uncertainty``. ``cam_estimates`` (K, 2) or
-    (R, K, 2); ``seed`` an int or a ``numpy.random.Generator``."""
-    samples = sample_localization(cam_estimates, sigma, n_samples, seed)
-    return fuse_with_uncertainty(models, relative_inputs(samples, obj_xy, yaw, unit_circle=unit_circle),
-                                 dropout, **kwargs)
 
 
 # -- Model Based ---------------------------------------------------------------------------------
@@ -252,7 +241,7 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         return _recursion(ll[..., None], logp0)
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
-    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, "Model Based"):
+    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED]):
         out[r0:r1] = lp
     out = out - logsumexp(out, axis=-1, keepdims=True)
     out = out if return_log else np.exp(out)
@@ -308,13 +297,13 @@ def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progres
     from concurrent.futures import ThreadPoolExecutor
     from contextlib import nullcontext
 
-    from tqdm.auto import tqdm
-
     from pipeline.device import available_cores
+    from pipeline.progress import bar as progress_bar
 
     n = max(1, min(int(threads or available_cores()), len(spans)))
     models.factors()  # build the shared training factors once, before any worker reads them
-    bar = tqdm(total=len(spans), desc=desc, unit="block", disable=not progress or len(spans) < 2, leave=False)
+    bar = progress_bar(total=len(spans), desc=desc, unit="block", leave=False,
+                       enabled=progress and len(spans) >= 2)
     try:  # installed with scikit-learn
         from threadpoolctl import threadpool_limits
         one_blas_thread = threadpool_limits(limits=1, user_api="blas")

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipeline.cache import atomic_path, write_json
+from pipeline.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
 
 FORMAT = "viewfuse.gp_class_models"
 VERSION = 1
@@ -279,17 +279,19 @@ class GPClassModels:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         files = _file_names(self.classes)
+        digests = {}
         for c, cls in enumerate(self.classes):
             with atomic_path(folder / files[cls]) as tmp:
                 with open(tmp, "wb") as fh:  # a file object: np.savez must not append ".npz"
                     np.savez(fh, X=self.X[c], Y=self.Y[c], mean=self.mean[c], amplitude=self.amplitude[c],
                              length_scale=self.length_scale[c], noise=self.noise[c],
                              components=np.asarray(self.components, dtype=np.int64))
+                digests[files[cls]] = sha256_file(tmp)
         index = {
             "format": FORMAT, "version": VERSION, "kernel": KERNEL_TEXT,
             "classes": self.classes, "components": self.components,
             "component_names": self.component_names, "input_dim": self.input_dim,
-            "files": files, "hyperparameters": self.hyperparameters(), "meta": self.meta,
+            "files": files, "sha256": digests, "hyperparameters": self.hyperparameters(), "meta": self.meta,
         }
         for k, v in (extra or {}).items():
             if k in index:
@@ -326,11 +328,11 @@ class GPClassModels:
             path = folder / fname
             if not path.is_file():
                 raise ModelFileError(path, f"model file of class {name!r} not found")
+            _check_digest(ipath, index, fname)
             try:
-                with np.load(path, allow_pickle=False) as z:
-                    data = {k: z[k] for k in z.files}
-            except Exception as e:  # zip/format errors of a corrupt file
-                raise ModelFileError(path, f"unreadable model file: {e}") from None
+                data = load_npz(path)
+            except NpzFileError as e:
+                raise ModelFileError(path, f"unreadable model file: {e.problem}") from None
             for k in list(arrays) + ["components"]:
                 if k not in data:
                     raise ModelFileError(path, f"missing array '{k}'")
@@ -345,6 +347,26 @@ class GPClassModels:
                        component_names=index.get("component_names"), meta=index.get("meta"))
         except ValueError as e:
             raise ModelFileError(folder, f"inconsistent model files: {e}") from None
+
+
+def _check_digest(ipath: Path, index: dict, fname: str) -> None:
+    """The file's sha256 must be the one index.json recorded when the models were saved: a file
+    swapped with another class's, or rewritten, is an error naming both files."""
+    recorded = index.get("sha256")
+    if recorded is None:
+        return  # written before digests were recorded
+    if not isinstance(recorded, dict) or fname not in recorded:
+        raise ModelFileError(ipath, f"no sha256 recorded for {fname!r}")
+    path = ipath.parent / fname
+    actual = sha256_file(path)
+    if actual == recorded[fname]:
+        return
+    other = [f for f, h in recorded.items() if h == actual and f != fname]
+    if other:
+        raise ModelFileError(path, f"holds the content index.json records for {ipath.parent / other[0]} "
+                                   f"(files swapped or copied?); rerun the 'models' stage")
+    raise ModelFileError(path, f"content differs from the sha256 recorded in {ipath} "
+                               "(file changed after the models were saved); rerun the 'models' stage")
 
 
 def _whiten_rows(L: np.ndarray, V: np.ndarray) -> None:

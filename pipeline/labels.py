@@ -42,3 +42,47 @@ METRICS = {
     "log10_mgr95_overall": ("log10 MGR 95th percentile, all steps", False),
 }
 MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
+
+# Short metric names for table headers (the long ones above are for sentences and captions).
+METRIC_SHORT = {
+    "correct_final": "correct, final",
+    "correct_overall": "correct, all steps",
+    "prob_truth_final": "P(truth), final",
+    "msde_final": "MSDE, final",
+    "log10_mgr75_final": "log10 MGR 75%, final",
+    "log10_mgr95_final": "log10 MGR 95%, final",
+    "log10_mgr75_overall": "log10 MGR 75%, all steps",
+    "log10_mgr95_overall": "log10 MGR 95%, all steps",
+}
+UNKNOWN_COLOR = "#555555"
+
+
+def method_label(method: str, short: bool = False) -> str:
+    """Display name of a method key; an unknown key is shown as itself."""
+    return (METHOD_SHORT if short else METHOD_LABELS).get(method, method)
+
+
+def method_color(method: str) -> str:
+    return METHOD_COLORS.get(method, UNKNOWN_COLOR)
+
+
+def ordered_methods(present) -> list[str]:
+    """The known methods in their fixed order, then any unknown ones sorted."""
+    present = set(present)
+    return [m for m in METHODS if m in present] + sorted(present - set(METHODS))
+
+
+def class_colors(n: int) -> list[str]:
+    return [CLASS_COLORS[i % len(CLASS_COLORS)] for i in range(n)]
+
+
+def metric_label(key: str, short: bool = False) -> str:
+    if short:
+        return METRIC_SHORT.get(key, key)
+    return METRICS[key][0] if key in METRICS else key
+
+
+def comparison_label(key: str, short: bool = True) -> str:
+    """'with_uncertainty-model_based' -> 'With Uncertainty − Model Based'."""
+    a, _, b = key.partition("-")
+    return f"{method_label(a, short)} − {method_label(b, short)}" if b else key

@@ -10,8 +10,6 @@ is the ground-truth class index (an int, or an integer array broadcastable to th
 """
 from __future__ import annotations
 
-from typing import Mapping
-
 import numpy as np
 
 
@@ -110,14 +108,6 @@ def summary_row(post_track, truth, *, is_log: bool = False) -> dict[str, float]:
         "prob_truth_overall": float(np.mean(m["prob_truth"])),
         "msde_final": float(np.mean(m["msde"][..., -1])), "msde_overall": float(np.mean(m["msde"])),
     }
-
-
-def summary_table(posteriors: Mapping[str, np.ndarray], truth, *, is_log: bool = False):
-    """A pandas DataFrame, one row per method: ``posteriors`` maps method name -> (R, K, C)."""
-    import pandas as pd
-
-    rows = [{"method": name, **summary_row(p, truth, is_log=is_log)} for name, p in posteriors.items()]
-    return pd.DataFrame(rows).set_index("method")
 
 
 # exp() of a natural log above this overflows float64; such an MGR is kept only as log10.

@@ -88,17 +88,16 @@ def summarize_methods(cells: pd.DataFrame, methods: Sequence[str], metrics: Sequ
                       seed: int, per_target: bool = True) -> tuple[dict, dict]:
     """Pooled and per-target values with CIs: ({method: {metric: est}}, {target: {method: {metric: est}}})."""
     tv = track_values(cells, metrics)
-    pooled: dict = {}
-    per_target: dict = {}
+    want_targets, pooled, targets = per_target, {}, {}
     for mi, m in enumerate(methods):
         sub = tv[tv["method"] == m]
         pooled[m] = {}
         for ki, k in enumerate(metrics):
             names, groups = _groups(sub, k)
             pooled[m][k] = hierarchical(groups, n_boot, [seed, 0, ki])
-            for ti, (t, g) in enumerate(zip(names, groups) if per_target else ()):
-                per_target.setdefault(t, {}).setdefault(m, {})[k] = within(g, n_boot, [seed, 1, ti, ki])
-    return pooled, per_target
+            for ti, (t, g) in enumerate(zip(names, groups) if want_targets else ()):
+                targets.setdefault(t, {}).setdefault(m, {})[k] = within(g, n_boot, [seed, 1, ti, ki])
+    return pooled, targets
 
 
 def paired_differences(cells: pd.DataFrame, method: str, baseline: str, metrics: Sequence[str], n_boot: int,

@@ -32,10 +32,9 @@ from pipeline.config import ConfigError, SimulateConfig
 from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
 from pipeline.geometry import sample_localization
 from pipeline.gp import GPClassModels, fit_class_models
+from pipeline.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")
-WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES = "with_uncertainty", "model_based", "simple_bayes"
-METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
 N_CLASSES = 3  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)
 
 

@@ -1,4 +1,6 @@
-"""Figure helpers shared by the reports: Agg figures, atomic PNG writes, percentile bands, styles.
+"""Figure helpers shared by the reports: Agg figures, atomic PNG writes, percentile bands, labels.
+
+Method and class colours and names come from ``pipeline.labels`` (one place for the project).
 
 Figures are built on ``matplotlib.figure.Figure`` directly (no pyplot), so nothing depends on a
 display or on pyplot's global state, and a figure needs no explicit close.
@@ -14,18 +16,6 @@ from matplotlib.figure import Figure
 
 from pipeline.cache import atomic_path
 
-# One colour per method everywhere (figures and tables). Colour-blind-safe (Okabe-Ito).
-METHOD_STYLE: dict[str, dict[str, str]] = {
-    "with_uncertainty": {"color": "#0072B2", "label": "With Uncertainty (ours)"},
-    "model_based": {"color": "#D55E00", "label": "Model Based"},
-    "simple_bayes": {"color": "#009E73", "label": "Simple Bayes"},
-}
-METHOD_ORDER = ("with_uncertainty", "model_based", "simple_bayes")
-
-# Class colours for maps and legends (tab10 minus the method hues' close matches first).
-_CLASS_COLORS = ("#4C72B0", "#DD8452", "#55A868", "#C44E52", "#8172B3",
-                 "#937860", "#DA8BC3", "#8C8C8C", "#CCB974", "#64B5CD")
-
 DEFAULT_LEVELS = (10, 20, 30, 40, 50, 60, 70, 80, 90)
 
 _RC = {
@@ -40,13 +30,19 @@ _RC = {
 }
 
 
-def method_style(method: str) -> dict[str, str]:
-    """Colour and label of a method; unknown methods get grey and their own name."""
-    return METHOD_STYLE.get(method, {"color": "#555555", "label": method})
+def wrap_label(name: str, width: int = 18) -> str:
+    """A class or target name on as many lines as it needs (underscores read as spaces), never cut."""
+    import textwrap
+    return "\n".join(textwrap.wrap(str(name).replace("_", " "), width)) or str(name)
 
 
-def class_colors(n: int) -> list[str]:
-    return [_CLASS_COLORS[i % len(_CLASS_COLORS)] for i in range(n)]
+def step_ticks(ax, steps) -> None:
+    """Every step labelled on short tracks; integer ticks chosen by matplotlib on long ones."""
+    from matplotlib.ticker import MaxNLocator
+    if len(steps) <= 12:
+        ax.set_xticks(list(steps))
+    else:
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=10, integer=True))
 
 
 def _apply_rc() -> None:
@@ -61,12 +57,13 @@ def new_figure(w: float = 6.4, h: float = 4.0) -> tuple[Figure, "object"]:
 
 
 def new_subplots(nrows: int, ncols: int, w: float = 6.4, h: float = 4.0, *, sharex: bool = False,
-                 sharey: bool = False, squeeze: bool = False) -> tuple[Figure, np.ndarray]:
+                 sharey: bool = False, squeeze: bool = False, height_ratios=None) -> tuple[Figure, np.ndarray]:
     """A figure with a grid of axes (always a 2-D array unless ``squeeze``)."""
     _apply_rc()
     fig = Figure(figsize=(w, h), layout="constrained")
     FigureCanvasAgg(fig)
-    axes = fig.subplots(nrows, ncols, sharex=sharex, sharey=sharey, squeeze=squeeze)
+    axes = fig.subplots(nrows, ncols, sharex=sharex, sharey=sharey, squeeze=squeeze,
+                        height_ratios=height_ratios)
     return fig, axes
 
 
@@ -86,6 +83,9 @@ def save(fig: Figure, path, dpi: int = 110) -> None:
 def percentile_bands(ax, steps: Sequence[float], values, color: str, label: str = "",
                      levels: Sequence[float] = DEFAULT_LEVELS) -> None:
     """Nested percentile bands of ``values`` (R realizations × K steps) per step.
+
+    Steps are discrete, so bands and median are drawn as steps centred on each step (no
+    interpolated triangles between steps).
 
     ``levels`` are percentiles; they pair symmetrically around the median (10–90, 20–80, …),
     each pair shaded with the same light alpha so overlaps get darker toward the centre; the
@@ -108,9 +108,9 @@ def percentile_bands(ax, steps: Sequence[float], values, color: str, label: str 
     n = max(len(lows), 1)
     alpha = min(0.85, 1.6 / (n + 1))  # n stacked bands reach ~0.8 opacity at the centre
     for i, p in enumerate(lows):
-        ax.fill_between(x, q[p], q[100 - p], color=color, alpha=alpha, linewidth=0,
+        ax.fill_between(x, q[p], q[100 - p], step="mid", color=color, alpha=alpha, linewidth=0,
                         label=(f"{label}: {p:g}–{100 - p:g}%" if label and i == 0 else None))
-    ax.plot(x, q[50.0], color=_darken(color, 0.55), linewidth=2.0,
+    ax.plot(x, q[50.0], color=_darken(color, 0.55), linewidth=2.0, drawstyle="steps-mid",
             label=(f"{label}: median" if label else None))
 
 

@@ -8,7 +8,6 @@ the same.
 from __future__ import annotations
 
 import html
-import math
 import re
 import time
 from dataclasses import dataclass, field
@@ -16,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import atomic_path
+from reports.numbers import Estimate, fmt
 
 _CSS = """
 :root { --ink:#1d2330; --muted:#5b6475; --line:#d9dde5; --bg:#ffffff; --panel:#f6f7f9;
@@ -26,8 +26,9 @@ body { margin:0; background:var(--bg); color:var(--ink);
 header { background:#1d2a3f; color:#fff; padding:22px 32px 18px; }
 header h1 { margin:0 0 4px; font-size:26px; font-weight:600; }
 header p { margin:0; color:#c9d3e3; }
-nav { background:var(--panel); border-bottom:1px solid var(--line); padding:8px 32px; font-size:14px; }
-nav a { color:var(--accent); text-decoration:none; margin-right:18px; white-space:nowrap; }
+nav { background:var(--panel); border-bottom:1px solid var(--line); padding:8px 32px; font-size:14px;
+      display:flex; flex-wrap:wrap; gap:4px 18px; }
+nav a { color:var(--accent); text-decoration:none; white-space:nowrap; }
 nav a:hover { text-decoration:underline; }
 main { max-width:1180px; margin:0 auto; padding:8px 32px 48px; }
 section { border-bottom:1px solid var(--line); padding:10px 0 18px; }
@@ -36,22 +37,30 @@ h2 { font-size:21px; margin:18px 0 8px; color:#17325a; }
 p { margin:8px 0; max-width:920px; }
 p.note { color:var(--muted); font-size:14px; }
 p.warn { background:#fff4e0; border-left:4px solid #e09a1a; padding:6px 10px; }
-figure { margin:14px 0; display:inline-block; vertical-align:top; max-width:100%; }
+figure { margin:14px 18px 14px 0; display:inline-table; vertical-align:top; max-width:100%; }
 figure img { max-width:100%; height:auto; border:1px solid var(--line); background:#fff; }
-figcaption { color:var(--muted); font-size:13.5px; max-width:900px; margin-top:4px; }
+figcaption { display:table-caption; caption-side:bottom; color:var(--muted); font-size:13.5px;
+             margin-top:4px; }
 .tablewrap { display:inline-block; vertical-align:top; margin-right:24px; max-width:100%;
              overflow-x:auto; }
 table { border-collapse:collapse; margin:10px 0 4px; font-size:14px; }
 caption { caption-side:top; text-align:left; color:var(--muted); font-size:13.5px; padding-bottom:4px; }
 th, td { border:1px solid var(--line); padding:4px 9px; text-align:left; vertical-align:top; }
 th { background:var(--panel); font-weight:600; }
-td.num { text-align:right; font-variant-numeric:tabular-nums; font-family:ui-monospace,"DejaVu Sans Mono",monospace; }
+td.num { text-align:right; white-space:nowrap; font-size:13px; font-variant-numeric:tabular-nums; font-family:ui-monospace,"DejaVu Sans Mono",monospace; }
 tr:nth-child(even) td { background:#fbfbfc; }
 table.summary td:first-child, table.summary td:nth-child(2) { white-space:nowrap; }
 table.facts td:first-child { font-weight:600; background:var(--panel); white-space:nowrap; }
 pre { background:var(--panel); border:1px solid var(--line); padding:10px 12px; overflow-x:auto;
       font: 12.5px/1.4 ui-monospace, "DejaVu Sans Mono", monospace; max-height:520px; }
 .precap { color:var(--muted); font-size:13.5px; margin:10px 0 2px; }
+details { margin:8px 0; }
+details > summary { cursor:pointer; color:var(--accent); }
+ul.verdict { font-size:16px; margin:8px 0 12px; padding-left:22px; max-width:980px; }
+ul.verdict li { margin:3px 0; }
+p.context { font-size:16px; max-width:1000px; }
+.tag { display:inline-block; background:#e09a1a; color:#1d2330; font-weight:600; font-size:13px;
+       border-radius:3px; padding:1px 7px; margin-left:8px; vertical-align:middle; }
 footer { color:var(--muted); font-size:12.5px; padding:16px 32px; border-top:1px solid var(--line); }
 """
 
@@ -65,9 +74,12 @@ def _slug(text: str) -> str:
 
 
 def format_cell(value: Any) -> tuple[str, bool]:
-    """Cell text and whether it is numeric (right-aligned). Floats get 4 significant digits."""
+    """Cell text and whether it is numeric (right-aligned): floats and estimates via
+    ``reports.numbers`` (significant digits, one format for the whole page)."""
     if value is None:
         return "—", False
+    if isinstance(value, Estimate):
+        return value.text(), True
     if isinstance(value, bool):
         return ("yes" if value else "no"), False
     if isinstance(value, int):
@@ -77,24 +89,8 @@ def format_cell(value: Any) -> tuple[str, bool]:
             v = float(value)
         except (TypeError, ValueError):
             return str(value), False
-        if math.isnan(v):
-            return "n/a", True
-        if math.isinf(v):
-            return ("∞" if v > 0 else "−∞"), True
-        if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
-            return f"{v:.3e}", True
-        return f"{v:.4g}", True
+        return fmt(v), True
     return str(value), False
-
-
-def mgr_cell(ratio, log10) -> float | str | None:
-    """An MGR table cell: the ratio, or '1.3e+3530' built from its log10 where it overflows."""
-    if ratio is not None and math.isfinite(float(ratio)):
-        return float(ratio)
-    if log10 is not None and math.isfinite(float(log10)):
-        e = math.floor(float(log10))
-        return f"{10 ** (float(log10) - e):.3g}e+{e}"
-    return ratio
 
 
 @dataclass
@@ -111,9 +107,10 @@ class HtmlReport:
     caller). Figures are PNG names relative to the HTML file.
     """
 
-    def __init__(self, title: str, subtitle: str = ""):
+    def __init__(self, title: str, subtitle: str = "", badge: str = ""):
         self.title = title
         self.subtitle = subtitle
+        self.badge = badge  # a short tag beside the title, e.g. "synthetic data"
         self._intro: list[str] = []
         self._sections: list[_Section] = []
         self._anchors: set[str] = set()
@@ -149,7 +146,9 @@ class HtmlReport:
             f'<figure><img src="{_esc(name)}" alt="{_esc(caption)}">'
             f"<figcaption>{_esc(caption)}</figcaption></figure>")
 
-    def table(self, header: list[str], rows: list[list], caption: str = "", cls: str = "") -> None:
+    def table(self, header: list[str], rows: list[list], caption: str = "", cls: str = "",
+              collapsed: str = "") -> None:
+        """A table; with ``collapsed``, inside a closed <details> whose summary is that text."""
         width = len(header)
         for i, r in enumerate(rows):
             if len(r) != width:
@@ -170,7 +169,18 @@ class HtmlReport:
                 cells.append(f'<td class="num">{_esc(text)}</td>' if numeric else f"<td>{_esc(text)}</td>")
             out.append("<tr>" + "".join(cells) + "</tr>")
         out.append("</tbody></table></div>")
-        self._target().append("".join(out))
+        body = "".join(out)
+        if collapsed:
+            body = f"<details><summary>{_esc(collapsed)}</summary>{body}</details>"
+        self._target().append(body)
+
+    def bullets(self, items: list[str], cls: str = "", collapsed: str = "") -> None:
+        """A bulleted list; with ``collapsed``, inside a closed <details> whose summary is that text."""
+        c = f' class="{_esc(cls)}"' if cls else ""
+        body = f"<ul{c}>" + "".join(f"<li>{_esc(i)}</li>" for i in items) + "</ul>"
+        if collapsed:
+            body = f"<details><summary>{_esc(collapsed)}</summary>{body}</details>"
+        self._target().append(body)
 
     def preformatted(self, text: str, caption: str = "") -> None:
         cap = f'<div class="precap">{_esc(caption)}</div>' if caption else ""
@@ -183,7 +193,8 @@ class HtmlReport:
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
             f"<title>{_esc(self.title)}</title><style>{_CSS}</style></head><body>"
         )
-        hdr = f"<header><h1>{_esc(self.title)}</h1>"
+        tag = f'<span class="tag">{_esc(self.badge)}</span>' if self.badge else ""
+        hdr = f"<header><h1>{_esc(self.title)}{tag}</h1>"
         if self.subtitle:
             hdr += f"<p>{_esc(self.subtitle)}</p>"
         hdr += "</header>"

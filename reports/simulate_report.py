@@ -1,18 +1,18 @@
 """The simulation report (paper §5.3): figures and page for the ``simulate`` stage.
 
 Reads only what the stage wrote (``results.parquet``, ``example.parquet``, ``summary.json``,
-``models/``) and computes nothing but percentiles and GP means for the maps, so the page can be
-re-rendered from the artifacts. Same look as the main report (``reports.html``/``reports.figures``).
+``models/``, read by ``reports.artifacts`` like the main report) and computes nothing but
+percentiles, GP means for the maps and CIs over realizations (seeded bootstrap), so the page can be
+re-rendered from the artifacts. Same conventions as the main report: names and colours from
+``pipeline.labels``, MGR as log10 on linear axes, every table value with its 95 % CI.
 
 Figures: class maps (model points, track, biased estimates); the measurements over the track for
 the example realization (paper Figs. 2 and 4); percentile bands over realizations per step of
-P(truth), log MGR and MSDE, each method against Model with Uncertainty (paper Figs. 3 and 5).
+P(truth), log10 MGR and MSDE, each method against With Uncertainty (paper Figs. 3 and 5).
 """
 from __future__ import annotations
 
-import json
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,178 +20,26 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from loaders.errors import BadInputError
-from reports.results_io import read_result_table
-from pipeline.metrics import percentile
-from pipeline.simulation import summarize
-
-from reports.figures import class_colors, method_style, new_subplots, percentile_bands, save
-from reports.html import HtmlReport, mgr_cell
+from pipeline.labels import MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
+from reports.artifacts import load_simulate
+from reports.figures import new_subplots, percentile_bands, save
+from reports.html import HtmlReport
+from reports.simulate_findings import OTHERS, OURS, findings, findings_text, matrix
+from reports.stats import BOOTSTRAP, track_summary
 
 log = logging.getLogger("viewfuse.simulate")
 
-OURS = "with_uncertainty"
-OTHERS = ("model_based", "simple_bayes")
 SCENARIO_TITLES = {
     "model_uncertainty": "Model uncertainty (Algorithm 2), exact poses",
     "localization_bias": "Localization bias, no model uncertainty",
 }
-RESULT_COLUMNS = ("scenario", "realization", "step", "method", "posterior", "p_truth", "log_mgr", "msde", "correct")
-EXAMPLE_COLUMNS = ("scenario", "step", "component", "true_x", "true_y", "est_x", "est_y", "nominal", "noised",
-                   "sigma_u2", "samples", "class_mean", "class_std", "class_mean_est")
-CONFIDENT = 0.9   # "confidently wrong": a wrong class holds at least this posterior
-
-
-@dataclass
-class SimOutputs:
-    results: pd.DataFrame
-    example: pd.DataFrame
-    meta: dict
-    summary: dict
-
-    @property
-    def classes(self) -> list[str]:
-        return list(self.meta.get("classes") or self.summary.get("classes") or [])
-
-    @property
-    def truth(self) -> int:
-        return int(self.meta.get("truth", self.summary.get("truth", 0)))
+TABLE = ("correct_final", "correct_overall", "log10_mgr95_final", "log10_mgr95_overall")
 
 
 @dataclass
 class ReportResult:
     index: Path
     figures: list[str] = field(default_factory=list)
-
-
-# -- loading ----------------------------------------------------------------------------------------
-def _read_parquet(path: Path, required: tuple[str, ...]) -> tuple[pd.DataFrame, dict]:
-    return read_result_table(path, required, missing_hint="run `viewfuse simulate` first")
-
-
-def load_simulate(folder: str | Path) -> SimOutputs:
-    d = Path(folder)
-    df, meta = _read_parquet(d / "results.parquet", RESULT_COLUMNS)
-    ex, _ = _read_parquet(d / "example.parquet", EXAMPLE_COLUMNS)
-    summary: dict = {}
-    sp = d / "summary.json"
-    if sp.is_file():
-        try:
-            summary = json.loads(sp.read_text())
-        except json.JSONDecodeError as e:
-            raise BadInputError(sp, f"not valid JSON: {e}") from None
-    return SimOutputs(df, ex, meta, summary)
-
-
-# -- numbers --------------------------------------------------------------------------------------------
-def matrix(df: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray]:
-    """(steps (K,), values (R, K)) of one method's rows."""
-    piv = df.pivot(index="realization", columns="step", values=column).sort_index(axis=1)
-    return piv.columns.to_numpy(), piv.to_numpy(float)
-
-
-def column_percentile(v: np.ndarray, q: float) -> np.ndarray:
-    """Per-step (column) percentile of (R, K) values, +inf (underflowed P(truth)) kept as a value."""
-    return np.array([float(percentile(v[:, j], q)) for j in range(v.shape[1])])
-
-
-def inverse_steps(ex: pd.DataFrame, scenario: str, truth: int) -> list[int]:
-    """Steps where the truth's GP mean score vector (at the true pose) favours another class."""
-    e = ex[ex["scenario"] == scenario]
-    out = []
-    for k, g in e.groupby("step"):
-        means = np.array([m[truth] for m in g.sort_values("component")["class_mean"]])
-        if int(np.argmax(means)) != truth:
-            out.append(int(k))
-    return out
-
-
-def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int) -> dict[str, Any]:
-    """Numbers behind the paper's qualitative findings, per scenario present."""
-    out: dict[str, Any] = {}
-    for scenario, g in df.groupby("scenario", sort=False):
-        s: dict[str, Any] = {}
-        for method, gm in g.groupby("method", sort=False):
-            steps, pt = matrix(gm, "p_truth")
-            _, lm = matrix(gm, "log_mgr")
-            wrong_conf = (pt <= (1 - CONFIDENT)) & (lm > math.log(CONFIDENT / (1 - CONFIDENT)))
-            q10, q25, q50, q75, q90 = np.percentile(pt, [10, 25, 50, 75, 90], axis=0)
-            s[method] = {
-                "ptruth_band_10_90_mean": float(np.mean(q90 - q10)),
-                "ptruth_iqr_mean": float(np.mean(q75 - q25)),
-                "ptruth_median_final": float(q50[-1]),
-                "ptruth_median_min": float(q50.min()),
-                "ptruth_median_argmin_step": int(steps[int(np.argmin(q50))]),
-                "confident_wrong_final": float(wrong_conf[:, -1].mean()),
-                "confident_wrong_any_step": float(wrong_conf.any(axis=1).mean()),
-                "confident_wrong_overall": float(wrong_conf.mean()),
-                "log_mgr_p90_max": float(np.max(column_percentile(lm, 90))),
-            }
-        inv = inverse_steps(ex, scenario, truth)
-        s["inverse_steps"] = inv
-        if inv:
-            first, last = inv[0], inv[-1]
-            for method, gm in g.groupby("method", sort=False):
-                steps, pt = matrix(gm, "p_truth")
-                med = np.median(pt, axis=0)
-                before = float(med[max(first - 1, 0)])
-                window = med[first: min(last + 3, len(med))]
-                s[method]["median_before_inverse"] = before
-                s[method]["median_min_at_inverse"] = float(window.min())
-                s[method]["median_drop_at_inverse"] = before - float(window.min())
-                _, lm = matrix(gm, "log_mgr")
-                p90 = column_percentile(lm, 90)
-                s[method]["log_mgr_p90_before_inverse"] = float(p90[max(first - 1, 0)])
-                s[method]["log_mgr_p90_max_at_inverse"] = float(p90[first: min(last + 3, len(p90))].max())
-        out[scenario] = s
-    return out
-
-
-def findings_text(found: dict[str, Any]) -> list[str]:
-    """Plain-language checks of the paper's three qualitative findings, with the numbers."""
-    lines = []
-    mu = found.get("model_uncertainty")
-    if mu:
-        w = {m: mu[m]["ptruth_band_10_90_mean"] for m in (OURS,) + OTHERS if m in mu}
-        narrower = all(w[OURS] < w[m] for m in OTHERS if m in w)
-        lines.append(
-            f"Model uncertainty — P(truth) percentiles: mean 10–90% band width {w.get(OURS, float('nan')):.2f} "
-            f"(ours; {'the narrowest' if narrower else 'not the narrowest'}) vs "
-            + ", ".join(f"{w[m]:.2f} ({method_style(m)['label']})" for m in OTHERS if m in w)
-            + "; 90th percentile of log MGR at its worst step: "
-            + ", ".join(f"{mu[m]['log_mgr_p90_max']:.2f} ({method_style(m)['label']})"
-                        for m in (OURS,) + OTHERS if m in mu)
-            + "; confidently wrong (a wrong class ≥ 0.9) over all steps / at some step of a realization: "
-            + ", ".join(f"{100 * mu[m]['confident_wrong_overall']:.1f}% / "
-                        f"{100 * mu[m]['confident_wrong_any_step']:.0f}% ({method_style(m)['label']})"
-                        for m in (OURS,) + OTHERS if m in mu) + ".")
-        if mu.get("inverse_steps") and "simple_bayes" in mu:
-            sb, inv = mu["simple_bayes"], mu["inverse_steps"]
-            ours = mu.get(OURS, {})
-            lines.append(
-                f"Model uncertainty — Simple Bayes at the inverse view (steps {inv[0]}–{inv[-1]}, where the "
-                f"truth looks like another class): its median P(truth) falls from "
-                f"{sb['median_before_inverse']:.2f} to {sb['median_min_at_inverse']:.2f} "
-                f"(drop {sb['median_drop_at_inverse']:.2f}); ours goes {ours.get('median_before_inverse', float('nan')):.2f}"
-                f" → {ours.get('median_min_at_inverse', float('nan')):.2f}, Model Based "
-                f"{mu.get('model_based', {}).get('median_before_inverse', float('nan')):.2f} → "
-                f"{mu.get('model_based', {}).get('median_min_at_inverse', float('nan')):.2f}. The 90th "
-                f"percentile of Simple Bayes' log MGR rises from {sb['log_mgr_p90_before_inverse']:.2f} to "
-                f"{sb['log_mgr_p90_max_at_inverse']:.2f} there (ours: "
-                f"{ours.get('log_mgr_p90_before_inverse', float('nan')):.2f} → "
-                f"{ours.get('log_mgr_p90_max_at_inverse', float('nan')):.2f}).")
-    lb = found.get("localization_bias")
-    if lb and "model_based" in lb:
-        mb, ours = lb["model_based"], lb.get(OURS, {})
-        lines.append(
-            f"Localization bias — Model Based is confidently wrong (a wrong class ≥ 0.9) in "
-            f"{100 * mb['confident_wrong_any_step']:.0f}% of realizations at some step and "
-            f"{100 * mb['confident_wrong_final']:.0f}% at the last step; its median P(truth) bottoms at "
-            f"{mb['ptruth_median_min']:.2f} (step {mb['ptruth_median_argmin_step']}). Ours: "
-            f"{100 * ours.get('confident_wrong_any_step', float('nan')):.0f}% / "
-            f"{100 * ours.get('confident_wrong_final', float('nan')):.0f}%, median P(truth) ≥ "
-            f"{ours.get('ptruth_median_min', float('nan')):.2f}.")
-    return lines
 
 
 # -- figures ----------------------------------------------------------------------------------------------
@@ -213,11 +61,10 @@ def fig_bands_vs(df: pd.DataFrame, column: str, ylabel: str, title: str):
     fig, axes = new_subplots(1, len(others), w=0.8 + 4.2 * len(others), h=3.6, sharey=True)
     mats = {m: matrix(df[df["method"] == m], column) for m in (OURS,) + tuple(others)}
     for ax, m in zip(axes[0], others):
-        for name in (m, OURS):  # ours drawn last, on top
+        for name in (m, OURS):  # With Uncertainty drawn last, on top
             steps, v = mats[name]
-            st = method_style(name)
-            percentile_bands(ax, steps, _finite_cap(v), st["color"], label=st["label"])
-        ax.set_title(f"{method_style(m)['label']} vs {method_style(OURS)['label']}")
+            percentile_bands(ax, steps, _finite_cap(v), method_color(name), label=method_label(name, short=True))
+        ax.set_title(f"{method_label(m)} vs\n{method_label(OURS)}", fontsize=9.5)
         ax.set_xlabel("track step k")
         _int_steps(ax)
         ax.legend(loc="best", fontsize=7)
@@ -257,7 +104,7 @@ def fig_measurements(ex: pd.DataFrame, scenario: str, classes: list[str], truth:
         if max(len(s) for s in samples) > 1:
             xs = np.concatenate([np.full(len(s), kk) for kk, s in zip(k, samples)])
             ys = np.concatenate([np.asarray(s, float) for s in samples])
-            ax.scatter(xs, ys, s=5, color="#888888", alpha=0.45, lw=0, label="samples (ours)")
+            ax.scatter(xs, ys, s=5, color="#888888", alpha=0.45, lw=0, label="samples (With Uncertainty)")
         ax.plot(k, g["nominal"], "kx", ms=5, label="nominal")
         if not np.allclose(g["noised"], g["nominal"]):
             ax.plot(k, g["noised"], "o", mfc="none", mec="#D55E00", ms=5, label="noised (MB, SB)")
@@ -274,7 +121,6 @@ def fig_class_maps(models, true_xy: np.ndarray, est_xy: np.ndarray | None, class
     """Per class: which class its GP mean score vector favours around the object (colour), its
     margin (opacity), the model points, the track and the biased estimates."""
     from matplotlib.colors import to_rgb
-    from matplotlib.patches import Patch
 
     pts_all = np.concatenate([models.X[0], true_xy] + ([est_xy] if est_xy is not None else []))
     lim = float(np.abs(pts_all).max()) * 1.08
@@ -283,7 +129,7 @@ def fig_class_maps(models, true_xy: np.ndarray, est_xy: np.ndarray | None, class
     mean, _ = models.marginal(np.stack([gx.ravel(), gy.ravel()], -1))   # (G², C, F)
     C = len(classes)
     colors = np.array([to_rgb(c) for c in class_colors(C)])
-    fig, axes = new_subplots(1, C, w=0.8 + 3.6 * C, h=3.8, sharey=True)
+    fig, axes = new_subplots(2, C, w=0.8 + 3.6 * C, h=4.6, height_ratios=[1.0, 0.09 * C + 0.08])
     for c in range(C):
         ax = axes[0, c]
         m = mean[:, c, :]                                  # (G², F): class c's expected scores
@@ -307,114 +153,138 @@ def fig_class_maps(models, true_xy: np.ndarray, est_xy: np.ndarray | None, class
         ax.grid(False)
     axes[0, 0].set_ylabel("y (north)")
     axes[0, 0].legend(loc="lower left", fontsize=6.5)
-    handles = [Patch(color=colors[c], label=f"looks like {n}") for c, n in enumerate(classes)]
-    fig.legend(handles=handles, loc="outside lower center", ncol=C, fontsize=7.5)
+    gs = axes[1, 0].get_gridspec()
+    for ax in axes[1]:
+        ax.remove()
+    _class_map_key(fig.add_subplot(gs[1, :]), classes, colors)
     fig.suptitle("What each class looks like around the object (colour: highest expected score; "
                  "pale: ambiguous); dots: model points")
     return fig
 
 
+def _class_map_key(ax, classes: list[str], colors: np.ndarray) -> None:
+    """The class maps' colour scale: per class (row), the colour vs the score margin it encodes."""
+    margin = np.linspace(0.0, 0.5, 101)
+    strength = np.clip(margin / 0.4, 0.15, 1.0)
+    rgb = 1 - strength[None, :, None] * (1 - colors[:, None, :])
+    ax.grid(False)
+    ax.imshow(rgb, aspect="auto", extent=(0.0, 0.5, len(classes) - 0.5, -0.5), interpolation="nearest")
+    ax.set_yticks(range(len(classes)))
+    ax.set_yticklabels([f"looks like {n}" for n in classes], fontsize=7.5)
+    ax.set_xlabel("score margin of the favoured class over the next (colour scale; pale = ambiguous)")
+
+
 # -- page ---------------------------------------------------------------------------------------------------
 METRICS = (
     ("p_truth", "P(ground-truth class)", "P(truth)"),
-    ("log_mgr", "log MGR = log(max_c P(c) / P(truth))", "log MGR"),
+    ("log10_mgr", MGR_AXIS_LABEL, "log10 MGR"),
     ("msde", "MSDE", "MSDE"),
 )
 
 
-def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int = 110, run_name: str = "",
-                          progress: bool = True) -> ReportResult:
-    """Render ``out_dir/index.html`` and its PNGs from the simulate stage's outputs."""
-    from tqdm.auto import tqdm
+def _example_poses(ex: pd.DataFrame, scenarios: list[str]) -> tuple[np.ndarray, np.ndarray | None]:
+    """True poses of the track and, where a scenario biases them, the estimates."""
+    e0 = ex[ex["component"] == 0].sort_values(["scenario", "step"])
+    true_xy = e0[e0["scenario"] == scenarios[0]][["true_x", "true_y"]].to_numpy(float)
+    est = None
+    for s in scenarios:
+        es = e0[e0["scenario"] == s][["est_x", "est_y"]].to_numpy(float)
+        if not np.allclose(es, true_xy):
+            est = es
+    return true_xy, est
 
+
+def _plan(so, sim_dir: Path, scenarios: list[str]) -> list[tuple[str, Any]]:
     from pipeline.gp import GPClassModels
 
-    sim_dir, out = Path(sim_dir), Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    so = load_simulate(sim_dir)
     df, ex, classes, truth = so.results, so.example, so.classes, so.truth
-    scenarios = list(dict.fromkeys(df["scenario"]))
-    models = GPClassModels.load(sim_dir / "models") if (sim_dir / "models" / "index.json").is_file() else None
-
     plan: list[tuple[str, Any]] = []
-    if models is not None:
-        e0 = ex[(ex["component"] == 0)].sort_values(["scenario", "step"])
-        first = e0[e0["scenario"] == scenarios[0]]
-        true_xy = first[["true_x", "true_y"]].to_numpy(float)
-        est = None
-        for s in scenarios:
-            es = e0[e0["scenario"] == s][["est_x", "est_y"]].to_numpy(float)
-            if not np.allclose(es, true_xy):
-                est = es
+    if (sim_dir / "models" / "index.json").is_file():
+        models = GPClassModels.load(sim_dir / "models")
+        true_xy, est = _example_poses(ex, scenarios)
         plan.append(("class_maps.png", lambda: fig_class_maps(models, true_xy, est, classes, truth)))
     for s in scenarios:
         plan.append((f"{s}_measurements.png", lambda s=s: fig_measurements(ex, s, classes, truth)))
         sub = df[df["scenario"] == s]
         for col, ylabel, short in METRICS:
             plan.append((f"{s}_{col}.png", lambda sub=sub, col=col, ylabel=ylabel, short=short, s=s: fig_bands_vs(
-                sub, col, ylabel, f"{short} per step, percentiles 10–90% in 10% steps — "
-                                  f"{SCENARIO_TITLES.get(s, s)}")))
-    written = []
-    for name, build in tqdm(plan, desc="simulate figures", unit="fig", disable=not progress):
-        save(build(), out / name, dpi)
-        written.append(name)
+                sub, col, ylabel, f"{short} per step, percentiles 10–90 % — {SCENARIO_TITLES.get(s, s)}")))
+    return plan
 
+
+def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
     cfg = so.summary.get("config", {})
-    page = HtmlReport("viewfuse simulation scenarios",
-                      " · ".join(x for x in (f"run {run_name}" if run_name else "", "paper §5.3",
-                                             f"seed {so.meta.get('seed', '?')}") if x))
+    classes, truth = so.classes, so.truth
     page.section("Overview", anchor="overview")
-    R = int(df["realization"].nunique())
-    K = int(df["step"].nunique())
     facts = [["classes", ", ".join(classes)], ["ground truth", classes[truth] if classes else str(truth)],
              ["realizations per scenario", R], ["track steps K", K]]
     if cfg:
         facts += [["track", f"from ({cfg['track_start'][0]:g}, {cfg['track_start'][1]:g}) east over "
                             f"{cfg['track_length']:g} units; object at the origin"],
                   ["model uncertainty", f"σ_u² ~ U(0, {cfg['sigma_max']:g}²), N_s = {cfg['n_samples']}"],
-                  ["localization bias", f"{cfg['bias_east']:+g} units easting; ours told σ = {cfg['sigma_loc']:g}, "
-                                        f"N_x = {cfg['n_loc_samples']}"]]
+                  ["localization bias", f"{cfg['bias_east']:+g} units easting; With Uncertainty told "
+                                        f"σ = {cfg['sigma_loc']:g}, N_x = {cfg['n_loc_samples']}"]]
     facts.append(["config hash (simulate)", so.meta.get("config_hash", "—")])
     page.table(["", ""], facts, cls="facts")
     page.paragraph(
-        "Three classes with hand-specified, viewpoint-dependent score vectors, turned into one GP per "
-        "(class, score component) on plain 2D positions around the object. A robot drives east past "
-        "the object; at every step it gets a measurement drawn from the ground-truth class's GP, "
-        "conditioned on what it drew before. 'With Uncertainty' (ours) gets N_s samples and, under the "
-        "bias, pose samples; 'Model Based' trusts the one measurement and the pose estimate; 'Simple "
-        "Bayes' multiplies the scores (clipped to a small floor and renormalised, since a Gaussian "
-        "measurement can leave the simplex). MGR = max_c P(c) / P(truth): 1 when the truth is the most "
-        "likely class; its 95th percentile measures confident misclassification.")
+        "Three classes with hand-specified, viewpoint-dependent score vectors, turned into one GP per (class, score "
+        "component) on plain 2D positions around the object. A robot drives east past the object; at every step it "
+        f"gets a measurement drawn from the ground-truth class's GP, conditioned on what it drew before. "
+        f"'{method_label(OURS)}' gets N_s samples and, under the bias, pose samples; '{method_label(MODEL_BASED)}' "
+        f"trusts the one measurement and the pose estimate; '{method_label(SIMPLE_BAYES)}' multiplies the scores "
+        "(clipped to a small floor and renormalised, since a Gaussian measurement can leave the simplex). "
+        f"{MGR_AXIS_LABEL}: 0 when the truth is the most likely class; its 95th percentile measures confident "
+        "misclassification.")
     if "class_maps.png" in written:
-        page.figure("class_maps.png", "Class models: the colour shows which class each class's GP mean "
-                    "score vector favours at that position (paler = more ambiguous). Class 2 (the truth) "
-                    "looks like class 1 from the south (the inverse view); class 3 has that look a little "
-                    "further west, so a westward pose bias can alias class 2 into class 3.")
+        page.figure("class_maps.png", "Class models: the colour shows which class each class's GP mean score "
+                    "vector favours at that position (paler = more ambiguous). Class 2 (the truth) looks like "
+                    "class 1 from the south (the inverse view); class 3 has that look a little further west, so a "
+                    "westward pose bias can alias class 2 into class 3.")
 
-    tab = summarize(df)
-    found = findings(df, ex, truth)
+
+def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int) -> None:
+    page.section(SCENARIO_TITLES.get(s, s), anchor=s)
+    page.figure(f"{s}_measurements.png", "Measurements along the track for one realization (paper Figs. 2/4). "
+                "Lines: GP means of each class at the true poses (the truth's ±1 std shaded)"
+                + ("; dashed: at the biased pose estimates that Model Based uses" if s == "localization_bias" else "")
+                + ". Crosses: nominal draws; circles: noised measurements; grey dots: samples.")
+    for col, _, short in METRICS:
+        page.figure(f"{s}_{col}.png", f"{short} per step over {R} realizations: nested 10–90 %, 20–80 %, 30–70 %, "
+                    "40–60 % bands and the median, drawn as steps, each method against With Uncertainty "
+                    "(paper Figs. 3/5).")
+    cell = summ.get(s) or {"methods": {}}
+    page.table(["method"] + [metric_label(k, short=True) for k in TABLE],
+               [[method_label(m, short=True)] + [est[k] for k in TABLE] for m, est in cell["methods"].items()],
+               cls="summary", caption=f"{SCENARIO_TITLES.get(s, s)}: value [95 % CI] over {R} realizations "
+                                      f"(bootstrap, {n_boot} resamples, seeded); MGR as log10.")
+
+
+def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int = 110, run_name: str = "",
+                          progress: bool = True, n_boot: int = BOOTSTRAP) -> ReportResult:
+    """Render ``out_dir/index.html`` and its PNGs from the simulate stage's outputs."""
+    from tqdm.auto import tqdm
+
+    sim_dir, out = Path(sim_dir), Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    so = load_simulate(sim_dir)
+    df, ex = so.results, so.example
+    scenarios = list(dict.fromkeys(df["scenario"]))
+    written = []
+    for name, build in tqdm(_plan(so, sim_dir, scenarios), desc="simulate figures", unit="fig",
+                            disable=not progress):
+        save(build(), out / name, dpi)
+        written.append(name)
+    page = HtmlReport("viewfuse simulation scenarios",
+                      " · ".join(x for x in (f"run {run_name}" if run_name else "", "paper §5.3",
+                                             f"seed {so.meta.get('seed', '?')}") if x), badge="simulated data")
+    R, K = int(df["realization"].nunique()), int(df["step"].nunique())
+    _overview(page, so, R, K, written)
+    summ = track_summary(df, n_boot=n_boot, seed=int(so.meta.get("seed", 0) or 0), by="scenario")
     for s in scenarios:
-        page.section(SCENARIO_TITLES.get(s, s), anchor=s)
-        page.figure(f"{s}_measurements.png", "Measurements along the track for one realization (paper "
-                    "Figs. 2/4). Lines: GP means of each class at the true poses (the truth's ±1 std shaded)"
-                    + ("; dashed: at the biased pose estimates that Model Based uses" if s == "localization_bias" else "")
-                    + ". Crosses: nominal draws; circles: noised measurements; grey dots: samples.")
-        for col, _, short in METRICS:
-            page.figure(f"{s}_{col}.png", f"{short} per step over {R} realizations: nested 10–90%, 20–80%, "
-                        "30–70%, 40–60% bands and the median, each method against With Uncertainty (paper "
-                        "Figs. 3/5).")
-        t = tab[tab["scenario"] == s]
-        page.table(["method", "correct final", "correct overall", "MGR 75% final", "MGR 95% final",
-                    "MGR 75% overall", "MGR 95% overall"],
-                   [[method_style(r["method"])["label"], r["correct_final"], r["correct_overall"]]
-                    + [mgr_cell(r[k], r[f"log10_{k}"])
-                       for k in ("mgr75_final", "mgr95_final", "mgr75_overall", "mgr95_overall")]
-                    for _, r in t.iterrows()],
-                   caption=f"{SCENARIO_TITLES.get(s, s)}: correct ratio and MGR percentiles "
-                           f"(final step and all steps), {R} realizations", cls="summary")
+        _scenario_section(page, s, summ, R, n_boot)
     page.section("Findings", anchor="findings")
     page.paragraph("The paper's qualitative findings, checked on these runs:")
-    for line in findings_text(found):
+    for line in findings_text(findings(df, ex, so.truth)):
         page.paragraph(line)
     fits = so.summary.get("gp_fit") or []
     if fits:

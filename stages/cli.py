@@ -1,15 +1,73 @@
-"""``viewfuse <stage>``: run one pipeline stage (and whatever it needs that is stale)."""
+"""``viewfuse <stage>``: run one pipeline stage (and whatever it needs that is stale);
+``viewfuse status``: what is up to date, stale (and why) or missing, without running anything."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 
-from pipeline.config import ConfigError, load_config, parse_override, _merge
+from pipeline.config import Config, ConfigError, load_config, parse_override, _merge
 from stages.registry import ORDER, STAGES
-from stages.runner import StageNotImplemented, ensure
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
+
+
+def version() -> str:
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+    try:
+        return dist_version("viewfuse")
+    except PackageNotFoundError:  # run from a checkout without installing
+        return "unknown (not installed)"
+
+
+def config_keys_help(section: str) -> str:
+    """One line per config key a stage reads: a section (nested sections dotted) or, dotted, one
+    key (``evaluate.targets``); each with its default, range or choices and its doc."""
+    lines: list[str] = []
+
+    def line(f: dataclasses.Field, value, name: str) -> str:
+        md = f.metadata
+        rng = ""
+        if md.get("choices"):
+            rng = " one of " + "|".join(map(str, md["choices"]))
+        elif md.get("lo") is not None or md.get("hi") is not None:
+            lo, hi = md.get("lo"), md.get("hi")
+            rng = f" in [{'' if lo is None else lo}, {'' if hi is None else hi}]"
+        doc = f": {md['doc']}" if md.get("doc") else ""
+        shown = list(value) if isinstance(value, tuple) else value
+        return f"  {name} = {shown!r}{rng}{doc}"
+
+    def walk(obj, prefix: str) -> None:
+        for f in dataclasses.fields(obj):
+            if f.metadata.get("internal"):
+                continue
+            value = getattr(obj, f.name)
+            if dataclasses.is_dataclass(value):
+                walk(value, f"{prefix}{f.name}.")
+            else:
+                lines.append(line(f, value, prefix + f.name))
+
+    parent_path, _, last = section.rpartition(".")
+    parent = Config().section(parent_path) if parent_path else Config()
+    value = getattr(parent, last)
+    if dataclasses.is_dataclass(value):
+        walk(value, f"{section}.")
+    else:
+        f = next(f for f in dataclasses.fields(parent) if f.name == last)
+        lines.append(line(f, value, section))
+    return "\n".join(lines)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", default=DEFAULT_CONFIG, help=f"TOML config (default: {DEFAULT_CONFIG})")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value, e.g. --set evaluate.randomized.realizations=50")
+    p.add_argument("--progress", choices=("auto", "on", "off"), default="auto",
+                   help="progress bars: auto = on a terminal only (a log gets a few plain lines), "
+                        "on = always, off = none")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -18,49 +76,84 @@ def build_parser() -> argparse.ArgumentParser:
         description="Spatially-dependent Bayesian semantic perception: BigBIRD-trained viewpoint "
                     "GP class models, fused along an AVD track under model and localization "
                     "uncertainty. Each stage reruns its stale upstream stages first and is skipped "
-                    "when its manifest is up to date.",
+                    "when its manifest is up to date (same config, code, upstream outputs and "
+                    "input files). 'viewfuse <stage> --help' lists that stage's config keys.",
         epilog="stages: " + "; ".join(f"{n}: {STAGES[n].help}" for n in ORDER),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("stage", choices=ORDER, help="stage to run")
-    p.add_argument("--config", default=DEFAULT_CONFIG, help=f"TOML config (default: {DEFAULT_CONFIG})")
-    p.add_argument("--force", action="store_true", help="rerun this stage even if its manifest is up to date")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
-                   help="torch device (default: config run.device; auto = cuda when present)")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: config run.threads; 0 = all cores)")
-    p.add_argument("--executor", choices=("local", "ray"), default=None,
-                   help="where features and evaluate run their tasks (default: config run.executor; "
-                        "ray: local Ray instance, or the cluster in run.ray_address)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set evaluate.randomized.realizations=50")
-    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    p.add_argument("--version", action="version", version=f"viewfuse {version()}")
+    sub = p.add_subparsers(dest="stage", metavar="STAGE", required=True)
+    for name in ORDER:
+        spec = STAGES[name]
+        keys = "config keys this stage reads:\n" + "\n".join(config_keys_help(s) for s in spec.sections)
+        sp = sub.add_parser(name, help=spec.help, description=f"{name}: {spec.help}. Needs: "
+                            f"{', '.join(spec.upstream) or 'nothing upstream'}.", epilog=keys,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
+        _common(sp)
+        sp.add_argument("--force", action="store_true", help="rerun this stage even if its manifest is up to date")
+        sp.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
+                        help="torch device (default: config run.device; auto = cuda when present)")
+        sp.add_argument("--threads", type=int, default=None,
+                        help="torch threads, 0..256 like run.threads (default: config run.threads; 0 = all cores)")
+        sp.add_argument("--executor", choices=("local", "ray"), default=None,
+                        help="where features and evaluate run their tasks (default: config run.executor; "
+                             "ray: local Ray instance, or the cluster in run.ray_address)")
+    st = sub.add_parser("status", help="each stage: up to date, stale (and why) or missing; runs nothing",
+                        description="Show, for every stage, whether its outputs are up to date for the "
+                                    "config, code and inputs, stale (with the reason) or missing.")
+    _common(st)
     return p
+
+
+def _load(args) -> Config:
+    overrides: dict = {}
+    for o in args.overrides:
+        overrides = _merge(overrides, parse_override(o))
+    # --device/--threads are config values given on the command line: validated the same way.
+    if getattr(args, "device", None) is not None:
+        overrides = _merge(overrides, {"run": {"device": args.device}})
+    if getattr(args, "threads", None) is not None:
+        overrides = _merge(overrides, {"run": {"threads": args.threads}})
+    if getattr(args, "executor", None) is not None:
+        overrides = _merge(overrides, {"run": {"executor": args.executor}})
+    return load_config(args.config, overrides or None)
+
+
+def status(cfg: Config) -> int:
+    from stages.runner import plan
+    memo: dict = {}
+    width = max(map(len, ORDER))
+    for name in ORDER:
+        try:
+            s = plan(cfg, name, memo)
+            line = s["state"] + (f": {s['why']}" if s["state"] == "stale" else "")
+        except (OSError, ValueError) as e:
+            line = f"unknown: {e}"
+        print(f"{name:<{width}}  {line}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
+    from pipeline import progress
+    progress.set_mode(args.progress)
     try:
-        overrides: dict = {}
-        for o in args.overrides:
-            overrides = _merge(overrides, parse_override(o))
-        if args.executor:
-            overrides = _merge(overrides, {"run": {"executor": args.executor}})
-        cfg = load_config(args.config, overrides or None)
+        cfg = _load(args)
     except ConfigError as e:
         print(f"viewfuse: config error: {e}", file=sys.stderr)
         return 2
-    device = args.device or cfg.run.device
-    threads = cfg.run.threads if args.threads is None else args.threads
+    if args.stage == "status":
+        return status(cfg)
+    from stages.runner import ensure, remove_orphans
     try:
-        keys: dict[str, str] = {}
-        ensure(cfg, args.stage, force=args.force, device=device, threads=threads, _keys=keys)
-        for after in STAGES[args.stage].after:
-            ensure(cfg, after, device=device, threads=threads, _keys=keys)
-    except StageNotImplemented as e:
-        print(f"viewfuse: {e}", file=sys.stderr)
-        return 3
+        with progress.redirect_logging():
+            remove_orphans(cfg)
+            keys: dict[str, str] = {}
+            ensure(cfg, args.stage, force=args.force, device=cfg.run.device, threads=cfg.run.threads, _keys=keys)
+            for after in STAGES[args.stage].after:
+                ensure(cfg, after, device=cfg.run.device, threads=cfg.run.threads, _keys=keys)
     except KeyboardInterrupt:
         print("viewfuse: interrupted; partial outputs were discarded", file=sys.stderr)
         return 130

@@ -18,10 +18,10 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from tqdm import tqdm
-
 from loaders.errors import BadInputError
 from pipeline.cache import tree_fingerprint, write_json
+from pipeline.outputs import name as out_name
+from pipeline.progress import bar as progress_bar
 
 CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
 
@@ -32,7 +32,7 @@ def data_roots(cfg) -> tuple[Path, Path]:
     if cfg.data.source == "real":
         return cfg.resolve(cfg.data.bigbird_root), cfg.resolve(cfg.data.avd_root)
     d = cfg.stage_dir("data")
-    return d / "bigbird", d / "avd"
+    return d / out_name("data", "bigbird"), d / out_name("data", "avd")
 
 
 def extra_key(cfg) -> str:
@@ -100,11 +100,29 @@ def _check_real(ctx) -> str:
     n_images = sum(1 for p in (scan / "jpg_rgb").iterdir() if p.suffix.lower() == ".jpg")
     if n_images == 0:
         raise BadInputError(scan / "jpg_rgb", "holds no .jpg image")
-    write_json(ctx.out / "roots.json", {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
+    _validate_real(ctx, bb, avd, objects)
+    write_json(ctx.out / out_name("data", "roots"), {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
                                         "scan": cfg.data.scan, "bigbird_objects": objects,
                                         "avd_images": n_images})
     ctx.extra.update({"bigbird_objects": len(objects), "avd_images": n_images})
     return f"real data: {len(objects)} BigBIRD objects in {bb}; {cfg.data.scan}: {n_images} images in {avd}"
+
+
+def _validate_real(ctx, bb: Path, avd: Path, objects: list[str]) -> None:
+    """Read what is cheap to read up front, so a malformed file stops the run here and not after
+    minutes of scoring: the instance map, annotations.json, image_structs.mat and every box
+    (malformed files always raise; bad single entries follow data.skip_bad_views), and each
+    object's calibration (folders with views but no calibration.h5 follow the skip policy)."""
+    from loaders.avd import AVDScan
+    from loaders.bigbird import BigBirdObject, uncalibrated_objects
+
+    cfg = ctx.cfg
+    for calib in uncalibrated_objects(bb):
+        ctx.skips.handle(BadInputError(calib, "object folder has views but no calibration file; object skipped"),
+                         "bigbird", "BigBIRD view")
+    for name in objects:
+        BigBirdObject(bb / name).check_calibration(cfg.features.bigbird_cameras)
+    AVDScan(avd, cfg.data.scan, skip=ctx.skips.log("avd", "AVD entry"))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -152,7 +170,7 @@ def _write_synthetic(ctx) -> str:
 
     cfg = ctx.cfg
     syn, seed, scan = cfg.data.synthetic, cfg.data.seed, cfg.data.scan
-    bb_root, avd_root = ctx.out / "bigbird", ctx.out / "avd"
+    bb_root, avd_root = ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd")
     t0 = time.perf_counter()
     plan = plan_scan(syn, scan, seed)  # validates names, room and grid before any work starts
 
@@ -169,7 +187,7 @@ def _write_synthetic(ctx) -> str:
     total = len(views) * len(syn.instances) + n_shots
 
     boxes: dict[str, list] = {}
-    bar = tqdm(total=total, desc="data: render views", unit="view")
+    bar = progress_bar(total=total, desc="data: render views", unit="view")
     if syn.workers > 1:
         ctx_mp = multiprocessing.get_context("spawn")  # no fork after OpenCV threads started
         with ProcessPoolExecutor(syn.workers, mp_context=ctx_mp, initializer=_init_worker) as pool:
@@ -196,8 +214,8 @@ def _write_synthetic(ctx) -> str:
             "height_m": inst.height,
             "faces": {r: {"texture": key, "family": CATEGORY_NAMES[fam]} for r, (key, fam) in inst.spec.paint.items()},
         })
-    write_json(ctx.out / "truth.json", sidecar)
-    write_json(ctx.out / "roots.json", {"source": "synthetic", "bigbird_root": "bigbird", "avd_root": "avd",
+    write_json(ctx.out / out_name("data", "truth"), sidecar)
+    write_json(ctx.out / out_name("data", "roots"), {"source": "synthetic", "bigbird_root": "bigbird", "avd_root": "avd",
                                         "scan": scan, "bigbird_objects": sorted(syn.instances)})
     mb = _folder_bytes(ctx.out) / 1e6
     n_boxes = sum(len(b) for b in boxes.values())

@@ -25,7 +25,8 @@ from contextlib import contextmanager
 from typing import Iterator
 
 import numpy as np
-from tqdm import tqdm
+
+from pipeline.progress import bar as progress_bar
 
 log = logging.getLogger("viewfuse.features")
 
@@ -33,16 +34,20 @@ log = logging.getLogger("viewfuse.features")
 def extra_key(cfg) -> str:
     """The weights' identity: the classifier card hash. The runner brings the classifier stage up
     to date before it computes this stage's key, so the card read here is the one used."""
-    card = cfg.stage_dir("classifier") / "card.json"
+    from pipeline.outputs import name as out_name
+    card = cfg.stage_dir("classifier") / out_name("classifier", "card")
     try:
         return "classifier=" + str(json.loads(card.read_text()).get("hash"))
     except (FileNotFoundError, json.JSONDecodeError):
         return "classifier=missing"
 
 
-def _bigbird_jobs(cfg, root, skip, bar) -> Iterator:
-    from loaders.bigbird import BigBirdObject, list_objects
-    from pipeline.features import CropJob, unit_circle
+def _bigbird_objects(cfg, root, skips) -> list:
+    """The object folders to score. A folder with views but no calibration.h5 is one skip naming
+    the file (an error with skips off); a calibration that lacks a key the views need is one error
+    naming the file and key (every view of the object would fail the same way)."""
+    from loaders.bigbird import BigBirdObject, list_objects, uncalibrated_objects
+    from loaders.errors import BadInputError
 
     f = cfg.features
     present = list_objects(root)
@@ -54,7 +59,21 @@ def _bigbird_jobs(cfg, root, skip, bar) -> Iterator:
         names = list(f.bigbird_objects)
     else:
         names = present
+        for calib in uncalibrated_objects(root):
+            skips.handle(BadInputError(calib, "object folder has views but no calibration file; object skipped"),
+                         "bigbird", "BigBIRD view")
     objs = [BigBirdObject(root / n) for n in names]
+    for o in objs:
+        o.check_calibration(f.bigbird_cameras)  # a bad calibration is one error, before any scoring
+    return objs
+
+
+def _bigbird_jobs(cfg, root, skips, bar) -> Iterator:
+    from pipeline.features import CropJob, unit_circle
+
+    f = cfg.features
+    skip = skips.log("bigbird", "BigBIRD view")
+    objs = _bigbird_objects(cfg, root, skips)
     bar.reset(total=sum(len(o.views(f.bigbird_cameras)) for o in objs))
     for o in objs:
         seen = 0
@@ -74,7 +93,7 @@ def _bigbird_jobs(cfg, root, skip, bar) -> Iterator:
         bar.update(len(o.views(f.bigbird_cameras)) - seen)
 
 
-def _avd_jobs(cfg, scan, skip, bar) -> Iterator:
+def _avd_jobs(cfg, scan, skips, bar) -> Iterator:
     from loaders.errors import BadInputError
     from pipeline.features import CropJob
 
@@ -97,9 +116,7 @@ def _avd_jobs(cfg, scan, skip, bar) -> Iterator:
         try:
             image = scan.read_image(img.name)
         except BadInputError as err:
-            if skip is None:
-                raise
-            skip.skip(err)
+            skips.handle(err, "avd", "AVD entry")
             continue
         for b in boxes:
             inst = scan.instance_names[b.instance_id]
@@ -167,10 +184,10 @@ def run(ctx) -> str:
     import torch
 
     from loaders.avd import AVDScan
-    from loaders.errors import SkipLog
     from pipeline.crops import CropPolicy
     from pipeline.executor import executor_for
     from pipeline.features import build_table, metadata, score_jobs, write_table
+    from pipeline.outputs import name as out_name
     from stages.data import data_roots
 
     cfg = ctx.cfg
@@ -178,6 +195,9 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     bb_root, avd_root = data_roots(cfg)
     policy = CropPolicy.from_config(cfg)
+    skips = ctx.skips  # data.skip_bad_views; the runner writes the counts into the manifest
+    # The scan first: its files (JSON, .mat, instance map) fail fast, before minutes of scoring.
+    scan = AVDScan(avd_root, cfg.data.scan, skip=skips.log("avd", "AVD entry"))
     with executor_for(cfg) as ex, _scorer_released():
         sm, card, gpu, device = _scoring(ctx, ex, policy)
         for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
@@ -188,29 +208,25 @@ def run(ctx) -> str:
         dim = len(names)
         md = metadata(config_hash=cfg.section_hash("features"), classifier_hash=card["hash"], seed=f.seed,
                       output_names=names, n_samples=f.n_samples, crop_policy=policy.as_dict())
-        skipping = cfg.data.skip_bad_views
         timings = {}
         common = dict(seed=f.seed, batch_size=f.batch_size, dim=dim, gpu=gpu)
 
         # BigBIRD: the deterministic pass (GP training targets, as in the paper) plus dropout samples.
-        skip_bb = SkipLog("BigBIRD view") if skipping else None
         t1 = time.perf_counter()
-        with tqdm(desc="features: BigBIRD views", unit="view") as bar:
-            bb = score_jobs(_bigbird_jobs(cfg, bb_root, skip_bb, bar), sm, policy, ex, what="BigBIRD",
+        with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
+            bb = score_jobs(_bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",
                             n_samples=f.bigbird_samples, **common)
         det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
-        write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / "bigbird.parquet")
+        write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
         timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
 
         # AVD: deterministic pass + N_s dropout samples per box.
-        skip_avd = SkipLog("AVD entry") if skipping else None
         t2 = time.perf_counter()
-        scan = AVDScan(avd_root, cfg.data.scan, skip=skip_avd)
-        with tqdm(desc="features: AVD images", unit="image") as bar:
-            av = score_jobs(_avd_jobs(cfg, scan, skip_avd, bar), sm, policy, ex, what="AVD",
+        with progress_bar(desc="features: AVD images", unit="image") as bar:
+            av = score_jobs(_avd_jobs(cfg, scan, skips, bar), sm, policy, ex, what="AVD",
                             n_samples=f.n_samples, **common)
         det_av, mc_av = av.arrays(dim, f.n_samples)
-        write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / "avd.parquet")
+        write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))
         timings["avd_s"] = round(time.perf_counter() - t2, 2)
     if av.n == 0:
         log.warning("no AVD box up to difficulty %d in scan %s: avd.parquet is empty", f.max_difficulty, cfg.data.scan)
@@ -224,11 +240,9 @@ def run(ctx) -> str:
         "bigbird_crops": bb.n, "avd_crops": av.n, "n_samples": f.n_samples,
         "bigbird_samples": f.bigbird_samples, "score_dim": dim,
         "classifier_hash": card["hash"], "crop_policy": policy.as_dict(),
-        "skipped": {"bigbird": skip_bb.summary() if skip_bb else None,
-                    "avd": skip_avd.summary() if skip_avd else None},
         "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": torch.get_num_threads(),
         "executor": cfg.run.executor,
     })
-    n_skip = (skip_bb.count if skip_bb else 0) + (skip_avd.count if skip_avd else 0)
+    n_skip = skips.count
     return (f"{bb.n} BigBIRD crops (1 + {f.bigbird_samples} passes) + {av.n} AVD crops (1 + {f.n_samples} passes), D = {dim}, "
             f"{n_skip} skipped; BigBIRD {timings['bigbird_s']:.0f} s, AVD {timings['avd_s']:.0f} s on {device}")

@@ -1,7 +1,9 @@
 """Stage ``report``: re-render index.html + one PNG per figure from existing results.
 
-Reads ``evaluate/`` (results, track, GP rasters, bias maps, summary) and ``models/index.json``;
-computes nothing but plotting percentiles. ``make report`` therefore re-renders in seconds.
+Reads the run's ``evaluate/`` (results, summary with the population verdict, track, GP rasters,
+bias maps), ``models/index.json``, ``classifier/card.json`` and the stages' manifests; computes
+nothing but plotting percentiles and the detailed track's CIs over realizations (seeded), so
+``make report`` re-renders in seconds.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from stages.runner import stage_timings
 def run(ctx) -> str:
     cfg = ctx.cfg
     res = build_main_report(
-        ctx.input("evaluate"), ctx.input("models"), ctx.out,
+        cfg.run_dir, ctx.out,
         title=cfg.report.title, dpi=cfg.report.dpi, run_name=cfg.run.name,
         config=to_dict(cfg), timings=stage_timings(cfg),
     )

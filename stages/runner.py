@@ -1,30 +1,37 @@
 """Run stages with manifests: skip what is up to date, rerun what is stale, write atomically.
 
-Each stage writes into a temporary sibling folder; only when it finishes is that folder swapped in
-and the manifest written, so an interrupted run never leaves output that looks complete.
+Each stage writes into a temporary sibling folder ``.<stage>.tmp``; only when it finishes is that
+folder swapped in and the manifest written, so an interrupted run never leaves output that looks
+complete (and the next run of any stage removes what a killed run left).
+
+A manifest records the stage's key (config sections, code version, upstream digests, the stage's
+``extra_key``), the sha256 of every output file and of every dataset file the stage read. A stage
+is up to date when its key matches and none of those files changed; otherwise it reruns and says
+why. A stage's *digest* (key + its outputs' hashes) is what downstream keys are built from, so
+rewriting an upstream output (a model file, results) makes everything below it stale.
 """
 from __future__ import annotations
 
 import importlib
 import json
 import logging
+import os
 import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.cache import code_hash, hash_json, replace_dir, write_json
+from loaders.errors import SkipPolicy
+from pipeline.cache import folder_records, hash_json, record_changed, recording_inputs, replace_dir, write_json
 from pipeline.config import Config, to_dict
-from stages.registry import STAGES, StageSpec
+from pipeline.outputs import MANIFEST
+from pipeline.progress import echo
+from stages.registry import STAGES, StageSpec, code_version
 
 log = logging.getLogger("viewfuse")
 
-MANIFEST = "manifest.json"
-
-
-class StageNotImplemented(RuntimeError):
-    pass
+OWNER = ".owner"  # pid of the process writing a temporary stage folder
 
 
 @dataclass
@@ -36,6 +43,7 @@ class StageContext:
     device_request: str = "auto"
     threads: int = 0
     extra: dict[str, Any] = field(default_factory=dict)  # the stage may record facts for its manifest
+    skips: SkipPolicy = field(default_factory=lambda: SkipPolicy(True))  # data.skip_bad_views
     _device: str | None = None
 
     def input(self, stage: str) -> Path:
@@ -56,73 +64,155 @@ def read_manifest(cfg: Config, stage: str) -> dict | None:
     if not p.is_file():
         return None
     try:
-        return json.loads(p.read_text())
-    except json.JSONDecodeError:
+        m = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
         return None
+    return m if isinstance(m, dict) else None
 
 
-def stage_key(cfg: Config, spec: StageSpec, upstream_keys: dict[str, str]) -> tuple[str, dict]:
+def digest(manifest: dict) -> str:
+    """What downstream stages key on: the stage's key and the content of its outputs."""
+    outs = {k: v.get("sha256") for k, v in (manifest.get("outputs") or {}).items()}
+    return hash_json({"key": manifest.get("key"), "outputs": outs})
+
+
+def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[str, dict]:
+    code, per_module = code_version(spec)
     parts = {
         "stage": spec.name,
         "sections": {s: to_dict(cfg.section(s)) for s in spec.sections},
-        "code": code_hash(spec.code),
-        "upstream": upstream_keys,
+        "code": code,
+        "upstream": upstream,
     }
-    mod = importlib.import_module(spec.module) if _module_exists(spec.module) else None
-    extra_key = getattr(mod, "extra_key", None)
+    extra_key = getattr(_load(spec), "extra_key", None)
     if extra_key is not None:
         parts["inputs"] = extra_key(cfg)
-    return hash_json(parts), parts
+    return hash_json(parts), {**parts, "code_modules": per_module}
 
 
-def _module_exists(name: str) -> bool:
-    import importlib.util
-    return importlib.util.find_spec(name) is not None
+def _load(spec: StageSpec):
+    return importlib.import_module(spec.module)
 
+
+# ------------------------------------------------------------------------------------------------
+# Why is a stage stale?
+
+def _key_reason(old: dict, new: dict) -> str:
+    """Which part of the key moved, in words."""
+    oldp, newp = old.get("parts") or {}, new
+    for s, v in newp.get("sections", {}).items():
+        if (oldp.get("sections") or {}).get(s) != v:
+            return f"config [{s}] changed"
+    for u, v in newp.get("upstream", {}).items():
+        if (oldp.get("upstream") or {}).get(u) != v:
+            return f"upstream stage '{u}' changed"
+    if oldp.get("code") != newp.get("code"):
+        om, nm = oldp.get("code_modules") or {}, newp.get("code_modules") or {}
+        changed = sorted(m for m in set(om) | set(nm) if om.get(m) != nm.get(m))
+        return "code changed" + (f" ({', '.join(changed[:4])}{', ...' if len(changed) > 4 else ''})" if changed else "")
+    if oldp.get("inputs") != newp.get("inputs"):
+        return "its dataset or weights inputs changed"
+    return "cache key changed"
+
+
+def stale_reason(cfg: Config, name: str, key: str, parts: dict) -> str | None:
+    """None when stage ``name`` is up to date for ``key``; otherwise why not."""
+    m = read_manifest(cfg, name)
+    if m is None:
+        return "missing (never run here)"
+    if m.get("key") != key:
+        return _key_reason(m, parts)
+    final = cfg.stage_dir(name)
+    if "outputs" not in m:
+        return "manifest predates content hashes"
+    for rel, rec in m["outputs"].items():
+        why = record_changed(final / rel, rec)
+        if why:
+            return f"output {final / rel} {why}"
+    for path, rec in (m.get("inputs") or {}).items():
+        why = record_changed(path, rec)
+        if why:
+            return f"input {path} {why}"
+    return None
+
+
+def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
+    """Status of a stage without running anything: {state: up to date|stale|missing, why, digest}."""
+    memo = {} if _memo is None else _memo
+    if name in memo:
+        return memo[name]
+    spec = STAGES[name]
+    ups = {u: plan(cfg, u, memo) for u in spec.upstream}
+    key, parts = stage_key(cfg, spec, {u: p["digest"] for u, p in ups.items()})
+    why = stale_reason(cfg, name, key, parts)
+    bad_up = [u for u, p in ups.items() if p["state"] != "up to date"]
+    m = read_manifest(cfg, name)
+    if m is None:
+        res = {"state": "missing", "why": why}
+    elif bad_up:
+        res = {"state": "stale", "why": f"upstream stage '{bad_up[0]}' is {ups[bad_up[0]]['state']}"}
+    elif why is not None:
+        res = {"state": "stale", "why": why}
+    else:
+        res = {"state": "up to date", "why": None}
+    res["digest"] = digest(m) if res["state"] == "up to date" else hash_json({"planned": key})
+    memo[name] = res
+    return res
+
+
+# ------------------------------------------------------------------------------------------------
+# Running
 
 def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto", threads: int = 0,
            _keys: dict[str, str] | None = None) -> str:
-    """Bring stage ``name`` up to date (upstream first); return its key."""
+    """Bring stage ``name`` up to date (upstream first); return its digest."""
     keys = {} if _keys is None else _keys
     if name in keys:
         return keys[name]
     spec = STAGES[name]
-    if not _module_exists(spec.module) or not hasattr(importlib.import_module(spec.module), "run"):
-        raise StageNotImplemented(f"stage '{name}' is not implemented yet")
     up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys) for u in spec.upstream}
     key, parts = stage_key(cfg, spec, up)
-    manifest = read_manifest(cfg, name)
     final = cfg.stage_dir(name)
-    if not force and manifest is not None and manifest.get("key") == key:
-        print(f"[{name}] up to date ({final}); skipped (use --force to rerun)", flush=True)
-        keys[name] = key
-        return key
-    run_stage(cfg, spec, key, parts, device=device, threads=threads)
-    keys[name] = key
-    return key
+    if not force:
+        why = stale_reason(cfg, name, key, parts)
+        if why is None:
+            echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
+            keys[name] = digest(read_manifest(cfg, name) or {})
+            return keys[name]
+        if not why.startswith("missing"):
+            echo(f"[{name}] stale: {why}")
+    manifest = run_stage(cfg, spec, key, parts, device=device, threads=threads)
+    keys[name] = digest(manifest)
+    return keys[name]
 
 
 def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: str, threads: int) -> dict:
-    if not _module_exists(spec.module):
-        raise StageNotImplemented(f"stage '{spec.name}' is not implemented yet")
-    mod = importlib.import_module(spec.module)
-    if not hasattr(mod, "run"):
-        raise StageNotImplemented(f"stage '{spec.name}' is not implemented yet")
+    mod = _load(spec)
     final = cfg.stage_dir(spec.name)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = final.with_name(f".{spec.name}.tmp")
     if tmp.exists():
         shutil.rmtree(tmp)  # left by an interrupted run
     tmp.mkdir(parents=True)
-    ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads)
-    print(f"[{spec.name}] running: {spec.help}", flush=True)
+    (tmp / OWNER).write_text(str(os.getpid()))
+    ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads,
+                       skips=SkipPolicy.from_config(cfg))
+    echo(f"[{spec.name}] running: {spec.help}")
     t0 = time.perf_counter()
     try:
-        summary = mod.run(ctx)
+        with recording_inputs() as rec:
+            summary = mod.run(ctx)
+        (tmp / OWNER).unlink()
+        # Files in the run folder are upstream outputs, already covered by the upstream digests;
+        # leaving them out also keeps a moved artifacts folder valid.
+        inputs = rec.records(exclude=cfg.run_dir)
+        outputs = folder_records(tmp, skip=(MANIFEST,))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     elapsed = time.perf_counter() - t0
+    if ctx.skips.enabled:
+        ctx.extra.setdefault("skipped", {}).update(ctx.skips.summary())
     manifest = {
         "stage": spec.name,
         "key": key,
@@ -132,11 +222,51 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         "summary": summary,
         "device": ctx._device,
         "extra": ctx.extra,
+        "outputs": outputs,
+        "inputs": inputs,
     }
     write_json(tmp / MANIFEST, manifest)
     replace_dir(tmp, final)
-    print(f"[{spec.name}] done in {_fmt(elapsed)}: {summary} -> {final}", flush=True)
+    # mtimes survive the rename, so the records still match the final files.
+    echo(f"[{spec.name}] done in {_fmt(elapsed)}: {summary} -> {final}")
+    if ctx.skips.count:
+        echo(f"[{spec.name}] {ctx.skips.count} bad entr{'y' if ctx.skips.count == 1 else 'ies'} skipped "
+             f"(data.skip_bad_views); see {final / MANIFEST} 'extra.skipped'")
     return manifest
+
+
+def remove_orphans(cfg: Config) -> list[Path]:
+    """Remove ``.<stage>.tmp`` / ``.<stage>.old`` folders that no live process is writing (left by a
+    killed run); return what was removed."""
+    run_dir = cfg.run_dir
+    removed = []
+    if not run_dir.is_dir():
+        return removed
+    for p in run_dir.iterdir():
+        if not (p.is_dir() and p.name.startswith(".") and p.name.endswith((".tmp", ".old"))):
+            continue
+        if _writer_alive(p / OWNER):
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
+        log.info("removed %s, left by an interrupted run", p)
+    return removed
+
+
+def _writer_alive(owner: Path) -> bool:
+    try:
+        pid = int(owner.read_text())
+    except (OSError, ValueError):
+        return False
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _fmt(s: float) -> str:
@@ -150,4 +280,15 @@ def stage_timings(cfg: Config) -> dict[str, float]:
         m = read_manifest(cfg, name)
         if m:
             out[name] = m.get("seconds", float("nan"))
+    return out
+
+
+def stage_skips(cfg: Config) -> dict[str, dict]:
+    """{stage: {part: {skipped, reasons, examples}}} from the manifests (for the report)."""
+    out = {}
+    for name in STAGES:
+        m = read_manifest(cfg, name)
+        sk = (m or {}).get("extra", {}).get("skipped")
+        if sk:
+            out[name] = {k: v for k, v in sk.items() if v}
     return out

@@ -10,7 +10,7 @@ Fits the three hand-specified class models, runs every configured scenario over
 - ``summary.json``: the table (correct ratio, MGR 75%/95%, final/overall), the findings checks,
   GP fit diagnostics, seeds and timings.
 - ``models/``: the fitted simulation GPs (``index.json`` + ``.npz``, no pickles).
-- ``index.html`` + PNGs (``reports.simulate_report``).
+- ``index.html`` + PNGs (``reports.simulate_report``: log10 MGR, shared method names, CIs over realizations).
 """
 from __future__ import annotations
 
@@ -20,20 +20,25 @@ import time
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
-from tqdm import tqdm
 
 from pipeline import simulation as S
 from pipeline.cache import atomic_path, write_json
 from pipeline.config import Config, to_dict
-from reports.simulate_report import build_simulate_report, findings
+from pipeline.outputs import name as out_name
+from pipeline.progress import bar as progress_bar
+from reports.simulate_findings import findings
+from reports.simulate_report import build_simulate_report
 
 log = logging.getLogger("viewfuse.simulate")
 
 
 def write_parquet(df: pd.DataFrame, path, meta: dict[str, str], fixed_list: dict[str, int] | None = None) -> None:
-    """Atomic Parquet write with ``viewfuse.*`` metadata; listed columns as fixed-size float lists."""
+    """Atomic Parquet write with ``viewfuse.*`` metadata; listed columns as fixed-size float lists.
+    (The evaluate stage writes through ``pipeline.results.write_results``; the simulation's tables
+    move there once ``pipeline.simulation`` builds result blocks.)"""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     table = pa.Table.from_pandas(df, preserve_index=False)
     for col, n in (fixed_list or {}).items():
         arr = pa.array(df[col].map(lambda v: np.asarray(v, np.float64)).tolist(), type=pa.list_(pa.float64(), n))
@@ -52,7 +57,7 @@ def run(ctx) -> str:
 
     t0 = time.perf_counter()
     models, diags = S.fit_models(sim)
-    models.save(ctx.out / "models", extra={"fit_diagnostics": diags, "source": "simulate"})
+    models.save(ctx.out / out_name("simulate", "models"), extra={"fit_diagnostics": diags, "source": "simulate"})
     timings["fit"] = time.perf_counter() - t0
     # Hyperparameters at a bound are expected here (the bounds are tight on purpose, see the
     # config); they are listed in summary.json and the report. Other optimizer warnings are not.
@@ -65,7 +70,7 @@ def run(ctx) -> str:
             log.warning("GP %s / component %d: %s", d["class"], d["component"], "; ".join(other))
 
     frames, examples = [], []
-    with tqdm(total=sim.realizations * len(sim.scenarios), desc="simulate", unit="realization") as bar:
+    with progress_bar(total=sim.realizations * len(sim.scenarios), desc="simulate", unit="realization") as bar:
         for scenario in sim.scenarios:
             t0 = time.perf_counter()
             res = S.run_scenario(models, scenario, sim, progress=bar.update)
@@ -80,14 +85,14 @@ def run(ctx) -> str:
         "config_hash": cfg.section_hash("simulate"),
         "seed": str(sim.seed),
     }
-    write_parquet(df, ctx.out / "results.parquet", meta, {"posterior": S.N_CLASSES})
-    write_parquet(ex, ctx.out / "example.parquet",
+    write_parquet(df, ctx.out / out_name("simulate", "results"), meta, {"posterior": S.N_CLASSES})
+    write_parquet(ex, ctx.out / out_name("simulate", "example"),
                   {**meta, "example_realization": str(sim.example_realization)},
                   {"class_mean": S.N_CLASSES, "class_std": S.N_CLASSES, "class_mean_est": S.N_CLASSES})
 
     table = S.summarize(df)
     found = findings(df, ex, sim.truth_class - 1)
-    write_json(ctx.out / "summary.json", {
+    write_json(ctx.out / out_name("simulate", "summary"), {
         "table": table.to_dict(orient="records"),
         "findings": found,
         "classes": list(sim.class_names), "truth": sim.truth_class - 1,
@@ -107,5 +112,5 @@ def run(ctx) -> str:
     parts = [f"{len(sim.scenarios)} scenario(s) x {sim.realizations} realizations, {len(df)} rows"]
     for _, r in table.iterrows():
         parts.append(f"{r['scenario']}/{r['method']} correct(final)={r['correct_final']:.2f}")
-    final = cfg.stage_dir(ctx.stage) / "index.html"
+    final = cfg.stage_dir(ctx.stage) / out_name("simulate", "html")
     return "; ".join(parts) + f"; {len(rep.figures)} figures in {took:.1f} s; open {final}"

@@ -18,7 +18,7 @@ TINY = {
                            "grid_step_m": 0.6, "distractors": 2, "workers": 1}},
     "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
                                                   "batch_size": 12, "min_accuracy": 0.0}},
-    "features": {"n_samples": N_S, "max_difficulty": 5, "batch_size": 16},
+    "features": {"n_samples": N_S, "bigbird_samples": 2, "max_difficulty": 5, "batch_size": 16},
 }
 
 
@@ -71,13 +71,18 @@ def test_parquet_metadata_names_config_classifier_and_seed(chain):
         assert json.loads(md["viewfuse.output_names"]) == card["output_names"]
 
 
-def test_bigbird_rows_are_one_deterministic_pass_per_view(chain):
+def test_bigbird_rows_are_the_deterministic_pass_then_dropout_passes_per_view(chain):
     from loaders.bigbird import BigBirdObject
     from stages.data import data_roots
 
-    df, scores, meta = read_features(chain.stage_dir("features") / "bigbird.parquet")
+    full, all_scores, meta = read_features(chain.stage_dir("features") / "bigbird.parquet")
     root, _ = data_roots(chain)
-    assert (df["pass"] == -1).all()
+    # Each view: pass -1 (the GP training target) then features.bigbird_samples dropout passes.
+    assert full["pass"].tolist() == [-1, 0, 1] * (len(full) // 3)
+    drop = all_scores[full["pass"].to_numpy() >= 0]
+    assert not np.array_equal(drop[0::2], drop[1::2])                    # the dropout passes differ
+    det = (full["pass"] == -1).to_numpy()
+    df, scores = full[det].reset_index(drop=True), all_scores[det]
     assert len(df) == len(chain.data.synthetic.instances) * 6            # 360 / 60 angles each
     assert not df.duplicated(["object", "camera", "angle_deg"]).any()
     assert scores.shape == (len(df), 12) and scores.dtype == np.float32
@@ -124,7 +129,7 @@ def test_avd_rows_cover_every_box_with_the_dropout_samples(chain):
 
 def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
     from stages.registry import STAGES
-    from stages.runner import ensure, read_manifest, stage_key
+    from stages.runner import ensure, plan, read_manifest, stage_key
     from pipeline.config import load_config
     from tests.conftest import DEFAULT_CONFIG
 
@@ -132,8 +137,8 @@ def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
         return load_config(DEFAULT_CONFIG, _merge(_merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
 
     def key(cfg):
-        # Upstream keys computed, not run: data and classifier have no upstream of their own.
-        up = {u: stage_key(cfg, STAGES[u], {})[0] for u in STAGES["features"].upstream}
+        # Upstream digests planned, not run: the key the runner would compute now.
+        up = {u: plan(cfg, u)["digest"] for u in STAGES["features"].upstream}
         return stage_key(cfg, STAGES["features"], up)[0]
 
     base = read_manifest(chain, "features")["key"]
@@ -167,7 +172,7 @@ def test_weights_identity_is_in_the_key(chain, tmp_path):
 
 
 def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path):
-    from loaders.errors import BadInputError
+    from loaders.errors import BadInputError, SkipPolicy
     from stages.features import _bigbird_jobs
     from stages.runner import ensure, read_manifest
 
@@ -185,11 +190,19 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
     obj = sorted(cfg.data.synthetic.instances)[0]
     bad = cfg.stage_dir("data") / "bigbird" / obj / "NP1_60.jpg"
     bad.write_bytes(bad.read_bytes()[:200])              # truncated JPEG
-    ensure(cfg, "features", device="cpu", force=True)
+    # ensure() would see the data stage's output changed and render it again: run features alone.
+    from stages.registry import STAGES
+    from stages.runner import plan, run_stage, stage_key
+    up = {u: read_manifest(cfg, u) for u in STAGES["features"].upstream}
+    from stages.runner import digest
+    key, parts = stage_key(cfg, STAGES["features"], {u: digest(m) for u, m in up.items()})
+    run_stage(cfg, STAGES["features"], key, parts, device="cpu", threads=0)
+    assert plan(cfg, "data")["state"] == "stale"         # the runner knows the image changed
     m = read_manifest(cfg, "features")
     assert m["extra"]["skipped"]["bigbird"]["skipped"] == 1
     assert "NP1_60.jpg" in m["extra"]["skipped"]["bigbird"]["examples"][0]
     df = read_features(cfg.stage_dir("features") / "bigbird.parquet")[0]
+    df = df[df["pass"] == -1]
     assert len(df) == len(cfg.data.synthetic.instances) * 6 - 1
     assert not ((df["object"] == obj) & (df["angle_deg"] == 60)).any()
 
@@ -197,7 +210,7 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
         def reset(self, total): pass
         def update(self, n): pass
     with pytest.raises(BadInputError, match="NP1_60.jpg"):
-        list(_bigbird_jobs(cfg, cfg.stage_dir("data") / "bigbird", None, Bar()))
+        list(_bigbird_jobs(cfg, cfg.stage_dir("data") / "bigbird", SkipPolicy(False), Bar()))
 
 
 def test_build_table_checks_shapes_and_orders_passes():
@@ -226,6 +239,7 @@ def test_build_table_checks_shapes_and_orders_passes():
 
 def test_object_and_instance_selection_keys_are_checked(chain):
     from loaders.avd import AVDScan
+    from loaders.errors import SkipPolicy
     from pipeline.config import load_config
     from stages.data import data_roots
     from stages.features import _avd_jobs, _bigbird_jobs
@@ -241,12 +255,12 @@ def test_object_and_instance_selection_keys_are_checked(chain):
 
     bb, avd = data_roots(chain)
     one = sorted(chain.data.synthetic.instances)[1]
-    jobs = list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": [one]}}), bb, None, Bar()))
+    jobs = list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": [one]}}), bb, SkipPolicy(False), Bar()))
     assert len(jobs) == 6 and {j.columns["object"] for j in jobs} == {one}
     with pytest.raises(ValueError, match="'features.bigbird_objects' names 'nope'"):
-        list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": ["nope"]}}), bb, None, Bar()))
+        list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": ["nope"]}}), bb, SkipPolicy(False), Bar()))
     scan = AVDScan(avd, chain.data.scan)
-    jobs = list(_avd_jobs(cfg_with({"features": {"avd_instances": [one], "max_difficulty": 3}}), scan, None, Bar()))
+    jobs = list(_avd_jobs(cfg_with({"features": {"avd_instances": [one], "max_difficulty": 3}}), scan, SkipPolicy(False), Bar()))
     assert {j.columns["instance"] for j in jobs} <= {one} and all(j.columns["difficulty"] <= 3 for j in jobs)
     with pytest.raises(ValueError, match="'features.avd_instances' names 'nope'"):
-        list(_avd_jobs(cfg_with({"features": {"avd_instances": ["nope"]}}), scan, None, Bar()))
+        list(_avd_jobs(cfg_with({"features": {"avd_instances": ["nope"]}}), scan, SkipPolicy(False), Bar()))

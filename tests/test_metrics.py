@@ -1,10 +1,19 @@
 """Metrics of the paper's §5.1 on small posteriors worked out by hand."""
 import math
+from typing import Mapping
 
 import numpy as np
 import pytest
 
 from pipeline import metrics as M
+
+
+def summary_table(posteriors: Mapping[str, np.ndarray], truth, *, is_log: bool = False):
+    """A pandas DataFrame, one row per method: ``posteriors`` maps method name -> (R, K, C)."""
+    import pandas as pd
+
+    rows = [{"method": name, **M.summary_row(p, truth, is_log=is_log)} for name, p in posteriors.items()]
+    return pd.DataFrame(rows).set_index("method")
 
 
 def test_single_posterior_by_hand():
@@ -40,7 +49,7 @@ def test_track_ratios_and_table():
     # Per-realization truth.
     final, overall = M.correct_ratio(post, np.array([0, 1]))
     assert final == pytest.approx(1.0) and overall == pytest.approx((2 + 2) / 6)
-    table = M.summary_table({"a": post, "b": post[:, :, ::-1]}, 0)
+    table = summary_table({"a": post, "b": post[:, :, ::-1]}, 0)
     assert list(table.index) == ["a", "b"]
     assert table.loc["a", "correct_final"] == pytest.approx(0.5)
     assert table.loc["b", "correct_overall"] == pytest.approx(3 / 6)

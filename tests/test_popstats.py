@@ -65,6 +65,9 @@ def test_verdict_follows_the_sign_and_flips_when_the_inputs_flip():
     better = population(rng, effect=0.2)
     block = population_block(better, ["a", "b"], MET, [("a", "b")], 500, 0, "8 targets x 6 tracks")
     rows = block["verdict_table"]
+    assert set(block["per_target"]) == {f"t{t}" for t in range(8)}          # per-target values are kept
+    for per in block["per_target"].values():
+        assert per["a"]["correct_final"]["ci_low"] <= per["a"]["correct_final"]["value"] <= per["a"]["correct_final"]["ci_high"]
     assert {r["outcome"] for r in rows} == {"better"}
     assert all(" is better than " in s and "95 % CI" in s and "8 targets x 6 tracks" in s for s in block["verdict"])
     flipped = better.assign(method=better["method"].map({"a": "b", "b": "a"}))

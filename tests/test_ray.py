@@ -237,15 +237,15 @@ def test_evaluate_through_ray_equals_the_local_run(ray_ex, upstream):
             assert ja == jb, name
 
 
-def test_executor_flag_overrides_the_config(monkeypatch):
+def test_executor_flag_overrides_the_config():
     import stages.cli as cli
     from tests.conftest import DEFAULT_CONFIG
 
-    seen = []
-    monkeypatch.setattr(cli, "ensure", lambda cfg, stage, **kw: seen.append(cfg.run.executor))
-    assert cli.main(["report", "--config", str(DEFAULT_CONFIG), "--executor", "ray"]) == 0
-    assert cli.main(["report", "--config", str(DEFAULT_CONFIG)]) == 0
-    assert seen[0] == "ray" and seen[-1] == "local"
+    def executor(*argv):
+        return cli._load(cli.build_parser().parse_args([*argv, "--config", str(DEFAULT_CONFIG)])).run.executor
+
+    assert executor("evaluate", "--executor", "ray") == "ray"
+    assert executor("features") == "local"
     with pytest.raises(SystemExit):
         cli.build_parser().parse_args(["report", "--executor", "dask"])
 

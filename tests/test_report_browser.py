@@ -1,4 +1,5 @@
-"""The report page in a real browser (headless Chromium): every image loads, the table is there.
+"""The report page in a real browser (headless Chromium, 1400 px wide): the verdict is the first
+section and on the first screen, every image loads, no table cell holds a raw MGR.
 
 The page itself carries no script. The test renders a COPY of it into which it injected a tiny
 on-load check that writes its findings into the DOM; ``--dump-dom`` then hands the DOM back.
@@ -15,28 +16,44 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reports.main_report import build_main_report
-from tests.report_fixtures import write_fake_run
+from tests.report_fixtures import rendered_run  # noqa: F401 (fixture)
 
+WIDTH, HEIGHT = 1400, 1000
+# A table column is an MGR column when its header says MGR; every number in its cells must be a
+# log10 value (|x| <= 1e6), never a raw ratio such as 6.81e+77.
 CHECK = """<script>
 window.addEventListener('load', function () {
   var imgs = Array.prototype.slice.call(document.images);
   var broken = imgs.filter(function (i) { return !(i.complete && i.naturalWidth > 0); })
                    .map(function (i) { return i.getAttribute('src'); });
+  var raw = [], mgrColumns = 0;
+  document.querySelectorAll('table').forEach(function (t) {
+    var heads = Array.prototype.map.call(t.querySelectorAll('thead th'), function (h) { return h.textContent; });
+    heads.forEach(function (h, j) {
+      if (h.indexOf('MGR') < 0) return;
+      mgrColumns += 1;
+      t.querySelectorAll('tbody tr').forEach(function (r) {
+        var c = r.children[j];
+        var nums = (c ? c.textContent : '').match(/[-+]?\\d+(\\.\\d+)?(e[-+]?\\d+)?/gi) || [];
+        nums.forEach(function (x) { if (Math.abs(parseFloat(x)) > 1e6) raw.push(c.textContent); });
+      });
+    });
+  });
+  var first = document.querySelector('main section');
+  var verdict = document.getElementById('verdict');
   var d = document.createElement('div');
   d.id = 'vf-check';
   d.setAttribute('data-result', JSON.stringify({
-    images: imgs.length, broken: broken,
-    summary_tables: document.querySelectorAll('table.summary').length,
-    summary_rows: Array.prototype.map.call(document.querySelectorAll('table.summary'),
-                  function (t) { return t.querySelectorAll('tbody tr').length; })}));
+    images: imgs.length, broken: broken, first_section: first ? first.id : null,
+    verdict_top: verdict ? verdict.getBoundingClientRect().top : null,
+    mgr_columns: mgrColumns, raw_mgr: raw}));
   document.body.appendChild(d);
 });
 </script>"""
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
          "--disable-quic", "--no-first-run", "--disable-component-update", "--disable-sync",
-         "--hide-scrollbars"]
+         "--hide-scrollbars", f"--window-size={WIDTH},{HEIGHT}"]
 
 
 def _chromium() -> str:
@@ -53,8 +70,7 @@ def _check_in_browser(exe: str, page_dir: Path, profile: Path) -> dict:
     probe = page_dir / "_probe.html"
     probe.write_text(html.replace("</body>", CHECK + "</body>", 1))
     proc = subprocess.run([exe, *FLAGS, f"--user-data-dir={profile}", "--virtual-time-budget=5000",
-                           "--dump-dom", probe.as_uri()],
-                          capture_output=True, text=True, timeout=180)
+                           "--dump-dom", probe.as_uri()], capture_output=True, text=True, timeout=180)
     probe.unlink()
     m = re.search(r'id="vf-check"[^>]*data-result="([^"]*)"', proc.stdout)
     assert m, f"no check result in the dumped DOM (rc {proc.returncode}): {proc.stderr[-2000:]}"
@@ -62,44 +78,50 @@ def _check_in_browser(exe: str, page_dir: Path, profile: Path) -> dict:
 
 
 @pytest.fixture(scope="module")
-def page(tmp_path_factory):
+def page(rendered_run, tmp_path_factory):  # noqa: F811 (the imported fixture)
     exe = _chromium()
-    root = tmp_path_factory.mktemp("browser")
-    facts = write_fake_run(root / "run", K=5, R=8, B=7)
-    res = build_main_report(facts["evaluate"], facts["models"], root / "out", dpi=60,
-                            run_name="browser-test", progress=False)
-    return exe, root, res
+    facts, res = rendered_run
+    return exe, tmp_path_factory.mktemp("browser"), res
 
 
-def test_every_image_loads_and_the_summary_table_is_present(page):
+def test_verdict_first_every_image_loads_and_no_raw_mgr(page):
     exe, root, res = page
     found = _check_in_browser(exe, res.index.parent, root / "profile")
-    assert found["images"] == len(res.figures) > 0
-    assert found["broken"] == []
-    # Randomized (3 methods) and sensitivity (3 sigmas x 3 methods) summary tables.
-    assert found["summary_tables"] == 2 and found["summary_rows"] == [3, 9]
+    assert found["first_section"] == "verdict"
+    assert 0 <= found["verdict_top"] < HEIGHT / 2          # on the first screen, near its top
+    assert found["images"] == len(res.figures) > 0 and found["broken"] == []
+    assert found["mgr_columns"] >= 5 and found["raw_mgr"] == []
 
 
-def test_the_check_catches_a_missing_image(page):
-    # Guard against a check that always passes: remove one PNG from a copy of the page.
+def test_the_checks_catch_a_missing_image_a_raw_mgr_and_a_late_verdict(page):
+    # Guard against checks that always pass: break a copy of the page three ways.
     exe, root, res = page
     copy = root / "broken"
     shutil.copytree(res.index.parent, copy)
     (copy / res.figures[0]).unlink()
+    html = (copy / "index.html").read_text()
+    html = re.sub(r'(<td class="num">)([^<]*\[[^<]*)(</td></tr>)', r"\g<1>6.810e+77\g<3>", html, count=1)
+    start = html.index('<section id="verdict">')
+    end = html.index("</section>", start) + len("</section>")
+    verdict = html[start:end]
+    html = html[:start] + html[end:]
+    html = html.replace("</main>", verdict + "</main>", 1)       # the verdict moved to the end
+    (copy / "index.html").write_text(html)
     found = _check_in_browser(exe, copy, root / "profile2")
     assert found["broken"] == [res.figures[0]]
+    assert found["raw_mgr"] == ["6.810e+77"]
+    assert found["first_section"] != "verdict" and found["verdict_top"] > HEIGHT
 
 
-def test_screenshot_renders_content(page):
+def test_screenshot_at_1400px_renders_content(page):
     import matplotlib.image as mpimg
     exe, root, res = page
     shot = root / "screenshot.png"
-    proc = subprocess.run([exe, *FLAGS, f"--user-data-dir={root / 'profile3'}", "--window-size=1200,3000",
-                           f"--screenshot={shot}", res.index.as_uri()],
-                          capture_output=True, text=True, timeout=180)
+    proc = subprocess.run([exe, *FLAGS, f"--user-data-dir={root / 'profile3'}", f"--screenshot={shot}",
+                           res.index.as_uri()], capture_output=True, text=True, timeout=180)
     assert shot.is_file(), f"no screenshot (rc {proc.returncode}): {proc.stderr[-2000:]}"
     img = mpimg.imread(shot)
-    assert img.shape[:2] == (3000, 1200)
+    assert img.shape[:2] == (HEIGHT, WIDTH)
     # A rendered page has a dark header band and varied content, not a blank canvas.
     assert img[:40, :, :3].mean() < 0.3
     assert np.unique((img[::7, ::7, :3] * 255).astype(np.uint8).reshape(-1, 3), axis=0).shape[0] > 50

@@ -263,7 +263,18 @@ def test_stage_writes_results_example_and_report(tmp_config):
     assert len(pngs) == 1 + 2 * 4
     for p in pngs:
         assert f'src="{p}"' in html
-    assert "MGR 95% overall" in html
+    # The report's conventions: log10 MGR, the shared method names, every table value with its CI.
+    assert "log10 MGR 95%, all steps" in html and "With Uncertainty (Feldman &amp; Indelman)" in html
+    assert "(ours)" not in html and "log MGR =" not in html
+    import re
+    cells = re.findall(r'<td class="num">([^<]*)</td>', html)
+    est = [c for c in cells if "[" in c]
+    assert len(est) >= 2 * 3 * 4          # 2 scenarios x 3 methods x 4 metrics, each 'v [lo, hi]'
+    for c in est:
+        v, lo, hi = (float(x) for x in re.findall(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", c)[:3])
+        assert lo <= v <= hi and abs(v) < 1e6
     # A rerun with the same config is skipped (manifest up to date); a changed key reruns.
-    key = json.loads((out / "manifest.json").read_text())["key"]
-    assert ensure(cfg, "simulate") == key
+    from stages.runner import digest
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert ensure(cfg, "simulate") == digest(manifest)
+    assert json.loads((out / "manifest.json").read_text()) == manifest

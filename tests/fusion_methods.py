@@ -1,4 +1,8 @@
-"""The three fusion methods as step-by-step objects, plus a generic episode loop.
+"""Test reference: the three fusion methods as step-by-step objects, a generic episode loop, and
+``fuse_with_uncertainty_sampled`` (pose estimates -> localization samples -> fusion). Used only by
+the tests, which check them against the batched ``pipeline.fusion`` functions.
+
+The three fusion methods as step-by-step objects, plus a generic episode loop.
 
 ``ModelWithUncertainty``, ``ModelBased`` and ``SimpleBayes`` share one protocol:
 ``reset()`` forgets the track, ``update(observation)`` fuses one more view and returns the class
@@ -18,7 +22,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from pipeline.fusion import log_prior, logsumexp
+from pipeline.fusion import fuse_with_uncertainty, log_prior, logsumexp
+from pipeline.geometry import relative_inputs, sample_localization
 from pipeline.gp import GPClassModels
 from pipeline import metrics as _metrics
 
@@ -281,3 +286,15 @@ def run_episodes(method, episodes: Iterable[Episode], *, progress: bool = True,
     if return_posteriors:
         out["log_posteriors"] = logs
     return out
+
+
+def fuse_with_uncertainty_sampled(models: GPClassModels, cam_estimates, sigma: float, dropout, *,
+                                  obj_xy, yaw: float, n_samples: int, seed=0, unit_circle: bool = True,
+                                  **kwargs) -> np.ndarray:
+    """Model with Uncertainty from pose estimates: draw ``n_samples`` localization samples around
+    each estimate (N(0, σ²I), one trajectory per sample), turn them into GP inputs relative to the
+    object (``obj_xy``, ``yaw``), then ``fuse_with_uncertainty``. ``cam_estimates`` (K, 2) or
+    (R, K, 2); ``seed`` an int or a ``numpy.random.Generator``."""
+    samples = sample_localization(cam_estimates, sigma, n_samples, seed)
+    return fuse_with_uncertainty(models, relative_inputs(samples, obj_xy, yaw, unit_circle=unit_circle),
+                                 dropout, **kwargs)

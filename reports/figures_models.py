@@ -1,0 +1,166 @@
+"""Figures of the class models and the single-view posteriors: GP rasters, GP ring, bias maps.
+
+Every raster carries a colour scale; class names are wrapped, never cut.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from pipeline.labels import class_colors
+from reports.figures import new_subplots, wrap_label
+
+
+def _as_radians(theta: np.ndarray) -> np.ndarray:
+    # The contract stores angles in radians; tolerate degrees (values far beyond 2π).
+    t = np.asarray(theta, float)
+    return np.radians(t) if np.nanmax(np.abs(t), initial=0.0) > 2 * np.pi + 0.5 else t
+
+
+def _component_limits(gp: dict, f: int) -> tuple[float, float]:
+    """One colour scale per component (column), so classes compare directly."""
+    vals = np.concatenate([gp["raster_mean"][:, f].ravel(), gp["train_y"][:, f].ravel()])
+    vals = vals[np.isfinite(vals)]
+    return (float(vals.min()), float(vals.max())) if vals.size else (0.0, 1.0)
+
+
+def _raster_panel(ax, gp: dict, c: int, f: int, lim: tuple[float, float], test_inputs) -> Any:
+    grid = gp["grid"]
+    ax.grid(False)
+    im = ax.imshow(gp["raster_mean"][c, f], extent=(grid[0], grid[-1], grid[0], grid[-1]), origin="lower",
+                   cmap="viridis", vmin=lim[0], vmax=lim[1], interpolation="bilinear")
+    circle = np.linspace(0, 2 * np.pi, 200)
+    ax.plot(np.cos(circle), np.sin(circle), color="white", lw=0.8, alpha=0.8)
+    th, y = _as_radians(gp["train_theta"][c]), gp["train_y"][c, f]
+    ok = np.isfinite(th) & np.isfinite(y)
+    ax.scatter(np.cos(th[ok]), np.sin(th[ok]), c=y[ok], cmap="viridis", vmin=lim[0], vmax=lim[1],
+               s=14, edgecolors="white", linewidths=0.5, zorder=3)
+    if test_inputs is not None and len(test_inputs):
+        u = np.asarray(test_inputs, float)
+        ax.scatter(u[:, 0], u[:, 1], marker="x", color="#ff3030", s=22, lw=1.2, zorder=4)
+    ax.set_aspect("equal")
+    return im
+
+
+def fig_gp_rasters(gp: dict, classes: list[str], comp_names: list[str], test_inputs) -> Any:
+    C, F = gp["raster_mean"].shape[:2]
+    fig, axes = new_subplots(C, F, w=1.6 + 2.3 * F, h=1.2 + 2.1 * C, sharex=True, sharey=True)
+    for f in range(F):
+        lim = _component_limits(gp, f)
+        for c in range(C):
+            im = _raster_panel(axes[c, f], gp, c, f, lim, test_inputs)
+        axes[0, f].set_title(wrap_label(comp_names[f] if f < len(comp_names) else f"component {f}", 22))
+        axes[C - 1, f].set_xlabel("u_x")
+        fig.colorbar(im, ax=axes[:, f], orientation="horizontal", shrink=0.85, pad=0.02,
+                     label="GP mean score")
+    for c in range(C):
+        axes[c, 0].set_ylabel(f"{wrap_label(classes[c]) if c < len(classes) else c}\nu_y")
+    fig.suptitle("GP mean over the unit square (rows: class, columns: score component)\n"
+                 "dots: training views on the ring; red ×: track views")
+    return fig
+
+
+def fig_gp_ring(gp: dict, classes: list[str], comp_names: list[str], test_inputs) -> Any:
+    C, F = gp["ring_mean"].shape[:2]
+    ncol = 2 if F == 4 else min(F, 3)
+    nrow = math.ceil(F / ncol)
+    fig, axes = new_subplots(nrow, ncol, w=0.6 + 4.0 * ncol, h=1.1 + 2.8 * nrow)
+    cols = class_colors(C)
+    deg = np.degrees(_as_radians(gp["ring_theta"])) % 360
+    order = np.argsort(deg)
+    for f in range(nrow * ncol):
+        ax = axes.flat[f]
+        if f >= F:
+            ax.set_visible(False)
+            continue
+        for c in range(C):
+            mu, sd = gp["ring_mean"][c, f][order], gp["ring_std"][c, f][order]
+            lab = str(classes[c]).replace("_", " ") if c < len(classes) else str(c)
+            ax.plot(deg[order], mu, color=cols[c], lw=1.6, label=lab)
+            ax.fill_between(deg[order], mu - 2 * sd, mu + 2 * sd, color=cols[c], alpha=0.13, lw=0)
+            th, y = gp["train_theta"][c], gp["train_y"][c, f]
+            ok = np.isfinite(th) & np.isfinite(y)
+            ax.scatter(np.degrees(_as_radians(th[ok])) % 360, y[ok], color=cols[c], s=7, alpha=0.55, lw=0)
+        if test_inputs is not None and len(test_inputs):
+            u = np.asarray(test_inputs, float)
+            for a in np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360:
+                ax.axvline(a, color="#888888", lw=0.7, ls=":", zorder=0)
+        ax.set_xlim(0, 360)
+        ax.set_xticks(range(0, 361, 90))
+        ax.set_xlabel("viewing angle on the ring (deg)")
+        ax.set_ylabel("score")
+        ax.set_title(comp_names[f] if f < len(comp_names) else f"component {f}")
+    fig.legend(*axes.flat[0].get_legend_handles_labels(), loc="outside lower center",
+               ncol=min(C, 2), fontsize=8, frameon=False)
+    fig.suptitle("GP mean ± 2σ on the training ring, with training points (dotted: track views)")
+    return fig
+
+
+def bias_map_rgb(post: np.ndarray, colors: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(C, By, Bx) posterior -> (By, Bx, 3) image: hue = argmax class, brightness = its probability.
+
+    Brightness runs from 0.25 at a uniform posterior (1/C) to 1 at certainty, so ties look dark.
+    """
+    from matplotlib.colors import to_rgb
+    C = post.shape[0]
+    arg = np.argmax(post, axis=0)
+    pmax = np.take_along_axis(post, arg[None], axis=0)[0]
+    lo = 1.0 / C
+    t = np.clip((pmax - lo) / max(1.0 - lo, 1e-12), 0.0, 1.0)
+    base = np.array([to_rgb(c) for c in colors])[arg]
+    return base * (0.25 + 0.75 * t)[..., None], arg
+
+
+def _bias_map_key(ax, classes: list[str], colors: list[str], truth: int) -> None:
+    """The colour scale of the bias maps: per class (row), brightness vs winning probability."""
+    C = len(colors)
+    # Start just above 1/C: at exactly 1/C every class ties and argmax would pick another hue.
+    p = np.linspace(1.0 / C, 1.0, 65)[1:]
+    post = np.zeros((C, C, p.size))
+    for c in range(C):
+        post[:, c, :] = (1 - p) / max(C - 1, 1)
+        post[c, c, :] = p
+    rgb, _ = bias_map_rgb(post, colors)
+    ax.grid(False)
+    ax.imshow(rgb, aspect="auto", extent=(p[0], 1.0, C - 0.5, -0.5), interpolation="nearest")
+    ax.set_yticks(range(C))
+    ax.set_yticklabels([wrap_label(n, 26) + (" (truth)" if i == truth else "") for i, n in enumerate(classes)],
+                       fontsize=7.5)
+    ax.set_xlabel("probability of the winning class (colour scale)")
+    ax.set_xticks([round(1.0 / C, 2), 0.5, 0.75, 1.0] if C > 2 else [0.5, 0.75, 1.0])
+
+
+def fig_bias_maps(bm: dict, classes: list[str], target: str, images: list[str]) -> Any:
+    post = bm["posterior"]
+    K, C = post.shape[:2]
+    ncol = min(K, 5)
+    nrow = math.ceil(K / ncol)
+    fig, axes = new_subplots(nrow + 1, ncol, w=0.6 + 2.5 * ncol, h=1.6 + 2.5 * nrow,
+                             height_ratios=[1.0] * nrow + [0.12 * C + 0.1])
+    cols = class_colors(C)
+    names = [str(c) for c in classes] + [str(i) for i in range(len(classes), C)]
+    bx, by = bm["bias_x"], bm["bias_y"]
+    ti = names.index(target) if target in names else -1
+    for k in range(nrow * ncol):
+        ax = axes.flat[k]
+        if k >= K:
+            ax.set_visible(False)
+            continue
+        ax.grid(False)
+        rgb, arg = bias_map_rgb(post[k], cols)
+        ax.imshow(rgb, extent=(bx[0], bx[-1], by[0], by[-1]), origin="lower", interpolation="nearest")
+        if ti >= 0 and (arg == ti).any() and not (arg == ti).all():
+            ax.contour(bx, by, (arg == ti).astype(float), levels=[0.5], colors="white", linewidths=1.3)
+        ax.plot([0], [0], marker="+", color="white", ms=10, mew=2)
+        ax.set_title(f"view {k}" + (f"\n{images[k]}" if k < len(images) else ""), fontsize=8.5)
+        ax.set_xlabel("bias x (m)")
+        ax.set_ylabel("bias y (m)" if k % ncol == 0 else "")
+    gs = axes[nrow, 0].get_gridspec()
+    for ax in axes[nrow]:
+        ax.remove()
+    _bias_map_key(fig.add_subplot(gs[nrow, :]), names, cols, ti)
+    fig.suptitle("Single-view Model Based posterior over pose biases: hue = winning class, brightness = "
+                 "its probability;\nwhite outline: where the truth class wins; +: zero bias")
+    return fig

@@ -1,0 +1,244 @@
+"""The population sections of the main report: the verdict first, then the evidence per target,
+then the diagnostics that drive it (GP fits at a bound, ablations). All numbers come from
+``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
+from __future__ import annotations
+
+import math
+
+from pipeline.labels import (COMPARISONS, METRICS, comparison_key, comparison_label, method_label, metric_label,
+                             ordered_methods)
+from reports.context import ReportContext
+from reports.numbers import Estimate, fmt
+from reports.tables import bound_counts, hyperparameter_table
+
+# The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
+# in a collapsed list right under the pooled table.
+HEADLINE = ("correct_final", "log10_mgr95_final")
+VERDICT_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "log10_mgr95_final")
+TARGET_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
+PAIRED_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_final",
+                  "log10_mgr75_final", "log10_mgr95_final")
+
+
+def wilson(k: float, n: int, z: float = 1.96) -> Estimate:
+    """A proportion k/n with its Wilson 95 % interval."""
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return Estimate(p, max(0.0, c - h), min(1.0, c + h))
+
+
+def classifier_text(card: dict | None) -> str:
+    if not card:
+        return "classifier: unknown (classifier/card.json not found)"
+    w = card.get("weights")
+    if w == "synthetic":
+        acc, n = card.get("accuracy"), card.get("val_images")
+        acc_t = (wilson(round(float(acc) * n), int(n)).text() + f" on {n} held-out images" if acc is not None and n
+                 else fmt(acc))
+        return (f"classifier: AlexNet trained here on {card.get('num_classes', '?')} synthetic texture "
+                f"families (the source domain), held-out top-1 {acc_t}")
+    if w == "imagenet":
+        return "classifier: torchvision's ImageNet AlexNet (IMAGENET1K_V1), no held-out accuracy on these objects"
+    return f"classifier: AlexNet weights from {card.get('weights_file', 'a file')}"
+
+
+def context_sentence(ctx: ReportContext) -> str:
+    src = ctx.data_source
+    what = ("synthetic data (stand-ins rendered in the BigBIRD and AVD formats, not real images)" if src == "synthetic"
+            else "real data (BigBIRD + AVD)" if src == "real" else f"data source '{src}'")
+    pop = ctx.population
+    if pop:
+        reps = sorted({int(s["realizations"]) for s in pop.get("settings") or [] if s.get("realizations")}
+                      or {pop.get("realizations")} - {None})
+        r_text = (f"{reps[0]}" if len(reps) == 1 else f"{reps[0]}–{reps[-1]}" if reps else "?")
+        size = (f"{pop.get('n_targets')} targets × {pop.get('n_tracks')} tracks "
+                f"({pop.get('tracks_per_target')} per target) × {len(pop.get('settings') or [])} "
+                f"localization settings × {r_text} realizations, {len(pop.get('methods') or [])} methods")
+    else:
+        size = f"one target ({ctx.ev.target or '?'}) on one track"
+    return f"What was evaluated: {what}; {size}; {classifier_text(ctx.run.card)}."
+
+
+def verdict_section(ctx: ReportContext) -> None:
+    ctx.section("Verdict", "verdict")
+    page, pop = ctx.page, ctx.population
+    page.paragraph(context_sentence(ctx), cls="context")
+    if not pop:
+        msg = ("This run has no population evaluation: summary.json has no 'population' key (an evaluate "
+               "stage from before the population evaluation wrote it), so there is no verdict. The numbers "
+               "below come from one target on one track; their CIs cover only the localization noise, "
+               "not other tracks, objects or classifiers. Rerun `viewfuse evaluate` for a verdict.")
+        ctx.notes.append(msg)
+        page.paragraph(msg, cls="warn")
+        return
+    sentences = [str(s) for s in pop.get("verdict") or []]
+    head = headline(sentences, pop.get("verdict_table") or [])
+    page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
+    methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
+    rows = [[method_label(m)] + [Estimate.of(((pop.get("pooled") or {}).get(m) or {}).get(k)) for k in VERDICT_METRICS]
+            for m in methods]
+    unit = str(pop.get("unit") or "")
+    page.table(["method"] + [metric_label(k, short=True) for k in VERDICT_METRICS], rows, cls="summary pooled",
+               caption=f"Pooled over the population: value [95 % CI]. {unit[:1].upper() + unit[1:]} "
+                       f"({pop.get('bootstrap', '?')} bootstrap resamples.) log10 MGR: 0 when the truth is the "
+                       "most likely class.")
+    if len(head) < len(sentences):
+        page.bullets(sentences, cls="verdict-all", collapsed=f"All {len(sentences)} verdict sentences "
+                                                             "(every metric, both comparisons)")
+    ceiling = _ceiling_line(pop)
+    if ceiling:
+        page.paragraph(ceiling, cls="note")
+
+
+def headline(sentences: list[str], table: list[dict]) -> list[str]:
+    """The verdict sentences of the headline metrics (the table rows pair 1:1 with the sentences);
+    all of them where the pairing is not there."""
+    if len(table) != len(sentences):
+        return sentences
+    head = [s for s, r in zip(sentences, table) if r.get("metric") in HEADLINE]
+    return head or sentences
+
+
+def _ceiling_line(pop: dict) -> str:
+    rows = [r for r in pop.get("verdict_table") or [] if r.get("metric") == "correct_final"]
+    if not rows:
+        return ""
+    r = rows[0]
+    return (f"Difficulty: of {r.get('n_cells')} (target, track, setting) cells, {r.get('ceiling_cells', 0)} have "
+            f"both methods at a correct ratio of 1 (ceiling) and {r.get('floor_cells', 0)} at 0 (floor); "
+            "the verdict rests on the others.")
+
+
+def population_section(ctx: ReportContext) -> None:
+    pop = ctx.population
+    if not pop:
+        return
+    ctx.section("Where the method wins and loses", "population")
+    page = ctx.page
+    ctx.figure("forest.png", "Paired differences With Uncertainty − baseline on the same (target, track, "
+                             "realization), per target and pooled, with 95 % bootstrap CIs over tracks. "
+                             "A bar that crosses 0 is not distinguishable from no difference.")
+    page.table(["comparison", "metric", "outcome", "difference [95 % CI]", "cells won", "cells lost", "cells"],
+               _paired_rows(pop), cls="paired",
+               caption="Paired differences, pooled. Won/lost: share of (target, track, setting) cells where "
+                       "With Uncertainty is strictly better / worse.")
+    if pop.get("per_target"):
+        ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
+        page.table(["target", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS], _target_rows(pop),
+                   cls="per-target", caption="Per target: value [95 % CI] over that target's tracks.")
+    else:
+        note = "summary.json's population.per_target is empty: no per-method values per target to show."
+        ctx.notes.append(note)
+        page.paragraph(note, cls="warn")
+    _by_setting(ctx, pop)
+    _difficulty(ctx, pop)
+    for s in pop.get("skipped_targets") or []:
+        page.paragraph(f"Target {s.get('target')} skipped: {s.get('reason')}", cls="warn")
+
+
+def _paired_rows(pop: dict) -> list[list]:
+    outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in pop.get("verdict_table") or []}
+    rows = []
+    for m, base in COMPARISONS:
+        key = comparison_key(m, base)
+        for metric in PAIRED_METRICS:
+            d = ((pop.get("paired") or {}).get(key) or {}).get(metric)
+            if not d:
+                continue
+            rows.append([comparison_label(key), metric_label(metric, short=True),
+                         outcome.get((key, metric)) or _outcome(d, metric), Estimate.of(d, signed=True),
+                         _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells")])
+    return rows
+
+
+def _outcome(d: dict, metric: str) -> str:
+    """better / worse / not distinguishable from the CI, where the verdict table lacks the row."""
+    e = Estimate.of(d)
+    if not e.excludes_zero():
+        return "not distinguishable"
+    higher = METRICS.get(metric, ("", True))[1]
+    return "better" if (float(e.value) > 0) == higher else "worse"
+
+
+def _share(v) -> str:
+    return "—" if v is None else f"{100 * float(v):.0f} %"
+
+
+def _target_rows(pop: dict) -> list[list]:
+    per = pop.get("per_target") or {}
+    rows = []
+    for t in pop.get("targets") or per.keys():
+        for m in ordered_methods((per.get(t) or {}).keys()):
+            rows.append([t, method_label(m, short=True)]
+                        + [Estimate.of((per[t][m] or {}).get(k)) for k in TARGET_METRICS])
+    return rows
+
+
+def _by_setting(ctx: ReportContext, pop: dict) -> None:
+    by = pop.get("by_setting") or {}
+    rows = []
+    for setting, entry in by.items():
+        for m, base in COMPARISONS:
+            d = ((entry or {}).get("paired") or {}).get(comparison_key(m, base)) or {}
+            if d:
+                rows.append([setting, comparison_label(comparison_key(m, base)),
+                             Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True)])
+    if rows:
+        ctx.page.table(["setting", "comparison", "Δ correct, final", "Δ log10 MGR 95%, final"], rows,
+                       cls="by-setting", caption="Paired differences per localization setting, 95 % CIs.")
+
+
+def _difficulty(ctx: ReportContext, pop: dict) -> None:
+    summ = (pop.get("difficulty") or {}).get("summary") or {}
+    if not summ:
+        return
+    keys = ("min", "q25", "median", "q75", "max", "mean")
+    ctx.page.table(["method"] + list(keys),
+                   [[method_label(m, short=True)] + [(summ[m] or {}).get(k) for k in keys]
+                    for m in ordered_methods(summ.keys())], cls="difficulty",
+                   caption="Difficulty over the population's tracks: share of a track's views whose "
+                           "single-view posterior ranks the target first (1 = every view alone is enough).")
+
+
+def diagnostics_section(ctx: ReportContext) -> None:
+    """GP fits at a bound, next to the ablations that measure what they do to the verdict."""
+    ctx.section("What drives the result: GP fits and ablations", "diagnostics")
+    page, index = ctx.page, ctx.run.index
+    if not index:
+        page.paragraph("models/index.json not found; GP fit diagnostics not shown.", cls="note")
+    else:
+        n = bound_counts(index)
+        page.paragraph(
+            f"{n['at_bound']} of {n['fits']} GP fits (class × component) ended with a hyperparameter at a bound; "
+            f"in {n['noise_lower']} the noise variance sits at its lower bound. Such a fit treats its class's "
+            "score as almost exactly known, so one off-model (domain-shifted) score makes that class nearly "
+            "impossible: this is what produces very large log10 MGR values.")
+        header, rows, _ = hyperparameter_table(index)
+        if rows:
+            page.table(header, rows, cls="hyperparameters", collapsed=f"All {len(rows)} fits (hyperparameters, "
+                       "bound flags and optimizer messages)", caption="GP hyperparameters from models/index.json.")
+    _ablations(ctx)
+
+
+def _ablations(ctx: ReportContext) -> None:
+    pop = ctx.population or {}
+    abl = pop.get("ablations") or {}
+    if not abl:
+        ctx.page.paragraph("No ablations ran (evaluate.ablations is empty). Listing, e.g., "
+                           "models.noise_floor=dropout measures how much of the verdict the fits at the "
+                           "noise bound carry.", cls="note")
+        return
+    key = comparison_key(*COMPARISONS[0])
+    rows = []
+    for name, a in abl.items():
+        over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
+        d = (a.get("paired") or {}).get(key) or {}
+        said = headline([str(s) for s in a.get("verdict") or []], a.get("verdict_table") or [])
+        rows.append([over, Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True),
+                     " ".join(said) or "—"])
+    ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],
+                   rows, cls="ablations", caption=f"Ablations on the same population: "
+                   f"{comparison_label(key)}, 95 % CIs; each row's verdict is computed as the main one (headline "
+                   "metrics here; every metric in summary.json, population.ablations).")
