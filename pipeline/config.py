@@ -61,10 +61,11 @@ class RunConfig:
     device: str = _f("auto", choices=("auto", "cpu", "cuda"))
     threads: int = _f(0, lo=0, hi=256, doc="torch/BLAS threads; 0 = number of cores")
     executor: str = _f("local", choices=("local", "ray"),
-                       doc="where the features batches and the evaluation grid run: local (this process) "
-                           "or ray (pip install -e '.[ray]')")
-    ray_address: str = _f("", doc="executor = ray: empty = start a local Ray instance; 'auto' or "
-                                  "'ray://host:port' = join a cluster")
+                       doc="where the features and evaluate stages run their tasks: local = this "
+                           "process; ray = Ray tasks (pip install -e '.[ray]'); outputs are the same")
+    ray_address: str = _f("", doc="executor ray: empty = start a local Ray instance (loopback only); "
+                                  "'auto' or 'ray://host:port' = join that cluster")
+    ray_workers: int = _f(0, lo=0, hi=4096, doc="executor ray, local instance: CPUs it gets; 0 = all cores")
 
 
 @dataclass(frozen=True)

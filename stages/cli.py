@@ -95,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="torch device (default: config run.device; auto = cuda when present)")
         sp.add_argument("--threads", type=int, default=None,
                         help="torch threads, 0..256 like run.threads (default: config run.threads; 0 = all cores)")
+        sp.add_argument("--executor", choices=("local", "ray"), default=None,
+                        help="where features and evaluate run their tasks (default: config run.executor; "
+                             "ray: local Ray instance, or the cluster in run.ray_address)")
     st = sub.add_parser("status", help="each stage: up to date, stale (and why) or missing; runs nothing",
                         description="Show, for every stage, whether its outputs are up to date for the "
                                     "config, code and inputs, stale (with the reason) or missing.")
@@ -117,6 +120,8 @@ def _load(args) -> Config:
         overrides = _merge(overrides, {"run": {"device": args.device}})
     if getattr(args, "threads", None) is not None:
         overrides = _merge(overrides, {"run": {"threads": args.threads}})
+    if getattr(args, "executor", None) is not None:
+        overrides = _merge(overrides, {"run": {"executor": args.executor}})
     return load_config(args.config, overrides or None)
 
 
