@@ -17,7 +17,7 @@ def small_scan(tmp_path_factory):
     cfg = load_config(DEFAULT_CONFIG, {
         "run": {"artifacts": str(tmp / "artifacts")},
         "data": {"scans": ["Home_001_1"], "synthetic": {"instances": ["aunt_jemima_original_syrup", "cholula_chipotle_hot_sauce", "crystal_hot_sauce", "honey_bunches_of_oats_honey_roasted", "mahatma_rice", "pepto_bismol"],
-                               "instances_per_scan": 0, "avd_box_jitter_px": 0, "occluders": 0, "angle_step_deg": 120, "bigbird_width": 160, "bigbird_height": 128,
+                               "instances_per_scan": 0, "avd_box_jitter_px": 0, "occluders": 0, "distractors": 0, "angle_step_deg": 120, "bigbird_width": 160, "bigbird_height": 128,
                                "avd_width": 320, "avd_height": 180}},
     })
     ensure(cfg, "data")

@@ -176,7 +176,9 @@ def test_boxes_point_at_the_true_object_position(scan):
             ang = img.heading - math.atan2(lateral, ahead)
             rel = np.array(pl.position) - img.position
             miss = abs(rel[0] * math.sin(ang) - rel[1] * math.cos(ang))
-            assert miss < 0.1, (img.name, pl.name, miss)
+            # + what the annotation jitter can move the box centre's bearing at this distance
+            jitter = plan.nuisance.box_jitter_px / K[0, 0] * np.linalg.norm(rel)
+            assert miss < 0.1 + jitter, (img.name, pl.name, miss)
             tried += 1
     assert tried > 5
 

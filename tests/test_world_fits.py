@@ -44,9 +44,7 @@ def fits(tmp_path_factory):
     from tests.conftest import DEFAULT_CONFIG
 
     art = tmp_path_factory.mktemp("world") / "artifacts"
-    cfg = load_config(DEFAULT_CONFIG, _merge(SMALL, {"run": {"artifacts": str(art)},
-                                                     "models": {"classes": CLASSES[:4]},
-                                                     "evaluate": {"target": CLASSES[0]}}))
+    cfg = load_config(DEFAULT_CONFIG, _merge(SMALL, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "data")
     bb, _ = data_roots(cfg)
     X, S = [], []
