@@ -8,11 +8,13 @@ CONFIG  ?= configs/synthetic.toml
 ARGS    ?=
 STAGES  := data classifier features models evaluate report simulate
 
-.PHONY: help venv $(STAGES) test bench clean distclean
+.PHONY: help venv venv-ray $(STAGES) study test bench clean distclean
 
 help:
 	@echo "make features models evaluate   run the main job on CONFIG (default $(CONFIG))"
 	@echo "make <stage>                    one stage (+ stale upstream): $(STAGES)"
+	@echo "make study                      seed study: the chain once per study.seeds classifier seed"
+	@echo "make venv-ray                   add the optional Ray extra (run.executor = \"ray\" / --executor ray)"
 	@echo "make test | bench | clean | distclean"
 
 $(VENV)/.installed: pyproject.toml
@@ -22,8 +24,18 @@ $(VENV)/.installed: pyproject.toml
 
 venv: $(VENV)/.installed
 
+# The optional Ray extra into the same .venv (the default install does not need it).
+$(VENV)/.installed-ray: $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test,ray]'
+	@touch $@
+
+venv-ray: $(VENV)/.installed-ray
+
 $(STAGES): $(VENV)/.installed
 	$(BIN)/viewfuse $@ --config $(CONFIG) $(ARGS)
+
+study: $(VENV)/.installed
+	$(BIN)/viewfuse study --config $(CONFIG) $(ARGS)
 
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)

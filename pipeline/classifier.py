@@ -239,7 +239,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     ``precision`` "bf16" = autocast mixed precision (fp32 master weights), several times faster on
     CPUs with native bf16; "auto" picks it where the hardware has it.
     """
-    from tqdm import tqdm
+    from pipeline.progress import bar as progress_bar
 
     torch.manual_seed(seed)
     gen = np.random.default_rng([seed, 7])
@@ -253,7 +253,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     total = epochs * steps_per_epoch
     step = 0
     history = []
-    bar = tqdm(total=total, desc="train classifier", unit="step", disable=not progress)
+    bar = progress_bar(total=total, desc="train classifier", unit="step", enabled=progress)
     for ep in range(epochs):
         order = gen.permutation(n)
         loss_sum, correct, seen = 0.0, 0, 0
@@ -274,7 +274,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
             correct += int((out.argmax(1) == y).sum())
             seen += len(idx)
             bar.update(1)
-            bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}")
+            bar.set_postfix_str(f"loss={loss_sum / seen:.3f}, acc={correct / seen:.3f}")
         history.append({"epoch": ep + 1, "loss": loss_sum / seen, "train_accuracy": correct / seen})
         if log:
             log(f"epoch {ep + 1}/{epochs}: loss {loss_sum / seen:.4f}, train top-1 {correct / seen:.4f}")
@@ -320,13 +320,12 @@ def resolve_precision(precision: str, device: str) -> str:
 def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int = 128,
             device: str = "cpu", progress: bool = False) -> np.ndarray:
     """Eval-mode logits (n, D) for uint8 images."""
-    from tqdm import tqdm
-
     from pipeline.crops import to_tensor
+    from pipeline.progress import bar as progress_bar
 
     model.eval().to(device)
     outs = []
-    for s in tqdm(range(0, len(images), batch_size), desc="validate", unit="batch", disable=not progress, leave=False):
+    for s in progress_bar(range(0, len(images), batch_size), desc="validate", unit="batch", enabled=progress, leave=False):
         outs.append(model(to_tensor(images[s:s + batch_size], mean, std).to(device)).float().cpu())
     return torch.cat(outs).numpy()
 
@@ -469,3 +468,42 @@ class MCDropoutScorer:
         mc = F.softmax(self.head_samples(f, self.draw_masks(seeds, n_samples)), dim=-1)
         return det, mc
 
+# -- what can make weights differ across machines ------------------------------------------------
+# CPU features that select different oneDNN/BLAS kernels (and so different rounding) for the same
+# training code: bf16/AMX paths exist only on some CPUs; AVX-512 vs AVX2 changes the reduction order.
+KERNEL_FLAGS = ("avx2", "fma", "avx512f", "avx512bw", "avx512_vnni", "avx512_bf16", "avx512_fp16",
+                "amx_tile", "amx_bf16", "amx_int8")
+CROSS_MACHINE_NOTE = (
+    "Same machine, same seed, same thread count: byte-identical weights. On another machine the "
+    "weights (and so every score downstream) can differ in the last bits and then drift during "
+    "training, because oneDNN picks kernels by CPU features (the cpu_flags here: bf16/AMX "
+    "autocast exists only where avx512_bf16/amx_bf16 do, AVX-512 vs AVX2 changes summation "
+    "order) and by thread count, and library versions change kernels too; the seed study "
+    "(viewfuse study) measures how much a verdict depends on one training run.")
+
+
+def machine_fingerprint() -> dict:
+    """CPU model and kernel-relevant flags, thread count and library versions (for card.json)."""
+    import platform
+
+    model, flags = platform.processor() or "", set()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name") and not model.strip():
+                    model = line.split(":", 1)[1].strip()
+                elif line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+                    break
+    except OSError:  # not Linux: flags unknown
+        pass
+    versions = {"torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
+    for mod in ("torchvision", "cv2"):
+        try:
+            versions[mod] = __import__(mod).__version__
+        except ImportError:  # pragma: no cover
+            versions[mod] = None
+    return {"cpu_model": model, "cpu_flags": [f for f in KERNEL_FLAGS if f in flags],
+            "machine": platform.machine(), "torch_threads": torch.get_num_threads(),
+            "onednn": bool(torch.backends.mkldnn.is_available()), "versions": versions,
+            "cross_machine": CROSS_MACHINE_NOTE}

@@ -27,6 +27,13 @@ def configure_threads(threads: int = 0) -> int:
 
 
 def available_cores() -> int:
+    """Cores this process may use: inside an executor task (a Ray worker), the CPUs granted to the
+    task, so that thread pools in it (the fusion engine's) do not oversubscribe a node running one
+    task per CPU; otherwise the CPUs this process may run on."""
+    from pipeline.executor import task_cpus
+
+    if task_cpus():
+        return task_cpus()
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1

@@ -1,26 +1,85 @@
 """Where independent tasks run: in this process (``local``) or on a Ray cluster (``ray``).
 
-A stage hands an executor a module-level function ``fn(shared, item)``, a list of items and one
-``shared`` payload (models, settings). ``map`` returns the results in the items' order, whatever
-order the tasks finished in, so outputs do not depend on the executor or on scheduling.
+A stage hands an executor a module-level function ``fn(shared, item)``, items and one ``shared``
+payload (models, weights, settings). ``map`` returns the results in the items' order, whatever
+order the tasks finished in; ``imap`` yields them in that order as they become available, reading
+the items lazily (the features stage streams crop batches through it). So outputs do not depend on
+the executor or on scheduling, provided ``fn`` derives any randomness from the item itself.
 
 ``local`` runs the tasks one after another in this process; each task still uses the threads of
 the numerical code inside it (the fusion engine's worker threads, torch's intra-op threads), as
 before executors existed. ``ray`` lives in ``pipeline.executor_ray`` and is imported only when
 asked for, so the default install does not need Ray.
+
+``gpu=True`` tells the executor a task can use a GPU: Ray then gives each task one GPU where the
+cluster has GPUs; ``local`` ignores it (the stage's own device setting applies).
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol, Sequence
+import time
+from typing import Any, Callable, Iterable, Iterator, Protocol, Sequence
 
 KINDS = ("local", "ray")
+
+
+class TransientError(RuntimeError):
+    """Raise from a task for a failure worth retrying (a flaky network file system, say); Ray
+    retries it, like ``ConnectionError`` and ``TimeoutError``. Other exceptions stop the stage."""
+
+
+# CPUs granted to the task running in this process (set by the Ray executor around each task;
+# 0 = not inside a task: use every core).
+_TASK_CPUS = 0
+
+
+def task_cpus() -> int:
+    """CPUs the current task may use (0 = all cores): thread pools inside a task should size to it,
+    or a cluster node running one task per CPU oversubscribes."""
+    return _TASK_CPUS
+
+
+# One record per finished map/imap call, for benchmarks and manifests: executor, desc, tasks,
+# slots (tasks that could run at once), wall_s (the call), task_s (sum of the tasks' own times
+# measured inside them), task_max_s.
+STATS: list[dict] = []
+
+
+def record(executor: str, desc: str, slots: int, wall_s: float, task_times: list[float]) -> dict:
+    rec = {"executor": executor, "desc": desc, "tasks": len(task_times), "slots": int(slots),
+           "wall_s": round(wall_s, 4), "task_s": round(float(sum(task_times)), 4),
+           "task_max_s": round(max(task_times, default=0.0), 4)}
+    STATS.append(rec)
+    del STATS[:-1000]  # bounded: a long-lived process keeps the latest
+    return rec
+
+
+def item_label(item: Any, limit: int = 80) -> str:
+    """How an item is named in errors: its ``label`` attribute, else a shortened ``repr``."""
+    text = getattr(item, "label", None)
+    text = str(text) if text is not None else repr(item)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def preload(modules: Sequence[str], item: Any = None) -> int:
+    """A task that imports ``modules`` and returns its process id: warms a worker before timing it
+    (the benchmark), or shows which worker processes exist."""
+    import importlib
+    import os
+
+    for m in modules:
+        importlib.import_module(m)
+    return os.getpid()
 
 
 class Executor(Protocol):
     name: str
 
     def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *, shared: Any = None,
-            desc: str = "", unit: str = "task") -> list[Any]: ...
+            desc: str = "", unit: str = "task", gpu: bool = False) -> list[Any]: ...
+
+    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable[Any], *, shared: Any = None,
+             desc: str = "", unit: str = "task", total: int | None = None, gpu: bool = False
+             ) -> Iterator[Any]: ...
 
     def close(self) -> None: ...
 
@@ -28,16 +87,25 @@ class Executor(Protocol):
 class LocalExecutor:
     """Tasks run in order in this process."""
     name = "local"
+    gpus = 0
 
-    def map(self, fn, items, *, shared=None, desc: str = "", unit: str = "task") -> list:
+    def imap(self, fn, items, *, shared=None, desc: str = "", unit: str = "task", total=None,
+             gpu: bool = False) -> Iterator:
         from pipeline.progress import bar as progress_bar
 
-        out = []
-        with progress_bar(total=len(items), desc=desc, unit=unit, leave=False) as bar:
+        times: list[float] = []
+        with progress_bar(total=total, desc=desc, unit=unit, leave=False) as bar:
             for item in items:
-                out.append(fn(shared, item))
+                t = time.perf_counter()
+                out = fn(shared, item)
+                times.append(time.perf_counter() - t)
+                yield out
                 bar.update(1)
-        return out
+        # Wall = the tasks alone: the consumer's work between them is not the executor's.
+        record(self.name, desc, 1, sum(times), times)
+
+    def map(self, fn, items, *, shared=None, desc: str = "", unit: str = "task", gpu: bool = False) -> list:
+        return list(self.imap(fn, items, shared=shared, desc=desc, unit=unit, total=len(items)))
 
     def close(self) -> None:
         pass
@@ -58,3 +126,9 @@ def make_executor(kind: str = "local", *, address: str = "", workers: int = 0) -
         from pipeline.executor_ray import RayExecutor  # optional extra: pip install -e '.[ray]'
         return RayExecutor(address=address, workers=workers)
     raise ValueError(f"unknown executor {kind!r} (known: {', '.join(KINDS)})")
+
+
+def executor_for(cfg) -> Executor:
+    """The executor the config asks for ([run] executor, ray_address, ray_workers)."""
+    r = cfg.run
+    return make_executor(r.executor, address=r.ray_address, workers=r.ray_workers)

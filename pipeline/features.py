@@ -152,6 +152,81 @@ class CropJob:
 
 
 @dataclass
+class CropBatch:
+    """Crops cut where the images are (the driver), scored together by one task. ``seeds``: one
+    dropout-mask seed per crop, from (features seed, crop key), so scores do not depend on which
+    worker scores the batch or on how crops are batched."""
+    what: str
+    start: int
+    crops: np.ndarray                  # uint8 (B, S, S, 3)
+    seeds: list[int] | None
+    n_samples: int
+
+    @property
+    def label(self) -> str:
+        return f"{self.what} crops {self.start}-{self.start + len(self.crops) - 1}"
+
+
+@dataclass
+class ScoringModel:
+    """What a scoring task needs: the classifier identity, its weights as plain arrays (sent once
+    through the executor's shared payload; ``None`` when the scorer was registered in this process
+    with ``register_scorer``), the input normalisation and the device to score on."""
+    key: str
+    num_classes: int
+    dropout: float
+    mean: tuple[float, ...]
+    std: tuple[float, ...]
+    device: str = "cpu"
+    weights: dict[str, np.ndarray] | None = None
+
+    @classmethod
+    def from_model(cls, model, card: dict, policy, device: str, *, with_weights: bool) -> "ScoringModel":
+        w = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()} if with_weights else None
+        return cls(key=f"{card['hash']}@{device}", num_classes=int(card["num_classes"]),
+                   dropout=float(card["dropout"]), mean=tuple(policy.mean), std=tuple(policy.std),
+                   device=device, weights=w)
+
+
+_SCORERS: dict[str, Any] = {}  # per process: the scorer built for a ScoringModel key
+
+
+def register_scorer(key: str, scorer) -> None:
+    """Use an already built scorer for ``key`` in this process (the local executor's route)."""
+    _SCORERS.clear()
+    _SCORERS[key] = scorer
+
+
+def forget_scorers() -> None:
+    """Drop this process's cached scorer (its weights) once a stage is done scoring."""
+    _SCORERS.clear()
+
+
+def _scorer(model: ScoringModel):
+    sc = _SCORERS.get(model.key)
+    if sc is None:
+        import torch
+
+        from pipeline.classifier import MCDropoutScorer, build_alexnet, load_into
+
+        if model.weights is None:
+            raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
+        net = build_alexnet(model.num_classes, model.dropout)
+        load_into(net, {k: torch.from_numpy(np.array(v)) for k, v in model.weights.items()}, "object store")
+        sc = MCDropoutScorer(net.eval().to(model.device), model.device)
+        register_scorer(model.key, sc)  # one classifier per worker process at a time
+    return sc
+
+
+def score_batch(model: ScoringModel, batch: CropBatch) -> tuple[np.ndarray, np.ndarray | None]:
+    """Executor task: (det (B, D), dropout samples (B, N_s, D) or None) as float32 arrays."""
+    from pipeline.crops import to_tensor
+
+    det, mc = _scorer(model).score(to_tensor(batch.crops, model.mean, model.std), batch.seeds, batch.n_samples)
+    return det.float().cpu().numpy(), (None if mc is None else mc.float().cpu().numpy())
+
+
+@dataclass
 class Scored:
     columns: dict[str, list] = field(default_factory=dict)
     det: list[np.ndarray] = field(default_factory=list)
@@ -169,40 +244,50 @@ class Scored:
         return det, mc
 
 
-def score_jobs(jobs: Iterator[CropJob], scorer, policy, *, n_samples: int, seed: int, batch_size: int,
-               dim: int) -> Scored:
-    """Crop every job with ``policy``, score in batches: deterministic pass and, if ``n_samples``,
-    that many dropout samples per crop (masks seeded by (seed, job.key))."""
+def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_samples: int, seed: int,
+                 batch_size: int) -> Iterator[CropBatch]:
+    """Crop every job with ``policy`` into batches of ``batch_size``; each crop's table columns
+    (crop box included) go to ``out`` in the same order."""
     from pipeline.classifier import crop_seed
 
-    out = Scored()
     pending: list[tuple[CropJob, np.ndarray, tuple]] = []
+    start = 0
 
-    def flush() -> None:
-        if not pending:
-            return
-        x = policy.to_tensor(np.stack([c for _, c, _ in pending]))
-        seeds = [crop_seed(seed, j.key) for j, _, _ in pending] if n_samples else None
-        det, mc = scorer.score(x, seeds, n_samples)
-        out.det.append(det.float().cpu().numpy())
-        if mc is not None:
-            out.mc.append(mc.float().cpu().numpy())
+    def batch() -> CropBatch:
+        nonlocal start
+        b = CropBatch(what, start, np.stack([c for _, c, _ in pending]),
+                      [crop_seed(seed, j.key) for j, _, _ in pending] if n_samples else None, n_samples)
         for j, _, cb in pending:
             for k, v in j.columns.items():
                 out.columns.setdefault(k, []).append(v)
             for k, v in zip(CROP_COLS, cb):
                 out.columns.setdefault(k, []).append(int(v))
+        start += len(pending)
         pending.clear()
+        return b
 
     for job in jobs:
         crop, cb = policy.crop(job.image, job.box)
         pending.append((job, crop, cb))
         if len(pending) >= batch_size:
-            flush()
-    flush()
-    for d in out.det:
-        if d.shape[1] != dim:
-            raise ValueError(f"classifier gave {d.shape[1]} scores per crop, its card says {dim}")
+            yield batch()
+    if pending:
+        yield batch()
+
+
+def score_jobs(jobs: Iterator[CropJob], model: ScoringModel, policy, executor, *, what: str, n_samples: int,
+               seed: int, batch_size: int, dim: int, gpu: bool = False) -> Scored:
+    """Crop every job here, score the batches through ``executor`` (deterministic pass and, if
+    ``n_samples``, that many dropout samples per crop, masks seeded by (seed, job.key))."""
+    out = Scored()
+    batches = crop_batches(jobs, policy, out, what=what, n_samples=n_samples, seed=seed, batch_size=batch_size)
+    for det, mc in executor.imap(score_batch, batches, shared=model, desc=f"features: scoring {what}",
+                                 unit="batch", gpu=gpu):
+        if det.shape[1] != dim:
+            raise ValueError(f"classifier gave {det.shape[1]} scores per crop, its card says {dim}")
+        out.det.append(det)
+        if mc is not None:
+            out.mc.append(mc)
     return out
 
 

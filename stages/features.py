@@ -6,6 +6,13 @@ up to ``features.max_difficulty`` get the deterministic pass and ``features.n_sa
 samples. One crop policy for both (``pipeline.crops``). Bad views follow ``data.skip_bad_views``:
 counted, logged and listed in the manifest, or a named error.
 
+Executors (``run.executor``): images are read and cropped here, in batches of
+``features.batch_size``; each batch is scored by one task. ``local`` scores them in this process;
+``ray`` puts the classifier weights in Ray's object store once and scores the batches on the
+workers, one GPU per task where the cluster has GPUs (unless ``run.device = "cpu"``). Dropout
+masks depend only on (features.seed, crop key), so both give the same Parquet files on the same
+kind of device.
+
 Cache key: [features] + the data and classifier stages' keys (images, dropout p, input size,
 normalisation, training) + the classifier card hash (the weights themselves), via ``extra_key``.
 """
@@ -14,6 +21,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from contextlib import contextmanager
 from typing import Iterator
 
 import numpy as np
@@ -142,57 +150,90 @@ def viewpoint_spread(objects: np.ndarray, scores: np.ndarray, names: list[str]) 
     return out
 
 
+@contextmanager
+def _scorer_released():
+    from pipeline.features import forget_scorers
+
+    try:
+        yield
+    finally:
+        forget_scorers()
+
+
+def _scoring(ctx, executor, policy):
+    """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
+    from pipeline.classifier import MCDropoutScorer, load_classifier
+    from pipeline.features import ScoringModel, register_scorer
+
+    if executor.name == "local":
+        device = ctx.device
+        model, card = load_classifier(ctx.input("classifier"), device)
+        sm = ScoringModel.from_model(model, card, policy, device, with_weights=False)
+        register_scorer(sm.key, MCDropoutScorer(model, device))
+        return sm, card, False, device
+    # Ray: the weights go to the object store; tasks score on a GPU where the cluster has one.
+    want = ctx.device_request
+    if want == "cuda" and not executor.gpus:
+        raise RuntimeError("run.device = 'cuda' (or --device cuda) but the Ray cluster has no GPU")
+    device = "cuda" if executor.gpus and want != "cpu" else "cpu"
+    model, card = load_classifier(ctx.input("classifier"), "cpu")
+    return ScoringModel.from_model(model, card, policy, device, with_weights=True), card, device == "cuda", f"Ray ({device})"
+
+
 def run(ctx) -> str:
     import torch
 
     from loaders.avd import AVDScan
-    from pipeline.classifier import MCDropoutScorer, load_classifier
     from pipeline.crops import CropPolicy
+    from pipeline.executor import executor_for
     from pipeline.features import build_table, metadata, score_jobs, write_table
     from pipeline.outputs import name as out_name
     from stages.data import data_roots
 
     cfg = ctx.cfg
     f = cfg.features
-    device = ctx.device
     t0 = time.perf_counter()
     bb_root, avd_root = data_roots(cfg)
-    model, card = load_classifier(ctx.input("classifier"), device)
     policy = CropPolicy.from_config(cfg)
-    for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
-        if card.get(key) is not None and card[key] != mine:
-            raise ValueError(f"{ctx.input('classifier') / 'card.json'}: classifier {key} {card[key]} differs "
-                             f"from 'classifier.{key}' = {mine} (rerun the classifier stage)")
-    scorer = MCDropoutScorer(model, device)
-    names = list(card["output_names"])
-    dim = len(names)
-    md = metadata(config_hash=cfg.section_hash("features"), classifier_hash=card["hash"], seed=f.seed,
-                  output_names=names, n_samples=f.n_samples, crop_policy=policy.as_dict())
     skips = ctx.skips  # data.skip_bad_views; the runner writes the counts into the manifest
-    timings = {}
+    # The scans first: their files (JSON, .mat, instance map) fail fast, before minutes of scoring.
+    scans = [AVDScan(avd_root, name, skip=skips.log("avd", "AVD entry")) for name in cfg.data.scans]
+    with executor_for(cfg) as ex, _scorer_released():
+        sm, card, gpu, device = _scoring(ctx, ex, policy)
+        for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
+            if card.get(key) is not None and card[key] != mine:
+                raise ValueError(f"{ctx.input('classifier') / 'card.json'}: classifier {key} {card[key]} differs "
+                                 f"from 'classifier.{key}' = {mine} (rerun the classifier stage)")
+        names = list(card["output_names"])
+        dim = len(names)
+        md = metadata(config_hash=cfg.section_hash("features"), classifier_hash=card["hash"], seed=f.seed,
+                      output_names=names, n_samples=f.n_samples, crop_policy=policy.as_dict())
+        timings = {}
+        common = dict(seed=f.seed, batch_size=f.batch_size, dim=dim, gpu=gpu)
 
-    # The scan first: its files (JSON, .mat, instance map) fail fast, before minutes of scoring.
-    scan = AVDScan(avd_root, cfg.data.scan, skip=skips.log("avd", "AVD entry"))
+        # BigBIRD: the deterministic pass (GP training targets, as in the paper) plus dropout samples.
+        t1 = time.perf_counter()
+        with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
+            bb = score_jobs(_bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",
+                            n_samples=f.bigbird_samples, **common)
+        det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
+        write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
+        timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
 
-    # BigBIRD: the deterministic pass (GP training targets, as in the paper) plus dropout samples.
-    t1 = time.perf_counter()
-    with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
-        bb = score_jobs(_bigbird_jobs(cfg, bb_root, skips, bar), scorer, policy,
-                        n_samples=f.bigbird_samples, seed=f.seed, batch_size=f.batch_size, dim=dim)
-    det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
-    write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
-    timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
-
-    # AVD: deterministic pass + N_s dropout samples per box.
-    t2 = time.perf_counter()
-    with progress_bar(desc="features: AVD images", unit="image") as bar:
-        av = score_jobs(_avd_jobs(cfg, scan, skips, bar), scorer, policy, n_samples=f.n_samples,
-                        seed=f.seed, batch_size=f.batch_size, dim=dim)
-    det_av, mc_av = av.arrays(dim, f.n_samples)
-    write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))
-    timings["avd_s"] = round(time.perf_counter() - t2, 2)
+        # AVD: deterministic pass + N_s dropout samples per box, every scan of data.scans in turn.
+        t2 = time.perf_counter()
+        with progress_bar(desc="features: AVD images", unit="image") as bar:
+            def jobs():  # rows carry their scan
+                for scan in scans:
+                    bar.set_description(f"features: AVD {scan.scan}")
+                    yield from _avd_jobs(cfg, scan, skips, bar)
+            av = score_jobs(jobs(), sm, policy, ex, what="AVD", n_samples=f.n_samples, **common)
+        det_av, mc_av = av.arrays(dim, f.n_samples)
+        write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))
+        timings["avd_s"] = round(time.perf_counter() - t2, 2)
     if av.n == 0:
-        log.warning("no AVD box up to difficulty %d in scan %s: avd.parquet is empty", f.max_difficulty, cfg.data.scan)
+        log.warning("no AVD box up to difficulty %d in scans %s: avd.parquet is empty", f.max_difficulty,
+                    ", ".join(cfg.data.scans))
 
     spread = viewpoint_spread(np.asarray(bb.columns.get("object", []), dtype=object), det_bb, names)
     for obj, s in spread.items():
@@ -204,6 +245,7 @@ def run(ctx) -> str:
         "bigbird_samples": f.bigbird_samples, "score_dim": dim,
         "classifier_hash": card["hash"], "crop_policy": policy.as_dict(),
         "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": torch.get_num_threads(),
+        "executor": cfg.run.executor,
     })
     n_skip = skips.count
     return (f"{bb.n} BigBIRD crops (1 + {f.bigbird_samples} passes) + {av.n} AVD crops (1 + {f.n_samples} passes), D = {dim}, "

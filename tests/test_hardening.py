@@ -36,7 +36,7 @@ def corrupt_entropy(data: bytes) -> bytes:
 def real_cfg(tmp_config, tmp_path, skip=True, **over):
     bb, avd = tmp_path / "bigbird", tmp_path / "avd"
     return tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
-                                "scan": "Home_001_1", "skip_bad_views": skip, **over},
+                                "scans": ["Home_001_1"], "skip_bad_views": skip, **over},
                        "features": {"bigbird_cameras": [1]}})
 
 
