@@ -478,8 +478,6 @@ def test_10_no_module_imports_a_floor_above_its_own():
             for line, mod in _project_imports(path):
                 if FLOORS[mod.split(".")[0]] > level:
                     bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod}")
-    # pipeline/source_domain.py moves to loaders/synthetic/ in issue 11's branch.
-    bad = [b for b in bad if not b.startswith("pipeline/source_domain.py")]
     assert not bad, "imports up the floors:\n" + "\n".join(bad)
 
 
