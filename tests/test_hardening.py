@@ -527,3 +527,24 @@ def test_many_skips_are_counted_but_not_all_logged(caplog):
     assert skip.count == 500 and skip.reasons == {"corrupt JPEG": 500} and len(skip.examples) == 20
     assert len(caplog.records) == SkipLog.LOG_FIRST + 1
     assert "counted, not logged" in caplog.records[-1].getMessage()
+
+
+# ------------------------------------------------------------------------------------------------
+# 12. comments cite files inside the repository
+
+def test_12_no_citations_of_files_outside_the_repository():
+    import re
+
+    bad = []
+    files = [ROOT / "README.md", *(ROOT / "configs").glob("*.toml")]
+    for d in ("pipeline", "loaders", "stages", "reports", "tests"):
+        files += sorted((ROOT / d).rglob("*.py"))
+    outside = re.compile(r"DESIGN §|/work/shared|(?<![\w/])formats/")
+    for path in files:
+        for no, line in enumerate(path.read_text().splitlines(), start=1):
+            if outside.search(line) and "outside = re.compile" not in line:
+                bad.append(f"{path.relative_to(ROOT)}:{no}: {line.strip()}")
+    assert not bad, "citations of files outside the repository:\n" + "\n".join(bad)
+    for cited in ("docs/design.md", "docs/formats/avd.md", "docs/formats/bigbird.md",
+                  "docs/formats/avd_instance_id_map.txt"):
+        assert (ROOT / cited).is_file(), cited
