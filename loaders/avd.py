@@ -1,10 +1,10 @@
-"""Reader for Active Vision Dataset scans (formats/avd.md).
+"""Reader for Active Vision Dataset scans (docs/formats/avd.md).
 
 ``<root>/instance_id_map.txt`` maps instance names to ids; ``<root>/<scan>/`` holds ``jpg_rgb/``,
 ``annotations.json`` (boxes + move pointers), ``image_structs.mat`` (COLMAP poses, ``scale``
 to millimetres) and ``present_instance_names.txt``.
 
-Ground frame (DESIGN §3): camera centre ``c = -Rᵀt`` (registered) or ``world_pos``
+Ground frame (docs/design.md §4): camera centre ``c = -Rᵀt`` (registered) or ``world_pos``
 (interpolated); ``up = -mean(Rᵀ[0,1,0])`` over registered images (COLMAP's image-down axis);
 ``e1`` = recon x projected onto the plane ⟂ up, ``e2 = up × e1`` so ``e1 × e2 = up`` (right-handed
 seen from above). position = (c·e1, c·e2)·scale/1000 m; heading = atan2(d·e2, d·e1) with
@@ -35,7 +35,7 @@ _NEIGHBOUR_FIELDS = STRUCT_FIELDS[10:]
 _STRING_FIELDS = ("image_name", "image_id", "camera_id") + _NEIGHBOUR_FIELDS
 MOVES = ("forward", "backward", "left", "right", "rotate_cw", "rotate_ccw")
 
-# The authors' Kinect-1 colour calibration at 1920x1080 (formats/avd.md §7).
+# The authors' Kinect-1 colour calibration at 1920x1080 (docs/formats/avd.md §7).
 KINECT_SIZE = (1920, 1080)
 KINECT_K = np.array([[1070.0016, 0.0, 927.2688],
                      [0.0, 1069.1226, 545.7610],

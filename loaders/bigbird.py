@@ -1,4 +1,4 @@
-"""Reader for BigBIRD object folders (formats/bigbird.md).
+"""Reader for BigBIRD object folders (docs/formats/bigbird.md).
 
 One object folder holds ``calibration.h5``, Carmine RGB views ``NP{c}_{a}.jpg`` (unpadded
 turntable angle ``a``), masks ``masks/NP{c}_{a}_mask.pbm`` (object = bit 1) and reference-camera

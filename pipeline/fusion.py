@@ -1,4 +1,4 @@
-"""The batched fusion engine (DESIGN §5): Model with Uncertainty, Model Based, Simple Bayes.
+"""The batched fusion engine (docs/design.md §5): Model with Uncertainty, Model Based, Simple Bayes.
 
 All three return the class posterior after every step of the track.
 

@@ -1,4 +1,4 @@
-"""Frames on the ground plane (DESIGN §3): rotations, relative GP inputs, pose sampling.
+"""Frames on the ground plane (docs/design.md §4): rotations, relative GP inputs, pose sampling.
 
 Conventions: 2D, right-handed seen from above, metres, angles in radians counter-clockwise.
 The object frame has origin ``o`` and yaw ``ψ``; a camera at ``p`` sees the object from the
@@ -56,7 +56,7 @@ def sample_localization(estimates, sigma: float, n: int, rng) -> np.ndarray:
     """Localization samples: each pose estimate plus independent N(0, σ²I) noise.
 
     ``estimates`` (K, 2) or (R, K, 2) -> (n, K, 2) or (R, n, K, 2). Each sample is one whole
-    trajectory, drawn once and reused along the track (DESIGN §5). ``rng`` is a
+    trajectory, drawn once and reused along the track (docs/design.md §5). ``rng`` is a
     ``numpy.random.Generator`` or an integer seed. ``sigma = 0`` gives n copies of the estimates.
     """
     est = np.asarray(estimates, dtype=float)

@@ -1,4 +1,4 @@
-"""Per-class, viewpoint-dependent GP models of classifier scores (DESIGN §5, paper Eq. 13-17).
+"""Per-class, viewpoint-dependent GP models of classifier scores (docs/design.md §5, paper Eq. 13-17).
 
 One GP per (class c, component f): constant prior mean m (the training mean), kernel
 ``k(x, x') = a·exp(-‖x - x'‖² / (2ℓ²))`` and white noise σ_n² on training *and* test
@@ -215,7 +215,7 @@ class GPClassModels:
     def predict(self, Xs) -> tuple[np.ndarray, np.ndarray]:
         """Joint predictive per trajectory: Xs (..., K, d) -> mu (..., C, F, K), cov (..., C, F, K, K).
 
-        ``cov`` includes the white noise σ_n² I (test measurements carry it, DESIGN §5).
+        ``cov`` includes the white noise σ_n² I (test measurements carry it, docs/design.md §5).
         """
         Xs = np.asarray(Xs, dtype=float)
         if Xs.ndim < 2 or Xs.shape[-1] != self.input_dim:

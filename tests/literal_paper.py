@@ -1,4 +1,4 @@
-"""A slow, literal implementation of Feldman & Indelman 2020, Eq. 13-40 (DESIGN §5).
+"""A slow, literal implementation of Feldman & Indelman 2020, Eq. 13-40 (docs/design.md §5).
 
 Written straight from the maths and independent of ``pipeline.fusion``: every GP prediction is
 recomputed with an explicit inverse ``H``, every step forms ``Ω``, ``Σ_s⁻¹``, ``Σ_z⁻¹``, ``Σ_J``,

@@ -1,7 +1,7 @@
 """Tiny hand-made BigBIRD object folders and AVD scans for the reader tests.
 
 Independent of loaders/synthetic on purpose: these writers encode known ground truth (camera
-positions, headings, boxes) directly in the on-disk formats of formats/bigbird.md and avd.md, so
+positions, headings, boxes) directly in the on-disk formats of docs/formats/bigbird.md and avd.md, so
 the readers can be checked against it.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The models stage on a tiny features Parquet the test writes (contract of DESIGN §7)."""
+"""The models stage on a tiny features Parquet the test writes (contract in docs/design.md §6)."""
 import json
 
 import numpy as np

@@ -155,7 +155,7 @@ def test_boxes_contain_every_visible_pixel_of_their_instance(scan):
 
 
 def test_difficulty_rule_examples():
-    # formats/avd.md §3: L = max(w, h), s = min(w, h).
+    # docs/formats/avd.md §3: L = max(w, h), s = min(w, h).
     assert difficulty(0, 0, 300, 100) == 1
     assert difficulty(0, 0, 250, 80) == 2 and difficulty(0, 0, 250, 60) == 3
     assert difficulty(0, 0, 60, 30) == 4 and difficulty(0, 0, 49, 40) == 5

@@ -1,4 +1,4 @@
-"""Write the synthetic room as one Active Vision Dataset scan (formats/avd.md).
+"""Write the synthetic room as one Active Vision Dataset scan (docs/formats/avd.md).
 
 ``<root>/instance_id_map.txt`` (the real 34-line map) and ``<root>/<scan>/``: ``jpg_rgb/`` (15-digit
 names: type, scene, scan, 1-based index, camera ``01``, type ``01``), ``annotations.json`` (boxes
@@ -277,7 +277,7 @@ def quat_from_R(R: np.ndarray) -> np.ndarray:
 
 
 def struct_records(plan: ScanPlan, moves: dict) -> list[dict]:
-    """The 16 image_structs fields per image, sorted by name (formats/avd.md §4, §6)."""
+    """The 16 image_structs fields per image, sorted by name (docs/formats/avd.md §4, §6)."""
     poses = {s.name: plan.recon_pose(s) for s in plan.shots}
     by_cluster: dict[int, list[Shot]] = {}
     for s in plan.shots:

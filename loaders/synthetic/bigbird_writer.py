@@ -1,4 +1,4 @@
-"""Write synthetic instances as BigBIRD object folders (formats/bigbird.md §7).
+"""Write synthetic instances as BigBIRD object folders (docs/formats/bigbird.md §7).
 
 ``<root>/<object>/``: ``calibration.h5`` (float64 datasets for c = 1..5), ``poses/NP5_{a}_pose.h5``
 (``H_table_from_reference_camera`` = Rz(a) @ H_table_from_NP5(0), ``board_frame_offset``),

@@ -22,7 +22,7 @@ import numpy as np
 
 from loaders.synthetic.textures import CATEGORY_NAMES, N_CATEGORIES, palette, texture
 
-# The real AVD instance map (formats/avd_instance_id_map.txt), embedded: readers of a synthetic
+# The real AVD instance map (docs/formats/avd_instance_id_map.txt), embedded: readers of a synthetic
 # root find it beside the scan, exactly as in a real download.
 AVD_INSTANCE_MAP_TEXT = """\
 background 0
