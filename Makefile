@@ -8,11 +8,12 @@ CONFIG  ?= configs/synthetic.toml
 ARGS    ?=
 STAGES  := data classifier features models evaluate report simulate
 
-.PHONY: help venv venv-ray $(STAGES) test bench clean distclean
+.PHONY: help venv venv-ray $(STAGES) study test bench clean distclean
 
 help:
 	@echo "make features models evaluate   run the main job on CONFIG (default $(CONFIG))"
 	@echo "make <stage>                    one stage (+ stale upstream): $(STAGES)"
+	@echo "make study                      seed study: the chain once per study.seeds classifier seed"
 	@echo "make venv-ray                   add the optional Ray extra (run.executor = \"ray\" / --executor ray)"
 	@echo "make test | bench | clean | distclean"
 
@@ -32,6 +33,9 @@ venv-ray: $(VENV)/.installed-ray
 
 $(STAGES): $(VENV)/.installed
 	$(BIN)/viewfuse $@ --config $(CONFIG) $(ARGS)
+
+study: $(VENV)/.installed
+	$(BIN)/viewfuse study --config $(CONFIG) $(ARGS)
 
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)

@@ -26,13 +26,18 @@ class SkipLog:
         self.reasons: Counter[str] = Counter()
         self.examples: list[str] = []
 
+    LOG_FIRST = 10  # skips logged one by one; the rest are only counted (the manifest lists them)
+
     def skip(self, err: BadInputError | str) -> None:
         self.count += 1
         msg = str(err)
         self.reasons[getattr(err, "problem", msg)] += 1
         if len(self.examples) < 20:
             self.examples.append(msg)
-        log.warning("skipped %s: %s", self.what, msg)
+        if self.count <= self.LOG_FIRST:
+            log.warning("skipped %s: %s", self.what, msg)
+        elif self.count == self.LOG_FIRST + 1:
+            log.warning("skipped %s: %s (further skips of this kind are counted, not logged)", self.what, msg)
 
     def summary(self) -> dict:
         return {"skipped": self.count, "reasons": dict(self.reasons), "examples": self.examples}

@@ -1,13 +1,17 @@
 """Stage ``classifier``: resolve the dropout AlexNet's weights and write its card.
 
-- ``synthetic`` (default): train torchvision's AlexNet on the synthetic source domain
-  (``pipeline.source_domain``), report held-out top-1, fail below ``training.min_accuracy``, and
-  store ``weights.npz`` (plain arrays, no pickle) beside ``card.json``.
+- ``synthetic`` (default): render the synthetic source domain (``loaders.synthetic.source_domain``)
+  in ``training.render_workers`` processes, train torchvision's AlexNet on it
+  (``pipeline.classifier.train_classifier`` gets the arrays: the method layer never imports the
+  loaders), report held-out top-1, fail below ``training.min_accuracy``, and store
+  ``weights.npz`` (plain arrays, no pickle) beside ``card.json``.
 - ``imagenet``: torchvision's IMAGENET1K_V1 file from the local torch cache (never downloaded).
 - ``path``: any AlexNet state dict (``.npz`` or a tensor-only torch file).
 
 ``card.json`` records the weights file and its sha256, output names, input size, normalisation,
-dropout p, accuracy/confusion (synthetic), training settings and timings; its ``hash`` is the
+dropout p, accuracy/confusion (synthetic), training settings, wall and CPU timings, and (synthetic)
+``determinism``: the CPU flags that select kernels, thread count, library versions and what can
+differ on another machine; its ``hash`` is the
 identity of the scorer that the features stage records in its Parquet metadata.
 """
 from __future__ import annotations
@@ -96,40 +100,58 @@ def _file_weights(ctx, device: str) -> str:
     return f"{c.weights} weights {path} ({n} outputs, sha256 {sha[:12]})"
 
 
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (a load-independent cost)."""
+    import resource
+
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
+def _render_sets(c, t) -> tuple:
+    """Train and validation images, rendered by ``training.render_workers`` processes."""
+    from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, render_set_parallel
+    from pipeline.progress import bar as progress_bar
+
+    with progress_bar(total=t.train_images + t.val_images, desc="classifier: render source domain", unit="img") as bar:
+        xtr, ytr = render_set_parallel(t.train_images, c.input_size, t.categories, c.seed, TRAIN_STREAM,
+                                       t.render_workers, progress=bar)
+        xva, yva = render_set_parallel(t.val_images, c.input_size, t.categories, c.seed, VAL_STREAM,
+                                       t.render_workers, progress=bar)
+    return xtr, ytr, xva, yva
+
+
 def _train_synthetic(ctx, device: str) -> str:
     import torch
 
+    from loaders.synthetic.source_domain import category_names
     from pipeline.classifier import (WEIGHTS_NPZ, build_alexnet, card_hash, confusion_matrix,
-                                     init_for_training, predict, resolve_precision, save_state_dict_npz,
-                                     train_classifier)
-    from pipeline.source_domain import TRAIN_STREAM, VAL_STREAM, category_names, render_set
+                                     init_for_training, machine_fingerprint, predict, resolve_precision,
+                                     save_state_dict_npz, train_classifier)
 
     c = ctx.cfg.classifier
     t = c.training
     names = category_names(t.categories)
-    timings = {}
-    t0 = time.perf_counter()
-    xtr, ytr = render_set(t.train_images, c.input_size, t.categories, c.seed, TRAIN_STREAM, progress=True,
-                          desc="classifier: render train")
-    xva, yva = render_set(t.val_images, c.input_size, t.categories, c.seed, VAL_STREAM, progress=True,
-                          desc="classifier: render val")
-    timings["render_s"] = round(time.perf_counter() - t0, 2)
+    timings, cpu = {}, {}
+    t0, c0 = time.perf_counter(), _cpu_s()
+    xtr, ytr, xva, yva = _render_sets(c, t)
+    timings["render_s"], cpu["render_s"] = round(time.perf_counter() - t0, 2), round(_cpu_s() - c0, 2)
 
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), _cpu_s()
     model = init_for_training(build_alexnet(t.categories, c.dropout), c.seed)
     precision = resolve_precision(t.precision, device)
     history = train_classifier(model, xtr, ytr, epochs=t.epochs, batch_size=t.batch_size, lr=t.lr,
                                weight_decay=t.weight_decay, warmup_steps=t.warmup_steps, seed=c.seed,
                                mean=c.mean, std=c.std, device=device, precision=precision,
                                log=log.info)
-    timings["train_s"] = round(time.perf_counter() - t1, 2)
+    timings["train_s"], cpu["train_s"] = round(time.perf_counter() - t1, 2), round(_cpu_s() - c1, 2)
 
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), _cpu_s()
     logits = predict(model, xva, mean=c.mean, std=c.std, device=device, progress=True)
     pred = logits.argmax(1)
     acc = float(np.mean(pred == yva))
     cm = confusion_matrix(yva, pred, t.categories)
-    timings["validate_s"] = round(time.perf_counter() - t2, 2)
+    timings["validate_s"], cpu["validate_s"] = round(time.perf_counter() - t2, 2), round(_cpu_s() - c2, 2)
     log.info("held-out top-1 on the source domain: %.4f (%d images)", acc, len(yva))
 
     model = model.cpu().float()
@@ -144,13 +166,15 @@ def _train_synthetic(ctx, device: str) -> str:
                      "schedule": "linear warmup + cosine", "augment": "dihedral flips, contrast/brightness",
                      "init": "He normal (fan-in)", "history": history},
         "timings": timings,
+        "cpu_seconds": cpu,
         "device": device,
         "torch_threads": torch.get_num_threads(),
         "torch": torch.__version__,
+        "determinism": machine_fingerprint(),
     })
     card["hash"] = card_hash(card)
     write_json(ctx.out / "card.json", card)
-    ctx.extra.update({"accuracy": acc, "hash": card["hash"], **timings})
+    ctx.extra.update({"accuracy": acc, "hash": card["hash"], **timings, "cpu_seconds": cpu})
     if acc < t.min_accuracy:
         log.error("confusion matrix (rows = truth, columns = prediction; %s):\n%s", ", ".join(names), cm)
         raise RuntimeError(
@@ -159,5 +183,6 @@ def _train_synthetic(ctx, device: str) -> str:
             f"or epochs; confusion matrix in the log)")
     total = sum(timings.values())
     return (f"synthetic AlexNet: {t.categories} categories, held-out top-1 {acc:.3f} on {len(yva)} images; "
-            f"render {timings['render_s']:.0f} s + train {timings['train_s']:.0f} s ({precision}, {device}) "
-            f"= {total:.0f} s; sha256 {sha[:12]}")
+            f"render {timings['render_s']:.0f} s ({t.render_workers} processes) + train {timings['train_s']:.0f} s "
+            f"({precision}, {device}, {c.input_size} px) + validate {timings['validate_s']:.0f} s = {total:.0f} s "
+            f"wall, {sum(cpu.values()):.0f} CPU s; sha256 {sha[:12]}")

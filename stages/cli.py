@@ -102,6 +102,12 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Show, for every stage, whether its outputs are up to date for the "
                                     "config, code and inputs, stale (with the reason) or missing.")
     _common(st)
+    sy = sub.add_parser("study", help="seed study: classifier -> evaluate once per study.seeds classifier seed",
+                        description="Rerun classifier, features, models and evaluate for every seed of "
+                                    "study.seeds under <run>/study/seed-<n>/ (finished seeds are reused), "
+                                    "then write study/index.html and study/summary.json side by side.")
+    _common(sy)
+    sy.add_argument("--force", action="store_true", help="rerun each seed's evaluate stage")
     return p
 
 
@@ -150,6 +156,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with progress.redirect_logging():
             remove_orphans(cfg)
+            if args.stage == "study":  # not a stage: the chain once per seed (stages/study.py)
+                from stages.study import run_study
+                run_study(cfg, device=cfg.run.device, threads=cfg.run.threads, force=args.force)
+                return 0
             keys: dict[str, str] = {}
             ensure(cfg, args.stage, force=args.force, device=cfg.run.device, threads=cfg.run.threads, _keys=keys)
             for after in STAGES[args.stage].after:

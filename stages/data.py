@@ -2,8 +2,8 @@
 
 Synthetic (``data.source = "synthetic"``) writes, under the stage folder,
 ``bigbird/<object>/...`` (BigBIRD object folders), ``avd/instance_id_map.txt`` and
-``avd/<scan>/...`` (an AVD root), and ``truth.json`` (object poses in the scan; no reader needs
-it). Views are rendered by ``data.synthetic.workers`` processes; every view draws its randomness
+``avd/<scan>/...`` for every scan of ``data.scans`` (an AVD root), and ``truth.json`` (per scan:
+object poses, grid, camera; no reader needs it). Views are rendered by ``data.synthetic.workers`` processes; every view draws its randomness
 from (seed, its own name), so the files do not depend on the worker count or order.
 
 Real (``data.source = "real"``) only checks that the configured roots hold what the readers need
@@ -44,8 +44,9 @@ def extra_key(cfg) -> str:
         return ""
     bb, avd = data_roots(cfg)
     h = hashlib.sha256()
-    scan = avd / cfg.data.scan
-    h.update(tree_fingerprint(scan).encode() if scan.is_dir() else b"no scan")
+    for name in cfg.data.scans:
+        scan = avd / name
+        h.update(tree_fingerprint(scan).encode() if scan.is_dir() else f"no scan {name}".encode())
     for p in (avd / "instance_id_map.txt", bb):
         h.update(_stat_line(p))
     if bb.is_dir():
@@ -91,21 +92,24 @@ def _check_real(ctx) -> str:
     if not (avd / "instance_id_map.txt").is_file():
         raise BadInputError(avd / "instance_id_map.txt",
                             "missing: the AVD root must hold instance_id_map.txt (downloaded separately)")
-    scan = avd / cfg.data.scan
-    if not scan.is_dir():
-        raise BadInputError(scan, f"scan folder for 'data.scan' = {cfg.data.scan!r} is missing from 'data.avd_root'")
-    for part in ("jpg_rgb", "annotations.json", "image_structs.mat"):
-        if not (scan / part).exists():
-            raise BadInputError(scan / part, f"missing from the scan folder {scan}")
-    n_images = sum(1 for p in (scan / "jpg_rgb").iterdir() if p.suffix.lower() == ".jpg")
-    if n_images == 0:
-        raise BadInputError(scan / "jpg_rgb", "holds no .jpg image")
+    counts = {}
+    for name in cfg.data.scans:
+        scan = avd / name
+        if not scan.is_dir():
+            raise BadInputError(scan, f"scan folder {name!r} of 'data.scans' is missing from 'data.avd_root'")
+        for part in ("jpg_rgb", "annotations.json", "image_structs.mat"):
+            if not (scan / part).exists():
+                raise BadInputError(scan / part, f"missing from the scan folder {scan}")
+        counts[name] = sum(1 for p in (scan / "jpg_rgb").iterdir() if p.suffix.lower() == ".jpg")
+        if counts[name] == 0:
+            raise BadInputError(scan / "jpg_rgb", "holds no .jpg image")
     _validate_real(ctx, bb, avd, objects)
     write_json(ctx.out / out_name("data", "roots"), {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
-                                        "scan": cfg.data.scan, "bigbird_objects": objects,
-                                        "avd_images": n_images})
-    ctx.extra.update({"bigbird_objects": len(objects), "avd_images": n_images})
-    return f"real data: {len(objects)} BigBIRD objects in {bb}; {cfg.data.scan}: {n_images} images in {avd}"
+                                        "scans": list(cfg.data.scans), "bigbird_objects": objects,
+                                        "avd_images": counts})
+    ctx.extra.update({"bigbird_objects": len(objects), "avd_images": counts})
+    scans = ", ".join(f"{k}: {v} images" for k, v in counts.items())
+    return f"real data: {len(objects)} BigBIRD objects in {bb}; {scans} in {avd}"
 
 
 def _validate_real(ctx, bb: Path, avd: Path, objects: list[str]) -> None:
@@ -122,7 +126,8 @@ def _validate_real(ctx, bb: Path, avd: Path, objects: list[str]) -> None:
                          "bigbird", "BigBIRD view")
     for name in objects:
         BigBirdObject(bb / name).check_calibration(cfg.features.bigbird_cameras)
-    AVDScan(avd, cfg.data.scan, skip=ctx.skips.log("avd", "AVD entry"))
+    for name in cfg.data.scans:
+        AVDScan(avd, name, skip=ctx.skips.log("avd", "AVD entry"))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -138,18 +143,19 @@ def _work(task: tuple):
         return kind, 0, None
     if kind == "bigbird-views":
         from loaders.synthetic.bigbird_writer import make_rig, write_view
+        from loaders.synthetic.nuisance import RigNuisance
         from loaders.synthetic.objects import make_instance
         _, folder, syn, seed, name, views = task
         rig = make_rig(syn.bigbird_width, syn.bigbird_height)
         inst = make_instance(name, seed)
+        nz = RigNuisance.from_config(syn)
         for c, a in views:
-            write_view(Path(folder), inst, rig, c, a, seed=seed, quality=syn.jpeg_quality,
-                       write_depth=syn.write_depth)
+            write_view(Path(folder), inst, rig, c, a, seed=seed, nuisance=nz, write_depth=syn.write_depth)
         return kind, len(views), None
     if kind == "avd-shots":
         from loaders.synthetic.avd_writer import plan_scan, write_shot
-        _, folder, syn, scan, seed, indices = task
-        plan = plan_scan(syn, scan, seed)
+        _, folder, syn, scan, seed, instances, indices = task
+        plan = plan_scan(syn, scan, seed, instances)
         boxes = {}
         for i in indices:
             shot = plan.shots[i]
@@ -167,32 +173,38 @@ def _write_synthetic(ctx) -> str:
     from loaders.synthetic.avd_writer import plan_scan, truth, write_scan_metadata
     from loaders.synthetic.bigbird_writer import angles
     from loaders.synthetic.objects import CATEGORY_NAMES, make_instance
+    from loaders.synthetic.scene import scan_instances
 
     cfg = ctx.cfg
-    syn, seed, scan = cfg.data.synthetic, cfg.data.seed, cfg.data.scan
+    syn, seed = cfg.data.synthetic, cfg.data.seed
     bb_root, avd_root = ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd")
     t0 = time.perf_counter()
-    plan = plan_scan(syn, scan, seed)  # validates names, room and grid before any work starts
+    # Plans validate names, rooms and grids before any work starts.
+    placed = {s: scan_instances(syn.instances, cfg.data.scans, s, syn.instances_per_scan) for s in cfg.data.scans}
+    plans = {s: plan_scan(syn, s, seed, placed[s]) for s in cfg.data.scans}
 
     tasks: list[tuple] = []
     views = [(c, a) for c in syn.bigbird_cameras for a in angles(syn.angle_step_deg)]
+    # AVD clusters first: a scan's rendering warms its room meshes once per worker.
+    for scan, plan in plans.items():
+        n_shots = len(plan.shots)
+        for k in range(0, n_shots, CHUNK):
+            tasks.append(("avd-shots", str(avd_root / scan), syn, scan, seed, placed[scan],
+                          list(range(k, min(k + CHUNK, n_shots)))))
     for name in syn.instances:
         folder = str(bb_root / name)
         tasks.append(("bigbird-meta", folder, syn, seed))
         for k in range(0, len(views), CHUNK):
             tasks.append(("bigbird-views", folder, syn, seed, name, views[k:k + CHUNK]))
-    n_shots = len(plan.shots)
-    for k in range(0, n_shots, CHUNK):
-        tasks.append(("avd-shots", str(avd_root / scan), syn, scan, seed, list(range(k, min(k + CHUNK, n_shots)))))
-    total = len(views) * len(syn.instances) + n_shots
+    n_images = sum(len(p.shots) for p in plans.values())
+    total = len(views) * len(syn.instances) + n_images
 
-    boxes: dict[str, list] = {}
+    boxes: dict[str, list] = {}  # image names carry the scan's prefix: unique across scans
     bar = progress_bar(total=total, desc="data: render views", unit="view")
     if syn.workers > 1:
         ctx_mp = multiprocessing.get_context("spawn")  # no fork after OpenCV threads started
         with ProcessPoolExecutor(syn.workers, mp_context=ctx_mp, initializer=_init_worker) as pool:
-            results = pool.map(_work, tasks)
-            for kind, n, res in results:
+            for kind, n, res in pool.map(_work, tasks):
                 if kind == "avd-shots":
                     boxes.update(res)
                 bar.update(n)
@@ -203,28 +215,36 @@ def _write_synthetic(ctx) -> str:
                 boxes.update(res)
             bar.update(n)
     bar.close()
-    write_scan_metadata(avd_root, plan, boxes)
-    sidecar = truth(plan)
-    sidecar["seed"] = seed
-    sidecar["bigbird"] = {"cameras": list(syn.bigbird_cameras), "angles": angles(syn.angle_step_deg),
-                          "image_size": [syn.bigbird_width, syn.bigbird_height]}
+    faces = {}
     for name in syn.instances:
         inst = make_instance(name, seed)
-        sidecar["instances"][name].update({
-            "height_m": inst.height,
-            "faces": {r: {"texture": key, "family": CATEGORY_NAMES[fam]} for r, (key, fam) in inst.spec.paint.items()},
-        })
+        faces[name] = {"height_m": inst.height,
+                       "faces": {r: {"texture": key, "family": CATEGORY_NAMES[fam]}
+                                 for r, (key, fam) in inst.spec.paint.items()}}
+    scans = {}
+    for scan, plan in plans.items():
+        write_scan_metadata(avd_root, plan, {s.name: boxes[s.name] for s in plan.shots})
+        scans[scan] = truth(plan)
+        for name in scans[scan]["instances"]:
+            scans[scan]["instances"][name].update(faces[name])
+    # Top level: the first scan's truth (the single-scan layout readers of older runs know), then
+    # every scan under "scans" and every object's paint under "objects".
+    sidecar = {**scans[cfg.data.scans[0]], "seed": seed, "scans": scans, "objects": faces,
+               "bigbird": {"cameras": list(syn.bigbird_cameras), "angles": angles(syn.angle_step_deg),
+                           "image_size": [syn.bigbird_width, syn.bigbird_height]}}
     write_json(ctx.out / out_name("data", "truth"), sidecar)
     write_json(ctx.out / out_name("data", "roots"), {"source": "synthetic", "bigbird_root": "bigbird", "avd_root": "avd",
-                                        "scan": scan, "bigbird_objects": sorted(syn.instances)})
+                                        "scans": list(cfg.data.scans), "bigbird_objects": sorted(syn.instances)})
     mb = _folder_bytes(ctx.out) / 1e6
     n_boxes = sum(len(b) for b in boxes.values())
-    interp = sidecar["interpolated"]
-    ctx.extra.update({"bigbird_views": len(views) * len(syn.instances), "avd_images": n_shots,
+    interp = sum(t["interpolated"] for t in scans.values())
+    ctx.extra.update({"bigbird_views": len(views) * len(syn.instances), "avd_images": n_images,
                       "avd_interpolated": interp, "avd_boxes": n_boxes, "megabytes": round(mb, 1),
+                      "scans": {s: sorted(placed[s]) for s in plans},
                       "workers": syn.workers, "seconds": round(time.perf_counter() - t0, 2)})
-    return (f"synthetic: {len(syn.instances)} BigBIRD objects x {len(views)} views, {scan}: {n_shots} images "
-            f"({interp} interpolated, {n_boxes} boxes); {mb:.0f} MB")
+    per_scan = ", ".join(f"{s}: {len(p.shots)} images, {len(placed[s])} instances" for s, p in plans.items())
+    return (f"synthetic: {len(syn.instances)} BigBIRD objects x {len(views)} views; {per_scan} "
+            f"({interp} interpolated, {n_boxes} boxes); {mb:.0f} MB in {time.perf_counter() - t0:.0f} s")
 
 
 def _folder_bytes(root: Path) -> int:

@@ -196,8 +196,8 @@ def run(ctx) -> str:
     bb_root, avd_root = data_roots(cfg)
     policy = CropPolicy.from_config(cfg)
     skips = ctx.skips  # data.skip_bad_views; the runner writes the counts into the manifest
-    # The scan first: its files (JSON, .mat, instance map) fail fast, before minutes of scoring.
-    scan = AVDScan(avd_root, cfg.data.scan, skip=skips.log("avd", "AVD entry"))
+    # The scans first: their files (JSON, .mat, instance map) fail fast, before minutes of scoring.
+    scans = [AVDScan(avd_root, name, skip=skips.log("avd", "AVD entry")) for name in cfg.data.scans]
     with executor_for(cfg) as ex, _scorer_released():
         sm, card, gpu, device = _scoring(ctx, ex, policy)
         for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
@@ -223,13 +223,17 @@ def run(ctx) -> str:
         # AVD: deterministic pass + N_s dropout samples per box.
         t2 = time.perf_counter()
         with progress_bar(desc="features: AVD images", unit="image") as bar:
-            av = score_jobs(_avd_jobs(cfg, scan, skips, bar), sm, policy, ex, what="AVD",
-                            n_samples=f.n_samples, **common)
+            def jobs():  # every scan of data.scans in turn; rows carry their scan
+                for scan in scans:
+                    bar.set_description(f"features: AVD {scan.scan}")
+                    yield from _avd_jobs(cfg, scan, skips, bar)
+            av = score_jobs(jobs(), sm, policy, ex, what="AVD", n_samples=f.n_samples, **common)
         det_av, mc_av = av.arrays(dim, f.n_samples)
         write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))
         timings["avd_s"] = round(time.perf_counter() - t2, 2)
     if av.n == 0:
-        log.warning("no AVD box up to difficulty %d in scan %s: avd.parquet is empty", f.max_difficulty, cfg.data.scan)
+        log.warning("no AVD box up to difficulty %d in scans %s: avd.parquet is empty", f.max_difficulty,
+                    ", ".join(cfg.data.scans))
 
     spread = viewpoint_spread(np.asarray(bb.columns.get("object", []), dtype=object), det_bb, names)
     for obj, s in spread.items():

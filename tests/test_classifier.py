@@ -9,7 +9,7 @@ import torch
 from pipeline.classifier import (IMAGENET_FILE, WeightsError, WeightsNotFoundError, build_alexnet,
                                  card_hash, init_for_training, load_classifier, load_into,
                                  load_state_dict_file, lr_at, save_state_dict_npz)
-from pipeline.source_domain import TRAIN_STREAM, VAL_STREAM, labels_for, render, render_set
+from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, labels_for, render, render_set
 
 TINY_TRAIN = {"classifier": {"input_size": 64, "training": {
     "train_images": 48, "val_images": 24, "epochs": 1, "batch_size": 16, "min_accuracy": 0.0}}}
@@ -134,7 +134,12 @@ def test_synthetic_stage_trains_caches_and_enforces_min_accuracy(tmp_config):
     assert card["output_names"] == list(CATEGORY_NAMES) and card["num_classes"] == 12
     assert 0.0 <= card["accuracy"] <= 1.0 and np.array(card["confusion"]).sum() == 24
     assert card["training"]["train_images"] == 48 and card["hash"] == card_hash(card)
-    assert set(card["timings"]) >= {"render_s", "train_s"}
+    assert set(card["timings"]) >= {"render_s", "train_s"} and set(card["cpu_seconds"]) >= {"render_s", "train_s"}
+    det = card["determinism"]
+    assert set(det["versions"]) >= {"torch", "torchvision", "numpy"} and det["versions"]["numpy"] == np.__version__
+    assert isinstance(det["cpu_flags"], list) and "machine" in det["cross_machine"].lower()
+    summary = read_manifest(cfg, "classifier")["summary"]
+    assert "render" in summary and "train" in summary and "top-1" in summary
     model, _ = load_classifier(folder)
     assert model(torch.zeros(2, 3, 64, 64)).shape == (2, 12)
     assert read_manifest(cfg, "classifier")["extra"]["accuracy"] == card["accuracy"]
@@ -162,6 +167,28 @@ def test_source_domain_is_deterministic_balanced_and_streams_differ():
     assert not np.array_equal(labels_for(24, 12, 5, TRAIN_STREAM), labels_for(24, 12, 6, TRAIN_STREAM))
     with pytest.raises(ValueError, match="category"):
         render(12, np.random.default_rng(0), 32)
+
+
+def test_parallel_rendering_gives_the_same_images_as_serial():
+    from loaders.synthetic.source_domain import render_set_parallel
+
+    a, ya = render_set(30, 40, 12, seed=2, stream=TRAIN_STREAM)
+    b, yb = render_set_parallel(30, 40, 12, seed=2, stream=TRAIN_STREAM, workers=2, chunk=8)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(ya, yb)
+
+
+def test_same_seed_same_machine_gives_byte_identical_weights():
+    from pipeline.classifier import train_classifier
+
+    x, y = render_set(24, 64, 12, seed=1, stream=TRAIN_STREAM)
+    states = []
+    for _ in range(2):
+        m = init_for_training(build_alexnet(12, 0.5), 3)
+        train_classifier(m, x, y, epochs=1, batch_size=12, lr=1e-4, weight_decay=0.0, warmup_steps=1, seed=3,
+                         mean=(0.5, 0.5, 0.5), std=(0.25, 0.25, 0.25), precision="auto", progress=False)
+        states.append({k: v.detach().clone() for k, v in m.state_dict().items()})
+    assert all(torch.equal(states[0][k], states[1][k]) for k in states[0])
 
 
 def test_lr_schedule_warms_up_then_decays_to_zero():

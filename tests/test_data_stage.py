@@ -11,6 +11,7 @@ from loaders.avd import AVDScan
 from loaders.bigbird import BigBirdObject, list_objects
 from loaders.errors import BadInputError
 from loaders.synthetic.avd_writer import plan_scan
+from loaders.synthetic.scene import scan_instances
 from pipeline.config import _merge
 from stages.data import data_roots, extra_key
 from stages.runner import ensure, read_manifest
@@ -41,37 +42,53 @@ def test_stage_writes_both_roots_truth_and_manifest(built):
     out = cfg.stage_dir("data")
     m = read_manifest(cfg, "data")
     assert m["stage"] == "data" and "synthetic" in m["summary"]
-    assert m["extra"]["bigbird_views"] == 6 * 3 and m["extra"]["avd_images"] % 12 == 0
+    n = len(cfg.data.synthetic.instances)
+    assert m["extra"]["bigbird_views"] == n * 3 and m["extra"]["avd_images"] % 12 == 0
     bb, avd = data_roots(cfg)
     assert (bb, avd) == (out / "bigbird", out / "avd")
     assert list_objects(bb) == sorted(cfg.data.synthetic.instances)
     assert len(BigBirdObject(bb / "pepto_bismol").views()) == 3
-    scan = AVDScan(avd, cfg.data.scan)
-    assert len(scan.images) == m["extra"]["avd_images"]
-    assert sum(len(i.boxes) for i in scan.images.values()) == m["extra"]["avd_boxes"]
+    scans = [AVDScan(avd, s) for s in cfg.data.scans]
+    assert len(scans) == 2 and sum(len(s.images) for s in scans) == m["extra"]["avd_images"]
+    assert sum(len(i.boxes) for s in scans for i in s.images.values()) == m["extra"]["avd_boxes"]
+    # Every instance is in some scan, each scan holds instances_per_scan of them.
+    present = [set(s.present_instances) for s in scans]
+    assert set().union(*present) == set(cfg.data.synthetic.instances)
+    assert all(len(p) == cfg.data.synthetic.instances_per_scan for p in present)
     roots = json.loads((out / "roots.json").read_text())
-    assert roots["source"] == "synthetic" and roots["scan"] == "Home_001_1"
+    assert roots["source"] == "synthetic" and roots["scans"] == ["Home_001_1", "Home_002_1"]
 
 
 def test_truth_sidecar_matches_the_generator(built):
     cfg = built
     truth = json.loads((cfg.stage_dir("data") / "truth.json").read_text())
-    plan = plan_scan(cfg.data.synthetic, cfg.data.scan, cfg.data.seed)
-    assert truth["scan"] == cfg.data.scan and truth["image_size"] == [96, 54]
-    assert np.allclose(truth["intrinsics"], plan.K)
-    assert np.allclose(truth["grid_points"], plan.room.grid_xy)
-    assert set(truth["instances"]) == set(cfg.data.synthetic.instances)
-    for p in plan.room.placements:
-        t = truth["instances"][p.name]
-        assert t["id"] == p.instance_id and np.allclose(t["position"], p.position)
-        assert t["yaw_deg"] == p.yaw_deg and t["base_height_m"] == p.base_height
-        assert set(t["faces"]) == {"front", "left", "back", "right"}
-    # Two instances share a face texture (single views alias between classes).
-    keys = [f["texture"] for t in truth["instances"].values() for f in t["faces"].values()]
+    syn = cfg.data.synthetic
+    for scan in cfg.data.scans:
+        placed = scan_instances(syn.instances, cfg.data.scans, scan, syn.instances_per_scan)
+        plan = plan_scan(syn, scan, cfg.data.seed, placed)
+        t_scan = truth["scans"][scan]
+        assert t_scan["scan"] == scan and t_scan["image_size"] == [96, 54]
+        assert np.allclose(t_scan["intrinsics"], plan.K)
+        assert np.allclose(t_scan["grid_points"], plan.room.grid_xy)
+        assert set(t_scan["instances"]) == set(placed)
+        for p in plan.room.placements:
+            t = t_scan["instances"][p.name]
+            assert t["id"] == p.instance_id and np.allclose(t["position"], p.position)
+            assert t["yaw_deg"] == p.yaw_deg and t["base_height_m"] == p.base_height
+            assert set(t["faces"]) == {"front", "left", "back", "right"}
+    # The top level keeps the first scan's truth (the single-scan layout).
+    assert truth["scan"] == cfg.data.scans[0] and truth["instances"] == truth["scans"][cfg.data.scans[0]]["instances"]
+    # Designed aliasing: shared face textures, and one pair of near twins (all but one region shared).
+    objs = truth["objects"]
+    assert set(objs) == set(syn.instances)
+    keys = [f["texture"] for t in objs.values() for f in t["faces"].values()]
     shared = {k for k in keys if k.startswith("shared/")}
-    owners = {k: {n for n, t in truth["instances"].items() if any(f["texture"] == k for f in t["faces"].values())}
+    owners = {k: {n for n, t in objs.items() if any(f["texture"] == k for f in t["faces"].values())}
               for k in shared}
-    assert any(len(o) >= 2 for o in owners.values())
+    assert sum(len(o) >= 2 for o in owners.values()) >= 4
+    fam = {n: [t["faces"][r]["family"] for r in ("front", "left", "back", "right")] for n, t in objs.items()}
+    twins = [(a, b) for a in fam for b in fam if a < b and sum(x == y for x, y in zip(fam[a], fam[b])) == 3]
+    assert twins == [("honey_bunches_of_oats_honey_roasted", "honey_bunches_of_oats_with_almonds")]
 
 
 def test_rerun_is_skipped_and_force_rewrites(built, capsys):
@@ -107,7 +124,8 @@ def test_real_source_validates_paths_and_fingerprints_inputs(built, tmp_config, 
     bb, avd = tmp_path / "bb", tmp_path / "avd"
     shutil.copytree(src_bb, bb)
     shutil.copytree(src_avd, avd)
-    real = tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd)}})
+    real = tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
+                                "scans": ["Home_001_1"]}})
     assert data_roots(real) == (bb, avd)
     ensure(real, "data")
     roots = json.loads((real.stage_dir("data") / "roots.json").read_text())
@@ -127,6 +145,6 @@ def test_real_source_validates_paths_and_fingerprints_inputs(built, tmp_config, 
         ensure(missing, "data")
     assert "data.bigbird_root" in str(err.value) and missing.source_path in str(err.value)
     wrong_scan = tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
-                                      "scan": "Home_002_1"}})
-    with pytest.raises(BadInputError, match="Home_002_1"):
+                                      "scans": ["Home_002_1", "Home_003_1"]}})
+    with pytest.raises(BadInputError, match="Home_003_1"):
         ensure(wrong_scan, "data")

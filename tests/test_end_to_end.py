@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 TINY = {
-    "data": {"synthetic": {"angle_step_deg": 30, "bigbird_width": 200, "bigbird_height": 160,
+    "data": {"scans": ["Home_001_1"], "synthetic": {"instances_per_scan": 0, "angle_step_deg": 30, "bigbird_width": 200, "bigbird_height": 160,
                            "avd_width": 480, "avd_height": 270}},
     "classifier": {"input_size": 64,
                    "training": {"train_images": 48, "val_images": 24, "epochs": 1, "batch_size": 16,

@@ -13,7 +13,7 @@ from pipeline.features import build_table, read_features
 
 N_S = 3
 TINY = {
-    "data": {"synthetic": {"angle_step_deg": 60, "bigbird_width": 160, "bigbird_height": 128,
+    "data": {"scans": ["Home_001_1"], "synthetic": {"instances_per_scan": 0, "angle_step_deg": 60, "bigbird_width": 160, "bigbird_height": 128,
                            "avd_width": 320, "avd_height": 180, "room_size_m": [2.4, 2.1],
                            "grid_step_m": 0.6, "distractors": 2, "workers": 1}},
     "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
@@ -105,8 +105,8 @@ def test_avd_rows_cover_every_box_with_the_dropout_samples(chain):
     df, scores, _ = read_features(chain.stage_dir("features") / "avd.parquet")
     _, root = data_roots(chain)
     # Expected crops straight from the annotation file (present instances, difficulty <= 5).
-    ann = json.loads((root / chain.data.scan / "annotations.json").read_text())
-    scan = AVDScan(root, chain.data.scan)
+    ann = json.loads((root / chain.data.scans[0] / "annotations.json").read_text())
+    scan = AVDScan(root, chain.data.scans[0])
     present = {scan.instance_ids[n] for n in scan.present_instances}
     n_boxes = sum(1 for e in ann.values() for b in e["bounding_boxes"] if b[4] in present and b[5] <= 5)
     assert n_boxes > 0 and len(df) == n_boxes * (1 + N_S)
@@ -124,7 +124,7 @@ def test_avd_rows_cover_every_box_with_the_dropout_samples(chain):
     r = det.iloc[0]
     img = scan.images[r["image"]]
     assert (r.cam_x, r.cam_y, r.heading, r.registered) == (img.position[0], img.position[1], img.heading, img.registered)
-    assert (df["scan"] == chain.data.scan).all()
+    assert (df["scan"] == chain.data.scans[0]).all()
 
 
 def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
@@ -259,7 +259,7 @@ def test_object_and_instance_selection_keys_are_checked(chain):
     assert len(jobs) == 6 and {j.columns["object"] for j in jobs} == {one}
     with pytest.raises(ValueError, match="'features.bigbird_objects' names 'nope'"):
         list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": ["nope"]}}), bb, SkipPolicy(False), Bar()))
-    scan = AVDScan(avd, chain.data.scan)
+    scan = AVDScan(avd, chain.data.scans[0])
     jobs = list(_avd_jobs(cfg_with({"features": {"avd_instances": [one], "max_difficulty": 3}}), scan, SkipPolicy(False), Bar()))
     assert {j.columns["instance"] for j in jobs} <= {one} and all(j.columns["difficulty"] <= 3 for j in jobs)
     with pytest.raises(ValueError, match="'features.avd_instances' names 'nope'"):

@@ -36,7 +36,7 @@ def corrupt_entropy(data: bytes) -> bytes:
 def real_cfg(tmp_config, tmp_path, skip=True, **over):
     bb, avd = tmp_path / "bigbird", tmp_path / "avd"
     return tmp_config({"data": {"source": "real", "bigbird_root": str(bb), "avd_root": str(avd),
-                                "scan": "Home_001_1", "skip_bad_views": skip, **over},
+                                "scans": ["Home_001_1"], "skip_bad_views": skip, **over},
                        "features": {"bigbird_cameras": [1]}})
 
 
@@ -498,3 +498,34 @@ def test_11_test_only_helpers_are_not_in_the_package():
         assert not hasattr(mod, name), f"{mod.__name__}.{name}"
     import stages.runner
     assert not hasattr(stages.runner, "StageNotImplemented")
+
+
+# ------------------------------------------------------------------------------------------------
+# CLI: status, --version, per-stage help
+
+def test_cli_status_version_and_stage_help(tmp_path, capsys):
+    from stages.cli import main
+
+    assert main(["status", "--set", f"run.artifacts={tmp_path}"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split()[0] for ln in lines] == ["data", "classifier", "features", "models", "evaluate",
+                                               "report", "simulate"]
+    assert all(ln.split(None, 1)[1] == "missing" for ln in lines)
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("viewfuse ")
+    with pytest.raises(SystemExit):
+        main(["features", "--help"])
+    out = capsys.readouterr().out
+    assert "features.n_samples = 10 in [1, 1000]: N_s dropout samples per AVD crop" in out
+    assert "models.restarts" not in out and "--progress {auto,on,off}" in out
+
+
+def test_many_skips_are_counted_but_not_all_logged(caplog):
+    skip = SkipLog("AVD entry")
+    with caplog.at_level("WARNING", logger="viewfuse.loaders"):
+        for i in range(500):
+            skip.skip(BadInputError(f"img{i}.jpg", "corrupt JPEG"))
+    assert skip.count == 500 and skip.reasons == {"corrupt JPEG": 500} and len(skip.examples) == 20
+    assert len(caplog.records) == SkipLog.LOG_FIRST + 1
+    assert "counted, not logged" in caplog.records[-1].getMessage()

@@ -16,7 +16,8 @@ def small_scan(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("loc")
     cfg = load_config(DEFAULT_CONFIG, {
         "run": {"artifacts": str(tmp / "artifacts")},
-        "data": {"synthetic": {"angle_step_deg": 120, "bigbird_width": 160, "bigbird_height": 128,
+        "data": {"scans": ["Home_001_1"], "synthetic": {"instances": ["aunt_jemima_original_syrup", "cholula_chipotle_hot_sauce", "crystal_hot_sauce", "honey_bunches_of_oats_honey_roasted", "mahatma_rice", "pepto_bismol"],
+                               "instances_per_scan": 0, "avd_box_jitter_px": 0, "occluders": 0, "angle_step_deg": 120, "bigbird_width": 160, "bigbird_height": 128,
                                "avd_width": 320, "avd_height": 180}},
     })
     ensure(cfg, "data")
@@ -29,7 +30,7 @@ def test_ray_intersection_finds_each_instance(small_scan):
 
     cfg = small_scan
     _, avd_root = data_roots(cfg)
-    scan = AVDScan(avd_root, cfg.data.scan)
+    scan = AVDScan(avd_root, cfg.data.scans[0])
     truth = json.loads((cfg.stage_dir("data") / "truth.json").read_text())
     K = scan.intrinsics()
     checked = 0

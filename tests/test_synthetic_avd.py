@@ -12,18 +12,20 @@ import pytest
 import scipy.io
 
 from loaders.avd import AVDScan, difficulty, read_instance_map
-from loaders.synthetic.avd_writer import (CLUSTER, MIN_VISIBLE_PX, STRUCT_FIELDS, name_prefix,
-                                          plan_scan, render_shot, write_avd_scan)
+from loaders.synthetic.avd_writer import (CLUSTER, MIN_VISIBLE_PX, STRUCT_FIELDS, Nuisance, _capture,
+                                          jitter_boxes, name_prefix, plan_scan, render_shot,
+                                          write_avd_scan)
 from loaders.synthetic.bigbird_writer import object_meshes
 from loaders.synthetic.objects import AVD_INSTANCE_MAP_TEXT, make_instance, rot_z
 from loaders.synthetic.render import Camera, Light, render
-from loaders.synthetic.scene import placed_meshes
-from pipeline.config import SyntheticDataConfig
+from loaders.synthetic.scene import placed_meshes, scan_instances
+from pipeline.config import DEFAULT_INSTANCES, SyntheticDataConfig
 
 SCAN = "Home_001_1"
 SEED = 5
-TINY = dataclasses.replace(SyntheticDataConfig(), room_size_m=(2.4, 2.1), grid_step_m=0.6, avd_width=192,
-                           avd_height=108, distractors=2, interpolated_fraction=0.3)
+TINY = dataclasses.replace(SyntheticDataConfig(), instances=DEFAULT_INSTANCES[:6], room_size_m=(2.4, 2.1),
+                           grid_step_m=0.6, avd_width=192, avd_height=108, distractors=2, occluders=2,
+                           interpolated_fraction=0.3)
 TARGET = "aunt_jemima_original_syrup"
 SHARED_MAP = Path(__file__).resolve().parents[2] / "shared" / "formats" / "avd_instance_id_map.txt"
 
@@ -43,7 +45,7 @@ def test_image_names_and_clusters(scan):
         assert re.fullmatch(r"00011\d{6}0101\.jpg", n), n
         assert int(n[5:11]) == i  # 1-based, contiguous, sorted order = index order
     assert name_prefix("Office_012_2") == "10122"
-    with pytest.raises(ValueError, match="data.scan"):
+    with pytest.raises(ValueError, match="data.scans"):
         name_prefix("Home_1_1")
 
 
@@ -144,7 +146,9 @@ def test_boxes_contain_every_visible_pixel_of_their_instance(scan):
                 assert iid not in boxes
                 continue
             b = boxes[iid]
-            assert (b.x0, b.y0, b.x1, b.y1) == (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+            true = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+            # Annotation error: each side within the configured jitter (clipped to the image).
+            assert np.abs(np.array([b.x0, b.y0, b.x1, b.y1]) - true).max() <= plan.nuisance.box_jitter_px
             assert b.difficulty == difficulty(b.x0, b.y0, b.x1, b.y1)
             n_boxes += 1
     assert n_boxes > 5
@@ -219,7 +223,7 @@ def test_bad_settings_are_errors_naming_the_key():
         plan_scan(dataclasses.replace(TINY, instances=("aunt_jemima_original_syrup", "not_an_object")), SCAN, 0)
     with pytest.raises(ValueError, match="room_size_m"):
         plan_scan(dataclasses.replace(TINY, room_size_m=(1.5, 3.0)), SCAN, 0)
-    with pytest.raises(ValueError, match="data.scan"):
+    with pytest.raises(ValueError, match="data.scans"):
         plan_scan(TINY, "Kitchen_1", 0)
 
 
@@ -231,3 +235,50 @@ def test_annotations_json_layout(scan):
         for b in entry["bounding_boxes"]:
             assert len(b) == 6 and all(isinstance(v, int) for v in b)
         assert len({b[4] for b in entry["bounding_boxes"]}) == len(entry["bounding_boxes"])
+
+
+def test_scan_instances_cover_every_instance_and_each_scan_holds_enough():
+    names = DEFAULT_INSTANCES
+    scans = ("Home_001_1", "Home_002_1")
+    per = {s: scan_instances(names, scans, s, 9) for s in scans}
+    assert all(len(v) == 9 and len(set(v)) == 9 for v in per.values())
+    assert set().union(*per.values()) == set(names) and per[scans[0]][0] == names[0]
+    assert scan_instances(names, scans, scans[1], 0) == tuple(names)
+    with pytest.raises(ValueError, match="data.scans"):
+        scan_instances(names, scans, "Home_003_1", 9)
+    # Another scan name is another home: a different layout for the same instances.
+    a, b = plan_scan(TINY, "Home_001_1", SEED), plan_scan(TINY, "Home_002_1", SEED)
+    assert a.room.placement(TARGET).position != b.room.placement(TARGET).position
+
+
+def test_occluders_stand_right_beside_instances(scan):
+    _, plan, _ = scan
+    occ = [c for c in plan.room.clutter if c.key.startswith("occluder/")]
+    assert len(occ) == TINY.occluders
+    for c in occ:
+        gap = min(np.hypot(*(np.array(c.position) - p.position)) - p.radius for p in plan.room.placements)
+        assert 0 < gap < 0.15
+
+
+def test_auto_exposure_pulls_brightness_towards_mid_grey_and_blur_smooths():
+    rng = np.random.default_rng(0)
+    dark, bright = np.full((20, 30, 3), 40, np.uint8), np.full((20, 30, 3), 200, np.uint8)
+    nz = Nuisance(auto_exposure=0.6)
+    for img in (dark, bright):
+        out = _capture(img, nz, rng).mean()
+        assert abs(out - 118) < abs(img.mean() - 118)
+    assert (_capture(dark, Nuisance(), rng) == dark).all()
+    edge = np.zeros((21, 21, 3), np.uint8)
+    edge[:, 10:] = 255
+    out = _capture(edge, Nuisance(blur_fraction=1.0, blur_px=9), rng)
+    assert 0 < out[10, 10, 0] < 255 and (out[:, 0] == 0).all()
+
+
+def test_box_jitter_keeps_boxes_valid():
+    rng = np.random.default_rng(0)
+    boxes = [[0, 0, 5, 4, 2, 5], [100, 50, 190, 108, 7, 3]]
+    for _ in range(50):
+        for x0, y0, x1, y1, iid, d in jitter_boxes(boxes, 3, 192, 108, rng):
+            assert 0 <= x0 < x1 <= 192 and 0 <= y0 < y1 <= 108 and x1 - x0 >= 2 and y1 - y0 >= 2
+            assert d == difficulty(x0, y0, x1, y1)
+    assert jitter_boxes(boxes, 0, 192, 108, rng) == boxes

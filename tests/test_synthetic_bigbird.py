@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import h5py
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from loaders.bigbird import BigBirdObject, list_objects
 from loaders.pbm import read_pbm
 from loaders.synthetic.bigbird_writer import (CAMERAS, angles, make_rig, render_view, rz4,
                                               write_bigbird_object)
+from loaders.synthetic.nuisance import RigNuisance, mask_errors, object_pose, sensor
 from loaders.synthetic.objects import make_instance
 from loaders.synthetic.render import Camera, project
 from pipeline.config import SyntheticDataConfig
@@ -76,19 +78,24 @@ def test_poses_read_back_equal_the_generator_and_turn_about_z(written):
 
 
 def test_images_and_masks_are_rendered_with_the_file_poses(written):
-    """Project the object's corners with the *reader's* K and pose: the mask's box must match."""
+    """Project the object's corners (placed as the writer placed them: off-centre, wobbling) with
+    the *reader's* K and pose: the mask's box must match up to the configured mask error."""
     obj = BigBirdObject(written / NAME)
     inst = make_instance(NAME, 3)
-    pts = np.concatenate([f.vertices for f in inst.faces])
+    pts0 = np.concatenate([f.vertices for f in inst.faces])
+    nz = RigNuisance.from_config(TINY)
+    tol = 1.5 + nz.mask_error_px + 1  # + the ragged edge
     views = obj.views(cameras=(1, 5))
     assert [(v.camera, v.angle) for v in views] == [(c, a) for c in (1, 5) for a in angles(60)]
     for rec in obj.iter_views(cameras=(1, 5)):
         assert rec.image.shape == (256, 320, 3) and rec.mask.shape == (256, 320)
+        R, t = object_pose(nz, 3, NAME, rec.view.angle)
+        pts = pts0 @ R.T + t
         cam = Camera.from_pose(rec.pose, obj.intrinsics(rec.view.camera), 320, 256)
         uv = project(cam, pts)
         x0, y0, x1, y1 = rec.box
-        assert abs(x0 - uv[:, 0].min()) <= 1.5 and abs(x1 - 1 - uv[:, 0].max()) <= 1.5
-        assert abs(y0 - uv[:, 1].min()) <= 1.5 and abs(y1 - 1 - uv[:, 1].max()) <= 1.5
+        assert abs(x0 - uv[:, 0].min()) <= tol and abs(x1 - 1 - uv[:, 0].max()) <= tol
+        assert abs(y0 - uv[:, 1].min()) <= tol and abs(y1 - 1 - uv[:, 1].max()) <= tol
         # The object's pixels differ from the bright backdrop.
         assert rec.image[rec.mask].mean() < 200 < rec.image[:5].mean()
 
@@ -98,15 +105,21 @@ def test_mask_polarity_header_and_specks(written):
     data = path.read_bytes()
     assert data.startswith(b"P4 320 256\n") and len(data) == len(b"P4 320 256\n") + 320 * 256 // 8
     mask = read_pbm(path)  # True = bit 1 = black
-    _, clean = render_view(make_instance(NAME, 3), make_rig(320, 256), 1, 60)
-    assert (mask & clean).sum() == clean.sum()  # every object pixel is set (object = bit 1)
-    extra = mask & ~clean
+    nz = RigNuisance.from_config(TINY)
+    _, clean = render_view(make_instance(NAME, 3), make_rig(320, 256), 1, 60, object_pose(nz, 3, NAME, 60))
+    # Object = bit 1: the mask covers the object but for a boundary band of the configured error.
+    k = np.ones((2 * nz.mask_error_px + 3,) * 2, np.uint8)
+    inner = cv2.erode(clean.astype(np.uint8), k).astype(bool)
+    near = cv2.dilate(clean.astype(np.uint8), k).astype(bool)
+    assert mask[inner].all()
+    extra = mask & ~near
     assert 0 < extra.sum() < 50  # a few spurious specks, as in real masks
     obj = BigBirdObject(written / NAME)
     ys, xs = np.nonzero(clean)
-    # The reader's cleanup drops the specks (its opening may trim a one-pixel sliver at an edge).
+    # The reader's cleanup drops the specks (its opening may trim a one-pixel sliver at an edge);
+    # the box is off by at most the mask error + the ragged edge + that sliver.
     box = np.array(obj.object_box(mask))
-    assert np.abs(box - [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]).max() <= 2
+    assert np.abs(box - [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]).max() <= nz.mask_error_px + 2
 
 
 def test_depth_maps_are_in_the_ir_camera_in_tenths_of_mm(written):
@@ -135,3 +148,44 @@ def test_deterministic_for_a_seed(tmp_path):
         assert (tmp_path / "a" / NAME / rel).read_bytes() == (tmp_path / "b" / NAME / rel).read_bytes(), rel
     jpg = "NP1_0.jpg"
     assert (tmp_path / "a" / NAME / jpg).read_bytes() != (tmp_path / "c" / NAME / jpg).read_bytes()
+
+
+def test_sensor_noise_has_the_configured_signal_dependent_std():
+    nz = RigNuisance(read_noise=2.0, shot_noise=0.1)
+    for level in (40, 200):
+        flat = np.full((256, 256, 3), level, np.uint8)
+        out = sensor(flat, nz, 0, np.random.default_rng(1)).astype(float)
+        want = np.sqrt(2.0 ** 2 + 0.1 * level)
+        assert out.mean() == pytest.approx(level, abs=0.3)
+        assert out.std() == pytest.approx(want, rel=0.08)  # 8-bit rounding adds ~1/12 variance
+
+
+def test_exposure_and_white_balance_jitter_scale_channels():
+    nz = RigNuisance(exposure=0.1, white_balance=0.05)
+    flat = np.full((8, 8, 3), 100, np.uint8)
+    gains = np.array([sensor(flat, nz, 0, np.random.default_rng(i))[0, 0] / 100.0 for i in range(200)])
+    assert 0.08 < np.log(gains).mean(1).std() < 0.13      # exposure: common to the channels
+    assert np.log(gains).std(1).mean() > 0.02             # white balance: differs per channel
+    assert sensor(flat, RigNuisance(), 0, np.random.default_rng(0)).tolist() == flat.tolist()
+
+
+def test_mask_errors_stay_within_the_configured_band():
+    mask = np.zeros((60, 80), bool)
+    mask[20:40, 25:55] = True
+    k = np.ones((7, 7), np.uint8)  # px = 2, + 1 for the ragged edge
+    for i in range(20):
+        out = mask_errors(mask, 2, np.random.default_rng(i))
+        assert out[cv2.erode(mask.astype(np.uint8), k).astype(bool)].all()
+        assert not out[~cv2.dilate(mask.astype(np.uint8), k).astype(bool)].any()
+    assert (mask_errors(mask, 0, np.random.default_rng(0)) == mask).all()
+    assert any((mask_errors(mask, 2, np.random.default_rng(i)) != mask).any() for i in range(3))
+
+
+def test_object_is_decentred_once_and_wobbles_per_angle():
+    nz = RigNuisance(decentre_m=0.006)
+    (R0, t0), (R1, t1) = object_pose(nz, 0, NAME, 0), object_pose(nz, 0, NAME, 90)
+    assert np.linalg.norm(t0) == pytest.approx(0.006) and np.allclose(t0, t1) and np.allclose(R0, np.eye(3))
+    nz = dataclasses.replace(nz, wobble_deg=1.0, wobble_m=0.001)
+    (_, a), (_, b) = object_pose(nz, 0, NAME, 0), object_pose(nz, 0, NAME, 3)
+    assert 0 < np.linalg.norm(a - b) < 0.01
+    assert np.allclose(object_pose(nz, 0, NAME, 3)[1], b)  # the same for every camera at an angle

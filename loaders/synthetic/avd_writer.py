@@ -52,7 +52,7 @@ def name_prefix(scan: str) -> str:
     """The first five digits of a scan's image names (type, scene, scan number)."""
     m = _SCAN_RE.match(scan)
     if not m:
-        raise ValueError(f"'data.scan' = {scan!r} is not an AVD scan name like 'Home_001_1'")
+        raise ValueError(f"'data.scans' names {scan!r}, which is not an AVD scan name like 'Home_001_1'")
     return _TYPE_DIGIT[m.group(1)] + m.group(2) + m.group(3)
 
 
@@ -76,6 +76,15 @@ class Shot:
     registered: bool
 
 
+@dataclass(frozen=True)
+class Nuisance:
+    """Capture nuisance of a scan (``data.synthetic.avd_*``)."""
+    auto_exposure: float = 0.0      # gain pulls the image mean this far towards mid-grey
+    blur_fraction: float = 0.0      # share of images with motion blur
+    blur_px: int = 1                # longest blur streak
+    box_jitter_px: int = 0          # annotation box sides moved by up to this
+
+
 @dataclass(frozen=True, eq=False)  # hashed by identity: plans are cached per process
 class ScanPlan:
     scan: str
@@ -88,6 +97,7 @@ class ScanPlan:
     pitch_deg: float
     seed: int
     quality: int
+    nuisance: Nuisance = Nuisance()
 
     def camera(self, shot: Shot) -> Camera:
         """The ground-frame camera of a shot (x right, y down, z along the optical axis)."""
@@ -105,15 +115,16 @@ class ScanPlan:
         return cam.R @ M_GROUND_TO_RECON.T, cam.t * (1000.0 / SCALE_MM)
 
 
-def plan_scan(cfg, scan: str, seed: int) -> ScanPlan:
-    """Room, capture grid and every shot's pose; ``cfg`` is the ``data.synthetic`` section."""
-    return _plan_scan(cfg, scan, int(seed))
+def plan_scan(cfg, scan: str, seed: int, instances=None) -> ScanPlan:
+    """Room, capture grid and every shot's pose; ``cfg`` is the ``data.synthetic`` section and
+    ``instances`` the ones placed in this scan (default: all of ``cfg.instances``)."""
+    return _plan_scan(cfg, scan, int(seed), tuple(cfg.instances if instances is None else instances))
 
 
 @lru_cache(maxsize=4)
-def _plan_scan(cfg, scan: str, seed: int) -> ScanPlan:
+def _plan_scan(cfg, scan: str, seed: int, instances: tuple) -> ScanPlan:
     prefix = name_prefix(scan)
-    room = make_room(tuple(cfg.instances), cfg, seed)
+    room = make_room(instances, cfg, seed, scan)
     n = len(room.grid_xy) * CLUSTER
     # Interpolated images: opposite pairs (j, j+6), at most 5 pairs of a cluster (>= 2 registered).
     rng = rng_for(seed, "interpolated")
@@ -137,8 +148,11 @@ def _plan_scan(cfg, scan: str, seed: int) -> ScanPlan:
             shots.append(Shot(image_name(prefix, idx), idx, k, j, pos, phi0 + 30.0 * j,
                               (j % 6) not in dropped.get(k, set())))
     K = intrinsics(cfg.avd_width, cfg.avd_height)
+    nuisance = Nuisance(float(cfg.avd_auto_exposure), float(cfg.avd_motion_blur_fraction),
+                        int(cfg.avd_motion_blur_px), int(cfg.avd_box_jitter_px))
     return ScanPlan(scan, room, tuple(shots), K, cfg.avd_width, cfg.avd_height,
-                    float(cfg.avd_camera_height_m), float(cfg.avd_pitch_deg), seed, int(cfg.jpeg_quality))
+                    float(cfg.avd_camera_height_m), float(cfg.avd_pitch_deg), seed, int(cfg.jpeg_quality),
+                    nuisance)
 
 
 @lru_cache(maxsize=4)
@@ -168,13 +182,48 @@ def _noise_bank(seed: int, size: int) -> np.ndarray:
     return bank
 
 
+def _capture(rgb: np.ndarray, nz: Nuisance, rng: np.random.Generator) -> np.ndarray:
+    """Auto-exposure (the gain pulls the mean brightness towards mid-grey, with some jitter, as a
+    consumer camera's AE does) and, on some frames, a motion-blur streak along a random direction
+    (the robot turning or braking)."""
+    if nz.auto_exposure > 0:
+        mean = max(float(rgb.mean()), 1.0)
+        gain = (118.0 / mean) ** nz.auto_exposure * float(np.exp(rng.normal(0.0, 0.04)))
+        rgb = cv2.convertScaleAbs(rgb, alpha=float(np.clip(gain, 0.5, 2.5)))
+    if nz.blur_fraction > 0 and rng.random() < nz.blur_fraction and nz.blur_px > 1:
+        n = int(rng.integers(3, nz.blur_px + 1))
+        k = np.zeros((n, n), np.float32)
+        c = (n - 1) / 2
+        a = rng.uniform(-0.35, 0.35)  # mostly horizontal: the robot turns in place
+        d = np.array([np.cos(a), np.sin(a)]) * c
+        cv2.line(k, (int(round(c - d[0])), int(round(c - d[1]))), (int(round(c + d[0])), int(round(c + d[1]))), 1.0)
+        rgb = cv2.filter2D(rgb, -1, k / k.sum(), borderType=cv2.BORDER_REFLECT)
+    return rgb
+
+
 def render_shot(plan: ScanPlan, shot: Shot):
-    """(RGB with sensor noise, ID buffer) of one shot."""
+    """(RGB with auto-exposure, motion blur and sensor noise, ID buffer) of one shot."""
     res = render(plan.camera(shot), _meshes(plan), ROOM_LIGHT, (0, 0, 0))
+    rng = rng_for(plan.seed, "avd-noise", shot.name)
     n = res.rgb.size
-    off = int(rng_for(plan.seed, "avd-noise", shot.name).integers(0, 3 * n))
+    off = int(rng.integers(0, 3 * n))
+    rgb = _capture(res.rgb, plan.nuisance, rng)
     noise = _noise_bank(plan.seed, n)[off:off + n].reshape(res.rgb.shape)
-    return cv2.add(res.rgb, noise, dtype=cv2.CV_8U), res.ids
+    return cv2.add(rgb, noise, dtype=cv2.CV_8U), res.ids
+
+
+def jitter_boxes(boxes: list[list[int]], px: int, width: int, height: int, rng: np.random.Generator) -> list:
+    """Annotation error: each side moved by up to ``px`` pixels, kept inside the image and at least
+    2 px wide/high; the difficulty is recomputed from the jittered box."""
+    if px <= 0:
+        return boxes
+    out = []
+    for x0, y0, x1, y1, iid, _ in boxes:
+        d = rng.integers(-px, px + 1, 4)
+        nx0, ny0 = int(np.clip(x0 + d[0], 0, width - 2)), int(np.clip(y0 + d[1], 0, height - 2))
+        nx1, ny1 = int(np.clip(x1 + d[2], nx0 + 2, width)), int(np.clip(y1 + d[3], ny0 + 2, height))
+        out.append([nx0, ny0, nx1, ny1, iid, difficulty(nx0, ny0, nx1, ny1)])
+    return out
 
 
 def write_shot(folder: Path, plan: ScanPlan, shot: Shot) -> tuple[list, int]:
@@ -182,7 +231,9 @@ def write_shot(folder: Path, plan: ScanPlan, shot: Shot) -> tuple[list, int]:
     rgb, ids = render_shot(plan, shot)
     jpg = encode_jpeg(rgb, plan.quality)
     write_bytes(folder / "jpg_rgb" / shot.name, jpg)
-    return visible_boxes(ids, [p.instance_id for p in plan.room.placements]), len(jpg)
+    boxes = visible_boxes(ids, [p.instance_id for p in plan.room.placements])
+    rng = rng_for(plan.seed, "avd-box-jitter", shot.name)
+    return jitter_boxes(boxes, plan.nuisance.box_jitter_px, plan.width, plan.height, rng), len(jpg)
 
 
 def move_pointers(plan: ScanPlan) -> dict[str, dict[str, str]]:
@@ -326,9 +377,9 @@ def truth(plan: ScanPlan) -> dict:
     }
 
 
-def write_avd_scan(root: str | Path, cfg, scan: str, seed: int, progress=None) -> ScanPlan:
+def write_avd_scan(root: str | Path, cfg, scan: str, seed: int, progress=None, instances=None) -> ScanPlan:
     """Write a whole scan serially (the data stage spreads ``write_shot`` over processes)."""
-    plan = plan_scan(cfg, scan, seed)
+    plan = plan_scan(cfg, scan, seed, instances)
     folder = Path(root) / scan
     boxes = {}
     for s in plan.shots:

@@ -130,21 +130,44 @@ def _paint(front, sides, back, *, shared: dict | None = None, name: str = ""):
     return out
 
 
-# Sizes roughly as the real objects (metres). Shared keys: the syrup's back label is the cereal
-# box's back panel, and the two hot sauces have the same side wrap, so some single views of
-# different classes look alike.
+# Sizes roughly as the real objects (metres); paint = (front, sides, back) families plus shared
+# texture keys. Designed aliasing, as in real product shelves:
+# - shared faces: the syrup's back label is the cereal boxes' back panel (barcode); cholula and
+#   crystal have the same side wrap (dots); tapatio's back is cholula's back (sunburst);
+#   listerine's sides are the syrup's sides (waves);
+# - near twins: the two honey_bunches boxes differ only on the back (barcode vs blobs).
+# So some single views of different classes look alike and only the viewpoint tells them apart.
 _KNOWN: dict[str, tuple] = {
     "aunt_jemima_original_syrup": (_bottle((0.033, 0.046), 0.19, 0.016, 0.06, n=10),
-                                   ("rings", "waves", "barcode", {"back": "shared/back_barcode"}), 5.0),
+                                   ("rings", "waves", "barcode",
+                                    {"back": "shared/back_barcode", "sides": "shared/syrup_wrap"}), 5.0),
     "cholula_chipotle_hot_sauce": (_bottle((0.025, 0.025), 0.125, 0.011, 0.055),
-                                   ("checker", "dots", "sunburst", {"sides": "shared/hot_sauce_wrap"}), 20.0),
+                                   ("checker", "dots", "sunburst",
+                                    {"sides": "shared/hot_sauce_wrap", "back": "shared/sauce_back"}), 20.0),
     "crystal_hot_sauce": (_bottle((0.026, 0.026), 0.12, 0.012, 0.05),
                           ("chevron", "dots", "plaid", {"sides": "shared/hot_sauce_wrap"}), 350.0),
     "honey_bunches_of_oats_honey_roasted": (_box(0.065, 0.19, 0.28),
-                                            ("honeycomb", "stripes", "barcode", {"back": "shared/back_barcode"}), 45.0),
+                                            ("honeycomb", "stripes", "barcode",
+                                             {"back": "shared/back_barcode", "front": "shared/hboo_front",
+                                              "sides": "shared/hboo_sides"}), 45.0),
+    "honey_bunches_of_oats_with_almonds": (_box(0.065, 0.19, 0.28),
+                                           ("honeycomb", "stripes", "blobs",
+                                            {"front": "shared/hboo_front", "sides": "shared/hboo_sides"}), 40.0),
     "mahatma_rice": (_box(0.07, 0.14, 0.25), ("blobs", "crosshatch", "rings", {}), 120.0),
     "pepto_bismol": (_bottle((0.026, 0.042), 0.17, 0.015, 0.04, n=8), ("waves", "plaid", "checker", {}), 320.0),
+    "tapatio_hot_sauce": (_bottle((0.027, 0.027), 0.13, 0.012, 0.05),
+                          ("crosshatch", "chevron", "sunburst", {"back": "shared/sauce_back"}), 10.0),
+    "coca_cola_glass_bottle": (_bottle((0.031, 0.031), 0.14, 0.014, 0.09, n=12),
+                               ("stripes", "rings", "dots", {}), 0.0),
+    "pringles_bbq": (_bottle((0.038, 0.038), 0.23, 0.036, 0.012, n=12),
+                     ("plaid", "sunburst", "honeycomb", {}), 15.0),
+    "listerine_green": (_bottle((0.032, 0.045), 0.18, 0.014, 0.05, n=8),
+                        ("dots", "waves", "stripes", {"sides": "shared/syrup_wrap"}), 130.0),
+    "red_bull": (_bottle((0.027, 0.027), 0.13, 0.025, 0.012, n=10),
+                 ("chevron", "barcode", "checker", {}), 210.0),
 }
+# The default stand-in's instances, in this order (the first is the default target).
+DEFAULT_OBJECTS = tuple(_KNOWN)
 
 
 def instance_spec(name: str) -> InstanceSpec:

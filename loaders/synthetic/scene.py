@@ -8,7 +8,9 @@ the surfaces, the first one (the default target) on the coffee table so the capt
 surrounds it; each gets a random yaw. An object point p maps into the room as
 ``Rot(yaw) p[:2] + position`` and ``p[2] + base height``.
 
-Clutter boxes and wall posters carry "clutter" textures (smooth noise with print blocks), never
+Each scan name is another home: the layout jitter, placements and clutter are drawn from (seed,
+scan). ``occluders`` small boxes stand right beside instances so some views see them partly
+hidden. Clutter boxes and wall posters carry "clutter" textures (smooth noise with print blocks), never
 the instances' face textures; the floor is planks. The capture grid covers the free floor at
 ``grid_step_m`` spacing, keeping clear of walls and furniture.
 """
@@ -117,13 +119,28 @@ def _place_on(surface: Furniture, radius: float, taken: list[tuple], rng: np.ran
     return None
 
 
-def make_room(instances, cfg, seed: int) -> Room:
-    """The room for these instances; ``cfg`` is the ``data.synthetic`` config section."""
+def scan_instances(instances, scans, scan: str, per_scan: int) -> tuple[str, ...]:
+    """The instances placed in ``scan``: scan k of S takes ``per_scan`` consecutive instances
+    (cyclically) from index round(k * n / S); ``per_scan`` 0 (or >= n) = all of them. Every
+    instance lands in some scan when per_scan * S >= n (checked by the config)."""
+    instances, scans = tuple(instances), tuple(scans)
+    n = len(instances)
+    if scan not in scans:
+        raise ValueError(f"'data.scans' does not list {scan!r}")
+    if per_scan <= 0 or per_scan >= n:
+        return instances
+    start = int(round(scans.index(scan) * n / len(scans)))
+    return tuple(instances[(start + j) % n] for j in range(per_scan))
+
+
+def make_room(instances, cfg, seed: int, scan: str = "") -> Room:
+    """The room for these instances; ``cfg`` is the ``data.synthetic`` config section. Each scan
+    name gets its own furniture jitter, placements and clutter (another home)."""
     Lx, Ly = (float(v) for v in cfg.room_size_m)
     if min(Lx, Ly) < MIN_ROOM_M:
         raise ValueError(f"'data.synthetic.room_size_m' = {list(cfg.room_size_m)}: each side must be at "
                          f"least {MIN_ROOM_M} m to hold the furniture")
-    rng = rng_for(seed, "room-layout")
+    rng = rng_for(seed, "room-layout", scan)
     furniture = _layout(Lx, Ly, rng)
     surfaces = furniture  # every piece has a top to stand things on
     taken: dict[str, list] = {f.name: [] for f in furniture}
@@ -144,7 +161,7 @@ def make_room(instances, cfg, seed: int) -> Room:
         placements.append(Placement(name, inst.instance_id, (float(p[0]), float(p[1])),
                                     float(rng.uniform(0.0, 360.0)), surf.height, surf.name, r))
 
-    clutter = []
+    clutter = _occluders(placements, furniture, taken, cfg.occluders, rng)
     for k in range(cfg.distractors):
         sx, sy, sz = rng.uniform(0.06, 0.3), rng.uniform(0.06, 0.25), rng.uniform(0.05, 0.35)
         r = 0.5 * float(np.hypot(sx, sy))
@@ -189,6 +206,30 @@ def make_room(instances, cfg, seed: int) -> Room:
                          f"{Lx} x {Ly} m room")
     return Room((Lx, Ly), tuple(furniture), tuple(placements), tuple(clutter),
                 np.array(ij, dtype=np.int64), np.array(xy, dtype=np.float64), step, int(seed))
+
+
+def _occluders(placements, furniture, taken, n: int, rng: np.random.Generator) -> list[Clutter]:
+    """Small, low boxes right beside instances (2-6 cm gap), so views from their side see the
+    instance partly hidden, as behind a mug or a packet on a real table."""
+    by_name = {f.name: f for f in furniture}
+    out = []
+    for k in range(min(n, len(placements))):
+        p = placements[k % len(placements)]
+        surf = by_name[p.surface]
+        sx, sy = rng.uniform(0.05, 0.1), rng.uniform(0.05, 0.12)
+        r = 0.5 * float(np.hypot(sx, sy))
+        for _ in range(60):
+            a = rng.uniform(0, 2 * np.pi)
+            d = p.radius + r + rng.uniform(0.02, 0.06)
+            q = np.array(p.position) + d * np.array([np.cos(a), np.sin(a)])
+            inside = surf.x0 + r <= q[0] <= surf.x1 - r and surf.y0 + r <= q[1] <= surf.y1 - r
+            if inside and all(np.hypot(*(q - np.asarray(c))) >= r + rc + 0.01 for c, rc in taken[surf.name]):
+                taken[surf.name].append((q, r))
+                out.append(Clutter((float(q[0]), float(q[1])), float(rng.uniform(0, 90)), surf.height,
+                                   (float(sx), float(sy), float(rng.uniform(0.05, 0.12))),
+                                   f"occluder/{k}", surf.name))
+                break
+    return out
 
 
 # ----------------------------------------------------------------------------------------------

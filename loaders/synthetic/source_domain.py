@@ -236,3 +236,40 @@ def category_names(categories: int) -> list[str]:
     if not 2 <= categories <= N_CATEGORIES:
         raise ValueError(f"source-domain categories must be 2..{N_CATEGORIES}, got {categories}")
     return list(CATEGORY_NAMES[:categories])
+
+
+def _render_chunk(args: tuple) -> tuple[int, np.ndarray]:
+    """One worker task of ``render_set_parallel`` (module level so spawned processes import it):
+    images ``start..`` of a stream with their labels given (the label order depends on the set's
+    size, so workers must not draw it themselves)."""
+    labels, size, categories, seed, stream, start = args
+    import cv2
+    cv2.setNumThreads(1)  # one process per core already
+    out = np.empty((len(labels), size, size, 3), np.uint8)
+    for i, lab in enumerate(labels):
+        out[i] = render(int(lab), _rng(seed, stream, start + i), size, categories)
+    return start, out
+
+
+def render_set_parallel(n: int, size: int, categories: int, seed: int, stream: int, workers: int,
+                        chunk: int = 250, progress=None) -> tuple[np.ndarray, np.ndarray]:
+    """``render_set`` spread over ``workers`` processes, chunk by chunk. Every image draws from
+    its own (seed, stream, index) generator, so the arrays are identical for any worker count.
+    ``progress``: an object with ``update(k)`` (e.g. a tqdm bar), called per finished chunk."""
+    labels = labels_for(n, categories, seed, stream)
+    if workers <= 1 or n <= chunk:
+        images = render_set(n, size, categories, seed, stream)[0]
+        if progress is not None:
+            progress.update(n)
+        return images, labels
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    images = np.empty((n, size, size, 3), np.uint8)
+    tasks = [(labels[s:s + chunk], size, categories, seed, stream, s) for s in range(0, n, chunk)]
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        for start, block in pool.map(_render_chunk, tasks):
+            images[start:start + len(block)] = block
+            if progress is not None:
+                progress.update(len(block))
+    return images, labels

@@ -1,0 +1,185 @@
+"""``viewfuse study``: does the verdict survive another classifier training run?
+
+For every seed of ``study.seeds`` the chain classifier -> features -> models -> evaluate runs again
+with ``classifier.seed = n`` under ``<run>/study/seed-<n>/`` (a config whose run folder points
+there; the stage runner's manifests make a rerun skip finished seeds). The data stage is shared:
+it is brought up to date once in the run folder and linked into every seed folder (its cache key
+does not depend on the classifier seed). Then ``study/summary.json`` and ``study/index.html`` put
+each seed's ``population.pooled`` and ``population.verdict`` (evaluate/summary.json) side by side
+and say whether the verdict is the same for every seed: the same outcome (better / worse / not
+distinguishable) for every (comparison, metric) of ``population.verdict_table``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import html
+import json
+import logging
+import os
+import re
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from pipeline.cache import write_json, write_text
+
+log = logging.getLogger("viewfuse.study")
+
+CHAIN_END = "evaluate"
+
+
+def study_dir(cfg) -> Path:
+    return cfg.run_dir / "study"
+
+
+def seed_config(cfg, seed: int):
+    """The run config with classifier.seed = ``seed`` and its run folder at <run>/study/seed-<n>."""
+    run = dataclasses.replace(cfg.run, artifacts=str(study_dir(cfg)), name=f"seed-{seed}")
+    clf = dataclasses.replace(cfg.classifier, seed=int(seed))
+    return dataclasses.replace(cfg, run=run, classifier=clf)
+
+
+def share_data(cfg, scfg) -> None:
+    """Link the run's data folder into a seed folder (relative link; nothing copied)."""
+    src, dst = cfg.stage_dir("data"), scfg.stage_dir("data")
+    if dst.exists() or dst.is_symlink():
+        return
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    os.symlink(os.path.relpath(src, dst.parent), dst, target_is_directory=True)
+
+
+def _finished(scfg) -> str | None:
+    p = scfg.stage_dir(CHAIN_END) / "manifest.json"
+    try:
+        return json.loads(p.read_text()).get("finished")
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
+def seed_result(scfg, reused: bool) -> dict:
+    """What the side-by-side page needs from one seed's folder (missing parts are None)."""
+    out: dict[str, Any] = {"run_dir": str(scfg.run_dir), "reused": reused, "classifier_accuracy": None,
+                           "pooled": None, "verdict": None, "verdict_table": None}
+    card = scfg.stage_dir("classifier") / "card.json"
+    if card.is_file():
+        out["classifier_accuracy"] = json.loads(card.read_text()).get("accuracy")
+    summ = scfg.stage_dir(CHAIN_END) / "summary.json"
+    if summ.is_file():
+        pop = json.loads(summ.read_text()).get("population") or {}
+        for k in ("pooled", "verdict", "verdict_table"):
+            out[k] = pop.get(k)
+    return out
+
+
+def _numbers_out(sentence: str) -> str:
+    """A verdict sentence without its numbers (they always move a little between seeds)."""
+    return re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", sentence)
+
+
+def outcomes(result: dict) -> dict[str, str] | None:
+    """(comparison / metric) -> outcome for one seed; from the verdict table, else from the
+    sentences with the numbers taken out; None without a population verdict."""
+    table = result.get("verdict_table")
+    if table:
+        return {f"{r['comparison']} / {r['metric']}": str(r["outcome"]) for r in table}
+    if result.get("verdict"):
+        return {f"sentence {i + 1}": _numbers_out(s) for i, s in enumerate(result["verdict"])}
+    return None
+
+
+def summarize(results: dict[int, dict]) -> dict:
+    """Side by side: per seed the pooled values and the verdict; whether the verdict agrees."""
+    seeds = sorted(results)
+    per_seed = {str(s): results[s] for s in seeds}
+    outs = {s: outcomes(results[s]) for s in seeds}
+    missing = [s for s in seeds if outs[s] is None]
+    keys = sorted({k for o in outs.values() if o for k in o})
+    table = {k: {str(s): (outs[s] or {}).get(k) for s in seeds} for k in keys}
+    differ = sorted(k for k, row in table.items() if len(set(row.values())) > 1)
+    same = not missing and not differ
+    if missing:
+        sentence = (f"Seed(s) {', '.join(map(str, missing))} have no population verdict (evaluate/summary.json "
+                    f"lacks 'population'); the verdicts cannot be compared yet.")
+    elif same:
+        sentence = f"The verdict is the same for every seed ({', '.join(map(str, seeds))})."
+    else:
+        sentence = (f"The verdict differs between seeds on {len(differ)} of {len(keys)} "
+                    f"(comparison / metric) entries: {'; '.join(differ)}.")
+    return {"seeds": seeds, "per_seed": per_seed, "outcomes": table, "differs_on": differ,
+            "missing": missing, "verdict_same": same, "sentence": sentence}
+
+
+def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = False,
+              ensure: Callable | None = None) -> dict:
+    """Run (or reuse) every seed's chain, then write study/summary.json and study/index.html."""
+    if ensure is None:
+        from stages.runner import ensure
+    t0 = time.perf_counter()
+    ensure(cfg, "data", device=device, threads=threads)
+    results, timings = {}, {}
+    for seed in cfg.study.seeds:
+        scfg = seed_config(cfg, seed)
+        share_data(cfg, scfg)
+        before = _finished(scfg)
+        t = time.perf_counter()
+        print(f"[study] seed {seed}: {scfg.run_dir}", flush=True)
+        ensure(scfg, CHAIN_END, force=force, device=device, threads=threads, _keys={})
+        timings[str(seed)] = round(time.perf_counter() - t, 2)
+        reused = before is not None and before == _finished(scfg)
+        results[seed] = seed_result(scfg, reused)
+    summary = summarize(results)
+    summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2)}
+    out = study_dir(cfg)
+    write_json(out / "summary.json", summary)
+    write_text(out / "index.html", render_html(summary, cfg.run.name))
+    print(f"[study] {summary['sentence']} -> {out / 'index.html'}", flush=True)
+    return summary
+
+
+# -- the page ------------------------------------------------------------------------------------
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.3g}"
+    return html.escape(str(v))
+
+
+def _cell(entry: Any) -> str:
+    if not isinstance(entry, dict):
+        return _fmt(entry)
+    return f"{_fmt(entry.get('value'))} <small>[{_fmt(entry.get('ci_low'))}, {_fmt(entry.get('ci_high'))}]</small>"
+
+
+def render_html(summary: dict, run_name: str) -> str:
+    seeds = [str(s) for s in summary["seeds"]]
+    per = summary["per_seed"]
+    head = "".join(f"<th>seed {s}</th>" for s in seeds)
+    rows = [f"<tr><td>classifier held-out top-1</td>"
+            + "".join(f"<td>{_fmt(per[s].get('classifier_accuracy'))}</td>" for s in seeds) + "</tr>"]
+    pooled_keys = sorted({(m, k) for s in seeds for m, d in (per[s].get("pooled") or {}).items() for k in d})
+    for m, k in pooled_keys:
+        rows.append(f"<tr><td>{html.escape(m)} · {html.escape(k)}</td>"
+                    + "".join(f"<td>{_cell(((per[s].get('pooled') or {}).get(m) or {}).get(k))}</td>" for s in seeds)
+                    + "</tr>")
+    out_rows = []
+    for k, row in summary["outcomes"].items():
+        cls = ' class="differs"' if k in summary["differs_on"] else ""
+        out_rows.append(f"<tr{cls}><td>{html.escape(k)}</td>" + "".join(f"<td>{_fmt(row[s])}</td>" for s in seeds) + "</tr>")
+    verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"
+                       + "".join(f"<li>{html.escape(v)}</li>" for v in (per[s].get("verdict") or ["(no verdict)"]))
+                       + "</ul>" for s in seeds)
+    return f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>viewfuse seed study: {html.escape(run_name)}</title>
+<style>body{{font-family:sans-serif;max-width:75em;margin:1em auto}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:.2em .5em;text-align:right}}td:first-child{{text-align:left}}
+tr.differs td{{background:#fde2e2}}small{{color:#666}}</style></head><body>
+<h1>Seed study: {html.escape(run_name)}</h1>
+<p><b>{html.escape(summary['sentence'])}</b></p>
+<p>Each seed trains the classifier again (classifier.seed) and reruns features, models and evaluate on the
+same data. Pooled values with their 95 % bootstrap CIs over targets and tracks, per seed:</p>
+<table><tr><th>method · metric</th>{head}</tr>{''.join(rows)}</table>
+<h2>Verdict outcomes</h2><table><tr><th>comparison / metric</th>{head}</tr>{''.join(out_rows)}</table>
+<h2>Verdict sentences</h2>{verdicts}
+</body></html>
+"""

@@ -1,0 +1,56 @@
+"""Speed and quality goal of the classifier stage, and whether the default world's GP fits mean
+something: ``viewfuse classifier`` (render + train) in under 180 s on this 2-core machine with
+held-out top-1 >= 0.90, and no GP fit at a bound among components whose training scores vary.
+
+Runs data -> classifier -> features -> models on the default config in a temporary folder. Prints
+the stage's split (render, train, validate: wall and CPU seconds; wall on an idle 2-core machine is
+about CPU s / 2, so a loaded machine shows in wall minus CPU/2), the held-out accuracy, and the GP
+fits at a bound.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+GOAL_S, GOAL_ACC = 180.0, 0.90
+
+
+def main() -> None:
+    from pipeline.config import load_config
+    from stages.runner import ensure, read_manifest
+    from tests.world_checks import VARYING_STD, bound_report
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = load_config(ROOT / "configs" / "synthetic.toml", {"run": {"artifacts": tmp}})
+        ensure(cfg, "data")
+        t0 = time.perf_counter()
+        ensure(cfg, "classifier", force=True)
+        secs = time.perf_counter() - t0
+        card = json.loads((cfg.stage_dir("classifier") / "card.json").read_text())
+        tm, cpu = card["timings"], card["cpu_seconds"]
+        print(f"bench_classifier: `viewfuse classifier` {secs:.1f} s (goal {GOAL_S:.0f} s, ratio "
+              f"{secs / GOAL_S:.2f}); render {tm['render_s']:.0f} s + train {tm['train_s']:.0f} s + validate "
+              f"{tm['validate_s']:.0f} s wall; CPU s render {cpu['render_s']:.0f}, train {cpu['train_s']:.0f}, "
+              f"validate {cpu['validate_s']:.0f}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+        print(f"bench_classifier: held-out top-1 {card['accuracy']:.3f} on {card['val_images']} images "
+              f"(goal >= {GOAL_ACC}); {card['training']['precision_used']}, input {card['input_size']} px, "
+              f"{card['training']['train_images']} images x {card['training']['epochs']} epochs; "
+              f"cpu flags {', '.join(card['determinism']['cpu_flags'])}")
+        ensure(cfg, "models")
+        rep = bound_report(cfg.stage_dir("models"), cfg.stage_dir("features"))
+        print(f"bench_classifier: GP fits {rep['n_fits']}, at a bound {rep['n_at_bound']}, varying "
+              f"(train std > {VARYING_STD}) {rep['n_varying']}, varying AND at a bound "
+              f"{len(rep['varying_at_bound'])} (goal 0); models stage {read_manifest(cfg, 'models')['seconds']:.1f} s")
+        for f in rep["varying_at_bound"]:
+            print(f"  {f['class']} / {f['name']}: std {f['train_std']:.3f}, {'; '.join(f['at_bound'])}")
+
+
+if __name__ == "__main__":
+    main()
