@@ -239,7 +239,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     ``precision`` "bf16" = autocast mixed precision (fp32 master weights), several times faster on
     CPUs with native bf16; "auto" picks it where the hardware has it.
     """
-    from tqdm import tqdm
+    from pipeline.progress import bar as progress_bar
 
     torch.manual_seed(seed)
     gen = np.random.default_rng([seed, 7])
@@ -253,7 +253,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     total = epochs * steps_per_epoch
     step = 0
     history = []
-    bar = tqdm(total=total, desc="train classifier", unit="step", disable=not progress)
+    bar = progress_bar(total=total, desc="train classifier", unit="step", enabled=progress)
     for ep in range(epochs):
         order = gen.permutation(n)
         loss_sum, correct, seen = 0.0, 0, 0
@@ -274,7 +274,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
             correct += int((out.argmax(1) == y).sum())
             seen += len(idx)
             bar.update(1)
-            bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}")
+            bar.set_postfix_str(f"loss={loss_sum / seen:.3f}, acc={correct / seen:.3f}")
         history.append({"epoch": ep + 1, "loss": loss_sum / seen, "train_accuracy": correct / seen})
         if log:
             log(f"epoch {ep + 1}/{epochs}: loss {loss_sum / seen:.4f}, train top-1 {correct / seen:.4f}")
@@ -320,13 +320,12 @@ def resolve_precision(precision: str, device: str) -> str:
 def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int = 128,
             device: str = "cpu", progress: bool = False) -> np.ndarray:
     """Eval-mode logits (n, D) for uint8 images."""
-    from tqdm import tqdm
-
     from pipeline.crops import to_tensor
+    from pipeline.progress import bar as progress_bar
 
     model.eval().to(device)
     outs = []
-    for s in tqdm(range(0, len(images), batch_size), desc="validate", unit="batch", disable=not progress, leave=False):
+    for s in progress_bar(range(0, len(images), batch_size), desc="validate", unit="batch", enabled=progress, leave=False):
         outs.append(model(to_tensor(images[s:s + batch_size], mean, std).to(device)).float().cpu())
     return torch.cat(outs).numpy()
 

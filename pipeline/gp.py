@@ -414,7 +414,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
-    from tqdm.auto import tqdm
+    from pipeline.progress import bar as progress_bar
 
     C, F = len(classes), len(components)
     if len(X_by_class) != C or len(Y_by_class) != C:
@@ -431,7 +431,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
             raise ValueError(f"fit_class_models: a noise floor reaches the upper noise bound {noise_bounds[1]}")
     mean, amp, ell, noise = (np.zeros((C, F)) for _ in range(4))
     diags: list[dict[str, Any]] = []
-    bar = tqdm(total=C * F, desc="GP fits", unit="fit", disable=not progress)
+    bar = progress_bar(total=C * F, desc="GP fits", unit="fit", enabled=progress)
     for c in range(C):
         X = np.asarray(X_by_class[c], dtype=float)
         Y = np.asarray(Y_by_class[c], dtype=float)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from tqdm import tqdm
+from pipeline.progress import bar as progress_bar
 
 from pipeline.labels import MGR_AXIS_LABEL
 from reports import sections_track as track_sections
@@ -124,7 +124,7 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     _summaries(ctx, seed)
     plan = _population_plan(ctx) + _track_plan(ctx, ctx.clipped) + _models_plan(ctx)
     written = []
-    for name, build in tqdm(plan, desc="report figures", unit="fig", disable=not progress):
+    for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
         save(build(), out / name, dpi)
         written.append(name)
     ctx.figures = set(written)

@@ -262,7 +262,7 @@ def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int)
 def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int = 110, run_name: str = "",
                           progress: bool = True, n_boot: int = BOOTSTRAP) -> ReportResult:
     """Render ``out_dir/index.html`` and its PNGs from the simulate stage's outputs."""
-    from tqdm.auto import tqdm
+    from pipeline.progress import bar as progress_bar
 
     sim_dir, out = Path(sim_dir), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -270,8 +270,8 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
     df, ex = so.results, so.example
     scenarios = list(dict.fromkeys(df["scenario"]))
     written = []
-    for name, build in tqdm(_plan(so, sim_dir, scenarios), desc="simulate figures", unit="fig",
-                            disable=not progress):
+    for name, build in progress_bar(_plan(so, sim_dir, scenarios), desc="simulate figures", unit="fig",
+                                    enabled=progress):
         save(build(), out / name, dpi)
         written.append(name)
     page = HtmlReport("viewfuse simulation scenarios",

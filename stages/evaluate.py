@@ -22,6 +22,7 @@ from pipeline.config import Config
 from pipeline.features import read_features
 from pipeline.gp import GPClassModels
 from pipeline.labels import COMPARISONS, METHODS, METRICS
+from pipeline.outputs import name as out_name
 from pipeline.popstats import population_block
 from pipeline.results import cell_metrics, metadata, result_block, write_results
 from pipeline.track import TrackError, grid_step
@@ -33,26 +34,28 @@ DEFAULT = "default"
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
     """{variant: model bank} and {variant: models/index.json} for the default and every ablation."""
-    index = json.loads((models_dir / "index.json").read_text())
+    index = json.loads((models_dir / out_name("models", "index")).read_text())
     banks, indexes = {DEFAULT: GPClassModels.load(models_dir)}, {DEFAULT: index}
     for a in ablations:
         sub = index.get("ablations", {}).get(a)
         if sub is None:
             raise ValueError(f"{models_dir / 'index.json'}: no model bank for ablation {a!r} (rerun the models stage)")
         banks[a] = GPClassModels.load(models_dir / sub)
-        indexes[a] = json.loads((models_dir / sub / "index.json").read_text())
+        indexes[a] = json.loads((models_dir / sub / out_name("models", "index")).read_text())
     return banks, indexes
 
 
-def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame) -> tuple[dict, dict]:
-    """Per scan: (fx, cx) of the camera and the capture grid's spacing read off the positions."""
+def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict]:
+    """Per scan: (fx, cx) of the camera and the capture grid's spacing read off the positions.
+    The scan is read under the same skip policy as the features stage, so an entry features
+    skipped does not stop this stage."""
     from loaders.avd import AVDScan
     from stages.data import data_roots
 
     _, avd_root = data_roots(cfg)
     intr, steps = {}, {}
     for s in scans:
-        K = AVDScan(avd_root, s).intrinsics()
+        K = AVDScan(avd_root, s, skip=skips.log("avd", "AVD entry")).intrinsics()
         intr[s] = (float(K[0, 0]), float(K[0, 2]))
         cams = avd.loc[avd["scan"] == s, ["cam_x", "cam_y"]].to_numpy(float)
         steps[s] = grid_step(cams)
@@ -196,7 +199,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
     models = banks[DEFAULT].subset(first.classes, first.components)
     if "gp_models" in ev.experiments:
         t0 = time.perf_counter()
-        with atomic_path(ctx.out / "gp_models.npz") as tmp, open(tmp, "wb") as f:
+        with atomic_path(ctx.out / out_name("evaluate", "gp_models")) as tmp, open(tmp, "wb") as f:
             np.savez(f, **E.gp_rasters(models))
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
@@ -213,7 +216,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
     if "bias_maps" in ev.experiments:
         t0 = time.perf_counter()
         axis, post = E.bias_maps(models, first.data, ev.bias_maps.extent_m, ev.bias_maps.steps)
-        with atomic_path(ctx.out / "bias_maps.npz") as tmp, open(tmp, "wb") as f:
+        with atomic_path(ctx.out / out_name("evaluate", "bias_maps")) as tmp, open(tmp, "wb") as f:
             np.savez(f, bias_x=axis, bias_y=axis, posterior=post, classes=np.array(first.classes),
                      images=np.array(first.data.images))
         timings["bias_maps"] = time.perf_counter() - t0
@@ -226,12 +229,13 @@ def run(ctx) -> str:
     ev = cfg.evaluate
     t_start = time.perf_counter()
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
-    avd, scores, meta = read_features(ctx.input("features") / "avd.parquet")
+    avd_path = ctx.input("features") / out_name("features", "avd")
+    avd, scores, meta = read_features(avd_path)
     if avd.empty:
-        raise TrackError(f"{ctx.input('features') / 'avd.parquet'} holds no AVD box: nothing to evaluate")
+        raise TrackError(f"{avd_path} holds no AVD box: nothing to evaluate")
     scans = sorted(avd["scan"].unique())
-    intr, steps = scan_geometry(cfg, scans, avd)
-    truth_path = ctx.input("data") / "truth.json"
+    intr, steps = scan_geometry(cfg, scans, avd, ctx.skips)
+    truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
     cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps)
 
@@ -258,7 +262,7 @@ def run(ctx) -> str:
         summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
     blocks = result_blocks(cells, results)
     single_track(cfg, ctx, banks, first, blocks, summary, timings)
-    n_rows = write_results(blocks, ctx.out / "results.parquet", metadata(
+    n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
         config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
         target=first.target))
     info = tracks[0].as_dict()
@@ -270,8 +274,8 @@ def run(ctx) -> str:
                 object_xy_truth=None if obj_truth is None else list(obj_truth["position"]),
                 localization_error_m=None if obj_truth is None else
                 float(np.linalg.norm(first.data.obj_xy - np.asarray(obj_truth["position"], float))))
-    write_json(ctx.out / "track.json", info)
-    write_json(ctx.out / "summary.json", {
+    write_json(ctx.out / out_name("evaluate", "track"), info)
+    write_json(ctx.out / out_name("evaluate", "summary"), {
         "experiments": summary, "classes": list(first.classes), "target": first.target,
         "seeds": {"evaluate": ev.seed, "candidates": ev.candidate_seed},
         "timings_s": {k: round(v, 3) for k, v in timings.items()},

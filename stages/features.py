@@ -220,10 +220,10 @@ def run(ctx) -> str:
         write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
         timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
 
-        # AVD: deterministic pass + N_s dropout samples per box.
+        # AVD: deterministic pass + N_s dropout samples per box, every scan of data.scans in turn.
         t2 = time.perf_counter()
         with progress_bar(desc="features: AVD images", unit="image") as bar:
-            def jobs():  # every scan of data.scans in turn; rows carry their scan
+            def jobs():  # rows carry their scan
                 for scan in scans:
                     bar.set_description(f"features: AVD {scan.scan}")
                     yield from _avd_jobs(cfg, scan, skips, bar)

@@ -20,6 +20,7 @@ import numpy as np
 from pipeline.candidates import candidate_sets, own_components, plan_components
 from pipeline.config import ModelsConfig, ablation_config, to_dict
 from pipeline.gp import GPClassModels, fit_class_models
+from pipeline.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.models")
 
@@ -211,7 +212,7 @@ def ablation_dir(ablation: str) -> str:
 def run(ctx) -> str:
     cfg = ctx.cfg
     ev = cfg.evaluate
-    feats = ctx.input("features") / "bigbird.parquet"
+    feats = ctx.input("features") / out_name("features", "bigbird")
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
                      candidate_seed=ev.candidate_seed)
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)

@@ -454,3 +454,15 @@ def test_report_stage_renders_from_existing_results(tmp_config, tmp_path):
     # It only read the evaluate outputs: nothing there changed or was added.
     assert {p.name: p.read_bytes() for p in (cfg.run_dir / "evaluate").iterdir()} == before
     assert json.loads((cfg.run_dir / "evaluate" / "summary.json").read_text())["population"]["n_targets"] == 2
+
+
+def test_an_empty_per_target_block_is_said_not_drawn(tmp_path):
+    facts = write_fake_run(tmp_path / "run", experiments=("randomized",), T=2, tracks=2, R=3, K=3, ablation=False)
+    path = facts["evaluate"] / "summary.json"
+    summary = json.loads(path.read_text())
+    summary["population"]["per_target"] = {}
+    path.write_text(json.dumps(summary))
+    res = build_main_report(facts["run"], tmp_path / "out", dpi=40, progress=False, n_boot=50)
+    assert "per_target.png" not in res.figures and "forest.png" in res.figures
+    assert any("population.per_target is empty" in n for n in res.notes)
+    assert not [t for t in parse(res.index).tables if "per-target" in t["cls"].split()]
