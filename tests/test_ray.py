@@ -24,13 +24,16 @@ if not HAVE_RAY and os.environ.get("VIEWFUSE_REQUIRE_RAY") == "1":
     raise RuntimeError("VIEWFUSE_REQUIRE_RAY=1 but Ray is not installed (pip install -e '.[ray]')")
 needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray not installed (pip install -e '.[ray]')")
 
-# A tiny world (the small room of tests/test_features_stage.py, 8 turntable views per object, 73
-# AVD boxes): six targets, one ablation, dropout samples on both feature tables, and a batch size
+# A tiny world (one scan, six instances in a small room, 8 turntable views per object, 72 AVD
+# boxes): six targets, one ablation, dropout samples on both feature tables, and a batch size
 # that does not divide the crops.
+SIX = ["aunt_jemima_original_syrup", "cholula_chipotle_hot_sauce", "crystal_hot_sauce",
+       "honey_bunches_of_oats_honey_roasted", "mahatma_rice", "pepto_bismol"]
 TINY = {
-    "data": {"synthetic": {"angle_step_deg": 45, "bigbird_width": 160, "bigbird_height": 128,
-                           "avd_width": 320, "avd_height": 180, "room_size_m": [2.4, 2.1],
-                           "grid_step_m": 0.6, "distractors": 2, "workers": 1}},
+    "data": {"scans": ["Home_001_1"],
+             "synthetic": {"instances": SIX, "instances_per_scan": 0, "angle_step_deg": 45,
+                           "bigbird_width": 160, "bigbird_height": 128, "avd_width": 320, "avd_height": 180,
+                           "room_size_m": [2.4, 2.1], "grid_step_m": 0.45, "distractors": 2, "workers": 1}},
     "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
                                                   "batch_size": 12, "min_accuracy": 0.0}},
     "features": {"n_samples": 3, "bigbird_samples": 2, "max_difficulty": 5, "batch_size": 7},
