@@ -38,7 +38,7 @@ TINY = {
                                                   "batch_size": 12, "min_accuracy": 0.0}},
     "features": {"n_samples": 3, "bigbird_samples": 2, "max_difficulty": 5, "batch_size": 7},
     "models": {"restarts": 0},
-    "evaluate": {"track_length": 4, "max_difficulty": 5, "tracks_per_target": 2, "n_candidates": 3,
+    "evaluate": {"track_length": 2, "max_difficulty": 5, "tracks_per_target": 2, "n_candidates": 3,
                  "bootstrap": 100, "ablations": ["models.noise_floor=dropout"],
                  "biased": {"n_loc_samples": 4},
                  "randomized": {"sigmas_m": [0.1, 0.3], "realizations": 4, "n_loc_samples": 4},
