@@ -67,13 +67,34 @@ def module_files(name: str) -> list[Path]:
     return [origin]
 
 
+def source_fingerprint(path: str | Path) -> str:
+    """sha256 of a Python file's syntax tree without comments and docstrings: editing what code
+    says about itself does not make a stage stale; editing what it does does. A file that does
+    not parse is hashed as bytes."""
+    import ast
+
+    data = Path(path).read_bytes()
+    try:
+        tree = ast.parse(data)
+    except (SyntaxError, ValueError):
+        return hashlib.sha256(data).hexdigest()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()
+
+
 def code_hash(modules: tuple[str, ...] | list[str]) -> str:
-    """Hash of the source text of the given modules/packages (the stage's code version)."""
+    """Hash of the code of the given modules/packages (the stage's code version; comments and
+    docstrings do not count: ``source_fingerprint``)."""
     h = hashlib.sha256()
     for name in sorted(set(modules)):
         for f in module_files(name):
             h.update(f.name.encode())
-            h.update(f.read_bytes())
+            h.update(source_fingerprint(f).encode())
     return h.hexdigest()
 
 

@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from pipeline.cache import atomic_path, hash_json, sha256_file
+from pipeline.cache import NpzFileError, atomic_path, hash_json, load_npz, sha256_file
 
 IMAGENET_FILE = "alexnet-owt-7be5be79.pth"   # torchvision AlexNet_Weights.IMAGENET1K_V1
 ARCHITECTURE = "torchvision.models.alexnet"
@@ -111,10 +111,9 @@ def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
         raise WeightsNotFoundError(f"{path}: weights file not found")
     if path.suffix == ".npz":
         try:
-            with np.load(path, allow_pickle=False) as z:
-                state = {k: torch.from_numpy(np.array(z[k])) for k in z.files}
-        except (ValueError, OSError, zipfile.BadZipFile) as e:
-            raise WeightsError(path, f"not a readable .npz state dict ({e})") from None
+            state = {k: torch.from_numpy(np.array(v)) for k, v in load_npz(path).items()}
+        except NpzFileError as e:
+            raise WeightsError(path, f"not a readable .npz state dict ({e.problem})") from None
     else:
         try:
             obj = torch.load(path, map_location="cpu", weights_only=True)

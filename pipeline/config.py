@@ -137,7 +137,7 @@ class TrainingConfig:
     categories: int = _f(12, lo=2, hi=12, doc="synthetic source-domain categories (texture families)")
     train_images: int = _f(6400, lo=10)
     val_images: int = _f(1200, lo=10)
-    epochs: int = _f(5, lo=1, hi=200)
+    epochs: int = _f(7, lo=1, hi=200)
     batch_size: int = _f(128, lo=1, hi=4096)
     lr: float = _f(5e-4, lo=0.0, hi=1.0)
     weight_decay: float = _f(1e-4, lo=0.0, hi=1.0)
@@ -175,9 +175,9 @@ class FeaturesConfig:
     bigbird_cameras: tuple[int, ...] = _f(factory=lambda: (1,))
     n_samples: int = _f(10, lo=1, hi=1000, doc="N_s dropout samples per AVD crop")
     bigbird_samples: int = _f(10, lo=0, hi=1000,
-                              doc="dropout samples per BigBIRD view besides the deterministic pass (GP "
-                                  "training uses the deterministic pass; models.noise_floor = 'dropout' "
-                                  "uses these); 0 = deterministic pass only")
+                              doc="dropout samples per BigBIRD view besides the deterministic pass (their "
+                                  "mean is the GP training target, models.targets = 'dropout_mean'; "
+                                  "models.noise_floor = 'dropout' uses them too); 0 = deterministic pass only")
     seed: int = _f(0, lo=0)
     batch_size: int = _f(64, lo=1, hi=4096)
     pad: str = _f("mean", choices=("mean", "edge", "reflect"),
@@ -203,6 +203,16 @@ class ModelsConfig:
                           doc="lower bound of each GP's noise variance: 'bound' = noise_bounds[0]; 'dropout' = "
                               "the mean MC-dropout variance of that component over the class's BigBIRD views")
     components: tuple[int, ...] = _f(factory=tuple, doc="score indices for rule 'explicit'")
+    targets: str = _f("dropout_mean", choices=("dropout_mean", "deterministic"),
+                      doc="GP training scores per view: 'dropout_mean' = mean of the MC-dropout passes "
+                          "(features.bigbird_samples > 0; what Model Based measures on AVD), 'deterministic' = the "
+                          "eval-mode pass")
+    hyperprior: str = _f("inverse_gamma", choices=("inverse_gamma", "none"),
+                         doc="'inverse_gamma': fit by marginal likelihood x weak priors on the length scale (98 % "
+                             "between the views' spacing and their largest distance) and the noise variance (98 % "
+                             "in noise_prior); 'none': marginal likelihood alone (pipeline/gp_prior.py)")
+    noise_prior: tuple[float, ...] = _f(factory=lambda: (1e-5, 0.1),
+                                        doc="noise variance range holding 98 % of its prior (hyperprior = inverse_gamma)")
     camera: int = _f(1, lo=1, hi=5, doc="BigBIRD camera ring used for training")
     restarts: int = _f(5, lo=0, hi=100)
     # 1e-6 (a std of 0.001): components whose scores vary by ~0.01 over the views have a signal
@@ -529,7 +539,10 @@ def _cross_checks(cfg: Config, where: str) -> None:
     if cfg.models.component_rule == "explicit":
         need(len(cfg.models.components) == cfg.models.n_components,
              "'models.components' must list exactly 'models.n_components' indices for rule 'explicit'")
-    for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds"):
+    need(cfg.models.targets != "dropout_mean" or cfg.features.bigbird_samples > 0,
+         "'models.targets' = 'dropout_mean' needs MC-dropout passes of the BigBIRD views: set "
+         "'features.bigbird_samples' > 0 or 'models.targets' = 'deterministic'")
+    for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds", "noise_prior"):
         b = getattr(cfg.models, key)
         need(len(b) == 2 and 0 < b[0] < b[1], f"'models.{key}' must be [low, high] with 0 < low < high")
     ev = cfg.evaluate

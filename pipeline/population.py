@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -176,7 +176,6 @@ class Cell:
     seed: int
     var_floor: float
     difficulty: bool = True
-    extra: dict = field(default_factory=dict, compare=False)
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:

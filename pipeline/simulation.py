@@ -31,7 +31,8 @@ from pipeline import metrics as M
 from pipeline.config import ConfigError, SimulateConfig
 from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
 from pipeline.geometry import sample_localization
-from pipeline.gp import GPClassModels, fit_class_models
+from pipeline.gp import GPClassModels
+from pipeline.gp_fit import fit_class_models
 from pipeline.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from loaders.errors import BadInputError
+from pipeline.cache import NpzFileError, load_npz
 from pipeline.labels import METHODS
 
 log = logging.getLogger("viewfuse.report")
@@ -41,15 +42,11 @@ def read_json(path: Path) -> Any:
 
 
 def read_npz(path: Path, required: Iterable[str]) -> dict[str, np.ndarray]:
+    """Arrays of an .npz (never unpickled; truncated or corrupt files named) with ``required`` present."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except ValueError as e:
-        # Object arrays need pickle, which would run code on load: refused.
-        raise BadInputError(path, f"cannot read without pickle ({e}); store strings as fixed-width "
-                                  "unicode arrays") from None
-    except (OSError, EOFError) as e:
-        raise BadInputError(path, f"not a readable .npz file ({e})") from None
+        data = load_npz(path)
+    except NpzFileError as e:
+        raise BadInputError(path, e.problem) from None
     missing = [k for k in required if k not in data]
     if missing:
         raise BadInputError(path, f"missing array(s) {', '.join(missing)}")

@@ -104,11 +104,19 @@ def _summaries(ctx: ReportContext, seed: int) -> None:
             ctx.track_summaries[exp] = track_summary(d, n_boot=ctx.n_boot, seed=seed)
 
 
+def _scans(pop: dict, track: dict) -> str:
+    """The scans the evaluation drew tracks from (the population's, else the single track's)."""
+    scans = sorted({t["scan"] for t in (pop or {}).get("tracks") or [] if isinstance(t, dict) and t.get("scan")})
+    if not scans and track.get("scan"):
+        scans = [track["scan"]]
+    return f"scan{'s' if len(scans) > 1 else ''} {', '.join(scans)}" if scans else ""
+
+
 def _subtitle(ctx: ReportContext) -> str:
     pop, track = ctx.population, ctx.ev.track or {}
     parts = [f"run {ctx.run_name}" if ctx.run_name else "",
              f"{pop.get('n_targets')} targets × {pop.get('n_tracks')} tracks" if pop else "one target, one track",
-             f"scan {track['scan']}" if track.get("scan") else ""]
+             _scans(pop, track)]
     return " · ".join(p for p in parts if p)
 
 

@@ -34,15 +34,26 @@ DEFAULT = "default"
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
     """{variant: model bank} and {variant: models/index.json} for the default and every ablation."""
-    index = json.loads((models_dir / out_name("models", "index")).read_text())
+    index = _read_index(models_dir)
     banks, indexes = {DEFAULT: GPClassModels.load(models_dir)}, {DEFAULT: index}
     for a in ablations:
         sub = index.get("ablations", {}).get(a)
         if sub is None:
             raise ValueError(f"{models_dir / 'index.json'}: no model bank for ablation {a!r} (rerun the models stage)")
         banks[a] = GPClassModels.load(models_dir / sub)
-        indexes[a] = json.loads((models_dir / sub / out_name("models", "index")).read_text())
+        indexes[a] = _read_index(models_dir / sub)
     return banks, indexes
+
+
+def _read_index(folder: Path) -> dict:
+    """A model bank's index.json, or an error naming the file."""
+    path = folder / out_name("models", "index")
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: model index missing (rerun the models stage)") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: not valid JSON ({e}); rerun the models stage") from None
 
 
 def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict]:
@@ -223,7 +234,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
 
 
 def run(ctx) -> str:
-    from pipeline.executor import make_executor
+    from pipeline.executor import executor_for
 
     cfg: Config = ctx.cfg
     ev = cfg.evaluate
@@ -241,7 +252,7 @@ def run(ctx) -> str:
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    executor = make_executor(cfg.run.executor, address=cfg.run.ray_address)
+    executor = executor_for(cfg)
     try:
         results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell")
     finally:

@@ -1,7 +1,7 @@
 """Stage ``features``: crop every needed view and score it -> ``bigbird.parquet``, ``avd.parquet``.
 
-BigBIRD (GP training) views get the deterministic pass (the GP targets, as in the paper) and
-``features.bigbird_samples`` MC-dropout samples (the data-driven GP noise floor); AVD (test) boxes
+BigBIRD (GP training) views get the deterministic pass and ``features.bigbird_samples`` MC-dropout
+samples (their mean is the GP training target, ``models.targets``); AVD (test) boxes
 up to ``features.max_difficulty`` get the deterministic pass and ``features.n_samples`` MC-dropout
 samples. One crop policy for both (``pipeline.crops``). Bad views follow ``data.skip_bad_views``:
 counted, logged and listed in the manifest, or a named error.
@@ -211,7 +211,7 @@ def run(ctx) -> str:
         timings = {}
         common = dict(seed=f.seed, batch_size=f.batch_size, dim=dim, gpu=gpu)
 
-        # BigBIRD: the deterministic pass (GP training targets, as in the paper) plus dropout samples.
+        # BigBIRD: the deterministic pass plus the dropout samples whose mean the GPs are trained on.
         t1 = time.perf_counter()
         with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
             bb = score_jobs(_bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",

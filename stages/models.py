@@ -1,8 +1,8 @@
 """``models`` stage: plan each target's candidate set and components, fit the GPs they need.
 
-Reads ``features/bigbird.parquet`` (training views: rows with camera == models.camera and the
-deterministic pass, pass == -1; GP inputs (u_x, u_y); targets = score components; the dropout
-passes for ``models.noise_floor = "dropout"``). Writes one model bank, ``models/index.json`` + one
+Reads ``features/bigbird.parquet`` (training views: rows with camera == models.camera; GP inputs
+(u_x, u_y) from the deterministic pass, pass == -1; targets = score components, by default the mean
+of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the deterministic pass). Writes one model bank, ``models/index.json`` + one
 ``<class>.npz`` per class (``pipeline.gp.GPClassModels``): every modelled class x every component
 that some target's candidate set uses, with the plan in the index (``candidate_sets``). Each
 ``evaluate.ablations`` entry gets its own bank under ``models/ablations/``.
@@ -19,7 +19,8 @@ import numpy as np
 
 from pipeline.candidates import candidate_sets, own_components, plan_components
 from pipeline.config import ModelsConfig, ablation_config, to_dict
-from pipeline.gp import GPClassModels, fit_class_models
+from pipeline.gp import GPClassModels
+from pipeline.gp_fit import fit_class_models
 from pipeline.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.models")
@@ -82,9 +83,10 @@ def _scores_matrix(col, path: Path) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64).reshape(len(rows), -1)
 
 
-def dropout_variance(path: str | Path, camera: int) -> dict[str, np.ndarray]:
-    """Per object: the MC-dropout variance of every score component, averaged over its views
-    (rows with pass >= 0 of one camera ring); empty when the features hold no dropout passes."""
+def dropout_passes(path: str | Path, camera: int) -> dict[str, dict[int, np.ndarray]]:
+    """Per object and turntable angle: the MC-dropout score samples (N_s, D) of one camera ring
+    (rows with pass >= 0); empty when the features hold no dropout passes."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     table = pq.read_table(path, columns=["object", "camera", "angle_deg", "pass", "scores"])
@@ -92,21 +94,40 @@ def dropout_variance(path: str | Path, camera: int) -> dict[str, np.ndarray]:
     keep = np.nonzero((table.column("camera").to_numpy() == camera) & (pas >= 0))[0]
     if len(keep) == 0:
         return {}
-    import pyarrow as pa
     table = table.take(pa.array(keep))
     scores = _scores_matrix(table.column("scores"), Path(path))
+    if not np.all(np.isfinite(scores)):
+        raise FeaturesError(path, "non-finite scores in the MC-dropout passes of the training views")
     objects = table.column("object").to_numpy(zero_copy_only=False).astype(str)
     angles = table.column("angle_deg").to_numpy()
-    out = {}
+    order = np.lexsort((table.column("pass").to_numpy(), angles, objects))  # independent of row order
+    out: dict[str, dict[int, np.ndarray]] = {}
     for obj in np.unique(objects):
-        rows = objects == obj
-        var = [scores[rows & (angles == a)].var(axis=0) for a in np.unique(angles[rows])]
-        out[str(obj)] = np.mean(var, axis=0)
+        rows = order[objects[order] == obj]
+        out[str(obj)] = {int(a): scores[rows[angles[rows] == a]] for a in np.unique(angles[rows])}
     return out
 
 
+def dropout_variance(passes: dict[str, dict[int, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Per object: the MC-dropout variance of every score component, averaged over its views."""
+    return {obj: np.mean([s.var(axis=0) for s in views.values()], axis=0) for obj, views in passes.items()}
+
+
+def dropout_means(path: Path, passes: dict[str, dict[int, np.ndarray]], cls: str, angles) -> np.ndarray:
+    """(N, D) mean of the dropout passes at each of a class's training angles, in that order."""
+    views = passes.get(cls)
+    if not views:
+        raise FeaturesError(path, f"models.targets = 'dropout_mean' needs MC-dropout passes of the BigBIRD "
+                                  f"views (features.bigbird_samples > 0); class {cls!r} has none")
+    lack = [a for a in angles if a not in views]
+    if lack:
+        raise FeaturesError(path, f"class {cls!r}: no MC-dropout passes at angle(s) {lack[:5]} of the training views")
+    return np.stack([views[a].mean(axis=0) for a in angles])
+
+
 def _training_sets(path: Path, mcfg: ModelsConfig):
-    """Per modelled class: GP inputs (N, 2), deterministic scores (N, D), angles; plus names, meta."""
+    """Per modelled class: GP inputs (N, 2), training scores (N, D) (``models.targets``), angles;
+    plus output names, Parquet metadata and the dropout passes read (for the noise floor)."""
     cols, scores, meta = read_training_views(path, mcfg.camera)
     objects = cols["object"].astype(str)
     present = sorted(set(objects))
@@ -130,6 +151,9 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
         if not np.all(np.isfinite(X)):
             raise FeaturesError(path, f"class {cls!r}: non-finite GP inputs (u_x, u_y)")
         X_by[cls], S_by[cls], angles[cls] = X, scores[rows], [int(a) for a in ang]
+    passes = dropout_passes(path, mcfg.camera) if (mcfg.targets == "dropout_mean" or mcfg.noise_floor == "dropout") else {}
+    if mcfg.targets == "dropout_mean":
+        S_by = {cls: dropout_means(path, passes, cls, angles[cls]) for cls in pool}
     names = None
     if "viewfuse.output_names" in meta:
         try:
@@ -141,7 +165,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
                                       f"names for {scores.shape[1]} score components")
     else:
         log.warning("%s: no 'viewfuse.output_names' metadata; component names left empty", path)
-    return pool, X_by, S_by, angles, names, meta
+    return pool, X_by, S_by, angles, names, meta, passes
 
 
 def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
@@ -155,7 +179,7 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
     """
     path = Path(path)
-    pool, X_by, S_by, angles, names, meta = _training_sets(path, mcfg)
+    pool, X_by, S_by, angles, names, meta, passes = _training_sets(path, mcfg)
     tlist = pool if isinstance(targets, str) else [t for t in targets if t in pool]
     sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed)
     plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
@@ -166,7 +190,7 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     comp_names = None if names is None else [str(names[i]) for i in comps]
     floor = None
     if mcfg.noise_floor == "dropout":
-        var = dropout_variance(path, mcfg.camera)
+        var = dropout_variance(passes)
         missing = [c for c in pool if c not in var]
         if missing:
             raise FeaturesError(path, f"models.noise_floor = 'dropout' needs MC-dropout passes of the BigBIRD views "
@@ -177,7 +201,7 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], pool, comps, restarts=mcfg.restarts,
         amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
         noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
-        noise_floor=floor)
+        noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=tuple(mcfg.noise_prior))
     for d in diags:
         log.debug("GP %s / %s: a=%.4g l=%.4g noise=%.3g lml=%.2f%s", d["class"], d["component_name"] or d["component"],
                   d["amplitude"], d["length_scale"], d["noise"], d["log_marginal_likelihood"],
@@ -194,7 +218,8 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
                      "score_dim": int(S_by[pool[0]].shape[1]), "metadata": meta},
         "fit": {"restarts": mcfg.restarts, "amplitude_bounds": list(mcfg.amplitude_bounds),
                 "length_scale_bounds": list(mcfg.length_scale_bounds),
-                "noise_bounds": list(mcfg.noise_bounds), "noise_floor": mcfg.noise_floor, "seed": mcfg.seed},
+                "noise_bounds": list(mcfg.noise_bounds), "noise_floor": mcfg.noise_floor, "seed": mcfg.seed,
+                "targets": mcfg.targets, "hyperprior": mcfg.hyperprior, "noise_prior": list(mcfg.noise_prior)},
         "config": to_dict(mcfg),
         "diagnostics": diags,
         "fits_with_warnings": sum(1 for d in diags if d["warnings"] or d["at_bound"]),

@@ -15,6 +15,7 @@ import importlib.util
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline.cache import source_fingerprint
 from pipeline.outputs import OUTPUTS
 
 PACKAGES = ("pipeline", "loaders", "stages", "reports")   # the project's import floors
@@ -140,7 +141,8 @@ def _package_files(pkg: str) -> list[Path]:
 
 
 def code_version(spec: StageSpec) -> tuple[str, dict[str, str]]:
-    """(hash, {module: sha256 of its source}) over the stage's derived and extra code modules."""
+    """(hash, {module: fingerprint of its code}) over the stage's derived and extra code modules
+    (``pipeline.cache.source_fingerprint``: comments and docstrings do not count)."""
     mods = set(code_deps(spec.module)) | set(spec.code)
     per: dict[str, str] = {}
     for m in sorted(mods):
@@ -150,6 +152,6 @@ def code_version(spec: StageSpec) -> tuple[str, dict[str, str]]:
             continue
         path = _module_file(m)
         if path is not None:
-            per[m] = hashlib.sha256(path.read_bytes()).hexdigest()
+            per[m] = source_fingerprint(path)
     h = hashlib.sha256("".join(f"{k}={v}\n" for k, v in sorted(per.items())).encode()).hexdigest()
     return h, per

@@ -25,7 +25,8 @@ from pipeline.cache import write_json, write_text
 
 log = logging.getLogger("viewfuse.study")
 
-CHAIN_END = "evaluate"
+CHAIN = ("classifier", "features", "models", "evaluate")
+CHAIN_END = CHAIN[-1]
 
 
 def study_dir(cfg) -> Path:
@@ -59,15 +60,34 @@ def _finished(scfg) -> str | None:
 def seed_result(scfg, reused: bool) -> dict:
     """What the side-by-side page needs from one seed's folder (missing parts are None)."""
     out: dict[str, Any] = {"run_dir": str(scfg.run_dir), "reused": reused, "classifier_accuracy": None,
+                           "varying_fits": None, "varying_fits_at_bound": None,
                            "pooled": None, "verdict": None, "verdict_table": None}
     card = scfg.stage_dir("classifier") / "card.json"
     if card.is_file():
         out["classifier_accuracy"] = json.loads(card.read_text()).get("accuracy")
+    index = scfg.stage_dir("models") / "index.json"
+    if index.is_file():  # the GP-fit health of this seed's scores (issue: no varying fit at a bound)
+        idx = json.loads(index.read_text())
+        thr = float(idx.get("varying_std_threshold", 0.01))
+        out["varying_fits"] = sum(1 for d in idx.get("diagnostics", []) if d.get("train_std", 0.0) > thr)
+        out["varying_fits_at_bound"] = idx.get("varying_fits_at_bound")
     summ = scfg.stage_dir(CHAIN_END) / "summary.json"
     if summ.is_file():
         pop = json.loads(summ.read_text()).get("population") or {}
         for k in ("pooled", "verdict", "verdict_table"):
             out[k] = pop.get(k)
+    return out
+
+
+def chain_seconds(scfg) -> dict[str, float | None]:
+    """Seconds each stage of a seed's chain took when it last ran (its manifest), so a rerun that
+    reuses the seed still reports what computing it cost."""
+    out: dict[str, float | None] = {}
+    for stage in CHAIN:
+        try:
+            out[stage] = json.loads((scfg.stage_dir(stage) / "manifest.json").read_text()).get("seconds")
+        except (FileNotFoundError, json.JSONDecodeError):
+            out[stage] = None
     return out
 
 
@@ -96,6 +116,7 @@ def summarize(results: dict[int, dict]) -> dict:
     keys = sorted({k for o in outs.values() if o for k in o})
     table = {k: {str(s): (outs[s] or {}).get(k) for s in seeds} for k in keys}
     differ = sorted(k for k, row in table.items() if len(set(row.values())) > 1)
+    held = {k: next(iter(row.values())) for k, row in table.items() if k not in differ and None not in row.values()}
     same = not missing and not differ
     if missing:
         sentence = (f"Seed(s) {', '.join(map(str, missing))} have no population verdict (evaluate/summary.json "
@@ -104,9 +125,24 @@ def summarize(results: dict[int, dict]) -> dict:
         sentence = f"The verdict is the same for every seed ({', '.join(map(str, seeds))})."
     else:
         sentence = (f"The verdict differs between seeds on {len(differ)} of {len(keys)} "
-                    f"(comparison / metric) entries: {'; '.join(differ)}.")
-    return {"seeds": seeds, "per_seed": per_seed, "outcomes": table, "differs_on": differ,
+                    f"(comparison / metric) entries: {'; '.join(entry_label(k) for k in differ)}.")
+    decided = {k: o for k, o in held.items() if o in ("better", "worse")}
+    if not missing and decided:
+        sentence += (" Held for every seed: " + "; ".join(f"{entry_label(k)}: {o}" for k, o in decided.items()) + ".")
+    return {"seeds": seeds, "per_seed": per_seed, "outcomes": table, "differs_on": differ, "held": held,
             "missing": missing, "verdict_same": same, "sentence": sentence}
+
+
+def entry_label(key: str) -> str:
+    """'with_uncertainty-model_based / correct_final' -> 'With Uncertainty vs Model Based, correct
+    ratio, final step' (keys that are not (comparison / metric) are shown as they are)."""
+    from pipeline.labels import method_label, metric_label
+
+    comp, _, metric = key.partition(" / ")
+    a, _, b = comp.partition("-")
+    if not metric or not b:
+        return key
+    return f"{method_label(a, short=True)} vs {method_label(b, short=True)}, {metric_label(metric)}"
 
 
 def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = False,
@@ -128,7 +164,8 @@ def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = Fals
         reused = before is not None and before == _finished(scfg)
         results[seed] = seed_result(scfg, reused)
     summary = summarize(results)
-    summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2)}
+    summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2),
+                            "chain_per_seed": {str(sd): chain_seconds(seed_config(cfg, sd)) for sd in cfg.study.seeds}}
     out = study_dir(cfg)
     write_json(out / "summary.json", summary)
     write_text(out / "index.html", render_html(summary, cfg.run.name))
@@ -152,34 +189,52 @@ def _cell(entry: Any) -> str:
 
 
 def render_html(summary: dict, run_name: str) -> str:
+    """One page: the answer (does the verdict hold across seeds), the outcome per entry and seed,
+    then the pooled values with their CIs and every seed's verdict sentences."""
+    from pipeline.labels import method_label, metric_label, ordered_methods
+
     seeds = [str(s) for s in summary["seeds"]]
     per = summary["per_seed"]
     head = "".join(f"<th>seed {s}</th>" for s in seeds)
-    rows = [f"<tr><td>classifier held-out top-1</td>"
-            + "".join(f"<td>{_fmt(per[s].get('classifier_accuracy'))}</td>" for s in seeds) + "</tr>"]
-    pooled_keys = sorted({(m, k) for s in seeds for m, d in (per[s].get("pooled") or {}).items() for k in d})
-    for m, k in pooled_keys:
-        rows.append(f"<tr><td>{html.escape(m)} · {html.escape(k)}</td>"
-                    + "".join(f"<td>{_cell(((per[s].get('pooled') or {}).get(m) or {}).get(k))}</td>" for s in seeds)
-                    + "</tr>")
     out_rows = []
     for k, row in summary["outcomes"].items():
         cls = ' class="differs"' if k in summary["differs_on"] else ""
-        out_rows.append(f"<tr{cls}><td>{html.escape(k)}</td>" + "".join(f"<td>{_fmt(row[s])}</td>" for s in seeds) + "</tr>")
+        out_rows.append(f"<tr{cls}><td>{html.escape(entry_label(k))}</td>"
+                        + "".join(f"<td>{_fmt(row[s])}</td>" for s in seeds) + "</tr>")
+    rows = [f"<tr><td>classifier held-out top-1</td>"
+            + "".join(f"<td>{_fmt(per[s].get('classifier_accuracy'))}</td>" for s in seeds) + "</tr>",
+            "<tr><td>GP fits with varying scores (std over views &gt; 0.01) · at a bound</td>"
+            + "".join(f"<td>{_fmt(per[s].get('varying_fits'))} · {_fmt(per[s].get('varying_fits_at_bound'))}</td>"
+                      for s in seeds) + "</tr>"]
+    chain = (summary.get("timings_s") or {}).get("chain_per_seed") or {}
+    if chain:
+        rows.append("<tr><td>seconds to compute the chain (classifier + features + models + evaluate)</td>"
+                    + "".join(f"<td>{_fmt(sum(v for v in (chain.get(s) or {}).values() if v is not None) or None)}</td>"
+                              for s in seeds) + "</tr>")
+    pooled = [per[s].get("pooled") or {} for s in seeds]
+    methods = ordered_methods({m for p in pooled for m in p})
+    metrics = list(dict.fromkeys(k for p in pooled for d in p.values() for k in d))
+    for k in metrics:
+        for m in methods:
+            rows.append(f"<tr><td>{html.escape(metric_label(k))} · {html.escape(method_label(m, short=True))}</td>"
+                        + "".join(f"<td>{_cell((p.get(m) or {}).get(k))}</td>" for p in pooled) + "</tr>")
     verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"
                        + "".join(f"<li>{html.escape(v)}</li>" for v in (per[s].get("verdict") or ["(no verdict)"]))
                        + "</ul>" for s in seeds)
     return f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>viewfuse seed study: {html.escape(run_name)}</title>
-<style>body{{font-family:sans-serif;max-width:75em;margin:1em auto}}table{{border-collapse:collapse}}
-td,th{{border:1px solid #ccc;padding:.2em .5em;text-align:right}}td:first-child{{text-align:left}}
+<style>body{{font-family:sans-serif;max-width:75em;margin:1em auto;line-height:1.4}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:.2em .5em;text-align:right}}td:first-child,th:first-child{{text-align:left}}
 tr.differs td{{background:#fde2e2}}small{{color:#666}}</style></head><body>
 <h1>Seed study: {html.escape(run_name)}</h1>
 <p><b>{html.escape(summary['sentence'])}</b></p>
 <p>Each seed trains the classifier again (classifier.seed) and reruns features, models and evaluate on the
-same data. Pooled values with their 95 % bootstrap CIs over targets and tracks, per seed:</p>
-<table><tr><th>method · metric</th>{head}</tr>{''.join(rows)}</table>
-<h2>Verdict outcomes</h2><table><tr><th>comparison / metric</th>{head}</tr>{''.join(out_rows)}</table>
+same data. An outcome is computed from the 95 % bootstrap CI of the paired difference over targets and tracks
+(better / worse: the CI excludes 0); rows where the seeds disagree are shaded.</p>
+<h2>Verdict per seed</h2><table><tr><th>comparison, metric</th>{head}</tr>{''.join(out_rows)}</table>
+<h2>Pooled values</h2>
+<p>Value with its 95 % bootstrap CI over targets, then tracks within targets; MGR as log10.</p>
+<table><tr><th>metric · method</th>{head}</tr>{''.join(rows)}</table>
 <h2>Verdict sentences</h2>{verdicts}
 </body></html>
 """

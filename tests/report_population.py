@@ -124,7 +124,7 @@ def population(df: pd.DataFrame, targets, candidates_of, families, *, n_boot: in
         by_setting[s] = {"pooled": ss["pooled"], "paired": ss["paired"],
                          "verdict": verdict(ss["paired"], T, T * n, ss["cells"])[0]}
     rng = np.random.default_rng(seed + 1)
-    tracks = [{"target": t, "track": k, "scan": "Home_001_1",
+    tracks = [{"target": t, "track": k, "scan": f"Home_00{1 + k % 2}_1",
                "single_view_first": {m: float(rng.uniform(0.2, 1.0)) for m in METHODS}}
               for t in targets for k in range(n)]
     diff_summary = {m: {q: float(f(np.array([x["single_view_first"][m] for x in tracks])))
@@ -158,5 +158,6 @@ def population(df: pd.DataFrame, targets, candidates_of, families, *, n_boot: in
         "pooled": st["pooled"], "per_target": st["per_target"], "paired": st["paired"],
         "paired_per_target": st["paired_per_target"], "by_setting": by_setting, "verdict": sentences,
         "verdict_table": vtable, "difficulty": {"tracks": tracks, "summary": diff_summary}, "cells": cells,
+        "tracks": [{"target": t["target"], "track": t["track"], "scan": t["scan"]} for t in tracks],
         "ablations": abl, "skipped_targets": [{"target": skipped, "reason": "no track of 5 views sees it (3 views)"}],
     }

@@ -439,8 +439,16 @@ def test_9_editing_an_imported_module_changes_the_stage_key(tmp_path, monkeypatc
     spec = registry.StageSpec("zz", "reports.zz_top")
     assert registry.code_deps("reports.zz_top") == ("reports", "reports.zz_leaf", "reports.zz_top")
     before = registry.code_version(spec)[0]
+    # What the code says about itself (comments, docstrings, blank lines) does not change the key ...
+    (pkg / "zz_leaf.py").write_text('"""A leaf module."""\n\n# the value\nX = 1  # one\n')
+    assert registry.code_version(spec)[0] == before
+    # ... what it does does.
     (pkg / "zz_leaf.py").write_text("X = 2\n")
     assert registry.code_version(spec)[0] != before
+    (pkg / "zz_leaf.py").write_text('X = 1\ndef f():\n    """doc"""\n    return "doc"\n')
+    changed = registry.code_version(spec)[0]
+    (pkg / "zz_leaf.py").write_text('X = 1\ndef f():\n    """other doc"""\n    return "other"\n')
+    assert registry.code_version(spec)[0] != changed  # a string that is not a docstring counts
 
 
 def test_9_output_names_are_declared_once():

@@ -28,9 +28,11 @@ def class_scores(c, theta):
     return e / e.sum(axis=1, keepdims=True)
 
 
-def write_features(path, classes=CLASSES, n_angles=24, with_names=True, drop_column=None):
-    """Deterministic rows of camera 1 (the training views) plus rows the stage must ignore:
-    another camera and dropout passes, with scores that would change the component choice."""
+def write_features(path, classes=CLASSES, n_angles=24, with_names=True, drop_column=None, shift=0.0,
+                   dropout=True):
+    """Camera 1 (the training views): the deterministic pass and two dropout passes whose mean is
+    the deterministic score plus ``shift`` times a rolled copy of it; plus camera-3 rows the stage
+    must ignore, with scores that would change the component choice."""
     rows = {k: [] for k in ("object", "camera", "angle_deg", "image", "u_x", "u_y", "pass")}
     scores, truth = [], {}
     for c, obj in enumerate(classes):
@@ -38,7 +40,9 @@ def write_features(path, classes=CLASSES, n_angles=24, with_names=True, drop_col
         th = np.radians(ang)
         s = class_scores(c, th)
         truth[obj] = (th, s)
-        for cam, pas, sc in ((1, -1, s), (3, -1, np.roll(s, 3, axis=1)), (1, 0, np.roll(s, 1, axis=1))):
+        e, g = 0.05 * np.roll(s, 1, axis=1), shift * np.roll(s, 2, axis=1)
+        passes = ((1, 0, s + e + g), (1, 1, s - e + g)) if dropout else ()
+        for cam, pas, sc in ((1, -1, s), (3, -1, np.roll(s, 3, axis=1)), (3, 0, np.roll(s, 1, axis=1)), *passes):
             for a, t, v in zip(ang, th, sc):
                 rows["object"].append(obj), rows["camera"].append(cam), rows["angle_deg"].append(int(a))
                 rows["image"].append(f"{obj}/NP{cam}_{a}.jpg"), rows["pass"].append(pas)
@@ -79,7 +83,7 @@ def test_stage_writes_models(tmp_config):
     run_stage(cfg, STAGES["models"], "k", {}, device="cpu", threads=1)
     out = cfg.stage_dir("models")
     index = json.loads((out / "index.json").read_text())
-    # Component choice from the deterministic camera-1 views only (rule top_mean).
+    # Component choice from the camera-1 views only (rule top_mean; dropout mean = deterministic here).
     expected = np.argsort(-np.concatenate([s for _, s in truth.values()]).mean(0), kind="stable")[:2]
     assert index["components"] == [int(i) for i in expected]
     assert index["component_names"] == [NAMES[i] for i in expected]
@@ -97,7 +101,7 @@ def test_stage_writes_models(tmp_config):
     assert sorted(p.name for p in out.glob("*.npz")) == sorted(f"{c}.npz" for c in CLASSES)
     with np.load(out / f"{CLASSES[1]}.npz", allow_pickle=False) as z:
         assert z["X"].shape == (24, 2) and z["Y"].shape == (2, 24)
-        np.testing.assert_allclose(z["Y"], truth[CLASSES[1]][1][:, expected].T, atol=1e-6)  # float32 scores
+        np.testing.assert_allclose(z["Y"], truth[CLASSES[1]][1][:, expected].T, atol=2e-6)  # float32 scores
     models = GPClassModels.load(out)
     assert models.classes == CLASSES
     # The fitted GP mean follows the training scores on the ring.
@@ -166,3 +170,23 @@ def test_bad_features_are_clear_errors(tmp_path):
     write_features(p, with_names=False)
     models, _ = fit_from_features(p, mcfg(), progress=False)
     assert models.component_names is None
+
+
+def test_training_targets_are_the_dropout_mean_or_the_deterministic_pass(tmp_path):
+    p = tmp_path / "bigbird.parquet"
+    truth = write_features(p, shift=0.2)
+    comps = (1, 4)
+    kw = dict(component_rule="explicit", components=comps)
+    mean_models, extra = fit_from_features(p, mcfg(**kw), progress=False)
+    det_models, _ = fit_from_features(p, mcfg(targets="deterministic", **kw), progress=False)
+    assert extra["fit"]["targets"] == "dropout_mean"
+    for c, cls in enumerate(CLASSES):
+        s = truth[cls][1]
+        want_mean = (s + 0.2 * np.roll(s, 2, axis=1))[:, list(comps)].T
+        np.testing.assert_allclose(mean_models.Y[c], want_mean, atol=2e-6)
+        np.testing.assert_allclose(det_models.Y[c], s[:, list(comps)].T, atol=2e-6)
+    assert not np.allclose(mean_models.Y[0], det_models.Y[0], atol=1e-3)
+    write_features(p, dropout=False)
+    with pytest.raises(FeaturesError, match="bigbird.parquet: models.targets = 'dropout_mean' needs MC-dropout passes"):
+        fit_from_features(p, mcfg(**kw), progress=False)
+    fit_from_features(p, mcfg(targets="deterministic", **kw), progress=False)  # no passes needed

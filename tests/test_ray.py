@@ -17,6 +17,7 @@ import pytest
 
 from pipeline.config import _merge
 from pipeline.executor import LocalExecutor, TransientError, make_executor, task_cpus
+from tests.tiny_world import TINY as TINY_WORLD
 
 LIMIT_S = 600
 HAVE_RAY = importlib.util.find_spec("ray") is not None
@@ -29,22 +30,17 @@ needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray not installed (pip inst
 # that does not divide the crops.
 SIX = ["aunt_jemima_original_syrup", "cholula_chipotle_hot_sauce", "crystal_hot_sauce",
        "honey_bunches_of_oats_honey_roasted", "mahatma_rice", "pepto_bismol"]
-TINY = {
-    "data": {"scans": ["Home_001_1"],
-             "synthetic": {"instances": SIX, "instances_per_scan": 0, "angle_step_deg": 45,
-                           "bigbird_width": 160, "bigbird_height": 128, "avd_width": 320, "avd_height": 180,
-                           "room_size_m": [2.4, 2.1], "grid_step_m": 0.45, "distractors": 2, "workers": 1}},
-    "classifier": {"input_size": 64, "training": {"train_images": 36, "val_images": 12, "epochs": 1,
-                                                  "batch_size": 12, "min_accuracy": 0.0}},
-    "features": {"n_samples": 3, "bigbird_samples": 2, "max_difficulty": 5, "batch_size": 7},
-    "models": {"restarts": 0},
-    "evaluate": {"track_length": 2, "max_difficulty": 5, "tracks_per_target": 2, "n_candidates": 3,
-                 "bootstrap": 100, "ablations": ["models.noise_floor=dropout"],
+TINY = _merge(TINY_WORLD, {
+    "data": {"synthetic": {"instances": SIX, "angle_step_deg": 45, "bigbird_width": 160, "bigbird_height": 128,
+                           "avd_width": 320, "avd_height": 180, "room_size_m": [2.4, 2.1], "grid_step_m": 0.45,
+                           "distractors": 2, "workers": 1}},
+    "classifier": {"training": {"train_images": 36, "val_images": 12, "batch_size": 12}},
+    "features": {"bigbird_samples": 2, "batch_size": 7},
+    "evaluate": {"track_length": 2, "bootstrap": 100,
                  "biased": {"n_loc_samples": 4},
-                 "randomized": {"sigmas_m": [0.1, 0.3], "realizations": 4, "n_loc_samples": 4},
-                 "sensitivity": {"sigmas_m": [0.1, 0.4], "realizations": 3, "n_loc_samples": 3},
-                 "bias_maps": {"steps": 5}},
-}
+                 "randomized": {"realizations": 4, "n_loc_samples": 4},
+                 "sensitivity": {"n_loc_samples": 3}},
+})
 
 
 # -- task functions (module level: Ray workers import them by name) ----------------------------

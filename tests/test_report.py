@@ -335,6 +335,7 @@ def test_names_say_what_they_are_and_run_details_show_skips(rendered_run):
     assert ["features", "bigbird", "2", "mask is empty (2)"] in skips
     assert ["evaluate", "target mahatma_rice", "1", "no track of 5 views sees it (3 views)"] in skips
     assert "evaluate.seed" in text and "numpy" in text and "3.6 cm" in text and "(rule: top_mean)" in text
+    assert "scans Home_001_1, Home_002_1" in text  # the subtitle names every scan tracks came from
 
 
 # -- older runs, partial runs, bad input ---------------------------------------------------------
@@ -403,7 +404,12 @@ def test_corrupt_or_incomplete_inputs_name_the_file_and_problem(tmp_path):
     # Object arrays would need pickle to load: refused, with the file named.
     np.savez(ev / "bias_maps.npz", bias_x=np.zeros(4), bias_y=np.zeros(4),
              posterior=np.zeros((3, 4, 4, 4)), classes=np.array(["a", None], dtype=object))
-    with pytest.raises(BadInputError, match=r"bias_maps\.npz: cannot read without pickle"):
+    with pytest.raises(BadInputError, match=r"bias_maps\.npz: holds object arrays, which would need unpickling"):
+        build_main_report(run, tmp_path / "out", progress=False)
+    np.savez(ev / "bias_maps.npz", bias_x=np.zeros(4), bias_y=np.zeros(4), posterior=np.zeros((3, 4, 4, 4)))
+    whole = (ev / "bias_maps.npz").read_bytes()
+    (ev / "bias_maps.npz").write_bytes(whole[: len(whole) // 2])  # a copy cut short
+    with pytest.raises(BadInputError, match=r"bias_maps\.npz: not a valid \.npz file"):
         build_main_report(run, tmp_path / "out", progress=False)
     np.savez(ev / "bias_maps.npz", bias_x=np.zeros(4), bias_y=np.zeros(5), posterior=np.zeros((3, 4, 4, 4)))
     with pytest.raises(BadInputError, match=r"bias_maps\.npz: posterior must be \(K, C, 5, 4\)"):

@@ -31,8 +31,12 @@ def _fake_ensure(outcome_by_seed: dict, calls: list):
             return "k"
         seed = cfg.classifier.seed
         write_json(cfg.stage_dir("classifier") / "card.json", {"accuracy": 0.9 + seed / 100})
+        diags = [{"train_std": 0.05, "at_bound": []}, {"train_std": 0.002, "at_bound": ["noise at lower bound"]},
+                 {"train_std": 0.03, "at_bound": ["length_scale at lower bound"] * seed}]
+        write_json(cfg.stage_dir("models") / "index.json", {"diagnostics": diags, "varying_std_threshold": 0.01,
+                                                            "varying_fits_at_bound": seed})
         write_json(ev / "summary.json", {"population": _population(*outcome_by_seed[seed])})
-        write_json(ev / "manifest.json", {"finished": f"run {len(calls)}"})
+        write_json(ev / "manifest.json", {"finished": f"run {len(calls)}", "seconds": 1.5 + seed})
         return "k"
     return ensure
 
@@ -52,8 +56,11 @@ def test_summary_puts_seeds_side_by_side_and_says_whether_the_verdict_agrees():
                       1: {"pooled": {}, **_population("better", 0.4), "classifier_accuracy": 0.9, "reused": True}})
     assert same["verdict_same"] and same["differs_on"] == [] and "same for every seed" in same["sentence"]
     assert same["outcomes"] == {"with_uncertainty-model_based / correct_final": {"0": "better", "1": "better"}}
+    assert same["held"] == {"with_uncertainty-model_based / correct_final": "better"}
+    assert "Held for every seed: With Uncertainty vs Model Based, correct ratio, final step: better." in same["sentence"]
     flip = summarize({0: _population("better", 0.2), 1: _population("not distinguishable", 0.0)})
     assert not flip["verdict_same"] and flip["differs_on"] == ["with_uncertainty-model_based / correct_final"]
+    assert flip["held"] == {} and "Held for every seed" not in flip["sentence"]
     assert "differs" in flip["sentence"]
     missing = summarize({0: _population("better", 0.2), 1: {"verdict": None, "verdict_table": None}})
     assert not missing["verdict_same"] and missing["missing"] == [1]
@@ -81,14 +88,21 @@ def test_study_runs_each_seed_then_reuses_finished_ones(tmp_config):
     out = cfg.run_dir / "study"
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk["per_seed"]["1"]["classifier_accuracy"] == pytest.approx(0.91)
+    assert [on_disk["per_seed"][s]["varying_fits"] for s in ("0", "1")] == [2, 2]
+    assert [on_disk["per_seed"][s]["varying_fits_at_bound"] for s in ("0", "1")] == [0, 1]
     assert on_disk["per_seed"]["0"]["pooled"]["with_uncertainty"]["correct_final"]["value"] == pytest.approx(0.2)
     page = (out / "index.html").read_text()
     assert "seed 0" in page and "seed 1" in page and "differs" in page
+    assert "With Uncertainty vs Model Based, correct ratio, final step" in page  # labels, not keys
+    assert page.index("Verdict per seed") < page.index("Pooled values")
     # The data folder is shared, not rendered again per seed.
     assert (out / "seed-0" / "data").is_symlink()
     assert (out / "seed-0" / "data").resolve() == cfg.stage_dir("data").resolve()
     again = run_study(cfg, ensure=ensure)
     assert [again["per_seed"][s]["reused"] for s in ("0", "1")] == [True, True]
+    # What computing each seed cost is still reported after a rerun that reused it.
+    assert again["timings_s"]["chain_per_seed"]["1"]["evaluate"] == pytest.approx(2.5)
+    assert again["timings_s"]["chain_per_seed"]["1"]["classifier"] is None  # the fake chain wrote no manifest
     assert again["per_seed"] == {s: {**first["per_seed"][s], "reused": True} for s in ("0", "1")}
 
 

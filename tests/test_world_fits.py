@@ -38,7 +38,7 @@ def fits(tmp_path_factory):
     from loaders.bigbird import BigBirdObject
     from pipeline.components import choose_components
     from pipeline.config import _merge, load_config
-    from pipeline.gp import fit_class_models
+    from pipeline.gp_fit import fit_class_models
     from stages.data import data_roots
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
