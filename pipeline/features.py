@@ -207,7 +207,8 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.classifier import MCDropoutScorer, build_alexnet, load_into
+        from pipeline.classifier import build_alexnet, load_into
+        from pipeline.mc_dropout import MCDropoutScorer
 
         if model.weights is None:
             raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
@@ -248,7 +249,7 @@ def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_s
                  batch_size: int) -> Iterator[CropBatch]:
     """Crop every job with ``policy`` into batches of ``batch_size``; each crop's table columns
     (crop box included) go to ``out`` in the same order."""
-    from pipeline.classifier import crop_seed
+    from pipeline.mc_dropout import crop_seed
 
     pending: list[tuple[CropJob, np.ndarray, tuple]] = []
     start = 0

@@ -162,7 +162,8 @@ def _scorer_released():
 
 def _scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
-    from pipeline.classifier import MCDropoutScorer, load_classifier
+    from pipeline.classifier import load_classifier
+    from pipeline.mc_dropout import MCDropoutScorer
     from pipeline.features import ScoringModel, register_scorer
 
     if executor.name == "local":

@@ -8,7 +8,8 @@ from typing import Sequence
 
 from torch import nn
 
-from pipeline.classifier import MCDropoutScorer, build_alexnet, crop_seed, init_for_training
+from pipeline.classifier import build_alexnet, init_for_training
+from pipeline.mc_dropout import MCDropoutScorer, crop_seed
 
 
 class FixedMaskDropout(nn.Module):

@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import torch  # noqa: E402
 
-from pipeline.classifier import (MCDropoutScorer, build_alexnet, crop_seed, fast_head,  # noqa: E402
-                                 init_for_training)
+from pipeline.classifier import build_alexnet, init_for_training  # noqa: E402
+from pipeline.mc_dropout import MCDropoutScorer, crop_seed, fast_head  # noqa: E402
 from pipeline.device import configure_threads  # noqa: E402
 
 
