@@ -37,8 +37,11 @@ def classifier_text(card: dict | None) -> str:
         acc, n = card.get("accuracy"), card.get("val_images")
         acc_t = (wilson(round(float(acc) * n), int(n)).text() + f" on {n} held-out images" if acc is not None and n
                  else fmt(acc))
+        seed = (card.get("training") or {}).get("seed")
+        run = f"classifier.seed = {seed}" if seed is not None else "one seed"
         return (f"classifier: AlexNet trained here on {card.get('num_classes', '?')} synthetic texture "
-                f"families (the source domain), held-out top-1 {acc_t}")
+                f"families (the source domain), held-out top-1 {acc_t}; one training run ({run}): the CIs "
+                f"cover targets and tracks, not training runs, which `viewfuse study` repeats with other seeds")
     if w == "imagenet":
         return "classifier: torchvision's ImageNet AlexNet (IMAGENET1K_V1), no held-out accuracy on these objects"
     return f"classifier: AlexNet weights from {card.get('weights_file', 'a file')}"

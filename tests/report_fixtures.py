@@ -188,7 +188,8 @@ def write_models(md: Path, rng, T: int, comps: list[int]) -> dict:
 
 def write_classifier(run_dir: Path) -> dict:
     card = {"architecture": "alexnet", "weights": "synthetic", "weights_file": "weights.npz", "num_classes": 12,
-            "output_names": list(FAMILIES), "accuracy": 0.94, "val_images": 1200, "hash": "c" * 16}
+            "output_names": list(FAMILIES), "accuracy": 0.94, "val_images": 1200, "hash": "c" * 16,
+            "training": {"seed": 3}}
     (run_dir / "classifier").mkdir(parents=True, exist_ok=True)
     (run_dir / "classifier" / "card.json").write_text(json.dumps(card, indent=1))
     return card

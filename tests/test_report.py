@@ -228,6 +228,7 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     first = text[text.index('id="verdict"'):text.index('id="population"')]
     assert "synthetic data (stand-ins rendered" in first and "3 targets × 6 tracks (2 per target)" in first
     assert "2 localization settings × 5 realizations" in first and "held-out top-1 0.940 [" in first
+    assert "one training run (classifier.seed = 3)" in first and "viewfuse study" in first
     # The headline sentences (computed, verbatim) on the first screen; all of them collapsed below.
     head = [s for s, r in zip(pop["verdict"], pop["verdict_table"]) if r["metric"] in ("correct_final", "log10_mgr95_final")]
     assert len(head) == 4 and len(pop["verdict"]) == 16
