@@ -5,6 +5,7 @@
 """
 from __future__ import annotations
 
+import functools
 import warnings
 from typing import Any, Sequence
 
@@ -12,6 +13,14 @@ import numpy as np
 
 from pipeline.gp import GPClassModels
 from pipeline.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
+
+
+@functools.cache
+def theta_index(name: str) -> int:
+    """Position of a hyperparameter in ``kernel.theta`` of the kernel every fit uses."""
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    return [h.name for h in (ConstantKernel() * RBF() + WhiteKernel()).hyperparameters].index(name)
 
 
 def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.ndarray],
@@ -57,6 +66,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
     if hyperprior not in ("none", "inverse_gamma"):
         raise ValueError(f"fit_class_models: hyperprior must be 'none' or 'inverse_gamma', got {hyperprior!r}")
     noise_law = LogInverseGamma.between(*noise_prior) if hyperprior != "none" else None
+    i_ell, i_noise = theta_index("k1__k2__length_scale"), theta_index("k2__noise_level")
     mean, amp, ell, noise = (np.zeros((C, F)) for _ in range(4))
     diags: list[dict[str, Any]] = []
     bar = progress_bar(total=C * F, desc="GP fits", unit="fit", enabled=progress)
@@ -69,8 +79,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
             raise ValueError(f"fit_class_models: class {classes[c]!r} targets must be ({F}, {len(X)}), got {Y.shape}")
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise ValueError(f"fit_class_models: class {classes[c]!r} has non-finite inputs or targets")
-        # theta = log(amplitude, length scale, noise), in the kernel's hyperparameter order below
-        priors = {} if noise_law is None else {1: LogInverseGamma.between(*input_range(X)), 2: noise_law}
+        priors = {} if noise_law is None else {i_ell: LogInverseGamma.between(*input_range(X)), i_noise: noise_law}
         for f in range(F):
             y = Y[f]
             m = float(y.mean())
@@ -112,7 +121,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                 "log_marginal_likelihood": float(gpr.log_marginal_likelihood(k.theta)) if priors
                 else float(gpr.log_marginal_likelihood_value_),
                 "log_prior": log_prior(priors, k.theta) if priors else None,
-                "hyperprior": ({"length_scale": priors[1].describe(), "noise": priors[2].describe()}
+                "hyperprior": ({"length_scale": priors[i_ell].describe(), "noise": priors[i_noise].describe()}
                                if priors else None),
                 "init": {"amplitude": a0, "length_scale": l0, "noise": n0},
                 "restarts": int(restarts), "random_state": rs,

@@ -19,6 +19,7 @@ prior to the log marginal likelihood, so predictions are scikit-learn's for the 
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
@@ -102,6 +103,9 @@ def map_optimizer(priors: dict[int, LogInverseGamma]) -> Callable:
     def optimizer(obj_func, initial_theta, bounds):
         res = optimize.minimize(lambda th: objective(obj_func, th), initial_theta, method="L-BFGS-B",
                                 jac=True, bounds=bounds)
+        if not res.success:  # the same warning scikit-learn's own optimizer gives, so diagnostics list it
+            from sklearn.exceptions import ConvergenceWarning
+            warnings.warn(f"lbfgs failed to converge (MAP fit): {res.message}", ConvergenceWarning)
         return res.x, res.fun
 
     return optimizer
