@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import importlib.util
 import json
@@ -70,7 +71,14 @@ def module_files(name: str) -> list[Path]:
 def source_fingerprint(path: str | Path) -> str:
     """sha256 of a Python file's syntax tree without comments and docstrings: editing what code
     says about itself does not make a stage stale; editing what it does does. A file that does
-    not parse is hashed as bytes."""
+    not parse is hashed as bytes. Parsed once per (path, size, mtime): every stage's key needs
+    most project modules, and ``viewfuse status`` computes them all."""
+    st = Path(path).stat()
+    return _fingerprint(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=1024)
+def _fingerprint(path: str, size: int, mtime_ns: int) -> str:
     import ast
 
     data = Path(path).read_bytes()

@@ -2,8 +2,8 @@
 
 Reads ``features/bigbird.parquet`` (training views: rows with camera == models.camera; GP inputs
 (u_x, u_y) from the deterministic pass, pass == -1; targets = score components, by default the mean
-of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the deterministic pass). Writes one model bank, ``models/index.json`` + one
-``<class>.npz`` per class (``pipeline.gp.GPClassModels``): every modelled class x every component
+of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the deterministic pass).
+Writes one model bank, ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.gp.GPClassModels``): every modelled class x every component
 that some target's candidate set uses, with the plan in the index (``candidate_sets``). Each
 ``evaluate.ablations`` entry gets its own bank under ``models/ablations/``.
 """
@@ -40,7 +40,9 @@ class FeaturesError(ValueError):
 
 
 def read_training_views(path: str | Path, camera: int):
-    """Deterministic-pass rows of one camera ring: (table columns as numpy dict, scores (n, D), meta)."""
+    """One camera ring, from one read of the file: its deterministic-pass rows (table columns as
+    numpy dict, scores (n, D)), the Parquet metadata, and its MC-dropout rows (pass >= 0) as a
+    table for ``dropout_passes``."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -59,12 +61,13 @@ def read_training_views(path: str | Path, camera: int):
     cam = table.column("camera").to_numpy()
     pas = table.column("pass").to_numpy()
     keep = np.nonzero((cam == camera) & (pas == -1))[0]
+    dropout = table.take(pa.array(np.nonzero((cam == camera) & (pas >= 0))[0]))
     table = table.take(pa.array(keep))
     cols = {c: table.column(c).to_numpy(zero_copy_only=False) for c in ("object", "angle_deg", "u_x", "u_y")}
     scores = _scores_matrix(table.column("scores"), path)
     if len(keep) and not np.all(np.isfinite(scores)):
         raise FeaturesError(path, "non-finite scores in the training views")
-    return cols, scores, meta
+    return cols, scores, meta, dropout
 
 
 def _scores_matrix(col, path: Path) -> np.ndarray:
@@ -83,18 +86,11 @@ def _scores_matrix(col, path: Path) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64).reshape(len(rows), -1)
 
 
-def dropout_passes(path: str | Path, camera: int) -> dict[str, dict[int, np.ndarray]]:
-    """Per object and turntable angle: the MC-dropout score samples (N_s, D) of one camera ring
-    (rows with pass >= 0); empty when the features hold no dropout passes."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    table = pq.read_table(path, columns=["object", "camera", "angle_deg", "pass", "scores"])
-    pas = table.column("pass").to_numpy()
-    keep = np.nonzero((table.column("camera").to_numpy() == camera) & (pas >= 0))[0]
-    if len(keep) == 0:
+def dropout_passes(table, path: str | Path) -> dict[str, dict[int, np.ndarray]]:
+    """Per object and turntable angle: the MC-dropout score samples (N_s, D) of the dropout rows
+    ``read_training_views`` returned; empty when the features hold no dropout passes."""
+    if table.num_rows == 0:
         return {}
-    table = table.take(pa.array(keep))
     scores = _scores_matrix(table.column("scores"), Path(path))
     if not np.all(np.isfinite(scores)):
         raise FeaturesError(path, "non-finite scores in the MC-dropout passes of the training views")
@@ -128,7 +124,7 @@ def dropout_means(path: Path, passes: dict[str, dict[int, np.ndarray]], cls: str
 def _training_sets(path: Path, mcfg: ModelsConfig):
     """Per modelled class: GP inputs (N, 2), training scores (N, D) (``models.targets``), angles;
     plus output names, Parquet metadata and the dropout passes read (for the noise floor)."""
-    cols, scores, meta = read_training_views(path, mcfg.camera)
+    cols, scores, meta, dropout = read_training_views(path, mcfg.camera)
     objects = cols["object"].astype(str)
     present = sorted(set(objects))
     pool = present if isinstance(mcfg.classes, str) else list(mcfg.classes)
@@ -151,7 +147,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
         if not np.all(np.isfinite(X)):
             raise FeaturesError(path, f"class {cls!r}: non-finite GP inputs (u_x, u_y)")
         X_by[cls], S_by[cls], angles[cls] = X, scores[rows], [int(a) for a in ang]
-    passes = dropout_passes(path, mcfg.camera) if (mcfg.targets == "dropout_mean" or mcfg.noise_floor == "dropout") else {}
+    passes = dropout_passes(dropout, path) if (mcfg.targets == "dropout_mean" or mcfg.noise_floor == "dropout") else {}
     if mcfg.targets == "dropout_mean":
         S_by = {cls: dropout_means(path, passes, cls, angles[cls]) for cls in pool}
     names = None
