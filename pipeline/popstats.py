@@ -11,12 +11,22 @@ drawn target's tracks with replacement) and uses percentile intervals.
 """
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
 from pipeline.labels import METHOD_SHORT, METRICS, comparison_key
+
+
+def wilson_interval(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson 95 % interval of a proportion k/n (a held-out accuracy: over the images drawn)."""
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return max(0.0, c - h), min(1.0, c + h)
 
 LEVEL = 0.95
 

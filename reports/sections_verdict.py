@@ -3,10 +3,9 @@ then the diagnostics that drive it (GP fits at a bound, ablations). All numbers 
 ``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
 from __future__ import annotations
 
-import math
-
 from pipeline.labels import (COMPARISONS, METRICS, comparison_key, comparison_label, method_label, metric_label,
                              ordered_methods)
+from pipeline.popstats import wilson_interval
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
 from reports.tables import bound_counts, hyperparameter_table
@@ -22,11 +21,7 @@ PAIRED_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_
 
 def wilson(k: float, n: int, z: float = 1.96) -> Estimate:
     """A proportion k/n with its Wilson 95 % interval."""
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return Estimate(p, max(0.0, c - h), min(1.0, c + h))
+    return Estimate(k / n, *wilson_interval(k, n, z))
 
 
 def classifier_text(card: dict | None) -> str:

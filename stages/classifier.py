@@ -9,7 +9,7 @@
 - ``path``: any AlexNet state dict (``.npz`` or a tensor-only torch file).
 
 ``card.json`` records the weights file and its sha256, output names, input size, normalisation,
-dropout p, accuracy/confusion (synthetic), training settings, wall and CPU timings, and (synthetic)
+dropout p, accuracy with its Wilson 95 % CI over the held-out images and confusion (synthetic), training settings, wall and CPU timings, and (synthetic)
 ``determinism``: the CPU flags that select kernels, thread count, library versions and what can
 differ on another machine; its ``hash`` is the
 identity of the scorer that the features stage records in its Parquet metadata.
@@ -128,6 +128,7 @@ def _train_synthetic(ctx, device: str) -> str:
     from pipeline.classifier import (WEIGHTS_NPZ, build_alexnet, card_hash, confusion_matrix,
                                      init_for_training, machine_fingerprint, predict, resolve_precision,
                                      save_state_dict_npz, train_classifier)
+    from pipeline.popstats import wilson_interval
 
     c = ctx.cfg.classifier
     t = c.training
@@ -150,15 +151,18 @@ def _train_synthetic(ctx, device: str) -> str:
     logits = predict(model, xva, mean=c.mean, std=c.std, device=device, progress=True)
     pred = logits.argmax(1)
     acc = float(np.mean(pred == yva))
+    acc_ci = wilson_interval(int(np.sum(pred == yva)), len(yva))  # over the held-out images drawn
     cm = confusion_matrix(yva, pred, t.categories)
     timings["validate_s"], cpu["validate_s"] = round(time.perf_counter() - t2, 2), round(_cpu_s() - c2, 2)
-    log.info("held-out top-1 on the source domain: %.4f (%d images)", acc, len(yva))
+    log.info("held-out top-1 on the source domain: %.4f, 95 %% CI [%.4f, %.4f] (Wilson, %d images)",
+             acc, *acc_ci, len(yva))
 
     model = model.cpu().float()
     sha = save_state_dict_npz(model, ctx.out / WEIGHTS_NPZ)
     card = _base_card(c, t.categories, names, WEIGHTS_NPZ, sha)
     card.update({
         "accuracy": acc,
+        "accuracy_ci95": [round(acc_ci[0], 6), round(acc_ci[1], 6)],
         "val_images": int(len(yva)),
         "per_class_accuracy": {n: float(cm[i, i] / max(1, cm[i].sum())) for i, n in enumerate(names)},
         "confusion": cm.tolist(),
@@ -182,7 +186,8 @@ def _train_synthetic(ctx, device: str) -> str:
             f"'classifier.training.min_accuracy' = {t.min_accuracy} (raise classifier.training.train_images "
             f"or epochs; confusion matrix in the log)")
     total = sum(timings.values())
-    return (f"synthetic AlexNet: {t.categories} categories, held-out top-1 {acc:.3f} on {len(yva)} images; "
+    return (f"synthetic AlexNet: {t.categories} categories, held-out top-1 {acc:.3f} [{acc_ci[0]:.3f}, "
+            f"{acc_ci[1]:.3f}] on {len(yva)} images; "
             f"render {timings['render_s']:.0f} s ({t.render_workers} processes) + train {timings['train_s']:.0f} s "
             f"({precision}, {device}, {c.input_size} px) + validate {timings['validate_s']:.0f} s = {total:.0f} s "
             f"wall, {sum(cpu.values()):.0f} CPU s; sha256 {sha[:12]}")

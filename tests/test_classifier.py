@@ -133,6 +133,8 @@ def test_synthetic_stage_trains_caches_and_enforces_min_accuracy(tmp_config):
     assert card["weights_sha256"] == sha256_file(folder / "weights.npz")
     assert card["output_names"] == list(CATEGORY_NAMES) and card["num_classes"] == 12
     assert 0.0 <= card["accuracy"] <= 1.0 and np.array(card["confusion"]).sum() == 24
+    lo, hi = card["accuracy_ci95"]  # Wilson interval over the 24 held-out images
+    assert 0.0 <= lo <= card["accuracy"] <= hi <= 1.0 and hi - lo > 0.1
     assert card["training"]["train_images"] == 48 and card["hash"] == card_hash(card)
     assert set(card["timings"]) >= {"render_s", "train_s"} and set(card["cpu_seconds"]) >= {"render_s", "train_s"}
     det = card["determinism"]

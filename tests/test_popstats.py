@@ -93,3 +93,13 @@ def test_mismatched_cells_are_an_error():
     cells = population(np.random.default_rng(7))
     with pytest.raises(ValueError, match="same cells"):
         paired_differences(cells.iloc[1:], "a", "b", MET, 100, 0)
+
+
+def test_wilson_interval_matches_the_closed_form_and_stays_in_0_1():
+    from pipeline.popstats import wilson_interval
+
+    lo, hi = wilson_interval(8, 10)          # textbook value: [0.490, 0.943]
+    assert lo == pytest.approx(0.4902, abs=1e-4) and hi == pytest.approx(0.9433, abs=1e-4)
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
+    a, b = wilson_interval(1107, 1200), wilson_interval(110, 120)
+    assert a[1] - a[0] < b[1] - b[0]          # more images, a narrower interval

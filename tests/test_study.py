@@ -30,7 +30,8 @@ def _fake_ensure(outcome_by_seed: dict, calls: list):
         if (ev / "manifest.json").is_file() and not force:
             return "k"
         seed = cfg.classifier.seed
-        write_json(cfg.stage_dir("classifier") / "card.json", {"accuracy": 0.9 + seed / 100})
+        write_json(cfg.stage_dir("classifier") / "card.json", {"accuracy": 0.9 + seed / 100,
+                                                               "accuracy_ci95": [0.88 + seed / 100, 0.92 + seed / 100]})
         diags = [{"train_std": 0.05, "at_bound": []}, {"train_std": 0.002, "at_bound": ["noise at lower bound"]},
                  {"train_std": 0.03, "at_bound": ["length_scale at lower bound"] * seed}]
         write_json(cfg.stage_dir("models") / "index.json", {"diagnostics": diags, "varying_std_threshold": 0.01,
@@ -94,6 +95,7 @@ def test_study_runs_each_seed_then_reuses_finished_ones(tmp_config):
     page = (out / "index.html").read_text()
     assert "seed 0" in page and "seed 1" in page and "differs" in page
     assert "With Uncertainty vs Model Based, correct ratio, final step" in page  # labels, not keys
+    assert "0.91 <small>[0.89, 0.93]</small>" in page  # seed 1's accuracy with its CI
     assert page.index("Verdict per seed") < page.index("Pooled values")
     # The data folder is shared, not rendered again per seed.
     assert (out / "seed-0" / "data").is_symlink()

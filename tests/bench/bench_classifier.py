@@ -39,7 +39,9 @@ def main() -> None:
               f"{secs / GOAL_S:.2f}); render {tm['render_s']:.0f} s + train {tm['train_s']:.0f} s + validate "
               f"{tm['validate_s']:.0f} s wall; CPU s render {cpu['render_s']:.0f}, train {cpu['train_s']:.0f}, "
               f"validate {cpu['validate_s']:.0f}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-        print(f"bench_classifier: held-out top-1 {card['accuracy']:.3f} on {card['val_images']} images "
+        lo, hi = card["accuracy_ci95"]
+        print(f"bench_classifier: held-out top-1 {card['accuracy']:.3f} [{lo:.3f}, {hi:.3f}] (Wilson 95 % CI over "
+              f"the {card['val_images']} held-out images) "
               f"(goal >= {GOAL_ACC}); {card['training']['precision_used']}, input {card['input_size']} px, "
               f"{card['training']['train_images']} images x {card['training']['epochs']} epochs; "
               f"cpu flags {', '.join(card['determinism']['cpu_flags'])}")
