@@ -23,8 +23,8 @@ import scipy.io
 
 from loaders.bigbird import jpeg_size, read_rgb
 from loaders.errors import BadInputError, SkipLog
-from pipeline.cache import note_read
-from pipeline.progress import bar
+from pipeline.infra.cache import note_read
+from pipeline.infra.progress import bar
 
 log = logging.getLogger("viewfuse.loaders")
 

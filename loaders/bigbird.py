@@ -26,7 +26,7 @@ import numpy as np
 
 from loaders.errors import BadInputError, SkipLog
 from loaders.pbm import read_pbm
-from pipeline.cache import note_read
+from pipeline.infra.cache import note_read
 
 _VIEW_RE = re.compile(r"^NP([1-5])_(0|[1-9][0-9]*)\.jpg$")  # angles are unpadded
 POSE_KEY = "H_table_from_reference_camera"

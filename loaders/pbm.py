@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from loaders.errors import BadInputError
-from pipeline.cache import note_read
+from pipeline.infra.cache import note_read
 
 
 def _tokens(data: bytes, path: Path) -> tuple[list[bytes], int]:
@@ -72,5 +72,5 @@ def encode_pbm(mask: np.ndarray) -> bytes:
 
 
 def write_pbm(path: str | Path, mask: np.ndarray) -> None:
-    from pipeline.cache import write_bytes
+    from pipeline.infra.cache import write_bytes
     write_bytes(path, encode_pbm(mask))

@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from loaders.errors import BadInputError
-from pipeline.cache import NpzFileError, load_npz
-from pipeline.labels import METHODS
+from pipeline.infra.cache import NpzFileError, load_npz
+from pipeline.evaluation.labels import METHODS
 
 log = logging.getLogger("viewfuse.report")
 

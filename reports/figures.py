@@ -1,6 +1,6 @@
 """Figure helpers shared by the reports: Agg figures, atomic PNG writes, percentile bands, labels.
 
-Method and class colours and names come from ``pipeline.labels`` (one place for the project).
+Method and class colours and names come from ``pipeline.evaluation.labels`` (one place for the project).
 
 Figures are built on ``matplotlib.figure.Figure`` directly (no pyplot), so nothing depends on a
 display or on pyplot's global state, and a figure needs no explicit close.
@@ -14,7 +14,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from pipeline.cache import atomic_path
+from pipeline.infra.cache import atomic_path
 
 DEFAULT_LEVELS = (10, 20, 30, 40, 50, 60, 70, 80, 90)
 

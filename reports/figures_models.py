@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.labels import class_colors
+from pipeline.evaluation.labels import class_colors
 from reports.figures import new_subplots, wrap_label
 
 

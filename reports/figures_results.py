@@ -1,7 +1,7 @@
 """Figures of the results: population (forest plot, per-target CIs) and the detailed track
 (biased track, percentile bands, σ sensitivity, the track from above).
 
-MGR is log10 on linear axes everywhere (``pipeline.labels.MGR_AXIS_LABEL``); every estimate
+MGR is log10 on linear axes everywhere (``pipeline.evaluation.labels.MGR_AXIS_LABEL``); every estimate
 that has a CI is drawn with its CI bar.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.labels import (COMPARISONS, METRICS, MGR_AXIS_LABEL, comparison_key, method_color, method_label,
+from pipeline.evaluation.labels import (COMPARISONS, METRICS, MGR_AXIS_LABEL, comparison_key, method_color, method_label,
                              metric_label, ordered_methods)
 from reports.figures import new_figure, new_subplots, percentile_bands, step_ticks, wrap_label
 from reports.stats import matrices

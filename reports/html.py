@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.cache import atomic_path
+from pipeline.infra.cache import atomic_path
 from reports.numbers import Estimate, fmt
 
 _CSS = """

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from pipeline.progress import bar as progress_bar
+from pipeline.infra.progress import bar as progress_bar
 
-from pipeline.labels import MGR_AXIS_LABEL
+from pipeline.evaluation.labels import MGR_AXIS_LABEL
 from reports import sections_track as track_sections
 from reports import sections_verdict as verdict_sections
 from reports.artifacts import load_run

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from pipeline.labels import MGR_AXIS_LABEL, method_label, metric_label
+from pipeline.evaluation.labels import MGR_AXIS_LABEL, method_label, metric_label
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
 from reports.tables import (component_legend, dump_toml, find_seeds, package_versions, skip_rows)

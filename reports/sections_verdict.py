@@ -3,9 +3,9 @@ then the diagnostics that drive it (GP fits at a bound, ablations). All numbers 
 ``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
 from __future__ import annotations
 
-from pipeline.labels import (COMPARISONS, METRICS, comparison_key, comparison_label, method_label, metric_label,
+from pipeline.evaluation.labels import (COMPARISONS, METRICS, comparison_key, comparison_label, method_label, metric_label,
                              ordered_methods)
-from pipeline.popstats import wilson_interval
+from pipeline.evaluation.popstats import wilson_interval
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
 from reports.tables import bound_counts, hyperparameter_table

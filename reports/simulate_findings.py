@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, method_label
-from pipeline.metrics import percentile
+from pipeline.evaluation.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, method_label
+from pipeline.evaluation.metrics import percentile
 from reports.artifacts import with_log10_mgr
 
 OURS = WITH_UNCERTAINTY

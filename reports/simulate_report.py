@@ -4,7 +4,7 @@ Reads only what the stage wrote (``results.parquet``, ``example.parquet``, ``sum
 ``models/``, read by ``reports.artifacts`` like the main report) and computes nothing but
 percentiles, GP means for the maps and CIs over realizations (seeded bootstrap), so the page can be
 re-rendered from the artifacts. Same conventions as the main report: names and colours from
-``pipeline.labels``, MGR as log10 on linear axes, every table value with its 95 % CI.
+``pipeline.evaluation.labels``, MGR as log10 on linear axes, every table value with its 95 % CI.
 
 Figures: class maps (model points, track, biased estimates); the measurements over the track for
 the example realization (paper Figs. 2 and 4); percentile bands over realizations per step of
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.labels import MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
+from pipeline.evaluation.labels import MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
 from reports.artifacts import load_simulate
 from reports.figures import new_subplots, percentile_bands, save
 from reports.html import HtmlReport
@@ -195,7 +195,7 @@ def _example_poses(ex: pd.DataFrame, scenarios: list[str]) -> tuple[np.ndarray, 
 
 
 def _plan(so, sim_dir: Path, scenarios: list[str]) -> list[tuple[str, Any]]:
-    from pipeline.gp import GPClassModels
+    from pipeline.method.gp import GPClassModels
 
     df, ex, classes, truth = so.results, so.example, so.classes, so.truth
     plan: list[tuple[str, Any]] = []
@@ -262,7 +262,7 @@ def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int)
 def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int = 110, run_name: str = "",
                           progress: bool = True, n_boot: int = BOOTSTRAP) -> ReportResult:
     """Render ``out_dir/index.html`` and its PNGs from the simulate stage's outputs."""
-    from pipeline.progress import bar as progress_bar
+    from pipeline.infra.progress import bar as progress_bar
 
     sim_dir, out = Path(sim_dir), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

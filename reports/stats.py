@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pipeline.labels import ordered_methods
+from pipeline.evaluation.labels import ordered_methods
 from reports.numbers import Estimate
 
 BOOTSTRAP = 1000

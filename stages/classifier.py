@@ -2,7 +2,7 @@
 
 - ``synthetic`` (default): render the synthetic source domain (``loaders.synthetic.source_domain``)
   in ``training.render_workers`` processes, train torchvision's AlexNet on it
-  (``pipeline.classifier.train_classifier`` gets the arrays: the method layer never imports the
+  (``pipeline.scoring.classifier.train_classifier`` gets the arrays: the method layer never imports the
   loaders), report held-out top-1, fail below ``training.min_accuracy``, and store
   ``weights.npz`` (plain arrays, no pickle) beside ``card.json``.
 - ``imagenet``: torchvision's IMAGENET1K_V1 file from the local torch cache (never downloaded).
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cache import sha256_file, write_json
-from pipeline.config import to_dict
+from pipeline.infra.cache import sha256_file, write_json
+from pipeline.infra.config import to_dict
 
 log = logging.getLogger("viewfuse.classifier")
 
@@ -33,7 +33,7 @@ def extra_key(cfg) -> str:
     c = cfg.classifier
     if c.weights == "synthetic":
         return ""
-    from pipeline.classifier import imagenet_dir, IMAGENET_FILE
+    from pipeline.scoring.classifier import imagenet_dir, IMAGENET_FILE
 
     p = imagenet_dir() / IMAGENET_FILE if c.weights == "imagenet" else cfg.resolve(c.path)
     try:
@@ -52,7 +52,7 @@ def run(ctx) -> str:
 
 
 def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
-    from pipeline.classifier import ARCHITECTURE
+    from pipeline.scoring.classifier import ARCHITECTURE
 
     return {"architecture": ARCHITECTURE, "weights": c.weights, "weights_file": weights_file,
             "weights_sha256": sha, "num_classes": int(num_classes), "output_names": names,
@@ -63,7 +63,7 @@ def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: st
 def _file_weights(ctx, device: str) -> str:
     import torch
 
-    from pipeline.classifier import (build_alexnet, card_hash, imagenet_checkpoint, imagenet_names,
+    from pipeline.scoring.classifier import (build_alexnet, card_hash, imagenet_checkpoint, imagenet_names,
                                      load_into, load_state_dict_file, num_classes_of, read_card)
 
     cfg, c = ctx.cfg, ctx.cfg.classifier
@@ -72,7 +72,7 @@ def _file_weights(ctx, device: str) -> str:
     state = load_state_dict_file(path)
     n = num_classes_of(state, path)
     if c.weights == "path" and c.num_classes and c.num_classes != n:
-        from pipeline.classifier import WeightsError
+        from pipeline.scoring.classifier import WeightsError
         raise WeightsError(path, f"has {n} outputs but 'classifier.num_classes' = {c.num_classes}")
     model = load_into(build_alexnet(n, c.dropout), state, path)  # validates the fit now, not later
     # A quick forward pass at the configured input size catches an unusable size early.
@@ -111,7 +111,7 @@ def _cpu_s() -> float:
 def _render_sets(c, t) -> tuple:
     """Train and validation images, rendered by ``training.render_workers`` processes."""
     from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, render_set_parallel
-    from pipeline.progress import bar as progress_bar
+    from pipeline.infra.progress import bar as progress_bar
 
     with progress_bar(total=t.train_images + t.val_images, desc="classifier: render source domain", unit="img") as bar:
         xtr, ytr = render_set_parallel(t.train_images, c.input_size, t.categories, c.seed, TRAIN_STREAM,
@@ -125,10 +125,10 @@ def _train_synthetic(ctx, device: str) -> str:
     import torch
 
     from loaders.synthetic.source_domain import category_names
-    from pipeline.classifier import (WEIGHTS_NPZ, build_alexnet, card_hash, confusion_matrix,
+    from pipeline.scoring.classifier import (WEIGHTS_NPZ, build_alexnet, card_hash, confusion_matrix,
                                      init_for_training, machine_fingerprint, predict, resolve_precision,
                                      save_state_dict_npz, train_classifier)
-    from pipeline.popstats import wilson_interval
+    from pipeline.evaluation.popstats import wilson_interval
 
     c = ctx.cfg.classifier
     t = c.training

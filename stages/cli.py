@@ -7,7 +7,7 @@ import dataclasses
 import logging
 import sys
 
-from pipeline.config import Config, ConfigError, load_config, parse_override, _merge
+from pipeline.infra.config import Config, ConfigError, load_config, parse_override, _merge
 from stages.registry import ORDER, STAGES
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
@@ -143,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
-    from pipeline import progress
+    from pipeline.infra import progress
     progress.set_mode(args.progress)
     try:
         cfg = _load(args)

@@ -19,9 +19,9 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from loaders.errors import BadInputError
-from pipeline.cache import tree_fingerprint, write_json
-from pipeline.outputs import name as out_name
-from pipeline.progress import bar as progress_bar
+from pipeline.infra.cache import tree_fingerprint, write_json
+from pipeline.infra.outputs import name as out_name
+from pipeline.infra.progress import bar as progress_bar
 
 CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
 

@@ -2,8 +2,8 @@
 its statistics and verdict, and the single-track figures for the first target's first track.
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
-experiments and the statistics are pure functions in ``pipeline.population``,
-``pipeline.experiments`` and ``pipeline.popstats``; cells run on ``run.executor``.
+experiments and the statistics are pure functions in ``pipeline.evaluation.population``,
+``pipeline.evaluation.experiments`` and ``pipeline.evaluation.popstats``; cells run on ``run.executor``.
 """
 from __future__ import annotations
 
@@ -15,17 +15,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline import experiments as E
-from pipeline import population as P
-from pipeline.cache import atomic_path, write_json
-from pipeline.config import Config
-from pipeline.features import read_features
-from pipeline.gp import GPClassModels
-from pipeline.labels import COMPARISONS, METHODS, METRICS
-from pipeline.outputs import name as out_name
-from pipeline.popstats import population_block
-from pipeline.results import cell_metrics, metadata, result_block, write_results
-from pipeline.track import TrackError, grid_step
+from pipeline.evaluation import experiments as E
+from pipeline.evaluation import population as P
+from pipeline.infra.cache import atomic_path, write_json
+from pipeline.infra.config import Config
+from pipeline.scoring.features import read_features
+from pipeline.method.gp import GPClassModels
+from pipeline.evaluation.labels import COMPARISONS, METHODS, METRICS
+from pipeline.infra.outputs import name as out_name
+from pipeline.evaluation.popstats import population_block
+from pipeline.evaluation.results import cell_metrics, metadata, result_block, write_results
+from pipeline.evaluation.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -234,7 +234,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
 
 
 def run(ctx) -> str:
-    from pipeline.executor import executor_for
+    from pipeline.infra.executor import executor_for
 
     cfg: Config = ctx.cfg
     ev = cfg.evaluate

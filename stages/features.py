@@ -3,7 +3,7 @@
 BigBIRD (GP training) views get the deterministic pass and ``features.bigbird_samples`` MC-dropout
 samples (their mean is the GP training target, ``models.targets``); AVD (test) boxes
 up to ``features.max_difficulty`` get the deterministic pass and ``features.n_samples`` MC-dropout
-samples. One crop policy for both (``pipeline.crops``). Bad views follow ``data.skip_bad_views``:
+samples. One crop policy for both (``pipeline.scoring.crops``). Bad views follow ``data.skip_bad_views``:
 counted, logged and listed in the manifest, or a named error.
 
 Executors (``run.executor``): images are read and cropped here, in batches of
@@ -26,7 +26,7 @@ from typing import Iterator
 
 import numpy as np
 
-from pipeline.progress import bar as progress_bar
+from pipeline.infra.progress import bar as progress_bar
 
 log = logging.getLogger("viewfuse.features")
 
@@ -34,7 +34,7 @@ log = logging.getLogger("viewfuse.features")
 def extra_key(cfg) -> str:
     """The weights' identity: the classifier card hash. The runner brings the classifier stage up
     to date before it computes this stage's key, so the card read here is the one used."""
-    from pipeline.outputs import name as out_name
+    from pipeline.infra.outputs import name as out_name
     card = cfg.stage_dir("classifier") / out_name("classifier", "card")
     try:
         return "classifier=" + str(json.loads(card.read_text()).get("hash"))
@@ -69,7 +69,7 @@ def _bigbird_objects(cfg, root, skips) -> list:
 
 
 def _bigbird_jobs(cfg, root, skips, bar) -> Iterator:
-    from pipeline.features import CropJob, unit_circle
+    from pipeline.scoring.features import CropJob, unit_circle
 
     f = cfg.features
     skip = skips.log("bigbird", "BigBIRD view")
@@ -95,7 +95,7 @@ def _bigbird_jobs(cfg, root, skips, bar) -> Iterator:
 
 def _avd_jobs(cfg, scan, skips, bar) -> Iterator:
     from loaders.errors import BadInputError
-    from pipeline.features import CropJob
+    from pipeline.scoring.features import CropJob
 
     f = cfg.features
     if f.avd_instances:
@@ -152,7 +152,7 @@ def viewpoint_spread(objects: np.ndarray, scores: np.ndarray, names: list[str]) 
 
 @contextmanager
 def _scorer_released():
-    from pipeline.features import forget_scorers
+    from pipeline.scoring.features import forget_scorers
 
     try:
         yield
@@ -162,9 +162,9 @@ def _scorer_released():
 
 def _scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
-    from pipeline.classifier import load_classifier
-    from pipeline.mc_dropout import MCDropoutScorer
-    from pipeline.features import ScoringModel, register_scorer
+    from pipeline.scoring.classifier import load_classifier
+    from pipeline.scoring.mc_dropout import MCDropoutScorer
+    from pipeline.scoring.features import ScoringModel, register_scorer
 
     if executor.name == "local":
         device = ctx.device
@@ -185,10 +185,10 @@ def run(ctx) -> str:
     import torch
 
     from loaders.avd import AVDScan
-    from pipeline.crops import CropPolicy
-    from pipeline.executor import executor_for
-    from pipeline.features import build_table, metadata, score_jobs, write_table
-    from pipeline.outputs import name as out_name
+    from pipeline.scoring.crops import CropPolicy
+    from pipeline.infra.executor import executor_for
+    from pipeline.scoring.features import build_table, metadata, score_jobs, write_table
+    from pipeline.infra.outputs import name as out_name
     from stages.data import data_roots
 
     cfg = ctx.cfg

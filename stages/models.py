@@ -3,7 +3,7 @@
 Reads ``features/bigbird.parquet`` (training views: rows with camera == models.camera; GP inputs
 (u_x, u_y) from the deterministic pass, pass == -1; targets = score components, by default the mean
 of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the deterministic pass).
-Writes one model bank, ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.gp.GPClassModels``): every modelled class x every component
+Writes one model bank, ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``): every modelled class x every component
 that some target's candidate set uses, with the plan in the index (``candidate_sets``). Each
 ``evaluate.ablations`` entry gets its own bank under ``models/ablations/``.
 """
@@ -17,11 +17,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipeline.candidates import candidate_sets, own_components, plan_components
-from pipeline.config import ModelsConfig, ablation_config, to_dict
-from pipeline.gp import GPClassModels
-from pipeline.gp_fit import fit_class_models
-from pipeline.outputs import name as out_name
+from pipeline.evaluation.candidates import candidate_sets, own_components, plan_components
+from pipeline.infra.config import ModelsConfig, ablation_config, to_dict
+from pipeline.method.gp import GPClassModels
+from pipeline.method.gp_fit import fit_class_models
+from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.models")
 

@@ -15,8 +15,8 @@ import importlib.util
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.cache import source_fingerprint
-from pipeline.outputs import OUTPUTS
+from pipeline.infra.cache import source_fingerprint
+from pipeline.infra.outputs import OUTPUTS
 
 PACKAGES = ("pipeline", "loaders", "stages", "reports")   # the project's import floors
 
@@ -59,8 +59,8 @@ ORDER = ("data", "classifier", "features", "models", "evaluate", "report", "simu
 
 
 def output_name(stage: str, key: str) -> str:
-    """File name of a stage output, from the one declaration in ``pipeline.outputs``."""
-    from pipeline.outputs import name
+    """File name of a stage output, from the one declaration in ``pipeline.infra.outputs``."""
+    from pipeline.infra.outputs import name
     return name(stage, key)
 
 
@@ -142,12 +142,12 @@ def _package_files(pkg: str) -> list[Path]:
 
 def code_version(spec: StageSpec) -> tuple[str, dict[str, str]]:
     """(hash, {module: fingerprint of its code}) over the stage's derived and extra code modules
-    (``pipeline.cache.source_fingerprint``: comments and docstrings do not count)."""
+    (``pipeline.infra.cache.source_fingerprint``: comments and docstrings do not count)."""
     mods = set(code_deps(spec.module)) | set(spec.code)
     per: dict[str, str] = {}
     for m in sorted(mods):
         if _module_file(m) is None and importlib.util.find_spec(m) is not None:
-            from pipeline.cache import code_hash  # a package name listed by hand: all its files
+            from pipeline.infra.cache import code_hash  # a package name listed by hand: all its files
             per[m] = code_hash([m])
             continue
         path = _module_file(m)

@@ -7,7 +7,7 @@ nothing but plotting percentiles and the detailed track's CIs over realizations 
 """
 from __future__ import annotations
 
-from pipeline.config import to_dict
+from pipeline.infra.config import to_dict
 from reports.main_report import build_main_report
 from stages.runner import stage_timings
 

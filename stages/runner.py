@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from loaders.errors import SkipPolicy
-from pipeline.cache import folder_records, hash_json, record_changed, recording_inputs, replace_dir, write_json
-from pipeline.config import Config, to_dict
-from pipeline.outputs import MANIFEST
-from pipeline.progress import echo
+from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, replace_dir, write_json
+from pipeline.infra.config import Config, to_dict
+from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.progress import echo
 from stages.registry import STAGES, StageSpec, code_version
 
 log = logging.getLogger("viewfuse")
@@ -53,7 +53,7 @@ class StageContext:
     @property
     def device(self) -> str:
         if self._device is None:
-            from pipeline.device import configure_threads, resolve_device
+            from pipeline.infra.device import configure_threads, resolve_device
             self._device = resolve_device(self.device_request)
             configure_threads(self.threads)
         return self._device

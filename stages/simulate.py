@@ -21,11 +21,11 @@ import time
 import numpy as np
 import pandas as pd
 
-from pipeline import simulation as S
-from pipeline.cache import atomic_path, write_json
-from pipeline.config import Config, to_dict
-from pipeline.outputs import name as out_name
-from pipeline.progress import bar as progress_bar
+from pipeline.evaluation import simulation as S
+from pipeline.infra.cache import atomic_path, write_json
+from pipeline.infra.config import Config, to_dict
+from pipeline.infra.outputs import name as out_name
+from pipeline.infra.progress import bar as progress_bar
 from reports.simulate_findings import findings
 from reports.simulate_report import build_simulate_report
 
@@ -34,8 +34,8 @@ log = logging.getLogger("viewfuse.simulate")
 
 def write_parquet(df: pd.DataFrame, path, meta: dict[str, str], fixed_list: dict[str, int] | None = None) -> None:
     """Atomic Parquet write with ``viewfuse.*`` metadata; listed columns as fixed-size float lists.
-    (The evaluate stage writes through ``pipeline.results.write_results``; the simulation's tables
-    move there once ``pipeline.simulation`` builds result blocks.)"""
+    (The evaluate stage writes through ``pipeline.evaluation.results.write_results``; the simulation's tables
+    move there once ``pipeline.evaluation.simulation`` builds result blocks.)"""
     import pyarrow as pa
     import pyarrow.parquet as pq
 

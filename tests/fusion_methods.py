@@ -1,15 +1,15 @@
 """Test reference: the three fusion methods as step-by-step objects, a generic episode loop, and
 ``fuse_with_uncertainty_sampled`` (pose estimates -> localization samples -> fusion). Used only by
-the tests, which check them against the batched ``pipeline.fusion`` functions.
+the tests, which check them against the batched ``pipeline.method.fusion`` functions.
 
 The three fusion methods as step-by-step objects, plus a generic episode loop.
 
 ``ModelWithUncertainty``, ``ModelBased`` and ``SimpleBayes`` share one protocol:
 ``reset()`` forgets the track, ``update(observation)`` fuses one more view and returns the class
 posterior (C,); ``log_posterior_`` holds its log. They give the same numbers as the batched
-whole-track functions of ``pipeline.fusion`` (the tests check it) but grow the per-trajectory
+whole-track functions of ``pipeline.method.fusion`` (the tests check it) but grow the per-trajectory
 Cholesky factor one row per step, so a K-step track still costs O(K³) per localization sample.
-Use them for online use and readable experiment code; use ``pipeline.fusion`` for large batches.
+Use them for online use and readable experiment code; use ``pipeline.method.fusion`` for large batches.
 
 ``run_episodes(method, episodes)`` runs any of them over episodes and returns flat, averaged
 metrics (in the spirit of habitat-lab's benchmark loop).
@@ -22,12 +22,10 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from pipeline.fusion import fuse_with_uncertainty, log_prior, logsumexp
-from pipeline.geometry import relative_inputs, sample_localization
-from pipeline.gp import GPClassModels
-from pipeline import metrics as _metrics
-
-
+from pipeline.method.fusion import fuse_with_uncertainty, log_prior, logsumexp
+from pipeline.method.geometry import relative_inputs, sample_localization
+from pipeline.method.gp import GPClassModels
+from pipeline.evaluation import metrics as _metrics
 @dataclass
 class Observation:
     """What one step of the track gives a method.

@@ -1,13 +1,13 @@
 """A slow, literal implementation of Feldman & Indelman 2020, Eq. 13-40 (docs/design.md §5).
 
-Written straight from the maths and independent of ``pipeline.fusion``: every GP prediction is
+Written straight from the maths and independent of ``pipeline.method.fusion``: every GP prediction is
 recomputed with an explicit inverse ``H``, every step forms ``Ω``, ``Σ_s⁻¹``, ``Σ_z⁻¹``, ``Σ_J``,
 ``μ_J`` explicitly and evaluates the paper's Gaussian integral term by term (not the closed form the
 engine uses), and the posterior after step k is obtained by running the whole recursion again
 from step 0. Probabilities are kept in linear space, as written in the paper. Only for tests and
 the benchmark: it is O(K⁴) per localization sample and far slower than the engine.
 
-Models are given as plain arrays so that nothing here depends on ``pipeline.gp``:
+Models are given as plain arrays so that nothing here depends on ``pipeline.method.gp``:
 ``XT[c]`` (N_c, d) training inputs of class c, ``ST[c]`` (F, N_c) training targets, and
 ``m, amp, ell, sn2`` (C, F) with k(x, x') = amp·exp(-|x - x'|² / (2 ell²)) plus white noise sn2.
 """

@@ -86,7 +86,7 @@ def _stats(df: pd.DataFrame, n_boot: int, seed: int) -> dict:
 
 
 def verdict(paired: dict, n_targets: int, n_tracks: int, wide: pd.DataFrame) -> tuple[list[str], list[dict]]:
-    """One sentence and table row per (comparison, metric), in the same order (as pipeline/popstats.py)."""
+    """One sentence and table row per (comparison, metric), in the same order (as pipeline/evaluation/popstats.py)."""
     sentences, table = [], []
     for a, b in COMPARISONS:
         key = f"{a}-{b}"

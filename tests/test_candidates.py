@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from pipeline.candidates import candidate_sets, own_components, plan_components
-from pipeline.components import choose_components
+from pipeline.evaluation.candidates import candidate_sets, own_components, plan_components
+from pipeline.method.components import choose_components
 
 POOL = [f"obj_{i:02d}" for i in range(12)]
 

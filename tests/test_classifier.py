@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.classifier import (IMAGENET_FILE, WeightsError, WeightsNotFoundError, build_alexnet,
+from pipeline.scoring.classifier import (IMAGENET_FILE, WeightsError, WeightsNotFoundError, build_alexnet,
                                  card_hash, init_for_training, load_classifier, load_into,
                                  load_state_dict_file, lr_at, save_state_dict_npz)
 from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, labels_for, render, render_set
@@ -123,7 +123,7 @@ def test_weight_files_never_run_code_and_mismatches_name_the_file(tmp_path):
 
 def test_synthetic_stage_trains_caches_and_enforces_min_accuracy(tmp_config):
     from loaders.synthetic.textures import CATEGORY_NAMES
-    from pipeline.cache import sha256_file
+    from pipeline.infra.cache import sha256_file
     from stages.runner import ensure, read_manifest
 
     cfg = tmp_config(TINY_TRAIN)
@@ -181,7 +181,7 @@ def test_parallel_rendering_gives_the_same_images_as_serial():
 
 
 def test_same_seed_same_machine_gives_byte_identical_weights():
-    from pipeline.classifier import train_classifier
+    from pipeline.scoring.classifier import train_classifier
 
     x, y = render_set(24, 64, 12, seed=1, stream=TRAIN_STREAM)
     states = []

@@ -2,7 +2,7 @@ import dataclasses
 
 import pytest
 
-from pipeline.config import ConfigError, load_config, parse_override, to_dict
+from pipeline.infra.config import ConfigError, load_config, parse_override, to_dict
 from tests.conftest import DEFAULT_CONFIG, ROOT
 
 
@@ -92,7 +92,7 @@ def test_real_template_is_valid():
 
 
 def test_ablation_config_applies_and_validates_one_models_key(tmp_path):
-    from pipeline.config import ablation_config
+    from pipeline.infra.config import ablation_config
     cfg = load_config(DEFAULT_CONFIG)
     v = ablation_config(cfg, "models.noise_floor=dropout")
     assert v.models.noise_floor == "dropout" and v.evaluate == cfg.evaluate

@@ -1,4 +1,4 @@
-"""Crop geometry and normalisation (pipeline.crops): the one policy BigBIRD and AVD share."""
+"""Crop geometry and normalisation (pipeline.scoring.crops): the one policy BigBIRD and AVD share."""
 import math
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.crops import CropPolicy, crop_box, extract, to_tensor
+from pipeline.scoring.crops import CropPolicy, crop_box, extract, to_tensor
 
 
 @settings(max_examples=200, deadline=None)

@@ -12,7 +12,7 @@ from loaders.bigbird import BigBirdObject, list_objects
 from loaders.errors import BadInputError
 from loaders.synthetic.avd_writer import plan_scan
 from loaders.synthetic.scene import scan_instances
-from pipeline.config import _merge
+from pipeline.infra.config import _merge
 from stages.data import data_roots, extra_key
 from stages.runner import ensure, read_manifest
 
@@ -28,7 +28,7 @@ def _files(root):
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from tests.conftest import DEFAULT_CONFIG
 
     art = tmp_path_factory.mktemp("art")

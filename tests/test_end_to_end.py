@@ -11,7 +11,7 @@ from tests.tiny_world import TINY
 
 @pytest.fixture(scope="module")
 def run_all(tmp_path_factory):
-    from pipeline.config import _merge, load_config
+    from pipeline.infra.config import _merge, load_config
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from pipeline import experiments as E
-from pipeline.fusion import fuse_model_based
-from pipeline.gp import GPClassModels
+from pipeline.evaluation import experiments as E
+from pipeline.method.fusion import fuse_model_based
+from pipeline.method.gp import GPClassModels
 
 
 def ring_models(n=24, F=2, C=3):
@@ -76,7 +76,7 @@ def test_randomized_is_deterministic_and_chunk_independent():
 
 
 def test_result_block_rows_and_summary():
-    from pipeline.results import cell_metrics, result_block
+    from pipeline.evaluation.results import cell_metrics, result_block
     m = ring_models()
     tr = make_track(m, truth=2)
     logs = E.randomized(m, tr, (0.0, 0.0), 0.1, 4, 3, np.random.default_rng(0), var_floor=1e-6)
@@ -108,7 +108,7 @@ def test_result_block_rows_and_summary():
 
 
 def test_simple_bayes_uses_own_scores_and_repeats_over_realizations():
-    from pipeline.fusion import simple_bayes
+    from pipeline.method.fusion import simple_bayes
     m = ring_models()
     base = make_track(m, truth=1)
     rng = np.random.default_rng(5)

@@ -7,9 +7,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.config import _merge
-from pipeline.crops import crop_box
-from pipeline.features import build_table, read_features
+from pipeline.infra.config import _merge
+from pipeline.scoring.crops import crop_box
+from pipeline.scoring.features import build_table, read_features
 
 N_S = 3
 TINY = {
@@ -24,7 +24,7 @@ TINY = {
 
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
@@ -130,7 +130,7 @@ def test_avd_rows_cover_every_box_with_the_dropout_samples(chain):
 def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
     from stages.registry import STAGES
     from stages.runner import ensure, plan, read_manifest, stage_key
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from tests.conftest import DEFAULT_CONFIG
 
     def cfg_with(over):
@@ -179,7 +179,7 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
     # A copy of the run with one corrupt BigBIRD image; the data stage's manifest still matches.
     art = tmp_path / "artifacts"
     shutil.copytree(chain.run_dir, art / chain.run.name)
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from tests.conftest import DEFAULT_CONFIG
     cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "features", device="cpu", force=True)
@@ -240,7 +240,7 @@ def test_build_table_checks_shapes_and_orders_passes():
 def test_object_and_instance_selection_keys_are_checked(chain):
     from loaders.avd import AVDScan
     from loaders.errors import SkipPolicy
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.data import data_roots
     from stages.features import _avd_jobs, _bigbird_jobs
     from tests.conftest import DEFAULT_CONFIG

@@ -4,9 +4,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes, tri_inverse
-from pipeline.geometry import relative_inputs, rot, sample_localization
-from pipeline.gp import GPClassModels
+from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes, tri_inverse
+from pipeline.method.geometry import relative_inputs, rot, sample_localization
+from pipeline.method.gp import GPClassModels
 from tests.fusion_methods import (Episode, ModelBased, ModelWithUncertainty, Observation, SimpleBayes,
                                   fuse_with_uncertainty_sampled, run_episodes)
 from tests.literal_paper import literal_model_based, literal_uncertainty

@@ -5,7 +5,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
+from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
 from tests.test_fusion import random_case
 
 SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])

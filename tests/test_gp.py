@@ -7,8 +7,8 @@ import pytest
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
-from pipeline.gp import GPClassModels, ModelFileError
-from pipeline.gp_fit import fit_class_models
+from pipeline.method.gp import GPClassModels, ModelFileError
+from pipeline.method.gp_fit import fit_class_models
 from tests.literal_paper import gp_joint
 
 

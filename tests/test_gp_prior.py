@@ -1,4 +1,4 @@
-"""Weak hyperpriors (pipeline/gp_prior.py): the tails hold the stated mass, the MAP fit is
+"""Weak hyperpriors (pipeline/method/gp_prior.py): the tails hold the stated mass, the MAP fit is
 scikit-learn's fit with the prior added, it barely moves a well-determined fit, and it pulls a
 fit that marginal likelihood alone pins at the length-scale bound back inside."""
 import numpy as np
@@ -6,8 +6,8 @@ import pytest
 from scipy import stats
 from sklearn.gaussian_process import GaussianProcessRegressor
 
-from pipeline.gp_fit import fit_class_models
-from pipeline.gp_prior import LogInverseGamma, input_range, inverse_gamma_for
+from pipeline.method.gp_fit import fit_class_models
+from pipeline.method.gp_prior import LogInverseGamma, input_range, inverse_gamma_for
 
 THETA = np.deg2rad(np.arange(0, 360, 3))
 X = np.c_[np.cos(THETA), np.sin(THETA)]

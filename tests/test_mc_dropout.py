@@ -8,8 +8,8 @@ from typing import Sequence
 
 from torch import nn
 
-from pipeline.classifier import build_alexnet, init_for_training
-from pipeline.mc_dropout import MCDropoutScorer, crop_seed
+from pipeline.scoring.classifier import build_alexnet, init_for_training
+from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed
 
 
 class FixedMaskDropout(nn.Module):

@@ -5,9 +5,7 @@ from typing import Mapping
 import numpy as np
 import pytest
 
-from pipeline import metrics as M
-
-
+from pipeline.evaluation import metrics as M
 def summary_table(posteriors: Mapping[str, np.ndarray], truth, *, is_log: bool = False):
     """A pandas DataFrame, one row per method: ``posteriors`` maps method name -> (R, K, C)."""
     import pandas as pd

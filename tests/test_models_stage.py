@@ -6,9 +6,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.components import choose_components
-from pipeline.config import ModelsConfig
-from pipeline.gp import GPClassModels
+from pipeline.method.components import choose_components
+from pipeline.infra.config import ModelsConfig
+from pipeline.method.gp import GPClassModels
 from stages.models import FeaturesError, fit_from_features
 from stages.registry import STAGES
 from stages.runner import read_manifest, run_stage

@@ -4,12 +4,12 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.track import bearing_rays, intersect_rays
+from pipeline.evaluation.track import bearing_rays, intersect_rays
 
 
 @pytest.fixture(scope="module")
 def small_scan(tmp_path_factory):
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 

@@ -3,8 +3,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.labels import METRICS
-from pipeline.popstats import hierarchical, paired_differences, population_block, verdict
+from pipeline.evaluation.labels import METRICS
+from pipeline.evaluation.popstats import hierarchical, paired_differences, population_block, verdict
 
 MET = list(METRICS)
 
@@ -96,7 +96,7 @@ def test_mismatched_cells_are_an_error():
 
 
 def test_wilson_interval_matches_the_closed_form_and_stays_in_0_1():
-    from pipeline.popstats import wilson_interval
+    from pipeline.evaluation.popstats import wilson_interval
 
     lo, hi = wilson_interval(8, 10)          # textbook value: [0.490, 0.943]
     assert lo == pytest.approx(0.4902, abs=1e-4) and hi == pytest.approx(0.9433, abs=1e-4)

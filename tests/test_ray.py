@@ -15,8 +15,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.config import _merge
-from pipeline.executor import LocalExecutor, TransientError, make_executor, task_cpus
+from pipeline.infra.config import _merge
+from pipeline.infra.executor import LocalExecutor, TransientError, make_executor, task_cpus
 from tests.tiny_world import TINY as TINY_WORLD
 
 LIMIT_S = 600
@@ -51,7 +51,7 @@ def _slow_square(shared, i):
 
 def _seeded(shared, item):
     """Randomness from the item's identity only: the same on any worker, in any order."""
-    from pipeline.device import available_cores
+    from pipeline.infra.device import available_cores
 
     return float(np.random.default_rng([shared, item]).normal()), task_cpus(), available_cores()
 
@@ -114,8 +114,7 @@ def test_results_come_back_in_item_order(ray_ex):
 
 @needs_ray
 def test_calls_are_recorded_for_the_bench(ray_ex):
-    from pipeline import executor as ex
-
+    from pipeline.infra import executor as ex
     ray_ex.map(_slow_square, [0, 1, 2, 3], shared=0.02, desc="timed")
     rec = ex.STATS[-1]
     assert (rec["executor"], rec["desc"], rec["tasks"], rec["slots"]) == ("ray", "timed", 4, 2)
@@ -160,7 +159,7 @@ def test_a_task_that_keeps_failing_stops_with_its_own_message(ray_ex, tmp_path):
 @pytest.fixture(scope="module")
 def upstream(tmp_path_factory):
     """data + classifier once, copied into a folder per executor."""
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
@@ -172,7 +171,7 @@ def upstream(tmp_path_factory):
 
 
 def _run(upstream, name, stage, executor):
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
@@ -210,8 +209,7 @@ def test_features_through_ray_equal_the_local_run(ray_ex, upstream):
 def test_evaluate_through_ray_equals_the_local_run(ray_ex, upstream):
     import json
 
-    from pipeline import executor as ex
-
+    from pipeline.infra import executor as ex
     local = _run(upstream, "local", "evaluate", "local")
     del ex.STATS[:]
     ray_ = _run(upstream, "ray", "evaluate", "ray")
@@ -253,8 +251,8 @@ def test_scoring_goes_to_cluster_gpus_unless_the_device_is_cpu(upstream):
     """The features stage's choice for Ray (no GPU here: a stand-in executor reports them)."""
     from types import SimpleNamespace
 
-    from pipeline.crops import CropPolicy
-    from pipeline.config import load_config
+    from pipeline.scoring.crops import CropPolicy
+    from pipeline.infra.config import load_config
     from stages.features import _scoring
     from tests.conftest import DEFAULT_CONFIG
 

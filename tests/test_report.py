@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from loaders.errors import BadInputError
-from pipeline import labels
+from pipeline.evaluation import labels
 from reports.figures import new_figure, percentile_bands, save
 from reports.figures_models import bias_map_rgb
 from reports.html import HtmlReport

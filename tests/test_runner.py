@@ -30,8 +30,8 @@ def fake_stages(monkeypatch):
 
     make("a"), make("b")
     specs = {
-        "a": StageSpec("a", "fake_stage_a", (), ("features",), ("pipeline.config",)),
-        "b": StageSpec("b", "fake_stage_b", ("a",), ("models",), ("pipeline.config",)),
+        "a": StageSpec("a", "fake_stage_a", (), ("features",), ("pipeline.infra.config",)),
+        "b": StageSpec("b", "fake_stage_b", ("a",), ("models",), ("pipeline.infra.config",)),
     }
     monkeypatch.setattr(runner, "STAGES", specs)
     monkeypatch.setattr(registry, "STAGES", specs)
@@ -103,7 +103,7 @@ def test_write_json_is_strict_json(tmp_path):
 
     import numpy as np
 
-    from pipeline.cache import write_json
+    from pipeline.infra.cache import write_json
     p = tmp_path / "s.json"
     write_json(p, {"inf": float("inf"), "nan": np.float64("nan"), "f32": np.float32(-np.inf),
                    "arr": np.array([1.0, np.nan]), "ok": 2.5, "n": np.int64(3)})

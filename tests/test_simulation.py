@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline import simulation as S
-from pipeline.config import ConfigError, SimulateConfig
-from pipeline.gp import GPClassModels
+from pipeline.evaluation import simulation as S
+from pipeline.infra.config import ConfigError, SimulateConfig
+from pipeline.method.gp import GPClassModels
 
 
 def small_sim(**kw) -> SimulateConfig:

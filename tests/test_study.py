@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from pipeline.cache import write_json
+from pipeline.infra.cache import write_json
 from stages.study import outcomes, render_html, run_study, seed_config, summarize
 
 

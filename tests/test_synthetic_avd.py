@@ -19,7 +19,7 @@ from loaders.synthetic.bigbird_writer import object_meshes
 from loaders.synthetic.objects import AVD_INSTANCE_MAP_TEXT, make_instance, rot_z
 from loaders.synthetic.render import Camera, Light, render
 from loaders.synthetic.scene import placed_meshes, scan_instances
-from pipeline.config import DEFAULT_INSTANCES, SyntheticDataConfig
+from pipeline.infra.config import DEFAULT_INSTANCES, SyntheticDataConfig
 
 SCAN = "Home_001_1"
 SEED = 5

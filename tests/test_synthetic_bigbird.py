@@ -15,7 +15,7 @@ from loaders.synthetic.bigbird_writer import (CAMERAS, angles, make_rig, render_
 from loaders.synthetic.nuisance import RigNuisance, mask_errors, object_pose, sensor
 from loaders.synthetic.objects import make_instance
 from loaders.synthetic.render import Camera, project
-from pipeline.config import SyntheticDataConfig
+from pipeline.infra.config import SyntheticDataConfig
 
 NAME = "aunt_jemima_original_syrup"
 TINY = dataclasses.replace(SyntheticDataConfig(), bigbird_width=320, bigbird_height=256,

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from pipeline.track import (TrackError, bearing_rays, facing_error, intersect_rays,
+from pipeline.evaluation.track import (TrackError, bearing_rays, facing_error, intersect_rays,
                             select_track)
 
 
@@ -84,7 +84,7 @@ def grid_world(step=0.3, extent=1.5, headings=4, obj=(0.1, -0.2)):
 
 
 def test_grid_step_is_read_off_the_positions():
-    from pipeline.track import grid_step
+    from pipeline.evaluation.track import grid_step
     for step in (0.3, 0.5):
         cam, _, _ = grid_world(step=step)
         assert grid_step(cam) == pytest.approx(step)
@@ -93,7 +93,7 @@ def test_grid_step_is_read_off_the_positions():
 
 
 def test_tracks_are_distinct_see_the_target_and_are_deterministic():
-    from pipeline.track import select_tracks
+    from pipeline.evaluation.track import select_tracks
     cam, heading, obj = grid_world()
     err = facing_error(cam, heading, obj)
     seeing = err < np.radians(50)                     # the "views that see the target"
@@ -118,7 +118,7 @@ def test_tracks_are_distinct_see_the_target_and_are_deterministic():
 
 
 def test_few_viewpoints_give_fewer_tracks_or_a_named_error():
-    from pipeline.track import select_tracks
+    from pipeline.evaluation.track import select_tracks
     rng = np.random.default_rng(0)
     obj = np.zeros(2)
     cam, heading = ring(10, 1.0, obj, rng)

@@ -36,9 +36,9 @@ def hue_scores(rgb: np.ndarray, mask: np.ndarray, bins: int = 12, temperature: f
 @pytest.fixture(scope="module")
 def fits(tmp_path_factory):
     from loaders.bigbird import BigBirdObject
-    from pipeline.components import choose_components
-    from pipeline.config import _merge, load_config
-    from pipeline.gp_fit import fit_class_models
+    from pipeline.method.components import choose_components
+    from pipeline.infra.config import _merge, load_config
+    from pipeline.method.gp_fit import fit_class_models
     from stages.data import data_roots
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG

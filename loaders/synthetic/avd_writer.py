@@ -35,7 +35,7 @@ from loaders.synthetic.bigbird_writer import encode_jpeg
 from loaders.synthetic.objects import AVD_INSTANCE_MAP_TEXT, rng_for
 from loaders.synthetic.render import Camera, render
 from loaders.synthetic.scene import ROOM_LIGHT, Room, make_room, room_meshes
-from pipeline.cache import write_bytes, write_json, write_text
+from pipeline.infra.cache import write_bytes, write_json, write_text
 
 CLUSTER = 12                      # images per grid point, 30 degrees apart
 SCALE_MM = 331.7                  # mm per recon unit (the file's `scale`)

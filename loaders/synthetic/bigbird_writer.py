@@ -26,7 +26,7 @@ from loaders.synthetic.nuisance import RigNuisance, bounding_box, mask_errors, o
 from loaders.synthetic.objects import (Instance, make_instance, prism_faces, rng_for, rot_z,
                                        transform_faces)
 from loaders.synthetic.render import Camera, Light, Mesh, render
-from pipeline.cache import atomic_path, write_bytes
+from pipeline.infra.cache import atomic_path, write_bytes
 
 CAMERAS = (1, 2, 3, 4, 5)
 FULL_SIZE = (1280, 1024)            # Carmine RGB (width, height)

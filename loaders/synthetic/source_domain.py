@@ -223,7 +223,7 @@ def render(category: int, rng: np.random.Generator, size: int = 128, categories:
 def render_set(n: int, size: int, categories: int, seed: int, stream: int,
                start: int = 0, progress: bool = False, desc: str = "source images") -> tuple[np.ndarray, np.ndarray]:
     """Images ``start..start+n-1`` of a stream: (uint8 (n, size, size, 3), int64 labels (n,))."""
-    from pipeline.progress import bar as progress_bar
+    from pipeline.infra.progress import bar as progress_bar
 
     labels = labels_for(start + n, categories, seed, stream)[start:]
     images = np.empty((n, size, size, 3), np.uint8)

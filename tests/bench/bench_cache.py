@@ -30,7 +30,7 @@ def main() -> None:
     import numpy as np
 
     from loaders.bigbird import _check_jpeg_complete, decode_jpeg
-    from pipeline.cache import file_record, record_changed
+    from pipeline.infra.cache import file_record, record_changed
 
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as tmp:

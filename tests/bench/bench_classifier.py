@@ -23,7 +23,7 @@ GOAL_S, GOAL_ACC = 180.0, 0.90
 
 
 def main() -> None:
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.runner import ensure, read_manifest
     from tests.world_checks import VARYING_STD, bound_report
 

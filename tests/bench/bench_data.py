@@ -39,7 +39,7 @@ def main() -> None:
     from loaders.synthetic.nuisance import RigNuisance, sensor
     from loaders.synthetic.objects import make_instance
     from loaders.synthetic.scene import scan_instances
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.runner import ensure
 
     with tempfile.TemporaryDirectory() as tmp:

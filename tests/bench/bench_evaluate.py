@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def engine_throughput(K: int, R: int = 20, n_x: int = 50) -> float:
-    from pipeline.fusion import fuse_with_uncertainty
+    from pipeline.method.fusion import fuse_with_uncertainty
     from tests.bench.bench_fusion import workload
 
     models = workload()
@@ -39,7 +39,7 @@ def engine_throughput(K: int, R: int = 20, n_x: int = 50) -> float:
 
 
 def stage(config: str) -> None:
-    from pipeline.config import load_config
+    from pipeline.infra.config import load_config
     from stages.runner import ensure, read_manifest
 
     cfg = load_config(config)

@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import torch  # noqa: E402
 
-from pipeline.classifier import build_alexnet, init_for_training  # noqa: E402
-from pipeline.mc_dropout import MCDropoutScorer, crop_seed, fast_head  # noqa: E402
-from pipeline.device import configure_threads  # noqa: E402
+from pipeline.scoring.classifier import build_alexnet, init_for_training  # noqa: E402
+from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed, fast_head  # noqa: E402
+from pipeline.infra.device import configure_threads  # noqa: E402
 
 
 def _interleaved_times(fns: dict, repeats: int) -> dict[str, float]:

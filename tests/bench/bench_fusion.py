@@ -26,8 +26,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from pipeline.fusion import fuse_with_uncertainty  # noqa: E402
-from pipeline.gp import GPClassModels  # noqa: E402
+from pipeline.method.fusion import fuse_with_uncertainty  # noqa: E402
+from pipeline.method.gp import GPClassModels  # noqa: E402
 from tests.literal_paper import literal_uncertainty  # noqa: E402
 
 

@@ -8,7 +8,7 @@ pipeline, ~8 min), then the evaluate stage three times (forced): ``run.executor 
 summary.json (timings aside); the bench says so.
 
 Per run it prints the stage's wall time and, from the executor's own records
-(``pipeline.executor.STATS``): the grid tasks, the wall time of the map call and the sum of the
+(``pipeline.infra.executor.STATS``): the grid tasks, the wall time of the map call and the sum of the
 tasks' own times measured inside them. From these:
   ratio              = local stage time / Ray stage time;
   overhead per task  = (map wall x slots - sum of task times) / tasks: scheduling, argument and
@@ -53,7 +53,7 @@ def _run_evaluate(base_cfg, executor: str, workers: int) -> dict:
 
     import pyarrow.parquet as pq
 
-    from pipeline import executor as ex
+    from pipeline.infra import executor as ex
     from stages.runner import ensure
 
     cfg = dataclasses.replace(base_cfg, run=dataclasses.replace(base_cfg.run, executor=executor, ray_workers=workers))
@@ -63,7 +63,7 @@ def _run_evaluate(base_cfg, executor: str, workers: int) -> dict:
     if hold is not None:
         # Worker processes up and the evaluation's modules imported: the grid then measures
         # scheduling, not Python start-up (which the start/stop column shows).
-        pids = hold.map(ex.preload, [None] * 4 * workers, shared=["pipeline.population", "stages.evaluate"])
+        pids = hold.map(ex.preload, [None] * 4 * workers, shared=["pipeline.evaluation.population", "stages.evaluate"])
         assert len(set(pids)) >= 1
     start = time.perf_counter() - t0
     del ex.STATS[:]
@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> None:
     if importlib.util.find_spec("ray") is None:
         print("Ray is not installed (make venv-ray): bench skipped")
         return
-    from pipeline.config import _merge, load_config, parse_override
+    from pipeline.infra.config import _merge, load_config, parse_override
     from stages.runner import ensure, read_manifest
 
     over: dict = {"run": {"device": "cpu"}}
@@ -115,8 +115,8 @@ def main(argv: list[str] | None = None) -> None:
     cfg = load_config(ROOT / "configs" / "synthetic.toml", over)
     print(f"default population in {cfg.run_dir}; upstream stages first if stale ({_load()})", flush=True)
     ensure(cfg, "models", device="cpu")
-    from pipeline.executor import preload
-    preload(["pipeline.population", "pipeline.popstats", "stages.evaluate"])   # the local run starts warm too
+    from pipeline.infra.executor import preload
+    preload(["pipeline.evaluation.population", "pipeline.evaluation.popstats", "stages.evaluate"])   # the local run starts warm too
     runs = [_run_evaluate(cfg, "local", 0), _run_evaluate(cfg, "ray", 1), _run_evaluate(cfg, "ray", 2)]
     local = runs[0]
     if not local["recs"]:

@@ -3,6 +3,16 @@ from __future__ import annotations
 
 import os
 
+# CPUs granted to the task running in this process (set by the Ray executor around each task;
+# 0 = not inside a task: use every core).
+_TASK_CPUS = 0
+
+
+def task_cpus() -> int:
+    """CPUs the current task may use (0 = all cores): thread pools inside a task should size to it,
+    or a cluster node running one task per CPU oversubscribes."""
+    return _TASK_CPUS
+
 
 def resolve_device(requested: str = "auto") -> str:
     """'auto' -> 'cuda' when a GPU is visible, else 'cpu'. 'cuda' without a GPU is an error."""
@@ -30,8 +40,6 @@ def available_cores() -> int:
     """Cores this process may use: inside an executor task (a Ray worker), the CPUs granted to the
     task, so that thread pools in it (the fusion engine's) do not oversubscribe a node running one
     task per CPU; otherwise the CPUs this process may run on."""
-    from pipeline.executor import task_cpus
-
     if task_cpus():
         return task_cpus()
     if hasattr(os, "sched_getaffinity"):

@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from pipeline.labels import METHOD_SHORT, METRICS, comparison_key
+from pipeline.evaluation.labels import METHOD_SHORT, METRICS, comparison_key
 
 
 def wilson_interval(k: float, n: int, z: float = 1.96) -> tuple[float, float]:

@@ -1,7 +1,7 @@
 """Fitting the per-class GP models with scikit-learn (docs/design.md §5): one
 ``GaussianProcessRegressor(C*RBF + White)`` per (class, component), by marginal likelihood or, with
 ``hyperprior = "inverse_gamma"``, by marginal likelihood times the weak priors of
-``pipeline/gp_prior.py``. Returns a ``pipeline.gp.GPClassModels`` and per-fit diagnostics.
+``pipeline/method/gp_prior.py``. Returns a ``pipeline.method.gp.GPClassModels`` and per-fit diagnostics.
 """
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipeline.gp import GPClassModels
-from pipeline.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
+from pipeline.method.gp import GPClassModels
+from pipeline.method.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
 
 
 @functools.cache
@@ -34,7 +34,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                      ) -> tuple[GPClassModels, list[dict[str, Any]]]:
     """Fit one GP per (class, component) with scikit-learn by marginal likelihood (or, with
     ``hyperprior = "inverse_gamma"``, by marginal likelihood times weak priors on the length scale
-    and the noise variance: ``pipeline/gp_prior.py``).
+    and the noise variance: ``pipeline/method/gp_prior.py``).
 
     ``X_by_class[c]`` (N_c, d) inputs, ``Y_by_class[c]`` (F, N_c) targets. Constant mean = the
     training mean; kernel ``ConstantKernel * RBF + WhiteKernel`` within the given bounds;
@@ -48,7 +48,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
-    from pipeline.progress import bar as progress_bar
+    from pipeline.infra.progress import bar as progress_bar
 
     C, F = len(classes), len(components)
     if len(X_by_class) != C or len(Y_by_class) != C:

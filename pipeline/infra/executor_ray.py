@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from pipeline.executor import TransientError, item_label, record
+from pipeline.infra.tasks import TransientError, item_label, record
 
 log = logging.getLogger("viewfuse.executor")
 
@@ -45,7 +45,7 @@ def code_root() -> Path:
 def _run_task(fn: Callable[[Any, Any], Any], shared: Any, item: Any, cpus: int) -> Any:
     """Runs inside a Ray worker: (``fn(shared, item)``, seconds it took), ``task_cpus()`` telling
     ``fn`` its CPUs."""
-    import pipeline.executor as ex
+    import pipeline.infra.device as ex
 
     ex._TASK_CPUS = cpus
     t0 = time.perf_counter()
@@ -98,7 +98,7 @@ class RayExecutor:
                 mods = [str(code_root() / p) for p in PACKAGES if (code_root() / p).is_dir()]
                 ray.init(address=address, runtime_env={"py_modules": mods}, **kw)
             else:
-                from pipeline.device import available_cores
+                from pipeline.infra.device import available_cores
                 # Workers import the same checkout as this process, whatever is installed.
                 path = os.pathsep.join(p for p in (str(code_root()), os.environ.get("PYTHONPATH", "")) if p)
                 with _loopback():
@@ -136,7 +136,7 @@ class RayExecutor:
              total: int | None = None, gpu: bool = False, window: int = 0) -> Iterator:
         """Results in item order. At most ``window`` tasks (default twice the slots) are submitted
         and not yet yielded, so items are read as the cluster keeps up."""
-        from pipeline.progress import bar as progress_bar
+        from pipeline.infra.progress import bar as progress_bar
 
         ray = self._ray
         what = desc or getattr(fn, "__name__", "task")

@@ -195,7 +195,7 @@ class ModelsConfig:
                                       "in the features, or a list of object names")
     n_components: int = _f(4, lo=1, hi=1000, doc="N_f score components per candidate set")
     component_rule: str = _f("top_mean", choices=("top_mean", "top_min", "target_informative", "explicit"),
-                             doc="how each candidate set's N_f components are chosen (pipeline/components.py)")
+                             doc="how each candidate set's N_f components are chosen (pipeline/method/components.py)")
     informative_min: float = _f(0.02, lo=0.0, hi=1.0,
                                 doc="target_informative: a component is eligible when every candidate's mean "
                                     "training score reaches this")
@@ -210,7 +210,7 @@ class ModelsConfig:
     hyperprior: str = _f("inverse_gamma", choices=("inverse_gamma", "none"),
                          doc="'inverse_gamma': fit by marginal likelihood x weak priors on the length scale (98 % "
                              "between the views' spacing and their largest distance) and the noise variance (98 % "
-                             "in noise_prior); 'none': marginal likelihood alone (pipeline/gp_prior.py)")
+                             "in noise_prior); 'none': marginal likelihood alone (pipeline/method/gp_prior.py)")
     noise_prior: tuple[float, ...] = _f(factory=lambda: (1e-5, 0.1),
                                         doc="noise variance range holding 98 % of its prior (hyperprior = inverse_gamma)")
     camera: int = _f(1, lo=1, hi=5, doc="BigBIRD camera ring used for training")

@@ -27,13 +27,13 @@ from typing import Any, Callable
 import numpy as np
 import pandas as pd
 
-from pipeline import metrics as M
-from pipeline.config import ConfigError, SimulateConfig
-from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
-from pipeline.geometry import sample_localization
-from pipeline.gp import GPClassModels
-from pipeline.gp_fit import fit_class_models
-from pipeline.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
+from pipeline.evaluation import metrics as M
+from pipeline.infra.config import ConfigError, SimulateConfig
+from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
+from pipeline.method.geometry import sample_localization
+from pipeline.method.gp import GPClassModels
+from pipeline.method.gp_fit import fit_class_models
+from pipeline.evaluation.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")
 N_CLASSES = 3  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)

@@ -14,7 +14,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from pipeline.components import choose_components
+from pipeline.method.components import choose_components
 
 
 def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: int,

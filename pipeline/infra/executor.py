@@ -8,7 +8,7 @@ the executor or on scheduling, provided ``fn`` derives any randomness from the i
 
 ``local`` runs the tasks one after another in this process; each task still uses the threads of
 the numerical code inside it (the fusion engine's worker threads, torch's intra-op threads), as
-before executors existed. ``ray`` lives in ``pipeline.executor_ray`` and is imported only when
+before executors existed. ``ray`` lives in ``pipeline.infra.executor_ray`` and is imported only when
 asked for, so the default install does not need Ray.
 
 ``gpu=True`` tells the executor a task can use a GPU: Ray then gives each task one GPU where the
@@ -19,45 +19,10 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Iterable, Iterator, Protocol, Sequence
 
+from pipeline.infra.device import task_cpus  # noqa: F401 (re-exported: executors' public API)
+from pipeline.infra.tasks import STATS, TransientError, item_label, record  # noqa: F401 (re-exported)
+
 KINDS = ("local", "ray")
-
-
-class TransientError(RuntimeError):
-    """Raise from a task for a failure worth retrying (a flaky network file system, say); Ray
-    retries it, like ``ConnectionError`` and ``TimeoutError``. Other exceptions stop the stage."""
-
-
-# CPUs granted to the task running in this process (set by the Ray executor around each task;
-# 0 = not inside a task: use every core).
-_TASK_CPUS = 0
-
-
-def task_cpus() -> int:
-    """CPUs the current task may use (0 = all cores): thread pools inside a task should size to it,
-    or a cluster node running one task per CPU oversubscribes."""
-    return _TASK_CPUS
-
-
-# One record per finished map/imap call, for benchmarks and manifests: executor, desc, tasks,
-# slots (tasks that could run at once), wall_s (the call), task_s (sum of the tasks' own times
-# measured inside them), task_max_s.
-STATS: list[dict] = []
-
-
-def record(executor: str, desc: str, slots: int, wall_s: float, task_times: list[float]) -> dict:
-    rec = {"executor": executor, "desc": desc, "tasks": len(task_times), "slots": int(slots),
-           "wall_s": round(wall_s, 4), "task_s": round(float(sum(task_times)), 4),
-           "task_max_s": round(max(task_times, default=0.0), 4)}
-    STATS.append(rec)
-    del STATS[:-1000]  # bounded: a long-lived process keeps the latest
-    return rec
-
-
-def item_label(item: Any, limit: int = 80) -> str:
-    """How an item is named in errors: its ``label`` attribute, else a shortened ``repr``."""
-    text = getattr(item, "label", None)
-    text = str(text) if text is not None else repr(item)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def preload(modules: Sequence[str], item: Any = None) -> int:
@@ -91,7 +56,7 @@ class LocalExecutor:
 
     def imap(self, fn, items, *, shared=None, desc: str = "", unit: str = "task", total=None,
              gpu: bool = False) -> Iterator:
-        from pipeline.progress import bar as progress_bar
+        from pipeline.infra.progress import bar as progress_bar
 
         times: list[float] = []
         with progress_bar(total=total, desc=desc, unit=unit, leave=False) as bar:
@@ -123,7 +88,7 @@ def make_executor(kind: str = "local", *, address: str = "", workers: int = 0) -
     if kind == "local":
         return LocalExecutor()
     if kind == "ray":
-        from pipeline.executor_ray import RayExecutor  # optional extra: pip install -e '.[ray]'
+        from pipeline.infra.executor_ray import RayExecutor  # optional extra: pip install -e '.[ray]'
         return RayExecutor(address=address, workers=workers)
     raise ValueError(f"unknown executor {kind!r} (known: {', '.join(KINDS)})")
 

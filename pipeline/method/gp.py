@@ -23,7 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipeline.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
+from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
 
 FORMAT = "viewfuse.gp_class_models"
 VERSION = 1

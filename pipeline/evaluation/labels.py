@@ -5,17 +5,13 @@ hues that no method uses, so a method and a class never share a colour on one pa
 """
 from __future__ import annotations
 
-WITH_UNCERTAINTY = "with_uncertainty"
-MODEL_BASED = "model_based"
-SIMPLE_BAYES = "simple_bayes"
-METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
+from pipeline.method.names import METHOD_SHORT, METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401
 
 METHOD_LABELS = {
     WITH_UNCERTAINTY: "With Uncertainty (Feldman & Indelman)",
     MODEL_BASED: "Model Based (Teacy et al.)",
     SIMPLE_BAYES: "Simple Bayes",
 }
-METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes"}
 METHOD_COLORS = {WITH_UNCERTAINTY: "#0072B2", MODEL_BASED: "#D55E00", SIMPLE_BAYES: "#009E73"}
 
 # Paired comparisons reported by the population evaluation: (method, baseline).

@@ -1,7 +1,7 @@
 """The population grid: targets x tracks x localization settings, as independent cells.
 
 Pure functions: the evaluate stage reads the files and hands over the AVD feature rows, the model
-banks and the plan; an executor (``pipeline.executor``) runs ``run_cell`` on every cell. Each cell
+banks and the plan; an executor (``pipeline.infra.executor``) runs ``run_cell`` on every cell. Each cell
 draws its localization noise from a generator seeded by (evaluate seed, target, track, setting),
 never by its position in the grid or the worker it runs on, so results do not depend on how the
 grid is split or scheduled, and an ablation variant sees the same noise as the default.
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pipeline import experiments as E
-from pipeline.track import TrackError, TrackPlan, bearing_rays, facing_error, intersect_rays, select_tracks
+from pipeline.evaluation import experiments as E
+from pipeline.evaluation.track import TrackError, TrackPlan, bearing_rays, facing_error, intersect_rays, select_tracks
 
 
 @dataclass(frozen=True)

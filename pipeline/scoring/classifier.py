@@ -2,7 +2,7 @@
 
 Weights never travel as pickles: our checkpoints are ``.npz`` (plain arrays, read with
 ``allow_pickle=False``); torch checkpoint files are read with ``torch.load(weights_only=True)``,
-which refuses to run code. Nothing is downloaded. MC-dropout scoring is in ``pipeline/mc_dropout.py``.
+which refuses to run code. Nothing is downloaded. MC-dropout scoring is in ``pipeline/scoring/mc_dropout.py``.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from pipeline.cache import NpzFileError, atomic_path, hash_json, load_npz, sha256_file
+from pipeline.infra.cache import NpzFileError, atomic_path, hash_json, load_npz, sha256_file
 
 IMAGENET_FILE = "alexnet-owt-7be5be79.pth"   # torchvision AlexNet_Weights.IMAGENET1K_V1
 ARCHITECTURE = "torchvision.models.alexnet"
@@ -230,7 +230,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     ``precision`` "bf16" = autocast mixed precision (fp32 master weights), several times faster on
     CPUs with native bf16; "auto" picks it where the hardware has it.
     """
-    from pipeline.progress import bar as progress_bar
+    from pipeline.infra.progress import bar as progress_bar
 
     torch.manual_seed(seed)
     gen = np.random.default_rng([seed, 7])
@@ -277,7 +277,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
 def augment(xb: np.ndarray, gen: np.random.Generator, mean, std) -> torch.Tensor:
     """Cheap batch augmentation on top of the rendered variety: the 8 flips/quarter turns (texture
     families have no preferred orientation) and a per-image contrast/brightness jitter."""
-    from pipeline.crops import to_tensor
+    from pipeline.scoring.crops import to_tensor
 
     xb = xb.copy()
     n = len(xb)
@@ -311,8 +311,8 @@ def resolve_precision(precision: str, device: str) -> str:
 def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int = 128,
             device: str = "cpu", progress: bool = False) -> np.ndarray:
     """Eval-mode logits (n, D) for uint8 images."""
-    from pipeline.crops import to_tensor
-    from pipeline.progress import bar as progress_bar
+    from pipeline.scoring.crops import to_tensor
+    from pipeline.infra.progress import bar as progress_bar
 
     model.eval().to(device)
     outs = []

@@ -3,7 +3,7 @@
 Inputs are a ``TrackData`` (true camera positions along the track, the object's position and yaw,
 the MC-dropout score samples of each view, and each candidate's own score for Simple Bayes) and
 fitted ``GPClassModels``. Outputs are log posterior arrays (R, K, C) per method, turned into result
-rows by ``pipeline.results`` and into the single-track tables by ``summarize``.
+rows by ``pipeline.evaluation.results`` and into the single-track tables by ``summarize``.
 """
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ from typing import Callable, Iterable
 import numpy as np
 import pandas as pd
 
-from pipeline import metrics as M
-from pipeline.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
-from pipeline.geometry import relative_inputs, sample_localization
-from pipeline.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
+from pipeline.evaluation import metrics as M
+from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
+from pipeline.method.geometry import relative_inputs, sample_localization
+from pipeline.evaluation.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 
 __all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "biased",
            "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]

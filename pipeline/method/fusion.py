@@ -26,9 +26,9 @@ import math
 
 import numpy as np
 
-from pipeline.geometry import relative_inputs, sample_localization
-from pipeline.gp import GPClassModels
-from pipeline.labels import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
+from pipeline.method.geometry import relative_inputs, sample_localization
+from pipeline.method.gp import GPClassModels
+from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
 # Elements per working array in one block (a few such arrays live at once): ~8 MB each. Blocks
 # this size keep the train-test kernel passes near the caches; more blocks cost little.
@@ -297,8 +297,8 @@ def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progres
     from concurrent.futures import ThreadPoolExecutor
     from contextlib import nullcontext
 
-    from pipeline.device import available_cores
-    from pipeline.progress import bar as progress_bar
+    from pipeline.infra.device import available_cores
+    from pipeline.infra.progress import bar as progress_bar
 
     n = max(1, min(int(threads or available_cores()), len(spans)))
     models.factors()  # build the shared training factors once, before any worker reads them

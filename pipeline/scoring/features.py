@@ -16,7 +16,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from pipeline.cache import atomic_path
+from pipeline.infra.cache import atomic_path
 
 BOX_COLS = ("box_x0", "box_y0", "box_x1", "box_y1")
 CROP_COLS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
@@ -207,8 +207,8 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.classifier import build_alexnet, load_into
-        from pipeline.mc_dropout import MCDropoutScorer
+        from pipeline.scoring.classifier import build_alexnet, load_into
+        from pipeline.scoring.mc_dropout import MCDropoutScorer
 
         if model.weights is None:
             raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
@@ -221,7 +221,7 @@ def _scorer(model: ScoringModel):
 
 def score_batch(model: ScoringModel, batch: CropBatch) -> tuple[np.ndarray, np.ndarray | None]:
     """Executor task: (det (B, D), dropout samples (B, N_s, D) or None) as float32 arrays."""
-    from pipeline.crops import to_tensor
+    from pipeline.scoring.crops import to_tensor
 
     det, mc = _scorer(model).score(to_tensor(batch.crops, model.mean, model.std), batch.seeds, batch.n_samples)
     return det.float().cpu().numpy(), (None if mc is None else mc.float().cpu().numpy())
@@ -249,7 +249,7 @@ def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_s
                  batch_size: int) -> Iterator[CropBatch]:
     """Crop every job with ``policy`` into batches of ``batch_size``; each crop's table columns
     (crop box included) go to ``out`` in the same order."""
-    from pipeline.mc_dropout import crop_seed
+    from pipeline.scoring.mc_dropout import crop_seed
 
     pending: list[tuple[CropJob, np.ndarray, tuple]] = []
     start = 0

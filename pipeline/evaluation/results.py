@@ -13,8 +13,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from pipeline import metrics as M
-from pipeline.cache import atomic_path
+from pipeline.evaluation import metrics as M
+from pipeline.infra.cache import atomic_path
 
 LN10 = float(np.log(10.0))
 
@@ -74,7 +74,7 @@ def write_results(blocks: Sequence[dict[str, np.ndarray]], path: str | Path, met
 
 def cell_metrics(lp: np.ndarray, truth: int) -> dict[str, float]:
     """A cell's metrics over its realizations (R, K, C) of log posteriors: the population table's
-    keys (``pipeline.labels.METRICS``), MGR as log10 percentiles."""
+    keys (``pipeline.evaluation.labels.METRICS``), MGR as log10 percentiles."""
     row = M.summary_row(lp, truth, is_log=True)
     lm = M.log_mgr(lp, truth, is_log=True) / LN10
     return {

@@ -1,0 +1,14 @@
+"""Method keys: the stable strings under which every method's results are stored.
+
+They live with the methods (not with the display labels in ``pipeline.evaluation.labels``) so that
+the fusion engine can name its own progress bars without importing the evaluation protocol.
+"""
+from __future__ import annotations
+
+WITH_UNCERTAINTY = "with_uncertainty"
+MODEL_BASED = "model_based"
+SIMPLE_BAYES = "simple_bayes"
+METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
+
+# Short names for progress bars and table headers.
+METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes"}
