@@ -18,12 +18,14 @@ import pandas as pd
 from pipeline.evaluation import experiments as E
 from pipeline.evaluation import population as P
 from pipeline.infra.cache import atomic_path, write_json
-from pipeline.infra.config import Config
+from pipeline.infra.config import Config, is_model_ablation
 from pipeline.scoring.features import read_features
 from pipeline.method.gp import GPClassModels
 from pipeline.evaluation.labels import COMPARISONS, METHODS, METRICS
 from pipeline.infra.outputs import name as out_name
-from pipeline.evaluation.popstats import population_block
+from pipeline.evaluation.calibration import N_BINS as ECE_BINS
+from pipeline.evaluation.verdicts import full_block
+from stages.evaluate_calibration import TestDomain, population_blocks, test_variances
 from pipeline.evaluation.results import cell_metrics, metadata, result_block, write_results
 from pipeline.evaluation.track import TrackError, grid_step
 
@@ -37,6 +39,9 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     index = _read_index(models_dir)
     banks, indexes = {DEFAULT: GPClassModels.load(models_dir)}, {DEFAULT: index}
     for a in ablations:
+        if not is_model_ablation(a):  # an evaluate.* variant: same models, another likelihood
+            banks[a], indexes[a] = banks[DEFAULT], index
+            continue
         sub = index.get("ablations", {}).get(a)
         if sub is None:
             raise ValueError(f"{models_dir / 'index.json'}: no model bank for ablation {a!r} (rerun the models stage)")
@@ -112,7 +117,7 @@ def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dic
                                    dropout=drop, own=mine)
                 cells.append(P.Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                     classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                    difficulty=variant == DEFAULT))
+                                    difficulty=variant == DEFAULT, attribution=ev.attribution and variant == DEFAULT))
             tracks.append(info)
         log.info("target %s: %d track(s) in %s; candidates %s", target, len(infos),
                  ", ".join(sorted({i.scan for i in infos})), ", ".join(classes))
@@ -121,7 +126,7 @@ def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dic
     return cells, tracks, skipped
 
 
-def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
+def cell_table(cells: list[P.Cell], results: list[dict], threshold: float = 0.99) -> pd.DataFrame:
     """One row per (variant, target, track, setting, method) with the cell's metrics."""
     rows = []
     for cell, res in zip(cells, results):
@@ -129,7 +134,7 @@ def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
             for method, lp in posts.items():
                 rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
                              "experiment": experiment, "setting": label, "method": method,
-                             **cell_metrics(lp, cell.truth)})
+                             **cell_metrics(lp, cell.truth, threshold)})
     return pd.DataFrame(rows)
 
 
@@ -147,7 +152,7 @@ def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
 
 
 def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
-                       tracks: list[P.TrackInfo], skipped: list[dict]) -> dict:
+                       tracks: list[P.TrackInfo], skipped: list[dict], domain_fit: dict | None = None) -> dict:
     ev = cfg.evaluate
     metrics = list(METRICS)
     methods = [m for m in METHODS if m in set(table["method"])]
@@ -156,19 +161,15 @@ def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], re
     n_targets = default["target"].nunique()
     n_tracks = len(tracks)
     scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
-    block = population_block(default, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope)
+    blocks = population_blocks(cfg, table, cells, results, scope, DEFAULT)
+    block, ablations = blocks["main"], blocks["ablations"]
+    main = default[default["method"].isin(methods)]
     by_setting = {}
     for s in settings:
-        sub = default[default["setting"] == s.label]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                             f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False)
-        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}
-    ablations = {}
-    for a in ev.ablations:
-        sub = table[table["variant"] == a]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope, per_target=False)
-        key, value = (t.strip() for t in a.split("=", 1))
-        ablations[a] = {"override": {key: value}, **{k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}}
+        sub = main[main["setting"] == s.label]
+        b = full_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
+                       f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False, loto=False)
+        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "robust", "verdict", "verdict_table")}
     difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
                   for c, r in zip(cells, results) if r["difficulty"] is not None]
     spread = {}
@@ -182,7 +183,13 @@ def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], re
                  for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
     return {
         "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
-        "n_cells": int(len(default) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
+        "n_cells": int(len(main) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
+        "confident_threshold": ev.confident_threshold, "ece_bins": ECE_BINS,
+        "likelihood": ev.test_domain_variance,
+        "calibration_weighting": ("ECE and the reliability diagram pool every posterior of the population, "
+                                  "weighted as the other pooled values: each target the same, each track of a "
+                                  "target the same, each setting of a track the same, each realization (final "
+                                  "step) or realization and step (all steps) of a setting the same"),
         "realizations": ev.randomized.realizations, "n_loc_samples": ev.randomized.n_loc_samples,
         "methods": methods, "metrics": metrics,
         "settings": [{"experiment": s.experiment, "setting": s.label, "sigma_m": s.sigma, "bias_m": list(s.bias),
@@ -200,18 +207,25 @@ def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], re
         "cells": cell_rows,
         "tracks": [t.as_dict() for t in tracks],
         "ablations": ablations,
+        "domain_fit": domain_fit or {},
         "skipped_targets": skipped,
     }
 
 
-def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
+def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict,
+                 domain: TestDomain | None = None) -> None:
     """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
+    if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
+        models = models.with_test_variance(np.asarray(first.test_variance, float)[None, :])
     if "gp_models" in ev.experiments:
         t0 = time.perf_counter()
+        rasters = E.gp_rasters(models)
+        if domain is not None and not domain.table.empty:  # the observed AVD scores over the ±2σ band
+            rasters.update(domain.ring_overlay(first.scan, first.classes, first.components))
         with atomic_path(ctx.out / out_name("evaluate", "gp_models")) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **E.gp_rasters(models))
+            np.savez(f, **rasters)
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
@@ -249,8 +263,13 @@ def run(ctx) -> str:
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
     cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps)
+    t0 = time.perf_counter()
+    domain = TestDomain(cfg, avd, scores, banks[DEFAULT], truth, intr, sorted({c.target for c in cells}), scans)
+    cells = test_variances(cells, domain, cfg)
+    domain_fit = domain.summary()
+    domain_s = time.perf_counter() - t0
 
-    timings: dict[str, float] = {}
+    timings: dict[str, float] = {"domain_fit": domain_s}
     t0 = time.perf_counter()
     executor = executor_for(cfg)
     try:
@@ -262,8 +281,8 @@ def run(ctx) -> str:
              len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
 
     t0 = time.perf_counter()
-    table = cell_table(cells, results)
-    population = population_summary(cfg, table, cells, results, tracks, skipped)
+    table = cell_table(cells, results, ev.confident_threshold)
+    population = population_summary(cfg, table, cells, results, tracks, skipped, domain_fit)
     timings["statistics"] = time.perf_counter() - t0
 
     # The first target's first track: its biased/randomized tables as before, plus the figures.
@@ -272,7 +291,7 @@ def run(ctx) -> str:
     for (experiment, label), posts in results[0]["posts"].items():
         summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
     blocks = result_blocks(cells, results)
-    single_track(cfg, ctx, banks, first, blocks, summary, timings)
+    single_track(cfg, ctx, banks, first, blocks, summary, timings, domain)
     n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
         config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
         target=first.target))

@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from pipeline.evaluation.candidates import candidate_sets, own_components, plan_components
-from pipeline.infra.config import ModelsConfig, ablation_config, to_dict
+from pipeline.infra.config import ModelsConfig, ablation_config, is_model_ablation, to_dict
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.infra.outputs import name as out_name
@@ -237,9 +237,10 @@ def run(ctx) -> str:
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
                      candidate_seed=ev.candidate_seed)
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
-    extra["ablations"] = {a: ablation_dir(a) for a in ev.ablations}
+    model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
+    extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
     models.save(ctx.out, extra=extra)
-    for a in ev.ablations:
+    for a in model_ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)
         vm, vextra = fit_from_features(feats, vcfg.models, **plan_keys)
@@ -253,4 +254,4 @@ def run(ctx) -> str:
             f"{len(extra['candidate_sets'])} candidate sets ({cfg.models.component_rule}) fitted on "
             f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
             f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
-            + (f"; {len(ev.ablations)} ablation bank(s)" if ev.ablations else ""))
+            + (f"; {len(model_ablations)} ablation bank(s)" if model_ablations else ""))

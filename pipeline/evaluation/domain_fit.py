@@ -28,11 +28,12 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
 
     ``poses`` maps (scan, instance) -> (object xy (2,), yaw rad). Columns: scan, instance, image,
     component (score index), obs (mean dropout score), v_z (dropout variance, ddof 0, floored at
-    ``var_floor``), mu and var (the own-class GP predictive, σ_n² included).
+    ``var_floor``), mu and var (the own-class GP predictive, σ_n² included), x0, x1 (the GP input:
+    the viewing direction on the unit circle, object frame).
     """
     rows = avd[(avd["pass"] >= 0) & (avd["difficulty"] <= max_difficulty) & avd["instance"].isin(models.classes)]
     rows = rows[[(s, i) in poses for s, i in zip(rows["scan"], rows["instance"])]]
-    cols = ["scan", "instance", "image", "component", "obs", "v_z", "mu", "var"]
+    cols = ["scan", "instance", "image", "component", "obs", "v_z", "mu", "var", "x0", "x1"]
     if rows.empty:
         return pd.DataFrame({c: [] for c in cols})
     comps = list(models.components)
@@ -56,7 +57,7 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
         for f, comp in enumerate(comps):
             out.append(pd.DataFrame({"scan": scan, "instance": inst, "image": g["image"].to_numpy(),
                                      "component": comp, "obs": obs[idx, f], "v_z": v_z[idx, f],
-                                     "mu": mu[:, 0, f], "var": var[:, 0, f]}))
+                                     "mu": mu[:, 0, f], "var": var[:, 0, f], "x0": x[:, 0], "x1": x[:, 1]}))
     return pd.concat(out, ignore_index=True)[cols]
 
 

@@ -5,17 +5,24 @@ hues that no method uses, so a method and a class never share a colour on one pa
 """
 from __future__ import annotations
 
-from pipeline.method.names import METHOD_SHORT, METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401
+from pipeline.method.names import (ATTRIBUTION, METHOD_SHORT, METHODS, MODEL_BASED, SIMPLE_BAYES,  # noqa: F401
+                                   WITH_UNCERTAINTY, WU_DROPOUT_ONLY, WU_POSES_ONLY)
 
 METHOD_LABELS = {
     WITH_UNCERTAINTY: "With Uncertainty (Feldman & Indelman)",
     MODEL_BASED: "Model Based (Teacy et al.)",
     SIMPLE_BAYES: "Simple Bayes",
+    WU_POSES_ONLY: "With Uncertainty, poses only (dropout samples -> their mean)",
+    WU_DROPOUT_ONLY: "With Uncertainty, dropout only (no pose sampling)",
 }
-METHOD_COLORS = {WITH_UNCERTAINTY: "#0072B2", MODEL_BASED: "#D55E00", SIMPLE_BAYES: "#009E73"}
+METHOD_COLORS = {WITH_UNCERTAINTY: "#0072B2", MODEL_BASED: "#D55E00", SIMPLE_BAYES: "#009E73",
+                 WU_POSES_ONLY: "#6699CC", WU_DROPOUT_ONLY: "#994F00"}
 
 # Paired comparisons reported by the population evaluation: (method, baseline).
 COMPARISONS = ((WITH_UNCERTAINTY, MODEL_BASED), (WITH_UNCERTAINTY, SIMPLE_BAYES))
+# Attribution: each ingredient alone against Model Based, and what the full method adds to each.
+ATTRIBUTION_COMPARISONS = ((WU_POSES_ONLY, MODEL_BASED), (WU_DROPOUT_ONLY, MODEL_BASED),
+                           (WITH_UNCERTAINTY, WU_POSES_ONLY), (WITH_UNCERTAINTY, WU_DROPOUT_ONLY))
 
 
 def comparison_key(method: str, baseline: str) -> str:
@@ -36,6 +43,18 @@ METRICS = {
     "log10_mgr95_final": ("log10 MGR 95th percentile, final step", False),
     "log10_mgr75_overall": ("log10 MGR 75th percentile, all steps", False),
     "log10_mgr95_overall": ("log10 MGR 95th percentile, all steps", False),
+    # Calibration of the posterior (pipeline.evaluation.calibration): cell means over realizations.
+    "nll_final": ("NLL = -ln P(truth), final step", False),
+    "nll_overall": ("NLL = -ln P(truth), all steps", False),
+    "brier_final": ("Brier score, final step", False),
+    "brier_overall": ("Brier score, all steps", False),
+    "confident_error_final": ("confident-error rate (max P >= threshold on a wrong class), final step", False),
+    "confident_error_overall": ("confident-error rate (max P >= threshold on a wrong class), all steps", False),
+}
+# Metrics of the pooled posteriors, not means of cell values (pipeline.evaluation.pooled_calibration).
+POOLED_METRICS = {
+    "ece_final": ("top-label ECE (15 bins), final step", False),
+    "ece_overall": ("top-label ECE (15 bins), all steps", False),
 }
 MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
 
@@ -49,6 +68,10 @@ METRIC_SHORT = {
     "log10_mgr95_final": "log10 MGR 95%, final",
     "log10_mgr75_overall": "log10 MGR 75%, all steps",
     "log10_mgr95_overall": "log10 MGR 95%, all steps",
+    "nll_final": "NLL, final", "nll_overall": "NLL, all steps",
+    "brier_final": "Brier, final", "brier_overall": "Brier, all steps",
+    "confident_error_final": "confident errors, final", "confident_error_overall": "confident errors, all steps",
+    "ece_final": "ECE, final", "ece_overall": "ECE, all steps",
 }
 UNKNOWN_COLOR = "#555555"
 
@@ -75,7 +98,7 @@ def class_colors(n: int) -> list[str]:
 def metric_label(key: str, short: bool = False) -> str:
     if short:
         return METRIC_SHORT.get(key, key)
-    return METRICS[key][0] if key in METRICS else key
+    return METRICS[key][0] if key in METRICS else POOLED_METRICS[key][0] if key in POOLED_METRICS else key
 
 
 def comparison_label(key: str, short: bool = True) -> str:

@@ -140,7 +140,9 @@ def paired_differences(cells: pd.DataFrame, method: str, baseline: str, metrics:
 # Best and worst possible value of each metric: cells where both methods sit there cannot tell
 # the methods apart (a ceiling or floor effect).
 _BEST = {"correct_final": 1.0, "correct_overall": 1.0, "prob_truth_final": 1.0, "msde_final": 0.0,
-         "log10_mgr75_final": 0.0, "log10_mgr95_final": 0.0, "log10_mgr75_overall": 0.0, "log10_mgr95_overall": 0.0}
+         "log10_mgr75_final": 0.0, "log10_mgr95_final": 0.0, "log10_mgr75_overall": 0.0, "log10_mgr95_overall": 0.0,
+         "nll_final": 0.0, "nll_overall": 0.0, "brier_final": 0.0, "brier_overall": 0.0,
+         "confident_error_final": 0.0, "confident_error_overall": 0.0}
 _WORST = {"correct_final": 0.0, "correct_overall": 0.0, "prob_truth_final": 0.0}
 
 

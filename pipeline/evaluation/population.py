@@ -176,6 +176,8 @@ class Cell:
     seed: int
     var_floor: float
     difficulty: bool = True
+    attribution: bool = False                       # add the With Uncertainty attribution variants
+    test_variance: tuple[float, ...] | None = None  # δ² per component: the calibrated likelihood
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
@@ -187,15 +189,17 @@ def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None}."""
     models = banks[cell.variant].subset(cell.classes, cell.components)
+    if cell.test_variance is not None:
+        models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
     posts = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
-                                                      var_floor=cell.var_floor)
+                                                      var_floor=cell.var_floor, attribution=cell.attribution)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
-                                                          rng, var_floor=cell.var_floor)
+                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution)
     diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None
     return {"posts": posts, "difficulty": diff}
 

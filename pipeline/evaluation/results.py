@@ -14,6 +14,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from pipeline.evaluation import metrics as M
+from pipeline.evaluation.calibration import cell_calibration
 from pipeline.infra.cache import atomic_path
 
 LN10 = float(np.log(10.0))
@@ -72,9 +73,10 @@ def write_results(blocks: Sequence[dict[str, np.ndarray]], path: str | Path, met
     return table.num_rows
 
 
-def cell_metrics(lp: np.ndarray, truth: int) -> dict[str, float]:
+def cell_metrics(lp: np.ndarray, truth: int, confident_threshold: float = 0.99) -> dict[str, float]:
     """A cell's metrics over its realizations (R, K, C) of log posteriors: the population table's
-    keys (``pipeline.evaluation.labels.METRICS``), MGR as log10 percentiles."""
+    keys (``pipeline.evaluation.labels.METRICS``), MGR as log10 percentiles, and the calibration
+    scalars of ``pipeline.evaluation.calibration.cell_calibration``."""
     row = M.summary_row(lp, truth, is_log=True)
     lm = M.log_mgr(lp, truth, is_log=True) / LN10
     return {
@@ -84,6 +86,7 @@ def cell_metrics(lp: np.ndarray, truth: int) -> dict[str, float]:
         "log10_mgr95_final": float(M.percentile(lm[:, -1], 95)),
         "log10_mgr75_overall": float(M.percentile(lm, 75)),
         "log10_mgr95_overall": float(M.percentile(lm, 95)),
+        **cell_calibration(lp, truth, confident_threshold),
     }
 
 

@@ -117,19 +117,28 @@ def outcome(est: dict, higher_is_better: bool) -> str:
     return "not distinguishable"
 
 
+def leave_one_out_values(names: Sequence[str], fn: Callable[[np.ndarray], dict], higher_is_better: bool) -> dict:
+    """Leave each group out in turn: ``fn(kept indices)`` gives the estimate (value and CI). Returns
+    the range of the values and the groups whose removal changes the full population's outcome."""
+    n = len(names)
+    full = outcome(fn(np.arange(n)), higher_is_better)
+    if n < 3:
+        return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "outcome": full}
+    values, flips = [], []
+    for i, name in enumerate(names):
+        est = fn(np.array([j for j in range(n) if j != i]))
+        values.append(est["value"])
+        if outcome(est, higher_is_better) != full:
+            flips.append(str(name))
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    return {"loto_min": float(v.min()) if len(v) else float("nan"),
+            "loto_max": float(v.max()) if len(v) else float("nan"), "loto_flips": flips, "outcome": full}
+
+
 def leave_one_out(names: Sequence[str], groups: Sequence[np.ndarray], n_boot: int, seed, stat: str,
                   higher_is_better: bool) -> dict:
     """The pooled ``stat`` with each group (target) left out in turn: its range, and the groups whose
     removal changes the outcome (better / worse / not distinguishable) of the full population."""
-    full = outcome(pooled(groups, n_boot, seed, stat), higher_is_better)
-    values, flips = [], []
-    if len(groups) < 3:
-        return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "outcome": full}
-    for i, name in enumerate(names):
-        rest = [g for j, g in enumerate(groups) if j != i]
-        est = pooled(rest, n_boot, seed, stat)
-        values.append(est["value"])
-        if outcome(est, higher_is_better) != full:
-            flips.append(str(name))
-    return {"loto_min": float(np.min(values)), "loto_max": float(np.max(values)), "loto_flips": flips,
-            "outcome": full}
+    return leave_one_out_values(names, lambda keep: pooled([groups[k] for k in keep], n_boot, seed, stat),
+                                higher_is_better)

@@ -276,9 +276,19 @@ class EvaluateConfig:
         factory=lambda: ("gp_models", "biased", "randomized", "sensitivity", "bias_maps"))
     seed: int = _f(0, lo=0)
     bootstrap: int = _f(2000, lo=100, hi=1000000, doc="bootstrap resamples for every 95 % confidence interval")
-    ablations: tuple[str, ...] = _f(factory=tuple,
-                                    doc="'models.KEY=VALUE' variants evaluated on the same population "
-                                        "(KEY: component_rule, noise_floor, n_components, informative_min)")
+    ablations: tuple[str, ...] = _f(factory=lambda: ("evaluate.test_domain_variance=cross_fit",),
+                                    doc="'models.KEY=VALUE' or 'evaluate.test_domain_variance=VALUE' variants "
+                                        "evaluated on the same population (models KEY: component_rule, "
+                                        "noise_floor, n_components, informative_min)")
+    test_domain_variance: str = _f("none", choices=("none", "cross_fit"),
+                                   doc="likelihood of the GP-based methods: none = the paper's (GP predictive "
+                                       "alone); cross_fit = plus a test-domain variance per score component, "
+                                       "ML-estimated on labelled AVD crops of the other scans (one scan: of the "
+                                       "other instances), never the evaluated cell's own")
+    confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
+                                    doc="a confident error: max P >= this on a wrong class")
+    attribution: bool = _f(True, doc="also evaluate With Uncertainty with poses only (dropout samples -> their "
+                                     "mean) and with dropout only (no pose sampling), on the same population")
     biased: BiasedConfig = _f(factory=BiasedConfig)
     randomized: RandomizedConfig = _f(factory=RandomizedConfig)
     sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
@@ -565,6 +575,9 @@ def _cross_checks(cfg: Config, where: str) -> None:
         key = a.split("=", 1)[0].strip()
         need("=" in a and key in ABLATION_KEYS,
              f"'evaluate.ablations' entry {a!r} must be 'KEY=VALUE' with KEY one of {', '.join(ABLATION_KEYS)}")
+        if key == "evaluate.test_domain_variance":
+            need(a.split("=", 1)[1].strip().strip("'\"") in ("none", "cross_fit"),
+                 f"'evaluate.ablations' entry {a!r}: the value must be none or cross_fit")
     known = ("gp_models", "biased", "randomized", "sensitivity", "bias_maps")
     for e in cfg.evaluate.experiments:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")
@@ -577,13 +590,31 @@ def _cross_checks(cfg: Config, where: str) -> None:
          "'evaluate.sensitivity.sigmas_m' must list non-negative values")
 
 
-ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min")
+ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min",
+                 "evaluate.test_domain_variance")
+
+
+def is_model_ablation(ablation: str) -> bool:
+    """An ablation that needs its own model bank (a ``models.*`` override)."""
+    return ablation.split("=", 1)[0].strip().startswith("models.")
+
+
+def test_domain_mode(cfg: "Config", ablation: str | None) -> str:
+    """``evaluate.test_domain_variance`` of the default run (None) or of one ablation variant."""
+    if ablation is not None:
+        key, raw = (t.strip() for t in ablation.split("=", 1))
+        if key == "evaluate.test_domain_variance":
+            value = raw.strip().strip("'\"")
+            if value not in ("none", "cross_fit"):
+                raise ConfigError(f"evaluate.ablations: {ablation!r}: value must be none or cross_fit")
+            return value
+    return cfg.evaluate.test_domain_variance
 
 
 def ablation_config(cfg: Config, ablation: str) -> Config:
     """``cfg`` with one ``evaluate.ablations`` entry (``models.KEY=VALUE``) applied and validated."""
     key, raw = (t.strip() for t in ablation.split("=", 1))
-    if key not in ABLATION_KEYS:
+    if key not in ABLATION_KEYS or not is_model_ablation(ablation):
         raise ConfigError(f"evaluate.ablations: {ablation!r}: KEY must be one of {', '.join(ABLATION_KEYS)}")
     table = _merge({"models": to_dict(cfg.models)}, parse_override(f"{key}={raw}"))
     where = f"{cfg.source_path or 'config'} (evaluate.ablations entry {ablation!r})"

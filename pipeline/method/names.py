@@ -9,6 +9,11 @@ WITH_UNCERTAINTY = "with_uncertainty"
 MODEL_BASED = "model_based"
 SIMPLE_BAYES = "simple_bayes"
 METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
+# Attribution variants of With Uncertainty (one ingredient each), evaluated beside the methods.
+WU_POSES_ONLY = "with_uncertainty_poses_only"       # dropout samples replaced by their mean
+WU_DROPOUT_ONLY = "with_uncertainty_dropout_only"   # no pose sampling: σ = 0, N_x = 1 inside the method
+ATTRIBUTION = (WU_POSES_ONLY, WU_DROPOUT_ONLY)
 
 # Short names for progress bars and table headers.
-METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes"}
+METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes",
+                WU_POSES_ONLY: "WU poses only", WU_DROPOUT_ONLY: "WU dropout only"}
