@@ -7,13 +7,15 @@ from pipeline.evaluation.labels import (COMPARISONS, METRICS, comparison_key, co
                              ordered_methods)
 from pipeline.evaluation.popstats import wilson_interval
 from reports.context import ReportContext
+from reports.sections_calibration import pooled_value
 from reports.numbers import Estimate, fmt
 from reports.tables import bound_counts, hyperparameter_table
 
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
 # in a collapsed list right under the pooled table.
-HEADLINE = ("correct_final", "log10_mgr95_final")
-VERDICT_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "log10_mgr95_final")
+HEADLINE = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
+VERDICT_METRICS = ("correct_final", "confident_error_final", "nll_final", "correct_overall", "prob_truth_final",
+                   "log10_mgr95_final")
 TARGET_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PAIRED_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_final",
                   "log10_mgr75_final", "log10_mgr95_final")
@@ -75,11 +77,13 @@ def verdict_section(ctx: ReportContext) -> None:
     head = headline(sentences, pop.get("verdict_table") or [])
     page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
     methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
-    rows = [[method_label(m)] + [Estimate.of(((pop.get("pooled") or {}).get(m) or {}).get(k)) for k in VERDICT_METRICS]
-            for m in methods]
+    have = set().union(*[set(v) for v in (pop.get("pooled") or {}).values()] or [set()])
+    keys = [k for k in VERDICT_METRICS if k in have]  # an older summary has no calibration metrics
+    rows = [[method_label(m)] + [Estimate.of(pooled_value(pop, m, k)) for k in keys] for m in methods]
     unit = str(pop.get("unit") or "")
-    page.table(["method"] + [metric_label(k, short=True) for k in VERDICT_METRICS], rows, cls="summary pooled",
-               caption=f"Pooled over the population: value [95 % CI]. {unit[:1].upper() + unit[1:]} "
+    page.table(["method"] + [metric_label(k, short=True) for k in keys], rows, cls="summary pooled",
+               caption=f"Pooled over the population: value [95 % CI]; NLL and log10 MGR (unbounded) as the median "
+                       f"over targets of the target means. {unit[:1].upper() + unit[1:]} "
                        f"({pop.get('bootstrap', '?')} bootstrap resamples.) log10 MGR: 0 when the truth is the "
                        "most likely class.")
     if len(head) < len(sentences):
@@ -231,6 +235,8 @@ def _ablations(ctx: ReportContext) -> None:
     key = comparison_key(*COMPARISONS[0])
     rows = []
     for name, a in abl.items():
+        if a.get("kind") == "attribution":  # its own section (sections_calibration)
+            continue
         over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
         d = (a.get("paired") or {}).get(key) or {}
         said = headline([str(s) for s in a.get("verdict") or []], a.get("verdict_table") or [])

@@ -107,6 +107,10 @@ def test_report_references_existing_figures(run_all):
     for src in imgs:
         assert (rep / src).is_file(), src
     assert 'class="summary' in html
+    for anchor in ("calibration", "domain-fit", "attribution"):
+        assert f'id="{anchor}"' in html, anchor
+    for fig in ("reliability.png", "reliability_calibrated.png", "pit.png", "gp_ring.png"):
+        assert f'src="{fig}"' in html, fig
 
 
 def test_rerun_is_skipped_and_deterministic(run_all, capsys):
