@@ -37,7 +37,7 @@ def instance_poses(cfg, avd: pd.DataFrame, truth: dict | None, intr: dict, class
         entry = P.truth_entry(truth, scan, inst)
         if ev.yaw_source == "truth" and entry is not None and "position" in entry:
             out[(scan, inst)] = (np.asarray(entry["position"], float), math.radians(float(entry["yaw_deg"])))
-        elif ev.yaw_source == "config" and (isinstance(ev.targets, str) is False and inst in ev.targets):
+        elif ev.yaw_source == "config" and not isinstance(ev.targets, str) and inst in ev.targets:
             d = d.drop_duplicates("image")
             if len(d) >= 2:
                 yaw = P.yaw_for(inst, scan, truth, "config", ev.yaw_deg, ev.targets, ev.yaws_deg)

@@ -96,3 +96,26 @@ def test_single_scan_cross_fit_never_reads_the_targets_own_crops():
     assert V.cell_fold(col, "A", "q") == "q"
     d = V.row_variances(one, col, est)
     assert d[(one["instance"] == "p") & (one["component"] == 7)].tolist()[0] == est["p"][7]
+
+
+def test_crop_residuals_average_the_dropout_passes_at_the_true_direction():
+    m = _models()
+    rows, scores = [], []
+    rng = np.random.default_rng(5)
+    for img, cam in (("i1", (2.0, 0.0)), ("i2", (0.0, 3.0))):
+        for p in (-1, 0, 1, 2):
+            rows.append({"scan": "S", "instance": "a", "image": img, "pass": p, "difficulty": 1,
+                         "cam_x": cam[0], "cam_y": cam[1]})
+            scores.append(rng.uniform(0, 1, 4))
+    avd = pd.DataFrame(rows)
+    scores = np.array(scores)
+    tab = D.crop_residuals(avd, scores, m, {("S", "a"): (np.zeros(2), 0.0)}, max_difficulty=4, var_floor=1e-6)
+    assert len(tab) == 2 * 2                                      # crops x components
+    r = tab[(tab["image"] == "i2") & (tab["component"] == 1)].iloc[0]
+    passes = scores[[5, 6, 7], 1]                                 # dropout passes of i2, score index 1
+    assert r["obs"] == pytest.approx(passes.mean()) and r["v_z"] == pytest.approx(passes.var())
+    mu, var = m.marginal(np.array([[0.0, 1.0]]))                  # camera straight "north" of the object
+    assert r["mu"] == pytest.approx(mu[0, 0, 1]) and r["var"] == pytest.approx(var[0, 0, 1])
+    assert (r["x0"], r["x1"]) == pytest.approx((0.0, 1.0))
+    none = D.crop_residuals(avd, scores, m, {}, max_difficulty=4, var_floor=1e-6)
+    assert none.empty
