@@ -58,8 +58,9 @@ class Resample:
         B, T = self.pick.shape
         w = np.zeros((B, T, self.width))
         per = self.counts / (self.n[..., None] * T)
-        b = np.repeat(np.arange(B), T)
-        np.add.at(w, (b, self.pick.ravel()), per.reshape(B * T, self.width))
+        rows = np.arange(B)
+        for s in range(T):  # one slot at a time: no repeated (row, group) index within a statement
+            w[rows, self.pick[:, s]] += per[:, s]
         return w
 
 

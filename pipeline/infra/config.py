@@ -236,7 +236,7 @@ class RandomizedConfig:
     bias_m: tuple[float, ...] = _f(factory=lambda: (0.0, 0.0))
     sigmas_m: tuple[float, ...] = _f(factory=lambda: (0.1, 0.3, 0.5), lo=0.0, hi=10.0,
                                      doc="one population setting per sigma: estimate = truth + bias + N(0, sigma^2 I)")
-    realizations: int = _f(30, lo=1, hi=1000000, doc="realizations per (target, track, sigma)")
+    realizations: int = _f(20, lo=1, hi=1000000, doc="realizations per (target, track, sigma)")
     n_loc_samples: int = _f(25, lo=1, hi=100000, doc="N_x localization samples (With Uncertainty)")
 
 
