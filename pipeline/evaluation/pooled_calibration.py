@@ -15,7 +15,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.evaluation import calibration as K
-from pipeline.evaluation.robust import Resample, estimate, leave_one_out_values
+from pipeline.evaluation.robust import estimate, leave_one_out_values, resample
 
 WHERE = ("final", "overall")
 
@@ -75,7 +75,7 @@ def pooled_ece(sums: dict, methods: Sequence[str], comparisons, n_boot: int, see
     pads, sizes = {}, None
     for m in present:
         pads[m], sizes = _padded(sums, m, targets)
-    rs = Resample(sizes, n_boot, [*np.atleast_1d(seed), 7])
+    rs = resample(sizes, n_boot, [*np.atleast_1d(seed), 7])
     bw = rs.member_weights()
     w0 = _point_weights(sizes)
     point = {m: _ece(w0, pads[m]) for m in present}
@@ -88,7 +88,7 @@ def pooled_ece(sums: dict, methods: Sequence[str], comparisons, n_boot: int, see
     tgt = {}
     for ti, t in enumerate(targets):
         n = sizes[ti]
-        one = Resample([n], n_boot, [*np.atleast_1d(seed), 8, ti]).member_weights()   # (B, 1, n)
+        one = resample([n], n_boot, [*np.atleast_1d(seed), 8, ti]).member_weights()   # (B, 1, n)
         wt = np.full((1, n), 1.0 / n)
         for m in present:
             p = pads[m][ti: ti + 1, :n]
@@ -124,6 +124,6 @@ def _loto_diff(keep: np.ndarray, pa: np.ndarray, pb: np.ndarray, sizes, n_boot: 
     """ECE difference (estimate with CI) on the targets ``keep`` (indices)."""
     sz = [sizes[k] for k in keep]
     pa, pb = pa[keep], pb[keep]
-    bw = Resample(sz, n_boot, [*np.atleast_1d(seed), 9]).member_weights()
+    bw = resample(sz, n_boot, [*np.atleast_1d(seed), 9]).member_weights()
     w0 = _point_weights(sz)
     return estimate(_ece(w0, pa)[i] - _ece(w0, pb)[i], _ece(bw, pa)[:, i] - _ece(bw, pb)[:, i])

@@ -17,6 +17,7 @@ difference of ratios such as the ECE well defined.
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Callable, Sequence
 
 import numpy as np
@@ -64,6 +65,18 @@ class Resample:
         return w
 
 
+@lru_cache(maxsize=64)
+def _cached(sizes: tuple[int, ...], n_boot: int, seed: tuple) -> Resample:
+    return Resample(sizes, n_boot, list(seed))
+
+
+def resample(sizes: Sequence[int], n_boot: int, seed) -> Resample:
+    """A ``Resample``, shared by every caller with the same sizes and seed: the metrics and paired
+    comparisons of one population reuse the same draws (common random numbers), and a
+    leave-one-target-out pass builds each subset's draws once."""
+    return _cached(tuple(int(x) for x in sizes), int(n_boot), tuple(int(x) for x in np.atleast_1d(seed)))
+
+
 def pad(groups: Sequence[np.ndarray]) -> np.ndarray:
     width = max(len(g) for g in groups)
     out = np.zeros((len(groups), width))
@@ -103,7 +116,7 @@ def pooled(groups: Sequence[np.ndarray], n_boot: int, seed, stat: str = "median"
         return {"value": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
     f = _stat(stat)
     value = float(f(np.array([g.mean() for g in groups])))
-    rs = Resample([len(g) for g in groups], n_boot, seed)
+    rs = resample([len(g) for g in groups], n_boot, seed)
     return estimate(value, f(rs.slot_means(pad(groups))))
 
 

@@ -62,17 +62,18 @@ def robust_stats(cells: pd.DataFrame, methods: Sequence[str], metrics: Sequence[
     """{metric: {"statistic", "pooled": {method: est}, "paired": {key: est + LOTO}}} for unbounded metrics."""
     out = {}
     tv = track_values(cells, metrics)
+    diffs = {(a, b): paired_groups(cells, a, b, metrics) for a, b in comparisons if a in methods and b in methods}
     for ki, k in enumerate(metrics):
         entry = {"statistic": R.STATISTIC, "pooled": {}, "paired": {}}
         for mi, m in enumerate(methods):
             names, groups = _target_groups(tv[tv["method"] == m], k)
             if groups:
-                entry["pooled"][m] = R.pooled(groups, n_boot, [seed, 10, ki, mi])
+                entry["pooled"][m] = R.pooled(groups, n_boot, [seed, 10])
         for a, b in comparisons:
             if a not in methods or b not in methods:
                 continue
-            names, groups = _target_groups(paired_groups(cells, a, b, [k]), k)
-            sd = [seed, 11, ki]
+            names, groups = _target_groups(diffs[(a, b)], k)
+            sd = [seed, 11]
             est = R.pooled(groups, n_boot, sd)
             if loto:
                 est.update(R.leave_one_out(names, groups, n_boot, sd, "median", _higher(k)))
@@ -95,13 +96,15 @@ def verdict(cells: pd.DataFrame, paired: dict, robust: dict, scope: str, n_boot:
     sentences, rows = [], []
     for key, per_metric in paired.items():
         method, baseline = key.split("-", 1)
+        bounded = [m for m in per_metric if m in METRICS and m not in robust]
+        diffs = paired_groups(cells, method, baseline, bounded) if (loto and bounded) else None
         for ki, (metric, mean_est) in enumerate(per_metric.items()):
             higher = _higher(metric)
             rob = robust.get(metric, {}).get("paired", {}).get(key)
             est = dict(rob) if rob is not None else dict(mean_est)
             if rob is None and loto and "loto_min" not in est and metric in METRICS:
-                names, groups = _target_groups(paired_groups(cells, method, baseline, [metric]), metric)
-                est.update(R.leave_one_out(names, groups, n_boot, [seed, 12, ki], "mean", higher))
+                names, groups = _target_groups(diffs, metric)
+                est.update(R.leave_one_out(names, groups, n_boot, [seed, 12], "mean", higher))
             res = R.outcome(est, higher)
             stat = (f"median over targets of the target differences {_num(est['value'])}" if rob is not None
                     else f"difference {_num(est['value'])}")
