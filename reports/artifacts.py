@@ -19,7 +19,7 @@ import pandas as pd
 
 from loaders.errors import BadInputError
 from pipeline.infra.cache import NpzFileError, load_npz
-from pipeline.evaluation.labels import METHODS
+from pipeline.evaluation.labels import ATTRIBUTION, METHODS
 
 log = logging.getLogger("viewfuse.report")
 
@@ -149,7 +149,7 @@ class EvaluateOutputs:
 
 def read_results(path: Path) -> tuple[pd.DataFrame, dict]:
     df, meta = read_result_table(path, RESULT_COLUMNS, optional=POPULATION_COLUMNS)
-    unknown = sorted(set(df["method"].unique()) - set(METHODS)) if len(df) else []
+    unknown = sorted(set(df["method"].unique()) - set(METHODS) - set(ATTRIBUTION)) if len(df) else []
     if unknown:
         log.warning("%s: unknown method(s) %s are shown in grey", path, unknown)
     return df, meta

@@ -137,17 +137,21 @@ def leave_one_out_values(names: Sequence[str], fn: Callable[[np.ndarray], dict],
     n = len(names)
     full = outcome(fn(np.arange(n)), higher_is_better)
     if n < 3:
-        return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "outcome": full}
-    values, flips = [], []
+        return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "loto_flip_outcomes": {},
+                "outcome": full}
+    values, flips, to = [], [], {}
     for i, name in enumerate(names):
         est = fn(np.array([j for j in range(n) if j != i]))
         values.append(est["value"])
-        if outcome(est, higher_is_better) != full:
+        res = outcome(est, higher_is_better)
+        if res != full:
             flips.append(str(name))
+            to[str(name)] = res
     v = np.asarray(values, float)
     v = v[np.isfinite(v)]
     return {"loto_min": float(v.min()) if len(v) else float("nan"),
-            "loto_max": float(v.max()) if len(v) else float("nan"), "loto_flips": flips, "outcome": full}
+            "loto_max": float(v.max()) if len(v) else float("nan"), "loto_flips": flips,
+            "loto_flip_outcomes": to, "outcome": full}
 
 
 def leave_one_out(names: Sequence[str], groups: Sequence[np.ndarray], n_boot: int, seed, stat: str,

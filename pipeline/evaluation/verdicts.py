@@ -118,8 +118,10 @@ def verdict(cells: pd.DataFrame, paired: dict, robust: dict, scope: str, n_boot:
             notes = []
             flips = est.get("loto_flips") or []
             if flips:
-                notes.append(f"dropping {' or '.join(flips[:3])}{' (or others)' if len(flips) > 3 else ''} alone "
-                             f"changes this outcome")
+                to = est.get("loto_flip_outcomes") or {}
+                named = [f"{f} ({to[f]})" if f in to else f for f in flips[:3]]
+                notes.append(f"dropping {' or '.join(named)}{' (or another of ' + str(len(flips)) + ')' if len(flips) > 3 else ''}"
+                             " alone changes the outcome (to the one in brackets)")
             if res == "better" and losses > wins:
                 notes.append(f"it loses more {unit} than it wins" + (" (the majority)" if losses > 0.5 else ""))
             if res == "worse" and wins > losses:
