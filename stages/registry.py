@@ -11,14 +11,13 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
-import importlib.util
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.infra.cache import source_fingerprint
 from pipeline.infra.outputs import OUTPUTS
 
 PACKAGES = ("pipeline", "loaders", "stages", "reports")   # the project's import floors
+ROOT = Path(__file__).resolve().parents[1]                 # the source tree they live in
 
 
 @dataclass(frozen=True)
@@ -73,13 +72,19 @@ def output_path(cfg, stage: str, key: str) -> Path:
 # Code dependencies, from the imports
 
 def _module_file(name: str) -> Path | None:
-    try:
-        spec = importlib.util.find_spec(name)
-    except (ImportError, ValueError):
+    """The source file of project module ``name``, found by path in the source tree: ``a/b.py`` or
+    ``a/b/__init__.py`` under the repository root. Nothing is imported (``importlib.util.find_spec``
+    would import the parent packages, and with them torch), so ``viewfuse status`` stays fast."""
+    if not name or not _is_project(name):
         return None
-    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
+    parts = name.split(".")
+    if not all(p.isidentifier() for p in parts):
         return None
-    return Path(spec.origin)
+    base = ROOT.joinpath(*parts)
+    for cand in (base.with_name(parts[-1] + ".py"), base / "__init__.py"):
+        if cand.is_file():
+            return cand
+    return None
 
 
 def _is_project(name: str) -> bool:
@@ -88,21 +93,16 @@ def _is_project(name: str) -> bool:
 
 def _imports_of(name: str, path: Path) -> set[str]:
     """Project modules imported anywhere in one file (top level and inside functions)."""
-    tree = ast.parse(path.read_text(), filename=str(path))
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".")
-                parts = parts[: len(parts) - (node.level - 1)]
-                base = ".".join(parts + ([base] if base else []))
-            found.add(base)
-            # "from pipeline import experiments": the name may itself be a module
-            found.update(f"{base}.{a.name}" for a in node.names if _module_file(f"{base}.{a.name}"))
+    for level, base, names in _source(path).imports:
+        if level:
+            parts = package.split(".")
+            parts = parts[: len(parts) - (level - 1)]
+            base = ".".join(parts + ([base] if base else []))
+        found.add(base)
+        # "from pipeline import experiments": the name may itself be a module
+        found.update(f"{base}.{a}" for a in names if _module_file(f"{base}.{a}"))
     out: set[str] = set()
     for mod in found:
         if not _is_project(mod):
@@ -110,6 +110,58 @@ def _imports_of(name: str, path: Path) -> set[str]:
         parts = mod.split(".")
         out.update(".".join(parts[:i]) for i in range(1, len(parts) + 1))  # packages run __init__ too
     return {m for m in out if _module_file(m) is not None}
+
+
+@dataclass(frozen=True)
+class _Source:
+    """What the registry needs of one source file, from one parse."""
+    fingerprint: str                                        # see source_fingerprint
+    imports: tuple[tuple[int, str, tuple[str, ...]], ...]   # (level, module, names) per import
+    top_level: frozenset[str]                               # names bound at the top level
+
+
+def _source(path: Path) -> _Source:
+    st = path.stat()
+    return _parse(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=1024)
+def _parse(path: str, size: int, mtime_ns: int) -> _Source:
+    # Parsed once per (file, size, mtime): every stage's dependency walk visits most project
+    # modules, and ``viewfuse status`` computes every stage's key.
+    data = Path(path).read_bytes()
+    try:
+        tree = ast.parse(data, filename=path)
+    except (SyntaxError, ValueError):
+        return _Source(hashlib.sha256(data).hexdigest(), (), frozenset())
+    imports: list[tuple[int, str, tuple[str, ...]]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imports.extend((0, a.name, ()) for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            imports.append((node.level, node.module or "", tuple(a.name for a in node.names)))
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    top: set[str] = set()
+    for node in tree.body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            top.add(node.name)
+        elif isinstance(node, ast.Assign):
+            top.update(t.id for t in node.targets if isinstance(t, ast.Name))
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            top.update((a.asname or a.name).split(".")[0] for a in node.names)
+    fp = hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()
+    return _Source(fp, tuple(imports), frozenset(top))
+
+
+def source_fingerprint(path: str | Path) -> str:
+    """sha256 of a Python file's syntax tree without comments and docstrings: editing what code
+    says about itself does not make a stage stale; editing what it does does. A file that does
+    not parse is hashed as bytes."""
+    return _source(Path(path)).fingerprint
 
 
 @functools.lru_cache(maxsize=None)
@@ -142,16 +194,21 @@ def _package_files(pkg: str) -> list[Path]:
 
 def code_version(spec: StageSpec) -> tuple[str, dict[str, str]]:
     """(hash, {module: fingerprint of its code}) over the stage's derived and extra code modules
-    (``pipeline.infra.cache.source_fingerprint``: comments and docstrings do not count)."""
+    (``source_fingerprint``: comments and docstrings do not count)."""
     mods = set(code_deps(spec.module)) | set(spec.code)
     per: dict[str, str] = {}
     for m in sorted(mods):
-        if _module_file(m) is None and importlib.util.find_spec(m) is not None:
-            from pipeline.infra.cache import code_hash  # a package name listed by hand: all its files
-            per[m] = code_hash([m])
-            continue
         path = _module_file(m)
-        if path is not None:
-            per[m] = source_fingerprint(path)
+        if path is None:
+            raise ValueError(f"stage {spec.name!r}: code module {m!r} is not a project module")
+        per[m] = source_fingerprint(path)
     h = hashlib.sha256("".join(f"{k}={v}\n" for k, v in sorted(per.items())).encode()).hexdigest()
     return h, per
+
+
+def defines(module: str, name: str) -> bool | None:
+    """Whether project module ``module`` defines ``name`` at its top level, read off its source
+    without importing it (``viewfuse status`` must not import torch through a stage module); None
+    when the module is not a file of the source tree."""
+    path = _module_file(module)
+    return None if path is None else name in _source(path).top_level

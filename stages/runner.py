@@ -27,7 +27,7 @@ from pipeline.infra.cache import folder_records, hash_json, record_changed, reco
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.progress import echo
-from stages.registry import STAGES, StageSpec, code_version
+from stages.registry import STAGES, StageSpec, code_version, defines
 
 log = logging.getLogger("viewfuse")
 
@@ -84,7 +84,9 @@ def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[s
         "code": code,
         "upstream": upstream,
     }
-    extra_key = getattr(_load(spec), "extra_key", None)
+    # Import the stage module only when it has an extra_key: importing one that does not (evaluate,
+    # report) would pull in pandas and matplotlib just to compute a status.
+    extra_key = None if defines(spec.module, "extra_key") is False else getattr(_load(spec), "extra_key", None)
     if extra_key is not None:
         parts["inputs"] = extra_key(cfg)
     return hash_json(parts), {**parts, "code_modules": per_module}

@@ -2,9 +2,7 @@
 from __future__ import annotations
 
 import contextlib
-import functools
 import hashlib
-import importlib.util
 import json
 import os
 import shutil
@@ -55,55 +53,6 @@ def _json_default(o: Any) -> Any:
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON-serialisable: {type(o)}")
-
-
-def module_files(name: str) -> list[Path]:
-    """Source files of a module, or of every module in a package."""
-    spec = importlib.util.find_spec(name)
-    if spec is None or spec.origin is None:
-        raise ModuleNotFoundError(name)
-    origin = Path(spec.origin)
-    if origin.name == "__init__.py":
-        return sorted(origin.parent.rglob("*.py"))
-    return [origin]
-
-
-def source_fingerprint(path: str | Path) -> str:
-    """sha256 of a Python file's syntax tree without comments and docstrings: editing what code
-    says about itself does not make a stage stale; editing what it does does. A file that does
-    not parse is hashed as bytes. Parsed once per (path, size, mtime): every stage's key needs
-    most project modules, and ``viewfuse status`` computes them all."""
-    st = Path(path).stat()
-    return _fingerprint(str(path), st.st_size, st.st_mtime_ns)
-
-
-@functools.lru_cache(maxsize=1024)
-def _fingerprint(path: str, size: int, mtime_ns: int) -> str:
-    import ast
-
-    data = Path(path).read_bytes()
-    try:
-        tree = ast.parse(data)
-    except (SyntaxError, ValueError):
-        return hashlib.sha256(data).hexdigest()
-    for node in ast.walk(tree):
-        body = getattr(node, "body", None)
-        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
-                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
-                and isinstance(body[0].value.value, str)):
-            node.body = body[1:] or [ast.Pass()]
-    return hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()
-
-
-def code_hash(modules: tuple[str, ...] | list[str]) -> str:
-    """Hash of the code of the given modules/packages (the stage's code version; comments and
-    docstrings do not count: ``source_fingerprint``)."""
-    h = hashlib.sha256()
-    for name in sorted(set(modules)):
-        for f in module_files(name):
-            h.update(f.name.encode())
-            h.update(source_fingerprint(f).encode())
-    return h.hexdigest()
 
 
 # ------------------------------------------------------------------------------------------------
