@@ -2,7 +2,8 @@
 
 Each stage writes into a temporary sibling folder ``.<stage>.tmp``; only when it finishes is that
 folder swapped in and the manifest written, so an interrupted run never leaves output that looks
-complete (and the next run of any stage removes what a killed run left).
+complete (and the next run of any stage removes what a killed run left). Where the runner may
+write, the per-stage lock and the swap are ``stages.run_folder``.
 
 A manifest records the stage's key (config sections, code version, upstream digests, the stage's
 ``extra_key``), the sha256 of every output file and of every dataset file the stage read. A stage
@@ -23,15 +24,17 @@ from pathlib import Path
 from typing import Any
 
 from loaders.errors import SkipPolicy
-from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, replace_dir, write_json
+from loaders.files import set_max_megapixels
+from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.progress import echo
 from stages.registry import STAGES, StageSpec, code_version, defines
+from stages.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
+                               stage_lock, stage_paths, swap_in)
 
 log = logging.getLogger("viewfuse")
 
-OWNER = ".owner"  # pid of the process writing a temporary stage folder
 
 
 @dataclass
@@ -174,29 +177,34 @@ def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto",
     spec = STAGES[name]
     up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys) for u in spec.upstream}
     key, parts = stage_key(cfg, spec, up)
-    final = cfg.stage_dir(name)
-    if not force:
-        why = stale_reason(cfg, name, key, parts)
-        if why is None:
-            echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
-            keys[name] = digest(read_manifest(cfg, name) or {})
-            return keys[name]
-        if not why.startswith("missing"):
-            echo(f"[{name}] stale: {why}")
-    manifest = run_stage(cfg, spec, key, parts, device=device, threads=threads)
+    final = stage_paths(cfg, name).final
+    # One run of a stage at a time: a second one waits here, then finds the first one's output.
+    with stage_lock(cfg, name):
+        recover_swap(cfg, name)
+        if not force:
+            why = stale_reason(cfg, name, key, parts)
+            if why is None:
+                echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
+                keys[name] = digest(read_manifest(cfg, name) or {})
+                return keys[name]
+            if not why.startswith("missing"):
+                echo(f"[{name}] stale: {why}")
+        manifest = run_stage(cfg, spec, key, parts, device=device, threads=threads)
     keys[name] = digest(manifest)
     return keys[name]
 
 
 def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: str, threads: int) -> dict:
+    """Run one stage into its temporary folder and swap it in; the caller holds the stage's lock."""
     mod = _load(spec)
-    final = cfg.stage_dir(spec.name)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = final.with_name(f".{spec.name}.tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)  # left by an interrupted run
-    tmp.mkdir(parents=True)
-    (tmp / OWNER).write_text(str(os.getpid()))
+    paths = stage_paths(cfg, spec.name)
+    final, tmp = paths.final, paths.tmp
+    paths.run_dir.mkdir(parents=True, exist_ok=True)
+    if tmp.exists() or tmp.is_symlink():
+        remove_leftover(tmp, required=True)  # left by an interrupted run (we hold the lock)
+    tmp.mkdir()
+    mark_owned(tmp)
+    set_max_megapixels(cfg.data.max_image_megapixels)  # the dataset readers' image size limit
     ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads,
                        skips=SkipPolicy.from_config(cfg))
     echo(f"[{spec.name}] running: {spec.help}")
@@ -204,11 +212,10 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     try:
         with recording_inputs() as rec:
             summary = mod.run(ctx)
-        (tmp / OWNER).unlink()
         # Files in the run folder are upstream outputs, already covered by the upstream digests;
         # leaving them out also keeps a moved artifacts folder valid.
         inputs = rec.records(exclude=cfg.run_dir)
-        outputs = folder_records(tmp, skip=(MANIFEST,))
+        outputs = folder_records(tmp, skip=(MANIFEST, OWNER))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -228,47 +235,12 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         "inputs": inputs,
     }
     write_json(tmp / MANIFEST, manifest)
-    replace_dir(tmp, final)
-    # mtimes survive the rename, so the records still match the final files.
+    swap_in(paths)
     echo(f"[{spec.name}] done in {_fmt(elapsed)}: {summary} -> {final}")
     if ctx.skips.count:
         echo(f"[{spec.name}] {ctx.skips.count} bad entr{'y' if ctx.skips.count == 1 else 'ies'} skipped "
              f"(data.skip_bad_views); see {final / MANIFEST} 'extra.skipped'")
     return manifest
-
-
-def remove_orphans(cfg: Config) -> list[Path]:
-    """Remove ``.<stage>.tmp`` / ``.<stage>.old`` folders that no live process is writing (left by a
-    killed run); return what was removed."""
-    run_dir = cfg.run_dir
-    removed = []
-    if not run_dir.is_dir():
-        return removed
-    for p in run_dir.iterdir():
-        if not (p.is_dir() and p.name.startswith(".") and p.name.endswith((".tmp", ".old"))):
-            continue
-        if _writer_alive(p / OWNER):
-            continue
-        shutil.rmtree(p, ignore_errors=True)
-        removed.append(p)
-        log.info("removed %s, left by an interrupted run", p)
-    return removed
-
-
-def _writer_alive(owner: Path) -> bool:
-    try:
-        pid = int(owner.read_text())
-    except (OSError, ValueError):
-        return False
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _fmt(s: float) -> str:

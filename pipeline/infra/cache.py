@@ -5,7 +5,6 @@ import contextlib
 import hashlib
 import json
 import os
-import shutil
 import tempfile
 import threading
 import zipfile
@@ -233,17 +232,3 @@ def write_text(path: str | Path, text: str) -> None:
 def write_bytes(path: str | Path, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
-
-
-def replace_dir(tmp_dir: Path, final_dir: Path) -> None:
-    """Swap a finished temporary folder into place (old one removed first)."""
-    final_dir = Path(final_dir)
-    if final_dir.exists():
-        trash = final_dir.with_name(f".{final_dir.name}.old")
-        if trash.exists():
-            shutil.rmtree(trash)
-        os.replace(final_dir, trash)
-        os.replace(tmp_dir, final_dir)
-        shutil.rmtree(trash, ignore_errors=True)
-    else:
-        os.replace(tmp_dir, final_dir)

@@ -122,6 +122,9 @@ class DataConfig:
     seed: int = _f(0, lo=0, hi=SEED_MAX)
     skip_bad_views: bool = _f(True, doc="every stage reading the data counts, logs and skips bad entries "
                                          "(images, boxes, poses) in its manifest; false = the first one stops the stage")
+    max_image_megapixels: float = _f(64.0, lo=0.01, hi=10000.0,
+                                     doc="images whose header declares more pixels are bad entries, not decoded "
+                                         "(real BigBIRD views are 1.3 MP, AVD images 2.1 MP)")
     synthetic: SyntheticDataConfig = _f(factory=SyntheticDataConfig)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -181,8 +182,13 @@ class Config:
         return p if p.is_absolute() else self.root / p
 
     @property
+    def artifacts_dir(self) -> Path:
+        """The artifacts root, absolute and normalised (``..`` folded away)."""
+        return Path(os.path.abspath(self.resolve(self.run.artifacts)))
+
+    @property
     def run_dir(self) -> Path:
-        return self.resolve(self.run.artifacts) / self.run.name
+        return self.artifacts_dir / self.run.name
 
     def stage_dir(self, stage: str) -> Path:
         return self.run_dir / stage
