@@ -35,6 +35,8 @@ from stages.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover,
 
 log = logging.getLogger("viewfuse")
 
+HASHES = "\0hashes"  # ensure()'s per-run memo of file hashes, kept in its digest dict
+
 
 
 @dataclass
@@ -120,8 +122,9 @@ def _key_reason(old: dict, new: dict) -> str:
     return "cache key changed"
 
 
-def stale_reason(cfg: Config, name: str, key: str, parts: dict) -> str | None:
-    """None when stage ``name`` is up to date for ``key``; otherwise why not."""
+def stale_reason(cfg: Config, name: str, key: str, parts: dict, verify: dict | None = None) -> str | None:
+    """None when stage ``name`` is up to date for ``key``; otherwise why not. ``verify``: hash the
+    stage's outputs against their recorded sha256 (memo for one run; see ``record_changed``)."""
     m = read_manifest(cfg, name)
     if m is None:
         return "missing (never run here)"
@@ -131,7 +134,7 @@ def stale_reason(cfg: Config, name: str, key: str, parts: dict) -> str | None:
     if "outputs" not in m:
         return "manifest predates content hashes"
     for rel, rec in m["outputs"].items():
-        why = record_changed(final / rel, rec)
+        why = record_changed(final / rel, rec, verify)
         if why:
             return f"output {final / rel} {why}"
     for path, rec in (m.get("inputs") or {}).items():
@@ -169,20 +172,24 @@ def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
 # Running
 
 def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto", threads: int = 0,
-           _keys: dict[str, str] | None = None) -> str:
-    """Bring stage ``name`` up to date (upstream first); return its digest."""
+           _keys: dict[str, str] | None = None, _hashes: dict | None = None) -> str:
+    """Bring stage ``name`` up to date (upstream first); return its digest. A stage found up to
+    date has had its outputs' sha256 checked against its manifest (each file hashed once per run,
+    ``_hashes``), so an output edited with its size and mtime restored is caught before a
+    downstream stage uses it: the stage reruns."""
     keys = {} if _keys is None else _keys
+    hashes = keys.setdefault(HASHES, {}) if _hashes is None else _hashes
     if name in keys:
         return keys[name]
     spec = STAGES[name]
-    up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys) for u in spec.upstream}
+    up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys, _hashes=hashes) for u in spec.upstream}
     key, parts = stage_key(cfg, spec, up)
     final = stage_paths(cfg, name).final
     # One run of a stage at a time: a second one waits here, then finds the first one's output.
     with stage_lock(cfg, name):
         recover_swap(cfg, name)
         if not force:
-            why = stale_reason(cfg, name, key, parts)
+            why = stale_reason(cfg, name, key, parts, verify=hashes)
             if why is None:
                 echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
                 keys[name] = digest(read_manifest(cfg, name) or {})

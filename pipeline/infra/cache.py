@@ -67,18 +67,29 @@ def file_record(path: str | Path, data: bytes | None = None, known: dict | None 
     return {"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
-def record_changed(path: str | Path, rec: dict) -> str | None:
-    """Why ``path`` no longer matches ``rec`` ("missing", "content changed"), or None. Same size and
-    mtime is trusted; otherwise the bytes are hashed, so a touched but identical file matches."""
+def record_changed(path: str | Path, rec: dict, verify: dict | None = None) -> str | None:
+    """Why ``path`` no longer matches ``rec`` ("missing", "content changed"), or None.
+
+    Without ``verify`` (``viewfuse status``), the same size and mtime are trusted: a fast path
+    that a byte edit with the mtime restored fools. With ``verify`` (a dict kept for one run), the
+    bytes are always hashed, once per run per file state, and compared with the recorded sha256:
+    what a stage about to use an upstream output does."""
     try:
         st = os.stat(path)
     except FileNotFoundError:
         return "missing"
-    if st.st_size == rec.get("size") and st.st_mtime_ns == rec.get("mtime_ns"):
-        return None
     if st.st_size != rec.get("size"):
         return f"content changed (size {rec.get('size')} -> {st.st_size} bytes)"
-    return None if sha256_file(path) == rec.get("sha256") else "content changed (sha256 differs)"
+    if verify is None:
+        if st.st_mtime_ns == rec.get("mtime_ns"):
+            return None
+        digest = sha256_file(path)
+    else:
+        k = (os.path.abspath(path), st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+        digest = verify.get(k)
+        if digest is None:
+            digest = verify[k] = sha256_file(path)
+    return None if digest == rec.get("sha256") else "content changed (sha256 differs)"
 
 
 def folder_records(folder: str | Path, skip: tuple[str, ...] = (), previous: dict | None = None) -> dict:
