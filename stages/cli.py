@@ -186,7 +186,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     where = f"viewfuse {args.stage}"
     try:
-        return _main(args)
+        rc = _main(args)
+        sys.stdout.flush()  # a closed pipe shows here, inside the boundary, not at exit
+        return rc
     except BrokenPipeError:
         # The reader went away: stop quietly, and keep Python from complaining at exit.
         with contextlib.suppress(OSError, ValueError):

@@ -116,6 +116,9 @@ def recover_swap(cfg: Config, stage: str) -> str | None:
     if done is None:
         return None
     (final / OWNER).unlink(missing_ok=True)
+    for p in (tmp, old):  # what is left is the swap's trash or an unfinished output, both marked
+        if p.exists() or p.is_symlink():
+            remove_leftover(p)
     echo(f"[{stage}] {done}")
     return done
 
