@@ -8,9 +8,10 @@ inside functions) — so an edit anywhere a stage can reach reruns it.
 """
 from __future__ import annotations
 
-import ast
+import dis
 import functools
 import hashlib
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -117,7 +118,7 @@ class _Source:
     """What the registry needs of one source file, from one parse."""
     fingerprint: str                                        # see source_fingerprint
     imports: tuple[tuple[int, str, tuple[str, ...]], ...]   # (level, module, names) per import
-    top_level: frozenset[str]                               # names bound at the top level
+    top_level: frozenset[str]                               # names the module's top level uses
 
 
 def _source(path: Path) -> _Source:
@@ -125,42 +126,86 @@ def _source(path: Path) -> _Source:
     return _parse(str(path), st.st_size, st.st_mtime_ns)
 
 
+# Import statements, found in the source text: ``import a.b as c, d`` and ``from .x import (y, z)``
+# at any indentation (imports inside functions count). Faster than building the syntax tree, and
+# tests/test_status_imports.py checks it finds exactly what the tree holds in every project file;
+# an import-like line inside a string can only add a dependency, never lose one.
+_IMPORT_RE = re.compile(r"(?:^|;)[ \t]*(?:from[ \t]+(\.*)[ \t]*([\w.]*)[ \t]+import[ \t]+"
+                        r"(\([^)]*\)|[^\n#;\\]*(?:\\\n[^\n#;\\]*)*)"
+                        r"|import[ \t]+([^\n#;\\]*(?:\\\n[^\n#;\\]*)*))", re.M)
+
+
+def scan_imports(text: str) -> tuple[tuple[int, str, tuple[str, ...]], ...]:
+    """(level, module, imported names) of every import statement in a source text."""
+    out: list[tuple[int, str, tuple[str, ...]]] = []
+    for m in _IMPORT_RE.finditer(text):
+        if m.group(4) is not None:
+            for part in _names(m.group(4)):
+                out.append((0, part, ()))
+        else:
+            out.append((len(m.group(1)), m.group(2), tuple(_names(m.group(3)))))
+    return tuple(out)
+
+
+def _names(text: str) -> list[str]:
+    text = re.sub(r"#[^\n]*", "", text).replace("\\\n", " ").strip().strip("()")
+    names = [t.split(" as ")[0].strip() for t in text.split(",")]
+    return [n for n in names if _DOTTED.fullmatch(n)]
+
+
+_DOTTED = re.compile(r"[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*")
+
+
 @functools.lru_cache(maxsize=1024)
 def _parse(path: str, size: int, mtime_ns: int) -> _Source:
-    # Parsed once per (file, size, mtime): every stage's dependency walk visits most project
+    # Read once per (file, size, mtime): every stage's dependency walk visits most project
     # modules, and ``viewfuse status`` computes every stage's key.
     data = Path(path).read_bytes()
     try:
-        tree = ast.parse(data, filename=path)
+        # optimize=2 leaves docstrings out of the code (and assert statements, which the project
+        # does not use); the byte code never holds comments or line numbers outside the tables
+        # _code_digest skips.
+        code = compile(data, path, "exec", dont_inherit=True, optimize=2)
     except (SyntaxError, ValueError):
         return _Source(hashlib.sha256(data).hexdigest(), (), frozenset())
-    imports: list[tuple[int, str, tuple[str, ...]]] = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            imports.extend((0, a.name, ()) for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            imports.append((node.level, node.module or "", tuple(a.name for a in node.names)))
-        body = getattr(node, "body", None)
-        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
-                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
-                and isinstance(body[0].value.value, str)):
-            node.body = body[1:] or [ast.Pass()]
-    top: set[str] = set()
-    for node in tree.body:
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
-            top.add(node.name)
-        elif isinstance(node, ast.Assign):
-            top.update(t.id for t in node.targets if isinstance(t, ast.Name))
-        elif isinstance(node, (ast.Import, ast.ImportFrom)):
-            top.update((a.asname or a.name).split(".")[0] for a in node.names)
-    fp = hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()
-    return _Source(fp, tuple(imports), frozenset(top))
+    h = hashlib.sha256()
+    _code_digest(code, h)
+    return _Source(h.hexdigest(), scan_imports(data.decode("utf-8", "replace")), frozenset(code.co_names))
+
+
+def _code_digest(co, h) -> None:
+    """What a code object does: its byte code, names, argument layout and constants (recursively),
+    not where it sits in the file (line tables, first line, file name)."""
+    code = co.co_code
+    # The NOPs stand for lines without code (a docstring left out): what the code says about
+    # itself, not what it does. Instructions are 2-byte units; inline caches are never NOPs.
+    h.update(b"".join(code[i:i + 2] for i in range(0, len(code), 2) if code[i] != _NOP))
+    h.update(co.co_exceptiontable)
+    h.update(repr((co.co_name, co.co_names, co.co_varnames, co.co_freevars, co.co_cellvars, co.co_argcount,
+                   co.co_posonlyargcount, co.co_kwonlyargcount, co.co_flags)).encode())
+    for c in co.co_consts:
+        if hasattr(c, "co_code"):
+            _code_digest(c, h)
+        else:
+            h.update(_const_repr(c).encode())
+
+
+_NOP = dis.opmap["NOP"]
+
+
+def _const_repr(c) -> str:
+    # frozenset constants ("x in {'a', 'b'}") print in hash order, which varies between processes
+    if isinstance(c, frozenset):
+        return "frozenset(" + ",".join(sorted(_const_repr(x) for x in c)) + ")"
+    if isinstance(c, tuple):
+        return "(" + ",".join(_const_repr(x) for x in c) + ")"
+    return f"{type(c).__name__}:{c!r}"
 
 
 def source_fingerprint(path: str | Path) -> str:
-    """sha256 of a Python file's syntax tree without comments and docstrings: editing what code
-    says about itself does not make a stage stale; editing what it does does. A file that does
-    not parse is hashed as bytes."""
+    """sha256 of what a Python file's code does (its compiled byte code and constants) without
+    comments, docstrings or line numbers: editing what code says about itself does not make a
+    stage stale; editing what it does does. A file that does not compile is hashed as bytes."""
     return _source(Path(path)).fingerprint
 
 
@@ -207,8 +252,8 @@ def code_version(spec: StageSpec) -> tuple[str, dict[str, str]]:
 
 
 def defines(module: str, name: str) -> bool | None:
-    """Whether project module ``module`` defines ``name`` at its top level, read off its source
-    without importing it (``viewfuse status`` must not import torch through a stage module); None
-    when the module is not a file of the source tree."""
+    """Whether project module ``module`` may define ``name`` at its top level (its top-level code
+    uses the name), read off its compiled source without importing it (``viewfuse status`` must not
+    import torch through a stage module); None when the module is not a file of the source tree."""
     path = _module_file(module)
     return None if path is None else name in _source(path).top_level

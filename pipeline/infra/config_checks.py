@@ -6,9 +6,8 @@ fits (``pipeline/method/gp_fit.py``) and the simulation use it.
 """
 from __future__ import annotations
 
+import math
 import re
-
-import numpy as np
 
 from pipeline.infra.config_schema import ConfigError
 from pipeline.infra.config_sections import ABLATION_KEYS, Config, SimulateConfig
@@ -25,7 +24,7 @@ def bounds_problem(b) -> str | None:
     if len(b) != 2:
         return f"must be [low, high], got {len(b)} value(s)"
     lo, hi = float(b[0]), float(b[1])
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
         return f"must be [low, high] with 0 < low < high, got {list(b)}"
     return None
 
@@ -158,11 +157,13 @@ def check_simulate(sim: SimulateConfig, where: str = "config") -> None:
         need(len(v) == n * A,
              f"'simulate.{key}' must hold {n} scores per angle of 'simulate.view_angles_deg' "
              f"({n} x {A} = {n * A} values), got {len(v)}")
-        rows = np.asarray(v, float).reshape(A, n)
-        bad = np.flatnonzero(np.abs(rows.sum(axis=1) - 1.0) > 0.05)
-        need(bad.size == 0, f"'simulate.{key}': the score vector at angle "
-             f"{sim.view_angles_deg[bad[0]] if bad.size else 0:g}° sums to "
-             f"{rows[bad[0]].sum() if bad.size else 1:.3f}, not 1 (scores must be probability-like)")
+        if len(v) != n * A:
+            continue  # (raised above)
+        sums = [math.fsum(v[i * n:(i + 1) * n]) for i in range(A)]
+        bad = [i for i, t in enumerate(sums) if abs(t - 1.0) > 0.05]
+        need(not bad, f"'simulate.{key}': the score vector at angle "
+             f"{sim.view_angles_deg[bad[0]] if bad else 0:g}° sums to "
+             f"{sums[bad[0]] if bad else 1:.3f}, not 1 (scores must be probability-like)")
     need(len(sim.class_names) == n and len(set(sim.class_names)) == n,
          f"'simulate.class_names' must list {n} distinct names")
     need(len(sim.track_start) == 2, "'simulate.track_start' must be [x, y]")
