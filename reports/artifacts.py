@@ -1,15 +1,13 @@
 """The one reader of a run's artifacts for both reports: checked, and never running code.
 
 Parquet, JSON and ``np.load(allow_pickle=False)`` only. Every problem is a ``BadInputError``
-naming the file. MGR reaches the reports as log10 only: a results table that still carries the
-natural-log column ``log_mgr`` (runs before the population evaluation, the simulate stage) gets
-``log10_mgr`` derived from it here, so no figure or table ever sees another base.
+naming the file. MGR reaches the reports as log10 only (the ``log10_mgr`` column every results
+writer writes, ``pipeline.evaluation.results``); a table without it is refused, naming the file.
 """
 from __future__ import annotations
 
 import json
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -20,12 +18,13 @@ import pandas as pd
 from loaders.errors import BadInputError
 from pipeline.infra.cache import NpzFileError, load_npz
 from pipeline.evaluation.labels import METHODS
+from pipeline.evaluation.metrics import STEP_COLUMNS
 
 log = logging.getLogger("viewfuse.report")
 
 # The main report never needs the posterior vectors: leaving them unread keeps loading fast.
 RESULT_COLUMNS = ("experiment", "setting", "sigma_m", "bias_x", "bias_y", "realization", "step",
-                  "method", "p_truth", "log10_mgr", "msde", "correct")
+                  "method", *STEP_COLUMNS)
 POPULATION_COLUMNS = ("variant", "target", "track")
 GP_ARRAYS = ("grid", "raster_mean", "raster_std", "ring_theta", "ring_mean", "ring_std",
              "train_theta", "train_y")
@@ -56,8 +55,7 @@ def read_npz(path: Path, required: Iterable[str]) -> dict[str, np.ndarray]:
 def read_result_table(path: Path, required: Iterable[str], *, optional: Iterable[str] = (),
                       missing_hint: str = "") -> tuple[pd.DataFrame, dict[str, Any]]:
     """A results Parquet file (only ``required`` + present ``optional`` columns) and its
-    ``viewfuse.*`` metadata (prefix dropped, classes parsed). ``log10_mgr`` may come from an
-    older natural-log ``log_mgr`` column."""
+    ``viewfuse.*`` metadata (prefix dropped, classes parsed)."""
     import pyarrow.parquet as pq
 
     path = Path(path)
@@ -69,25 +67,16 @@ def read_result_table(path: Path, required: Iterable[str], *, optional: Iterable
         raise BadInputError(path, f"not a readable Parquet file ({e})") from None
     have = set(schema.names)
     cols = [c for c in required if c in have]
-    legacy = "log10_mgr" in required and "log10_mgr" not in have and "log_mgr" in have
-    missing = [c for c in required if c not in have and not (c == "log10_mgr" and legacy)]
+    missing = [c for c in required if c not in have]
     if missing:
-        raise BadInputError(path, f"missing column(s) {', '.join(missing)}")
-    cols += [c for c in optional if c in have and c not in cols] + (["log_mgr"] if legacy else [])
+        raise BadInputError(path, f"missing column(s) {', '.join(missing)} (a run from an older version: "
+                                  "rerun its stage)")
+    cols += [c for c in optional if c in have and c not in cols]
     try:
         df = pq.read_table(path, columns=cols).to_pandas()
     except Exception as e:
         raise BadInputError(path, f"not a readable Parquet file ({e})") from None
-    if legacy:
-        df["log10_mgr"] = df.pop("log_mgr") / math.log(10.0)
     return df, _metadata(path, schema.metadata)
-
-
-def with_log10_mgr(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` with a ``log10_mgr`` column (derived from a natural-log ``log_mgr`` where needed)."""
-    if "log10_mgr" in df or "log_mgr" not in df:
-        return df
-    return df.assign(log10_mgr=df["log_mgr"] / math.log(10.0))
 
 
 def _metadata(path: Path, raw) -> dict[str, Any]:
@@ -236,7 +225,7 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
 
 
 # -- the simulate stage's outputs --------------------------------------------------------------
-SIM_COLUMNS = ("scenario", "realization", "step", "method", "p_truth", "log10_mgr", "msde", "correct")
+SIM_COLUMNS = ("scenario", "realization", "step", "method", *STEP_COLUMNS)
 EXAMPLE_COLUMNS = ("scenario", "step", "component", "true_x", "true_y", "est_x", "est_y", "nominal",
                    "noised", "sigma_u2", "samples", "class_mean", "class_std", "class_mean_est")
 

@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 from pipeline.infra.progress import bar as progress_bar
 
-from pipeline.evaluation.labels import MGR_AXIS_LABEL
+from pipeline.evaluation.metrics import MGR_AXIS_LABEL
 from reports import sections_track as track_sections
 from reports import sections_verdict as verdict_sections
 from reports.artifacts import load_run

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
+from pipeline.evaluation.labels import MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label
+from pipeline.evaluation.metrics import MGR_AXIS_LABEL, metric_label
 from reports.artifacts import load_simulate
 from reports.figures import new_subplots, percentile_bands, save
 from reports.html import HtmlReport

@@ -21,7 +21,8 @@ from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
 from pipeline.method.gp import GPClassModels
-from pipeline.evaluation.labels import COMPARISONS, METHODS, METRICS
+from pipeline.evaluation.labels import COMPARISONS, METHODS
+from pipeline.evaluation.metrics import METRICS
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.popstats import population_block
 from pipeline.evaluation.results import cell_metrics, metadata, result_block, write_results

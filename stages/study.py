@@ -139,7 +139,8 @@ def summarize(results: dict[int, dict]) -> dict:
 def entry_label(key: str) -> str:
     """'with_uncertainty-model_based / correct_final' -> 'With Uncertainty vs Model Based, correct
     ratio, final step' (keys that are not (comparison / metric) are shown as they are)."""
-    from pipeline.evaluation.labels import method_label, metric_label
+    from pipeline.evaluation.labels import method_label
+    from pipeline.evaluation.metrics import metric_label
 
     comp, _, metric = key.partition(" / ")
     a, _, b = comp.partition("-")
@@ -202,7 +203,8 @@ def _accuracy(seed: dict) -> str:
 def render_html(summary: dict, run_name: str) -> str:
     """One page: the answer (does the verdict hold across seeds), the outcome per entry and seed,
     then the pooled values with their CIs and every seed's verdict sentences."""
-    from pipeline.evaluation.labels import method_label, metric_label, ordered_methods
+    from pipeline.evaluation.labels import method_label, ordered_methods
+    from pipeline.evaluation.metrics import metric_label
 
     seeds = [str(s) for s in summary["seeds"]]
     per = summary["per_seed"]
