@@ -17,6 +17,8 @@ import pandas as pd
 
 from loaders.errors import BadInputError
 from pipeline.infra.cache import NpzFileError, load_npz
+from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import path as out_path
 from pipeline.evaluation.labels import METHODS
 from pipeline.evaluation.metrics import STEP_COLUMNS
 
@@ -150,21 +152,22 @@ def load_evaluate(evaluate_dir: str | Path) -> EvaluateOutputs:
     if not d.is_dir():
         raise BadInputError(d, "evaluate output folder not found; run `viewfuse evaluate` first")
     out = EvaluateOutputs()
-    if (d / "results.parquet").is_file():
-        out.results, out.meta = read_results(d / "results.parquet")
-    if (d / "track.json").is_file():
-        out.track = read_json(d / "track.json")
-    if (d / "summary.json").is_file():
-        out.summary = read_json(d / "summary.json")
-    if (d / "gp_models.npz").is_file():
-        out.gp = read_npz(d / "gp_models.npz", GP_ARRAYS)
-        _check_gp(d / "gp_models.npz", out.gp)
-    if (d / "bias_maps.npz").is_file():
-        out.bias_maps = read_npz(d / "bias_maps.npz", ("bias_x", "bias_y", "posterior"))
-        _check_bias_maps(d / "bias_maps.npz", out.bias_maps)
+    p = {k: out_path(d, "evaluate", k) for k in ("results", "track", "summary", "gp_models", "bias_maps")}
+    if p["results"].is_file():
+        out.results, out.meta = read_results(p["results"])
+    if p["track"].is_file():
+        out.track = read_json(p["track"])
+    if p["summary"].is_file():
+        out.summary = read_json(p["summary"])
+    if p["gp_models"].is_file():
+        out.gp = read_npz(p["gp_models"], GP_ARRAYS)
+        _check_gp(p["gp_models"], out.gp)
+    if p["bias_maps"].is_file():
+        out.bias_maps = read_npz(p["bias_maps"], ("bias_x", "bias_y", "posterior"))
+        _check_bias_maps(p["bias_maps"], out.bias_maps)
     if all(v is None for v in (out.results, out.track, out.gp, out.bias_maps, out.summary)):
-        raise BadInputError(d, "no evaluate outputs found (expected results.parquet, track.json, "
-                               "gp_models.npz, bias_maps.npz or summary.json)")
+        raise BadInputError(d, "no evaluate outputs found (expected "
+                               + ", ".join(f.name for f in p.values()) + ")")
     return out
 
 
@@ -211,11 +214,11 @@ class RunArtifacts:
 def load_run(run_dir: str | Path) -> RunArtifacts:
     d = Path(run_dir)
     ev = load_evaluate(d / "evaluate")
-    idx = d / "models" / "index.json"
-    card = d / "classifier" / "card.json"
+    idx = out_path(d / "models", "models", "index")
+    card = out_path(d / "classifier", "classifier", "card")
     manifests = {}
     for s in STAGES:
-        p = d / s / "manifest.json"
+        p = d / s / MANIFEST
         if p.is_file():
             m = read_json(p)
             if isinstance(m, dict):
@@ -249,7 +252,7 @@ class SimOutputs:
 def load_simulate(folder: str | Path) -> SimOutputs:
     d = Path(folder)
     hint = "run `viewfuse simulate` first"
-    df, meta = read_result_table(d / "results.parquet", SIM_COLUMNS, missing_hint=hint)
-    ex, _ = read_result_table(d / "example.parquet", EXAMPLE_COLUMNS, missing_hint=hint)
-    sp = d / "summary.json"
+    df, meta = read_result_table(out_path(d, "simulate", "results"), SIM_COLUMNS, missing_hint=hint)
+    ex, _ = read_result_table(out_path(d, "simulate", "example"), EXAMPLE_COLUMNS, missing_hint=hint)
+    sp = out_path(d, "simulate", "summary")
     return SimOutputs(df, ex, meta, read_json(sp) if sp.is_file() else {})

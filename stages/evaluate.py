@@ -2,8 +2,9 @@
 its statistics and verdict, and the single-track figures for the first target's first track.
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
-experiments and the statistics are pure functions in ``pipeline.evaluation.population``,
-``pipeline.evaluation.experiments`` and ``pipeline.evaluation.popstats``; cells run on ``run.executor``.
+experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.population``,
+``pipeline.evaluation.experiments``, ``pipeline.evaluation.metrics``, ``pipeline.evaluation.popstats``
+and ``pipeline.evaluation.population_summary``; cells run on ``run.executor``.
 """
 from __future__ import annotations
 
@@ -21,16 +22,12 @@ from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
 from pipeline.method.gp import GPClassModels
-from pipeline.evaluation.labels import COMPARISONS, METHODS
-from pipeline.evaluation.metrics import METRICS
 from pipeline.infra.outputs import name as out_name
-from pipeline.evaluation.popstats import population_block
-from pipeline.evaluation.results import cell_metrics, metadata, result_block, write_results
+from pipeline.evaluation.population_summary import DEFAULT, cell_table, population_summary, result_blocks
+from pipeline.evaluation.results import metadata, result_block, write_results
 from pipeline.evaluation.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
-
-DEFAULT = "default"
 
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
@@ -40,7 +37,8 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     for a in ablations:
         sub = index.get("ablations", {}).get(a)
         if sub is None:
-            raise ValueError(f"{models_dir / 'index.json'}: no model bank for ablation {a!r} (rerun the models stage)")
+            raise ValueError(f"{models_dir / out_name('models', 'index')}: no model bank for ablation {a!r} "
+                             "(rerun the models stage)")
         banks[a] = GPClassModels.load(models_dir / sub)
         indexes[a] = _read_index(models_dir / sub)
     return banks, indexes
@@ -122,89 +120,6 @@ def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dic
     return cells, tracks, skipped
 
 
-def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
-    """One row per (variant, target, track, setting, method) with the cell's metrics."""
-    rows = []
-    for cell, res in zip(cells, results):
-        for (experiment, label), posts in res["posts"].items():
-            for method, lp in posts.items():
-                rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
-                             "experiment": experiment, "setting": label, "method": method,
-                             **cell_metrics(lp, cell.truth)})
-    return pd.DataFrame(rows)
-
-
-def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
-    out = []
-    for cell, res in zip(cells, results):
-        by_label = {(s.experiment, s.label): s for s in cell.settings}
-        for key, posts in res["posts"].items():
-            s = by_label[key]
-            out.append(result_block(posts, cell.truth, variant=cell.variant, experiment=s.experiment, setting=s.label,
-                                    sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
-                                    scan=cell.scan, target=cell.target, track=cell.track,
-                                    candidates=",".join(cell.classes), truth=cell.truth))
-    return out
-
-
-def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
-                       tracks: list[P.TrackInfo], skipped: list[dict]) -> dict:
-    ev = cfg.evaluate
-    metrics = list(METRICS)
-    methods = [m for m in METHODS if m in set(table["method"])]
-    settings = P.population_settings(ev)
-    default = table[table["variant"] == DEFAULT]
-    n_targets = default["target"].nunique()
-    n_tracks = len(tracks)
-    scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
-    block = population_block(default, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope)
-    by_setting = {}
-    for s in settings:
-        sub = default[default["setting"] == s.label]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                             f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False)
-        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}
-    ablations = {}
-    for a in ev.ablations:
-        sub = table[table["variant"] == a]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope, per_target=False)
-        key, value = (t.strip() for t in a.split("=", 1))
-        ablations[a] = {"override": {key: value}, **{k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}}
-    difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
-                  for c, r in zip(cells, results) if r["difficulty"] is not None]
-    spread = {}
-    for m in methods:
-        v = np.array([d["single_view_first"][m] for d in difficulty])
-        spread[m] = {"min": float(v.min()), "q25": float(np.percentile(v, 25)), "median": float(np.median(v)),
-                     "q75": float(np.percentile(v, 75)), "max": float(v.max()), "mean": float(v.mean())}
-    first = {c.target: c for c in cells if c.variant == DEFAULT}
-    cell_rows = [{"target": t, "track": int(tr), "experiment": e, "setting": s,
-                  "values": {r["method"]: {k: r[k] for k in metrics} for _, r in g.iterrows()}}
-                 for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
-    return {
-        "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
-        "n_cells": int(len(default) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
-        "realizations": ev.randomized.realizations, "n_loc_samples": ev.randomized.n_loc_samples,
-        "methods": methods, "metrics": metrics,
-        "settings": [{"experiment": s.experiment, "setting": s.label, "sigma_m": s.sigma, "bias_m": list(s.bias),
-                      "realizations": s.realizations, "n_loc_samples": s.n_x} for s in settings],
-        "targets": sorted(first), "candidates": {t: list(c.classes) for t, c in sorted(first.items())},
-        "components": {t: list(c.components) for t, c in sorted(first.items())},
-        "unit": ("a cell is one (target, track, setting); its metric is computed over its realizations. "
-                 "Pooled values average tracks' means (over settings) within each target, then targets; "
-                 "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks)."),
-        **block,
-        "by_setting": by_setting,
-        "difficulty": {"tracks": difficulty, "summary": spread,
-                       "meaning": "share of a track's views whose single-view posterior at the true pose ranks "
-                                  "the target first"},
-        "cells": cell_rows,
-        "tracks": [t.as_dict() for t in tracks],
-        "ablations": ablations,
-        "skipped_targets": skipped,
-    }
-
-
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
     """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
@@ -264,7 +179,7 @@ def run(ctx) -> str:
 
     t0 = time.perf_counter()
     table = cell_table(cells, results)
-    population = population_summary(cfg, table, cells, results, tracks, skipped)
+    population = population_summary(cfg.evaluate, table, cells, results, tracks, skipped)
     timings["statistics"] = time.perf_counter() - t0
 
     # The first target's first track: its biased/randomized tables as before, plus the figures.

@@ -25,7 +25,7 @@ from typing import Any
 from loaders.errors import SkipPolicy
 from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, replace_dir, write_json
 from pipeline.infra.config import Config, to_dict
-from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.progress import echo
 from stages.registry import STAGES, StageSpec, code_version
 
@@ -207,6 +207,10 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         # leaving them out also keeps a moved artifacts folder valid.
         inputs = rec.records(exclude=cfg.run_dir)
         outputs = folder_records(tmp, skip=(MANIFEST,))
+        stray = undeclared(spec.name, outputs)
+        if stray:  # the catalog is the one list of what a stage writes
+            raise RuntimeError(f"stage {spec.name!r} wrote output(s) that pipeline/infra/outputs.py does not "
+                               f"declare: {', '.join(stray[:5])}")
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
