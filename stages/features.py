@@ -42,7 +42,7 @@ def extra_key(cfg) -> str:
         return "classifier=missing"
 
 
-def _bigbird_objects(cfg, root, skips) -> list:
+def bigbird_objects(cfg, root, skips) -> list:
     """The object folders to score. A folder with views but no calibration.h5 is one skip naming
     the file (an error with skips off); a calibration that lacks a key the views need is one error
     naming the file and key (every view of the object would fail the same way)."""
@@ -68,13 +68,13 @@ def _bigbird_objects(cfg, root, skips) -> list:
     return objs
 
 
-def _bigbird_jobs(cfg, root, skips, bar) -> Iterator:
+def bigbird_jobs(cfg, root, skips, bar) -> Iterator:
     from pipeline.method.geometry import project_unit_circle
     from pipeline.scoring.features import CropJob
 
     f = cfg.features
     skip = skips.log("bigbird", "BigBIRD view")
-    objs = _bigbird_objects(cfg, root, skips)
+    objs = bigbird_objects(cfg, root, skips)
     bar.reset(total=sum(len(o.views(f.bigbird_cameras)) for o in objs))
     for o in objs:
         seen = 0
@@ -94,7 +94,7 @@ def _bigbird_jobs(cfg, root, skips, bar) -> Iterator:
         bar.update(len(o.views(f.bigbird_cameras)) - seen)
 
 
-def _avd_jobs(cfg, scan, skips, bar) -> Iterator:
+def avd_jobs(cfg, scan, skips, bar) -> Iterator:
     from loaders.errors import BadInputError
     from pipeline.scoring.features import CropJob
 
@@ -140,7 +140,7 @@ def _scorer_released():
         forget_scorers()
 
 
-def _scoring(ctx, executor, policy):
+def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
     from pipeline.scoring.classifier import load_classifier
     from pipeline.scoring.mc_dropout import MCDropoutScorer
@@ -180,7 +180,7 @@ def run(ctx) -> str:
     # The scans first: their files (JSON, .mat, instance map) fail fast, before minutes of scoring.
     scans = [AVDScan(avd_root, name, skip=skips.log("avd", "AVD entry")) for name in cfg.data.scans]
     with executor_for(cfg) as ex, _scorer_released():
-        sm, card, gpu, device = _scoring(ctx, ex, policy)
+        sm, card, gpu, device = prepare_scoring(ctx, ex, policy)
         for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
             if card.get(key) is not None and card[key] != mine:
                 raise ValueError(f"{ctx.input('classifier') / out_name('classifier', 'card')}: classifier {key} {card[key]} differs "
@@ -195,7 +195,7 @@ def run(ctx) -> str:
         # BigBIRD: the deterministic pass plus the dropout samples whose mean the GPs are trained on.
         t1 = time.perf_counter()
         with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
-            bb = score_jobs(_bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",
+            bb = score_jobs(bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",
                             n_samples=f.bigbird_samples, **common)
         det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
         write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
@@ -207,7 +207,7 @@ def run(ctx) -> str:
             def jobs():  # rows carry their scan
                 for scan in scans:
                     bar.set_description(f"features: AVD {scan.scan}")
-                    yield from _avd_jobs(cfg, scan, skips, bar)
+                    yield from avd_jobs(cfg, scan, skips, bar)
             av = score_jobs(jobs(), sm, policy, ex, what="AVD", n_samples=f.n_samples, **common)
         det_av, mc_av = av.arrays(dim, f.n_samples)
         write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))

@@ -285,14 +285,3 @@ def stage_timings(cfg: Config) -> dict[str, float]:
         if m:
             out[name] = m.get("seconds", float("nan"))
     return out
-
-
-def stage_skips(cfg: Config) -> dict[str, dict]:
-    """{stage: {part: {skipped, reasons, examples}}} from the manifests (for the report)."""
-    out = {}
-    for name in STAGES:
-        m = read_manifest(cfg, name)
-        sk = (m or {}).get("extra", {}).get("skipped")
-        if sk:
-            out[name] = {k: v for k, v in sk.items() if v}
-    return out

@@ -71,7 +71,7 @@ def seed_result(scfg, reused: bool) -> dict:
         out["classifier_accuracy"] = c.get("accuracy")
         out["classifier_accuracy_ci95"] = c.get("accuracy_ci95")
     index = out_path(scfg.stage_dir("models"), "models", "index")
-    if index.is_file():  # the GP-fit health of this seed's scores (issue: no varying fit at a bound)
+    if index.is_file():  # the GP-fit health of this seed's scores: no varying fit at a bound
         idx = json.loads(index.read_text())
         thr = float(idx.get("varying_std_threshold", 0.01))
         out["varying_fits"] = sum(1 for d in idx.get("diagnostics", []) if d.get("train_std", 0.0) > thr)

@@ -31,8 +31,8 @@ def fake_stages(monkeypatch):
 
     make("a"), make("b")
     specs = {
-        "a": StageSpec("a", "fake_stage_a", (), ("features",), ("pipeline.infra.config",)),
-        "b": StageSpec("b", "fake_stage_b", ("a",), ("models",), ("pipeline.infra.config",)),
+        "a": StageSpec("a", "fake_stage_a", (), ("features",)),
+        "b": StageSpec("b", "fake_stage_b", ("a",), ("models",)),
     }
     monkeypatch.setattr(runner, "STAGES", specs)
     monkeypatch.setattr(registry, "STAGES", specs)

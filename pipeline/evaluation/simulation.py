@@ -133,20 +133,6 @@ def draw_nominal(mu: np.ndarray, cov: np.ndarray, rng: np.random.Generator, n: i
     return x[0] if n is None else x
 
 
-def conditional(mu: np.ndarray, cov: np.ndarray, k: int, past: np.ndarray) -> tuple[float, float]:
-    """GP conditional of step k given the values ``past`` (k,) at steps 0..k-1, one component.
-
-    Written out literally (explicit solve, no Cholesky) as the reference the generator is tested
-    against: mean ``mu_k + Σ_{k,p} Σ_p⁻¹ (past - mu_p)``, variance ``Σ_kk - Σ_{k,p} Σ_p⁻¹ Σ_{p,k}``.
-    """
-    if k == 0:
-        return float(mu[0]), float(cov[0, 0])
-    Sp = cov[:k, :k]
-    s = cov[k, :k]
-    w = np.linalg.solve(Sp, s)
-    return float(mu[k] + w @ (np.asarray(past, float) - mu[:k])), float(cov[k, k] - w @ s)
-
-
 def draw_sigma_u2(shape, sigma_max: float, rng: np.random.Generator) -> np.ndarray:
     """Per-step uncertainty levels σ_u² ~ U(0, σ_max²)."""
     return rng.uniform(0.0, float(sigma_max) ** 2, size=shape)
@@ -275,12 +261,6 @@ def result_columns(res: ScenarioResult) -> dict[str, np.ndarray]:
     """One row per (method, realization, step): posterior and its per-step metric columns, the
     evaluate stage's layout (``pipeline.evaluation.results.result_block``) plus ``scenario``."""
     return result_block({m: res.posteriors[m] for m in METHODS}, res.truth, is_log=False, scenario=res.scenario)
-
-
-def long_rows(res: ScenarioResult) -> pd.DataFrame:
-    """``result_columns`` as a DataFrame (the posterior as one array per row)."""
-    cols = result_columns(res)
-    return pd.DataFrame({k: list(v) if v.ndim == 2 else v for k, v in cols.items()})
 
 
 def example_columns(res: ScenarioResult, models: GPClassModels) -> dict[str, np.ndarray]:

@@ -585,7 +585,7 @@ def ablation_config(cfg: Config, ablation: str) -> Config:
     key, raw = (t.strip() for t in ablation.split("=", 1))
     if key not in ABLATION_KEYS:
         raise ConfigError(f"evaluate.ablations: {ablation!r}: KEY must be one of {', '.join(ABLATION_KEYS)}")
-    table = _merge({"models": to_dict(cfg.models)}, parse_override(f"{key}={raw}"))
+    table = merge_tables({"models": to_dict(cfg.models)}, parse_override(f"{key}={raw}"))
     where = f"{cfg.source_path or 'config'} (evaluate.ablations entry {ablation!r})"
     models = _build(ModelsConfig, table["models"], where, "models.")
     out = dataclasses.replace(cfg, models=models)
@@ -607,18 +607,19 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where}: not valid TOML: {e}") from None
     if overrides:
-        table = _merge(table, overrides)
+        table = merge_tables(table, overrides)
     cfg = _build(Config, table, where, "")
     cfg = dataclasses.replace(cfg, source_path=str(path.resolve()))
     _cross_checks(cfg, where)
     return cfg
 
 
-def _merge(base: dict, over: dict) -> dict:
+def merge_tables(base: dict, over: dict) -> dict:
+    """``over`` laid onto ``base``, nested tables merged key by key (neither is modified)."""
     out = dict(base)
     for k, v in over.items():
         if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _merge(out[k], v)
+            out[k] = merge_tables(out[k], v)
         else:
             out[k] = v
     return out
