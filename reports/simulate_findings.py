@@ -48,7 +48,7 @@ def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int) -> dict[str, Any]:
             steps, pt = matrix(gm, "p_truth")
             _, lm = matrix(gm, "log10_mgr")
             wrong_conf = (pt <= (1 - CONFIDENT)) & (lm > math.log10(CONFIDENT / (1 - CONFIDENT)))
-            q10, q25, q50, q75, q90 = np.percentile(pt, [10, 25, 50, 75, 90], axis=0)
+            q10, q25, q50, q75, q90 = percentile(pt, [10, 25, 50, 75, 90], axis=0)
             s[method] = {
                 "ptruth_band_10_90_mean": float(np.mean(q90 - q10)),
                 "ptruth_iqr_mean": float(np.mean(q75 - q25)),

@@ -18,11 +18,8 @@ from __future__ import annotations
 import logging
 import time
 
-import numpy as np
-import pandas as pd
-
 from pipeline.evaluation import simulation as S
-from pipeline.evaluation.results import metadata, write_results
+from pipeline.evaluation.results import frame, metadata, write_results
 from pipeline.infra.cache import write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import name as out_name
@@ -67,9 +64,7 @@ def run(ctx) -> str:
     n_rows = write_results(blocks, ctx.out / out_name("simulate", "results"), metadata(**meta))
     write_results(examples, ctx.out / out_name("simulate", "example"),
                   metadata(**meta, example_realization=str(sim.example_realization)))
-    df = pd.DataFrame({k: np.concatenate([b[k] for b in blocks]) for k in blocks[0] if k != "posterior"})
-    ex = pd.concat([pd.DataFrame({k: list(v) if v.ndim == 2 else v for k, v in e.items()}) for e in examples],
-                   ignore_index=True)
+    df, ex = frame(blocks, drop=("posterior",)), frame(examples)
 
     table = S.summarize(df)
     found = findings(df, ex, sim.truth_class - 1)

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.labels import METHOD_SHORT, comparison_key
-from pipeline.evaluation.metrics import METRICS
+from pipeline.evaluation.metrics import METRICS, percentile
 
 
 def wilson_interval(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -39,7 +39,7 @@ def _boot_means(x: np.ndarray, n_boot: int, n_slots: int, rng: np.random.Generat
 
 
 def _interval(samples: np.ndarray) -> tuple[float, float]:
-    lo, hi = np.percentile(samples, [50 * (1 - LEVEL), 50 * (1 + LEVEL)])
+    lo, hi = percentile(samples, [50 * (1 - LEVEL), 50 * (1 + LEVEL)])
     return float(lo), float(hi)
 
 

@@ -81,6 +81,15 @@ def write_table(columns: Mapping[str, np.ndarray], path: str | Path, metadata: M
     return table.num_rows
 
 
+def frame(blocks: Sequence[Mapping[str, np.ndarray]], *, drop: Sequence[str] = ()):
+    """Blocks (same columns) as one pandas DataFrame, as a reader of the written file would see
+    them: a 2D column (n, C) holds one array per row. ``drop`` leaves columns out."""
+    import pandas as pd
+
+    cols = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0] if k not in drop}
+    return pd.DataFrame({k: list(v) if v.ndim == 2 else v for k, v in cols.items()})
+
+
 def cell_metrics(lp: np.ndarray, truth: int) -> dict[str, float]:
     """A cell's metrics over its realizations (R, K, C) of log posteriors: every
     ``pipeline.evaluation.metrics.METRICS`` key."""
