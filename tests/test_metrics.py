@@ -75,7 +75,8 @@ def test_percentile_keeps_infinity():
 
 def test_metric_metadata():
     for k, m in M.METRICS.items():
-        assert m.column in M.STEP_COLUMNS and m.steps in ("final", "all") and m.pool in M.POOLS, k
+        cols = (m.column,) if isinstance(m.column, str) else m.column
+        assert set(cols) <= set(M.STEP_COLUMNS) and m.steps in ("final", "all") and m.pool in M.POOLS, k
         assert M.metric_label(k) == m.label and M.metric_label(k, short=True) == m.short
     assert M.METRICS["correct_final"].bounded and not M.METRICS["log10_mgr95_final"].bounded
     assert not M.higher_is_better("msde_final") and M.higher_is_better("correct_overall")
@@ -87,6 +88,13 @@ def test_adding_a_metric_is_one_entry(monkeypatch):
     monkeypatch.setitem(M.METRICS, "prob_truth_overall", extra)
     post = np.array([[[0.4, 0.6], [0.7, 0.3]]])
     assert M.posterior_metrics(post, 0)["prob_truth_overall"] == pytest.approx(0.55)
+    # A metric of two per-step columns: the share of steps that are wrong with P(truth) < 0.5.
+    two = M.Metric("wrong and unsure", "wrong, unsure", False, ("correct", "p_truth"), "all",
+                   lambda ok, p: ((ok == 0) & (p < 0.5)).mean(axis=-1), best=0.0, worst=1.0)
+    monkeypatch.setitem(M.METRICS, "wrong_unsure", two)
+    assert M.posterior_metrics(post, 0)["wrong_unsure"] == pytest.approx(0.5)
+    batch = M.compute(M.step_values(np.stack([post, post[..., ::-1]]), 0), ["wrong_unsure"])
+    np.testing.assert_allclose(batch["wrong_unsure"], [0.5, 0.5])
 
 
 def test_mgr_ratios_beside_log10():

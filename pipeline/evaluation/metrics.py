@@ -140,12 +140,14 @@ def percentile_of(q: float) -> Callable[[np.ndarray], np.ndarray]:
 class Metric:
     """One reported metric: ``reduce`` maps the values of ``column`` over realizations (final
     step) or over realizations × steps (all steps), flattened on the last axis, to one number.
+    A metric of several per-step columns (a calibration error needs confidence and correctness)
+    names them as a tuple; ``reduce`` then gets one array per column, in that order.
     ``best``/``worst`` are the attainable extremes (None: unbounded that way); cells where both
     methods of a comparison sit at one cannot tell them apart. Cells pool by ``pool``."""
     label: str                       # for sentences and captions
     short: str                       # for table headers
     higher_is_better: bool
-    column: str                      # a ``STEP_COLUMNS`` key
+    column: str | tuple[str, ...]    # ``STEP_COLUMNS`` key(s)
     steps: str                       # "final" | "all"
     reduce: Callable[[np.ndarray], np.ndarray]
     best: float | None = None
@@ -195,9 +197,12 @@ def compute(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None)
     out = {}
     for k in METRICS if keys is None else keys:
         m = METRICS[k]
-        x = np.asarray(values[m.column])
-        x = x[..., -1] if m.steps == "final" else x.reshape(*x.shape[:-2], -1)
-        out[k] = m.reduce(x.astype(float))
+        cols = (m.column,) if isinstance(m.column, str) else m.column
+        xs = []
+        for c in cols:
+            x = np.asarray(values[c])
+            xs.append((x[..., -1] if m.steps == "final" else x.reshape(*x.shape[:-2], -1)).astype(float))
+        out[k] = m.reduce(*xs)
     return out
 
 
