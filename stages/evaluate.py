@@ -23,7 +23,8 @@ from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
 from pipeline.method.gp import GPClassModels
 from pipeline.infra.outputs import name as out_name
-from pipeline.evaluation.population_summary import DEFAULT, cell_table, population_summary, result_blocks
+from pipeline.evaluation.population import DEFAULT
+from pipeline.evaluation.population_summary import cell_table, population_summary, result_blocks
 from pipeline.evaluation.results import metadata, result_block, write_results
 from pipeline.evaluation.track import TrackError, grid_step
 
@@ -72,54 +73,6 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     return intr, steps
 
 
-def choose_targets(cfg: Config, avd: pd.DataFrame, plan: dict) -> list[str]:
-    ev = cfg.evaluate
-    seen = sorted(avd.loc[(avd["difficulty"] <= ev.max_difficulty), "instance"].unique())
-    if isinstance(ev.targets, str):
-        return [t for t in seen if t in plan]
-    missing = [t for t in ev.targets if t not in plan]
-    if missing:
-        raise ValueError(f"evaluate.targets names {missing[0]!r}, for which the models stage planned no "
-                         f"candidate set (modelled: {', '.join(sorted(plan))})")
-    return list(ev.targets)
-
-
-def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
-                intr: dict, steps: dict) -> tuple[list[P.Cell], list[P.TrackInfo], list[dict]]:
-    """Every (variant, target, track) cell; targets without a usable track are skipped with a reason."""
-    ev = cfg.evaluate
-    plan = indexes[DEFAULT]["candidate_sets"]
-    own = indexes[DEFAULT]["own_components"]
-    settings = tuple(P.population_settings(ev))
-    cells, tracks, skipped = [], [], []
-    for target in choose_targets(cfg, avd, plan):
-        det = P.target_views(avd, target, ev.max_difficulty)
-        try:
-            infos = P.plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
-                                  tuple(ev.track_images))
-        except TrackError as e:
-            skipped.append({"target": target, "reason": str(e)})
-            log.warning("target %s skipped: %s", target, e)
-            continue
-        classes = plan[target]["classes"]
-        for info in infos:
-            yaw = P.yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
-            for variant, index in indexes.items():
-                comps = index["candidate_sets"][target]["components"]
-                drop, mine = P.gather_scores(avd, scores, info, comps, [own[c] for c in classes], ev.max_difficulty)
-                data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
-                                   dropout=drop, own=mine)
-                cells.append(P.Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
-                                    classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                    difficulty=variant == DEFAULT))
-            tracks.append(info)
-        log.info("target %s: %d track(s) in %s; candidates %s", target, len(infos),
-                 ", ".join(sorted({i.scan for i in infos})), ", ".join(classes))
-    if not cells:
-        raise TrackError("no target has a usable track: " + "; ".join(f"{s['target']}: {s['reason']}" for s in skipped))
-    return cells, tracks, skipped
-
-
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
     """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
@@ -164,7 +117,13 @@ def run(ctx) -> str:
     intr, steps = scan_geometry(cfg, scans, avd, ctx.skips)
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps)
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps)
+    for sk in skipped:
+        log.warning("target %s skipped: %s", sk["target"], sk["reason"])
+    for t in sorted({c.target for c in cells}):
+        mine = [i for i in tracks if i.target == t]
+        log.info("target %s: %d track(s) in %s; candidates %s", t, len(mine), ", ".join(sorted({i.scan for i in mine})),
+                 ", ".join(next(c.classes for c in cells if c.target == t)))
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

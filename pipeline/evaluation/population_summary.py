@@ -11,13 +11,11 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation import population as P
+from pipeline.evaluation.population import DEFAULT
 from pipeline.evaluation.labels import COMPARISONS, METHODS
 from pipeline.evaluation.metrics import METRICS, percentile
 from pipeline.evaluation.popstats import population_block
 from pipeline.evaluation.results import cell_metrics, result_block
-
-DEFAULT = "default"   # the variant without an ablation override
-
 
 def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
     """One row per (variant, target, track, setting, method) with the cell's metrics."""
