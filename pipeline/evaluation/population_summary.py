@@ -17,6 +17,7 @@ from pipeline.evaluation.metrics import METRICS, percentile
 from pipeline.evaluation.popstats import population_block
 from pipeline.evaluation.results import cell_metrics, result_block
 
+
 def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
     """One row per (variant, target, track, setting, method) with the cell's metrics."""
     rows = []
@@ -30,6 +31,7 @@ def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
 
 
 def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
+    """The results.parquet columns of every cell and setting (``results.result_block``)."""
     out = []
     for cell, res in zip(cells, results):
         by_label = {(s.experiment, s.label): s for s in cell.settings}
