@@ -7,7 +7,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.infra.config import merge_tables
+from pipeline.infra.config import merge
 from pipeline.scoring.crops import crop_box
 from pipeline.scoring.features import build_table, read_features
 
@@ -29,7 +29,7 @@ def chain(tmp_path_factory):
     from tests.conftest import DEFAULT_CONFIG
 
     art = tmp_path_factory.mktemp("feat") / "artifacts"
-    cfg = load_config(DEFAULT_CONFIG, merge_tables(TINY, {"run": {"artifacts": str(art)}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "features", device="cpu")
     return cfg
 
@@ -134,7 +134,7 @@ def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
     from tests.conftest import DEFAULT_CONFIG
 
     def cfg_with(over):
-        return load_config(DEFAULT_CONFIG, merge_tables(merge_tables(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
+        return load_config(DEFAULT_CONFIG, merge(merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
 
     def key(cfg):
         # Upstream digests planned, not run: the key the runner would compute now.
@@ -181,7 +181,7 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
     shutil.copytree(chain.run_dir, art / chain.run.name)
     from pipeline.infra.config import load_config
     from tests.conftest import DEFAULT_CONFIG
-    cfg = load_config(DEFAULT_CONFIG, merge_tables(TINY, {"run": {"artifacts": str(art)}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "features", device="cpu", force=True)
     a = read_features(chain.stage_dir("features") / "avd.parquet")[1]
     b = read_features(cfg.stage_dir("features") / "avd.parquet")[1]
@@ -251,7 +251,7 @@ def test_object_and_instance_selection_keys_are_checked(chain):
         def update(self, n): pass
 
     def cfg_with(over):
-        return load_config(DEFAULT_CONFIG, merge_tables(merge_tables(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
+        return load_config(DEFAULT_CONFIG, merge(merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
 
     bb, avd = data_roots(chain)
     one = sorted(chain.data.synthetic.instances)[1]

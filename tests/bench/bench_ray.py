@@ -120,12 +120,12 @@ def main(argv: list[str] | None = None) -> None:
     if importlib.util.find_spec("ray") is None:
         print("Ray is not installed (make venv-ray): bench skipped")
         return
-    from pipeline.infra.config import merge_tables, load_config, parse_override
+    from pipeline.infra.config import merge, load_config, parse_override
     from stages.runner import ensure, read_manifest
 
     over: dict = {"run": {"device": "cpu"}}
     for o in args.overrides:
-        over = merge_tables(over, parse_override(o))
+        over = merge(over, parse_override(o))
     cfg = load_config(ROOT / "configs" / "synthetic.toml", over)
     print(f"default population in {cfg.run_dir}; upstream stages first if stale ({_load()})", flush=True)
     ensure(cfg, "models", device="cpu")
