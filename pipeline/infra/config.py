@@ -189,6 +189,19 @@ class FeaturesConfig:
 
 
 @dataclass(frozen=True)
+class DirichletFitConfig:
+    passes: str = _f("deterministic", choices=("deterministic", "dropout", "both"),
+                     doc="BigBIRD passes each class's Dirichlet is fitted on: the deterministic pass (as Tchuiev & "
+                         "Indelman did), the MC-dropout passes (features.bigbird_samples > 0), or both")
+    floor: float = _f(1e-6, lo=1e-300, hi=1e-2,
+                      doc="every probability entry is raised to at least this and the vector renormalised before "
+                          "the log (fit and likelihood): a softmax entry that underflowed to 0 would veto a class")
+    tol: float = _f(1e-10, lo=0.0, hi=1e-2, doc="fixed point stops when no theta_j changes by more than this, relatively")
+    max_iter: int = _f(20000, lo=1, hi=10000000, doc="fixed-point iteration cap; a fit that reaches it is logged "
+                                                      "as a warning and marked in dirichlet.json")
+
+
+@dataclass(frozen=True)
 class ModelsConfig:
     classes: tuple[str, ...] = _f("all", words=("all",),
                                   doc="modelled classes, the candidate pool: 'all' = every BigBIRD object "
@@ -222,6 +235,7 @@ class ModelsConfig:
     noise_bounds: tuple[float, ...] = _f(factory=lambda: (1e-6, 1.0))
     seed: int = _f(0, lo=0)
     min_views: int = _f(8, lo=2, hi=100000, doc="fail when a class has fewer training views than this")
+    dirichlet: DirichletFitConfig = _f(factory=DirichletFitConfig)
 
 
 @dataclass(frozen=True)
@@ -254,6 +268,11 @@ class BiasMapsConfig:
 
 
 @dataclass(frozen=True)
+class DirichletEvalConfig:
+    n_ss: int = _f(100, lo=1, hi=1000000, doc="N_ss: posterior-cloud points kept after each step (Dirichlet method)")
+
+
+@dataclass(frozen=True)
 class EvaluateConfig:
     targets: tuple[str, ...] = _f("all", words=("all",),
                                   doc="'all' = every modelled instance present in the scanned AVD features, "
@@ -283,6 +302,7 @@ class EvaluateConfig:
     randomized: RandomizedConfig = _f(factory=RandomizedConfig)
     sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
     bias_maps: BiasMapsConfig = _f(factory=BiasMapsConfig)
+    dirichlet: DirichletEvalConfig = _f(factory=DirichletEvalConfig)
 
 
 @dataclass(frozen=True)
@@ -529,6 +549,9 @@ def _cross_checks(cfg: Config, where: str) -> None:
              f"'models.camera' = {cfg.models.camera} is not among 'data.synthetic.bigbird_cameras'")
     need(cfg.models.camera in cfg.features.bigbird_cameras,
          f"'models.camera' = {cfg.models.camera} is not among 'features.bigbird_cameras'")
+    if cfg.models.dirichlet.passes != "deterministic":
+        need(cfg.features.bigbird_samples > 0, f"'models.dirichlet.passes' = {cfg.models.dirichlet.passes!r} needs "
+             "MC-dropout passes of the BigBIRD views ('features.bigbird_samples' > 0)")
     if cfg.classifier.weights == "path":
         need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
     need(len(cfg.classifier.mean) == 3 and len(cfg.classifier.std) == 3,
