@@ -269,7 +269,7 @@ def run(ctx) -> str:
     ev = cfg.evaluate
     t_start = time.perf_counter()
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
-    dirichlet = DirichletModels.load(ctx.input("models"))
+    dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
     avd_path = ctx.input("features") / out_name("features", "avd")
     avd, scores, meta = read_features(avd_path)
     if avd.empty:

@@ -6,7 +6,7 @@ of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the determ
 Writes one model bank, ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``): every modelled class x every component
 that some target's candidate set uses, with the plan in the index (``candidate_sets``). Each
 ``evaluate.ablations`` entry gets its own bank under ``models/ablations/``. Beside the bank, the
-Dirichlet method's class models (``models/dirichlet.json`` + ``dirichlet.npz``,
+Dirichlet method's class models (``models/dirichlet/``: ``index.json`` + ``theta.npz``,
 ``pipeline.method.dirichlet``), fitted on ``models.dirichlet.passes``.
 """
 from __future__ import annotations
@@ -277,7 +277,7 @@ def run(ctx) -> str:
     extra["ablations"] = {a: ablation_dir(a) for a in ev.ablations}
     models.save(ctx.out, extra=extra)
     dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes)
-    dmodels.save(ctx.out, extra=dextra)
+    dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
     for a in ev.ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)

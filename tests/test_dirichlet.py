@@ -78,13 +78,51 @@ def test_subset_orders_classes_and_save_load_round_trip(tmp_path):
     back = DirichletModels.load(tmp_path)
     np.testing.assert_array_equal(back.theta, m.theta)
     assert back.classes == m.classes and back.floor == m.floor and back.fingerprint() == m.fingerprint()
-    index = json.loads((tmp_path / "dirichlet.json").read_text())
+    index = json.loads((tmp_path / "index.json").read_text())
     assert index["fit"] == {"passes": "deterministic"} and index["fingerprint"] == m.fingerprint()
     # another parameter set has another fingerprint; a changed file is an error naming it
     assert DirichletModels(["a", "b", "c"], m.theta * 2, floor=1e-5).fingerprint() != m.fingerprint()
     DirichletModels(["a", "b", "c"], m.theta * 2, floor=1e-5).save(tmp_path / "other")
-    (tmp_path / "dirichlet.npz").write_bytes((tmp_path / "other" / "dirichlet.npz").read_bytes())
-    with pytest.raises(DirichletFileError, match="dirichlet.npz: content differs"):
+    (tmp_path / "theta.npz").write_bytes((tmp_path / "other" / "theta.npz").read_bytes())
+    with pytest.raises(DirichletFileError, match="theta.npz: content differs"):
         DirichletModels.load(tmp_path)
     with pytest.raises(DirichletFileError, match="not found"):
         DirichletModels.load(tmp_path / "missing")
+
+
+# -- the models stage ------------------------------------------------------------------------------
+def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
+    from stages.models import FeaturesError, dirichlet_from_features
+    from stages.registry import STAGES
+    from stages.runner import read_manifest, run_stage, stage_key, stale_reason
+    from tests.test_models_stage import CLASSES, mcfg, write_features
+
+    cfg = tmp_config({"models": {"classes": CLASSES, "n_components": 2, "restarts": 0},
+                      "evaluate": {"n_candidates": 3, "targets": [CLASSES[0]]}})
+    feat = cfg.stage_dir("features")
+    truth = write_features(feat / "bigbird.parquet")
+    (feat / "manifest.json").write_text(json.dumps({"stage": "features", "key": "fake"}))
+    run_stage(cfg, STAGES["models"], "k", {}, device="cpu", threads=1)
+    folder = cfg.stage_dir("models") / "dirichlet"
+    dm = DirichletModels.load(folder)
+    assert dm.classes == sorted(CLASSES)
+    for c, cls in enumerate(dm.classes):   # the camera-1 deterministic pass only (camera 3 is ignored)
+        want, _ = fit_dirichlet(truth[cls][1].astype(np.float32), floor=cfg.models.dirichlet.floor,
+                                tol=cfg.models.dirichlet.tol)
+        np.testing.assert_allclose(dm.theta[c], want, rtol=1e-9)
+    index = json.loads((folder / "index.json").read_text())
+    assert index["fit"]["passes"] == "deterministic" and index["fits_not_converged"] == 0
+    assert all(d["converged"] and d["n"] == 24 for d in index["diagnostics"])
+    # Every Dirichlet file is a recorded output: changing one makes the stage stale, naming it.
+    m = read_manifest(cfg, "models")
+    assert {"dirichlet/index.json", "dirichlet/theta.npz"} <= set(m["outputs"])
+    DirichletModels(dm.classes, dm.theta * 1.5, floor=dm.floor).save(folder)
+    assert "models/dirichlet/" in stale_reason(cfg, "models", m["key"], m["parts"])
+    # Its settings are part of the stage's key.
+    other = tmp_config({"models": {"classes": CLASSES, "n_components": 2, "restarts": 0, "dirichlet": {"floor": 1e-5}},
+                        "evaluate": {"n_candidates": 3, "targets": [CLASSES[0]]}})
+    assert stage_key(other, STAGES["models"], {"features": "x"})[0] != stage_key(cfg, STAGES["models"], {"features": "x"})[0]
+    # The fixture's dropout passes are not probability vectors: named, not fitted.
+    with pytest.raises(FeaturesError, match="sum to 1 only within"):
+        dirichlet_from_features(feat / "bigbird.parquet", mcfg(dirichlet=type(cfg.models.dirichlet)(passes="both")),
+                                CLASSES)

@@ -24,6 +24,15 @@ def comparison_key(method: str, baseline: str) -> str:
     return f"{method}-{baseline}"
 
 
+def present_comparisons(keys) -> list[tuple[str, str]]:
+    """(method, baseline) of the comparison keys a results file holds: the known ones in their
+    fixed order, then any others sorted (so a report shows what was computed, not a fixed list)."""
+    keys = set(keys or ())
+    known = [c for c in COMPARISONS if comparison_key(*c) in keys]
+    rest = sorted(keys - {comparison_key(*c) for c in COMPARISONS})
+    return known + [tuple(k.partition("-")[::2]) for k in rest]
+
+
 # Class colours: no method hue (blue, vermillion, bluish green, reddish purple) among them.
 CLASS_COLORS = ("#E69F00", "#56B4E9", "#661100", "#F0E442", "#000000", "#999999",
                 "#882255", "#44AA99", "#AA4499", "#117733", "#DDCC77", "#332288")

@@ -198,7 +198,7 @@ class DirichletFitConfig:
                           "the log (fit and likelihood): a softmax entry that underflowed to 0 would veto a class")
     tol: float = _f(1e-10, lo=0.0, hi=1e-2, doc="fixed point stops when no theta_j changes by more than this, relatively")
     max_iter: int = _f(20000, lo=1, hi=10000000, doc="fixed-point iteration cap; a fit that reaches it is logged "
-                                                      "as a warning and marked in dirichlet.json")
+                                                      "as a warning and marked in models/dirichlet/index.json")
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,10 @@
 Per class c, the classifier's whole softmax vector γ (D entries, summing to 1) is modelled as
 ``Dir(γ; θ_c)``, whatever the viewpoint. ``fit_dirichlet`` finds the maximum-likelihood θ by
 Minka's fixed-point iteration ``θ_j ← ψ⁻¹(ψ(Σθ) + mean_n ln γ_nj)`` from the moment estimate;
-``DirichletModels`` holds one θ per class, evaluates ``ln Dir(γ; θ_c)`` and is saved as plain
-arrays (``dirichlet.npz``) with a JSON index (``dirichlet.json``: classes, settings, fit
-diagnostics, the npz's sha256 and a fingerprint of the parameters). Loading never unpickles.
+``DirichletModels`` holds one θ per class, evaluates ``ln Dir(γ; θ_c)`` and is saved in a folder
+(``models/dirichlet/``) as plain arrays (``theta.npz``) with a JSON index (``index.json``: classes,
+settings, fit diagnostics, the npz's sha256 and a fingerprint of the parameters). Loading never
+unpickles.
 
 Zeros: a float32 softmax underflows to exactly 0 for confident outputs, and ``ln 0`` would make a
 class impossible on one entry. Every vector is floored (each entry raised to at least ``floor``)
@@ -25,14 +26,13 @@ import numpy as np
 from scipy.special import digamma, gammaln, polygamma
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
-from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.dirichlet")
 
 FORMAT = "viewfuse.dirichlet_class_models"
 VERSION = 1
-PARAMS_FILE = out_name("models", "dirichlet_params")
-INDEX_FILE = out_name("models", "dirichlet")
+PARAMS_FILE = "theta.npz"      # inside the folder models/dirichlet/ (pipeline.infra.outputs)
+INDEX_FILE = "index.json"
 EULER = 0.5772156649015329
 
 
