@@ -255,8 +255,10 @@ def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Seque
             raise FeaturesError(path, f"class {cls!r}: score vectors sum to 1 only within {dev:.3g}: the Dirichlet "
                                       "method needs probability vectors (softmax outputs)")
         vectors[cls] = g
-    models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter)
-    extra = {"fit": {"method": "Minka fixed point from the moment estimate", "camera": mcfg.camera,
+    models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter,
+                                         accelerate=dcfg.accelerate)
+    extra = {"fit": {"method": "Minka fixed point from the moment estimate"
+                               + (", SQUAREM-accelerated" if dcfg.accelerate else ""), "camera": mcfg.camera,
                      **to_dict(dcfg)},
              "diagnostics": diags, "fits_not_converged": sum(1 for d in diags if not d["converged"])}
     return models, extra

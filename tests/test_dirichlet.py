@@ -59,9 +59,25 @@ def test_likelihood_equals_scipy_density_and_floor_is_applied():
     assert prepare(z, 1e-6).min() >= 1e-6 / (1 + 4e-6)
 
 
+def test_plain_and_accelerated_fixed_points_agree_and_nearly_alike_vectors_need_acceleration(draws):
+    plain, dp = fit_dirichlet(draws, floor=1e-300, tol=1e-13, accelerate=False)
+    fast, df = fit_dirichlet(draws, floor=1e-300, tol=1e-13)
+    assert dp["converged"] and df["converged"] and df["iterations"] < dp["iterations"]
+    np.testing.assert_allclose(fast, plain, rtol=1e-9)
+    # An untrained network's outputs: all vectors close to one point, a precision in the thousands.
+    alike = np.random.default_rng(1).dirichlet(np.linspace(50.0, 600.0, 12) * 10, size=12)
+    with pytest.warns(DirichletConvergenceWarning):
+        fit_dirichlet(alike, max_iter=2000, accelerate=False)
+    theta, d = fit_dirichlet(alike, max_iter=2000)
+    assert d["converged"] and d["iterations"] < 200 and d["precision"] > 1000
+    # the likelihood's stationarity condition holds there: ψ(Σθ) - ψ(θ_j) + mean ln γ_j = 0
+    grad = digamma(theta.sum()) - digamma(theta) + np.log(prepare(alike, 1e-6)).mean(axis=0)
+    assert np.max(np.abs(grad)) < 1e-9
+
+
 def test_non_convergence_warns_and_is_recorded(draws):
     with pytest.warns(DirichletConvergenceWarning, match="no convergence after 3"):
-        _, diag = fit_dirichlet(draws, max_iter=3)
+        _, diag = fit_dirichlet(draws, max_iter=3, accelerate=False)
     assert not diag["converged"] and diag["iterations"] == 3
     models, diags = fit_class_dirichlets({"x": draws, "y": draws[::-1]}, floor=1e-6, tol=1e-12, max_iter=2)
     assert [d["converged"] for d in diags] == [False, False] and all(d["warnings"] for d in diags)

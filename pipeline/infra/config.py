@@ -197,8 +197,10 @@ class DirichletFitConfig:
                       doc="every probability entry is raised to at least this and the vector renormalised before "
                           "the log (fit and likelihood): a softmax entry that underflowed to 0 would veto a class")
     tol: float = _f(1e-10, lo=0.0, hi=1e-2, doc="fixed point stops when no theta_j changes by more than this, relatively")
-    max_iter: int = _f(20000, lo=1, hi=10000000, doc="fixed-point iteration cap; a fit that reaches it is logged "
-                                                      "as a warning and marked in models/dirichlet/index.json")
+    max_iter: int = _f(20000, lo=1, hi=10000000, doc="cap on steps of the fixed-point map; a fit that reaches it is "
+                                                      "logged as a warning and marked in models/dirichlet/index.json")
+    accelerate: bool = _f(True, doc="SQUAREM extrapolation of the same fixed-point map (nearly alike vectors need "
+                                    "tens of thousands of plain steps); false = the plain iteration")
 
 
 @dataclass(frozen=True)
