@@ -236,7 +236,29 @@ def diagnostics_section(ctx: ReportContext) -> None:
         if rows:
             page.table(header, rows, cls="hyperparameters", collapsed=f"All {len(rows)} fits (hyperparameters, "
                        "bound flags and optimizer messages)", caption="GP hyperparameters from models/index.json.")
+    _dirichlet_fits(ctx)
     _ablations(ctx)
+
+
+def _dirichlet_fits(ctx: ReportContext) -> None:
+    """The Dirichlet method's class models (models/dirichlet/index.json): one row per class."""
+    dj = getattr(ctx.run, "dirichlet", None)
+    if not isinstance(dj, dict) or not dj.get("diagnostics"):
+        return
+    fit = dj.get("fit") or {}
+    diags = dj["diagnostics"]
+    bad = sum(1 for d in diags if not d.get("converged"))
+    ctx.page.paragraph(
+        f"{method_label(DIRICHLET)}: {len(diags)} class models Dir(γ; θ_c) over the {dj.get('dim', '?')} classifier "
+        f"outputs, fitted on the {fit.get('passes', '?')} pass(es) of each class's BigBIRD views by maximum "
+        f"likelihood ({fit.get('method', 'fixed point')}, tolerance {fmt(fit.get('tol'))}); {bad} did not converge "
+        f"within {fit.get('max_iter', '?')} steps. Entries below {fmt(dj.get('floor'))} are raised to it.",
+        cls="note")
+    rows = [[d.get("class"), d.get("n"), fmt(d.get("precision")), d.get("iterations"),
+             "yes" if d.get("converged") else "no", fmt(d.get("log_likelihood"))] for d in diags]
+    ctx.page.table(["class", "vectors", "precision Σθ", "fixed-point steps", "converged", "log likelihood"], rows,
+                   cls="dirichlet-fits", collapsed=f"All {len(rows)} Dirichlet fits",
+                   caption="Dirichlet class models from models/dirichlet/index.json.")
 
 
 def _ablations(ctx: ReportContext) -> None:

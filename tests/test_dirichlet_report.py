@@ -28,6 +28,14 @@ def test_report_shows_the_dirichlet_when_the_results_hold_it(tmp_path):
     pop["dirichlet"] = {"n_ss": 100, "truth_std_final": {"median": 0.031, "q25": 0.01, "q75": 0.05, "max": 0.2,
                                                          "n_cells": 6}}
     path.write_text(json.dumps(summary))
+    dj = tmp_path / "run" / "models" / "dirichlet"
+    dj.mkdir(parents=True)
+    (dj / "index.json").write_text(json.dumps({
+        "dim": 12, "floor": 1e-6, "fit": {"passes": "deterministic", "tol": 1e-10, "max_iter": 20000},
+        "diagnostics": [{"class": "a", "n": 120, "precision": 35.5, "iterations": 14, "converged": True,
+                         "log_likelihood": 4321.0},
+                        {"class": "b", "n": 120, "precision": 3.5e4, "iterations": 20000, "converged": False,
+                         "log_likelihood": 1.0}]}))
     res = build_main_report(facts["run"], tmp_path / "out", run_name="fake", dpi=40, progress=False, n_boot=100,
                             config={"data": {"source": "synthetic"}}, timings={})
     page = parse(res.index)
@@ -41,3 +49,7 @@ def test_report_shows_the_dirichlet_when_the_results_hold_it(tmp_path):
     assert "ignores the poses" in text and "same for every localization realization" in text
     assert "median std of P(truth) at the final step of 0.0310" in text
     assert "forest.png" in res.figures
+    fits = page.table("dirichlet-fits")
+    assert fits["collapsed"] and fits["section"] == "diagnostics"
+    assert fits["rows"][1:] == [["a", "120", "35.5", "14", "yes", "4.32e+03"], ["b", "120", "3.50e+04", "20000", "no", "1.00"]]
+    assert "1 did not converge within 20000 steps" in text
