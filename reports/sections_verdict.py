@@ -163,8 +163,9 @@ def dirichlet_note(pop: dict) -> str:
     cloud = (f" Its posterior cloud (N_ss = {d.get('n_ss')} points) has a median std of P(truth) at the final "
              f"step of {fmt(spread.get('median'))} (quartiles {fmt(spread.get('q25'))}–{fmt(spread.get('q75'))}, "
              f"max {fmt(spread.get('max'))}) over {spread.get('n_cells')} tracks." if spread else "")
-    return (f"{method_label(DIRICHLET)} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the classifier's "
-            "whole probability vector and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple "
+    return (f"{method_label(DIRICHLET, short=True)} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the "
+            "classifier's whole probability vector (every output, where the GP methods model their N_f chosen score "
+            "components) and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple "
             "Bayes it ignores the poses: its posterior is the same for every localization realization and setting "
             "of a track, so With Uncertainty − Dirichlet measures what the viewpoint-dependent models (with the "
             "pose handling) add over a view-independent model that also accounts for model uncertainty." + cloud)
