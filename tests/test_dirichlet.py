@@ -138,7 +138,18 @@ def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
     other = tmp_config({"models": {"classes": CLASSES, "n_components": 2, "restarts": 0, "dirichlet": {"floor": 1e-5}},
                         "evaluate": {"n_candidates": 3, "targets": [CLASSES[0]]}})
     assert stage_key(other, STAGES["models"], {"features": "x"})[0] != stage_key(cfg, STAGES["models"], {"features": "x"})[0]
-    # The fixture's dropout passes are not probability vectors: named, not fitted.
-    with pytest.raises(FeaturesError, match="sum to 1 only within"):
-        dirichlet_from_features(feat / "bigbird.parquet", mcfg(dirichlet=type(cfg.models.dirichlet)(passes="both")),
+    # passes = "both": the deterministic pass and every dropout pass of the ring (camera 1 only)
+    import pyarrow.parquet as pq
+    both, extra = dirichlet_from_features(feat / "bigbird.parquet",
+                                          mcfg(dirichlet=type(cfg.models.dirichlet)(passes="both")), CLASSES)
+    t = pq.read_table(feat / "bigbird.parquet").to_pandas()
+    for c, cls in enumerate(both.classes):
+        rows = t[(t["object"] == cls) & (t["camera"] == 1)]
+        want, _ = fit_dirichlet(np.stack(rows["scores"].to_numpy()), floor=1e-6, tol=1e-10)
+        np.testing.assert_allclose(both.theta[c], want, rtol=1e-8)
+    assert {d["n"] for d in extra["diagnostics"]} == {3 * 24} and extra["fit"]["passes"] == "both"
+    assert not np.allclose(both.theta, dm.theta)
+    with pytest.raises(FeaturesError, match="has none"):
+        write_features(feat / "nodrop.parquet", dropout=False)
+        dirichlet_from_features(feat / "nodrop.parquet", mcfg(dirichlet=type(cfg.models.dirichlet)(passes="dropout")),
                                 CLASSES)
