@@ -18,6 +18,7 @@ import pandas as pd
 from loaders.errors import BadInputError
 from pipeline.infra.cache import NpzFileError, load_npz
 from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import path as out_path
 from pipeline.evaluation.labels import METHODS
 from pipeline.evaluation.metrics import STEP_COLUMNS
@@ -204,6 +205,7 @@ class RunArtifacts:
     index: dict | None = None          # models/index.json
     card: dict | None = None           # classifier/card.json
     manifests: dict[str, dict] = field(default_factory=dict)
+    dirichlet: dict | None = None      # models/dirichlet/index.json
 
     def skipped(self) -> dict[str, Any]:
         """{stage: manifest["extra"]["skipped"]} for the stages that recorded skips."""
@@ -223,8 +225,10 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
             m = read_json(p)
             if isinstance(m, dict):
                 manifests[s] = m
+    dj = out_path(d / "models" / out_name("models", "dirichlet"), "models", "index")
     return RunArtifacts(d, ev, read_json(idx) if idx.is_file() else None,
-                        read_json(card) if card.is_file() else None, manifests)
+                        read_json(card) if card.is_file() else None, manifests,
+                        read_json(dj) if dj.is_file() else None)
 
 
 # -- the simulate stage's outputs --------------------------------------------------------------

@@ -21,10 +21,11 @@ from pipeline.evaluation import population as P
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
+from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.population import DEFAULT
-from pipeline.evaluation.population_summary import cell_table, population_summary, result_blocks
+from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary, result_blocks
 from pipeline.evaluation.results import metadata, result_block, write_results
 from pipeline.evaluation.track import TrackError, grid_step
 
@@ -84,9 +85,12 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
+        dirichlet = P.dirichlet_track(first)
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
                                  P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor)
+            if dirichlet is not None:
+                posts = P.with_dirichlet(posts, dirichlet[0])
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
@@ -109,6 +113,7 @@ def run(ctx) -> str:
     ev = cfg.evaluate
     t_start = time.perf_counter()
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
+    dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
     avd_path = ctx.input("features") / out_name("features", "avd")
     avd, scores, meta = read_features(avd_path)
     if avd.empty:
@@ -117,7 +122,7 @@ def run(ctx) -> str:
     intr, steps = scan_geometry(cfg, scans, avd, ctx.skips)
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps)
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet)
     for sk in skipped:
         log.warning("target %s skipped: %s", sk["target"], sk["reason"])
     for t in sorted({c.target for c in cells}):
@@ -139,6 +144,7 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     table = cell_table(cells, results)
     population = population_summary(cfg.evaluate, table, cells, results, tracks, skipped)
+    population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
     timings["statistics"] = time.perf_counter() - t0
 
     # The first target's first track: its biased/randomized tables as before, plus the figures.

@@ -5,13 +5,14 @@ checks, training sets, candidate plan, noise floor and fits) and writes one mode
 ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``):
 every modelled class x every component that some target's candidate set uses, with the plan in
 the index (``candidate_sets``). Each ``evaluate.ablations`` entry gets its own bank under
-``models/ablations/``.
+``models/ablations/``. Beside the bank, the Dirichlet method's class models (``models/dirichlet/``:
+``index.json`` + ``theta.npz``, ``pipeline.method.dirichlet``), fitted on ``models.dirichlet.passes``.
 """
 from __future__ import annotations
 
 import logging
 
-from pipeline.evaluation.model_bank import ablation_dir, fit_from_features
+from pipeline.evaluation.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
 from pipeline.infra.config import ablation_config
 from pipeline.infra.outputs import name as out_name
 
@@ -27,6 +28,8 @@ def run(ctx) -> str:
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     extra["ablations"] = {a: ablation_dir(a) for a in ev.ablations}
     models.save(ctx.out, extra=extra)
+    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes)
+    dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
     for a in ev.ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)
@@ -36,9 +39,13 @@ def run(ctx) -> str:
                       "component_names": models.component_names,
                       "candidate_sets": len(extra["candidate_sets"]),
                       "fits_with_warnings": extra["fits_with_warnings"],
-                      "varying_fits_at_bound": extra["varying_fits_at_bound"]})
+                      "varying_fits_at_bound": extra["varying_fits_at_bound"],
+                      "dirichlet_fingerprint": dmodels.fingerprint(),
+                      "dirichlet_not_converged": dextra["fits_not_converged"]})
     return (f"{models.n_classes} classes x {models.n_components} components for "
             f"{len(extra['candidate_sets'])} candidate sets ({cfg.models.component_rule}) fitted on "
             f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
             f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
-            + (f"; {len(ev.ablations)} ablation bank(s)" if ev.ablations else ""))
+            + (f"; {len(ev.ablations)} ablation bank(s)" if ev.ablations else "")
+            + f"; {len(dmodels.classes)} Dirichlet class models ({cfg.models.dirichlet.passes} passes, "
+              f"{dextra['fits_not_converged']} not converged)")

@@ -6,7 +6,8 @@ of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the determ
 checks it (``FeaturesError`` names the file and the problem), plans each target's candidate set
 and components (``pipeline.evaluation.candidates``), sets the dropout noise floor where
 ``models.noise_floor = "dropout"``, fits every GP the plan needs (``pipeline.method.gp_fit``) and
-returns the bank with its index extras (the plan, diagnostics, fit settings).
+returns the bank with its index extras (the plan, diagnostics, fit settings); and the Dirichlet
+method's class models (``dirichlet_from_features``, ``pipeline.method.dirichlet``).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import numpy as np
 from pipeline.evaluation.candidates import candidate_sets, own_components, plan_components
 from pipeline.infra.config import ModelsConfig, to_dict
 from pipeline.infra.outputs import name as out_name
+from pipeline.method.dirichlet import DirichletModels, fit_class_dirichlets
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 
@@ -238,6 +240,42 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         "varying_fits_at_bound": sum(1 for d in varying if d["at_bound"]),
         "varying_std_threshold": VARYING_STD,
     }
+    return models, extra
+
+
+def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Sequence[str]
+                            ) -> tuple[DirichletModels, dict[str, Any]]:
+    """The Dirichlet method's class models: per class, Dir(γ; θ_c) fitted to the whole score
+    vectors of its training ring (``models.dirichlet.passes``), and the index extras."""
+    path = Path(path)
+    dcfg = mcfg.dirichlet
+    cols, scores, _, dropout = read_training_views(path, mcfg.camera)
+    objects = cols["object"].astype(str)
+    passes = dropout_passes(dropout, path) if dcfg.passes != "deterministic" else {}
+    vectors = {}
+    for cls in classes:
+        parts = []
+        if dcfg.passes in ("deterministic", "both"):
+            parts.append(scores[objects == cls])
+        if dcfg.passes in ("dropout", "both"):
+            if not passes.get(cls):
+                raise FeaturesError(path, f"models.dirichlet.passes = {dcfg.passes!r} needs MC-dropout passes of the "
+                                          f"BigBIRD views (features.bigbird_samples > 0); class {cls!r} has none")
+            parts.extend(passes[cls][a] for a in sorted(passes[cls]))
+        g = np.concatenate(parts) if parts else np.empty((0, scores.shape[1]))
+        if len(g) < 2:
+            raise FeaturesError(path, f"class {cls!r}: {len(g)} probability vector(s) for its Dirichlet fit")
+        dev = float(np.max(np.abs(g.sum(axis=1) - 1.0)))
+        if dev > 1e-3:
+            raise FeaturesError(path, f"class {cls!r}: score vectors sum to 1 only within {dev:.3g}: the Dirichlet "
+                                      "method needs probability vectors (softmax outputs)")
+        vectors[cls] = g
+    models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter,
+                                         accelerate=dcfg.accelerate)
+    extra = {"fit": {"method": "Minka fixed point from the moment estimate"
+                               + (", SQUAREM-accelerated" if dcfg.accelerate else ""), "camera": mcfg.camera,
+                     **to_dict(dcfg)},
+             "diagnostics": diags, "fits_not_converged": sum(1 for d in diags if not d["converged"])}
     return models, extra
 
 

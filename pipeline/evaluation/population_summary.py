@@ -12,7 +12,7 @@ import pandas as pd
 
 from pipeline.evaluation import population as P
 from pipeline.evaluation.population import DEFAULT
-from pipeline.evaluation.labels import COMPARISONS, METHODS
+from pipeline.evaluation.labels import COMPARISONS, DIRICHLET, METHODS
 from pipeline.evaluation.metrics import METRICS, percentile
 from pipeline.evaluation.popstats import population_block
 from pipeline.evaluation.results import cell_metrics, result_block
@@ -102,3 +102,21 @@ def population_summary(ev, table: pd.DataFrame, cells: list[P.Cell], results: li
         "ablations": ablations,
         "skipped_targets": skipped,
     }
+
+
+def dirichlet_summary(ev, cells: list[P.Cell], results: list[dict]) -> dict | None:
+    """What the Dirichlet's posterior cloud says besides its mean: the spread (std of λ) of the
+    truth's probability at the final step over the default cells, and the first cell's per-step
+    E[λ] and std."""
+    pairs = [(c, r) for c, r in zip(cells, results) if c.variant == DEFAULT and "dirichlet_std" in r]
+    if not pairs:
+        return None
+    final = np.array([r["dirichlet_std"][-1, c.truth] for c, r in pairs])
+    c0, r0 = pairs[0]
+    mean0 = np.exp(next(iter(r0["posts"].values()))[DIRICHLET][0])
+    return {"n_ss": ev.dirichlet.n_ss, "poses": "ignored: the same posterior for every realization",
+            "truth_std_final": {"median": float(np.median(final)), "q25": float(percentile(final, 25)),
+                                "q75": float(percentile(final, 75)), "max": float(final.max()),
+                                "n_cells": int(len(final))},
+            "first_track": {"target": c0.target, "track": c0.track, "classes": list(c0.classes),
+                            "mean": mean0.tolist(), "std": r0["dirichlet_std"].tolist()}}

@@ -63,6 +63,9 @@ CATALOG: dict[str, dict[str, Artifact]] = {
         "index": Artifact("index.json", "json", _BANK_W, _BANK_R, "a model bank's index"),
         "bank": Artifact("*.npz", "npz", _BANK_W, _BANK_R, "one GP class model per file"),
         "ablations": Artifact("ablations", "folder", _BANK_W, _BANK_R, "one model bank per ablation"),
+        "dirichlet": Artifact("dirichlet", "folder", "pipeline.method.dirichlet:DirichletModels.save",
+                              "pipeline.method.dirichlet:DirichletModels.load",
+                              "the Dirichlet method's class models: index.json + theta.npz"),
     },
     "evaluate": {
         "results": Artifact("results.parquet", "parquet", _RESULTS_W, _RESULTS_R,
