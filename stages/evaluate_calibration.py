@@ -1,8 +1,7 @@
-"""The evaluate stage's calibration parts: test-domain fit, the cross-fitted test-domain variance of
-the calibrated likelihood, and the population blocks with calibration metrics, robust statistics
-and the attribution variants. The statistics are pure functions in ``pipeline.evaluation``
-(``domain_fit``, ``test_domain_variance``, ``pooled_calibration``, ``verdicts``); this module wires
-them to the stage's tables.
+"""The evaluate stage's test-domain parts: the labelled crops' residuals, the cross-fitted
+test-domain variance of the calibrated likelihood and the domain-fit summary. The statistics are
+pure functions in ``pipeline.evaluation`` (``domain_fit``, ``test_domain_variance``); the
+population blocks are in ``pipeline.evaluation.population_calibration``.
 """
 from __future__ import annotations
 
@@ -15,16 +14,9 @@ import pandas as pd
 from pipeline.evaluation import domain_fit as D
 from pipeline.evaluation import population as P
 from pipeline.evaluation import test_domain_variance as V
-from pipeline.evaluation.labels import (ATTRIBUTION, ATTRIBUTION_COMPARISONS, METHODS, MODEL_BASED,
-                                        WITH_UNCERTAINTY)
-from pipeline.evaluation.pooled_calibration import pooled_ece, track_sums
-from pipeline.evaluation.verdicts import full_block
 from pipeline.infra.config import test_domain_mode
 
 log = logging.getLogger("viewfuse.evaluate")
-
-ATTRIBUTION_KEY = "attribution"
-
 
 def instance_poses(cfg, avd: pd.DataFrame, truth: dict | None, intr: dict, classes) -> tuple[dict, str]:
     """{(scan, instance): (object xy, yaw rad)} for every modelled instance the AVD features show,
@@ -113,41 +105,4 @@ def test_variances(cells: list[P.Cell], domain: TestDomain, cfg) -> list[P.Cell]
         if mode == "cross_fit":
             c = dataclasses.replace(c, test_variance=domain.cell_variance(c.scan, c.target, c.components))
         out.append(c)
-    return out
-
-
-def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, default: str) -> dict:
-    """Main block (calibration metrics and robust verdict), attribution block and ablation blocks."""
-    from pipeline.evaluation.labels import COMPARISONS, METRICS
-
-    ev = cfg.evaluate
-    metrics = list(METRICS)
-    main = [m for m in METHODS if m in set(table["method"])]
-    out = {}
-    sums = track_sums(cells, results, default)
-    dtab = table[table["variant"] == default]
-    out["main"] = full_block(dtab[dtab["method"].isin(main)], main, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                             scope, ece=pooled_ece(sums, main, COMPARISONS, ev.bootstrap, ev.seed))
-    abl = {}
-    att = [m for m in (WITH_UNCERTAINTY, MODEL_BASED, *ATTRIBUTION) if m in set(dtab["method"])]
-    if all(m in att for m in ATTRIBUTION):
-        b = full_block(dtab[dtab["method"].isin(att)], att, metrics, ATTRIBUTION_COMPARISONS, ev.bootstrap, ev.seed,
-                       scope, ece=pooled_ece(sums, att, ATTRIBUTION_COMPARISONS, ev.bootstrap, ev.seed, False),
-                       per_target=False)
-        abl[ATTRIBUTION_KEY] = {"kind": "attribution", "methods": att,
-                                "override": {"with_uncertainty_poses_only": "dropout samples replaced by their mean",
-                                             "with_uncertainty_dropout_only": "no pose sampling (sigma = 0, N_x = 1)"},
-                                **{k: b[k] for k in ("pooled", "paired", "robust", "verdict", "verdict_table")}}
-    for a in ev.ablations:
-        sub = table[(table["variant"] == a) & table["method"].isin(main)]
-        if sub.empty:
-            continue
-        b = full_block(sub, main, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope,
-                       ece=pooled_ece(track_sums(cells, results, a), main, COMPARISONS, ev.bootstrap, ev.seed),
-                       per_target=False)
-        key, value = (t.strip() for t in a.split("=", 1))
-        abl[a] = {"override": {key: value},
-                  **{k: b[k] for k in ("pooled", "paired", "robust", "verdict", "verdict_table", "reliability")
-                     if k in b}}
-    out["ablations"] = abl
     return out

@@ -68,7 +68,8 @@ def seed_pooled(cells_by_seed: Mapping[str, Sequence[Mapping]], methods: Sequenc
                 comparisons, n_boot: int, seed: int = 0) -> dict:
     """{"pooled": {method: {metric: est}}, "paired": {key: {metric: est}}, "verdict_table": rows,
     "verdict": sentences} over every seed's cells."""
-    from pipeline.evaluation.labels import METHOD_SHORT, METRICS
+    from pipeline.evaluation.labels import METHOD_SHORT
+    from pipeline.evaluation.metrics import METRICS
 
     seeds = sorted(cells_by_seed)
     out: dict = {"seeds": seeds, "pooled": {}, "paired": {}, "verdict": [], "verdict_table": [],
@@ -89,13 +90,13 @@ def seed_pooled(cells_by_seed: Mapping[str, Sequence[Mapping]], methods: Sequenc
                 continue
             est = pooled_over_seeds(groups, n_boot, [seed, 99, ki], _stat_name(k))
             out["paired"].setdefault(key, {})[k] = est
-            higher = METRICS[k][1] if k in METRICS else False
+            higher = METRICS[k].higher_is_better if k in METRICS else False
             res = R.outcome(est, higher)
             phrase = {"better": "is better than", "worse": "is worse than",
                       "not distinguishable": "is not distinguishable from"}[res]
             spread = ", ".join(f"{v:+.3g}" for v in est["per_seed"])
             out["verdict"].append(
-                f"{METHOD_SHORT.get(a, a)} {phrase} {METHOD_SHORT.get(b, b)} on {METRICS.get(k, (k,))[0]} "
+                f"{METHOD_SHORT.get(a, a)} {phrase} {METHOD_SHORT.get(b, b)} on {METRICS[k].label if k in METRICS else k} "
                 f"({out['statistic'][k]} of the differences {est['value']:+.3g}, 95 % CI [{est['ci_low']:+.3g}, "
                 f"{est['ci_high']:+.3g}] over {len(seeds)} seeds, their targets and tracks; per seed: {spread}).")
             out["verdict_table"].append({"comparison": key, "metric": k, "outcome": res, "value": est["value"],

@@ -18,7 +18,8 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation import robust as R
-from pipeline.evaluation.labels import METHOD_SHORT, METRICS, POOLED_METRICS, comparison_key
+from pipeline.evaluation.labels import METHOD_SHORT, comparison_key
+from pipeline.evaluation.metrics import METRICS
 from pipeline.evaluation.popstats import population_block, saturation, track_values
 
 UNBOUNDED_PREFIXES = ("log10_mgr", "nll")
@@ -28,15 +29,16 @@ def is_unbounded(metric: str) -> bool:
     return metric.startswith(UNBOUNDED_PREFIXES)
 
 
-_ALL = {**METRICS, **POOLED_METRICS}
+# Metrics of the pooled posteriors, not means of cell values (pipeline.evaluation.pooled_calibration).
+POOLED_METRICS = {"ece_final": "top-label ECE (15 bins), final step", "ece_overall": "top-label ECE (15 bins), all steps"}
 
 
 def _higher(metric: str) -> bool:
-    return _ALL[metric][1] if metric in _ALL else False
+    return METRICS[metric].higher_is_better if metric in METRICS else False
 
 
 def _label(metric: str) -> str:
-    return _ALL[metric][0] if metric in _ALL else metric
+    return METRICS[metric].label if metric in METRICS else POOLED_METRICS.get(metric, metric)
 
 
 def _target_groups(tv: pd.DataFrame, metric: str) -> tuple[list[str], list[np.ndarray]]:

@@ -22,7 +22,6 @@ from pipeline.infra.config_sections import (ABLATION_KEYS, BiasedConfig, BiasMap
                                             SimulateConfig, StudyConfig, canonical_json, is_model_ablation,
                                             test_domain_mode, to_dict)
 
-_merge = merge  # the earlier private name, still imported by tests
 
 __all__ = [
     "ABLATION_KEYS", "DEFAULT_INSTANCES", "BiasedConfig", "BiasMapsConfig", "ClassifierConfig", "Config",
