@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from pipeline.method import engine
 from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
@@ -89,7 +90,7 @@ def _cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
 
 def track_factors(models: GPClassModels, X: np.ndarray):
     """mu (B, C, F, K), Cholesky factor L and its inverse M (B, C, F, K, K) for trajectories X (B, K, d)."""
-    mu, cov = models.predict(X)
+    mu, cov = engine.predictive(models, X)
     L = _cholesky(cov, models)
     del cov
     return mu, L, tri_inverse(L)
@@ -118,36 +119,112 @@ def _recursion(ll: np.ndarray, logp0: np.ndarray) -> np.ndarray:
     return out
 
 
+# -- the per-block kernel --------------------------------------------------------------------------
+def _batch_last(mu: np.ndarray, cov: np.ndarray):
+    """mu (b, C, F, K), cov (b, C, F, K, K) -> (K, nb) and (K, K, nb), nb = b·C·F: every small
+    K×K operation below is then one vector op over nb contiguous numbers."""
+    K = mu.shape[-1]
+    return (np.ascontiguousarray(mu.reshape(-1, K).T),
+            np.ascontiguousarray(cov.reshape(-1, K, K).transpose(1, 2, 0)))
+
+
+def _cond_stats(A: np.ndarray, D: np.ndarray, V: np.ndarray | None):
+    """Batch-last Cholesky ``A = L Lᵀ`` (K, K, nb) and ``M = L⁻¹``, reduced to what the recursion
+    needs: L_kk, y = M D and q_k = Σ_{j<k} M_kj² V_j (each (K, nb); q None without V).
+    None when some A is not positive definite (the caller names it). Only the lower triangles of
+    L and M are ever written or read."""
+    K, nb = A.shape[0], A.shape[-1]
+    L = np.empty_like(A)
+    for j in range(K):
+        s = A[j, j] - np.einsum("kb,kb->b", L[j, :j], L[j, :j]) if j else A[0, 0].copy()
+        if not np.all(s > 0):
+            return None
+        ljj = np.sqrt(s)
+        L[j, j] = ljj
+        if j + 1 < K:
+            t = A[j + 1:, j] - np.einsum("ikb,kb->ib", L[j + 1:, :j], L[j, :j]) if j else A[1:, 0].copy()
+            t /= ljj
+            L[j + 1:, j] = t
+    Ld = np.empty((K, nb))
+    y = np.empty((K, nb))
+    q = None if V is None else np.zeros((K, nb))
+    M = np.empty_like(A)
+    for k in range(K):
+        Ld[k] = L[k, k]
+        inv = 1.0 / Ld[k]
+        M[k, k] = inv
+        if k:
+            # M[k, :k] = -(L[k, :k] @ M[:k, :k]) / L_kk (forward substitution by rows; M[:k, :k]
+            # lower triangular, so only j >= l terms)
+            row = M[k, :k]
+            for l in range(k):
+                row[l] = np.einsum("jb,jb->b", L[k, l:k], M[l:k, l])
+            row *= -inv
+            y[k] = np.einsum("jb,jb->b", row, D[:k]) + inv * D[k]
+            if V is not None:
+                q[k] = np.einsum("jb,jb->b", row * row, V[:k])
+        else:
+            y[0] = inv * D[0]
+    return Ld, y, q
+
+
+def _stats_or_raise(models, mu, cov, D, V):
+    out = _cond_stats(*(_batch_last(mu, cov)[1:]), D, V)
+    if out is None:
+        _cholesky(cov, models)  # raises naming the (class, component)
+        raise ValueError("joint predictive covariance is not positive definite")  # pragma: no cover
+    return out
+
+
+def _recursion_kfirst(ll: np.ndarray, logp0: np.ndarray) -> np.ndarray:
+    """Eq. 24-26 in log space. ll (K, ..., C, S) per dropout sample -> log P(c|H_k) (..., K, C)."""
+    K, *lead, C, S = ll.shape
+    out = np.empty(tuple(lead) + (K, C))
+    logp = np.broadcast_to(logp0, tuple(lead) + (C,))
+    for k in range(K):
+        h = ll[k] + logp[..., None]                                # (..., C, S)
+        h -= logsumexp(h, axis=-2, keepdims=True)
+        logp = logsumexp(h, axis=-1) - math.log(S)
+        out[..., k, :] = logp
+    return out
+
+
 # -- Model with Uncertainty ----------------------------------------------------------------------
-def _mwu_block(models: GPClassModels, X: np.ndarray, dropout: np.ndarray, logp0: np.ndarray,
-               var_floor: float) -> np.ndarray:
-    """X (r, n, K, d) localization samples, dropout (r, K, S, F) -> per-sample log posteriors (r, n, K, C)."""
+def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.ndarray, samples: np.ndarray,
+               logp0: np.ndarray) -> np.ndarray:
+    """X (r, n, K, d) localization samples; per realization the dropout means and floored
+    variances mu_z, v_z (r, K, F) and the samples (r, K, S, F) -> per-sample log posteriors (r, n, K, C).
+
+    Per step k, class and component (module docstring): conditional mean μ_z,k - L_kk y_k and
+    variance L_kk² (1 + q_k) of each dropout sample, y = M (μ_z - μ), q_k = Σ_{j<k} M_kj² v_j.
+    """
     r, n, K, d = X.shape
     C, F = models.n_classes, models.n_components
-    mu, L, M = track_factors(models, X.reshape(r * n, K, d))
-    shape = (r, n, C, F, K)
-    mu, L, M = mu.reshape(shape), L.reshape(shape + (K,)), M.reshape(shape + (K,))
-    mu_z, v_z = _dropout_stats(dropout, var_floor)                 # (r, K, F)
-    mu_zt = np.swapaxes(mu_z, -1, -2)[:, None, None]               # (r, 1, 1, F, K)
-    v_zt = np.swapaxes(v_z, -1, -2)[:, None, None, :, None, :]     # (r, 1, 1, F, 1, K)
-    y = np.einsum("...kj,...j->...k", M, mu_zt - mu)               # M (μ_z - μ)
-    M *= M                                                          # M∘M, only its strict lower part is used
-    idx = np.arange(K)
-    M[..., idx, idx] = 0.0
-    q = np.einsum("...kj,...j->...k", M, v_zt[..., 0, :])          # Σ_{j<k} M_kj² v_j
-    del M
-    Ld = np.diagonal(L, axis1=-2, axis2=-1)                         # (r, n, C, F, K)
-    var = Ld * Ld * (1.0 + q)
-    cmean = mu_zt - Ld * y
-    del L, y, q
+    S = samples.shape[2]
+    mu, cov = engine.predictive(models, X.reshape(r * n, K, d))
+    mu5 = mu.reshape(r, n, C, F, K)
+    mzt = np.transpose(mu_z, (1, 0, 2))[:, :, None, None, :]        # (K, r, 1, 1, F)
+    D = (mzt - np.moveaxis(mu5, -1, 0)).reshape(K, -1)              # (K, nb), nb = (r, n, C, F)
+    V = np.broadcast_to(np.transpose(v_z, (1, 0, 2))[:, :, None, None, :], (K, r, n, C, F)).reshape(K, -1)
+    Ld, y, q = _stats_or_raise(models, mu, cov, D, V)
+    del cov
+    var = Ld * Ld
+    var *= 1.0 + q                                                  # (K, nb)
+    cmean = np.broadcast_to(mzt, (K, r, n, C, F)).reshape(K, -1) - Ld * y
     # Gaussian log density of every dropout sample s_k, summed over components (Eq. 17); the
     # -log(2π)/2 per component is the same for every class and cancels in the normalisation.
-    s = np.moveaxis(dropout, -1, -3)[:, None, None]                 # (r, 1, 1, F, K, S)
-    resid = s - cmean[..., None]                                    # (r, n, C, F, K, S)
-    resid *= resid
-    resid /= var[..., None]
-    ll = -0.5 * resid.sum(axis=-3) - 0.5 * np.log(var).sum(axis=-2)[..., None]   # (r, n, C, K, S)
-    return _recursion(ll, logp0)
+    w = (1.0 / np.sqrt(var)).reshape(K, r, n, C, F)
+    cmean = cmean.reshape(K, r, n, C, F)
+    s = np.transpose(samples, (1, 0, 3, 2))                         # (K, r, F, S)
+    ll = np.zeros((K, r, n, C, S))
+    for f in range(F):
+        t = s[:, :, None, None, f, :] - cmean[..., f, None]         # (K, r, n, C, S)
+        t *= w[..., f, None]
+        t *= t
+        ll += t
+    ll *= -0.5
+    ll += (np.log(w).sum(axis=-1))[..., None]                       # -½ Σ_f log var
+    return _recursion_kfirst(ll, logp0)
 
 
 def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None, var_floor: float = 1e-6,
@@ -192,9 +269,11 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
     acc = np.full((R, K, C), -np.inf)
     spans = _blocks(R, Nx, _per_sample_cost(models, K, Z.shape[2]), block)
 
+    mu_z, v_z = _dropout_stats(Z, var_floor)                       # (R, K, F), once per call
+
     def work(span):
         r0, r1, x0, x1 = span
-        return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], Z[r0:r1], logp0, var_floor), axis=1)
+        return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0), axis=1)
 
     for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
@@ -233,12 +312,13 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
 
     def work(span):
         r0, r1 = span[:2]
-        mu, L, M = track_factors(models, X[r0:r1])                  # (b, C, F, K[, K])
+        b = r1 - r0
+        mu, cov = engine.predictive(models, X[r0:r1])               # (b, C, F, K[, K])
         resid = np.swapaxes(Z[r0:r1], -1, -2)[:, None] - mu         # z - μ
-        y = np.einsum("...kj,...j->...k", M, resid)                 # whitened innovations
-        Ld = np.diagonal(L, axis1=-2, axis2=-1)
-        ll = (-0.5 * y * y - np.log(Ld)).sum(axis=-2)               # (b, C, K): chain rule per step
-        return _recursion(ll[..., None], logp0)
+        D = np.ascontiguousarray(np.moveaxis(resid, -1, 0).reshape(K, -1))
+        Ld, y, _ = _stats_or_raise(models, mu, cov, D, None)       # y: whitened innovations
+        ll = (-0.5 * y * y - np.log(Ld)).reshape(K, b, C, F).sum(axis=-1)   # chain rule per step
+        return _recursion_kfirst(ll[..., None], logp0)
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
     for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED]):

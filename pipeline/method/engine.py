@@ -1,0 +1,178 @@
+"""The joint predictive per trajectory for the fusion engine, by the cheapest exact route per GP.
+
+Two routes per (class, component), chosen once per model bank (``plan``):
+
+* **basis** (``pipeline/method/circle_basis.py``): unit-circle inputs, P = 2M + 1 Fourier
+  features; per point one row of a (rows × P)·(P × P) GEMM, no exp. Taken when the class's
+  training inputs are unit vectors and P ≤ N (the training views).
+* **exact**: the reference route of ``GPClassModels.predict`` (kernel rows against the N training
+  views, whitened by the training Cholesky factor), with L⁻¹ precomputed so that the whitening is a
+  triangular *multiply* (TRMM, GEMM speed) instead of a triangular solve.
+
+A call uses the basis route of a GP only when every test input of the call is a unit vector to
+``UNIT_TOL``; otherwise that call takes the exact route for every GP.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import weakref
+
+import numpy as np
+
+from pipeline.method import circle_basis as cb
+from pipeline.method.gp import GPClassModels
+
+_PLANS: "weakref.WeakKeyDictionary[GPClassModels, Plan]" = weakref.WeakKeyDictionary()
+_LOCK = threading.Lock()
+
+
+class Plan:
+    """Per-GP route and factors of one model bank (built once, shared by worker threads)."""
+
+    def __init__(self, models: GPClassModels, basis: bool = True):
+        from scipy.linalg import solve_triangular
+
+        self.models = models
+        C, F = models.n_classes, models.n_components
+        fac = models.factors()
+        self.basis: list[list[cb.BasisGP | None]] = [[None] * F for _ in range(C)]
+        self.linv: list[list[np.ndarray | None]] = [[None] * F for _ in range(C)]
+        on_circle = models.input_dim == 2
+        for c in range(C):
+            N = len(models.X[c])
+            unit = on_circle and cb.unit_error(models.X[c]) <= cb.UNIT_TOL
+            for f in range(F):
+                g = None
+                if basis and unit:
+                    g = cb.build(models.X[c], models.Y[c][f], models.mean[c, f], models.amplitude[c, f],
+                                 models.length_scale[c, f], models.noise[c, f])
+                    if g is not None and g.P > N:
+                        g = None
+                self.basis[c][f] = g
+        self._exact_ready = False
+        self._solve_triangular = solve_triangular
+        self._fac = fac
+        self.P_max = max([g.P for row in self.basis for g in row if g is not None] or [0])
+        self.groups = _groups([((c, f), g) for c, row in enumerate(self.basis) for f, g in enumerate(row)
+                               if g is not None])
+
+    def exact_factors(self):
+        """L⁻¹ (Fortran order) per GP, for the exact route (built on first use)."""
+        if not self._exact_ready:
+            with _LOCK:
+                if not self._exact_ready:
+                    for c, fc in enumerate(self._fac):
+                        for f, L in enumerate(fc.L):
+                            self.linv[c][f] = np.asfortranarray(
+                                self._solve_triangular(L, np.eye(len(L)), lower=True))
+                    self._exact_ready = True
+        return self.linv
+
+    def routes(self) -> dict:
+        """{'basis': n, 'exact': n, 'P': [...]} for logs and the bench."""
+        ps = [g.P for row in self.basis for g in row if g is not None]
+        return {"basis": len(ps), "exact": sum(g is None for row in self.basis for g in row), "P": ps}
+
+
+class _Group:
+    """GPs whose basis factors share one GEMM: W = [Qᵀ_g | w̄_g]… zero-padded to P rows."""
+
+    def __init__(self, items):
+        self.P = max(g.P for _, g in items)
+        self.members = [cf for cf, _ in items]
+        self.orders = [g.P for _, g in items]
+        self.offsets = list(np.cumsum([0] + [g.P + 1 for _, g in items])[:-1])
+        self.W = np.zeros((self.P, sum(g.P + 1 for _, g in items)))
+        for o, (_, g) in zip(self.offsets, items):
+            self.W[:g.P, o:o + g.P] = g.QT
+            self.W[:g.P, o + g.P] = g.wbar
+
+
+def _groups(items, waste: float = 0.25) -> list[_Group]:
+    """Sort by order and cut where zero padding would exceed ``waste`` of a group's flops."""
+    items = sorted(items, key=lambda t: -t[1].P)
+    out, cur = [], []
+    for it in items:
+        trial = cur + [it]
+        pad = trial[0][1].P * sum(g.P + 1 for _, g in trial)
+        need = sum(g.P * (g.P + 1) for _, g in trial)
+        if cur and pad > (1 + waste) * need:
+            out.append(_Group(cur))
+            trial = [it]
+        cur = trial
+    if cur:
+        out.append(_Group(cur))
+    return out
+
+
+def plan(models: GPClassModels) -> Plan:
+    with _LOCK:
+        p = _PLANS.get(models)
+    if p is None:
+        p = Plan(models)
+        with _LOCK:
+            p = _PLANS.setdefault(models, p)
+    return p
+
+
+def predictive(models: GPClassModels, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """mu (B, C, F, K) and cov (B, C, F, K, K) (white noise included) for trajectories X (B, K, d):
+    ``GPClassModels.predict`` to rounding, faster."""
+    pl = plan(models)
+    X = np.ascontiguousarray(X, dtype=float)
+    B, K, d = X.shape
+    C, F = models.n_classes, models.n_components
+    flat = X.reshape(B * K, d)
+    mu = np.empty((B, C, F, K))
+    cov = np.empty((B, C, F, K, K))
+    use_basis = pl.P_max > 0 and cb.unit_error(flat) <= cb.UNIT_TOL
+    diag = np.arange(K)
+    if use_basis:
+        Phi = cb.features(flat / np.linalg.norm(flat, axis=1, keepdims=True), pl.P_max)
+        for grp in pl.groups:
+            # One GEMM per group of GPs of similar order: [Z_g | μ_g - m_g] for every g of the group.
+            out = np.matmul(Phi[:, :grp.P], grp.W)                    # (B·K, Σ(P_g + 1))
+            for (c, f), o, P in zip(grp.members, grp.offsets, grp.orders):
+                g = pl.basis[c][f]
+                mu[:, c, f, :] = out[:, o + P].reshape(B, K) + g.mean
+                Z3 = out[:, o:o + P].reshape(B, K, P)
+                S = np.matmul(Z3, Z3.transpose(0, 2, 1))
+                S[:, diag, diag] += g.noise
+                cov[:, c, f] = S
+    D2tt = None
+    for c in range(C):
+        exact_f = [f for f in range(F) if not (use_basis and pl.basis[c][f] is not None)]
+        if exact_f:
+            if D2tt is None:
+                diff = X[:, :, None, :] - X[:, None, :, :]
+                D2tt = np.einsum("bkld,bkld->bkl", diff, diff)
+            _exact_class(models, pl, c, exact_f, flat, B, K, D2tt, mu, cov)
+    return mu, cov
+
+
+def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> None:
+    """The reference route for class c's components fs, whitening by TRMM with L⁻¹."""
+    from scipy.linalg.blas import dtrmm
+
+    linv = pl.exact_factors()
+    fc = models.factors()[c]
+    N = len(fc.T)
+    D2 = models._sqdist_train(c, flat)
+    V = np.empty_like(D2)
+    kk = np.empty((B, K, K))
+    diag = np.arange(K)
+    for f in fs:
+        models._kernel_from_sqdist(c, f, D2, out=V)
+        mu[:, c, f, :] = (V @ fc.alpha[f] + models.mean[c, f]).reshape(B, K)
+        out = dtrmm(1.0, linv[c][f], V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
+        if not np.shares_memory(out, V):  # pragma: no cover - BLAS wrapper made a copy after all
+            V[...] = out.T
+        V3 = V.reshape(B, K, N)
+        S = np.matmul(V3, V3.transpose(0, 2, 1))
+        ell = models.length_scale[c, f]
+        np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
+        np.exp(kk, out=kk)
+        kk *= models.amplitude[c, f]
+        kk[:, diag, diag] += models.noise[c, f]
+        np.subtract(kk, S, out=cov[:, c, f])
