@@ -54,8 +54,12 @@ class Plan:
         self._solve_triangular = solve_triangular
         self._fac = fac
         self.P_max = max([g.P for row in self.basis for g in row if g is not None] or [0])
-        self.groups = _groups([((c, f), g) for c, row in enumerate(self.basis) for f, g in enumerate(row)
-                               if g is not None])
+        self.members = [(c, f) for c, row in enumerate(self.basis) for f, g in enumerate(row) if g is not None]
+        self.q_fortran = [np.asfortranarray(self.basis[c][f].QT.T) for c, f in self.members]
+        self.wbar = np.zeros((self.P_max, len(self.members)))
+        for i, (c, f) in enumerate(self.members):
+            g = self.basis[c][f]
+            self.wbar[:g.P, i] = g.wbar
 
     def exact_factors(self):
         """L⁻¹ (Fortran order) per GP, for the exact route (built on first use)."""
@@ -73,37 +77,6 @@ class Plan:
         """{'basis': n, 'exact': n, 'P': [...]} for logs and the bench."""
         ps = [g.P for row in self.basis for g in row if g is not None]
         return {"basis": len(ps), "exact": sum(g is None for row in self.basis for g in row), "P": ps}
-
-
-class _Group:
-    """GPs whose basis factors share one GEMM: W = [Qᵀ_g | w̄_g]… zero-padded to P rows."""
-
-    def __init__(self, items):
-        self.P = max(g.P for _, g in items)
-        self.members = [cf for cf, _ in items]
-        self.orders = [g.P for _, g in items]
-        self.offsets = list(np.cumsum([0] + [g.P + 1 for _, g in items])[:-1])
-        self.W = np.zeros((self.P, sum(g.P + 1 for _, g in items)))
-        for o, (_, g) in zip(self.offsets, items):
-            self.W[:g.P, o:o + g.P] = g.QT
-            self.W[:g.P, o + g.P] = g.wbar
-
-
-def _groups(items, waste: float = 0.25) -> list[_Group]:
-    """Sort by order and cut where zero padding would exceed ``waste`` of a group's flops."""
-    items = sorted(items, key=lambda t: -t[1].P)
-    out, cur = [], []
-    for it in items:
-        trial = cur + [it]
-        pad = trial[0][1].P * sum(g.P + 1 for _, g in trial)
-        need = sum(g.P * (g.P + 1) for _, g in trial)
-        if cur and pad > (1 + waste) * need:
-            out.append(_Group(cur))
-            trial = [it]
-        cur = trial
-    if cur:
-        out.append(_Group(cur))
-    return out
 
 
 def plan(models: GPClassModels) -> Plan:
@@ -129,17 +102,22 @@ def predictive(models: GPClassModels, X: np.ndarray) -> tuple[np.ndarray, np.nda
     use_basis = pl.P_max > 0 and cb.unit_error(flat) <= cb.UNIT_TOL
     diag = np.arange(K)
     if use_basis:
+        from scipy.linalg.blas import dtrmm
+
         Phi = cb.features(flat / np.linalg.norm(flat, axis=1, keepdims=True), pl.P_max)
-        for grp in pl.groups:
-            # One GEMM per group of GPs of similar order: [Z_g | μ_g - m_g] for every g of the group.
-            out = np.matmul(Phi[:, :grp.P], grp.W)                    # (B·K, Σ(P_g + 1))
-            for (c, f), o, P in zip(grp.members, grp.offsets, grp.orders):
-                g = pl.basis[c][f]
-                mu[:, c, f, :] = out[:, o + P].reshape(B, K) + g.mean
-                Z3 = out[:, o:o + P].reshape(B, K, P)
-                S = np.matmul(Z3, Z3.transpose(0, 2, 1))
-                S[:, diag, diag] += g.noise
-                cov[:, c, f] = S
+        means = Phi @ pl.wbar                                          # (B·K, G): every basis mean
+        for i, (c, f) in enumerate(pl.members):
+            g = pl.basis[c][f]
+            mu[:, c, f, :] = means[:, i].reshape(B, K) + g.mean
+            # Z = Φ Qᵀ in place as Zᵀ = Q Φᵀ (Q lower triangular): a TRMM, half a GEMM's flops.
+            Z = np.array(Phi[:, :g.P])                                  # C order (B·K, P)
+            out = dtrmm(1.0, pl.q_fortran[i], Z.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
+            if not np.shares_memory(out, Z):  # pragma: no cover - BLAS wrapper made a copy after all
+                Z[...] = out.T
+            Z3 = Z.reshape(B, K, g.P)
+            S = np.matmul(Z3, Z3.transpose(0, 2, 1))
+            S[:, diag, diag] += g.noise
+            cov[:, c, f] = S
     D2tt = None
     for c in range(C):
         exact_f = [f for f in range(F) if not (use_basis and pl.basis[c][f] is not None)]
