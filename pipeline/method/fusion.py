@@ -23,6 +23,8 @@ never becomes 0/0.
 from __future__ import annotations
 
 import math
+import threading
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -34,6 +36,40 @@ from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 # Elements per working array in one block (a few such arrays live at once): ~8 MB each. Blocks
 # this size keep the train-test kernel passes near the caches; more blocks cost little.
 DEFAULT_BLOCK = 1 << 20
+
+# Where the per-block work runs: "cpu" (numpy, pipeline/method/engine.py), "cuda" (torch float64 on
+# the GPU, pipeline/method/engine_torch.py) or "torch-cpu" (the torch code on the CPU: the tests'
+# and the bench's way to run it without a GPU). Set per thread by ``engine_device``.
+_STATE = threading.local()
+DEVICES = ("cpu", "cuda", "torch-cpu")
+
+
+def current_device() -> str:
+    return getattr(_STATE, "device", "cpu")
+
+
+@contextmanager
+def engine_device(device: str):
+    """Run the fusion calls inside on ``device``: "cpu", "cuda", "torch-cpu", or "auto" (cuda when
+    torch sees a GPU, else cpu). Results agree to rounding (tests/test_engine_torch.py)."""
+    if device == "auto":
+        from pipeline.infra.device import resolve_device
+        device = resolve_device("auto")
+    if device not in DEVICES:
+        raise ValueError(f"engine_device: unknown device {device!r}; use auto, {', '.join(DEVICES)}")
+    if device == "cuda":
+        from pipeline.infra.device import resolve_device
+        resolve_device("cuda")          # a clear error without a GPU
+    old = current_device()
+    _STATE.device = device
+    try:
+        yield device
+    finally:
+        _STATE.device = old
+
+
+def _torch_device(device: str) -> str:
+    return "cpu" if device == "torch-cpu" else device
 
 
 # -- small numerics ------------------------------------------------------------------------------
@@ -271,8 +307,14 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
 
     mu_z, v_z = _dropout_stats(Z, var_floor)                       # (R, K, F), once per call
 
+    device = current_device()
+
     def work(span):
         r0, r1, x0, x1 = span
+        if device != "cpu":
+            from pipeline.method import engine_torch
+            return engine_torch.mwu_block(models, _torch_device(device), X[r0:r1, x0:x1], mu_z[r0:r1],
+                                          v_z[r0:r1], Z[r0:r1], logp0)
         return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0), axis=1)
 
     for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
@@ -310,9 +352,14 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
     logp0 = log_prior(prior, C)
     out = np.empty((R, K, C))
 
+    device = current_device()
+
     def work(span):
         r0, r1 = span[:2]
         b = r1 - r0
+        if device != "cpu":
+            from pipeline.method import engine_torch
+            return engine_torch.mb_block(models, _torch_device(device), X[r0:r1], Z[r0:r1], logp0)
         mu, cov = engine.predictive(models, X[r0:r1])               # (b, C, F, K[, K])
         resid = np.swapaxes(Z[r0:r1], -1, -2)[:, None] - mu         # z - μ
         D = np.ascontiguousarray(np.moveaxis(resid, -1, 0).reshape(K, -1))
