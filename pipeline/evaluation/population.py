@@ -176,6 +176,7 @@ class Cell:
     seed: int
     var_floor: float
     difficulty: bool = True
+    device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
@@ -186,6 +187,13 @@ def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.
 def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None}."""
+    from pipeline.method.fusion import engine_device
+
+    with engine_device(cell.device):
+        return _run_cell(banks, cell)
+
+
+def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
     posts = {}
     for s in cell.settings:

@@ -602,16 +602,36 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
     where = str(path)
     if not path.is_file():
         raise ConfigError(f"{where}: config file not found")
-    try:
-        table = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{where}: not valid TOML: {e}") from None
+    table = _read_table(path)
     if overrides:
         table = _merge(table, overrides)
     cfg = _build(Config, table, where, "")
     cfg = dataclasses.replace(cfg, source_path=str(path.resolve()))
     _cross_checks(cfg, where)
     return cfg
+
+
+def _read_table(path: Path, seen: tuple = ()) -> dict:
+    """The file's tables; a top-level ``extends = "other.toml"`` (relative to the file) first reads
+    that config and merges this file's keys over it, so a preset states only what it changes."""
+    where = str(path)
+    if not path.is_file():
+        raise ConfigError(f"{where}: config file not found")
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{where}: not valid TOML: {e}") from None
+    base = table.pop("extends", None)
+    if base is None:
+        return table
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"{where}: 'extends' must be a config file name, got {base!r}")
+    parent = (path.parent / base).resolve()
+    if parent in seen or parent == path.resolve():
+        raise ConfigError(f"{where}: 'extends' makes a cycle through {parent}")
+    if not parent.is_file():
+        raise ConfigError(f"{where}: 'extends' names {base!r}, not found at {parent}")
+    return _merge(_read_table(parent, seen + (path.resolve(),)), table)
 
 
 def _merge(base: dict, over: dict) -> dict:
