@@ -15,10 +15,16 @@ With ``d = μ_z - μ`` (past dropout means minus predictive means) and ``y = M d
 variance is ``L_kk² (1 + Σ_{j<k} M_kj² v_j)``. Model Based is the same with the measurements in
 place of μ_z and no v_z term (the chain rule of one Gaussian).
 
-Batching: realizations × localization samples × classes × components in every array op; the
-train-test kernels are big GEMMs (``GPClassModels.predict``); the recursion along the track is a
-loop over K vectorized over everything else, in log space (logsumexp), so a confident posterior
-never becomes 0/0.
+Batching: realizations × localization samples × classes × components in every array op. The
+joint predictive comes from ``pipeline/method/engine.py`` (Fourier-feature GEMMs on the unit
+circle, else kernel rows whitened by a triangular multiply); the K×K Cholesky factor, M's rows, y
+and the q sums are computed in one batch-last pass (``_cond_stats``: every K×K step is a vector op
+over all blocks' matrices); the recursion along the track is a loop over K vectorized over
+everything else, in log space (logsumexp), so a confident posterior never becomes 0/0. The engine
+before this one is kept as ``tests/reference_fusion.py``; the tests hold the two equal to 1e-9.
+
+``engine_device`` runs the same blocks in torch float64 (``pipeline/method/engine_torch.py``) on a
+GPU, or on the CPU for the tests.
 """
 from __future__ import annotations
 
@@ -33,9 +39,10 @@ from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
-# Elements per working array in one block (a few such arrays live at once): ~8 MB each. Blocks
-# this size keep the train-test kernel passes near the caches; more blocks cost little.
-DEFAULT_BLOCK = 1 << 20
+# Elements per working array in one block (a few such arrays live at once): ~2 MB each, about 180
+# trajectories at 4 x 4 GPs, K = 9, N_s = 10. Blocks this size keep the basis GEMMs and Grams in
+# the caches (measured faster than 4x larger blocks); more blocks cost little.
+DEFAULT_BLOCK = 1 << 18
 
 # Where the per-block work runs: "cpu" (numpy, pipeline/method/engine.py), "cuda" (torch float64 on
 # the GPU, pipeline/method/engine_torch.py) or "torch-cpu" (the torch code on the CPU: the tests'
