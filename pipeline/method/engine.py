@@ -79,6 +79,25 @@ class Plan:
         return {"basis": len(ps), "exact": sum(g is None for row in self.basis for g in row), "P": ps}
 
 
+_WORK = threading.local()
+
+
+def workspace(name: str, shape: tuple, zero: bool = False) -> np.ndarray:
+    """A per-thread scratch array reused from block to block (fresh large arrays cost page
+    faults and zeroing on every block). ``zero``: zeroed when first made; callers that never write
+    some part (M's upper triangle) rely on it staying 0. Not for results handed back."""
+    cache = getattr(_WORK, "arrays", None)
+    if cache is None:
+        cache = _WORK.arrays = {}
+    key = (name, tuple(shape))
+    a = cache.get(key)
+    if a is None:
+        if len(cache) > 32:
+            cache.clear()
+        a = cache[key] = np.zeros(shape) if zero else np.empty(shape)
+    return a
+
+
 def plan(models: GPClassModels) -> Plan:
     with _LOCK:
         p = _PLANS.get(models)
@@ -110,7 +129,8 @@ def predictive(models: GPClassModels, X: np.ndarray) -> tuple[np.ndarray, np.nda
             g = pl.basis[c][f]
             mu[:, c, f, :] = means[:, i].reshape(B, K) + g.mean
             # Z = Φ Qᵀ in place as Zᵀ = Q Φᵀ (Q lower triangular): a TRMM, half a GEMM's flops.
-            Z = np.array(Phi[:, :g.P])                                  # C order (B·K, P)
+            Z = workspace("Z", (B * K, g.P))                             # C order (B·K, P)
+            np.copyto(Z, Phi[:, :g.P])
             out = dtrmm(1.0, pl.q_fortran[i], Z.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
             if not np.shares_memory(out, Z):  # pragma: no cover - BLAS wrapper made a copy after all
                 Z[...] = out.T

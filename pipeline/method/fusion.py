@@ -174,10 +174,10 @@ def _batch_last(mu: np.ndarray, cov: np.ndarray):
 def _cond_stats(A: np.ndarray, D: np.ndarray, V: np.ndarray | None):
     """Batch-last Cholesky ``A = L Lᵀ`` (K, K, nb) and ``M = L⁻¹``, reduced to what the recursion
     needs: L_kk, y = M D and q_k = Σ_{j<k} M_kj² V_j (each (K, nb); q None without V).
-    None when some A is not positive definite (the caller names it). Only the lower triangles of
-    L and M are ever written or read."""
+    None when some A is not positive definite (the caller names it). Only L's lower triangle is
+    ever written or read."""
     K, nb = A.shape[0], A.shape[-1]
-    L = np.empty_like(A)
+    L = engine.workspace("L", A.shape)
     for j in range(K):
         s = A[j, j] - np.einsum("kb,kb->b", L[j, :j], L[j, :j]) if j else A[0, 0].copy()
         if not np.all(s > 0):
@@ -191,18 +191,16 @@ def _cond_stats(A: np.ndarray, D: np.ndarray, V: np.ndarray | None):
     Ld = np.empty((K, nb))
     y = np.empty((K, nb))
     q = None if V is None else np.zeros((K, nb))
-    M = np.empty_like(A)
+    M = engine.workspace("M", A.shape, zero=True)   # only its lower triangle is ever written: the rest stays 0
     for k in range(K):
         Ld[k] = L[k, k]
         inv = 1.0 / Ld[k]
         M[k, k] = inv
         if k:
-            # M[k, :k] = -(L[k, :k] @ M[:k, :k]) / L_kk (forward substitution by rows; M[:k, :k]
-            # lower triangular, so only j >= l terms)
-            row = M[k, :k]
-            for l in range(k):
-                row[l] = np.einsum("jb,jb->b", L[k, l:k], M[l:k, l])
+            # M[k, :k] = -(L[k, :k] @ M[:k, :k]) / L_kk (forward substitution by rows)
+            row = np.einsum("jb,jlb->lb", L[k, :k], M[:k, :k])
             row *= -inv
+            M[k, :k] = row
             y[k] = np.einsum("jb,jb->b", row, D[:k]) + inv * D[k]
             if V is not None:
                 q[k] = np.einsum("jb,jb->b", row * row, V[:k])
