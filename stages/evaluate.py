@@ -26,7 +26,7 @@ from pipeline.method.gp import GPClassModels
 from pipeline.evaluation.labels import COMPARISONS, METHODS, METRICS
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.popstats import population_block
-from pipeline.evaluation.results import cell_metrics, metadata, result_block, write_results
+from pipeline.evaluation.results import ResultsWriter, cell_metrics, metadata, result_block
 from pipeline.evaluation.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
@@ -123,16 +123,16 @@ def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dic
     return cells, tracks, skipped
 
 
+def cell_rows(cell: P.Cell, res: dict) -> list[dict]:
+    """One row per (setting, method) of a cell with its metrics."""
+    return [{"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
+             "experiment": experiment, "setting": label, "method": method, **cell_metrics(lp, cell.truth)}
+            for (experiment, label), posts in res["posts"].items() for method, lp in posts.items()]
+
+
 def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
     """One row per (variant, target, track, setting, method) with the cell's metrics."""
-    rows = []
-    for cell, res in zip(cells, results):
-        for (experiment, label), posts in res["posts"].items():
-            for method, lp in posts.items():
-                rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
-                             "experiment": experiment, "setting": label, "method": method,
-                             **cell_metrics(lp, cell.truth)})
-    return pd.DataFrame(rows)
+    return pd.DataFrame([r for cell, res in zip(cells, results) for r in cell_rows(cell, res)])
 
 
 def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
@@ -206,8 +206,9 @@ def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], re
     }
 
 
-def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
-    """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
+def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict) -> None:
+    """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures).
+    ``blocks``: a list or a ``ResultsWriter`` (anything with ``append``) for the result rows."""
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
     if "gp_models" in ev.experiments:
@@ -267,32 +268,50 @@ def run(ctx) -> str:
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    executor = executor_for(cfg)
-    try:
-        device, gpu = fusion_device(ctx, executor)
-        cells = [dataclasses.replace(c, device=device) for c in cells]
-        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell", gpu=gpu)
-    finally:
-        executor.close()
-    timings["population"] = time.perf_counter() - t0
-    log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
-             len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
-
-    t0 = time.perf_counter()
-    table = cell_table(cells, results)
-    population = population_summary(cfg, table, cells, results, tracks, skipped)
-    timings["statistics"] = time.perf_counter() - t0
-
-    # The first target's first track: its biased/randomized tables as before, plus the figures.
     first = cells[0]
-    summary: dict = {}
-    for (experiment, label), posts in results[0]["posts"].items():
-        summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
-    blocks = result_blocks(cells, results)
-    single_track(cfg, ctx, banks, first, blocks, summary, timings)
-    n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
-        config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
-        target=first.target))
+    # Cells stream: each cell's metrics row and result rows are made as it finishes and its log
+    # posteriors dropped (only the first cell's are kept, for the single-track tables), so memory
+    # does not grow with the population (configs/paper_grade.toml: ~12 M trajectories).
+    rows: list[dict] = []
+    results: list[dict] = []
+    first_posts = None
+    results_path = ctx.out / out_name("evaluate", "results")
+    with ResultsWriter(results_path, metadata(config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed),
+                                              classes=list(first.classes), target=first.target)) as writer:
+        executor = executor_for(cfg)
+        try:
+            device, gpu = fusion_device(ctx, executor)
+            cells = [dataclasses.replace(c, device=device) for c in cells]
+            # (enumerate, not zip: the executor's generator must run to its end, where it records its stats)
+            for i, res in enumerate(executor.imap(P.run_cell, cells, shared=banks, desc="evaluate: cells",
+                                                  unit="cell", total=len(cells), gpu=gpu)):
+                cell = cells[i]
+                rows.extend(cell_rows(cell, res))
+                for b in result_blocks([cell], [res]):
+                    writer.write(b)
+                if first_posts is None:
+                    first_posts = res["posts"]
+                results.append({"difficulty": res["difficulty"]})
+        finally:
+            executor.close()
+        timings["population"] = time.perf_counter() - t0
+        log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
+                 len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
+
+        t0 = time.perf_counter()
+        table = pd.DataFrame(rows)
+        population = population_summary(cfg, table, cells, results, tracks, skipped)
+        timings["statistics"] = time.perf_counter() - t0
+
+        # The first target's first track: its biased/randomized tables as before, plus the figures.
+        summary: dict = {}
+        for (experiment, label), posts in first_posts.items():
+            summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
+        from pipeline.method.fusion import engine_device
+
+        with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
+            single_track(cfg, ctx, banks, first, writer, summary, timings)
+    n_rows = writer.rows
     info = tracks[0].as_dict()
     obj_truth = P.truth_entry(truth, first.scan, first.target)
     info.update(classes=list(first.classes), yaw_deg=float(np.degrees(first.data.yaw)),
