@@ -146,12 +146,21 @@ def test_features_are_cos_and_sin_of_multiples():
 
 
 def test_non_positive_definite_names_the_gp():
+    from pipeline.method.fusion import _stats_or_raise
+
     rng = np.random.default_rng(1)
-    models = random_models(rng, 2, 2, noise=(1e-30, 2e-30), amp=(0.5, 0.6), ell=(3.0, 4.0))
-    X = np.zeros((1, 2, 3, 2))
-    X[..., 0] = 1.0                                   # the same input three times: singular
-    with pytest.raises(ValueError, match="not positive definite"):
-        fuse_with_uncertainty(models, X, np.full((1, 3, 2, 2), 0.2), var_floor=0.0, progress=False)
+    models = random_models(rng, 2, 2)
+    K = 3
+    cov = np.broadcast_to(np.eye(K), (4, 2, 2, K, K)).copy()
+    cov[1, 1, 0] = -np.eye(K)                          # one matrix of GP (k1, component 0) is not PD
+    mu = np.zeros((4, 2, 2, K))
+    D = np.zeros((K, 4 * 2 * 2))
+    with pytest.raises(ValueError, match=r"not positive definite for \(class, component\) \[\('k1', 0\)\]"):
+        _stats_or_raise(models, mu, cov, D, None)
+    Ld, y, q = _stats_or_raise(models, mu, np.broadcast_to(4 * np.eye(K), cov.shape).copy(), D + 1.0, D)
+    np.testing.assert_allclose(Ld, 2.0)
+    np.testing.assert_allclose(y, 0.5)
+    np.testing.assert_allclose(q, 0.0)
 
 
 def test_threads_and_blocks_do_not_change_results():

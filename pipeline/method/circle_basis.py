@@ -88,6 +88,7 @@ class BasisGP:
     """One (class, component) on the basis route: z = Q φ[:P], μ = m + φ[:P]·w̄."""
     P: int
     QT: np.ndarray          # (P, P) Qᵀ, upper triangular: Z = Φ Qᵀ
+    QF: np.ndarray          # (P, P) Q, lower triangular, Fortran order (the TRMM operand)
     wbar: np.ndarray        # (P,)
     mean: float
     noise: float
@@ -112,4 +113,4 @@ def build(x_train: np.ndarray, y: np.ndarray, mean: float, a: float, ell: float,
     R = np.linalg.cholesky(A)                          # eigenvalues >= 1: well conditioned
     Q = solve_triangular(R, np.diag(d_half), lower=True)
     wbar = d_half * cho_solve((R, True), Xm.T @ (np.asarray(y, float) - mean) / sig)
-    return BasisGP(P, np.ascontiguousarray(Q.T), wbar, float(mean), float(noise), tau)
+    return BasisGP(P, np.ascontiguousarray(Q.T), np.asfortranarray(Q), wbar, float(mean), float(noise), tau)

@@ -25,53 +25,67 @@ from pipeline.method.gp import GPClassModels
 
 _PLANS: "weakref.WeakKeyDictionary[GPClassModels, Plan]" = weakref.WeakKeyDictionary()
 _LOCK = threading.Lock()
+_BASIS: dict[bytes, cb.BasisGP | None] = {}
+_BASIS_MAX = 8192
+
+
+def _basis_gp(models: GPClassModels, c: int, f: int) -> cb.BasisGP | None:
+    """``circle_basis.build`` for GP (c, f), cached by its content (inputs, targets, hyperparameters)."""
+    import hashlib
+
+    x, y = models.X[c], np.ascontiguousarray(models.Y[c][f])
+    h = hashlib.blake2b(digest_size=16)
+    for part in (x.tobytes(), y.tobytes(), np.array([models.mean[c, f], models.amplitude[c, f],
+                                                     models.length_scale[c, f], models.noise[c, f]]).tobytes()):
+        h.update(part)
+    key = h.digest()
+    with _LOCK:
+        if key in _BASIS:
+            return _BASIS[key]
+    g = cb.build(x, y, models.mean[c, f], models.amplitude[c, f], models.length_scale[c, f], models.noise[c, f])
+    with _LOCK:
+        if len(_BASIS) >= _BASIS_MAX:
+            _BASIS.clear()
+        _BASIS[key] = g
+    return g
 
 
 class Plan:
-    """Per-GP route and factors of one model bank (built once, shared by worker threads)."""
+    """Per-GP route and factors of one model bank (built once, shared by worker threads). Basis
+    factors come from a cache keyed by the GP's content, so the per-cell ``subset`` of a bank
+    reuses them; the exact route's factors are made on first use."""
 
     def __init__(self, models: GPClassModels, basis: bool = True):
-        from scipy.linalg import solve_triangular
-
         self.models = models
         C, F = models.n_classes, models.n_components
-        fac = models.factors()
         self.basis: list[list[cb.BasisGP | None]] = [[None] * F for _ in range(C)]
-        self.linv: list[list[np.ndarray | None]] = [[None] * F for _ in range(C)]
+        self._linv: dict[tuple[int, int], np.ndarray] = {}
         on_circle = models.input_dim == 2
         for c in range(C):
             N = len(models.X[c])
             unit = on_circle and cb.unit_error(models.X[c]) <= cb.UNIT_TOL
             for f in range(F):
-                g = None
-                if basis and unit:
-                    g = cb.build(models.X[c], models.Y[c][f], models.mean[c, f], models.amplitude[c, f],
-                                 models.length_scale[c, f], models.noise[c, f])
-                    if g is not None and g.P > N:
-                        g = None
-                self.basis[c][f] = g
-        self._exact_ready = False
-        self._solve_triangular = solve_triangular
-        self._fac = fac
+                g = _basis_gp(models, c, f) if basis and unit else None
+                self.basis[c][f] = g if g is not None and g.P <= N else None
         self.P_max = max([g.P for row in self.basis for g in row if g is not None] or [0])
         self.members = [(c, f) for c, row in enumerate(self.basis) for f, g in enumerate(row) if g is not None]
-        self.q_fortran = [np.asfortranarray(self.basis[c][f].QT.T) for c, f in self.members]
+        self.q_fortran = [self.basis[c][f].QF for c, f in self.members]
         self.wbar = np.zeros((self.P_max, len(self.members)))
         for i, (c, f) in enumerate(self.members):
             g = self.basis[c][f]
             self.wbar[:g.P, i] = g.wbar
 
-    def exact_factors(self):
-        """L⁻¹ (Fortran order) per GP, for the exact route (built on first use)."""
-        if not self._exact_ready:
+    def linv(self, c: int, f: int) -> np.ndarray:
+        """L⁻¹ (Fortran order) of GP (c, f)'s training Cholesky factor, for the exact route."""
+        out = self._linv.get((c, f))
+        if out is None:
+            from scipy.linalg import solve_triangular
+
+            L = self.models.factors()[c].L[f]
+            out = np.asfortranarray(solve_triangular(L, np.eye(len(L)), lower=True))
             with _LOCK:
-                if not self._exact_ready:
-                    for c, fc in enumerate(self._fac):
-                        for f, L in enumerate(fc.L):
-                            self.linv[c][f] = np.asfortranarray(
-                                self._solve_triangular(L, np.eye(len(L)), lower=True))
-                    self._exact_ready = True
-        return self.linv
+                self._linv[(c, f)] = out
+        return out
 
     def routes(self) -> dict:
         """{'basis': n, 'exact': n, 'P': [...]} for logs and the bench."""
@@ -153,7 +167,6 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> Non
     """The reference route for class c's components fs, whitening by TRMM with L⁻¹."""
     from scipy.linalg.blas import dtrmm
 
-    linv = pl.exact_factors()
     fc = models.factors()[c]
     N = len(fc.T)
     D2 = models._sqdist_train(c, flat)
@@ -163,7 +176,7 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> Non
     for f in fs:
         models._kernel_from_sqdist(c, f, D2, out=V)
         mu[:, c, f, :] = (V @ fc.alpha[f] + models.mean[c, f]).reshape(B, K)
-        out = dtrmm(1.0, linv[c][f], V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
+        out = dtrmm(1.0, pl.linv(c, f), V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
         if not np.shares_memory(out, V):  # pragma: no cover - BLAS wrapper made a copy after all
             V[...] = out.T
         V3 = V.reshape(B, K, N)

@@ -33,14 +33,21 @@ class TorchPlan:
         self.basis = [(i, c, f, pl.basis[c][f].P, t(pl.basis[c][f].QT), pl.basis[c][f].mean, pl.basis[c][f].noise)
                       for i, (c, f) in enumerate(pl.members)]
         self.wbar = t(pl.wbar) if pl.members else None
-        fac = models.factors()
-        linv = pl.exact_factors()
-        self.exact = []
-        for c, fc in enumerate(fac):
-            self.exact.append(dict(center=t(fc.center), T=t(fc.T), tsq=t(fc.tsq), alpha=t(fc.alpha),
-                                   linv=[t(L) for L in linv[c]]))
+        self._t = t
+        self._exact: dict[int, dict] = {}
         self.amp, self.ell, self.noise, self.mean = (t(models.amplitude), t(models.length_scale),
                                                      t(models.noise), t(models.mean))
+
+
+    def exact(self, c: int) -> dict:
+        """Class c's exact-route factors on the device (made on first use)."""
+        e = self._exact.get(c)
+        if e is None:
+            t, fc = self._t, self.models.factors()[c]
+            e = dict(center=t(fc.center), T=t(fc.T), tsq=t(fc.tsq), alpha=t(fc.alpha),
+                     linv=[t(self.plan.linv(c, f)) for f in range(self.models.n_components)])
+            self._exact[c] = e
+        return e
 
 
 def torch_plan(models, device: str) -> TorchPlan:
@@ -99,7 +106,7 @@ def predictive(tp: TorchPlan, X_np: np.ndarray):
         if D2tt is None:
             diff = X[:, :, None, :] - X[:, None, :, :]
             D2tt = (diff * diff).sum(-1)
-        e = tp.exact[c]
+        e = tp.exact(c)
         x = flat - e["center"]
         D2 = (x @ (-2.0 * e["T"].T) + (x * x).sum(1)[:, None] + e["tsq"][None, :]).clamp_min(0.0)
         N = D2.shape[1]

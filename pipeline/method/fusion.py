@@ -433,7 +433,7 @@ def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progres
     from pipeline.infra.progress import bar as progress_bar
 
     n = max(1, min(int(threads or available_cores()), len(spans)))
-    models.factors()  # build the shared training factors once, before any worker reads them
+    engine.plan(models)  # build the shared routes and factors once, before any worker reads them
     bar = progress_bar(total=len(spans), desc=desc, unit="block", leave=False,
                        enabled=progress and len(spans) >= 2)
     try:  # installed with scikit-learn
