@@ -2,8 +2,9 @@
 its statistics and verdict, and the single-track figures for the first target's first track.
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
-experiments and the statistics are pure functions in ``pipeline.evaluation.population``,
-``pipeline.evaluation.experiments`` and ``pipeline.evaluation.popstats``; cells run on ``run.executor``.
+experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.population``,
+``pipeline.evaluation.experiments``, ``pipeline.evaluation.metrics``, ``pipeline.evaluation.popstats``
+and ``pipeline.evaluation.population_summary``; cells run on ``run.executor``.
 """
 from __future__ import annotations
 
@@ -22,16 +23,15 @@ from pipeline.evaluation import population as P
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
+from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
-from pipeline.evaluation.labels import COMPARISONS, METHODS, METRICS
 from pipeline.infra.outputs import name as out_name
-from pipeline.evaluation.popstats import population_block
-from pipeline.evaluation.results import ResultsWriter, cell_metrics, metadata, result_block
+from pipeline.evaluation.population import DEFAULT
+from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary, result_blocks
+from pipeline.evaluation.results import ResultsWriter, metadata, result_block
 from pipeline.evaluation.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
-
-DEFAULT = "default"
 
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
@@ -41,7 +41,8 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     for a in ablations:
         sub = index.get("ablations", {}).get(a)
         if sub is None:
-            raise ValueError(f"{models_dir / 'index.json'}: no model bank for ablation {a!r} (rerun the models stage)")
+            raise ValueError(f"{models_dir / out_name('models', 'index')}: no model bank for ablation {a!r} "
+                             "(rerun the models stage)")
         banks[a] = GPClassModels.load(models_dir / sub)
         indexes[a] = _read_index(models_dir / sub)
     return banks, indexes
@@ -75,137 +76,6 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     return intr, steps
 
 
-def choose_targets(cfg: Config, avd: pd.DataFrame, plan: dict) -> list[str]:
-    ev = cfg.evaluate
-    seen = sorted(avd.loc[(avd["difficulty"] <= ev.max_difficulty), "instance"].unique())
-    if isinstance(ev.targets, str):
-        return [t for t in seen if t in plan]
-    missing = [t for t in ev.targets if t not in plan]
-    if missing:
-        raise ValueError(f"evaluate.targets names {missing[0]!r}, for which the models stage planned no "
-                         f"candidate set (modelled: {', '.join(sorted(plan))})")
-    return list(ev.targets)
-
-
-def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
-                intr: dict, steps: dict) -> tuple[list[P.Cell], list[P.TrackInfo], list[dict]]:
-    """Every (variant, target, track) cell; targets without a usable track are skipped with a reason."""
-    ev = cfg.evaluate
-    plan = indexes[DEFAULT]["candidate_sets"]
-    own = indexes[DEFAULT]["own_components"]
-    settings = tuple(P.population_settings(ev))
-    cells, tracks, skipped = [], [], []
-    for target in choose_targets(cfg, avd, plan):
-        det = P.target_views(avd, target, ev.max_difficulty)
-        try:
-            infos = P.plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
-                                  tuple(ev.track_images))
-        except TrackError as e:
-            skipped.append({"target": target, "reason": str(e)})
-            log.warning("target %s skipped: %s", target, e)
-            continue
-        classes = plan[target]["classes"]
-        for info in infos:
-            yaw = P.yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
-            for variant, index in indexes.items():
-                comps = index["candidate_sets"][target]["components"]
-                drop, mine = P.gather_scores(avd, scores, info, comps, [own[c] for c in classes], ev.max_difficulty)
-                data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
-                                   dropout=drop, own=mine)
-                cells.append(P.Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
-                                    classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                    difficulty=variant == DEFAULT))
-            tracks.append(info)
-        log.info("target %s: %d track(s) in %s; candidates %s", target, len(infos),
-                 ", ".join(sorted({i.scan for i in infos})), ", ".join(classes))
-    if not cells:
-        raise TrackError("no target has a usable track: " + "; ".join(f"{s['target']}: {s['reason']}" for s in skipped))
-    return cells, tracks, skipped
-
-
-def cell_rows(cell: P.Cell, res: dict) -> list[dict]:
-    """One row per (setting, method) of a cell with its metrics."""
-    return [{"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
-             "experiment": experiment, "setting": label, "method": method, **cell_metrics(lp, cell.truth)}
-            for (experiment, label), posts in res["posts"].items() for method, lp in posts.items()]
-
-
-def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
-    """One row per (variant, target, track, setting, method) with the cell's metrics."""
-    return pd.DataFrame([r for cell, res in zip(cells, results) for r in cell_rows(cell, res)])
-
-
-def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
-    out = []
-    for cell, res in zip(cells, results):
-        by_label = {(s.experiment, s.label): s for s in cell.settings}
-        for key, posts in res["posts"].items():
-            s = by_label[key]
-            out.append(result_block(posts, cell.truth, variant=cell.variant, experiment=s.experiment, setting=s.label,
-                                    sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
-                                    scan=cell.scan, target=cell.target, track=cell.track,
-                                    candidates=",".join(cell.classes), truth=cell.truth))
-    return out
-
-
-def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
-                       tracks: list[P.TrackInfo], skipped: list[dict]) -> dict:
-    ev = cfg.evaluate
-    metrics = list(METRICS)
-    methods = [m for m in METHODS if m in set(table["method"])]
-    settings = P.population_settings(ev)
-    default = table[table["variant"] == DEFAULT]
-    n_targets = default["target"].nunique()
-    n_tracks = len(tracks)
-    scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
-    block = population_block(default, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope)
-    by_setting = {}
-    for s in settings:
-        sub = default[default["setting"] == s.label]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                             f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False)
-        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}
-    ablations = {}
-    for a in ev.ablations:
-        sub = table[table["variant"] == a]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope, per_target=False)
-        key, value = (t.strip() for t in a.split("=", 1))
-        ablations[a] = {"override": {key: value}, **{k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}}
-    difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
-                  for c, r in zip(cells, results) if r["difficulty"] is not None]
-    spread = {}
-    for m in methods:
-        v = np.array([d["single_view_first"][m] for d in difficulty])
-        spread[m] = {"min": float(v.min()), "q25": float(np.percentile(v, 25)), "median": float(np.median(v)),
-                     "q75": float(np.percentile(v, 75)), "max": float(v.max()), "mean": float(v.mean())}
-    first = {c.target: c for c in cells if c.variant == DEFAULT}
-    cell_rows = [{"target": t, "track": int(tr), "experiment": e, "setting": s,
-                  "values": {r["method"]: {k: r[k] for k in metrics} for _, r in g.iterrows()}}
-                 for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
-    return {
-        "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
-        "n_cells": int(len(default) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
-        "realizations": ev.randomized.realizations, "n_loc_samples": ev.randomized.n_loc_samples,
-        "methods": methods, "metrics": metrics,
-        "settings": [{"experiment": s.experiment, "setting": s.label, "sigma_m": s.sigma, "bias_m": list(s.bias),
-                      "realizations": s.realizations, "n_loc_samples": s.n_x} for s in settings],
-        "targets": sorted(first), "candidates": {t: list(c.classes) for t, c in sorted(first.items())},
-        "components": {t: list(c.components) for t, c in sorted(first.items())},
-        "unit": ("a cell is one (target, track, setting); its metric is computed over its realizations. "
-                 "Pooled values average tracks' means (over settings) within each target, then targets; "
-                 "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks)."),
-        **block,
-        "by_setting": by_setting,
-        "difficulty": {"tracks": difficulty, "summary": spread,
-                       "meaning": "share of a track's views whose single-view posterior at the true pose ranks "
-                                  "the target first"},
-        "cells": cell_rows,
-        "tracks": [t.as_dict() for t in tracks],
-        "ablations": ablations,
-        "skipped_targets": skipped,
-    }
-
-
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict) -> None:
     """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures).
     ``blocks``: a list or a ``ResultsWriter`` (anything with ``append``) for the result rows."""
@@ -218,9 +88,12 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
+        dirichlet = P.dirichlet_track(first)
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
                                  P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor)
+            if dirichlet is not None:
+                posts = P.with_dirichlet(posts, dirichlet[0])
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
@@ -256,6 +129,7 @@ def run(ctx) -> str:
     ev = cfg.evaluate
     t_start = time.perf_counter()
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
+    dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
     avd_path = ctx.input("features") / out_name("features", "avd")
     avd, scores, meta = read_features(avd_path)
     if avd.empty:
@@ -264,20 +138,26 @@ def run(ctx) -> str:
     intr, steps = scan_geometry(cfg, scans, avd, ctx.skips)
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps)
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet)
+    for sk in skipped:
+        log.warning("target %s skipped: %s", sk["target"], sk["reason"])
+    for t in sorted({c.target for c in cells}):
+        mine = [i for i in tracks if i.target == t]
+        log.info("target %s: %d track(s) in %s; candidates %s", t, len(mine), ", ".join(sorted({i.scan for i in mine})),
+                 ", ".join(next(c.classes for c in cells if c.target == t)))
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     first = cells[0]
-    # Cells stream: each cell's metrics row and result rows are made as it finishes and its log
-    # posteriors dropped (only the first cell's are kept, for the single-track tables), so memory
-    # does not grow with the population (configs/paper_grade.toml: ~12 M trajectories).
+    # Cells stream: each cell's metrics rows and result rows are made as it finishes and its log
+    # posteriors dropped (kept only for the first cell and the first with a Dirichlet spread, which
+    # the summaries read), so memory does not grow with the population (configs/paper_grade.toml).
     rows: list[dict] = []
     results: list[dict] = []
-    first_posts = None
-    results_path = ctx.out / out_name("evaluate", "results")
-    with ResultsWriter(results_path, metadata(config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed),
-                                              classes=list(first.classes), target=first.target)) as writer:
+    need_dir = True
+    with ResultsWriter(ctx.out / out_name("evaluate", "results"), metadata(
+            config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
+            target=first.target)) as writer:
         executor = executor_for(cfg)
         try:
             device, gpu = fusion_device(ctx, executor)
@@ -286,12 +166,15 @@ def run(ctx) -> str:
             for i, res in enumerate(executor.imap(P.run_cell, cells, shared=banks, desc="evaluate: cells",
                                                   unit="cell", total=len(cells), gpu=gpu)):
                 cell = cells[i]
-                rows.extend(cell_rows(cell, res))
+                rows.append(cell_table([cell], [res]))
                 for b in result_blocks([cell], [res]):
                     writer.write(b)
-                if first_posts is None:
-                    first_posts = res["posts"]
-                results.append({"difficulty": res["difficulty"]})
+                light = {k: v for k, v in res.items() if k != "posts"}
+                has_dir = cell.variant == DEFAULT and "dirichlet_std" in res
+                if i == 0 or (need_dir and has_dir):
+                    light["posts"] = res["posts"]
+                    need_dir = need_dir and not has_dir
+                results.append(light)
         finally:
             executor.close()
         timings["population"] = time.perf_counter() - t0
@@ -299,13 +182,14 @@ def run(ctx) -> str:
                  len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
 
         t0 = time.perf_counter()
-        table = pd.DataFrame(rows)
-        population = population_summary(cfg, table, cells, results, tracks, skipped)
+        table = pd.concat(rows, ignore_index=True)
+        population = population_summary(cfg.evaluate, table, cells, results, tracks, skipped)
+        population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
         timings["statistics"] = time.perf_counter() - t0
 
         # The first target's first track: its biased/randomized tables as before, plus the figures.
         summary: dict = {}
-        for (experiment, label), posts in first_posts.items():
+        for (experiment, label), posts in results[0]["posts"].items():
             summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
         from pipeline.method.fusion import engine_device
 
