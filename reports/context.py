@@ -53,7 +53,8 @@ class ReportContext:
         if name in self.figures:
             chk = self.checks.get(name)
             self.page.figure(name, caption, alt=self.alts.get(name, ""),
-                             min_font_px=getattr(chk, "min_font_px", None))
+                             min_font_px=getattr(chk, "min_font_px", None),
+                             tick_overlaps=len(chk.overlaps) if chk is not None else None)
 
 
 def _find(d: Any, key: str) -> Any:

@@ -283,5 +283,5 @@ def fig_track(track: dict, biases: list[tuple[float, float]]) -> Any:
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m, ground frame)")
     ax.set_ylabel("y (m, ground frame)")
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=7, frameon=False)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=8, frameon=False)
     return fig

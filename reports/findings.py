@@ -116,3 +116,18 @@ def gp(gpd: dict, comp_names: list[str]) -> str:
     name = comp_names[f] if f < len(comp_names) else f"component {f}"
     return (f"GP means of {C} classes on {F} score components; the component that separates the classes most along "
             f"the ring is {name} (mean gap between the highest and lowest class {fmt(spread[f])}).")
+
+
+def track(track: dict, biases: list) -> str:
+    cam = np.asarray(track.get("camera_xy") or [], float).reshape(-1, 2)
+    est = track.get("object_xy_est")
+    tru = track.get("object_xy_truth")
+    out = [f"The track: {len(cam)} camera positions"]
+    if est is not None and len(cam):
+        d = np.hypot(*(cam - np.asarray(est, float)).T)
+        out.append(f"{fmt(d.min())}–{fmt(d.max())} m from the estimated object")
+    if est is not None and tru is not None:
+        out.append(f"object estimate {fmt(100 * float(np.hypot(est[0] - tru[0], est[1] - tru[1])))} cm from the truth")
+    if biases:
+        out.append("biased estimates shifted by " + ", ".join(f"({fmt(b[0])}, {fmt(b[1])}) m" for b in biases[:3]))
+    return "; ".join(out) + "."

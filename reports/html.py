@@ -144,7 +144,8 @@ class HtmlReport:
         c = f' class="{_esc(cls)}"' if cls else ""
         self._target().append(f"<p{c}>{body}</p>")
 
-    def figure(self, png_name: str, caption: str, alt: str = "", min_font_px: float | None = None) -> None:
+    def figure(self, png_name: str, caption: str, alt: str = "", min_font_px: float | None = None,
+               tick_overlaps: int | None = None) -> None:
         """A PNG with its caption; ``alt`` states the figure's finding (what a reader who cannot see
         it should learn), ``min_font_px`` the smallest text in the PNG at 100 % (the browser test
         checks that it stays legible at the page's width)."""
@@ -154,6 +155,8 @@ class HtmlReport:
                              "(the page has to work opened from disk)")
         self.figures.append(name)
         font = f' data-min-font-px="{min_font_px:.1f}"' if min_font_px else ""
+        if tick_overlaps is not None:
+            font += f' data-tick-overlaps="{int(tick_overlaps)}"'
         self._target().append(
             f'<figure><img src="{_esc(name)}" alt="{_esc(alt or caption)}"{font}>'
             f"<figcaption>{_esc(caption)}</figcaption></figure>")

@@ -72,6 +72,7 @@ def _track_plan(ctx: ReportContext, clipped: dict[str, int]) -> list[tuple[str, 
         biases = sorted({(float(x), float(y)) for x, y in zip(biased["bias_x"], biased["bias_y"])}) \
             if biased is not None else []
         plan.append(("track.png", lambda: fig_track(track, biases)))
+        ctx.alts["track.png"] = findings.track(track, biases)
     rnd = ev.single_track("randomized")
     for i, s in enumerate(ctx.track_summaries.get("randomized") or {}):
         sub = rnd[rnd["setting"] == s]
