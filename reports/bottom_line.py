@@ -85,7 +85,7 @@ def comparison_clause(key: str, outcomes: dict[str, str]) -> str:
     if not g["better"] and not g["worse"]:
         return f"{a} is not distinguishable from {b} on any metric"
     parts = [f"{o} on {_join(g[o])}" for o in OUTCOMES if g.get(o)]
-    return f"{a} vs {b}: " + ", ".join(parts)
+    return f"{a} vs {b}: " + "; ".join(parts)
 
 
 def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
@@ -96,10 +96,11 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
         return []
     clauses = [comparison_clause(k, r) for k, r in _by_comparison(table).items()]
     c = counts(pop)
-    first = "Bottom line: " + "; ".join(clauses) + "."
+    first = "Bottom line. " + " ".join(cl + "." for cl in clauses)
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
-    second = (f"Each outcome is a 95 % CI of the paired difference over {scope_text(c)}; it varies over targets and "
-              f"tracks only, with {seeds} (`viewfuse study` repeats it over training seeds).")
+    second = (f"Each outcome is read off the 95 % CI of a paired difference over {c['n_targets']} targets and "
+              f"{tracks_text(c)}; it varies over targets and tracks only, with {seeds} (`viewfuse study` repeats "
+              "it over training seeds).")
     return [first, second]
 
 

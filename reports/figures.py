@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from pipeline.infra.cache import atomic_path
 
 DEFAULT_LEVELS = (10, 20, 30, 40, 50, 60, 70, 80, 90)
-MAX_WIDTH_IN = 11.0      # widest figure (at 110 dpi: 1210 px, the report's content width at 1400 px)
+MAX_WIDTH_IN = 10.8      # widest figure (at 110 dpi: 1188 px + margins; the page's content is 1276 px at 1400 px)
 MIN_FONT_PT = 8.0
 # log10 MGR axes are symmetric-log: linear within ±MGR_LINTHRESH, logarithmic beyond, so targets
 # near 0 and the ones at 1e5 show on one axis (the captions say so).
@@ -72,7 +72,9 @@ def new_subplots(nrows: int, ncols: int, w: float = 6.4, h: float = 4.0, *, shar
                  sharey: bool = False, squeeze: bool = False, height_ratios=None) -> tuple[Figure, np.ndarray]:
     """A figure with a grid of axes (always a 2-D array unless ``squeeze``)."""
     _apply_rc()
-    fig = Figure(figsize=(w, h), layout="constrained")
+    # Never wider than the page shows at 100 % (a wider PNG is scaled down and its text shrinks
+    # below legibility); more panels share the width instead.
+    fig = Figure(figsize=(min(w, MAX_WIDTH_IN), h), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, sharex=sharex, sharey=sharey, squeeze=squeeze,
                         height_ratios=height_ratios)

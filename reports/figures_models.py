@@ -194,9 +194,9 @@ def bias_map_findings(bm: dict, classes: list[str], target: str) -> dict:
 def fig_bias_maps(bm: dict, classes: list[str], target: str, images: list[str]) -> Any:
     post = bm["posterior"]
     K, C = post.shape[:2]
-    ncol = min(K, 5)
+    ncol = min(K, 4)
     nrow = math.ceil(K / ncol)
-    fig, axes = new_subplots(nrow + 1, ncol, w=0.6 + 2.4 * ncol, h=1.8 + 2.5 * nrow,
+    fig, axes = new_subplots(nrow + 1, ncol, w=0.6 + 2.5 * ncol, h=1.8 + 2.5 * nrow,
                              height_ratios=[1.0] * nrow + [0.16 * C + 0.15])
     cols = class_colors(C)
     names = [str(c) for c in classes] + [str(i) for i in range(len(classes), C)]

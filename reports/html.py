@@ -30,7 +30,7 @@ nav { background:var(--panel); border-bottom:1px solid var(--line); padding:8px 
       display:flex; flex-wrap:wrap; gap:4px 18px; }
 nav a { color:var(--accent); text-decoration:none; white-space:nowrap; }
 nav a:hover { text-decoration:underline; }
-main { max-width:1180px; margin:0 auto; padding:8px 32px 48px; }
+main { max-width:1340px; margin:0 auto; padding:8px 32px 48px; }
 section { border-bottom:1px solid var(--line); padding:10px 0 18px; }
 section:last-child { border-bottom:none; }
 h2 { font-size:21px; margin:18px 0 8px; color:#17325a; }

@@ -39,14 +39,16 @@ def test_counts_give_tracks_per_target_min_max_cells_and_realizations_per_settin
 
 def test_bottom_line_is_computed_from_the_verdict_table_and_names_the_scope():
     first, second = bottom_line(_pop(), {"weights": "synthetic"})
-    assert first.startswith("Bottom line: With Uncertainty vs Model Based: better on log10 MGR, not distinguishable "
-                            "on correct ratio")
+    assert first.startswith("Bottom line. With Uncertainty vs Model Based: better on log10 MGR; not distinguishable "
+                            "on correct ratio.")
     # a family with mixed outcomes is spelled out entry by entry
     assert "With Uncertainty vs Simple Bayes: better on log10 MGR 75th percentile, final step" in first
     assert "worse on correct ratio" in first
-    assert "3 targets, 13 tracks, 1–8 per target, 3 localization settings: 39 (target, track, setting) cells" in second
-    assert "realizations per cell: 1 (biased), 20 (s=0.1), 20 (s=0.3)" in second
-    assert "one classifier training run" in second
+    assert "over 3 targets and 13 tracks, 1–8 per target" in second and "one classifier training run" in second
+    from reports.bottom_line import scope_text
+    scope = scope_text(counts(_pop()))
+    assert "3 targets, 13 tracks, 1–8 per target, 3 localization settings: 39 (target, track, setting) cells" in scope
+    assert "realizations per cell: 1 (biased), 20 (s=0.1), 20 (s=0.3)" in scope
     flipped = _pop()
     flipped["verdict_table"][0]["outcome"] = "worse"
     assert bottom_line(flipped)[0] != first          # the sentence follows the table, it is not fixed text
@@ -111,7 +113,7 @@ def test_alt_text_states_findings_and_headers_have_scope(rendered_run):  # noqa:
         assert re.search(r"\d", alt), f"{name}: alt text without a number: {alt}"
     assert '<th scope="col">' in text and '<th scope="row">' in text and "<th>" not in text
     assert 'id="glossary"' in text and "<dt>MSDE</dt>" in text and "<dt>cell</dt>" in text
-    assert 'class="bottomline">Bottom line:' in text
+    assert 'class="bottomline">Bottom line.' in text
 
 
 def test_every_report_figure_at_the_default_dpi_is_legible(rendered_run_default_dpi):  # noqa: F811
