@@ -48,7 +48,7 @@ def fig_forest(pop: dict) -> Any:
     rows = targets + ["pooled (all targets)"]
     ppt, paired = pop.get("paired_per_target") or {}, pop.get("paired") or {}
     metrics = [m for m in FOREST_METRICS if m in (pop.get("metrics") or FOREST_METRICS)]
-    fig, axes = new_subplots(1, len(metrics), w=min(1.6 + 3.0 * len(metrics), 10.8), h=1.6 + 0.42 * len(rows),
+    fig, axes = new_subplots(1, len(metrics), w=min(1.6 + 3.0 * len(metrics), 10.8), h=1.6 + 0.55 * len(rows),
                              sharey=True)
     marks = ("o", "s", "D", "^")
     keys = _comparison_keys(paired, ppt)
@@ -70,11 +70,20 @@ def fig_forest(pop: dict) -> Any:
         ax.set_title(f"{metric_label(metric)}\n(With Uncertainty better to the {side})", fontsize=9.5)
         ax.set_xlabel("difference" + (f" of log10 MGR\n({MGR_SCALE_NOTE})" if "mgr" in metric else ""))
     axes[0, 0].set_yticks(range(len(rows)))
-    axes[0, 0].set_yticklabels([wrap_label(r, 24) for r in rows])
+    axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=2, frameon=False)
     fig.suptitle("Paired differences per target, 95 % bootstrap CIs over tracks (pooled: over targets too)")
     return fig
+
+
+def _row_labels(pop: dict, targets: list[str]) -> list[str]:
+    """Target names with their track count (a 1-track target's point has no CI bar: say why)."""
+    from reports.bottom_line import counts
+    n = counts(pop)["tracks_per_target"]
+    lab = [wrap_label(t, 24) + (f"\n({n[t]} track{'s' if n[t] != 1 else ''}"
+                                + (": no CI)" if n[t] == 1 else ")") if t in n else "") for t in targets]
+    return lab + ["pooled (all targets)"]
 
 
 def _comparison_keys(*maps: dict) -> list[str]:
@@ -90,7 +99,7 @@ def fig_per_target(pop: dict) -> Any:
     per, pooled = pop.get("per_target") or {}, pop.get("pooled") or {}
     methods = ordered_methods(pop.get("methods") or pooled.keys())
     fig, axes = new_subplots(1, len(PER_TARGET_METRICS), w=2.0 + 3.6 * len(PER_TARGET_METRICS),
-                             h=1.6 + 0.5 * len(rows), sharey=True)
+                             h=1.6 + 0.6 * len(rows), sharey=True)
     for ax, metric in zip(axes[0], PER_TARGET_METRICS):
         drawn: list[float] = []
         for i, m in enumerate(methods):
@@ -106,7 +115,7 @@ def fig_per_target(pop: dict) -> Any:
         ax.set_title(metric_label(metric), fontsize=9.5)
         ax.set_xlabel(f"{MGR_AXIS_LABEL}\n({MGR_SCALE_NOTE})" if "mgr" in metric else metric_label(metric))
     axes[0, 0].set_yticks(range(len(rows)))
-    axes[0, 0].set_yticklabels([wrap_label(r, 24) for r in rows])
+    axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=3, frameon=False)
     fig.suptitle("Per target and pooled, 95 % bootstrap CIs over tracks (pooled: over targets too)")
