@@ -9,6 +9,7 @@ up: a short exponent (``3.30e5``). MGR values reach the reports as log10 already
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -78,3 +79,16 @@ def _missing(x: Any) -> bool:
         return x is None or math.isnan(float(x))
     except (TypeError, ValueError):
         return True
+
+
+_DECIMAL = re.compile(r"(?<![\w.])([-+−]?)(\d+\.\d+(?:e[-+]?\d+)?|\d+e[-+]?\d+)(?![\w.])")
+
+
+def reformat_numbers(text: str, sig: int = SIG) -> str:
+    """Sentences written elsewhere (the verdict in summary.json) in this module's format: every
+    decimal or exponent number goes through ``fmt`` (counts and percentages stay as they are)."""
+    def sub(m: re.Match) -> str:
+        sign, body = m.group(1), m.group(2)
+        v = float(body) * (-1 if sign in ("-", "−") else 1)
+        return fmt(v, sig, signed=sign == "+")
+    return _DECIMAL.sub(sub, text)

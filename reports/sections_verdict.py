@@ -8,7 +8,7 @@ from pipeline.evaluation.labels import (COMPARISONS, METRICS, comparison_key, co
 from pipeline.evaluation.popstats import wilson_interval
 from reports.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.context import ReportContext
-from reports.numbers import Estimate, fmt
+from reports.numbers import Estimate, fmt, reformat_numbers
 from reports.tables import bound_counts, hyperparameter_table
 
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
@@ -75,7 +75,8 @@ def verdict_section(ctx: ReportContext) -> None:
         ctx.notes.append(msg)
         page.paragraph(msg, cls="warn")
         return
-    sentences = [str(s) for s in pop.get("verdict") or []]
+    # summary.json's sentences, their numbers in the page's one format (reports/numbers.py)
+    sentences = [reformat_numbers(str(s)) for s in pop.get("verdict") or []]
     head = headline(sentences, pop.get("verdict_table") or [])
     page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
     methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
@@ -277,7 +278,7 @@ def _ablations(ctx: ReportContext) -> None:
     for name, a in abl.items():
         over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
         d = (a.get("paired") or {}).get(key) or {}
-        said = headline([str(s) for s in a.get("verdict") or []], a.get("verdict_table") or [])
+        said = headline([reformat_numbers(str(s)) for s in a.get("verdict") or []], a.get("verdict_table") or [])
         rows.append([over, Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True),
                      " ".join(said) or "—"])
     ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],

@@ -18,7 +18,7 @@ from reports.figures import new_figure, percentile_bands, save
 from reports.figures_models import bias_map_rgb
 from reports.html import HtmlReport
 from reports.main_report import build_main_report
-from reports.numbers import Estimate, fmt
+from reports.numbers import Estimate, fmt, reformat_numbers
 from reports.stats import bootstrap_track
 from reports.tables import dump_toml, hyperparameter_table
 from tests.report_fixtures import CLASSES, rendered_run, write_fake_run  # noqa: F401 (fixture)
@@ -239,7 +239,9 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     # The headline sentences (computed, verbatim) on the first screen; all of them collapsed below.
     head = [s for s, r in zip(pop["verdict"], pop["verdict_table"]) if r["metric"] in ("correct_final", "log10_mgr95_final")]
     assert len(head) == 4 and len(pop["verdict"]) == 16
-    assert page.verdict == head + pop["verdict"]
+    # verbatim but for the numbers, which go through the page's one formatter
+    head = [reformat_numbers(s) for s in head]
+    assert page.verdict == head + [reformat_numbers(s) for s in pop["verdict"]]
     assert first.index(head[-1]) < first.index('class="summary pooled"') < first.index("All 16 verdict sentences")
     pooled = page.table("pooled")
     assert pooled["section"] == "verdict"
@@ -271,7 +273,7 @@ def test_population_tables_show_paired_differences_per_target_and_ablations(rend
     abl = page.table("ablations")
     assert abl["section"] == "diagnostics"
     assert abl["rows"][1][0] == "models.noise_floor = dropout"
-    assert pop["ablations"]["models.noise_floor=dropout"]["verdict"][0] in abl["rows"][1][3]
+    assert reformat_numbers(pop["ablations"]["models.noise_floor=dropout"]["verdict"][0]) in abl["rows"][1][3]
     assert {"forest.png", "per_target.png"} <= set(res.figures)
 
 

@@ -43,8 +43,8 @@ window.addEventListener('load', function () {
     });
   });
   var scrolling = [];
+  document.querySelectorAll('details').forEach(function (d) { d.open = true; });  // collapsed tables too
   document.querySelectorAll('.tablewrap').forEach(function (w) {
-    if (w.closest('details') && !w.closest('details').open) return;
     if (w.scrollWidth > w.clientWidth + 1) scrolling.push(w.querySelector('table').className);
   });
   var small = [], overlaps = [];

@@ -124,3 +124,11 @@ def test_every_report_figure_at_the_default_dpi_is_legible(rendered_run_default_
     assert min(sizes.values()) >= 11, sizes
     assert not [n for n in res.notes if "tick labels overlap" in n]
     assert set(re.findall(r'data-tick-overlaps="(\d+)"', text)) == {"0"}
+
+
+def test_sentences_from_summary_json_use_the_one_number_format():
+    from reports.numbers import reformat_numbers
+    s = ("better (difference -1.41, 95 % CI [-2.34, -0.7], over 12 targets x 83 tracks; better in 92% of cells); "
+         "7.62e-19 [4.09e-20, 2.14e-18], +0.217")
+    assert reformat_numbers(s) == ("better (difference −1.41, 95 % CI [−2.34, −0.700], over 12 targets x 83 tracks; "
+                                   "better in 92% of cells); < 1e-6 [< 1e-6, < 1e-6], +0.217")
