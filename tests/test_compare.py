@@ -122,3 +122,13 @@ def test_cli_prints_the_table_and_writes_the_page(tmp_path, capsys):
     assert "Config keys that differ:" in out and "evaluate.randomized.sigmas_m" in out
     page = (tmp_path / "cmp" / "index.html").read_text()
     assert '<th scope="col">synthetic</th>' in page and "Paired verdicts" in page
+
+
+def test_three_plain_runs_are_three_columns_and_each_changed_key_is_listed_once(tmp_path):
+    a = write_run(tmp_path / "a")
+    b = write_run(tmp_path / "b", sigmas=(0.2,))
+    c3 = write_run(tmp_path / "c", seed=4, outcome="worse")
+    c = compare([a, b, c3])
+    assert [col.name for col in c.columns] == ["a", "b", "c"] and not any(col.pooled_over_seeds for col in c.columns)
+    assert c.config == {"classifier.seed": [0, 0, 4], "evaluate.randomized.sigmas_m": [[0.1, 0.3], [0.2], [0.1, 0.3]]}
+    assert c.changed[(KEY, "correct_final")] == [False, False, True]
