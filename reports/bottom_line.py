@@ -26,12 +26,13 @@ def counts(pop: dict) -> dict:
     n = [per_target[t] for t in targets if t in per_target]
     settings = pop.get("settings") or []
     reps = {str(s.get("setting")): s.get("realizations") or pop.get("realizations") for s in settings}
+    kinds = {str(s.get("setting")): str(s.get("experiment") or "") for s in settings}
     return {"n_targets": int(pop.get("n_targets") or len(targets)), "n_tracks": int(pop.get("n_tracks") or sum(n)),
             "tracks_min": min(n) if n else None, "tracks_max": max(n) if n else None,
             "tracks_per_target": dict(per_target),
             "single_track_targets": sorted(t for t in targets if per_target.get(t) == 1),
             "n_settings": len(settings), "n_cells": pop.get("n_cells"), "realizations": reps,
-            "single_realization_settings": [s for s, r in reps.items() if r == 1]}
+            "single_realization_settings": [s for s, r in reps.items() if r == 1], "experiments": kinds}
 
 
 def tracks_text(c: dict) -> str:
@@ -44,9 +45,23 @@ def scope_text(c: dict) -> str:
     """'12 targets, 83 tracks (1–8 per target), 4 settings: 332 (target, track, setting) cells'."""
     reps = sorted({int(r) for r in c["realizations"].values() if r})
     r = "" if not reps else (f"; {reps[0]} realizations per cell" if len(reps) == 1 else
-                             "; realizations per cell: " + ", ".join(f"{v} ({s})" for s, v in c["realizations"].items()))
+                             "; realizations per cell: " + realizations_text(c))
     cells = f": {c['n_cells']} (target, track, setting) cells" if c.get("n_cells") else ""
     return f"{c['n_targets']} targets, {tracks_text(c)}, {c['n_settings']} localization settings{cells}{r}"
+
+
+def realizations_text(c: dict) -> str:
+    """'1 (the biased setting), 30 (each of the 3 randomized settings)': grouped by experiment."""
+    groups: dict[tuple[str, int], list[str]] = {}
+    for s, r in c["realizations"].items():
+        groups.setdefault((c.get("experiments", {}).get(s) or s, int(r or 0)), []).append(s)
+    parts = []
+    for (exp, r), names in groups.items():
+        if exp in names:  # no experiment name: the setting itself
+            parts.append(f"{r} ({exp})")
+        else:
+            parts.append(f"{r} ({'the ' + exp + ' setting' if len(names) == 1 else f'each of the {len(names)} {exp} settings'})")
+    return ", ".join(parts)
 
 
 def _by_comparison(table: list[dict]) -> dict[str, dict[str, str]]:

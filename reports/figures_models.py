@@ -162,6 +162,10 @@ def _label_regions(ax, arg: np.ndarray, bx: np.ndarray, by: np.ndarray) -> None:
         ys, xs = np.nonzero(lab == j + 1)
         # the member pixel nearest the piece's centroid (a centroid can fall outside a ring)
         cy, cx = ys.mean(), xs.mean()
+        # keep off the zero-bias '+' (the map's centre): move the spot up by a quarter of the map
+        oy, ox = int(np.argmin(np.abs(by))), int(np.argmin(np.abs(bx)))
+        if abs(cy - oy) < 0.2 * arg.shape[0] and abs(cx - ox) < 0.2 * arg.shape[1]:
+            cy += 0.28 * arg.shape[0]
         i = int(np.argmin((ys - cy) ** 2 + (xs - cx) ** 2))
         _letter(ax, bx[xs[i]], by[ys[i]], class_letter(int(c)))
     if len(np.unique(arg)) > 1:

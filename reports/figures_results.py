@@ -184,13 +184,12 @@ def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[A
         bad = np.isposinf(v)
         clipped += int(bad.sum())
         percentile_bands(ax, steps, np.where(bad, cap, v), method_color(m))
-        ax.set_title(f"{method_label(m)}\nR = {v.shape[0]} realizations", fontsize=9.5)
+        note = constant_note(v)
+        # In the title, not on the data: a flat band is a finding, and a box would hide the line.
+        ax.set_title(f"{method_label(m)}\nR = {v.shape[0]} realizations" + (f"\n{note}" if note else ""),
+                     fontsize=9.5 if not note else 8.5)
         ax.set_xlabel("track step k")
         step_ticks(ax, steps)
-        note = constant_note(v)
-        if note:
-            ax.text(0.5, 0.5, note, transform=ax.transAxes, ha="center", va="center", fontsize=8.5,
-                    bbox={"boxstyle": "round", "fc": "white", "ec": "#999999", "alpha": 0.92})
     axes[0, 0].set_ylabel(ylabel if column == "p_truth" else f"{ylabel}\n({MGR_SCALE_NOTE})")
     if column == "p_truth":
         axes[0, 0].set_ylim(-0.02, 1.02)
@@ -208,8 +207,8 @@ def constant_note(v: np.ndarray) -> str:
     spread = np.nanmax(v, axis=0) - np.nanmin(v, axis=0)
     if np.all(np.nan_to_num(spread, nan=0.0) < 1e-12):
         flat = np.nanmax(v) - np.nanmin(v) < 1e-12
-        return ("every realization gives the same value at every step:\nthe localization noise does not "
-                "reach this method" + (f"\n(constant {np.nanmax(v):.3g})" if flat else ""))
+        return ("all identical: the localization noise\ndoes not reach this method"
+                + (f" (constant {np.nanmax(v):.3g})" if flat else ""))
     return ""
 
 

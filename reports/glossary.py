@@ -15,8 +15,8 @@ def terms(ctx: ReportContext) -> list[tuple[str, str]]:
         ("P(truth)", "the fused posterior probability of the ground-truth class after the views seen so far."),
         ("correct ratio", "share of realizations whose most probable class is the truth (final step, or over all "
                           "steps)."),
-        ("MGR", "misclassification gain ratio: max_c P(c) / P(truth), the factor by which the most likely class "
-                "beats the truth; 1 when the truth is the most likely class."),
+        ("MGR", "the paper's ratio max_c P(c) / P(truth): the factor by which the most probable class beats the "
+                "truth; 1 when the truth is the most likely class, large when a method is confidently wrong."),
         ("log10 MGR", "log10 of MGR: 0 when the truth wins, 3 when a wrong class is 1000 times more probable. "
                       "Percentiles (75th, 95th) over realizations say how confidently wrong a method gets. "
                       f"Figures draw it on a {MGR_SCALE_NOTE}."),

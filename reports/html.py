@@ -52,7 +52,7 @@ td.num { text-align:right; font-size:13px; font-variant-numeric:tabular-nums; fo
 tr:nth-child(even) td { background:#fbfbfc; }
 span.nw { white-space:nowrap; }
 td.changed { background:#fde2e2 !important; font-weight:600; }
-dl.glossary { display:grid; grid-template-columns: max-content 1fr; gap:4px 16px; max-width:1100px; }
+dl.glossary { display:grid; grid-template-columns: minmax(8em, 15em) 1fr; gap:4px 16px; max-width:1100px; }
 dl.glossary dt { font-weight:600; }
 dl.glossary dd { margin:0; }
 p.bottomline { font-size:17px; max-width:1060px; background:#eef4fb; border-left:4px solid var(--accent);

@@ -128,8 +128,12 @@ def _scans(pop: dict, track: dict) -> str:
 
 def _subtitle(ctx: ReportContext) -> str:
     pop, track = ctx.population, ctx.ev.track or {}
-    parts = [f"run {ctx.run_name}" if ctx.run_name else "",
-             f"{pop.get('n_targets')} targets × {pop.get('n_tracks')} tracks" if pop else "one target, one track",
+    if pop:
+        from reports.bottom_line import counts, tracks_text
+        c = counts(pop)
+        size = (f"{c['n_targets']} targets · {tracks_text(c)} · {c['n_settings']} settings"
+                + (f" · {c['n_cells']} cells" if c.get("n_cells") else ""))
+    parts = [f"run {ctx.run_name}" if ctx.run_name else "", size if pop else "one target, one track",
              _scans(pop, track)]
     return " · ".join(p for p in parts if p)
 

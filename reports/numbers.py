@@ -41,8 +41,10 @@ def fmt(value: Any, sig: int = SIG, *, signed: bool = False) -> str:
         mant, exp = f"{a:.{sig - 1}e}".split("e")
         return f"{sign}{mant}e{int(exp)}"
     # Decimals for sig significant digits (the rounding may carry into one more integer digit).
-    digits = max(sig - 1 - math.floor(math.log10(a)), 0)
-    text = f"{a:.{digits}f}"
+    mag = math.floor(math.log10(a))
+    digits = max(sig - 1 - mag, 0)
+    # integers past sig digits are rounded too: 1836 -> 1840, 32591 -> 32600
+    text = f"{a:.{digits}f}" if digits else f"{round(a, sig - 1 - mag):.0f}"
     if digits and len(text.replace(".", "").lstrip("0")) > sig:  # 9.996 -> 10.00: drop one decimal
         text = f"{a:.{digits - 1}f}"
     return sign + text

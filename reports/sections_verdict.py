@@ -150,8 +150,8 @@ def population_section(ctx: ReportContext) -> None:
                        "With Uncertainty is strictly better / worse.")
     if pop.get("per_target"):
         ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
-        page.table(["target (tracks)", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS]
-                   + ["no CI because"], _target_rows(pop), cls="per-target",
+        page.table(["target (tracks)", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS],
+                   _target_rows(pop), cls="per-target",
                    caption="Per target: value [95 % CI] over that target's tracks; a target with one track has "
                            "no CI of its own (the bootstrap resamples tracks), only its value.")
     else:
@@ -210,7 +210,8 @@ def _target_rows(pop: dict) -> list[list]:
         for m in ordered_methods((per.get(t) or {}).keys()):
             ests = [(per[t][m] or {}).get(k) for k in TARGET_METRICS]
             why = next((no_ci_reason(e, n) for e in ests if e and no_ci_reason(e, n)), "")
-            rows.append([name, method_label(m, short=True)] + [Estimate.of(e) for e in ests] + [why or "—"])
+            label = f"{t} ({why})" if why else name
+            rows.append([label, method_label(m, short=True)] + [Estimate.of(e) for e in ests])
     return rows
 
 
