@@ -35,7 +35,7 @@ def headline(c: Comparison) -> str:
     n = len(c.runs)
     changed = sum(1 for row in c.changed.values() if any(row))
     keys = len(c.config)
-    diff = (f"{keys} config key{'s' if keys != 1 else ''} differ" if keys else "no config key differs")
+    diff = (f"{keys} config key{'s differ' if keys != 1 else ' differs'}" if keys else "no config key differs")
     if len(c.columns) == 1:
         return f"1 run ({c.columns[0].name}): {len(c.verdicts)} verdict entries; nothing to compare against."
     return (f"{n} run{'s' if n != 1 else ''} in {len(c.columns)} columns; {diff}; {changed} of {len(c.verdicts)} "
