@@ -29,6 +29,9 @@ MGR_SCALE_NOTE = "symlog axis: linear in [−1, 1], logarithmic beyond"
 # Smallest text: 8 pt = 12.2 px at the default 110 dpi, so every label stays >= 11 px at 100 %
 # (the report page shows figures at their own size up to MAX_WIDTH_IN; tests check both).
 _RC = {
+    # Every text is literal: names from the config and the dataset ("$\\foo$" in
+    # simulate.class_names) would otherwise be parsed as mathtext, and a bad one aborts the figure.
+    "text.parse_math": False,
     "font.size": 9.5,
     "axes.titlesize": 10.5,
     "axes.labelsize": 9.5,
