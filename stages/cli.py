@@ -122,6 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("runs", nargs="+", metavar="RUN_OR_DIR", help="artifacts/<run> or a folder of run folders")
     cp.add_argument("--out", default=None, help="folder for index.html (default: <first run>/compare)")
     cp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    cp.add_argument("--debug", action="store_true", help="on an error, print the Python traceback too")
     return p
 
 
