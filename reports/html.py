@@ -51,6 +51,8 @@ tbody th { font-weight:500; background:#fbfbfc; }
 td.num { text-align:right; font-size:13px; font-variant-numeric:tabular-nums; font-family:ui-monospace,"DejaVu Sans Mono",monospace; }
 tr:nth-child(even) td { background:#fbfbfc; }
 span.nw { white-space:nowrap; }
+table.hyperparameters { font-size:12.5px; }
+table.hyperparameters td.num { font-size:12px; }
 td.changed { background:#fde2e2 !important; font-weight:600; }
 dl.glossary { display:grid; grid-template-columns: minmax(8em, 15em) 1fr; gap:4px 16px; max-width:1100px; }
 dl.glossary dt { font-weight:600; }

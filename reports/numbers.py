@@ -1,10 +1,10 @@
 """One number format for every report table, caption, sentence and the compare page.
 
 ``fmt`` gives ``sig`` significant digits and keeps trailing zeros so a column reads ``1.00`` next
-to ``0.886`` (not ``1`` next to ``0.8856``). Plain decimals from 1e-6 up to 1e5 (``-0.000793``
-next to ``-0.00657``, not ``-7.93e-04``); below 1e-6 in size a value is shown as ``< 1e-6``
-(``> −1e-6`` when negative): such digits are bootstrap noise around 0, not information. From 1e5
-up: a short exponent (``3.30e5``). MGR values reach the reports as log10 already.
+to ``0.886`` (not ``1`` next to ``0.8856``). Plain decimals from 1e-4 up to 1e5 (``-0.000793``
+next to ``-0.00657``, not ``-7.93e-04``); a short exponent outside (``9.50e-6``, ``3.30e5``); below
+1e-6 in size a value is shown as ``< 1e-6`` (``> −1e-6`` when negative): such digits are
+bootstrap noise around 0, not information. MGR values reach the reports as log10 already.
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from typing import Any, Mapping
 SIG = 3
 TINY = 1e-6        # below this in size: "< 1e-6"
 HUGE = 1e5         # from this up: exponent notation
+SMALL = 1e-4       # below this (down to TINY): a short exponent, 9.50e-6, not 0.00000950
 MINUS = "−"        # typographic minus, as everywhere on the pages
 
 
@@ -37,7 +38,7 @@ def fmt(value: Any, sig: int = SIG, *, signed: bool = False) -> str:
     sign = MINUS if v < 0 else ("+" if signed else "")
     if a < TINY:
         return f"> {MINUS}1e-6" if v < 0 else ("< +1e-6" if signed else "< 1e-6")
-    if a >= HUGE:
+    if a >= HUGE or a < SMALL:
         mant, exp = f"{a:.{sig - 1}e}".split("e")
         return f"{sign}{mant}e{int(exp)}"
     # Decimals for sig significant digits (the rounding may carry into one more integer digit).

@@ -101,6 +101,7 @@ def test_one_number_format_with_significant_digits():
     assert fmt(3.295e-4) == "0.000329" and fmt(-7.93e-4) == "−0.000793" and fmt(123456.0) == "1.23e5"
     # below 1e-6 the digits are noise: "< 1e-6", never "7.62e-19"
     assert fmt(7.62e-19) == "< 1e-6" and fmt(-2e-9) == "> −1e-6" and fmt(9.996) == "10.0"
+    assert fmt(9.5e-6) == "9.50e-6" and fmt(1836.2) == "1840"
     assert Estimate(7.62e-19, 4.09e-20, 2.14e-18).text() == "< 1e-6 [< 1e-6, < 1e-6]"
     assert Estimate(0.5, float("nan"), float("nan")).text() == "0.500"  # no interval: the value alone
     assert fmt(None) == fmt(float("nan")) == "n/a" and fmt(float("inf")) == "∞"
