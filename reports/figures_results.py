@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import (COMPARISONS, METRICS, MGR_AXIS_LABEL, comparison_key, method_color, method_label,
+from pipeline.evaluation.labels import (METRICS, present_comparisons, MGR_AXIS_LABEL, comparison_key, method_color, method_label,
                              metric_label, ordered_methods)
 from reports.figures import (MGR_SCALE_NOTE, mgr_axis, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
@@ -48,10 +48,10 @@ def fig_forest(pop: dict) -> Any:
     rows = targets + ["pooled (all targets)"]
     ppt, paired = pop.get("paired_per_target") or {}, pop.get("paired") or {}
     metrics = [m for m in FOREST_METRICS if m in (pop.get("metrics") or FOREST_METRICS)]
-    fig, axes = new_subplots(1, len(metrics), w=min(1.6 + 3.0 * len(metrics), 10.8), h=1.6 + 0.55 * len(rows),
-                             sharey=True)
-    marks = ("o", "s", "D", "^")
     keys = _comparison_keys(paired, ppt)
+    fig, axes = new_subplots(1, len(metrics), w=min(1.6 + 3.0 * len(metrics), 10.8),
+                             h=1.6 + max(0.55, 0.14 * (len(keys) + 1)) * len(rows), sharey=True)
+    marks = ("o", "s", "D", "^")
     for ax, metric in zip(axes[0], metrics):
         drawn = []
         for i, key in enumerate(keys):
@@ -72,7 +72,8 @@ def fig_forest(pop: dict) -> Any:
     axes[0, 0].set_yticks(range(len(rows)))
     axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=2, frameon=False)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=max(len(keys), 1),
+               frameon=False)
     fig.suptitle("Paired differences per target, 95 % bootstrap CIs over tracks (pooled: over targets too)")
     return fig
 
@@ -87,9 +88,7 @@ def _row_labels(pop: dict, targets: list[str]) -> list[str]:
 
 
 def _comparison_keys(*maps: dict) -> list[str]:
-    have = list(dict.fromkeys(k for m in maps for k in m))
-    known = [comparison_key(m, b) for m, b in COMPARISONS]
-    return [k for k in known if k in have] + [k for k in have if k not in known]
+    return [comparison_key(m, b) for m, b in present_comparisons({k for mp in maps for k in mp})]
 
 
 def fig_per_target(pop: dict) -> Any:
