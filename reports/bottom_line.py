@@ -10,7 +10,8 @@ import math
 import re
 from collections import Counter
 
-from pipeline.evaluation.labels import METRICS, comparison_label, metric_label
+from pipeline.evaluation.labels import comparison_label
+from pipeline.evaluation.metrics import higher_is_better as _higher, metric_label
 
 OUTCOMES = ("better", "worse", "not distinguishable")
 
@@ -120,7 +121,7 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
 
 
 def higher_is_better(metric: str) -> bool:
-    return METRICS.get(metric, ("", True))[1]
+    return _higher(metric)
 
 
 def no_ci_reason(entry: dict | None, n_tracks: int | None) -> str:

@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.evaluation.labels import METRICS, ordered_methods
+from pipeline.evaluation.labels import ordered_methods
+from pipeline.evaluation.metrics import METRICS
 
 STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
 SUMMARY = Path("evaluate") / "summary.json"
@@ -188,14 +189,17 @@ def _num(x: Any) -> float:
 
 
 def unbounded(metric: str) -> bool:
-    """log10 MGR has no upper bound: pooled over seeds by the median, never the mean."""
-    return "mgr" in metric
+    """A metric without both bounds (log10 MGR; MSDE has no worst value) is pooled over seeds by
+    the median, never the mean (pipeline.evaluation.metrics); an unknown key by its name."""
+    m = METRICS.get(metric)
+    return (not m.bounded) if m is not None else "mgr" in metric
 
 
 def pool_over_seeds(entries: list[dict | None], metric: str) -> dict:
     """Seeds' pooled values -> one estimate over seeds. Bounded metrics: the mean with a 95 %
-    t-interval over seeds (it covers training runs, which the per-run CIs do not); log10 MGR: the
-    median with the seeds' min–max (a mean would be one seed's outlier). One seed: its value."""
+    t-interval over seeds (it covers training runs, which the per-run CIs do not); unbounded ones
+    (log10 MGR, MSDE): the median with the seeds' min–max (a mean would be one seed's outlier).
+    One seed: its value."""
     v = np.array([_num((e or {}).get("value")) for e in entries], float)
     v = v[np.isfinite(v)]
     n = int(v.size)
@@ -236,7 +240,7 @@ def outcome_from_ci(est: dict, metric: str) -> str:
     lo, hi = _num(est.get("ci_low")), _num(est.get("ci_high"))
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return "not distinguishable"
-    higher = METRICS.get(metric, ("", est.get("better", "higher") == "higher"))[1]
+    higher = METRICS[metric].higher_is_better if metric in METRICS else est.get("better", "higher") == "higher"
     if (lo > 0 and higher) or (hi < 0 and not higher):
         return "better"
     if (hi < 0 and higher) or (lo > 0 and not higher):

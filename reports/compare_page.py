@@ -7,7 +7,8 @@ import textwrap
 from pathlib import Path
 from typing import Any
 
-from pipeline.evaluation.labels import comparison_label, method_label, metric_label
+from pipeline.evaluation.labels import comparison_label, method_label
+from pipeline.evaluation.metrics import metric_label
 from reports.compare import Comparison
 from reports.html import HtmlReport
 from reports.numbers import Estimate, fmt
@@ -100,7 +101,8 @@ def build_page(c: Comparison, title: str = "viewfuse compare", intro: list[str] 
     page.section("Pooled values", anchor="pooled")
     pooled_cols = [col for col in c.columns if col.pooled_over_seeds]
     how = (" Seed-group columns pool the seeds' values: bounded metrics as the mean with a 95 % t-interval over "
-           "seeds (it covers classifier training runs), log10 MGR as the median with the seeds' [min, max]."
+           "seeds (it covers classifier training runs), unbounded ones (log10 MGR, MSDE) as the median with the "
+           "seeds' [min, max]."
            if pooled_cols else "")
     page.table(["metric", "method"] + names,
                [[metric_label(k), method_label(m, short=True)] + [Estimate.of(v) if v else None for v in c.pooled[(m, k)]]

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.evaluation.labels import method_label, metric_label, ordered_methods
+from pipeline.evaluation.labels import comparison_label, method_label, ordered_methods
+from pipeline.evaluation.metrics import higher_is_better, metric_label
 from reports.numbers import Estimate, fmt
 
 
@@ -15,14 +16,13 @@ def _outcome(e: Estimate, higher: bool) -> str:
 
 
 def forest(pop: dict) -> str:
-    from pipeline.evaluation.labels import METRICS, comparison_label
     paired, ppt = pop.get("paired") or {}, pop.get("paired_per_target") or {}
     parts = []
     for key, per in paired.items():
         for metric in ("correct_final", "log10_mgr95_final"):
             if metric not in per:
                 continue
-            higher = METRICS.get(metric, ("", True))[1]
+            higher = higher_is_better(metric)
             e = Estimate.of(per[metric], signed=True)
             excl = sum(1 for t in (ppt.get(key) or {}).values() if Estimate.of((t or {}).get(metric)).excludes_zero())
             parts.append(f"{comparison_label(key)}, {metric_label(metric)}: pooled {e.text()} "

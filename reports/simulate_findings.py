@@ -10,7 +10,6 @@ import pandas as pd
 
 from pipeline.evaluation.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, method_label
 from pipeline.evaluation.metrics import percentile
-from reports.artifacts import with_log10_mgr
 
 OURS = WITH_UNCERTAINTY
 OTHERS = (MODEL_BASED, SIMPLE_BAYES)
@@ -26,7 +25,7 @@ def matrix(df: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray]:
 
 def column_percentile(v: np.ndarray, q: float) -> np.ndarray:
     """Per-step (column) percentile of (R, K) values, +inf (underflowed P(truth)) kept as a value."""
-    return np.array([float(percentile(v[:, j], q)) for j in range(v.shape[1])])
+    return percentile(v, q, axis=0)
 
 
 def inverse_steps(ex: pd.DataFrame, scenario: str, truth: int) -> list[int]:
@@ -43,14 +42,13 @@ def inverse_steps(ex: pd.DataFrame, scenario: str, truth: int) -> list[int]:
 def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int) -> dict[str, Any]:
     """Numbers behind the paper's qualitative findings, per scenario present."""
     out: dict[str, Any] = {}
-    df = with_log10_mgr(df)
     for scenario, g in df.groupby("scenario", sort=False):
         s: dict[str, Any] = {}
         for method, gm in g.groupby("method", sort=False):
             steps, pt = matrix(gm, "p_truth")
             _, lm = matrix(gm, "log10_mgr")
             wrong_conf = (pt <= (1 - CONFIDENT)) & (lm > math.log10(CONFIDENT / (1 - CONFIDENT)))
-            q10, q25, q50, q75, q90 = np.percentile(pt, [10, 25, 50, 75, 90], axis=0)
+            q10, q25, q50, q75, q90 = percentile(pt, [10, 25, 50, 75, 90], axis=0)
             s[method] = {
                 "ptruth_band_10_90_mean": float(np.mean(q90 - q10)),
                 "ptruth_iqr_mean": float(np.mean(q75 - q25)),

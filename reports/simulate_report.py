@@ -20,7 +20,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import DIRICHLET, MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
+from pipeline.evaluation.labels import DIRICHLET, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label
+from pipeline.evaluation.metrics import MGR_AXIS_LABEL, metric_label
+from pipeline.infra.outputs import name as out_name
+from pipeline.infra.outputs import path as out_path
 from reports.artifacts import load_simulate
 from reports.figures import new_subplots, percentile_bands, save
 from reports.html import HtmlReport
@@ -199,8 +202,8 @@ def _plan(so, sim_dir: Path, scenarios: list[str]) -> list[tuple[str, Any]]:
 
     df, ex, classes, truth = so.results, so.example, so.classes, so.truth
     plan: list[tuple[str, Any]] = []
-    if (sim_dir / "models" / "index.json").is_file():
-        models = GPClassModels.load(sim_dir / "models")
+    if out_path(sim_dir / out_name("simulate", "models"), "models", "index").is_file():
+        models = GPClassModels.load(sim_dir / out_name("simulate", "models"))
         true_xy, est = _example_poses(ex, scenarios)
         plan.append(("class_maps.png", lambda: fig_class_maps(models, true_xy, est, classes, truth)))
     for s in scenarios:
@@ -295,5 +298,5 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
                    [[d["class"], d.get("component_name") or d["component"], d["mean"], d["amplitude"],
                      d["length_scale"], d["noise"], "; ".join(d.get("at_bound") or []) or "—"] for d in fits],
                    caption="scikit-learn marginal-likelihood fits of the hand-specified responses")
-    page.write(out / "index.html")
-    return ReportResult(out / "index.html", written)
+    page.write(out_path(out, "simulate", "html"))
+    return ReportResult(out_path(out, "simulate", "html"), written)
