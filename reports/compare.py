@@ -27,9 +27,11 @@ import numpy as np
 
 from pipeline.evaluation.labels import ordered_methods
 from pipeline.evaluation.metrics import METRICS
+from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import name as out_name
 
 STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
-SUMMARY = Path("evaluate") / "summary.json"
+SUMMARY = Path("evaluate") / out_name("evaluate", "summary")
 
 
 class CompareError(ValueError):
@@ -79,7 +81,7 @@ def run_config(path: Path) -> tuple[dict[str, Any], list[str]]:
     cfg: dict[str, Any] = {}
     missing = []
     for stage in STAGES:
-        p = path / stage / "manifest.json"
+        p = path / stage / MANIFEST
         if not p.is_file():
             missing.append(stage)
             continue

@@ -9,6 +9,7 @@ from typing import Any
 
 from pipeline.evaluation.labels import comparison_label, method_label
 from pipeline.evaluation.metrics import metric_label
+from pipeline.infra.outputs import path as out_path
 from reports.compare import Comparison
 from reports.html import HtmlReport
 from reports.numbers import Estimate, fmt
@@ -124,7 +125,7 @@ def write_page(c: Comparison, out_dir: str | Path, title: str = "viewfuse compar
                intro: list[str] | None = None) -> Path:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / "index.html"
+    path = out_path(out, "compare", "html")
     build_page(c, title, intro).write(path)
     return path
 
