@@ -1,5 +1,6 @@
 """Stage ``evaluate``: the population evaluation (every target x several tracks x the settings),
-its statistics and verdict, and the single-track figures for the first target's first track.
+its statistics and verdict, and the single-track figures for the showcase track
+(``pipeline.evaluation.showcase``: where the methods disagree most at the final step).
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
 experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.population``,
@@ -18,6 +19,7 @@ import pandas as pd
 
 from pipeline.evaluation import experiments as E
 from pipeline.evaluation import population as P
+from pipeline.evaluation import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
@@ -75,7 +77,7 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
 
 
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
-    """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
+    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
     if "gp_models" in ev.experiments:
@@ -147,17 +149,22 @@ def run(ctx) -> str:
     population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
     timings["statistics"] = time.perf_counter() - t0
 
-    # The first target's first track: its biased/randomized tables as before, plus the figures.
-    first = cells[0]
+    # The showcase track (pipeline/evaluation/showcase.py: where the methods disagree most): its
+    # biased/randomized tables, plus the single-track figures.
+    chosen = S.choose(table)
+    at = next(i for i, c in enumerate(cells)
+              if c.variant == DEFAULT and c.target == chosen["target"] and c.track == chosen["track"])
+    first = cells[at]
+    population["showcase"] = chosen
     summary: dict = {}
-    for (experiment, label), posts in results[0]["posts"].items():
+    for (experiment, label), posts in results[at]["posts"].items():
         summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
     blocks = result_blocks(cells, results)
     single_track(cfg, ctx, banks, first, blocks, summary, timings)
     n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
         config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
-        target=first.target))
-    info = tracks[0].as_dict()
+        target=first.target, track=str(first.track)))
+    info = next(t for t in tracks if t.target == first.target and t.track == first.track).as_dict()
     obj_truth = P.truth_entry(truth, first.scan, first.target)
     info.update(classes=list(first.classes), yaw_deg=float(np.degrees(first.data.yaw)),
                 gp_inputs=first.data.inputs(first.data.cam_xy).tolist(),
@@ -168,7 +175,7 @@ def run(ctx) -> str:
                 float(np.linalg.norm(first.data.obj_xy - np.asarray(obj_truth["position"], float))))
     write_json(ctx.out / out_name("evaluate", "track"), info)
     write_json(ctx.out / out_name("evaluate", "summary"), {
-        "experiments": summary, "classes": list(first.classes), "target": first.target,
+        "experiments": summary, "classes": list(first.classes), "target": first.target, "track": first.track,
         "seeds": {"evaluate": ev.seed, "candidates": ev.candidate_seed},
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "features_meta": {k: v for k, v in meta.items() if k != "viewfuse.output_names"},

@@ -277,7 +277,8 @@ def test_stage_writes_results_example_and_report(tmp_config):
     assert "log10 MGR 95%, all steps" in html and "With Uncertainty (Feldman &amp; Indelman)" in html
     assert "(ours)" not in html and "log MGR =" not in html
     import re
-    cells = re.findall(r'<td class="num">([^<]*)</td>', html)
+    # cell text without its no-wrap spans; the page writes a typographic minus
+    cells = [re.sub(r"<[^>]+>", "", c).replace("−", "-") for c in re.findall(r'<td class="num">(.*?)</td>', html)]
     est = [c for c in cells if "[" in c]
     assert len(est) >= 2 * 3 * 4          # 2 scenarios x 3 methods x 4 metrics, each 'v [lo, hi]'
     for c in est:
