@@ -76,6 +76,10 @@ def validate(sim: SimulateConfig, where: str = "config") -> None:
     for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds"):
         b = getattr(sim, key)
         need(len(b) == 2 and 0 < b[0] < b[1], f"'simulate.{key}' must be [low, high] with 0 < low < high")
+    need(sim.claim_step < sim.track_steps,
+         f"'simulate.claim_step' = {sim.claim_step} must be below 'simulate.track_steps' = {sim.track_steps}")
+    for key in ("sweep_noise", "sweep_sigma_max", "sweep_full_noise", "sweep_full_sigma_max"):
+        need(len(getattr(sim, key)) >= 1, f"'simulate.{key}' must list at least one value")
     need(sim.example_realization < sim.realizations,
          f"'simulate.example_realization' = {sim.example_realization} must be below "
          f"'simulate.realizations' = {sim.realizations}")
@@ -99,6 +103,28 @@ def fit_models(sim: SimulateConfig, *, progress: bool = True) -> tuple[GPClassMo
                             length_scale_bounds=tuple(sim.length_scale_bounds),
                             noise_bounds=tuple(sim.noise_bounds), seed=sim.seed,
                             component_names=[f"score {n}" for n in sim.class_names], progress=progress)
+
+
+def with_noise(models: GPClassModels, noise: float) -> GPClassModels:
+    """The same class models with every GP's noise variance set to ``noise`` (prior mean, amplitude
+    and length scale kept): the model-confidence knob of the regime sweep and of
+    ``model_confidence = "hand_made"``. The predictive mean changes too (less smoothing)."""
+    m = models
+    return GPClassModels(m.classes, m.components, m.X, m.Y, m.mean, m.amplitude, m.length_scale,
+                         np.full_like(m.noise, float(noise)), component_names=m.component_names, meta=m.meta)
+
+
+def predictive_std(models: GPClassModels, sim: SimulateConfig) -> float:
+    """Median over the track's steps, classes and components of the GP predictive std (incl. the
+    noise): the scale against which σ_max is compared."""
+    _, var = models.marginal(track_positions(sim.track_start, sim.track_length, sim.track_steps))
+    return float(np.median(np.sqrt(np.maximum(var, 0.0))))
+
+
+def configured_models(fitted: GPClassModels, sim: SimulateConfig) -> GPClassModels:
+    """The models the scenarios use: the fit itself (``model_confidence = "fitted"``) or the fit
+    with every noise variance set to ``hand_made_noise`` (``"hand_made"``)."""
+    return fitted if sim.model_confidence == "fitted" else with_noise(fitted, sim.hand_made_noise)
 
 
 def track_positions(start, length: float, steps: int) -> np.ndarray:
