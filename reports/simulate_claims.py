@@ -29,6 +29,9 @@ SHORT = {
 }
 
 
+OP_TEXT = {">=": "≥", "<=": "≤"}
+
+
 def state(rec: Mapping) -> tuple[str, str]:
     v = "holds" if rec["holds"] else "fails"
     side = rec["ci_side"] if rec["ci_side"] == v else "spans"
@@ -43,7 +46,8 @@ def verdict_text(rec: Mapping) -> str:
 def claims_rows(claims: list[Mapping]) -> list[list]:
     """Rows of the claims table: paper wording, statistic, value [95 % CI], threshold, verdict."""
     return [[c["statement"], c["statistic"] + (f" ({c['detail']})" if c.get("detail") else ""),
-             Estimate(c["value"], c["ci_low"], c["ci_high"]), f"{c['op']} {c['threshold']:g}", verdict_text(c)]
+             Estimate(c["value"], c["ci_low"], c["ci_high"]), f"{OP_TEXT.get(c['op'], c['op'])} {c['threshold']:g}",
+             verdict_text(c)]
             for c in claims]
 
 
@@ -83,7 +87,8 @@ def claims_section(page, summary: Mapping[str, Any]) -> None:
                    caption=f"The same claims where the sweep finds the most of them holding: GP noise variance "
                            f"{br['noise']:.3g} (predictive std {br['predictive_std']:.3g}), σ_max "
                            f"{br['sigma_max']:g}, {br['realizations']} realizations per scenario "
-                           "(model_confidence = \"hand_made\" with that noise).")
+                           "(model_confidence = \"hand_made\" with that noise): "
+                           f"{sum(c['holds'] for c in br['claims'])} of {len(br['claims'])} hold at this size.")
 
 
 # -- figures --------------------------------------------------------------------------------------------
@@ -161,6 +166,8 @@ def fig_confident_errors(conf: Mapping[str, Mapping], threshold: float, title: s
         k = np.arange(len(c["rate"]))
         ax.step(k, c["rate"], where="mid", color=method_color(m), label=method_label(m, short=True))
         ax.fill_between(k, c["ci_low"], c["ci_high"], step="mid", color=method_color(m), alpha=0.15, lw=0)
+    from matplotlib.ticker import MaxNLocator
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("track step k")
     ax.set_ylabel(f"share with max P ≥ {threshold:g}\non a wrong class")
     ax.set_ylim(-0.02, 1.02)

@@ -234,7 +234,7 @@ def readme_table(marker: str) -> dict[str, tuple[float, str]]:
     for line in block.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) >= 4 and cells[0].startswith("`"):
-            value = float(re.match(r"[-+]?\d*\.?\d+(?:e[-+]?\d+)?", cells[2]).group(0))
+            value = float(re.match(r"[-+]?\d*\.?\d+(?:e[-+]?\d+)?", cells[2].replace("−", "-")).group(0))
             rows[cells[0].strip("`")] = (value, cells[3])
     return rows
 
