@@ -260,7 +260,8 @@ class SimOutputs:
 def load_simulate(folder: str | Path) -> SimOutputs:
     d = Path(folder)
     hint = "run `viewfuse simulate` first"
-    df, meta = read_result_table(d / "results.parquet", SIM_COLUMNS, missing_hint=hint)
+    # The posteriors feed the findings' confident errors (pipeline.evaluation.metrics.confident_errors).
+    df, meta = read_result_table(d / "results.parquet", SIM_COLUMNS, optional=("posterior",), missing_hint=hint)
     ex, _ = read_result_table(d / "example.parquet", EXAMPLE_COLUMNS, missing_hint=hint)
     sp = d / "summary.json"
     return SimOutputs(df, ex, meta, read_json(sp) if sp.is_file() else {})

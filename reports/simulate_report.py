@@ -310,7 +310,8 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
         _scenario_section(page, s, summ, R, n_boot, tuple(written))
     page.section("Findings", anchor="findings")
     page.paragraph("The paper's qualitative findings, checked on these runs:")
-    for line in findings_text(findings(df, ex, so.truth)):
+    thr = (so.summary.get("claim_params") or {}).get("confident_threshold", 0.99)
+    for line in findings_text(findings(df, ex, so.truth, thr)):
         page.paragraph(line)
     fits = so.summary.get("gp_fit") or []
     if fits:

@@ -17,7 +17,6 @@ Fits the three hand-specified class models, runs every configured scenario over
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import time
@@ -25,7 +24,6 @@ import time
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation import claims as CL
 from pipeline.evaluation import simulation as S
 from pipeline.evaluation import sweep as SW
 from pipeline.infra.cache import atomic_path, write_json
@@ -99,45 +97,13 @@ def run(ctx) -> str:
                   {"class_mean": S.N_CLASSES, "class_std": S.N_CLASSES, "class_mean_est": S.N_CLASSES})
 
     table = S.summarize(df)
-    found = findings(df, ex, sim.truth_class - 1)
-    truth = sim.truth_class - 1
-    params = CL.ClaimParams(step=sim.claim_step, confident_threshold=sim.confident_threshold, seed=sim.seed)
-    claims = CL.evaluate_claims(posts, truth, params)
-    conf_err = {sc: CL.confident_errors_by_step(p, truth, sim.confident_threshold) for sc, p in posts.items()}
-    sweep_out, best_regime = None, None
-    if sim.sweep != "off":
-        t0 = time.perf_counter()
-        default = SW.default_point(models, sim)
-        g = SW.grid(sim, default=default)
-        with progress_bar(total=SW.steps(sim, g), desc=f"sweep ({g.name})", unit="run") as bar:
-            records = SW.run_sweep(fitted, sim, g, params, progress=bar.update)
-        regime = SW.regime_summary(records, default)
-        sweep_out = {"grid": {"name": g.name, "noise": list(g.noise), "sigma_max": list(g.sigma_max),
-                              "realizations": g.realizations},
-                     "default": {"noise": default[0], "sigma_max": default[1]},
-                     "records": records, "summary": regime}
-        timings["sweep"] = time.perf_counter() - t0
-        best = regime["best"]
-        if best and (abs(best["noise"] - default[0]) > 1e-12 * default[0] or best["sigma_max"] != default[1]):
-            # The claims where most of them hold, at the default's number of realizations.
-            t0 = time.perf_counter()
-            bsim = dataclasses.replace(sim, sigma_max=best["sigma_max"])
-            bmod = S.with_noise(fitted, best["noise"])
-            bposts = {sc: S.run_scenario(bmod, sc, bsim).posteriors for sc in sim.scenarios}
-            best_regime = {"noise": best["noise"], "sigma_max": best["sigma_max"],
-                           "predictive_std": S.predictive_std(bmod, sim), "realizations": sim.realizations,
-                           "claims": CL.evaluate_claims(bposts, truth, params)}
-            timings["best_regime"] = time.perf_counter() - t0
+    found = findings(df, ex, sim.truth_class - 1, sim.confident_threshold)
+    block, t_claims = SW.claims_block(fitted, models, sim, posts)
+    timings.update(t_claims)
     write_json(ctx.out / out_name("simulate", "summary"), {
         "table": table.to_dict(orient="records"),
         "findings": found,
-        "claims": claims,
-        "claim_params": {"step": sim.claim_step, "confident_threshold": sim.confident_threshold,
-                         "model_confidence": sim.model_confidence,
-                         "predictive_std": S.predictive_std(models, sim)},
-        "confident_errors": conf_err,
-        "sweep": sweep_out,
-        "best_regime": best_regime,
+        **block,   # claims, claim_params, confident_errors, sweep, best_regime
         "classes": list(sim.class_names), "truth": sim.truth_class - 1,
         "seed": sim.seed, "config_hash": meta["config_hash"],
         "config": to_dict(sim),
@@ -153,7 +119,7 @@ def run(ctx) -> str:
 
     took = time.perf_counter() - t_start
     parts = [f"{len(sim.scenarios)} scenario(s) x {sim.realizations} realizations, {len(df)} rows",
-             f"paper claims holding: {sum(c['holds'] for c in claims)} of {len(claims)}"]
+             f"paper claims holding: {sum(c['holds'] for c in block['claims'])} of {len(block['claims'])}"]
     for _, r in table.iterrows():
         parts.append(f"{r['scenario']}/{r['method']} correct(final)={r['correct_final']:.2f}")
     final = cfg.stage_dir(ctx.stage) / out_name("simulate", "html")

@@ -254,3 +254,18 @@ def test_default_claims_match_the_readme():
         assert got[key]["value"] == pytest.approx(value, abs=6e-4), key
         assert verdict.startswith("holds") is got[key]["holds"], key
         assert ("spans" in verdict) is (got[key]["ci_side"] == "spans"), key
+
+
+def test_page_findings_use_the_shared_confident_error_definition():
+    from reports.simulate_findings import findings
+
+    sim, models = tiny()
+    sim = dataclasses.replace(sim, realizations=8, sigma_max=0.6)
+    res = S.run_scenario(S.with_noise(models, 1e-5), "model_uncertainty", sim)
+    df = S.long_rows(res)
+    found = findings(df, df.iloc[:0].assign(component=[], class_mean=[]), res.truth, 0.99)
+    for m, p in res.posteriors.items():
+        with np.errstate(divide="ignore"):
+            rate = M.confident_error_rate(np.log(p), res.truth, 0.99)
+        assert found["model_uncertainty"][m]["confident_wrong_overall"] == pytest.approx(rate)
+    assert any(found["model_uncertainty"][m]["confident_wrong_overall"] > 0 for m in res.posteriors)

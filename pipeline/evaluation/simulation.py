@@ -1,6 +1,11 @@
 """Simulation scenarios of the paper's §5.3: GP class models from hand-specified responses, a
 straight track past the object, the measurement generator of Algorithm 2 and the realization loop.
 
+Model confidence: ``configured_models`` keeps the fit (``model_confidence = "fitted"``) or sets
+every GP's noise variance to ``hand_made_noise`` (``with_noise``), the knob the regime sweep
+(``pipeline.evaluation.sweep``) turns; the paper's claims are checked in
+``pipeline.evaluation.claims``.
+
 Pure functions over arrays and the ``[simulate]`` config section; the ``simulate`` stage does the
 I/O and ``reports.simulate_report`` the figures.
 

@@ -11,10 +11,14 @@ Every grid point uses the same realization seeds (``simulation.realization_rng``
 ``realizations`` of them: common random numbers, so neighbouring points differ by the setting, not
 by the draws, and a point equal to the default setting reproduces the default run's first
 realizations exactly. Deterministic for a seed.
+
+``claims_block`` is what the ``simulate`` stage writes about the claims: the table on its own run,
+the confident errors per step, the sweep and its computed summary, the best point rerun at full size.
 """
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -226,3 +230,49 @@ def sentence(records: list[dict], default: tuple[float, float]) -> str:
         parts.append(f"At the default (GP noise variance {default[0]:.3g}, σ_max {default[1]:g}): "
                      f"{sum(r['holds'] for r in d.values())} of {len(d)} hold.")
     return " ".join(parts)
+
+
+# -- the stage's block --------------------------------------------------------------------------------------
+def claims_block(fitted: GPClassModels, models: GPClassModels, sim: SimulateConfig,
+                 posts: dict[str, dict[str, np.ndarray]]) -> tuple[dict[str, Any], dict[str, float]]:
+    """What ``simulate/summary.json`` holds about the paper's claims, and its timings: the claims
+    on the stage's own posteriors ``posts`` ({scenario: {method: (R, K, C)}}, from ``models``),
+    the confident-error rate per step, the sweep (unless ``simulate.sweep = "off"``) and, where
+    the sweep's best point is not the default, the claims rerun there at ``sim.realizations``."""
+    from pipeline.infra.progress import bar as progress_bar
+
+    truth = sim.truth_class - 1
+    p = CL.ClaimParams(step=sim.claim_step, confident_threshold=sim.confident_threshold, seed=sim.seed)
+    block: dict[str, Any] = {
+        "claims": CL.evaluate_claims(posts, truth, p),
+        "claim_params": {"step": sim.claim_step, "confident_threshold": sim.confident_threshold,
+                         "model_confidence": sim.model_confidence, "predictive_std": S.predictive_std(models, sim)},
+        "confident_errors": {sc: CL.confident_errors_by_step(ps, truth, sim.confident_threshold)
+                             for sc, ps in posts.items()},
+        "sweep": None, "best_regime": None,
+    }
+    timings: dict[str, float] = {}
+    if sim.sweep == "off":
+        return block, timings
+    t0 = time.perf_counter()
+    default = default_point(models, sim)
+    g = grid(sim, default=default)
+    with progress_bar(total=steps(sim, g), desc=f"sweep ({g.name})", unit="run") as bar:
+        records = run_sweep(fitted, sim, g, p, progress=bar.update)
+    regime = regime_summary(records, default)
+    block["sweep"] = {"grid": {"name": g.name, "noise": list(g.noise), "sigma_max": list(g.sigma_max),
+                               "realizations": g.realizations},
+                      "default": {"noise": default[0], "sigma_max": default[1]},
+                      "records": records, "summary": regime}
+    timings["sweep"] = time.perf_counter() - t0
+    best = regime["best"]
+    if best and (abs(np.log(best["noise"] / default[0])) > 1e-9 or best["sigma_max"] != default[1]):
+        t0 = time.perf_counter()
+        bsim = dataclasses.replace(sim, sigma_max=best["sigma_max"])
+        bmod = S.with_noise(fitted, best["noise"])
+        bposts = {sc: S.run_scenario(bmod, sc, bsim).posteriors for sc in sim.scenarios}
+        block["best_regime"] = {"noise": best["noise"], "sigma_max": best["sigma_max"],
+                                "predictive_std": S.predictive_std(bmod, sim), "realizations": sim.realizations,
+                                "claims": CL.evaluate_claims(bposts, truth, p)}
+        timings["best_regime"] = time.perf_counter() - t0
+    return block, timings
