@@ -9,6 +9,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from pipeline.evaluation.claims import verdict_word
 from pipeline.evaluation.labels import method_color, method_label
 from reports.figures import new_subplots
 from reports.numbers import Estimate
@@ -38,16 +39,11 @@ def state(rec: Mapping) -> tuple[str, str]:
     return v, side
 
 
-def verdict_text(rec: Mapping) -> str:
-    w = "holds" if rec["holds"] else "does not hold"
-    return w + (" (95 % CI spans the threshold)" if rec["ci_side"] == "spans" else "")
-
-
 def claims_rows(claims: list[Mapping]) -> list[list]:
     """Rows of the claims table: paper wording, statistic, value [95 % CI], threshold, verdict."""
     return [[c["statement"], c["statistic"] + (f" ({c['detail']})" if c.get("detail") else ""),
              Estimate(c["value"], c["ci_low"], c["ci_high"]), f"{OP_TEXT.get(c['op'], c['op'])} {c['threshold']:g}",
-             verdict_text(c)]
+             verdict_word(c)]
             for c in claims]
 
 
