@@ -23,6 +23,7 @@ import scipy.io
 
 from loaders.bigbird import jpeg_size, read_rgb
 from loaders.errors import BadInputError, SkipLog
+from loaders.files import checked_file, read_checked
 from pipeline.infra.cache import note_read
 from pipeline.infra.progress import bar
 
@@ -78,13 +79,11 @@ def difficulty(x0: float, y0: float, x1: float, y1: float) -> int:
     return 5
 
 
-def read_instance_map(path: str | Path) -> dict[str, int]:
+def read_instance_map(path: str | Path, root: str | Path | None = None) -> dict[str, int]:
     """name -> id from an AVD instance_id_map.txt (``name id`` per line)."""
     path = Path(path)
     try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise BadInputError(path, "instance id map is missing") from None
+        text = read_checked(path, root, "instance id map").decode("utf-8")
     except UnicodeDecodeError as e:
         raise BadInputError(path, f"not a text file ({e})") from None
     note_read(path)
@@ -133,9 +132,8 @@ def _cell(value, fname: str):
     return a
 
 
-def _read_structs(path: Path) -> tuple[float, dict[str, dict]]:
-    if not path.is_file():
-        raise BadInputError(path, "image_structs.mat is missing")
+def _read_structs(path: Path, root: Path | None = None) -> tuple[float, dict[str, dict]]:
+    checked_file(path, root, "image_structs.mat")
     note_read(path)
     try:
         m = scipy.io.loadmat(path)
@@ -226,7 +224,7 @@ class AVDScan:
         self.skip = skip
         if not self.folder.is_dir():
             raise BadInputError(self.folder, "AVD scan folder is missing")
-        self.instance_ids = read_instance_map(self.root / "instance_id_map.txt")
+        self.instance_ids = read_instance_map(self.root / "instance_id_map.txt", self.root)
         self.instance_names = {i: n for n, i in self.instance_ids.items()}
         jpg_dir = self.folder / "jpg_rgb"
         if not jpg_dir.is_dir():
@@ -235,7 +233,7 @@ class AVDScan:
         ann_path = self.folder / "annotations.json"
         annotations = self._read_annotations(ann_path)
         self.structs_path = self.folder / "image_structs.mat"
-        self.scale, structs = _read_structs(self.structs_path)
+        self.scale, structs = _read_structs(self.structs_path, self.root)
         self.present_instances = self._read_present(self.folder / "present_instance_names.txt", annotations)
 
         for name in sorted(set(annotations) - set(files)):
@@ -297,10 +295,8 @@ class AVDScan:
 
     def _read_annotations(self, path: Path) -> dict:
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(read_checked(path, self.root, "annotations.json").decode("utf-8"))
             note_read(path)
-        except FileNotFoundError:
-            raise BadInputError(path, "annotations.json is missing") from None
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise BadInputError(path, f"not valid JSON ({e})") from None
         if not isinstance(data, dict):
@@ -314,14 +310,18 @@ class AVDScan:
         return data
 
     def _read_present(self, path: Path, annotations: dict) -> list[str]:
-        if not path.is_file():
+        if not path.exists() and not path.is_symlink():
             # Optional for us: fall back to the instances that carry boxes, and say so.
             ids = sorted({int(b[4]) for e in annotations.values() for b in e["bounding_boxes"]
                           if len(b) == 6 and int(b[4]) in self.instance_names})
             log.warning("%s: missing; using the %d instances seen in annotations.json", path, len(ids))
             return [self.instance_names[i] for i in ids]
+        try:
+            text = read_checked(path, self.root, "present_instance_names.txt").decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise BadInputError(path, f"not a text file ({e})") from None
         note_read(path)
-        names = [ln.strip() for ln in path.read_text().splitlines() if ln.strip()]
+        names = [ln.strip() for ln in text.splitlines() if ln.strip()]
         for n in names:
             if n not in self.instance_ids:
                 raise BadInputError(path, f"instance {n!r} is not in {self.root / 'instance_id_map.txt'}")
@@ -333,7 +333,7 @@ class AVDScan:
             raise BadInputError(ann_path, f"image {name}: 'bounding_boxes' is not a list")
         if not raw:
             return []
-        w, h = jpeg_size(img_path)
+        w, h = jpeg_size(img_path, self.root)
         out = []
         for b in raw:
             try:
@@ -370,7 +370,7 @@ class AVDScan:
     def read_image(self, name: str) -> np.ndarray:
         """RGB uint8 (H, W, 3)."""
         img = self.images.get(name)
-        return read_rgb(img.path if img is not None else self.folder / "jpg_rgb" / name)
+        return read_rgb(img.path if img is not None else self.folder / "jpg_rgb" / name, self.root)
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -379,7 +379,7 @@ class AVDScan:
             if not self.images:
                 raise BadInputError(self.folder, "scan has no readable images")
             first = next(iter(self.images.values()))
-            self._image_size = jpeg_size(first.path)
+            self._image_size = jpeg_size(first.path, self.root)
         return self._image_size
 
     def intrinsics(self) -> np.ndarray:
@@ -387,8 +387,8 @@ class AVDScan:
         Kinect calibration at 1920x1080; either is scaled to the image size."""
         w, h = self.image_size
         cam_path = self.folder / "cameras.txt"
-        if cam_path.is_file():
-            (cw, ch), K = _read_colmap_camera(cam_path)
+        if cam_path.exists() or cam_path.is_symlink():
+            (cw, ch), K = _read_colmap_camera(cam_path, self.root)
         else:
             (cw, ch), K = KINECT_SIZE, KINECT_K.copy()
         # COLMAP's rescaling convention: focal lengths and principal point scale together.
@@ -404,10 +404,14 @@ class AVDScan:
                 if b.instance_id == iid and b.difficulty <= max_difficulty]
 
 
-def _read_colmap_camera(path: Path) -> tuple[tuple[int, int], np.ndarray]:
+def _read_colmap_camera(path: Path, root: Path | None = None) -> tuple[tuple[int, int], np.ndarray]:
     """((width, height), K) from the first camera in a COLMAP cameras.txt."""
+    try:
+        text = read_checked(path, root, "cameras.txt").decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise BadInputError(path, f"not a text file ({e})") from None
     note_read(path)
-    for line in path.read_text().splitlines():
+    for line in text.splitlines():
         toks = line.split()
         if not toks or toks[0].startswith("#"):
             continue

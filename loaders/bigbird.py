@@ -25,6 +25,7 @@ import h5py
 import numpy as np
 
 from loaders.errors import BadInputError, SkipLog
+from loaders.files import _SOF, check_image_size, checked_file, read_checked
 from loaders.pbm import read_pbm
 from pipeline.infra.cache import note_read
 
@@ -122,30 +123,23 @@ def decode_jpeg(data: bytes, path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(bgr[:, :, ::-1])  # OpenCV gives BGR
 
 
-def read_rgb(path: str | Path) -> np.ndarray:
-    """Decode a JPEG into RGB uint8 (H, W, 3); BadInputError naming the file if missing/corrupt."""
+def read_rgb(path: str | Path, root: str | Path | None = None) -> np.ndarray:
+    """Decode a JPEG into RGB uint8 (H, W, 3); BadInputError naming the file if missing, corrupt,
+    not a regular file inside ``root`` (``loaders.files``) or declaring too many pixels."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise BadInputError(path, "image file is missing") from None
-    except OSError as e:
-        raise BadInputError(path, f"cannot read image file ({e.strerror or e})") from None
+    data = read_checked(path, root, "image file")
     note_read(path, data)
+    check_image_size(data, path)
     return decode_jpeg(data, path)
 
 
-# SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
-_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
-
-
-def jpeg_size(path: str | Path) -> tuple[int, int]:
+def jpeg_size(path: str | Path, root: str | Path | None = None) -> tuple[int, int]:
     """(width, height) from a JPEG's frame header, without decoding the image."""
-    path = Path(path)
+    path = checked_file(path, root, "image file")
     try:
         f = open(path, "rb")
-    except FileNotFoundError:
-        raise BadInputError(path, "image file is missing") from None
+    except OSError as e:
+        raise BadInputError(path, f"cannot read image file ({e.strerror or e})") from None
     with f:
         if f.read(2) != b"\xff\xd8":
             raise BadInputError(path, "not a JPEG (no SOI marker); file is corrupt")
@@ -184,21 +178,32 @@ def jpeg_size(path: str | Path) -> tuple[int, int]:
 # --------------------------------------------------------------------------------------------
 # HDF5 helpers
 
-def _read_h5_matrix(path: Path, key: str, shape: tuple[int, ...]) -> np.ndarray:
-    """A float64 dataset of the given shape, finite; errors name the file and the key."""
-    if not path.is_file():
-        raise BadInputError(path, "HDF5 file is missing")
+def _read_h5_matrix(path: Path, key: str, shape: tuple[int, ...], root: str | Path | None = None) -> np.ndarray:
+    """A float64 dataset of the given shape, finite, stored in the file itself; errors name the
+    file and the key. Soft and external links, virtual datasets and external raw storage are
+    refused: they would read (and make the run depend on) data the manifest does not track."""
+    checked_file(path, root, "HDF5 file")
     note_read(path)
     try:
         with h5py.File(path, "r") as f:
-            if key not in f:
+            link = f.get(key, getlink=True)
+            if link is None:
                 raise BadInputError(path, f"missing HDF5 dataset '{key}'")
+            if isinstance(link, h5py.ExternalLink):
+                raise BadInputError(path, f"HDF5 key '{key}' is an external link to {link.filename}:{link.path}; "
+                                          "only data stored in the file is read")
+            if isinstance(link, h5py.SoftLink):
+                raise BadInputError(path, f"HDF5 key '{key}' is a soft link to {link.path}; "
+                                          "only data stored under its own name is read")
             ds = f[key]
             if not isinstance(ds, h5py.Dataset):
                 raise BadInputError(path, f"HDF5 key '{key}' is a group, expected a dataset")
+            if ds.is_virtual or ds.external:
+                raise BadInputError(path, f"HDF5 dataset '{key}' keeps its data in other files "
+                                          "(virtual or external storage); only data stored in the file is read")
             arr = np.asarray(ds[()], dtype=np.float64)
-    except OSError as e:
-        raise BadInputError(path, f"cannot open HDF5 file ({e})") from None
+    except (OSError, KeyError, RuntimeError) as e:
+        raise BadInputError(path, f"cannot read HDF5 dataset '{key}' ({e})") from None
     if arr.shape != shape:
         raise BadInputError(path, f"HDF5 dataset '{key}' has shape {arr.shape}, expected {shape}")
     if not np.all(np.isfinite(arr)):
@@ -260,11 +265,13 @@ class BigBirdObject:
 
     ``open_px``: side of the square opening that removes mask specks before the largest
     component is taken (None: about 0.5 % of the shorter image side, at least 3 px).
+    ``root``: the dataset root every file must resolve inside (default: the folder's parent).
     """
 
-    def __init__(self, folder: str | Path, open_px: int | None = None):
+    def __init__(self, folder: str | Path, open_px: int | None = None, root: str | Path | None = None):
         self.folder = Path(folder)
         self.name = self.folder.name
+        self.root = Path(root) if root is not None else self.folder.parent
         if not self.folder.is_dir():
             raise BadInputError(self.folder, "BigBIRD object folder is missing")
         self.calibration_path = self.folder / "calibration.h5"
@@ -293,14 +300,14 @@ class BigBirdObject:
         return out
 
     def read_image(self, view: BigBirdView) -> np.ndarray:
-        return read_rgb(view.image_path)
+        return read_rgb(view.image_path, self.root)
 
     def read_mask(self, view: BigBirdView, shape: tuple[int, int] | None = None) -> np.ndarray:
         """Bool mask (True = object). ``shape`` = the image's (H, W); read from the JPEG header
         when not given. A mask whose size differs from its image is an error."""
-        mask = read_pbm(view.mask_path)
+        mask = read_pbm(view.mask_path, self.root)
         if shape is None:
-            w, h = jpeg_size(view.image_path)
+            w, h = jpeg_size(view.image_path, self.root)
             shape = (h, w)
         if mask.shape != tuple(shape[:2]):
             raise BadInputError(view.mask_path, f"mask is {mask.shape[1]}x{mask.shape[0]} but its "
@@ -317,7 +324,7 @@ class BigBirdObject:
 
     def _calib_matrix(self, key: str, shape: tuple[int, int]) -> np.ndarray:
         if key not in self._calib:
-            self._calib[key] = _read_h5_matrix(self.calibration_path, key, shape)
+            self._calib[key] = _read_h5_matrix(self.calibration_path, key, shape, self.root)
         return self._calib[key]
 
     def intrinsics(self, camera: int) -> np.ndarray:
@@ -329,9 +336,9 @@ class BigBirdObject:
         a = int(angle)
         if a not in self._poses:
             path = self.folder / "poses" / f"NP5_{a}_pose.h5"
-            if not path.is_file():
+            if not path.is_file() and not path.is_symlink():
                 raise BadInputError(path, f"pose file for angle {a} is missing")
-            self._poses[a] = _check_homogeneous(_read_h5_matrix(path, POSE_KEY, (4, 4)), path, POSE_KEY)
+            self._poses[a] = _check_homogeneous(_read_h5_matrix(path, POSE_KEY, (4, 4), self.root), path, POSE_KEY)
         return self._poses[a].copy()
 
     def camera_pose(self, camera: int, angle: int) -> np.ndarray:

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from loaders.errors import BadInputError
+from loaders.files import read_checked
 from pipeline.infra.cache import note_read
 
 
@@ -37,13 +38,11 @@ def _tokens(data: bytes, path: Path) -> tuple[list[bytes], int]:
     return toks, i + 1
 
 
-def read_pbm(path: str | Path) -> np.ndarray:
-    """Decode a P4 mask: bool (H, W), True where the bit is 1 (black = object in BigBIRD)."""
+def read_pbm(path: str | Path, root: str | Path | None = None) -> np.ndarray:
+    """Decode a P4 mask: bool (H, W), True where the bit is 1 (black = object in BigBIRD). The file
+    must be a regular file inside ``root`` (``loaders.files``)."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise BadInputError(path, "mask file is missing") from None
+    data = read_checked(path, root, "mask file")
     note_read(path, data)
     toks, off = _tokens(data, path)
     if toks[0] != b"P4":

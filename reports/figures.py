@@ -19,6 +19,9 @@ from pipeline.infra.cache import atomic_path
 DEFAULT_LEVELS = (10, 20, 30, 40, 50, 60, 70, 80, 90)
 
 _RC = {
+    # Every text is literal: names from the config and the dataset ("$\\foo$" in
+    # simulate.class_names) would otherwise be parsed as mathtext, and a bad one aborts the figure.
+    "text.parse_math": False,
     "font.size": 9.5,
     "axes.titlesize": 10.5,
     "axes.labelsize": 9.5,

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import errno
 import logging
+import os
 import sys
+import traceback
 
-from pipeline.infra.config import Config, ConfigError, load_config, parse_override, _merge
+from pipeline.infra.config import Config, ConfigError, load_config, merge as _merge, parse_override
 from stages.registry import ORDER, STAGES
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
@@ -68,6 +72,8 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="progress bars: auto = on a terminal only (a log gets a few plain lines), "
                         "on = always, off = none")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    p.add_argument("--debug", action="store_true",
+                   help="on an error, print the Python traceback too (errors are otherwise one line)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -126,52 +132,105 @@ def _load(args) -> Config:
 
 
 def status(cfg: Config) -> int:
+    """The status table on stdout; exit 1 when a stage's state cannot be determined."""
     from stages.runner import plan
+    print(f"run folder: {cfg.run_dir}", file=sys.stderr)
     memo: dict = {}
     width = max(map(len, ORDER))
+    rc = 0
     for name in ORDER:
         try:
             s = plan(cfg, name, memo)
             line = s["state"] + (f": {s['why']}" if s["state"] == "stale" else "")
         except (OSError, ValueError) as e:
-            line = f"unknown: {e}"
+            line = f"unknown: {describe(e)}"
+            rc = 1
         print(f"{name:<{width}}  {line}")
-    return 0
+    return rc
+
+
+# errno -> what it means for a run, in words
+_ERRNO_WORDS = {
+    errno.ENOSPC: "no space left on the device (the disk is full)",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EROFS: "the file system is read-only",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.ENOENT: "no such file or folder",
+    errno.EISDIR: "is a folder, not a file",
+    errno.ENOTDIR: "a part of the path is not a folder",
+    errno.EMFILE: "too many open files",
+    errno.EIO: "input/output error (failing disk or network file system)",
+    errno.ENAMETOOLONG: "file name too long",
+}
+
+
+def describe(e: BaseException) -> str:
+    """One line for an expected failure: the file or key and the problem."""
+    if isinstance(e, OSError) and e.errno is not None:
+        words = _ERRNO_WORDS.get(e.errno, e.strerror or str(e))
+        code = errno.errorcode.get(e.errno, str(e.errno))
+        where = "".join(f"{f}: " for f in (e.filename, e.filename2) if f)
+        return f"{where}{words} ({code})"
+    if isinstance(e, UnicodeDecodeError):
+        return f"cannot decode text as {e.encoding} (byte {e.start}): {e.reason}"
+    if isinstance(e, KeyError) and e.args:
+        return str(e.args[0])
+    return str(e) or type(e).__name__
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The error boundary: every failure ends in one line on stderr (the traceback too with
+    --debug). Exit codes: 0 done, 1 a runtime error, 2 a config error, 130 interrupted, 141 stdout
+    closed early (``viewfuse status | head -1``)."""
     args = build_parser().parse_args(argv)
+    where = f"viewfuse {args.stage}"
+    try:
+        rc = _main(args)
+        sys.stdout.flush()  # a closed pipe shows here, inside the boundary, not at exit
+        return rc
+    except BrokenPipeError:
+        # The reader went away: stop quietly, and keep Python from complaining at exit.
+        with contextlib.suppress(OSError, ValueError):
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        return 141
+    except KeyboardInterrupt:
+        print(f"{where}: interrupted; partial outputs were discarded", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 - the boundary: nothing escapes as a raw traceback
+        if args.debug:
+            traceback.print_exc()
+        if isinstance(e, ConfigError):
+            print(f"{where}: config error: {describe(e)}", file=sys.stderr)
+            return 2
+        expected = isinstance(e, (OSError, ValueError, RuntimeError, KeyError))
+        hint = "" if expected or args.debug else " (an internal error: rerun with --debug for the traceback)"
+        kind = "" if expected else f"{type(e).__name__}: "
+        print(f"{where}: error: {kind}{describe(e)}{hint}", file=sys.stderr)
+        return 1
+
+
+def _main(args) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     from pipeline.infra import progress
     progress.set_mode(args.progress)
-    try:
-        cfg = _load(args)
-    except ConfigError as e:
-        print(f"viewfuse: config error: {e}", file=sys.stderr)
-        return 2
+    cfg = _load(args)
     if args.stage == "status":
         return status(cfg)
     from stages.runner import ensure, remove_orphans
-    try:
-        with progress.redirect_logging():
-            remove_orphans(cfg)
-            if args.stage == "study":  # not a stage: the chain once per seed (stages/study.py)
-                from stages.study import run_study
-                run_study(cfg, device=cfg.run.device, threads=cfg.run.threads, force=args.force)
-                return 0
-            keys: dict[str, str] = {}
-            ensure(cfg, args.stage, force=args.force, device=cfg.run.device, threads=cfg.run.threads, _keys=keys)
-            for after in STAGES[args.stage].after:
-                ensure(cfg, after, device=cfg.run.device, threads=cfg.run.threads, _keys=keys)
-    except KeyboardInterrupt:
-        print("viewfuse: interrupted; partial outputs were discarded", file=sys.stderr)
-        return 130
-    except (FileNotFoundError, ValueError, RuntimeError) as e:
-        # Readers and stages raise these with the file/key and the problem in the message.
-        logging.getLogger("viewfuse").debug("traceback", exc_info=True)
-        print(f"viewfuse {args.stage}: error: {e}", file=sys.stderr)
-        return 1
+    print(f"run folder: {cfg.run_dir}", file=sys.stderr)
+    with progress.redirect_logging():
+        remove_orphans(cfg)
+        if args.stage == "study":  # not a stage: the chain once per seed (stages/study.py)
+            from stages.study import run_study
+            run_study(cfg, device=cfg.run.device, threads=cfg.run.threads, force=args.force)
+            return 0
+        keys: dict[str, str] = {}
+        ensure(cfg, args.stage, force=args.force, device=cfg.run.device, threads=cfg.run.threads, _keys=keys)
+        for after in STAGES[args.stage].after:
+            ensure(cfg, after, device=cfg.run.device, threads=cfg.run.threads, _keys=keys)
     return 0
 
 

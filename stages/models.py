@@ -46,6 +46,8 @@ def read_training_views(path: str | Path, camera: int):
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from pipeline.scoring.features import check_scores
+
     path = Path(path)
     if not path.is_file():
         raise FeaturesError(path, "features file not found (run the 'features' stage)")
@@ -65,8 +67,11 @@ def read_training_views(path: str | Path, camera: int):
     table = table.take(pa.array(keep))
     cols = {c: table.column(c).to_numpy(zero_copy_only=False) for c in ("object", "angle_deg", "u_x", "u_y")}
     scores = _scores_matrix(table.column("scores"), path)
-    if len(keep) and not np.all(np.isfinite(scores)):
-        raise FeaturesError(path, "non-finite scores in the training views")
+    try:
+        check_scores(scores, path, keep)
+        check_scores(_scores_matrix(dropout.column("scores"), path), path, np.nonzero((cam == camera) & (pas >= 0))[0])
+    except ValueError as e:
+        raise FeaturesError(path, str(e).removeprefix(f"{path}: ")) from None
     return cols, scores, meta, dropout
 
 
@@ -176,7 +181,11 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     """
     path = Path(path)
     pool, X_by, S_by, angles, names, meta, passes = _training_sets(path, mcfg)
-    tlist = pool if isinstance(targets, str) else [t for t in targets if t in pool]
+    unknown = [] if isinstance(targets, str) else [t for t in targets if t not in pool]
+    if unknown:
+        raise ValueError(f"'evaluate.targets' names {unknown[0]!r}, which is not a modelled instance "
+                         f"(modelled, from {path}: {', '.join(pool)})")
+    tlist = pool if isinstance(targets, str) else list(targets)
     sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed)
     plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
                            mcfg.informative_min)

@@ -2,7 +2,8 @@
 
 Each stage writes into a temporary sibling folder ``.<stage>.tmp``; only when it finishes is that
 folder swapped in and the manifest written, so an interrupted run never leaves output that looks
-complete (and the next run of any stage removes what a killed run left).
+complete (and the next run of any stage removes what a killed run left). Where the runner may
+write, the per-stage lock and the swap are ``stages.run_folder``.
 
 A manifest records the stage's key (config sections, code version, upstream digests, the stage's
 ``extra_key``), the sha256 of every output file and of every dataset file the stage read. A stage
@@ -23,15 +24,19 @@ from pathlib import Path
 from typing import Any
 
 from loaders.errors import SkipPolicy
-from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, replace_dir, write_json
+from loaders.files import set_max_megapixels
+from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.progress import echo
-from stages.registry import STAGES, StageSpec, code_version
+from stages.registry import STAGES, StageSpec, code_version, defines
+from stages.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
+                               stage_lock, stage_paths, swap_in)
 
 log = logging.getLogger("viewfuse")
 
-OWNER = ".owner"  # pid of the process writing a temporary stage folder
+HASHES = "\0hashes"  # ensure()'s per-run memo of file hashes, kept in its digest dict
+
 
 
 @dataclass
@@ -84,7 +89,9 @@ def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[s
         "code": code,
         "upstream": upstream,
     }
-    extra_key = getattr(_load(spec), "extra_key", None)
+    # Import the stage module only when it has an extra_key: importing one that does not (evaluate,
+    # report) would pull in pandas and matplotlib just to compute a status.
+    extra_key = None if defines(spec.module, "extra_key") is False else getattr(_load(spec), "extra_key", None)
     if extra_key is not None:
         parts["inputs"] = extra_key(cfg)
     return hash_json(parts), {**parts, "code_modules": per_module}
@@ -115,8 +122,9 @@ def _key_reason(old: dict, new: dict) -> str:
     return "cache key changed"
 
 
-def stale_reason(cfg: Config, name: str, key: str, parts: dict) -> str | None:
-    """None when stage ``name`` is up to date for ``key``; otherwise why not."""
+def stale_reason(cfg: Config, name: str, key: str, parts: dict, verify: dict | None = None) -> str | None:
+    """None when stage ``name`` is up to date for ``key``; otherwise why not. ``verify``: hash the
+    stage's outputs against their recorded sha256 (memo for one run; see ``record_changed``)."""
     m = read_manifest(cfg, name)
     if m is None:
         return "missing (never run here)"
@@ -126,7 +134,7 @@ def stale_reason(cfg: Config, name: str, key: str, parts: dict) -> str | None:
     if "outputs" not in m:
         return "manifest predates content hashes"
     for rel, rec in m["outputs"].items():
-        why = record_changed(final / rel, rec)
+        why = record_changed(final / rel, rec, verify)
         if why:
             return f"output {final / rel} {why}"
     for path, rec in (m.get("inputs") or {}).items():
@@ -164,37 +172,46 @@ def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
 # Running
 
 def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto", threads: int = 0,
-           _keys: dict[str, str] | None = None) -> str:
-    """Bring stage ``name`` up to date (upstream first); return its digest."""
+           _keys: dict[str, str] | None = None, _hashes: dict | None = None) -> str:
+    """Bring stage ``name`` up to date (upstream first); return its digest. A stage found up to
+    date has had its outputs' sha256 checked against its manifest (each file hashed once per run,
+    ``_hashes``), so an output edited with its size and mtime restored is caught before a
+    downstream stage uses it: the stage reruns."""
     keys = {} if _keys is None else _keys
+    hashes = keys.setdefault(HASHES, {}) if _hashes is None else _hashes
     if name in keys:
         return keys[name]
     spec = STAGES[name]
-    up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys) for u in spec.upstream}
+    up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys, _hashes=hashes) for u in spec.upstream}
     key, parts = stage_key(cfg, spec, up)
-    final = cfg.stage_dir(name)
-    if not force:
-        why = stale_reason(cfg, name, key, parts)
-        if why is None:
-            echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
-            keys[name] = digest(read_manifest(cfg, name) or {})
-            return keys[name]
-        if not why.startswith("missing"):
-            echo(f"[{name}] stale: {why}")
-    manifest = run_stage(cfg, spec, key, parts, device=device, threads=threads)
+    final = stage_paths(cfg, name).final
+    # One run of a stage at a time: a second one waits here, then finds the first one's output.
+    with stage_lock(cfg, name):
+        recover_swap(cfg, name)
+        if not force:
+            why = stale_reason(cfg, name, key, parts, verify=hashes)
+            if why is None:
+                echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
+                keys[name] = digest(read_manifest(cfg, name) or {})
+                return keys[name]
+            if not why.startswith("missing"):
+                echo(f"[{name}] stale: {why}")
+        manifest = run_stage(cfg, spec, key, parts, device=device, threads=threads)
     keys[name] = digest(manifest)
     return keys[name]
 
 
 def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: str, threads: int) -> dict:
+    """Run one stage into its temporary folder and swap it in; the caller holds the stage's lock."""
     mod = _load(spec)
-    final = cfg.stage_dir(spec.name)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = final.with_name(f".{spec.name}.tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)  # left by an interrupted run
-    tmp.mkdir(parents=True)
-    (tmp / OWNER).write_text(str(os.getpid()))
+    paths = stage_paths(cfg, spec.name)
+    final, tmp = paths.final, paths.tmp
+    paths.run_dir.mkdir(parents=True, exist_ok=True)
+    if tmp.exists() or tmp.is_symlink():
+        remove_leftover(tmp, required=True)  # left by an interrupted run (we hold the lock)
+    tmp.mkdir()
+    mark_owned(tmp)
+    set_max_megapixels(cfg.data.max_image_megapixels)  # the dataset readers' image size limit
     ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads,
                        skips=SkipPolicy.from_config(cfg))
     echo(f"[{spec.name}] running: {spec.help}")
@@ -202,11 +219,10 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     try:
         with recording_inputs() as rec:
             summary = mod.run(ctx)
-        (tmp / OWNER).unlink()
         # Files in the run folder are upstream outputs, already covered by the upstream digests;
         # leaving them out also keeps a moved artifacts folder valid.
         inputs = rec.records(exclude=cfg.run_dir)
-        outputs = folder_records(tmp, skip=(MANIFEST,))
+        outputs = folder_records(tmp, skip=(MANIFEST, OWNER))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -226,47 +242,12 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         "inputs": inputs,
     }
     write_json(tmp / MANIFEST, manifest)
-    replace_dir(tmp, final)
-    # mtimes survive the rename, so the records still match the final files.
+    swap_in(paths)
     echo(f"[{spec.name}] done in {_fmt(elapsed)}: {summary} -> {final}")
     if ctx.skips.count:
         echo(f"[{spec.name}] {ctx.skips.count} bad entr{'y' if ctx.skips.count == 1 else 'ies'} skipped "
              f"(data.skip_bad_views); see {final / MANIFEST} 'extra.skipped'")
     return manifest
-
-
-def remove_orphans(cfg: Config) -> list[Path]:
-    """Remove ``.<stage>.tmp`` / ``.<stage>.old`` folders that no live process is writing (left by a
-    killed run); return what was removed."""
-    run_dir = cfg.run_dir
-    removed = []
-    if not run_dir.is_dir():
-        return removed
-    for p in run_dir.iterdir():
-        if not (p.is_dir() and p.name.startswith(".") and p.name.endswith((".tmp", ".old"))):
-            continue
-        if _writer_alive(p / OWNER):
-            continue
-        shutil.rmtree(p, ignore_errors=True)
-        removed.append(p)
-        log.info("removed %s, left by an interrupted run", p)
-    return removed
-
-
-def _writer_alive(owner: Path) -> bool:
-    try:
-        pid = int(owner.read_text())
-    except (OSError, ValueError):
-        return False
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _fmt(s: float) -> str:

@@ -31,7 +31,7 @@ def class_scores(c, theta):
 def write_features(path, classes=CLASSES, n_angles=24, with_names=True, drop_column=None, shift=0.0,
                    dropout=True):
     """Camera 1 (the training views): the deterministic pass and two dropout passes whose mean is
-    the deterministic score plus ``shift`` times a rolled copy of it; plus camera-3 rows the stage
+    the deterministic score moved ``shift`` of the way to a rolled copy of it; plus camera-3 rows the stage
     must ignore, with scores that would change the component choice."""
     rows = {k: [] for k in ("object", "camera", "angle_deg", "image", "u_x", "u_y", "pass")}
     scores, truth = [], {}
@@ -40,7 +40,10 @@ def write_features(path, classes=CLASSES, n_angles=24, with_names=True, drop_col
         th = np.radians(ang)
         s = class_scores(c, th)
         truth[obj] = (th, s)
-        e, g = 0.05 * np.roll(s, 1, axis=1), shift * np.roll(s, 2, axis=1)
+        # Both perturbations sum to 0 over the components and keep every score in [0, 1], so each
+        # pass is a probability vector like a real softmax pass (the reader checks that).
+        r = np.roll(s, 1, axis=1) * s
+        e, g = 0.25 * (r - s * r.sum(axis=1, keepdims=True)), shift * (np.roll(s, 2, axis=1) - s)
         passes = ((1, 0, s + e + g), (1, 1, s - e + g)) if dropout else ()
         for cam, pas, sc in ((1, -1, s), (3, -1, np.roll(s, 3, axis=1)), (3, 0, np.roll(s, 1, axis=1)), *passes):
             for a, t, v in zip(ang, th, sc):
@@ -182,7 +185,7 @@ def test_training_targets_are_the_dropout_mean_or_the_deterministic_pass(tmp_pat
     assert extra["fit"]["targets"] == "dropout_mean"
     for c, cls in enumerate(CLASSES):
         s = truth[cls][1]
-        want_mean = (s + 0.2 * np.roll(s, 2, axis=1))[:, list(comps)].T
+        want_mean = (s + 0.2 * (np.roll(s, 2, axis=1) - s))[:, list(comps)].T
         np.testing.assert_allclose(mean_models.Y[c], want_mean, atol=2e-6)
         np.testing.assert_allclose(det_models.Y[c], s[:, list(comps)].T, atol=2e-6)
     assert not np.allclose(mean_models.Y[0], det_models.Y[0], atol=1e-3)

@@ -33,7 +33,8 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation import metrics as M
-from pipeline.infra.config import ConfigError, SimulateConfig
+from pipeline.infra.config import SimulateConfig, check_simulate
+from pipeline.infra.config_checks import SIM_CLASSES
 from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
 from pipeline.method.geometry import sample_localization
 from pipeline.method.gp import GPClassModels
@@ -41,7 +42,7 @@ from pipeline.method.gp_fit import fit_class_models
 from pipeline.evaluation.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")
-N_CLASSES = 3  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)
+N_CLASSES = SIM_CLASSES  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)
 
 
 # -- class models ----------------------------------------------------------------------------------
@@ -52,42 +53,8 @@ def class_scores(sim: SimulateConfig) -> np.ndarray:
 
 
 def validate(sim: SimulateConfig, where: str = "config") -> None:
-    """Cross-key checks of the ``[simulate]`` section; errors name the file and the key."""
-    def need(ok: bool, msg: str) -> None:
-        if not ok:
-            raise ConfigError(f"{where}: {msg}")
-
-    A = len(sim.view_angles_deg)
-    need(A >= 2, "'simulate.view_angles_deg' must list at least two angles")
-    need(len(set(sim.view_angles_deg)) == A, "'simulate.view_angles_deg' has repeated angles")
-    need(len(sim.view_radii) >= 1 and min(sim.view_radii) > 0,
-         "'simulate.view_radii' must list positive radii")
-    for c in range(N_CLASSES):
-        key = f"scores_class{c + 1}"
-        v = getattr(sim, key)
-        need(len(v) == N_CLASSES * A,
-             f"'simulate.{key}' must hold {N_CLASSES} scores per angle of 'simulate.view_angles_deg' "
-             f"({N_CLASSES} x {A} = {N_CLASSES * A} values), got {len(v)}")
-        rows = np.asarray(v, float).reshape(A, N_CLASSES)
-        bad = np.flatnonzero(np.abs(rows.sum(axis=1) - 1.0) > 0.05)
-        need(bad.size == 0, f"'simulate.{key}': the score vector at angle "
-             f"{sim.view_angles_deg[bad[0]] if bad.size else 0:g}° sums to "
-             f"{rows[bad[0]].sum() if bad.size else 1:.3f}, not 1 (scores must be probability-like)")
-    need(len(sim.class_names) == N_CLASSES and len(set(sim.class_names)) == N_CLASSES,
-         f"'simulate.class_names' must list {N_CLASSES} distinct names")
-    need(len(sim.track_start) == 2, "'simulate.track_start' must be [x, y]")
-    need(len(set(sim.scenarios)) == len(sim.scenarios) and len(sim.scenarios) >= 1,
-         "'simulate.scenarios' must list distinct scenarios")
-    for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds"):
-        b = getattr(sim, key)
-        need(len(b) == 2 and 0 < b[0] < b[1], f"'simulate.{key}' must be [low, high] with 0 < low < high")
-    need(sim.claim_step < sim.track_steps,
-         f"'simulate.claim_step' = {sim.claim_step} must be below 'simulate.track_steps' = {sim.track_steps}")
-    for key in ("sweep_noise", "sweep_sigma_max", "sweep_full_noise", "sweep_full_sigma_max"):
-        need(len(getattr(sim, key)) >= 1, f"'simulate.{key}' must list at least one value")
-    need(sim.example_realization < sim.realizations,
-         f"'simulate.example_realization' = {sim.example_realization} must be below "
-         f"'simulate.realizations' = {sim.realizations}")
+    """Cross-key checks of the ``[simulate]`` section (the config's own, also run at load)."""
+    check_simulate(sim, where)
 
 
 def model_points(sim: SimulateConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +74,9 @@ def fit_models(sim: SimulateConfig, *, progress: bool = True) -> tuple[GPClassMo
                             restarts=sim.restarts, amplitude_bounds=tuple(sim.amplitude_bounds),
                             length_scale_bounds=tuple(sim.length_scale_bounds),
                             noise_bounds=tuple(sim.noise_bounds), seed=sim.seed,
-                            component_names=[f"score {n}" for n in sim.class_names], progress=progress)
+                            component_names=[f"score {n}" for n in sim.class_names], progress=progress,
+                            # marginal likelihood alone: the tight [simulate] bounds do the priors' job
+                            hyperprior="none")
 
 
 def with_noise(models: GPClassModels, noise: float) -> GPClassModels:

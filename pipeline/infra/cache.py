@@ -2,12 +2,9 @@
 from __future__ import annotations
 
 import contextlib
-import functools
 import hashlib
-import importlib.util
 import json
 import os
-import shutil
 import tempfile
 import threading
 import zipfile
@@ -57,55 +54,6 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON-serialisable: {type(o)}")
 
 
-def module_files(name: str) -> list[Path]:
-    """Source files of a module, or of every module in a package."""
-    spec = importlib.util.find_spec(name)
-    if spec is None or spec.origin is None:
-        raise ModuleNotFoundError(name)
-    origin = Path(spec.origin)
-    if origin.name == "__init__.py":
-        return sorted(origin.parent.rglob("*.py"))
-    return [origin]
-
-
-def source_fingerprint(path: str | Path) -> str:
-    """sha256 of a Python file's syntax tree without comments and docstrings: editing what code
-    says about itself does not make a stage stale; editing what it does does. A file that does
-    not parse is hashed as bytes. Parsed once per (path, size, mtime): every stage's key needs
-    most project modules, and ``viewfuse status`` computes them all."""
-    st = Path(path).stat()
-    return _fingerprint(str(path), st.st_size, st.st_mtime_ns)
-
-
-@functools.lru_cache(maxsize=1024)
-def _fingerprint(path: str, size: int, mtime_ns: int) -> str:
-    import ast
-
-    data = Path(path).read_bytes()
-    try:
-        tree = ast.parse(data)
-    except (SyntaxError, ValueError):
-        return hashlib.sha256(data).hexdigest()
-    for node in ast.walk(tree):
-        body = getattr(node, "body", None)
-        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
-                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
-                and isinstance(body[0].value.value, str)):
-            node.body = body[1:] or [ast.Pass()]
-    return hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()
-
-
-def code_hash(modules: tuple[str, ...] | list[str]) -> str:
-    """Hash of the code of the given modules/packages (the stage's code version; comments and
-    docstrings do not count: ``source_fingerprint``)."""
-    h = hashlib.sha256()
-    for name in sorted(set(modules)):
-        for f in module_files(name):
-            h.update(f.name.encode())
-            h.update(source_fingerprint(f).encode())
-    return h.hexdigest()
-
-
 # ------------------------------------------------------------------------------------------------
 # File records: what a manifest keeps of each input it read and each output it wrote.
 
@@ -119,18 +67,29 @@ def file_record(path: str | Path, data: bytes | None = None, known: dict | None 
     return {"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
-def record_changed(path: str | Path, rec: dict) -> str | None:
-    """Why ``path`` no longer matches ``rec`` ("missing", "content changed"), or None. Same size and
-    mtime is trusted; otherwise the bytes are hashed, so a touched but identical file matches."""
+def record_changed(path: str | Path, rec: dict, verify: dict | None = None) -> str | None:
+    """Why ``path`` no longer matches ``rec`` ("missing", "content changed"), or None.
+
+    Without ``verify`` (``viewfuse status``), the same size and mtime are trusted: a fast path
+    that a byte edit with the mtime restored fools. With ``verify`` (a dict kept for one run), the
+    bytes are always hashed, once per run per file state, and compared with the recorded sha256:
+    what a stage about to use an upstream output does."""
     try:
         st = os.stat(path)
     except FileNotFoundError:
         return "missing"
-    if st.st_size == rec.get("size") and st.st_mtime_ns == rec.get("mtime_ns"):
-        return None
     if st.st_size != rec.get("size"):
         return f"content changed (size {rec.get('size')} -> {st.st_size} bytes)"
-    return None if sha256_file(path) == rec.get("sha256") else "content changed (sha256 differs)"
+    if verify is None:
+        if st.st_mtime_ns == rec.get("mtime_ns"):
+            return None
+        digest = sha256_file(path)
+    else:
+        k = (os.path.abspath(path), st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+        digest = verify.get(k)
+        if digest is None:
+            digest = verify[k] = sha256_file(path)
+    return None if digest == rec.get("sha256") else "content changed (sha256 differs)"
 
 
 def folder_records(folder: str | Path, skip: tuple[str, ...] = (), previous: dict | None = None) -> dict:
@@ -284,17 +243,3 @@ def write_text(path: str | Path, text: str) -> None:
 def write_bytes(path: str | Path, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
-
-
-def replace_dir(tmp_dir: Path, final_dir: Path) -> None:
-    """Swap a finished temporary folder into place (old one removed first)."""
-    final_dir = Path(final_dir)
-    if final_dir.exists():
-        trash = final_dir.with_name(f".{final_dir.name}.old")
-        if trash.exists():
-            shutil.rmtree(trash)
-        os.replace(final_dir, trash)
-        os.replace(tmp_dir, final_dir)
-        shutil.rmtree(trash, ignore_errors=True)
-    else:
-        os.replace(tmp_dir, final_dir)

@@ -11,8 +11,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from pipeline.infra.config import ModelsConfig, bounds_problem
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
+
+
+# The defaults are the config's ([models] in pipeline/infra/config_schema.py): one source.
+_DEFAULTS = ModelsConfig()
 
 
 @functools.cache
@@ -24,13 +29,13 @@ def theta_index(name: str) -> int:
 
 
 def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.ndarray],
-                     classes: Sequence[str], components: Sequence[int], *, restarts: int = 5,
-                     amplitude_bounds: tuple[float, float] = (1e-4, 1e2),
-                     length_scale_bounds: tuple[float, float] = (0.05, 10.0),
-                     noise_bounds: tuple[float, float] = (1e-6, 1.0), seed: int = 0,
+                     classes: Sequence[str], components: Sequence[int], *, restarts: int = _DEFAULTS.restarts,
+                     amplitude_bounds: tuple[float, float] = _DEFAULTS.amplitude_bounds,
+                     length_scale_bounds: tuple[float, float] = _DEFAULTS.length_scale_bounds,
+                     noise_bounds: tuple[float, float] = _DEFAULTS.noise_bounds, seed: int = _DEFAULTS.seed,
                      component_names: Sequence[str] | None = None, progress: bool = True,
-                     noise_floor: np.ndarray | None = None, hyperprior: str = "none",
-                     noise_prior: tuple[float, float] = (1e-5, 0.1),
+                     noise_floor: np.ndarray | None = None, hyperprior: str = _DEFAULTS.hyperprior,
+                     noise_prior: tuple[float, float] = _DEFAULTS.noise_prior,
                      ) -> tuple[GPClassModels, list[dict[str, Any]]]:
     """Fit one GP per (class, component) with scikit-learn by marginal likelihood (or, with
     ``hyperprior = "inverse_gamma"``, by marginal likelihood times weak priors on the length scale
@@ -54,9 +59,10 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
     if len(X_by_class) != C or len(Y_by_class) != C:
         raise ValueError(f"fit_class_models: {C} classes but {len(X_by_class)} input and {len(Y_by_class)} target sets")
     for name, b in (("amplitude_bounds", amplitude_bounds), ("length_scale_bounds", length_scale_bounds),
-                    ("noise_bounds", noise_bounds)):
-        if len(b) != 2 or not 0 < b[0] < b[1]:
-            raise ValueError(f"fit_class_models: {name} must be (low, high) with 0 < low < high, got {b}")
+                    ("noise_bounds", noise_bounds), ("noise_prior", noise_prior)):
+        problem = bounds_problem(b)
+        if problem is not None:
+            raise ValueError(f"fit_class_models: {name} {problem}")
     if noise_floor is not None:
         noise_floor = np.asarray(noise_floor, dtype=float)
         if noise_floor.shape != (C, F) or not np.all(np.isfinite(noise_floor)) or np.any(noise_floor <= 0):

@@ -136,8 +136,38 @@ def read_features(path: str | Path) -> tuple["Any", np.ndarray, dict[str, str]]:
     scores = col.flatten().to_numpy(zero_copy_only=False).astype(np.float32, copy=False).reshape(len(col), D)
     if "viewfuse.score_dim" in meta and int(meta["viewfuse.score_dim"]) != D:
         raise ValueError(f"{path}: metadata score_dim {meta['viewfuse.score_dim']} != scores width {D}")
+    check_scores(scores, path)
     df = table.drop_columns(["scores"]).to_pandas()
     return df, scores, meta
+
+
+SUM_TOLERANCE = 1e-3  # softmax rows stored as float32: sums are within ~1e-6 of 1
+
+
+def check_scores(scores: np.ndarray, path: str | Path, rows: np.ndarray | None = None) -> None:
+    """Scores read from a features file must be probabilities: finite, in [0, 1], each row summing
+    to 1 within ``SUM_TOLERANCE``. ValueError naming the file and the first bad row (its row number
+    in the file: ``rows[i]`` when the scores are a subset of the file's rows)."""
+    s = np.asarray(scores, dtype=np.float64)
+    if s.size == 0:
+        return
+    finite = np.isfinite(s).all(axis=1)
+    in_range = finite & (s >= 0).all(axis=1) & (s <= 1).all(axis=1)
+    sums = np.where(finite, s.sum(axis=1), np.nan)
+    ok = in_range & (np.abs(sums - 1.0) <= SUM_TOLERANCE)
+    if ok.all():
+        return
+    i = int(np.flatnonzero(~ok)[0])
+    row = int(rows[i]) if rows is not None else i
+    if not finite[i]:
+        why = "non-finite scores"
+    elif not in_range[i]:
+        bad = s[i][(s[i] < 0) | (s[i] > 1)]
+        why = f"a score outside [0, 1] ({bad[0]:.6g})"
+    else:
+        why = f"scores summing to {sums[i]:.6g}, not 1"
+    raise ValueError(f"{path}: row {row} has {why} ({int((~ok).sum())} bad row(s) in all); "
+                     "the features file is corrupt or was edited (rerun the 'features' stage)")
 
 
 # -- scoring -----------------------------------------------------------------------------------

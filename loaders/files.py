@@ -1,0 +1,115 @@
+"""Dataset files are read as regular files inside their dataset root.
+
+Every reader opens a dataset file through ``checked_file``: it must exist, be a regular file
+(a FIFO would block the reader forever, ``/dev/zero`` would be read until memory runs out), and,
+when the reader knows its dataset root, resolve (symlinks followed) to a path inside that root, so
+a symlink cannot make a run read, and silently depend on, a file elsewhere. A refused file is a
+``BadInputError`` naming it: counted as a skip or stopping the stage, per ``data.skip_bad_views``,
+like any other bad entry.
+
+``check_image_size`` refuses an image whose header declares more pixels than
+``data.max_image_megapixels`` before it is decoded (a 30000 x 30000 JPEG header costs seconds and
+gigabytes to decode only to be skipped).
+"""
+from __future__ import annotations
+
+import os
+import stat
+import struct
+from pathlib import Path
+
+from loaders.errors import BadInputError
+
+DEFAULT_MAX_MEGAPIXELS = 64.0  # real BigBIRD views are 1.3 MP (1280x1024), AVD images 2.1 MP
+_limit = {"megapixels": DEFAULT_MAX_MEGAPIXELS}
+
+_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def set_max_megapixels(mp: float) -> None:
+    """The image size limit for this process (the runner sets ``data.max_image_megapixels``)."""
+    _limit["megapixels"] = float(mp)
+
+
+def max_megapixels() -> float:
+    return _limit["megapixels"]
+
+
+def checked_file(path: str | Path, root: str | Path | None = None, what: str = "file") -> Path:
+    """``path`` if it is a regular file (symlinks followed) inside ``root``; BadInputError naming it
+    otherwise. Only ``stat`` is called, never ``open``, so a FIFO cannot block here."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        dangling = os.path.islink(path)
+        raise BadInputError(path, f"{what} is missing" + (" (dangling symlink)" if dangling else "")) from None
+    except OSError as e:
+        raise BadInputError(path, f"cannot read {what} ({e.strerror or e})") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = next((k for test, k in _KINDS if test(st.st_mode)), "not a regular file")
+        via = f" (symlink to {os.path.realpath(path)})" if os.path.islink(path) else ""
+        raise BadInputError(path, f"{what} is {kind}{via}, not a regular file; refused")
+    if root is not None:
+        real, real_root = os.path.realpath(path), os.path.realpath(root)
+        if os.path.commonpath([real, real_root]) != real_root:
+            raise BadInputError(path, f"{what} resolves to {real}, outside the dataset root {root}; refused")
+    return path
+
+
+def read_checked(path: str | Path, root: str | Path | None = None, what: str = "file") -> bytes:
+    """The bytes of a ``checked_file``; errors name the file."""
+    path = checked_file(path, root, what)
+    try:
+        return path.read_bytes()
+    except OSError as e:
+        raise BadInputError(path, f"cannot read {what} ({e.strerror or e})") from None
+
+
+# SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
+_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def declared_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) a JPEG's frame header or a PNG's IHDR declares, read without decoding;
+    None when the header is not found (the decoder then reports the file as corrupt)."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR" and len(data) >= 24:
+        w, h = struct.unpack(">II", data[16:24])
+        return int(w), int(h)
+    if data[:2] != b"\xff\xd8":
+        return None
+    i, n = 2, len(data)
+    while i + 4 <= n:
+        if data[i] != 0xFF:
+            i += 1  # tolerate garbage between segments, as decoders do
+            continue
+        code = data[i + 1]
+        if code == 0xFF:  # fill byte
+            i += 1
+            continue
+        if code == 0x01 or 0xD0 <= code <= 0xD8:
+            i += 2  # stand-alone markers: no length field
+            continue
+        if code in (0xD9, 0xDA):
+            return None  # end of image / start of scan before any frame header
+        (length,) = struct.unpack(">H", data[i + 2:i + 4])
+        if code in _SOF:
+            if i + 9 > n:
+                return None
+            h, w = struct.unpack(">HH", data[i + 5:i + 9])
+            return int(w), int(h)
+        i += 2 + length
+    return None
+
+
+def check_image_size(data: bytes, path: str | Path) -> None:
+    """BadInputError when the image's header declares more than ``data.max_image_megapixels``."""
+    size = declared_size(data)
+    if size is None:
+        return
+    w, h = size
+    mp = w * h / 1e6
+    if mp > max_megapixels():
+        raise BadInputError(path, f"image declares {w}x{h} pixels ({mp:.0f} MP), above the limit "
+                                  f"data.max_image_megapixels = {max_megapixels():g}; not decoded")
