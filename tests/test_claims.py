@@ -269,3 +269,16 @@ def test_page_findings_use_the_shared_confident_error_definition():
             rate = M.confident_error_rate(np.log(p), res.truth, 0.99)
         assert found["model_uncertainty"][m]["confident_wrong_overall"] == pytest.approx(rate)
     assert any(found["model_uncertainty"][m]["confident_wrong_overall"] > 0 for m in res.posteriors)
+
+
+def test_config_checks_the_new_keys_at_load(tmp_config):
+    from pipeline.infra.config import ConfigError
+
+    cfg = tmp_config({"simulate": {"model_confidence": "hand_made", "sweep": "full"}})
+    assert cfg.simulate.model_confidence == "hand_made" and cfg.simulate.sweep == "full"
+    with pytest.raises(ConfigError, match=r"simulate\.claim_step.*track_steps"):
+        tmp_config({"simulate": {"claim_step": 30}})
+    with pytest.raises(ConfigError, match=r"simulate\.sweep"):
+        tmp_config({"simulate": {"sweep": "huge"}})
+    with pytest.raises(ConfigError, match=r"simulate\.sweep_noise"):
+        tmp_config({"simulate": {"sweep_noise": []}})
