@@ -212,6 +212,7 @@ class RunArtifacts:
     index: dict | None = None          # models/index.json
     card: dict | None = None           # classifier/card.json
     manifests: dict[str, dict] = field(default_factory=dict)
+    dirichlet: dict | None = None      # models/dirichlet/index.json
 
     def skipped(self) -> dict[str, Any]:
         """{stage: manifest["extra"]["skipped"]} for the stages that recorded skips."""
@@ -231,8 +232,10 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
             m = read_json(p)
             if isinstance(m, dict):
                 manifests[s] = m
+    dj = d / "models" / "dirichlet" / "index.json"
     return RunArtifacts(d, ev, read_json(idx) if idx.is_file() else None,
-                        read_json(card) if card.is_file() else None, manifests)
+                        read_json(card) if card.is_file() else None, manifests,
+                        read_json(dj) if dj.is_file() else None)
 
 
 # -- the simulate stage's outputs --------------------------------------------------------------

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import (COMPARISONS, METRICS, MGR_AXIS_LABEL, comparison_key, method_color, method_label,
+from pipeline.evaluation.labels import (METRICS, present_comparisons, MGR_AXIS_LABEL, comparison_key, method_color, method_label,
                              metric_label, ordered_methods)
 from reports.figures import new_figure, new_subplots, percentile_bands, step_ticks, wrap_label
 from reports.stats import matrices
@@ -45,17 +45,19 @@ def fig_forest(pop: dict) -> Any:
     rows = targets + ["pooled (all targets)"]
     ppt, paired = pop.get("paired_per_target") or {}, pop.get("paired") or {}
     metrics = [m for m in FOREST_METRICS if m in (pop.get("metrics") or FOREST_METRICS)]
-    fig, axes = new_subplots(1, len(metrics), w=1.8 + 3.4 * len(metrics), h=1.6 + 0.42 * len(rows), sharey=True)
-    marks = ("o", "s")
+    comparisons = present_comparisons(set(paired) | set(ppt))
+    fig, axes = new_subplots(1, len(metrics), w=1.8 + 3.4 * len(metrics),
+                             h=1.6 + 0.14 * (len(comparisons) + 1) * len(rows), sharey=True)
+    marks = ("o", "s", "D", "^")
     for ax, metric in zip(axes[0], metrics):
-        for i, (m, base) in enumerate(COMPARISONS):
+        for i, (m, base) in enumerate(comparisons):
             key = comparison_key(m, base)
             if key not in paired and key not in ppt:
                 continue
             entries = [(ppt.get(key, {}).get(t, {}) or {}).get(metric, {}) for t in targets]
             entries.append((paired.get(key) or {}).get(metric, {}))
-            ys = np.arange(len(rows)) + (i - 0.5) * 0.22
-            _ci_rows(ax, ys, entries, method_color(base), marks[i % 2],
+            ys = np.arange(len(rows)) + (i - (len(comparisons) - 1) / 2) * 0.22
+            _ci_rows(ax, ys, entries, method_color(base), marks[i % len(marks)],
                      f"{method_label(m, True)} − {method_label(base, True)}")
         ax.axvline(0.0, color="#444444", lw=1)
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
@@ -65,7 +67,8 @@ def fig_forest(pop: dict) -> Any:
     axes[0, 0].set_yticks(range(len(rows)))
     axes[0, 0].set_yticklabels([wrap_label(r, 24) for r in rows])
     axes[0, 0].invert_yaxis()
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=2, frameon=False)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=max(len(comparisons), 1),
+               frameon=False)
     fig.suptitle("Paired differences per target, 95 % bootstrap CIs over tracks (pooled: over targets too)")
     return fig
 

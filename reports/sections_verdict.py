@@ -3,8 +3,8 @@ then the diagnostics that drive it (GP fits at a bound, ablations). All numbers 
 ``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
 from __future__ import annotations
 
-from pipeline.evaluation.labels import (COMPARISONS, METRICS, comparison_key, comparison_label, method_label, metric_label,
-                             ordered_methods)
+from pipeline.evaluation.labels import (COMPARISONS, DIRICHLET, METRICS, comparison_key, comparison_label, method_label,
+                                       metric_label, ordered_methods, present_comparisons)
 from pipeline.evaluation.popstats import wilson_interval
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
@@ -84,7 +84,7 @@ def verdict_section(ctx: ReportContext) -> None:
                        "most likely class.")
     if len(head) < len(sentences):
         page.bullets(sentences, cls="verdict-all", collapsed=f"All {len(sentences)} verdict sentences "
-                                                             "(every metric, both comparisons)")
+                                                             "(every metric, every comparison)")
     ceiling = _ceiling_line(pop)
     if ceiling:
         page.paragraph(ceiling, cls="note")
@@ -122,6 +122,9 @@ def population_section(ctx: ReportContext) -> None:
                _paired_rows(pop), cls="paired",
                caption="Paired differences, pooled. Won/lost: share of (target, track, setting) cells where "
                        "With Uncertainty is strictly better / worse.")
+    note = dirichlet_note(pop)
+    if note:
+        page.paragraph(note, cls="note")
     if pop.get("per_target"):
         ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
         page.table(["target", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS], _target_rows(pop),
@@ -139,7 +142,7 @@ def population_section(ctx: ReportContext) -> None:
 def _paired_rows(pop: dict) -> list[list]:
     outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in pop.get("verdict_table") or []}
     rows = []
-    for m, base in COMPARISONS:
+    for m, base in present_comparisons((pop.get("paired") or {}).keys()):
         key = comparison_key(m, base)
         for metric in PAIRED_METRICS:
             d = ((pop.get("paired") or {}).get(key) or {}).get(metric)
@@ -149,6 +152,23 @@ def _paired_rows(pop: dict) -> list[list]:
                          outcome.get((key, metric)) or _outcome(d, metric), Estimate.of(d, signed=True),
                          _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells")])
     return rows
+
+
+def dirichlet_note(pop: dict) -> str:
+    """What the Dirichlet comparison isolates, and how wide its posterior cloud is (summary.json)."""
+    if DIRICHLET not in (pop.get("methods") or ()):
+        return ""
+    d = pop.get("dirichlet") or {}
+    spread = d.get("truth_std_final") or {}
+    cloud = (f" Its posterior cloud (N_ss = {d.get('n_ss')} points) has a median std of P(truth) at the final "
+             f"step of {fmt(spread.get('median'))} (quartiles {fmt(spread.get('q25'))}–{fmt(spread.get('q75'))}, "
+             f"max {fmt(spread.get('max'))}) over {spread.get('n_cells')} tracks." if spread else "")
+    return (f"{method_label(DIRICHLET, short=True)} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the "
+            "classifier's whole probability vector (every output, where the GP methods model their N_f chosen score "
+            "components) and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple "
+            "Bayes it ignores the poses: its posterior is the same for every localization realization and setting "
+            "of a track, so With Uncertainty − Dirichlet measures what the viewpoint-dependent models (with the "
+            "pose handling) add over a view-independent model that also accounts for model uncertainty." + cloud)
 
 
 def _outcome(d: dict, metric: str) -> str:
@@ -178,7 +198,7 @@ def _by_setting(ctx: ReportContext, pop: dict) -> None:
     by = pop.get("by_setting") or {}
     rows = []
     for setting, entry in by.items():
-        for m, base in COMPARISONS:
+        for m, base in present_comparisons(((entry or {}).get("paired") or {}).keys()):
             d = ((entry or {}).get("paired") or {}).get(comparison_key(m, base)) or {}
             if d:
                 rows.append([setting, comparison_label(comparison_key(m, base)),
@@ -217,7 +237,29 @@ def diagnostics_section(ctx: ReportContext) -> None:
         if rows:
             page.table(header, rows, cls="hyperparameters", collapsed=f"All {len(rows)} fits (hyperparameters, "
                        "bound flags and optimizer messages)", caption="GP hyperparameters from models/index.json.")
+    _dirichlet_fits(ctx)
     _ablations(ctx)
+
+
+def _dirichlet_fits(ctx: ReportContext) -> None:
+    """The Dirichlet method's class models (models/dirichlet/index.json): one row per class."""
+    dj = getattr(ctx.run, "dirichlet", None)
+    if not isinstance(dj, dict) or not dj.get("diagnostics"):
+        return
+    fit = dj.get("fit") or {}
+    diags = dj["diagnostics"]
+    bad = sum(1 for d in diags if not d.get("converged"))
+    ctx.page.paragraph(
+        f"{method_label(DIRICHLET)}: {len(diags)} class models Dir(γ; θ_c) over the {dj.get('dim', '?')} classifier "
+        f"outputs, fitted on the {fit.get('passes', '?')} pass(es) of each class's BigBIRD views by maximum "
+        f"likelihood ({fit.get('method', 'fixed point')}, tolerance {fmt(fit.get('tol'))}); {bad} did not converge "
+        f"within {fit.get('max_iter', '?')} steps. Entries below {fmt(dj.get('floor'))} are raised to it.",
+        cls="note")
+    rows = [[d.get("class"), d.get("n"), fmt(d.get("precision")), d.get("iterations"),
+             "yes" if d.get("converged") else "no", fmt(d.get("log_likelihood"))] for d in diags]
+    ctx.page.table(["class", "vectors", "precision Σθ", "fixed-point steps", "converged", "log likelihood"], rows,
+                   cls="dirichlet-fits", collapsed=f"All {len(rows)} Dirichlet fits",
+                   caption="Dirichlet class models from models/dirichlet/index.json.")
 
 
 def _ablations(ctx: ReportContext) -> None:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
+from pipeline.evaluation.labels import DIRICHLET, MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
 from reports.artifacts import load_simulate
 from reports.figures import new_subplots, percentile_bands, save
 from reports.html import HtmlReport
@@ -245,6 +245,8 @@ def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
         f"'{method_label(OURS)}' gets N_s samples and, under the bias, pose samples; '{method_label(MODEL_BASED)}' "
         f"trusts the one measurement and the pose estimate; '{method_label(SIMPLE_BAYES)}' multiplies the scores "
         "(clipped to a small floor and renormalised, since a Gaussian measurement can leave the simplex). "
+        f"'{method_label(DIRICHLET)}' does not apply here: it models the classifier's whole probability vector, and "
+        "these measurements are synthetic GP scores, not classifier outputs. "
         f"{MGR_AXIS_LABEL}: 0 when the truth is the most likely class; its 95th percentile measures confident "
         "misclassification. The Dirichlet method (fusion of MC-dropout class-probability vectors) does not apply "
         "here: the simulated measurements are Gaussian score vectors, not probability vectors (they can leave "

@@ -20,8 +20,9 @@ from pipeline.evaluation import population as P
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
+from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
-from pipeline.evaluation.labels import COMPARISONS, METHODS, METRICS
+from pipeline.evaluation.labels import COMPARISONS, DIRICHLET as DIRICHLET_KEY, METHODS, METRICS
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.popstats import population_block
 from pipeline.evaluation.results import cell_metrics, metadata, result_block, write_results
@@ -86,8 +87,11 @@ def choose_targets(cfg: Config, avd: pd.DataFrame, plan: dict) -> list[str]:
 
 
 def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
-                intr: dict, steps: dict) -> tuple[list[P.Cell], list[P.TrackInfo], list[dict]]:
-    """Every (variant, target, track) cell; targets without a usable track are skipped with a reason."""
+                intr: dict, steps: dict, dirichlet: DirichletModels | None = None
+                ) -> tuple[list[P.Cell], list[P.TrackInfo], list[dict]]:
+    """Every (variant, target, track) cell; targets without a usable track are skipped with a reason.
+    With ``dirichlet`` models, every cell also carries the candidates' Dirichlets and the views'
+    whole probability vectors (the fourth method)."""
     ev = cfg.evaluate
     plan = indexes[DEFAULT]["candidate_sets"]
     own = indexes[DEFAULT]["own_components"]
@@ -105,14 +109,18 @@ def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dic
         classes = plan[target]["classes"]
         for info in infos:
             yaw = P.yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
+            full = P.track_samples(avd, scores, info, ev.max_difficulty)
+            dm = None if dirichlet is None else dirichlet.subset(classes)
+            if dm is not None and full.shape[-1] != dm.dim:
+                raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
             for variant, index in indexes.items():
                 comps = index["candidate_sets"][target]["components"]
-                drop, mine = P.gather_scores(avd, scores, info, comps, [own[c] for c in classes], ev.max_difficulty)
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
-                                   dropout=drop, own=mine)
+                                   dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
+                                   probs=None if dm is None else full)
                 cells.append(P.Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                     classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                    difficulty=variant == DEFAULT))
+                                    difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss))
             tracks.append(info)
         log.info("target %s: %d track(s) in %s; candidates %s", target, len(infos),
                  ", ".join(sorted({i.scan for i in infos})), ", ".join(classes))
@@ -204,6 +212,24 @@ def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], re
     }
 
 
+def dirichlet_summary(cfg: Config, cells: list[P.Cell], results: list[dict]) -> dict | None:
+    """What the Dirichlet's posterior cloud says besides its mean: the spread (std of λ) of the
+    truth's probability at the final step over the default cells, and the first cell's per-step
+    E[λ] and std."""
+    pairs = [(c, r) for c, r in zip(cells, results) if c.variant == DEFAULT and "dirichlet_std" in r]
+    if not pairs:
+        return None
+    final = np.array([r["dirichlet_std"][-1, c.truth] for c, r in pairs])
+    c0, r0 = pairs[0]
+    mean0 = np.exp(next(iter(r0["posts"].values()))[DIRICHLET_KEY][0])
+    return {"n_ss": cfg.evaluate.dirichlet.n_ss, "poses": "ignored: the same posterior for every realization",
+            "truth_std_final": {"median": float(np.median(final)), "q25": float(np.percentile(final, 25)),
+                                "q75": float(np.percentile(final, 75)), "max": float(final.max()),
+                                "n_cells": int(len(final))},
+            "first_track": {"target": c0.target, "track": c0.track, "classes": list(c0.classes),
+                            "mean": mean0.tolist(), "std": r0["dirichlet_std"].tolist()}}
+
+
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
     """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
@@ -215,9 +241,12 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
+        dirichlet = P.dirichlet_track(first)
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
                                  P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor)
+            if dirichlet is not None:
+                posts = P.with_dirichlet(posts, dirichlet[0])
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
@@ -240,6 +269,7 @@ def run(ctx) -> str:
     ev = cfg.evaluate
     t_start = time.perf_counter()
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
+    dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
     avd_path = ctx.input("features") / out_name("features", "avd")
     avd, scores, meta = read_features(avd_path)
     if avd.empty:
@@ -248,7 +278,7 @@ def run(ctx) -> str:
     intr, steps = scan_geometry(cfg, scans, avd, ctx.skips)
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps)
+    cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps, dirichlet)
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -264,6 +294,7 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     table = cell_table(cells, results)
     population = population_summary(cfg, table, cells, results, tracks, skipped)
+    population["dirichlet"] = dirichlet_summary(cfg, cells, results)
     timings["statistics"] = time.perf_counter() - t0
 
     # The first target's first track: its biased/randomized tables as before, plus the figures.

@@ -5,7 +5,9 @@ Reads ``features/bigbird.parquet`` (training views: rows with camera == models.c
 of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the deterministic pass).
 Writes one model bank, ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``): every modelled class x every component
 that some target's candidate set uses, with the plan in the index (``candidate_sets``). Each
-``evaluate.ablations`` entry gets its own bank under ``models/ablations/``.
+``evaluate.ablations`` entry gets its own bank under ``models/ablations/``. Beside the bank, the
+Dirichlet method's class models (``models/dirichlet/``: ``index.json`` + ``theta.npz``,
+``pipeline.method.dirichlet``), fitted on ``models.dirichlet.passes``.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ import numpy as np
 
 from pipeline.evaluation.candidates import candidate_sets, own_components, plan_components
 from pipeline.infra.config import ModelsConfig, ablation_config, to_dict
+from pipeline.method.dirichlet import DirichletModels, fit_class_dirichlets
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.infra.outputs import name as out_name
@@ -234,6 +237,42 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     return models, extra
 
 
+def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Sequence[str]
+                            ) -> tuple[DirichletModels, dict[str, Any]]:
+    """The Dirichlet method's class models: per class, Dir(γ; θ_c) fitted to the whole score
+    vectors of its training ring (``models.dirichlet.passes``), and the index extras."""
+    path = Path(path)
+    dcfg = mcfg.dirichlet
+    cols, scores, _, dropout = read_training_views(path, mcfg.camera)
+    objects = cols["object"].astype(str)
+    passes = dropout_passes(dropout, path) if dcfg.passes != "deterministic" else {}
+    vectors = {}
+    for cls in classes:
+        parts = []
+        if dcfg.passes in ("deterministic", "both"):
+            parts.append(scores[objects == cls])
+        if dcfg.passes in ("dropout", "both"):
+            if not passes.get(cls):
+                raise FeaturesError(path, f"models.dirichlet.passes = {dcfg.passes!r} needs MC-dropout passes of the "
+                                          f"BigBIRD views (features.bigbird_samples > 0); class {cls!r} has none")
+            parts.extend(passes[cls][a] for a in sorted(passes[cls]))
+        g = np.concatenate(parts) if parts else np.empty((0, scores.shape[1]))
+        if len(g) < 2:
+            raise FeaturesError(path, f"class {cls!r}: {len(g)} probability vector(s) for its Dirichlet fit")
+        dev = float(np.max(np.abs(g.sum(axis=1) - 1.0)))
+        if dev > 1e-3:
+            raise FeaturesError(path, f"class {cls!r}: score vectors sum to 1 only within {dev:.3g}: the Dirichlet "
+                                      "method needs probability vectors (softmax outputs)")
+        vectors[cls] = g
+    models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter,
+                                         accelerate=dcfg.accelerate)
+    extra = {"fit": {"method": "Minka fixed point from the moment estimate"
+                               + (", SQUAREM-accelerated" if dcfg.accelerate else ""), "camera": mcfg.camera,
+                     **to_dict(dcfg)},
+             "diagnostics": diags, "fits_not_converged": sum(1 for d in diags if not d["converged"])}
+    return models, extra
+
+
 def ablation_dir(ablation: str) -> str:
     """Folder (under models/) of one evaluate.ablations variant's model bank."""
     return "ablations/" + re.sub(r"[^A-Za-z0-9._-]+", "-", ablation).strip("-")
@@ -248,6 +287,8 @@ def run(ctx) -> str:
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     extra["ablations"] = {a: ablation_dir(a) for a in ev.ablations}
     models.save(ctx.out, extra=extra)
+    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes)
+    dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
     for a in ev.ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)
@@ -257,9 +298,13 @@ def run(ctx) -> str:
                       "component_names": models.component_names,
                       "candidate_sets": len(extra["candidate_sets"]),
                       "fits_with_warnings": extra["fits_with_warnings"],
-                      "varying_fits_at_bound": extra["varying_fits_at_bound"]})
+                      "varying_fits_at_bound": extra["varying_fits_at_bound"],
+                      "dirichlet_fingerprint": dmodels.fingerprint(),
+                      "dirichlet_not_converged": dextra["fits_not_converged"]})
     return (f"{models.n_classes} classes x {models.n_components} components for "
             f"{len(extra['candidate_sets'])} candidate sets ({cfg.models.component_rule}) fitted on "
             f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
             f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
-            + (f"; {len(ev.ablations)} ablation bank(s)" if ev.ablations else ""))
+            + (f"; {len(ev.ablations)} ablation bank(s)" if ev.ablations else "")
+            + f"; {len(dmodels.classes)} Dirichlet class models ({cfg.models.dirichlet.passes} passes, "
+              f"{dextra['fits_not_converged']} not converged)")

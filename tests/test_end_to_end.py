@@ -37,18 +37,22 @@ def test_results_cover_the_population(run_all):
     df = t.to_pandas()
     summary = json.loads((ev / "summary.json").read_text())
     pop = summary["population"]
-    # Every target the scan shows, two distinct tracks each, three methods, every setting.
+    # Every target the scan shows, two distinct tracks each, four methods, every setting.
     assert pop["n_targets"] == len(cfg.data.synthetic.instances) and pop["skipped_targets"] == []
     assert pop["n_tracks"] == 2 * pop["n_targets"]
     assert set(df["experiment"]) == {"biased", "randomized", "sensitivity"}
-    assert set(df["method"]) == {"with_uncertainty", "model_based", "simple_bayes"}
+    assert set(df["method"]) == {"with_uncertainty", "model_based", "simple_bayes", "dirichlet"}
     assert set(df["variant"]) == {"default", "models.noise_floor=dropout"}
     for target, cands in pop["candidates"].items():
         assert target in cands and len(cands) == 3
         rows = df[(df["target"] == target) & (df["experiment"] == "randomized") & (df["variant"] == "default")]
         assert set(rows["track"]) == {0, 1} and (rows["candidates"] == ",".join(cands)).all()
         assert (rows["truth"] == cands.index(target)).all()
-        assert len(rows) == 2 * 2 * 6 * 4 * 3          # tracks x sigmas x realizations x steps x methods
+        assert len(rows) == 2 * 2 * 6 * 4 * 4          # tracks x sigmas x realizations x steps x methods
+        # the Dirichlet ignores poses: one posterior for every realization of a (track, setting)
+        d = rows[rows["method"] == "dirichlet"]
+        for _, g in d.groupby(["track", "setting", "step"]):
+            assert np.ptp(np.stack(g["posterior"].to_numpy()), axis=0).max() == 0.0
     imgs = {}
     for tr in pop["tracks"]:
         assert len(tr["images"]) == 4 and len(set(tr["images"])) == 4
@@ -64,8 +68,12 @@ def test_results_cover_the_population(run_all):
         assert set(pop["pooled"][m]) == metrics
         for est in pop["pooled"][m].values():
             assert est["ci_low"] <= est["value"] <= est["ci_high"]
-    assert set(pop["paired"]) == {"with_uncertainty-model_based", "with_uncertainty-simple_bayes"}
-    assert len(pop["verdict"]) == 2 * len(metrics) and all("95 % CI" in s for s in pop["verdict"])
+    assert set(pop["paired"]) == {"with_uncertainty-model_based", "with_uncertainty-simple_bayes",
+                                  "with_uncertainty-dirichlet"}
+    assert len(pop["verdict"]) == 3 * len(metrics) and all("95 % CI" in s for s in pop["verdict"])
+    assert pop["dirichlet"]["n_ss"] == cfg.evaluate.dirichlet.n_ss and pop["dirichlet"]["truth_std_final"]["n_cells"] > 0
+    dj = json.loads((cfg.stage_dir("models") / "dirichlet" / "index.json").read_text())
+    assert dj["classes"] == sorted(cfg.data.synthetic.instances) and dj["fits_not_converged"] == 0
     assert set(pop["ablations"]) == {"models.noise_floor=dropout"}
     assert len(pop["difficulty"]["tracks"]) == pop["n_tracks"]
     track = json.loads((ev / "track.json").read_text())

@@ -238,8 +238,8 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     assert pooled["section"] == "verdict"
     header, *rows = pooled["rows"]
     assert header[0] == "method" and header[1] == "correct, final"
-    assert [r[0] for r in rows] == [labels.method_label(m) for m in labels.METHODS]
-    for r, m in zip(rows, labels.METHODS):
+    assert [r[0] for r in rows] == [labels.method_label(m) for m in labels.ordered_methods(pop["methods"])]
+    for r, m in zip(rows, labels.ordered_methods(pop["methods"])):
         for cell, key in zip(r[1:], ("correct_final", "correct_overall", "prob_truth_final", "log10_mgr95_final")):
             want = pop["pooled"][m][key]
             assert cell == Estimate.of(want).text()

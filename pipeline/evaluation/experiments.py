@@ -30,6 +30,7 @@ class TrackData:
     yaw: float               # object yaw (rad): object frame -> ground frame
     dropout: np.ndarray      # (K, N_s, F) MC-dropout scores of the chosen components
     own: np.ndarray | None = None  # (K, N_s, C) each candidate's own score component (Simple Bayes)
+    probs: np.ndarray | None = None  # (K, N_s, D) whole probability vectors of the dropout samples (Dirichlet)
 
     @property
     def k(self) -> int:

@@ -5,25 +5,36 @@ hues that no method uses, so a method and a class never share a colour on one pa
 """
 from __future__ import annotations
 
-from pipeline.method.names import METHOD_SHORT, METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401
+from pipeline.method.names import DIRICHLET, METHOD_SHORT, METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401
 
 METHOD_LABELS = {
     WITH_UNCERTAINTY: "With Uncertainty (Feldman & Indelman)",
     MODEL_BASED: "Model Based (Teacy et al.)",
     SIMPLE_BAYES: "Simple Bayes",
+    DIRICHLET: "Dirichlet (Tchuiev & Indelman)",
 }
-METHOD_COLORS = {WITH_UNCERTAINTY: "#0072B2", MODEL_BASED: "#D55E00", SIMPLE_BAYES: "#009E73"}
+METHOD_COLORS = {WITH_UNCERTAINTY: "#0072B2", MODEL_BASED: "#D55E00", SIMPLE_BAYES: "#009E73",
+                 DIRICHLET: "#CC79A7"}
 
 # Paired comparisons reported by the population evaluation: (method, baseline).
-COMPARISONS = ((WITH_UNCERTAINTY, MODEL_BASED), (WITH_UNCERTAINTY, SIMPLE_BAYES))
+COMPARISONS = ((WITH_UNCERTAINTY, MODEL_BASED), (WITH_UNCERTAINTY, SIMPLE_BAYES), (WITH_UNCERTAINTY, DIRICHLET))
 
 
 def comparison_key(method: str, baseline: str) -> str:
     return f"{method}-{baseline}"
 
 
-# Class colours: no Okabe-Ito method hue (blue, vermillion, bluish green) among them.
-CLASS_COLORS = ("#E69F00", "#56B4E9", "#CC79A7", "#F0E442", "#000000", "#999999",
+def present_comparisons(keys) -> list[tuple[str, str]]:
+    """(method, baseline) of the comparison keys a results file holds: the known ones in their
+    fixed order, then any others sorted (so a report shows what was computed, not a fixed list)."""
+    keys = set(keys or ())
+    known = [c for c in COMPARISONS if comparison_key(*c) in keys]
+    rest = sorted(keys - {comparison_key(*c) for c in COMPARISONS})
+    return known + [tuple(k.partition("-")[::2]) for k in rest]
+
+
+# Class colours: no method hue (blue, vermillion, bluish green, reddish purple) among them.
+CLASS_COLORS = ("#E69F00", "#56B4E9", "#661100", "#F0E442", "#000000", "#999999",
                 "#882255", "#44AA99", "#AA4499", "#117733", "#DDCC77", "#332288")
 
 # Population metrics: key -> (label, True when larger is better).

@@ -16,6 +16,10 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation import experiments as E
+from pipeline.evaluation import metrics as M
+from pipeline.method import dirichlet_fusion as DF
+from pipeline.method.dirichlet import DirichletModels
+from pipeline.method.names import DIRICHLET
 from pipeline.evaluation.track import TrackError, TrackPlan, bearing_rays, facing_error, intersect_rays, select_tracks
 
 
@@ -141,23 +145,27 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
     return out
 
 
-def gather_scores(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, components, own,
-                  max_difficulty: int) -> tuple[np.ndarray, np.ndarray]:
-    """Dropout samples of the track's views: (K, N_s, F) of ``components`` and (K, N_s, C) of
-    each candidate's ``own`` component (Simple Bayes)."""
+def track_samples(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, max_difficulty: int) -> np.ndarray:
+    """Whole score vectors of the dropout samples of the track's views, (K, N_s, D), in pass order."""
     rows = avd[(avd["instance"] == info.target) & (avd["scan"] == info.scan) & (avd["pass"] >= 0)
                & (avd["difficulty"] <= max_difficulty)]
-    drop, mine = [], []
+    out = []
     for name in info.images:
         r = rows[rows["image"] == name].sort_values("pass")
         if r.empty:
             raise TrackError(f"view {info.scan}/{name} has no MC-dropout samples in avd.parquet")
-        s = scores[r.index.to_numpy()]
-        drop.append(s[:, list(components)])
-        mine.append(s[:, list(own)])
-    if len({len(x) for x in drop}) != 1:
+        out.append(scores[r.index.to_numpy()])
+    if len({len(x) for x in out}) != 1:
         raise TrackError(f"the views of track {info.track} of {info.target!r} have different numbers of dropout samples")
-    return np.stack(drop).astype(np.float64), np.stack(mine).astype(np.float64)
+    return np.stack(out).astype(np.float64)
+
+
+def gather_scores(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, components, own,
+                  max_difficulty: int) -> tuple[np.ndarray, np.ndarray]:
+    """Dropout samples of the track's views: (K, N_s, F) of ``components`` and (K, N_s, C) of
+    each candidate's ``own`` component (Simple Bayes)."""
+    s = track_samples(avd, scores, info, max_difficulty)
+    return s[:, :, list(components)], s[:, :, list(own)]
 
 
 # -- cells -------------------------------------------------------------------------------------------
@@ -176,6 +184,30 @@ class Cell:
     seed: int
     var_floor: float
     difficulty: bool = True
+    dirichlet: DirichletModels | None = None   # the candidates' Dirichlet models (needs data.probs)
+    n_ss: int = 100                            # evaluate.dirichlet.n_ss
+
+
+def dirichlet_rng(seed: int, target: str, track: int) -> np.random.Generator:
+    """The Dirichlet cloud's subsampling stream: from the cell's identity only (not the variant or
+    the setting: the method ignores both), so Ray and local runs draw the same points."""
+    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, zlib.crc32(b"dirichlet")])
+
+
+def dirichlet_track(cell: Cell) -> tuple[np.ndarray, np.ndarray] | None:
+    """The Dirichlet method on the cell's track: log E[λ] and std λ per step, (K, C) each, or None
+    when the cell has no Dirichlet models or no probability vectors."""
+    if cell.dirichlet is None or cell.data.probs is None:
+        return None
+    return DF.fuse_dirichlet(cell.dirichlet, cell.data.probs, n_ss=cell.n_ss,
+                             rng=dirichlet_rng(cell.seed, cell.target, cell.track))
+
+
+def with_dirichlet(posts: dict[str, np.ndarray], log_mean: np.ndarray) -> dict[str, np.ndarray]:
+    """``posts`` plus the Dirichlet's (K, C) log posterior repeated over the realizations (it
+    ignores the poses: the same posterior for every realization, paired with the others')."""
+    r = next(iter(posts.values())).shape[0]
+    return {**posts, DIRICHLET: np.broadcast_to(log_mean, (r,) + log_mean.shape).copy()}
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
@@ -187,6 +219,7 @@ def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None}."""
     models = banks[cell.variant].subset(cell.classes, cell.components)
+    dirichlet = dirichlet_track(cell)
     posts = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
@@ -196,8 +229,16 @@ def run_cell(banks, cell: Cell) -> dict:
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
                                                           rng, var_floor=cell.var_floor)
+        if dirichlet is not None:
+            posts[(s.experiment, s.label)] = with_dirichlet(posts[(s.experiment, s.label)], dirichlet[0])
     diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None
-    return {"posts": posts, "difficulty": diff}
+    if diff is not None and dirichlet is not None:
+        one = DF.single_view(cell.dirichlet, cell.data.probs)
+        diff[DIRICHLET] = float(np.mean(M.correct(one, cell.truth, is_log=True)))
+    out = {"posts": posts, "difficulty": diff}
+    if dirichlet is not None:
+        out["dirichlet_std"] = dirichlet[1]
+    return out
 
 
 def yaw_for(target: str, scan: str, truth: dict | None, source: str, yaw_deg: float,

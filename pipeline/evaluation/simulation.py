@@ -39,7 +39,11 @@ from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simp
 from pipeline.method.geometry import sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
-from pipeline.evaluation.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
+from pipeline.evaluation.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
+
+# The scenarios' measurements are synthetic GP scores, not classifier probability vectors, so the
+# Dirichlet method (which models the whole softmax vector) does not apply here.
+METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")
 N_CLASSES = SIM_CLASSES  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)

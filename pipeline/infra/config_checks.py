@@ -98,6 +98,9 @@ def cross_checks(cfg: Config, where: str) -> None:
     if cfg.models.component_rule == "explicit":
         need(len(cfg.models.components) == cfg.models.n_components,
              "'models.components' must list exactly 'models.n_components' indices for rule 'explicit'")
+    need(cfg.models.dirichlet.passes == "deterministic" or cfg.features.bigbird_samples > 0,
+         f"'models.dirichlet.passes' = {cfg.models.dirichlet.passes!r} needs MC-dropout passes of the BigBIRD views "
+         "('features.bigbird_samples' > 0)")
     need(cfg.models.targets != "dropout_mean" or cfg.features.bigbird_samples > 0,
          "'models.targets' = 'dropout_mean' needs MC-dropout passes of the BigBIRD views: set "
          "'features.bigbird_samples' > 0 or 'models.targets' = 'deterministic'")

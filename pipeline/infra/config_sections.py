@@ -44,6 +44,11 @@ class BiasMapsConfig:
 
 
 @dataclass(frozen=True)
+class DirichletEvalConfig:
+    n_ss: int = _f(100, lo=1, hi=1000000, doc="N_ss: posterior-cloud points kept after each step (Dirichlet method)")
+
+
+@dataclass(frozen=True)
 class EvaluateConfig:
     targets: tuple[str, ...] = _f("all", words=("all",),
                                   doc="'all' = every modelled instance present in the scanned AVD features, "
@@ -73,6 +78,7 @@ class EvaluateConfig:
     randomized: RandomizedConfig = _f(factory=RandomizedConfig)
     sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
     bias_maps: BiasMapsConfig = _f(factory=BiasMapsConfig)
+    dirichlet: DirichletEvalConfig = _f(factory=DirichletEvalConfig)
 
 
 @dataclass(frozen=True)

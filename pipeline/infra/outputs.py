@@ -10,7 +10,7 @@ OUTPUTS: dict[str, dict[str, str]] = {
     "data": {"roots": "roots.json", "truth": "truth.json", "bigbird": "bigbird", "avd": "avd"},
     "classifier": {"card": "card.json", "weights": "weights.npz"},
     "features": {"bigbird": "bigbird.parquet", "avd": "avd.parquet"},
-    "models": {"index": "index.json"},
+    "models": {"index": "index.json", "dirichlet": "dirichlet"},  # dirichlet/: index.json + theta.npz
     "evaluate": {"results": "results.parquet", "summary": "summary.json", "track": "track.json",
                  "gp_models": "gp_models.npz", "bias_maps": "bias_maps.npz"},
     "report": {"html": "index.html"},

@@ -8,7 +8,9 @@ from __future__ import annotations
 WITH_UNCERTAINTY = "with_uncertainty"
 MODEL_BASED = "model_based"
 SIMPLE_BAYES = "simple_bayes"
-METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
+DIRICHLET = "dirichlet"  # Tchuiev & Indelman 2018 (pipeline/method/dirichlet_fusion.py)
+METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES, DIRICHLET)
 
 # Short names for progress bars and table headers.
-METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes"}
+METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes",
+                DIRICHLET: "Dirichlet"}
