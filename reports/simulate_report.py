@@ -248,9 +248,7 @@ def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
         f"'{method_label(DIRICHLET)}' does not apply here: it models the classifier's whole probability vector, and "
         "these measurements are synthetic GP scores, not classifier outputs. "
         f"{MGR_AXIS_LABEL}: 0 when the truth is the most likely class; its 95th percentile measures confident "
-        "misclassification. The Dirichlet method (fusion of MC-dropout class-probability vectors) does not apply "
-        "here: the simulated measurements are Gaussian score vectors, not probability vectors (they can leave "
-        "the simplex), so there are none to fuse.")
+        "misclassification.")
     if "class_maps.png" in written:
         page.figure("class_maps.png", "Class models: the colour shows which class each class's GP mean score "
                     "vector favours at that position (paler = more ambiguous). Class 2 (the truth) looks like "

@@ -271,7 +271,7 @@ def test_stage_writes_results_example_and_report(tmp_config):
     assert sw["summary"]["sentence"]
     html = (out / "index.html").read_text()
     assert html.index("The paper&#x27;s claims") < html.index("Overview")
-    assert "Dirichlet method" in html and sw["summary"]["sentence"].split(".")[0].replace("'", "&#x27;") in html
+    assert "Dirichlet (Tchuiev &amp; Indelman)&#x27; does not apply here" in html and sw["summary"]["sentence"].split(".")[0].replace("'", "&#x27;") in html
     pngs = sorted(p.name for p in out.glob("*.png"))
     assert len(pngs) == 1 + 1 + 2 * 5
     for p in pngs:
