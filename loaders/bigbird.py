@@ -36,7 +36,7 @@ POSE_KEY = "H_table_from_reference_camera"
 # --------------------------------------------------------------------------------------------
 # JPEG helpers (shared with loaders.avd)
 
-def _check_jpeg_complete(data: bytes, path: Path) -> None:
+def check_jpeg_complete(data: bytes, path: Path) -> None:
     """OpenCV decodes a truncated JPEG into a grey-padded image with only a warning, so check the
     markers ourselves: SOI first, and an EOI after the first scan (SOS). Entropy-coded data
     byte-stuffs 0xFF, so FF D9 after SOS can only be the real end marker (EXIF thumbnails, which
@@ -61,7 +61,7 @@ _CORRUPT_MARKS = ("Corrupt JPEG data", "Premature end of JPEG file", "Inconsiste
 
 
 @contextlib.contextmanager
-def _c_stderr_captured() -> Iterator[list[str]]:
+def c_stderr_captured() -> Iterator[list[str]]:
     """Collect what C code writes to file descriptor 2 meanwhile (lines go into the yielded list);
     lines that are not libjpeg messages are passed on to the real stderr afterwards."""
     lines: list[str] = []
@@ -109,8 +109,8 @@ def decode_jpeg(data: bytes, path: str | Path) -> np.ndarray:
     """Decode JPEG bytes into RGB uint8 (H, W, 3); BadInputError naming ``path`` when the file is
     truncated or libjpeg reports corrupt data."""
     path = Path(path)
-    _check_jpeg_complete(data, path)
-    with _c_stderr_captured() as lines:
+    check_jpeg_complete(data, path)
+    with c_stderr_captured() as lines:
         try:
             bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
         except cv2.error as e:

@@ -1,15 +1,13 @@
 """The one reader of a run's artifacts for both reports: checked, and never running code.
 
 Parquet, JSON and ``np.load(allow_pickle=False)`` only. Every problem is a ``BadInputError``
-naming the file. MGR reaches the reports as log10 only: a results table that still carries the
-natural-log column ``log_mgr`` (runs before the population evaluation, the simulate stage) gets
-``log10_mgr`` derived from it here, so no figure or table ever sees another base.
+naming the file. MGR reaches the reports as log10 only (the ``log10_mgr`` column every results
+writer writes, ``pipeline.evaluation.results``); a table without it is refused, naming the file.
 """
 from __future__ import annotations
 
 import json
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -19,13 +17,17 @@ import pandas as pd
 
 from loaders.errors import BadInputError
 from pipeline.infra.cache import NpzFileError, load_npz
+from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import name as out_name
+from pipeline.infra.outputs import path as out_path
 from pipeline.evaluation.labels import METHODS
+from pipeline.evaluation.metrics import STEP_COLUMNS
 
 log = logging.getLogger("viewfuse.report")
 
 # The main report never needs the posterior vectors: leaving them unread keeps loading fast.
 RESULT_COLUMNS = ("experiment", "setting", "sigma_m", "bias_x", "bias_y", "realization", "step",
-                  "method", "p_truth", "log10_mgr", "msde", "correct")
+                  "method", *STEP_COLUMNS)
 POPULATION_COLUMNS = ("variant", "target", "track")
 GP_ARRAYS = ("grid", "raster_mean", "raster_std", "ring_theta", "ring_mean", "ring_std",
              "train_theta", "train_y")
@@ -56,8 +58,7 @@ def read_npz(path: Path, required: Iterable[str]) -> dict[str, np.ndarray]:
 def read_result_table(path: Path, required: Iterable[str], *, optional: Iterable[str] = (),
                       missing_hint: str = "") -> tuple[pd.DataFrame, dict[str, Any]]:
     """A results Parquet file (only ``required`` + present ``optional`` columns) and its
-    ``viewfuse.*`` metadata (prefix dropped, classes parsed). ``log10_mgr`` may come from an
-    older natural-log ``log_mgr`` column."""
+    ``viewfuse.*`` metadata (prefix dropped, classes parsed)."""
     import pyarrow.parquet as pq
 
     path = Path(path)
@@ -69,25 +70,16 @@ def read_result_table(path: Path, required: Iterable[str], *, optional: Iterable
         raise BadInputError(path, f"not a readable Parquet file ({e})") from None
     have = set(schema.names)
     cols = [c for c in required if c in have]
-    legacy = "log10_mgr" in required and "log10_mgr" not in have and "log_mgr" in have
-    missing = [c for c in required if c not in have and not (c == "log10_mgr" and legacy)]
+    missing = [c for c in required if c not in have]
     if missing:
-        raise BadInputError(path, f"missing column(s) {', '.join(missing)}")
-    cols += [c for c in optional if c in have and c not in cols] + (["log_mgr"] if legacy else [])
+        raise BadInputError(path, f"missing column(s) {', '.join(missing)} (a run from an older version: "
+                                  "rerun its stage)")
+    cols += [c for c in optional if c in have and c not in cols]
     try:
         df = pq.read_table(path, columns=cols).to_pandas()
     except Exception as e:
         raise BadInputError(path, f"not a readable Parquet file ({e})") from None
-    if legacy:
-        df["log10_mgr"] = df.pop("log_mgr") / math.log(10.0)
     return df, _metadata(path, schema.metadata)
-
-
-def with_log10_mgr(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` with a ``log10_mgr`` column (derived from a natural-log ``log_mgr`` where needed)."""
-    if "log10_mgr" in df or "log_mgr" not in df:
-        return df
-    return df.assign(log10_mgr=df["log_mgr"] / math.log(10.0))
 
 
 def _metadata(path: Path, raw) -> dict[str, Any]:
@@ -161,21 +153,22 @@ def load_evaluate(evaluate_dir: str | Path) -> EvaluateOutputs:
     if not d.is_dir():
         raise BadInputError(d, "evaluate output folder not found; run `viewfuse evaluate` first")
     out = EvaluateOutputs()
-    if (d / "results.parquet").is_file():
-        out.results, out.meta = read_results(d / "results.parquet")
-    if (d / "track.json").is_file():
-        out.track = read_json(d / "track.json")
-    if (d / "summary.json").is_file():
-        out.summary = read_json(d / "summary.json")
-    if (d / "gp_models.npz").is_file():
-        out.gp = read_npz(d / "gp_models.npz", GP_ARRAYS)
-        _check_gp(d / "gp_models.npz", out.gp)
-    if (d / "bias_maps.npz").is_file():
-        out.bias_maps = read_npz(d / "bias_maps.npz", ("bias_x", "bias_y", "posterior"))
-        _check_bias_maps(d / "bias_maps.npz", out.bias_maps)
+    p = {k: out_path(d, "evaluate", k) for k in ("results", "track", "summary", "gp_models", "bias_maps")}
+    if p["results"].is_file():
+        out.results, out.meta = read_results(p["results"])
+    if p["track"].is_file():
+        out.track = read_json(p["track"])
+    if p["summary"].is_file():
+        out.summary = read_json(p["summary"])
+    if p["gp_models"].is_file():
+        out.gp = read_npz(p["gp_models"], GP_ARRAYS)
+        _check_gp(p["gp_models"], out.gp)
+    if p["bias_maps"].is_file():
+        out.bias_maps = read_npz(p["bias_maps"], ("bias_x", "bias_y", "posterior"))
+        _check_bias_maps(p["bias_maps"], out.bias_maps)
     if all(v is None for v in (out.results, out.track, out.gp, out.bias_maps, out.summary)):
-        raise BadInputError(d, "no evaluate outputs found (expected results.parquet, track.json, "
-                               "gp_models.npz, bias_maps.npz or summary.json)")
+        raise BadInputError(d, "no evaluate outputs found (expected "
+                               + ", ".join(f.name for f in p.values()) + ")")
     return out
 
 
@@ -223,23 +216,23 @@ class RunArtifacts:
 def load_run(run_dir: str | Path) -> RunArtifacts:
     d = Path(run_dir)
     ev = load_evaluate(d / "evaluate")
-    idx = d / "models" / "index.json"
-    card = d / "classifier" / "card.json"
+    idx = out_path(d / "models", "models", "index")
+    card = out_path(d / "classifier", "classifier", "card")
     manifests = {}
     for s in STAGES:
-        p = d / s / "manifest.json"
+        p = d / s / MANIFEST
         if p.is_file():
             m = read_json(p)
             if isinstance(m, dict):
                 manifests[s] = m
-    dj = d / "models" / "dirichlet" / "index.json"
+    dj = out_path(d / "models" / out_name("models", "dirichlet"), "models", "index")
     return RunArtifacts(d, ev, read_json(idx) if idx.is_file() else None,
                         read_json(card) if card.is_file() else None, manifests,
                         read_json(dj) if dj.is_file() else None)
 
 
 # -- the simulate stage's outputs --------------------------------------------------------------
-SIM_COLUMNS = ("scenario", "realization", "step", "method", "p_truth", "log10_mgr", "msde", "correct")
+SIM_COLUMNS = ("scenario", "realization", "step", "method", *STEP_COLUMNS)
 EXAMPLE_COLUMNS = ("scenario", "step", "component", "true_x", "true_y", "est_x", "est_y", "nominal",
                    "noised", "sigma_u2", "samples", "class_mean", "class_std", "class_mean_est")
 
@@ -263,8 +256,7 @@ class SimOutputs:
 def load_simulate(folder: str | Path) -> SimOutputs:
     d = Path(folder)
     hint = "run `viewfuse simulate` first"
-    # The posteriors feed the findings' confident errors (pipeline.evaluation.metrics.confident_errors).
-    df, meta = read_result_table(d / "results.parquet", SIM_COLUMNS, optional=("posterior",), missing_hint=hint)
-    ex, _ = read_result_table(d / "example.parquet", EXAMPLE_COLUMNS, missing_hint=hint)
-    sp = d / "summary.json"
+    df, meta = read_result_table(out_path(d, "simulate", "results"), SIM_COLUMNS, missing_hint=hint)
+    ex, _ = read_result_table(out_path(d, "simulate", "example"), EXAMPLE_COLUMNS, missing_hint=hint)
+    sp = out_path(d, "simulate", "summary")
     return SimOutputs(df, ex, meta, read_json(sp) if sp.is_file() else {})

@@ -1,7 +1,7 @@
 """Figures of the results: population (forest plot, per-target CIs) and the detailed track
 (biased track, percentile bands, σ sensitivity, the track from above).
 
-MGR is log10 on linear axes everywhere (``pipeline.evaluation.labels.MGR_AXIS_LABEL``); every estimate
+MGR is log10 on linear axes everywhere (``pipeline.evaluation.metrics.MGR_AXIS_LABEL``); every estimate
 that has a CI is drawn with its CI bar.
 """
 from __future__ import annotations
@@ -11,10 +11,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import (METRICS, present_comparisons, MGR_AXIS_LABEL, comparison_key, method_color, method_label,
-                             metric_label, ordered_methods)
+from pipeline.evaluation.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
+from pipeline.evaluation.metrics import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
 from reports.figures import new_figure, new_subplots, percentile_bands, step_ticks, wrap_label
-from reports.stats import matrices
 
 FOREST_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PER_TARGET_METRICS = ("correct_final", "log10_mgr95_final")
@@ -61,7 +60,7 @@ def fig_forest(pop: dict) -> Any:
                      f"{method_label(m, True)} − {method_label(base, True)}")
         ax.axvline(0.0, color="#444444", lw=1)
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
-        side = "right" if METRICS.get(metric, ("", True))[1] else "left"
+        side = "right" if higher_is_better(metric) else "left"
         ax.set_title(f"{metric_label(metric)}\n(With Uncertainty better to the {side})", fontsize=9.5)
         ax.set_xlabel("difference" + (" of log10 MGR" if "mgr" in metric else ""))
     axes[0, 0].set_yticks(range(len(rows)))

@@ -14,7 +14,8 @@ from typing import Any, Callable
 
 from pipeline.infra.progress import bar as progress_bar
 
-from pipeline.evaluation.labels import MGR_AXIS_LABEL
+from pipeline.evaluation.metrics import MGR_AXIS_LABEL
+from pipeline.infra.outputs import path as out_path
 from reports import sections_track as track_sections
 from reports import sections_verdict as verdict_sections
 from reports.artifacts import load_run
@@ -143,5 +144,5 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
         section(ctx)
     for n in ctx.notes:
         log.warning("report: %s", n)
-    ctx.page.write(out / "index.html")
-    return ReportResult(out / "index.html", written, ctx.sections, ctx.notes)
+    ctx.page.write(out_path(out, "report", "html"))
+    return ReportResult(out_path(out, "report", "html"), written, ctx.sections, ctx.notes)

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import math
 
-from pipeline.evaluation.labels import MGR_AXIS_LABEL, method_label, metric_label
+from pipeline.evaluation.labels import method_label
+from pipeline.evaluation.metrics import MGR_AXIS_LABEL, metric_label
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
 from reports.tables import (component_legend, dump_toml, find_seeds, package_versions, skip_rows)

@@ -3,8 +3,9 @@ then the diagnostics that drive it (GP fits at a bound, ablations). All numbers 
 ``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
 from __future__ import annotations
 
-from pipeline.evaluation.labels import (COMPARISONS, DIRICHLET, METRICS, comparison_key, comparison_label, method_label,
-                                       metric_label, ordered_methods, present_comparisons)
+from pipeline.evaluation.labels import (COMPARISONS, DIRICHLET, comparison_key, comparison_label, method_label,
+                                       ordered_methods, present_comparisons)
+from pipeline.evaluation.metrics import higher_is_better, metric_label
 from pipeline.evaluation.popstats import wilson_interval
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
@@ -176,7 +177,7 @@ def _outcome(d: dict, metric: str) -> str:
     e = Estimate.of(d)
     if not e.excludes_zero():
         return "not distinguishable"
-    higher = METRICS.get(metric, ("", True))[1]
+    higher = higher_is_better(metric)
     return "better" if (float(e.value) > 0) == higher else "worse"
 
 

@@ -2,19 +2,18 @@
 percentile-band widths, confident misclassifications and the inverse-view dip, MGR as log10."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, method_label
 from pipeline.evaluation.metrics import confident_errors, percentile
-from reports.artifacts import with_log10_mgr
 
 OURS = WITH_UNCERTAINTY
 OTHERS = (MODEL_BASED, SIMPLE_BAYES)
 # "Confidently wrong": max P >= this on a wrong class, the evaluate stage's confident error
-# (``simulate.confident_threshold``; the stage and the page pass the configured value).
+# (``simulate.confident_threshold``; the stage passes the configured value).
 CONFIDENT = 0.99
 
 
@@ -27,7 +26,7 @@ def matrix(df: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray]:
 
 def column_percentile(v: np.ndarray, q: float) -> np.ndarray:
     """Per-step (column) percentile of (R, K) values, +inf (underflowed P(truth)) kept as a value."""
-    return np.array([float(percentile(v[:, j], q)) for j in range(v.shape[1])])
+    return percentile(v, q, axis=0)
 
 
 def inverse_steps(ex: pd.DataFrame, scenario: str, truth: int) -> list[int]:
@@ -41,28 +40,20 @@ def inverse_steps(ex: pd.DataFrame, scenario: str, truth: int) -> list[int]:
     return out
 
 
-def posterior_cube(gm: pd.DataFrame) -> np.ndarray:
-    """One method's posteriors as (R, K, C), realizations and steps in order."""
-    if "posterior" not in gm.columns:
-        raise ValueError("simulate results: no 'posterior' column (rerun `viewfuse simulate`)")
-    g = gm.sort_values(["realization", "step"])
-    R, K = g["realization"].nunique(), g["step"].nunique()
-    return np.stack(g["posterior"].to_numpy()).reshape(R, K, -1)
-
-
-def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int, confident: float = CONFIDENT) -> dict[str, Any]:
+def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int,
+             posteriors: Mapping[str, Mapping[str, np.ndarray]], confident: float = CONFIDENT) -> dict[str, Any]:
     """Numbers behind the paper's qualitative findings, per scenario present; "confidently wrong"
-    is ``metrics.confident_errors`` at ``confident``."""
+    is ``metrics.confident_errors`` at ``confident`` on ``posteriors`` ({scenario: {method:
+    (R, K, C)}}, the rows of ``df``). The stage writes them to summary.json; the page reads them."""
     out: dict[str, Any] = {"confident_threshold": confident}
-    df = with_log10_mgr(df)
     for scenario, g in df.groupby("scenario", sort=False):
         s: dict[str, Any] = {}
         for method, gm in g.groupby("method", sort=False):
             steps, pt = matrix(gm, "p_truth")
             _, lm = matrix(gm, "log10_mgr")
             with np.errstate(divide="ignore"):
-                wrong_conf = confident_errors(np.log(posterior_cube(gm)), truth, confident)
-            q10, q25, q50, q75, q90 = np.percentile(pt, [10, 25, 50, 75, 90], axis=0)
+                wrong_conf = confident_errors(np.log(posteriors[scenario][method]), truth, confident)
+            q10, q25, q50, q75, q90 = percentile(pt, [10, 25, 50, 75, 90], axis=0)
             s[method] = {
                 "ptruth_band_10_90_mean": float(np.mean(q90 - q10)),
                 "ptruth_iqr_mean": float(np.mean(q75 - q25)),

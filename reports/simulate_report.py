@@ -22,12 +22,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import DIRICHLET, MGR_AXIS_LABEL, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label, metric_label
+from pipeline.evaluation.labels import DIRICHLET, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label
+from pipeline.evaluation.metrics import MGR_AXIS_LABEL, metric_label
+from pipeline.infra.outputs import name as out_name
+from pipeline.infra.outputs import path as out_path
 from reports.artifacts import load_simulate
 from reports.figures import new_subplots, percentile_bands, save
 from reports.html import HtmlReport
 from reports.simulate_claims import claims_section, fig_confident_errors, fig_sweep
-from reports.simulate_findings import OTHERS, OURS, findings, findings_text, matrix
+from reports.simulate_findings import OTHERS, OURS, findings_text, matrix
 from reports.stats import BOOTSTRAP, track_summary
 
 log = logging.getLogger("viewfuse.simulate")
@@ -202,8 +205,8 @@ def _plan(so, sim_dir: Path, scenarios: list[str]) -> list[tuple[str, Any]]:
 
     df, ex, classes, truth = so.results, so.example, so.classes, so.truth
     plan: list[tuple[str, Any]] = []
-    if (sim_dir / "models" / "index.json").is_file():
-        models = GPClassModels.load(sim_dir / "models")
+    if out_path(sim_dir / out_name("simulate", "models"), "models", "index").is_file():
+        models = GPClassModels.load(sim_dir / out_name("simulate", "models"))
         true_xy, est = _example_poses(ex, scenarios)
         plan.append(("class_maps.png", lambda: fig_class_maps(models, true_xy, est, classes, truth)))
     summ = so.summary
@@ -310,8 +313,8 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
         _scenario_section(page, s, summ, R, n_boot, tuple(written))
     page.section("Findings", anchor="findings")
     page.paragraph("The paper's qualitative findings, checked on these runs:")
-    thr = (so.summary.get("claim_params") or {}).get("confident_threshold", 0.99)
-    for line in findings_text(findings(df, ex, so.truth, thr)):
+    # Computed by the stage from the posteriors (reports.simulate_findings.findings), read here.
+    for line in findings_text(so.summary.get("findings") or {}):
         page.paragraph(line)
     fits = so.summary.get("gp_fit") or []
     if fits:
@@ -320,5 +323,5 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
                    [[d["class"], d.get("component_name") or d["component"], d["mean"], d["amplitude"],
                      d["length_scale"], d["noise"], "; ".join(d.get("at_bound") or []) or "—"] for d in fits],
                    caption="scikit-learn marginal-likelihood fits of the hand-specified responses")
-    page.write(out / "index.html")
-    return ReportResult(out / "index.html", written)
+    page.write(out_path(out, "simulate", "html"))
+    return ReportResult(out_path(out, "simulate", "html"), written)

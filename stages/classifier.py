@@ -24,6 +24,7 @@ import numpy as np
 
 from pipeline.infra.cache import sha256_file, write_json
 from pipeline.infra.config import to_dict
+from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.classifier")
 
@@ -83,7 +84,7 @@ def _file_weights(ctx, device: str) -> str:
         names = imagenet_names(n)
     else:
         names = [f"class_{i}" for i in range(n)]
-        side = Path(path).parent / "card.json"
+        side = Path(path).parent / out_name("classifier", "card")
         if side.is_file():  # our own .npz with its card beside it: keep the real output names
             try:
                 other = read_card(side.parent)
@@ -95,7 +96,7 @@ def _file_weights(ctx, device: str) -> str:
     card.update({"accuracy": None, "seconds": round(time.perf_counter() - t0, 2), "device": device,
                  "torch": torch.__version__})
     card["hash"] = card_hash(card)
-    write_json(ctx.out / "card.json", card)
+    write_json(ctx.out / out_name("classifier", "card"), card)
     ctx.extra.update({"weights": c.weights, "hash": card["hash"], "num_classes": n})
     return f"{c.weights} weights {path} ({n} outputs, sha256 {sha[:12]})"
 
@@ -177,7 +178,7 @@ def _train_synthetic(ctx, device: str) -> str:
         "determinism": machine_fingerprint(),
     })
     card["hash"] = card_hash(card)
-    write_json(ctx.out / "card.json", card)
+    write_json(ctx.out / out_name("classifier", "card"), card)
     ctx.extra.update({"accuracy": acc, "hash": card["hash"], **timings, "cpu_seconds": cpu})
     if acc < t.min_accuracy:
         log.error("confusion matrix (rows = truth, columns = prediction; %s):\n%s", ", ".join(names), cm)

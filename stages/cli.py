@@ -11,7 +11,7 @@ import os
 import sys
 import traceback
 
-from pipeline.infra.config import Config, ConfigError, load_config, merge as _merge, parse_override
+from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
 from stages.registry import ORDER, STAGES
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
@@ -120,14 +120,14 @@ def build_parser() -> argparse.ArgumentParser:
 def _load(args) -> Config:
     overrides: dict = {}
     for o in args.overrides:
-        overrides = _merge(overrides, parse_override(o))
+        overrides = merge(overrides, parse_override(o))
     # --device/--threads are config values given on the command line: validated the same way.
     if getattr(args, "device", None) is not None:
-        overrides = _merge(overrides, {"run": {"device": args.device}})
+        overrides = merge(overrides, {"run": {"device": args.device}})
     if getattr(args, "threads", None) is not None:
-        overrides = _merge(overrides, {"run": {"threads": args.threads}})
+        overrides = merge(overrides, {"run": {"threads": args.threads}})
     if getattr(args, "executor", None) is not None:
-        overrides = _merge(overrides, {"run": {"executor": args.executor}})
+        overrides = merge(overrides, {"run": {"executor": args.executor}})
     return load_config(args.config, overrides or None)
 
 

@@ -2,8 +2,9 @@
 its statistics and verdict, and the single-track figures for the first target's first track.
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
-experiments and the statistics are pure functions in ``pipeline.evaluation.population``,
-``pipeline.evaluation.experiments`` and ``pipeline.evaluation.popstats``; cells run on ``run.executor``.
+experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.population``,
+``pipeline.evaluation.experiments``, ``pipeline.evaluation.metrics``, ``pipeline.evaluation.popstats``
+and ``pipeline.evaluation.population_summary``; cells run on ``run.executor``.
 """
 from __future__ import annotations
 
@@ -22,15 +23,13 @@ from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
-from pipeline.evaluation.labels import COMPARISONS, DIRICHLET as DIRICHLET_KEY, METHODS, METRICS
 from pipeline.infra.outputs import name as out_name
-from pipeline.evaluation.popstats import population_block
-from pipeline.evaluation.results import cell_metrics, metadata, result_block, write_results
+from pipeline.evaluation.population import DEFAULT
+from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary, result_blocks
+from pipeline.evaluation.results import metadata, result_block, write_results
 from pipeline.evaluation.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
-
-DEFAULT = "default"
 
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
@@ -40,7 +39,8 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     for a in ablations:
         sub = index.get("ablations", {}).get(a)
         if sub is None:
-            raise ValueError(f"{models_dir / 'index.json'}: no model bank for ablation {a!r} (rerun the models stage)")
+            raise ValueError(f"{models_dir / out_name('models', 'index')}: no model bank for ablation {a!r} "
+                             "(rerun the models stage)")
         banks[a] = GPClassModels.load(models_dir / sub)
         indexes[a] = _read_index(models_dir / sub)
     return banks, indexes
@@ -72,162 +72,6 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
         cams = avd.loc[avd["scan"] == s, ["cam_x", "cam_y"]].to_numpy(float)
         steps[s] = grid_step(cams)
     return intr, steps
-
-
-def choose_targets(cfg: Config, avd: pd.DataFrame, plan: dict) -> list[str]:
-    ev = cfg.evaluate
-    seen = sorted(avd.loc[(avd["difficulty"] <= ev.max_difficulty), "instance"].unique())
-    if isinstance(ev.targets, str):
-        return [t for t in seen if t in plan]
-    missing = [t for t in ev.targets if t not in plan]
-    if missing:
-        raise ValueError(f"evaluate.targets names {missing[0]!r}, for which the models stage planned no "
-                         f"candidate set (modelled: {', '.join(sorted(plan))})")
-    return list(ev.targets)
-
-
-def build_cells(cfg: Config, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
-                intr: dict, steps: dict, dirichlet: DirichletModels | None = None
-                ) -> tuple[list[P.Cell], list[P.TrackInfo], list[dict]]:
-    """Every (variant, target, track) cell; targets without a usable track are skipped with a reason.
-    With ``dirichlet`` models, every cell also carries the candidates' Dirichlets and the views'
-    whole probability vectors (the fourth method)."""
-    ev = cfg.evaluate
-    plan = indexes[DEFAULT]["candidate_sets"]
-    own = indexes[DEFAULT]["own_components"]
-    settings = tuple(P.population_settings(ev))
-    cells, tracks, skipped = [], [], []
-    for target in choose_targets(cfg, avd, plan):
-        det = P.target_views(avd, target, ev.max_difficulty)
-        try:
-            infos = P.plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
-                                  tuple(ev.track_images))
-        except TrackError as e:
-            skipped.append({"target": target, "reason": str(e)})
-            log.warning("target %s skipped: %s", target, e)
-            continue
-        classes = plan[target]["classes"]
-        for info in infos:
-            yaw = P.yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
-            full = P.track_samples(avd, scores, info, ev.max_difficulty)
-            dm = None if dirichlet is None else dirichlet.subset(classes)
-            if dm is not None and full.shape[-1] != dm.dim:
-                raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
-            for variant, index in indexes.items():
-                comps = index["candidate_sets"][target]["components"]
-                data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
-                                   dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
-                                   probs=None if dm is None else full)
-                cells.append(P.Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
-                                    classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                    difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss))
-            tracks.append(info)
-        log.info("target %s: %d track(s) in %s; candidates %s", target, len(infos),
-                 ", ".join(sorted({i.scan for i in infos})), ", ".join(classes))
-    if not cells:
-        raise TrackError("no target has a usable track: " + "; ".join(f"{s['target']}: {s['reason']}" for s in skipped))
-    return cells, tracks, skipped
-
-
-def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
-    """One row per (variant, target, track, setting, method) with the cell's metrics."""
-    rows = []
-    for cell, res in zip(cells, results):
-        for (experiment, label), posts in res["posts"].items():
-            for method, lp in posts.items():
-                rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
-                             "experiment": experiment, "setting": label, "method": method,
-                             **cell_metrics(lp, cell.truth)})
-    return pd.DataFrame(rows)
-
-
-def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
-    out = []
-    for cell, res in zip(cells, results):
-        by_label = {(s.experiment, s.label): s for s in cell.settings}
-        for key, posts in res["posts"].items():
-            s = by_label[key]
-            out.append(result_block(posts, cell.truth, variant=cell.variant, experiment=s.experiment, setting=s.label,
-                                    sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
-                                    scan=cell.scan, target=cell.target, track=cell.track,
-                                    candidates=",".join(cell.classes), truth=cell.truth))
-    return out
-
-
-def population_summary(cfg: Config, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
-                       tracks: list[P.TrackInfo], skipped: list[dict]) -> dict:
-    ev = cfg.evaluate
-    metrics = list(METRICS)
-    methods = [m for m in METHODS if m in set(table["method"])]
-    settings = P.population_settings(ev)
-    default = table[table["variant"] == DEFAULT]
-    n_targets = default["target"].nunique()
-    n_tracks = len(tracks)
-    scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
-    block = population_block(default, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope)
-    by_setting = {}
-    for s in settings:
-        sub = default[default["setting"] == s.label]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                             f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False)
-        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}
-    ablations = {}
-    for a in ev.ablations:
-        sub = table[table["variant"] == a]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope, per_target=False)
-        key, value = (t.strip() for t in a.split("=", 1))
-        ablations[a] = {"override": {key: value}, **{k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}}
-    difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
-                  for c, r in zip(cells, results) if r["difficulty"] is not None]
-    spread = {}
-    for m in methods:
-        v = np.array([d["single_view_first"][m] for d in difficulty])
-        spread[m] = {"min": float(v.min()), "q25": float(np.percentile(v, 25)), "median": float(np.median(v)),
-                     "q75": float(np.percentile(v, 75)), "max": float(v.max()), "mean": float(v.mean())}
-    first = {c.target: c for c in cells if c.variant == DEFAULT}
-    cell_rows = [{"target": t, "track": int(tr), "experiment": e, "setting": s,
-                  "values": {r["method"]: {k: r[k] for k in metrics} for _, r in g.iterrows()}}
-                 for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
-    return {
-        "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
-        "n_cells": int(len(default) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
-        "realizations": ev.randomized.realizations, "n_loc_samples": ev.randomized.n_loc_samples,
-        "methods": methods, "metrics": metrics,
-        "settings": [{"experiment": s.experiment, "setting": s.label, "sigma_m": s.sigma, "bias_m": list(s.bias),
-                      "realizations": s.realizations, "n_loc_samples": s.n_x} for s in settings],
-        "targets": sorted(first), "candidates": {t: list(c.classes) for t, c in sorted(first.items())},
-        "components": {t: list(c.components) for t, c in sorted(first.items())},
-        "unit": ("a cell is one (target, track, setting); its metric is computed over its realizations. "
-                 "Pooled values average tracks' means (over settings) within each target, then targets; "
-                 "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks)."),
-        **block,
-        "by_setting": by_setting,
-        "difficulty": {"tracks": difficulty, "summary": spread,
-                       "meaning": "share of a track's views whose single-view posterior at the true pose ranks "
-                                  "the target first"},
-        "cells": cell_rows,
-        "tracks": [t.as_dict() for t in tracks],
-        "ablations": ablations,
-        "skipped_targets": skipped,
-    }
-
-
-def dirichlet_summary(cfg: Config, cells: list[P.Cell], results: list[dict]) -> dict | None:
-    """What the Dirichlet's posterior cloud says besides its mean: the spread (std of λ) of the
-    truth's probability at the final step over the default cells, and the first cell's per-step
-    E[λ] and std."""
-    pairs = [(c, r) for c, r in zip(cells, results) if c.variant == DEFAULT and "dirichlet_std" in r]
-    if not pairs:
-        return None
-    final = np.array([r["dirichlet_std"][-1, c.truth] for c, r in pairs])
-    c0, r0 = pairs[0]
-    mean0 = np.exp(next(iter(r0["posts"].values()))[DIRICHLET_KEY][0])
-    return {"n_ss": cfg.evaluate.dirichlet.n_ss, "poses": "ignored: the same posterior for every realization",
-            "truth_std_final": {"median": float(np.median(final)), "q25": float(np.percentile(final, 25)),
-                                "q75": float(np.percentile(final, 75)), "max": float(final.max()),
-                                "n_cells": int(len(final))},
-            "first_track": {"target": c0.target, "track": c0.track, "classes": list(c0.classes),
-                            "mean": mean0.tolist(), "std": r0["dirichlet_std"].tolist()}}
 
 
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
@@ -278,7 +122,13 @@ def run(ctx) -> str:
     intr, steps = scan_geometry(cfg, scans, avd, ctx.skips)
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    cells, tracks, skipped = build_cells(cfg, avd, scores, indexes, truth, intr, steps, dirichlet)
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet)
+    for sk in skipped:
+        log.warning("target %s skipped: %s", sk["target"], sk["reason"])
+    for t in sorted({c.target for c in cells}):
+        mine = [i for i in tracks if i.target == t]
+        log.info("target %s: %d track(s) in %s; candidates %s", t, len(mine), ", ".join(sorted({i.scan for i in mine})),
+                 ", ".join(next(c.classes for c in cells if c.target == t)))
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -293,8 +143,8 @@ def run(ctx) -> str:
 
     t0 = time.perf_counter()
     table = cell_table(cells, results)
-    population = population_summary(cfg, table, cells, results, tracks, skipped)
-    population["dirichlet"] = dirichlet_summary(cfg, cells, results)
+    population = population_summary(cfg.evaluate, table, cells, results, tracks, skipped)
+    population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
     timings["statistics"] = time.perf_counter() - t0
 
     # The first target's first track: its biased/randomized tables as before, plus the figures.

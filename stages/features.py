@@ -42,7 +42,7 @@ def extra_key(cfg) -> str:
         return "classifier=missing"
 
 
-def _bigbird_objects(cfg, root, skips) -> list:
+def bigbird_objects(cfg, root, skips) -> list:
     """The object folders to score. A folder with views but no calibration.h5 is one skip naming
     the file (an error with skips off); a calibration that lacks a key the views need is one error
     naming the file and key (every view of the object would fail the same way)."""
@@ -68,12 +68,13 @@ def _bigbird_objects(cfg, root, skips) -> list:
     return objs
 
 
-def _bigbird_jobs(cfg, root, skips, bar) -> Iterator:
-    from pipeline.scoring.features import CropJob, unit_circle
+def bigbird_jobs(cfg, root, skips, bar) -> Iterator:
+    from pipeline.method.geometry import project_unit_circle
+    from pipeline.scoring.features import CropJob
 
     f = cfg.features
     skip = skips.log("bigbird", "BigBIRD view")
-    objs = _bigbird_objects(cfg, root, skips)
+    objs = bigbird_objects(cfg, root, skips)
     bar.reset(total=sum(len(o.views(f.bigbird_cameras)) for o in objs))
     for o in objs:
         seen = 0
@@ -81,19 +82,19 @@ def _bigbird_jobs(cfg, root, skips, bar) -> Iterator:
             seen += 1
             bar.update(1)
             x, y, z = (float(v) for v in rec.pose[:3, 3])
-            ux, uy = unit_circle(np.array([x]), np.array([y]))
+            ux, uy = project_unit_circle(np.array([x, y]), what=f"camera of {rec.view.image_path}")
             v = rec.view
             yield CropJob(key=f"bigbird/{v.object}/NP{v.camera}_{v.angle}", image=rec.image, box=rec.box,
                           columns={"object": v.object, "camera": v.camera, "angle_deg": v.angle,
                                    "image": v.image_path.relative_to(root).as_posix(),
                                    "box_x0": rec.box[0], "box_y0": rec.box[1], "box_x1": rec.box[2],
                                    "box_y1": rec.box[3], "cam_x": x, "cam_y": y, "cam_z": z,
-                                   "u_x": float(ux[0]), "u_y": float(uy[0])})
+                                   "u_x": float(ux), "u_y": float(uy)})
         # Views skipped by the reader still count on the bar.
         bar.update(len(o.views(f.bigbird_cameras)) - seen)
 
 
-def _avd_jobs(cfg, scan, skips, bar) -> Iterator:
+def avd_jobs(cfg, scan, skips, bar) -> Iterator:
     from loaders.errors import BadInputError
     from pipeline.scoring.features import CropJob
 
@@ -129,27 +130,6 @@ def _avd_jobs(cfg, scan, skips, bar) -> Iterator:
                                    "heading": float(img.heading), "registered": bool(img.registered)})
 
 
-def viewpoint_spread(objects: np.ndarray, scores: np.ndarray, names: list[str]) -> dict:
-    """Per object: how much its deterministic scores move with the viewpoint (std over views)."""
-    out = {}
-    for obj in sorted(set(objects)):
-        s = scores[objects == obj].astype(np.float64)
-        if len(s) < 2:
-            continue
-        std = s.std(axis=0)
-        mean = s.mean(axis=0)
-        top = np.argsort(mean)[::-1][:4]
-        arg = s.argmax(1)
-        out[obj] = {"views": int(len(s)),
-                    "top_components": [names[i] for i in top],
-                    "top_mean": [round(float(mean[i]), 4) for i in top],
-                    "top_std": [round(float(std[i]), 4) for i in top],
-                    "max_std": round(float(std.max()), 4),
-                    "mean_std_top4": round(float(std[top].mean()), 4),
-                    "argmax_classes_seen": int(len(np.unique(arg)))}
-    return out
-
-
 @contextmanager
 def _scorer_released():
     from pipeline.scoring.features import forget_scorers
@@ -160,7 +140,7 @@ def _scorer_released():
         forget_scorers()
 
 
-def _scoring(ctx, executor, policy):
+def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
     from pipeline.scoring.classifier import load_classifier
     from pipeline.scoring.mc_dropout import MCDropoutScorer
@@ -187,7 +167,7 @@ def run(ctx) -> str:
     from loaders.avd import AVDScan
     from pipeline.scoring.crops import CropPolicy
     from pipeline.infra.executor import executor_for
-    from pipeline.scoring.features import build_table, metadata, score_jobs, write_table
+    from pipeline.scoring.features import build_table, metadata, score_jobs, viewpoint_spread, write_table
     from pipeline.infra.outputs import name as out_name
     from stages.data import data_roots
 
@@ -200,10 +180,10 @@ def run(ctx) -> str:
     # The scans first: their files (JSON, .mat, instance map) fail fast, before minutes of scoring.
     scans = [AVDScan(avd_root, name, skip=skips.log("avd", "AVD entry")) for name in cfg.data.scans]
     with executor_for(cfg) as ex, _scorer_released():
-        sm, card, gpu, device = _scoring(ctx, ex, policy)
+        sm, card, gpu, device = prepare_scoring(ctx, ex, policy)
         for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
             if card.get(key) is not None and card[key] != mine:
-                raise ValueError(f"{ctx.input('classifier') / 'card.json'}: classifier {key} {card[key]} differs "
+                raise ValueError(f"{ctx.input('classifier') / out_name('classifier', 'card')}: classifier {key} {card[key]} differs "
                                  f"from 'classifier.{key}' = {mine} (rerun the classifier stage)")
         names = list(card["output_names"])
         dim = len(names)
@@ -215,7 +195,7 @@ def run(ctx) -> str:
         # BigBIRD: the deterministic pass plus the dropout samples whose mean the GPs are trained on.
         t1 = time.perf_counter()
         with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
-            bb = score_jobs(_bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",
+            bb = score_jobs(bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",
                             n_samples=f.bigbird_samples, **common)
         det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
         write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
@@ -227,7 +207,7 @@ def run(ctx) -> str:
             def jobs():  # rows carry their scan
                 for scan in scans:
                     bar.set_description(f"features: AVD {scan.scan}")
-                    yield from _avd_jobs(cfg, scan, skips, bar)
+                    yield from avd_jobs(cfg, scan, skips, bar)
             av = score_jobs(jobs(), sm, policy, ex, what="AVD", n_samples=f.n_samples, **common)
         det_av, mc_av = av.arrays(dim, f.n_samples)
         write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))

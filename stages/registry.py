@@ -15,7 +15,6 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.infra.outputs import OUTPUTS
 
 PACKAGES = ("pipeline", "loaders", "stages", "reports")   # the project's import floors
 ROOT = Path(__file__).resolve().parents[1]                 # the source tree they live in
@@ -27,13 +26,8 @@ class StageSpec:
     module: str                          # has run(ctx) -> str (one-line summary)
     upstream: tuple[str, ...] = ()
     sections: tuple[str, ...] = ()       # config sections hashed into the key
-    code: tuple[str, ...] = ()           # extra modules hashed into the key (besides the derived ones)
     help: str = ""
     after: tuple[str, ...] = field(default=())  # stages run right after this one by the CLI
-
-    @property
-    def outputs(self) -> dict[str, str]:
-        return OUTPUTS.get(self.name, {})
 
 
 STAGES: dict[str, StageSpec] = {s.name: s for s in (
@@ -48,7 +42,8 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
                "evaluate.candidate_seed", "evaluate.ablations"),
               help="choose feature components and fit one GP per (class, component)"),
     StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate",),
-              help="build the AVD track and run the localization-error experiments", after=("report",)),
+              help="the population evaluation (targets x tracks x localization settings x methods, CIs, "
+                   "verdict) and the detailed track's experiments", after=("report",)),
     StageSpec("report", "stages.report", ("models", "evaluate"), ("report",),
               help="render the HTML + PNG report from existing results"),
     StageSpec("simulate", "stages.simulate", (), ("simulate",),
@@ -56,17 +51,6 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
 )}
 
 ORDER = ("data", "classifier", "features", "models", "evaluate", "report", "simulate")
-
-
-def output_name(stage: str, key: str) -> str:
-    """File name of a stage output, from the one declaration in ``pipeline.infra.outputs``."""
-    from pipeline.infra.outputs import name
-    return name(stage, key)
-
-
-def output_path(cfg, stage: str, key: str) -> Path:
-    """Final path of a stage output in the run folder."""
-    return cfg.stage_dir(stage) / output_name(stage, key)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -238,9 +222,9 @@ def _package_files(pkg: str) -> list[Path]:
 
 
 def code_version(spec: StageSpec) -> tuple[str, dict[str, str]]:
-    """(hash, {module: fingerprint of its code}) over the stage's derived and extra code modules
+    """(hash, {module: fingerprint of its code}) over the stage's derived code modules
     (``source_fingerprint``: comments and docstrings do not count)."""
-    mods = set(code_deps(spec.module)) | set(spec.code)
+    mods = set(code_deps(spec.module))
     per: dict[str, str] = {}
     for m in sorted(mods):
         path = _module_file(m)

@@ -22,5 +22,5 @@ def run(ctx) -> str:
     ctx.extra["figures"] = res.figures
     ctx.extra["sections"] = res.sections
     ctx.extra["notes"] = res.notes
-    final = cfg.stage_dir(ctx.stage) / "index.html"
-    return f"index.html + {len(res.figures)} figures; open {final}"
+    final = cfg.stage_dir(ctx.stage) / res.index.name
+    return f"{res.index.name} + {len(res.figures)} figures; open {final}"

@@ -27,7 +27,7 @@ from loaders.errors import SkipPolicy
 from loaders.files import set_max_megapixels
 from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, write_json
 from pipeline.infra.config import Config, to_dict
-from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.progress import echo
 from stages.registry import STAGES, StageSpec, code_version, defines
 from stages.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
@@ -223,6 +223,10 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         # leaving them out also keeps a moved artifacts folder valid.
         inputs = rec.records(exclude=cfg.run_dir)
         outputs = folder_records(tmp, skip=(MANIFEST, OWNER))
+        stray = undeclared(spec.name, outputs)
+        if stray:  # the catalog is the one list of what a stage writes
+            raise RuntimeError(f"stage {spec.name!r} wrote output(s) that pipeline/infra/outputs.py does not "
+                               f"declare: {', '.join(stray[:5])}")
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -261,15 +265,4 @@ def stage_timings(cfg: Config) -> dict[str, float]:
         m = read_manifest(cfg, name)
         if m:
             out[name] = m.get("seconds", float("nan"))
-    return out
-
-
-def stage_skips(cfg: Config) -> dict[str, dict]:
-    """{stage: {part: {skipped, reasons, examples}}} from the manifests (for the report)."""
-    out = {}
-    for name in STAGES:
-        m = read_manifest(cfg, name)
-        sk = (m or {}).get("extra", {}).get("skipped")
-        if sk:
-            out[name] = {k: v for k, v in sk.items() if v}
     return out

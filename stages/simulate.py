@@ -4,10 +4,11 @@ Fits the three hand-specified class models, runs every configured scenario over
 ``simulate.realizations`` realizations with all three methods, and writes into the stage folder:
 
 - ``results.parquet``: one row per (scenario, realization, step, method): posterior, P(truth),
-  log MGR, MSDE, correct; metadata: classes, truth, config hash, seed.
+  log10 MGR, MSDE, correct (written by ``pipeline.evaluation.results``, as evaluate's); metadata:
+  classes, truth, config hash, seed.
 - ``example.parquet``: the example realization's measurements per (scenario, step, component),
   with every class's GP mean/std along the track (the measurement figures).
-- ``summary.json``: the table (correct ratio, MGR 75%/95%, final/overall), the findings checks,
+- ``summary.json``: the table (every metric of ``pipeline.evaluation.metrics``), the findings checks,
   the paper's §5.3 claims checked (``claims``: statistic, 95 % CI, holds), the confident-error rate
   per step (``confident_errors``), the regime sweep over GP noise x σ_max (``sweep``, unless
   ``simulate.sweep = "off"``) and the claims re-run at full size where most of them hold
@@ -17,16 +18,13 @@ Fits the three hand-specified class models, runs every configured scenario over
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 
-import numpy as np
-import pandas as pd
-
 from pipeline.evaluation import simulation as S
 from pipeline.evaluation import sweep as SW
-from pipeline.infra.cache import atomic_path, write_json
+from pipeline.evaluation.results import frame, metadata, write_results
+from pipeline.infra.cache import write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
@@ -34,22 +32,6 @@ from reports.simulate_findings import findings
 from reports.simulate_report import build_simulate_report
 
 log = logging.getLogger("viewfuse.simulate")
-
-
-def write_parquet(df: pd.DataFrame, path, meta: dict[str, str], fixed_list: dict[str, int] | None = None) -> None:
-    """Atomic Parquet write with ``viewfuse.*`` metadata; listed columns as fixed-size float lists.
-    (The evaluate stage writes through ``pipeline.evaluation.results.write_results``; the simulation's tables
-    move there once ``pipeline.evaluation.simulation`` builds result blocks.)"""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    table = pa.Table.from_pandas(df, preserve_index=False)
-    for col, n in (fixed_list or {}).items():
-        arr = pa.array(df[col].map(lambda v: np.asarray(v, np.float64)).tolist(), type=pa.list_(pa.float64(), n))
-        table = table.set_column(table.schema.get_field_index(col), col, arr)
-    table = table.replace_schema_metadata({f"viewfuse.{k}": v for k, v in meta.items()})
-    with atomic_path(path) as tmp:
-        pq.write_table(table, tmp)
 
 
 def run(ctx) -> str:
@@ -74,30 +56,24 @@ def run(ctx) -> str:
         if other:
             log.warning("GP %s / component %d: %s", d["class"], d["component"], "; ".join(other))
 
-    frames, examples, posts = [], [], {}
+    blocks, examples, posts = [], [], {}
     with progress_bar(total=sim.realizations * len(sim.scenarios), desc="simulate", unit="realization") as bar:
         for scenario in sim.scenarios:
             t0 = time.perf_counter()
             res = S.run_scenario(models, scenario, sim, progress=bar.update)
-            frames.append(S.long_rows(res))
+            blocks.append(S.result_columns(res))
             posts[scenario] = res.posteriors
-            examples.append(S.example_rows(res, models))
+            examples.append(S.example_columns(res, models))
             timings[scenario] = time.perf_counter() - t0
-    df = pd.concat(frames, ignore_index=True)
-    ex = pd.concat(examples, ignore_index=True)
-    meta = {
-        "classes": json.dumps(list(sim.class_names)),
-        "truth": str(sim.truth_class - 1),
-        "config_hash": cfg.section_hash("simulate"),
-        "seed": str(sim.seed),
-    }
-    write_parquet(df, ctx.out / out_name("simulate", "results"), meta, {"posterior": S.N_CLASSES})
-    write_parquet(ex, ctx.out / out_name("simulate", "example"),
-                  {**meta, "example_realization": str(sim.example_realization)},
-                  {"class_mean": S.N_CLASSES, "class_std": S.N_CLASSES, "class_mean_est": S.N_CLASSES})
+    meta = dict(classes=list(sim.class_names), truth=str(sim.truth_class - 1),
+                config_hash=cfg.section_hash("simulate"), seed=str(sim.seed))
+    n_rows = write_results(blocks, ctx.out / out_name("simulate", "results"), metadata(**meta))
+    write_results(examples, ctx.out / out_name("simulate", "example"),
+                  metadata(**meta, example_realization=str(sim.example_realization)))
+    df, ex = frame(blocks, drop=("posterior",)), frame(examples)
 
     table = S.summarize(df)
-    found = findings(df, ex, sim.truth_class - 1, sim.confident_threshold)
+    found = findings(df, ex, sim.truth_class - 1, posts, sim.confident_threshold)
     block, t_claims = SW.claims_block(fitted, models, sim, posts)
     timings.update(t_claims)
     write_json(ctx.out / out_name("simulate", "summary"), {
@@ -118,7 +94,7 @@ def run(ctx) -> str:
     ctx.extra["figures"] = rep.figures
 
     took = time.perf_counter() - t_start
-    parts = [f"{len(sim.scenarios)} scenario(s) x {sim.realizations} realizations, {len(df)} rows",
+    parts = [f"{len(sim.scenarios)} scenario(s) x {sim.realizations} realizations, {n_rows} rows",
              f"paper claims holding: {sum(c['holds'] for c in block['claims'])} of {len(block['claims'])}"]
     for _, r in table.iterrows():
         parts.append(f"{r['scenario']}/{r['method']} correct(final)={r['correct_final']:.2f}")

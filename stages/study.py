@@ -12,7 +12,6 @@ distinguishable) for every (comparison, metric) of ``population.verdict_table``.
 from __future__ import annotations
 
 import dataclasses
-import html
 import json
 import logging
 import os
@@ -22,6 +21,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from pipeline.infra.cache import write_json, write_text
+from reports.study_page import entry_label, render_html
+from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import path as out_path
 
 log = logging.getLogger("viewfuse.study")
 
@@ -50,7 +52,7 @@ def share_data(cfg, scfg) -> None:
 
 
 def _finished(scfg) -> str | None:
-    p = scfg.stage_dir(CHAIN_END) / "manifest.json"
+    p = scfg.stage_dir(CHAIN_END) / MANIFEST
     try:
         return json.loads(p.read_text()).get("finished")
     except (FileNotFoundError, json.JSONDecodeError):
@@ -63,18 +65,18 @@ def seed_result(scfg, reused: bool) -> dict:
                            "classifier_accuracy_ci95": None,
                            "varying_fits": None, "varying_fits_at_bound": None,
                            "pooled": None, "verdict": None, "verdict_table": None}
-    card = scfg.stage_dir("classifier") / "card.json"
+    card = out_path(scfg.stage_dir("classifier"), "classifier", "card")
     if card.is_file():
         c = json.loads(card.read_text())
         out["classifier_accuracy"] = c.get("accuracy")
         out["classifier_accuracy_ci95"] = c.get("accuracy_ci95")
-    index = scfg.stage_dir("models") / "index.json"
-    if index.is_file():  # the GP-fit health of this seed's scores (issue: no varying fit at a bound)
+    index = out_path(scfg.stage_dir("models"), "models", "index")
+    if index.is_file():  # the GP-fit health of this seed's scores: no varying fit at a bound
         idx = json.loads(index.read_text())
         thr = float(idx.get("varying_std_threshold", 0.01))
         out["varying_fits"] = sum(1 for d in idx.get("diagnostics", []) if d.get("train_std", 0.0) > thr)
         out["varying_fits_at_bound"] = idx.get("varying_fits_at_bound")
-    summ = scfg.stage_dir(CHAIN_END) / "summary.json"
+    summ = out_path(scfg.stage_dir(CHAIN_END), CHAIN_END, "summary")
     if summ.is_file():
         pop = json.loads(summ.read_text()).get("population") or {}
         for k in ("pooled", "verdict", "verdict_table"):
@@ -88,7 +90,7 @@ def chain_seconds(scfg) -> dict[str, float | None]:
     out: dict[str, float | None] = {}
     for stage in CHAIN:
         try:
-            out[stage] = json.loads((scfg.stage_dir(stage) / "manifest.json").read_text()).get("seconds")
+            out[stage] = json.loads((scfg.stage_dir(stage) / MANIFEST).read_text()).get("seconds")
         except (FileNotFoundError, json.JSONDecodeError):
             out[stage] = None
     return out
@@ -136,18 +138,6 @@ def summarize(results: dict[int, dict]) -> dict:
             "missing": missing, "verdict_same": same, "sentence": sentence}
 
 
-def entry_label(key: str) -> str:
-    """'with_uncertainty-model_based / correct_final' -> 'With Uncertainty vs Model Based, correct
-    ratio, final step' (keys that are not (comparison / metric) are shown as they are)."""
-    from pipeline.evaluation.labels import method_label, metric_label
-
-    comp, _, metric = key.partition(" / ")
-    a, _, b = comp.partition("-")
-    if not metric or not b:
-        return key
-    return f"{method_label(a, short=True)} vs {method_label(b, short=True)}, {metric_label(metric)}"
-
-
 def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = False,
               ensure: Callable | None = None) -> dict:
     """Run (or reuse) every seed's chain, then write study/summary.json and study/index.html."""
@@ -170,82 +160,7 @@ def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = Fals
     summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2),
                             "chain_per_seed": {str(sd): chain_seconds(seed_config(cfg, sd)) for sd in cfg.study.seeds}}
     out = study_dir(cfg)
-    write_json(out / "summary.json", summary)
-    write_text(out / "index.html", render_html(summary, cfg.run.name))
-    print(f"[study] {summary['sentence']} -> {out / 'index.html'}", flush=True)
+    write_json(out_path(out, "study", "summary"), summary)
+    write_text(out_path(out, "study", "html"), render_html(summary, cfg.run.name))
+    print(f"[study] {summary['sentence']} -> {out_path(out, 'study', 'html')}", flush=True)
     return summary
-
-
-# -- the page ------------------------------------------------------------------------------------
-def _fmt(v: Any) -> str:
-    if v is None:
-        return "–"
-    if isinstance(v, float):
-        return f"{v:.3g}"
-    return html.escape(str(v))
-
-
-def _cell(entry: Any) -> str:
-    if not isinstance(entry, dict):
-        return _fmt(entry)
-    return f"{_fmt(entry.get('value'))} <small>[{_fmt(entry.get('ci_low'))}, {_fmt(entry.get('ci_high'))}]</small>"
-
-
-def _accuracy(seed: dict) -> str:
-    """Held-out top-1 with its 95 % CI over the held-out images, where the card has one."""
-    ci = seed.get("classifier_accuracy_ci95")
-    if not ci:
-        return _fmt(seed.get("classifier_accuracy"))
-    return _cell({"value": seed.get("classifier_accuracy"), "ci_low": ci[0], "ci_high": ci[1]})
-
-
-def render_html(summary: dict, run_name: str) -> str:
-    """One page: the answer (does the verdict hold across seeds), the outcome per entry and seed,
-    then the pooled values with their CIs and every seed's verdict sentences."""
-    from pipeline.evaluation.labels import method_label, metric_label, ordered_methods
-
-    seeds = [str(s) for s in summary["seeds"]]
-    per = summary["per_seed"]
-    head = "".join(f"<th>seed {s}</th>" for s in seeds)
-    out_rows = []
-    for k, row in summary["outcomes"].items():
-        cls = ' class="differs"' if k in summary["differs_on"] else ""
-        out_rows.append(f"<tr{cls}><td>{html.escape(entry_label(k))}</td>"
-                        + "".join(f"<td>{_fmt(row[s])}</td>" for s in seeds) + "</tr>")
-    rows = [f"<tr><td>classifier held-out top-1 <small>[95 % CI over the held-out images]</small></td>"
-            + "".join(f"<td>{_accuracy(per[s])}</td>" for s in seeds) + "</tr>",
-            "<tr><td>GP fits with varying scores (std over views &gt; 0.01) · at a bound</td>"
-            + "".join(f"<td>{_fmt(per[s].get('varying_fits'))} · {_fmt(per[s].get('varying_fits_at_bound'))}</td>"
-                      for s in seeds) + "</tr>"]
-    chain = (summary.get("timings_s") or {}).get("chain_per_seed") or {}
-    if chain:
-        rows.append("<tr><td>seconds to compute the chain (classifier + features + models + evaluate)</td>"
-                    + "".join(f"<td>{_fmt(sum(v for v in (chain.get(s) or {}).values() if v is not None) or None)}</td>"
-                              for s in seeds) + "</tr>")
-    pooled = [per[s].get("pooled") or {} for s in seeds]
-    methods = ordered_methods({m for p in pooled for m in p})
-    metrics = list(dict.fromkeys(k for p in pooled for d in p.values() for k in d))
-    for k in metrics:
-        for m in methods:
-            rows.append(f"<tr><td>{html.escape(metric_label(k))} · {html.escape(method_label(m, short=True))}</td>"
-                        + "".join(f"<td>{_cell((p.get(m) or {}).get(k))}</td>" for p in pooled) + "</tr>")
-    verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"
-                       + "".join(f"<li>{html.escape(v)}</li>" for v in (per[s].get("verdict") or ["(no verdict)"]))
-                       + "</ul>" for s in seeds)
-    return f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>viewfuse seed study: {html.escape(run_name)}</title>
-<style>body{{font-family:sans-serif;max-width:75em;margin:1em auto;line-height:1.4}}table{{border-collapse:collapse}}
-td,th{{border:1px solid #ccc;padding:.2em .5em;text-align:right}}td:first-child,th:first-child{{text-align:left}}
-tr.differs td{{background:#fde2e2}}small{{color:#666}}</style></head><body>
-<h1>Seed study: {html.escape(run_name)}</h1>
-<p><b>{html.escape(summary['sentence'])}</b></p>
-<p>Each seed trains the classifier again (classifier.seed) and reruns features, models and evaluate on the
-same data. An outcome is computed from the 95 % bootstrap CI of the paired difference over targets and tracks
-(better / worse: the CI excludes 0); rows where the seeds disagree are shaded.</p>
-<h2>Verdict per seed</h2><table><tr><th>comparison, metric</th>{head}</tr>{''.join(out_rows)}</table>
-<h2>Pooled values</h2>
-<p>Value with its 95 % bootstrap CI over targets, then tracks within targets; MGR as log10.</p>
-<table><tr><th>metric · method</th>{head}</tr>{''.join(rows)}</table>
-<h2>Verdict sentences</h2>{verdicts}
-</body></html>
-"""

@@ -16,10 +16,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 @pytest.fixture
 def tmp_config(tmp_path):
     """Factory: load the default config with overrides, artifacts under tmp_path."""
-    from pipeline.infra.config import _merge, load_config
+    from pipeline.infra.config import merge, load_config
 
     def make(overrides: dict | None = None):
-        over = _merge({"run": {"artifacts": str(tmp_path / "artifacts")}}, overrides or {})
+        over = merge({"run": {"artifacts": str(tmp_path / "artifacts")}}, overrides or {})
         return load_config(DEFAULT_CONFIG, over)
 
     return make

@@ -248,8 +248,8 @@ def run_episodes(method, episodes: Iterable[Episode], *, progress: bool = True,
                  return_posteriors: bool = False):
     """Run ``method`` over episodes (reset, then update per observation) and average the metrics.
 
-    Returns a flat dict: ``episodes``, ``steps``, and the means over episodes of prob_truth, msde,
-    log_mgr and correct, each ``*_final`` (last step) and ``*_overall`` (all steps of an episode,
+    Returns a flat dict: ``episodes``, ``steps``, and the means over episodes of the per-step columns
+    (``metrics.STEP_COLUMNS``: p_truth, log10_mgr, msde, correct), each ``*_final`` (last step) and ``*_overall`` (all steps of an episode,
     then over episodes). With ``return_posteriors`` also a list of (K, C) log posteriors.
     """
     from tqdm.auto import tqdm
@@ -273,7 +273,7 @@ def run_episodes(method, episodes: Iterable[Episode], *, progress: bool = True,
             track.append(method.log_posterior_.copy())
         lp = np.stack(track)                                   # (K, C)
         logs.append(lp)
-        m = _metrics.track_metrics(lp, truth, is_log=True)
+        m = _metrics.step_values(lp, truth, is_log=True)
         per_ep.append({f"{name}_{which}": float(v[-1] if which == "final" else np.mean(v))
                        for name, v in m.items() for which in ("final", "overall")})
     if not per_ep:

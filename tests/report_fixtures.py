@@ -6,7 +6,7 @@ The numbers are made up (a noisy random walk of the posterior toward the truth c
 easier for some targets than others), but the population statistics are computed from those
 rows the way the contract defines them (cells = (target, track, setting); bootstrap over tracks
 within targets and over targets), so the report is exercised exactly as on real results.
-``legacy=True`` writes an older run instead: natural-log ``log_mgr``, no population columns or key.
+``legacy=True`` writes an older run instead: no population columns or key.
 """
 from __future__ import annotations
 
@@ -101,9 +101,8 @@ def make_rows(rng, *, T: int, tracks: int, K: int, R: int, experiments, methods,
 
 def write_results(path: Path, rows: list[dict], seed: int, legacy: bool) -> None:
     table = pa.Table.from_pylist(rows, schema=SCHEMA)
-    if legacy:  # an older run: natural-log MGR, one target on one track, no population columns
-        ln = pa.compute.multiply(table.column("log10_mgr"), float(np.log(10.0)))
-        table = table.append_column("log_mgr", ln).drop(["log10_mgr", "variant", "target", "track", "candidates"])
+    if legacy:  # an older run: one target on one track, no population columns
+        table = table.drop(["variant", "target", "track", "candidates"])
     meta = {b"viewfuse.classes": json.dumps(list(CLASSES)).encode(), b"viewfuse.target": TARGET.encode(),
             b"viewfuse.config_hash": b"0" * 64, b"viewfuse.seed": str(seed).encode()}
     pq.write_table(table.replace_schema_metadata(meta), path)

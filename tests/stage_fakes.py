@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 import types
 
+import pipeline.infra.outputs as outputs
 import stages.cli as cli
 import stages.registry as registry
 import stages.runner as runner
@@ -28,7 +29,9 @@ def install(monkeypatch, graph: dict[str, tuple[str, ...]], behaviour: dict | No
             return f"wrote {name}"
         mod.run = run
         monkeypatch.setitem(sys.modules, mod.__name__, mod)
-        specs[name] = StageSpec(name, mod.__name__, tuple(ups), ("features",), ("pipeline.infra.config",))
+        specs[name] = StageSpec(name, mod.__name__, tuple(ups), ("features",))
+        # whatever a fake stage writes is declared in the catalog (the runner refuses the rest)
+        monkeypatch.setitem(outputs.CATALOG, name, {"any": outputs.Artifact("*", "folder", "tests.stage_fakes:install", None)})
     for target in (runner, registry, cli):
         monkeypatch.setattr(target, "STAGES", specs)
     monkeypatch.setattr(cli, "ORDER", tuple(specs))

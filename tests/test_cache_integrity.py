@@ -91,7 +91,7 @@ def test_the_avd_features_reader_names_file_and_row_of_bad_scores(tmp_path, bad,
 
 
 def test_the_training_views_reader_names_file_and_row_of_bad_scores(tmp_path):
-    from stages.models import FeaturesError, read_training_views
+    from pipeline.evaluation.model_bank import FeaturesError, read_training_views
 
     p = tmp_path / "bigbird.parquet"
     n = len(GOOD)

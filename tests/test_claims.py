@@ -262,8 +262,12 @@ def test_page_findings_use_the_shared_confident_error_definition():
     sim, models = tiny()
     sim = dataclasses.replace(sim, realizations=8, sigma_max=0.6)
     res = S.run_scenario(S.with_noise(models, 1e-5), "model_uncertainty", sim)
-    df = S.long_rows(res)
-    found = findings(df, df.iloc[:0].assign(component=[], class_mean=[]), res.truth, 0.99)
+    import pandas as pd
+    from pipeline.evaluation.results import frame
+
+    df = frame([S.result_columns(res)], drop=("posterior",))
+    ex = pd.DataFrame({"scenario": [], "step": [], "component": [], "class_mean": []})
+    found = findings(df, ex, res.truth, {"model_uncertainty": res.posteriors}, 0.99)
     for m, p in res.posteriors.items():
         with np.errstate(divide="ignore"):
             rate = M.confident_error_rate(np.log(p), res.truth, 0.99)

@@ -12,7 +12,7 @@ from loaders.bigbird import BigBirdObject, list_objects
 from loaders.errors import BadInputError
 from loaders.synthetic.avd_writer import plan_scan
 from loaders.synthetic.scene import scan_instances
-from pipeline.infra.config import _merge
+from pipeline.infra.config import merge
 from stages.data import data_roots, extra_key
 from stages.runner import ensure, read_manifest
 
@@ -32,7 +32,7 @@ def built(tmp_path_factory):
     from tests.conftest import DEFAULT_CONFIG
 
     art = tmp_path_factory.mktemp("art")
-    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(art)}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "data")
     return cfg
 
@@ -106,13 +106,13 @@ def test_rerun_is_skipped_and_force_rewrites(built, capsys):
 
 
 def test_output_does_not_depend_on_worker_count(built, tmp_config):
-    two = tmp_config(_merge(TINY, {"data": {"synthetic": {"workers": 2}}}))
+    two = tmp_config(merge(TINY, {"data": {"synthetic": {"workers": 2}}}))
     ensure(two, "data")
     a, b = _files(built.stage_dir("data")), _files(two.stage_dir("data"))
     assert a.keys() == b.keys()
     assert [k for k in a if a[k] != b[k]] == []
     # A different seed is a different data set, and a different cache key.
-    other = tmp_config(_merge(TINY, {"data": {"seed": 1}}))
+    other = tmp_config(merge(TINY, {"data": {"seed": 1}}))
     ensure(other, "data")
     assert read_manifest(other, "data")["key"] != read_manifest(built, "data")["key"]
     c = _files(other.stage_dir("data"))

@@ -108,7 +108,7 @@ def test_subset_orders_classes_and_save_load_round_trip(tmp_path):
 
 # -- the models stage ------------------------------------------------------------------------------
 def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
-    from stages.models import FeaturesError, dirichlet_from_features
+    from pipeline.evaluation.model_bank import FeaturesError, dirichlet_from_features
     from stages.registry import STAGES
     from stages.runner import read_manifest, run_stage, stage_key, stale_reason
     from tests.test_models_stage import CLASSES, mcfg, write_features

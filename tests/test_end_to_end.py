@@ -11,12 +11,12 @@ from tests.tiny_world import TINY
 
 @pytest.fixture(scope="module")
 def run_all(tmp_path_factory):
-    from pipeline.infra.config import _merge, load_config
+    from pipeline.infra.config import merge, load_config
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
     tmp = tmp_path_factory.mktemp("e2e")
-    cfg = load_config(DEFAULT_CONFIG, _merge({"run": {"artifacts": str(tmp / "artifacts"), "device": "cpu"}}, TINY))
+    cfg = load_config(DEFAULT_CONFIG, merge({"run": {"artifacts": str(tmp / "artifacts"), "device": "cpu"}}, TINY))
     keys: dict = {}
     ensure(cfg, "evaluate", device="cpu", _keys=keys)
     ensure(cfg, "report", device="cpu", _keys=keys)

@@ -7,7 +7,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.infra.config import _merge
+from pipeline.infra.config import merge
 from pipeline.scoring.crops import crop_box
 from pipeline.scoring.features import build_table, read_features
 
@@ -29,7 +29,7 @@ def chain(tmp_path_factory):
     from tests.conftest import DEFAULT_CONFIG
 
     art = tmp_path_factory.mktemp("feat") / "artifacts"
-    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(art)}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "features", device="cpu")
     return cfg
 
@@ -134,7 +134,7 @@ def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
     from tests.conftest import DEFAULT_CONFIG
 
     def cfg_with(over):
-        return load_config(DEFAULT_CONFIG, _merge(_merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
+        return load_config(DEFAULT_CONFIG, merge(merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
 
     def key(cfg):
         # Upstream digests planned, not run: the key the runner would compute now.
@@ -173,7 +173,7 @@ def test_weights_identity_is_in_the_key(chain, tmp_path):
 
 def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path):
     from loaders.errors import BadInputError, SkipPolicy
-    from stages.features import _bigbird_jobs
+    from stages.features import bigbird_jobs
     from stages.runner import ensure, read_manifest
 
     # A copy of the run with one corrupt BigBIRD image; the data stage's manifest still matches.
@@ -181,7 +181,7 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
     shutil.copytree(chain.run_dir, art / chain.run.name)
     from pipeline.infra.config import load_config
     from tests.conftest import DEFAULT_CONFIG
-    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(art)}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "features", device="cpu", force=True)
     a = read_features(chain.stage_dir("features") / "avd.parquet")[1]
     b = read_features(cfg.stage_dir("features") / "avd.parquet")[1]
@@ -210,7 +210,7 @@ def test_rerun_is_deterministic_and_a_bad_view_is_a_counted_skip(chain, tmp_path
         def reset(self, total): pass
         def update(self, n): pass
     with pytest.raises(BadInputError, match="NP1_60.jpg"):
-        list(_bigbird_jobs(cfg, cfg.stage_dir("data") / "bigbird", SkipPolicy(False), Bar()))
+        list(bigbird_jobs(cfg, cfg.stage_dir("data") / "bigbird", SkipPolicy(False), Bar()))
 
 
 def test_build_table_checks_shapes_and_orders_passes():
@@ -242,7 +242,7 @@ def test_object_and_instance_selection_keys_are_checked(chain):
     from loaders.errors import SkipPolicy
     from pipeline.infra.config import load_config
     from stages.data import data_roots
-    from stages.features import _avd_jobs, _bigbird_jobs
+    from stages.features import avd_jobs, bigbird_jobs
     from tests.conftest import DEFAULT_CONFIG
 
     class Bar:
@@ -251,16 +251,16 @@ def test_object_and_instance_selection_keys_are_checked(chain):
         def update(self, n): pass
 
     def cfg_with(over):
-        return load_config(DEFAULT_CONFIG, _merge(_merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
+        return load_config(DEFAULT_CONFIG, merge(merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
 
     bb, avd = data_roots(chain)
     one = sorted(chain.data.synthetic.instances)[1]
-    jobs = list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": [one]}}), bb, SkipPolicy(False), Bar()))
+    jobs = list(bigbird_jobs(cfg_with({"features": {"bigbird_objects": [one]}}), bb, SkipPolicy(False), Bar()))
     assert len(jobs) == 6 and {j.columns["object"] for j in jobs} == {one}
     with pytest.raises(ValueError, match="'features.bigbird_objects' names 'nope'"):
-        list(_bigbird_jobs(cfg_with({"features": {"bigbird_objects": ["nope"]}}), bb, SkipPolicy(False), Bar()))
+        list(bigbird_jobs(cfg_with({"features": {"bigbird_objects": ["nope"]}}), bb, SkipPolicy(False), Bar()))
     scan = AVDScan(avd, chain.data.scans[0])
-    jobs = list(_avd_jobs(cfg_with({"features": {"avd_instances": [one], "max_difficulty": 3}}), scan, SkipPolicy(False), Bar()))
+    jobs = list(avd_jobs(cfg_with({"features": {"avd_instances": [one], "max_difficulty": 3}}), scan, SkipPolicy(False), Bar()))
     assert {j.columns["instance"] for j in jobs} <= {one} and all(j.columns["difficulty"] <= 3 for j in jobs)
     with pytest.raises(ValueError, match="'features.avd_instances' names 'nope'"):
-        list(_avd_jobs(cfg_with({"features": {"avd_instances": ["nope"]}}), scan, SkipPolicy(False), Bar()))
+        list(avd_jobs(cfg_with({"features": {"avd_instances": ["nope"]}}), scan, SkipPolicy(False), Bar()))

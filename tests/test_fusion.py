@@ -130,8 +130,8 @@ def test_run_episodes_flat_metrics():
     out = run_episodes(ModelWithUncertainty(models), ep, progress=False, return_posteriors=True)
     post = fuse_with_uncertainty(models, samples, dropout)
     assert out["episodes"] == 2 and out["steps"] == 8
-    assert out["prob_truth_final"] == pytest.approx((post[-1, 0] + post[-1, 2]) / 2)
-    assert out["prob_truth_overall"] == pytest.approx((post[:, 0].mean() + post[:, 2].mean()) / 2)
+    assert out["p_truth_final"] == pytest.approx((post[-1, 0] + post[-1, 2]) / 2)
+    assert out["p_truth_overall"] == pytest.approx((post[:, 0].mean() + post[:, 2].mean()) / 2)
     best = post.argmax(-1)
     assert out["correct_overall"] == pytest.approx(((best == 0).mean() + (best == 2).mean()) / 2)
     np.testing.assert_allclose(np.exp(out["log_posteriors"][0]), post, atol=TOL)

@@ -9,7 +9,7 @@ import pytest
 from pipeline.method.components import choose_components
 from pipeline.infra.config import ModelsConfig
 from pipeline.method.gp import GPClassModels
-from stages.models import FeaturesError, fit_from_features
+from pipeline.evaluation.model_bank import FeaturesError, fit_from_features
 from stages.registry import STAGES
 from stages.runner import read_manifest, run_stage
 

@@ -3,7 +3,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.evaluation.labels import METRICS
+from pipeline.evaluation.metrics import METRICS
 from pipeline.evaluation.popstats import hierarchical, paired_differences, population_block, verdict
 
 MET = list(METRICS)
@@ -22,7 +22,7 @@ def population(rng, n_targets=8, n_tracks=6, settings=2, effect=0.0, methods=("a
                 for m in methods:
                     shift = effect if m == "a" else 0.0
                     row = {"target": f"t{t}", "track": j, "setting": f"s{s}", "method": m}
-                    for k, (_, higher) in METRICS.items():
+                    for k, higher in ((k, m.higher_is_better) for k, m in METRICS.items()):
                         row[k] = base + (shift if higher else -shift)
                     rows.append(row)
     return pd.DataFrame(rows)

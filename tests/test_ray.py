@@ -15,7 +15,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.infra.config import _merge
+from pipeline.infra.config import merge
 from pipeline.infra.executor import LocalExecutor, TransientError, make_executor, task_cpus
 from tests.tiny_world import TINY as TINY_WORLD
 
@@ -30,7 +30,7 @@ needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray not installed (pip inst
 # that does not divide the crops.
 SIX = ["aunt_jemima_original_syrup", "cholula_chipotle_hot_sauce", "crystal_hot_sauce",
        "honey_bunches_of_oats_honey_roasted", "mahatma_rice", "pepto_bismol"]
-TINY = _merge(TINY_WORLD, {
+TINY = merge(TINY_WORLD, {
     "data": {"synthetic": {"instances": SIX, "angle_step_deg": 45, "bigbird_width": 160, "bigbird_height": 128,
                            "avd_width": 320, "avd_height": 180, "room_size_m": [2.4, 2.1], "grid_step_m": 0.45,
                            "distractors": 2, "workers": 1}},
@@ -164,7 +164,7 @@ def upstream(tmp_path_factory):
     from tests.conftest import DEFAULT_CONFIG
 
     base = tmp_path_factory.mktemp("ray") / "base"
-    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(base), "device": "cpu"}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {"artifacts": str(base), "device": "cpu"}}))
     ensure(cfg, "classifier", device="cpu")
     ensure(cfg, "data", device="cpu")
     return base
@@ -178,7 +178,7 @@ def _run(upstream, name, stage, executor):
     art = upstream.parent / name
     if not art.exists():
         shutil.copytree(upstream, art)
-    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {
         "artifacts": str(art), "device": "cpu", "executor": executor, "ray_workers": 2}}))
     ensure(cfg, stage, device="cpu")
     return cfg
@@ -253,15 +253,15 @@ def test_scoring_goes_to_cluster_gpus_unless_the_device_is_cpu(upstream):
 
     from pipeline.scoring.crops import CropPolicy
     from pipeline.infra.config import load_config
-    from stages.features import _scoring
+    from stages.features import prepare_scoring
     from tests.conftest import DEFAULT_CONFIG
 
-    cfg = load_config(DEFAULT_CONFIG, _merge(TINY, {"run": {"artifacts": str(upstream)}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(TINY, {"run": {"artifacts": str(upstream)}}))
     policy = CropPolicy.from_config(cfg)
 
     def choose(request, gpus):
         ctx = SimpleNamespace(device_request=request, input=cfg.stage_dir)
-        return _scoring(ctx, SimpleNamespace(name="ray", gpus=gpus), policy)
+        return prepare_scoring(ctx, SimpleNamespace(name="ray", gpus=gpus), policy)
 
     sm, card, gpu, _ = choose("auto", 2)
     assert (sm.device, gpu) == ("cuda", True) and sm.key.endswith("@cuda")

@@ -342,7 +342,7 @@ def test_names_say_what_they_are_and_run_details_show_skips(rendered_run):
 # -- older runs, partial runs, bad input ---------------------------------------------------------
 def test_an_older_run_says_it_has_no_verdict_and_still_shows_log10(tmp_path):
     facts = write_fake_run(tmp_path / "run", legacy=True, experiments=("randomized",), K=3, R=4)
-    assert "log_mgr" in pq.read_schema(facts["evaluate"] / "results.parquet").names
+    assert "target" not in pq.read_schema(facts["evaluate"] / "results.parquet").names
     res = build_main_report(facts["run"], tmp_path / "out", dpi=40, progress=False, n_boot=50)
     page = parse(res.index)
     assert page.sections[0] == "verdict" and "population" not in page.sections
@@ -361,6 +361,15 @@ def test_sections_appear_only_for_existing_outputs(tmp_path):
     assert sorted(res.figures) == ["biased_ptruth.png", "track.png"]
     assert not {"randomized", "bias-maps", "gp", "sensitivity"} & set(page.sections)
     assert "models/index.json not found" in res.index.read_text()
+
+
+def test_a_natural_log_mgr_table_is_refused_naming_the_file(tmp_path):
+    facts = write_fake_run(tmp_path / "run", experiments=("randomized",), T=1, tracks=1, R=3, K=3, ablation=False)
+    path = facts["evaluate"] / "results.parquet"
+    t = pq.read_table(path)
+    pq.write_table(t.rename_columns(["log_mgr" if c == "log10_mgr" else c for c in t.column_names]), path)
+    with pytest.raises(BadInputError, match=r"results\.parquet: missing column\(s\) log10_mgr"):
+        build_main_report(facts["run"], tmp_path / "out", dpi=40, progress=False)
 
 
 def test_infinite_log_mgr_is_drawn_and_reported(tmp_path):

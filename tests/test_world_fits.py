@@ -37,14 +37,14 @@ def hue_scores(rgb: np.ndarray, mask: np.ndarray, bins: int = 12, temperature: f
 def fits(tmp_path_factory):
     from loaders.bigbird import BigBirdObject
     from pipeline.method.components import choose_components
-    from pipeline.infra.config import _merge, load_config
+    from pipeline.infra.config import merge, load_config
     from pipeline.method.gp_fit import fit_class_models
     from stages.data import data_roots
     from stages.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
     art = tmp_path_factory.mktemp("world") / "artifacts"
-    cfg = load_config(DEFAULT_CONFIG, _merge(SMALL, {"run": {"artifacts": str(art)}}))
+    cfg = load_config(DEFAULT_CONFIG, merge(SMALL, {"run": {"artifacts": str(art)}}))
     ensure(cfg, "data")
     bb, _ = data_roots(cfg)
     X, S = [], []

@@ -1,6 +1,6 @@
 """The tiny configuration the whole-chain tests share (test_end_to_end, test_ray): one scan, small
 images, a one-epoch classifier and a small population with one ablation. Tests that need it even
-smaller merge their changes on top (``pipeline.infra.config._merge``)."""
+smaller merge their changes on top (``pipeline.infra.config.merge``)."""
 
 TINY = {
     "data": {"scans": ["Home_001_1"],

@@ -182,7 +182,7 @@ def _noise_bank(seed: int, size: int) -> np.ndarray:
     return bank
 
 
-def _capture(rgb: np.ndarray, nz: Nuisance, rng: np.random.Generator) -> np.ndarray:
+def capture(rgb: np.ndarray, nz: Nuisance, rng: np.random.Generator) -> np.ndarray:
     """Auto-exposure (the gain pulls the mean brightness towards mid-grey, with some jitter, as a
     consumer camera's AE does) and, on some frames, a motion-blur streak along a random direction
     (the robot turning or braking)."""
@@ -207,7 +207,7 @@ def render_shot(plan: ScanPlan, shot: Shot):
     rng = rng_for(plan.seed, "avd-noise", shot.name)
     n = res.rgb.size
     off = int(rng.integers(0, 3 * n))
-    rgb = _capture(res.rgb, plan.nuisance, rng)
+    rgb = capture(res.rgb, plan.nuisance, rng)
     noise = _noise_bank(plan.seed, n)[off:off + n].reshape(res.rgb.shape)
     return cv2.add(rgb, noise, dtype=cv2.CV_8U), res.ids
 

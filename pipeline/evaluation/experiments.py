@@ -165,22 +165,9 @@ def single_view_first(models, track: TrackData, truth: int, *, var_floor: float 
 
 
 def summarize(posts: dict[str, np.ndarray], truth: int) -> dict[str, dict[str, float]]:
-    """The paper's Tables 1-2 per method: correct ratio and MGR 75%/95%, final step and overall.
-
-    MGR is reported as the ratio max_c P(c) / P(truth) (1 = truth most likely), i.e. exp of the
-    percentile of log MGR, and as its log10 (see ``metrics.mgr_fields``). ``posts`` maps method ->
-    log posteriors (R, K, C).
-    """
-    out = {}
-    for method, p in posts.items():
-        row = M.summary_row(p, truth, is_log=True)
-        lm = M.log_mgr(p, truth, is_log=True)
-        out[method] = {
-            "correct_final": row["correct_final"],
-            "correct_overall": row["correct_overall"],
-            **M.mgr_percentile_fields(lm[:, -1], lm),
-            "prob_truth_final": row["prob_truth_final"],
-            "msde_final": row["msde_final"],
-            "n_realizations": int(p.shape[0]),
-        }
-    return out
+    """The single-track tables per method (the paper's Tables 1-2 and more): every metric of
+    ``pipeline.evaluation.metrics.METRICS`` over the realizations, each log10 MGR also as the
+    ratio max_c P(c) / P(truth) (``metrics.with_mgr_ratios``). ``posts`` maps method -> log
+    posteriors (R, K, C)."""
+    return {method: {**M.with_mgr_ratios(M.posterior_metrics(p, truth, is_log=True)),
+                     "n_realizations": int(p.shape[0])} for method, p in posts.items()}

@@ -1,4 +1,5 @@
 """Method keys, display names and colours: the one place every stage, table and figure reads them.
+(Metric keys and labels live in ``pipeline.evaluation.metrics``.)
 
 Colours are from the Okabe-Ito colour-blind-safe palette; class colours (``CLASS_COLORS``) use
 hues that no method uses, so a method and a class never share a colour on one page.
@@ -37,30 +38,6 @@ def present_comparisons(keys) -> list[tuple[str, str]]:
 CLASS_COLORS = ("#E69F00", "#56B4E9", "#661100", "#F0E442", "#000000", "#999999",
                 "#882255", "#44AA99", "#AA4499", "#117733", "#DDCC77", "#332288")
 
-# Population metrics: key -> (label, True when larger is better).
-METRICS = {
-    "correct_final": ("correct ratio, final step", True),
-    "correct_overall": ("correct ratio, all steps", True),
-    "prob_truth_final": ("P(truth), final step", True),
-    "msde_final": ("MSDE, final step", False),
-    "log10_mgr75_final": ("log10 MGR 75th percentile, final step", False),
-    "log10_mgr95_final": ("log10 MGR 95th percentile, final step", False),
-    "log10_mgr75_overall": ("log10 MGR 75th percentile, all steps", False),
-    "log10_mgr95_overall": ("log10 MGR 95th percentile, all steps", False),
-}
-MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
-
-# Short metric names for table headers (the long ones above are for sentences and captions).
-METRIC_SHORT = {
-    "correct_final": "correct, final",
-    "correct_overall": "correct, all steps",
-    "prob_truth_final": "P(truth), final",
-    "msde_final": "MSDE, final",
-    "log10_mgr75_final": "log10 MGR 75%, final",
-    "log10_mgr95_final": "log10 MGR 95%, final",
-    "log10_mgr75_overall": "log10 MGR 75%, all steps",
-    "log10_mgr95_overall": "log10 MGR 95%, all steps",
-}
 UNKNOWN_COLOR = "#555555"
 
 
@@ -81,12 +58,6 @@ def ordered_methods(present) -> list[str]:
 
 def class_colors(n: int) -> list[str]:
     return [CLASS_COLORS[i % len(CLASS_COLORS)] for i in range(n)]
-
-
-def metric_label(key: str, short: bool = False) -> str:
-    if short:
-        return METRIC_SHORT.get(key, key)
-    return METRICS[key][0] if key in METRICS else key
 
 
 def comparison_label(key: str, short: bool = True) -> str:

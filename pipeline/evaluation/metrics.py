@@ -1,18 +1,37 @@
-"""Classification metrics of the paper's §5.1 over posteriors after every step.
+"""The metric specification: every classification metric of the paper's §5.1, computed here only.
 
-Posteriors are arrays (..., C) (probabilities, or log probabilities with ``is_log=True``); ``truth``
-is the ground-truth class index (an int, or an integer array broadcastable to the leading shape).
-- ``prob_truth``: P(c_gt | H).
-- ``msde``: (1/C) Σ_c (P(c|H) - 1[c = c_gt])² (paper Eq. 44).
-- ``log_mgr``: ln(max_c P(c) / P(c_gt)); 0 when the truth is the most likely class.
-- ``correct``: argmax = truth (ties go to the lowest class index, as ``numpy.argmax``);
-  ``correct_ratio`` gives the final (last step) and overall (all steps) ratios.
+Two levels, each a registry where adding a metric is one entry:
+
+- ``STEP_COLUMNS``: per-step quantities of one posterior (..., C) against the truth, the columns of
+  every results table (``pipeline.evaluation.results``):
+  ``p_truth`` P(c_gt | H); ``log10_mgr`` log10(max_c P(c) / P(c_gt)) (0 when the truth is the
+  most likely class; the only MGR base anywhere); ``msde`` (1/C) Σ_c (P(c|H) - 1[c = c_gt])²
+  (paper Eq. 44); ``correct`` argmax = truth (ties go to the lowest class index, as
+  ``numpy.argmax``).
+- ``METRICS``: what a cell, a track table or a simulation scenario reports: a ``Metric`` reduces
+  per-step columns of realizations × steps (R, K) to one number, with its labels, direction,
+  bounds and how cells pool (``pipeline.evaluation.popstats``). ``compute`` applies every metric
+  at once, vectorized over leading axes (the reports' bootstrap resamples).
+
+Infinities: a truth probability of exactly 0 gives ``log10_mgr = +inf`` (from log posteriors it
+stays finite). ``percentile`` treats +inf as a value above every other: a percentile that
+interpolates toward it is +inf (one rule for every caller). Means propagate +inf. JSON writes
++inf as null (``pipeline.infra.cache.write_json``).
+
+Posteriors are arrays (..., C), probabilities or, with ``is_log=True``, log probabilities;
+``truth`` is a class index (an int, or an integer array broadcastable to the leading shape).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable, Mapping, Sequence
+
 import numpy as np
 
+LN10 = float(np.log(10.0))
 
+
+# -- per-step quantities ----------------------------------------------------------------------------
 def _post(post, is_log: bool) -> np.ndarray:
     p = np.asarray(post, dtype=float)
     if p.ndim < 1 or p.shape[-1] < 1:
@@ -46,8 +65,9 @@ def msde(post, truth, *, is_log: bool = False) -> np.ndarray:
 
 
 def log_mgr(post, truth, *, is_log: bool = False) -> np.ndarray:
-    """ln(max_c P(c) / P(c_gt)) >= 0. From log posteriors it stays finite where probabilities
-    underflow; from probabilities a zero P(c_gt) gives +inf."""
+    """ln(max_c P(c) / P(c_gt)) >= 0, the natural log ``log10_mgr`` is derived from. From log
+    posteriors it stays finite where probabilities underflow; from probabilities a zero P(c_gt)
+    gives +inf."""
     lp = np.asarray(post, dtype=float)
     if not is_log:
         with np.errstate(divide="ignore"):
@@ -61,6 +81,11 @@ def log_mgr(post, truth, *, is_log: bool = False) -> np.ndarray:
     return np.where(np.isnan(out), np.inf, out)  # -inf - -inf: truth impossible and so is all else
 
 
+def log10_mgr(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """log10(max_c P(c) / P(c_gt)): the MGR every table, figure and summary shows."""
+    return log_mgr(post, truth, is_log=is_log) / LN10
+
+
 def correct(post, truth, *, is_log: bool = False) -> np.ndarray:
     p = np.asarray(post, dtype=float)  # argmax is the same in log space
     if np.any(np.isnan(p)):
@@ -68,72 +93,160 @@ def correct(post, truth, *, is_log: bool = False) -> np.ndarray:
     return np.argmax(p, axis=-1) == _truth(truth, p)
 
 
-def correct_ratio(post_track, truth, *, is_log: bool = False) -> tuple[float, float]:
-    """(final, overall): share correct at the last step, and over all steps, of posteriors
-    (..., K, C) (leading axes = episodes/realizations)."""
-    ok = correct(post_track, truth if np.ndim(truth) == 0 else np.asarray(truth)[..., None], is_log=is_log)
-    return float(np.mean(ok[..., -1])), float(np.mean(ok))
+# Column name -> function (post, truth, is_log=) -> per-step values (...). Order = column order.
+STEP_COLUMNS: dict[str, Callable[..., np.ndarray]] = {
+    "p_truth": prob_truth,
+    "log10_mgr": log10_mgr,
+    "msde": msde,
+    "correct": correct,
+}
 
 
-def percentile(x, q) -> np.ndarray:
-    """Percentile (linear interpolation) that treats +inf as a value, not as NaN."""
-    x = np.asarray(x, dtype=float).ravel()
-    if x.size == 0:
-        return np.full(np.shape(q), np.nan)
-    big = np.finfo(float).max / 4
-    out = np.percentile(np.where(np.isinf(x), big, x), q)
-    return np.where(out >= big, np.inf, out)
+def step_values(post, truth, *, is_log: bool = False) -> dict[str, np.ndarray]:
+    """Every ``STEP_COLUMNS`` quantity of posteriors (..., C): arrays (...)."""
+    return {k: f(post, truth, is_log=is_log) for k, f in STEP_COLUMNS.items()}
 
 
-def track_metrics(post_track, truth, *, is_log: bool = False) -> dict[str, np.ndarray]:
-    """Per step metrics of posteriors (..., K, C): arrays (..., K) for prob_truth, msde, log_mgr,
-    correct."""
-    t = truth if np.ndim(truth) == 0 else np.asarray(truth)[..., None]
-    return {"prob_truth": prob_truth(post_track, t, is_log=is_log), "msde": msde(post_track, t, is_log=is_log),
-            "log_mgr": log_mgr(post_track, t, is_log=is_log), "correct": correct(post_track, t, is_log=is_log)}
+# -- the one percentile -----------------------------------------------------------------------------
+_BIG = np.finfo(float).max / 4   # +inf's stand-in: finite, so numpy interpolates instead of NaN
+_INF_ABOVE = 1e300               # any interpolation weight on the stand-in lands above this
 
 
-def summary_row(post_track, truth, *, is_log: bool = False) -> dict[str, float]:
-    """Flat scalars over realizations (R, K, C): the paper's Tables 1-2 (correct ratio and log MGR
-    75%/95% percentiles, final and overall) plus mean P(truth) and MSDE, final and over all steps."""
-    m = track_metrics(post_track, truth, is_log=is_log)
-    fin, ovr = correct_ratio(post_track, truth, is_log=is_log)
-    return {
-        "correct_final": fin, "correct_overall": ovr,
-        "log_mgr_p75_final": float(percentile(m["log_mgr"][..., -1], 75)),
-        "log_mgr_p95_final": float(percentile(m["log_mgr"][..., -1], 95)),
-        "log_mgr_p75_overall": float(percentile(m["log_mgr"], 75)),
-        "log_mgr_p95_overall": float(percentile(m["log_mgr"], 95)),
-        "prob_truth_final": float(np.mean(m["prob_truth"][..., -1])),
-        "prob_truth_overall": float(np.mean(m["prob_truth"])),
-        "msde_final": float(np.mean(m["msde"][..., -1])), "msde_overall": float(np.mean(m["msde"])),
-    }
+def percentile(x, q, axis: int | None = None) -> np.ndarray:
+    """Linear-interpolation percentile (``numpy.percentile``) that keeps +inf as a value: a
+    result that interpolates toward an infinite entry is +inf. ``axis=None`` flattens."""
+    x = np.asarray(x, dtype=float)
+    if axis is None:
+        x = x.ravel()
+        if x.size == 0:
+            return np.full(np.shape(q), np.nan)
+    out = np.percentile(np.where(np.isposinf(x), _BIG, x), q, axis=-1 if axis is None else axis)
+    return np.where(out > _INF_ABOVE, np.inf, out)
 
 
-# exp() of a natural log above this overflows float64; such an MGR is kept only as log10.
-_LN_MAX = float(np.log(np.finfo(float).max))
+# -- aggregate metrics -------------------------------------------------------------------------------
+def mean_of(x: np.ndarray) -> np.ndarray:
+    return x.mean(axis=-1)
 
 
-def mgr_fields(log_mgr: float, suffix: str) -> dict[str, float | None]:
-    """``mgr<suffix>`` as a ratio (None where it overflows float64) and ``log10_mgr<suffix>``.
-
-    Model Based can be wrong with a truth probability of 1e-3000: that is still a number in log
-    space, and JSON has no infinity, so the log10 is always written and the ratio when it fits.
-    """
-    lm = float(log_mgr)
-    if np.isnan(lm):  # no values: stays "not available"
-        return {f"mgr{suffix}": lm, f"log10_mgr{suffix}": lm}
-    return {f"mgr{suffix}": float(np.exp(lm)) if lm < _LN_MAX else None,
-            f"log10_mgr{suffix}": lm / float(np.log(10.0)) if np.isfinite(lm) else None}
+def percentile_of(q: float) -> Callable[[np.ndarray], np.ndarray]:
+    def reduce(x: np.ndarray) -> np.ndarray:
+        return percentile(x, q, axis=-1)
+    reduce.__name__ = f"percentile_{q:g}"
+    return reduce
 
 
-def mgr_percentile_fields(log_mgr_final, log_mgr_all) -> dict[str, float | None]:
-    """The paper's table MGR entries: 75th/95th percentiles of log MGR at the final step and over
-    all steps, each as ``mgr<q>_<where>`` and ``log10_mgr<q>_<where>`` (see ``mgr_fields``)."""
+@dataclass(frozen=True)
+class Metric:
+    """One reported metric: ``reduce`` maps the values of ``column`` over realizations (final
+    step) or over realizations × steps (all steps), flattened on the last axis, to one number.
+    A metric of several per-step columns (a calibration error needs confidence and correctness)
+    names them as a tuple; ``reduce`` then gets one array per column, in that order.
+    ``best``/``worst`` are the attainable extremes (None: unbounded that way); cells where both
+    methods of a comparison sit at one cannot tell them apart. Cells pool by ``pool``."""
+    label: str                       # for sentences and captions
+    short: str                       # for table headers
+    higher_is_better: bool
+    column: str | tuple[str, ...]    # ``STEP_COLUMNS`` key(s)
+    steps: str                       # "final" | "all"
+    reduce: Callable[[np.ndarray], np.ndarray]
+    best: float | None = None
+    worst: float | None = None
+    pool: str = "mean"               # over settings within a track, tracks within a target, targets
+
+    @property
+    def bounded(self) -> bool:
+        return self.best is not None and self.worst is not None
+
+
+METRICS: dict[str, Metric] = {
+    "correct_final": Metric("correct ratio, final step", "correct, final", True, "correct", "final", mean_of,
+                            best=1.0, worst=0.0),
+    "correct_overall": Metric("correct ratio, all steps", "correct, all steps", True, "correct", "all", mean_of,
+                              best=1.0, worst=0.0),
+    "prob_truth_final": Metric("P(truth), final step", "P(truth), final", True, "p_truth", "final", mean_of,
+                               best=1.0, worst=0.0),
+    "msde_final": Metric("MSDE, final step", "MSDE, final", False, "msde", "final", mean_of, best=0.0),
+    "log10_mgr75_final": Metric("log10 MGR 75th percentile, final step", "log10 MGR 75%, final", False,
+                                "log10_mgr", "final", percentile_of(75), best=0.0),
+    "log10_mgr95_final": Metric("log10 MGR 95th percentile, final step", "log10 MGR 95%, final", False,
+                                "log10_mgr", "final", percentile_of(95), best=0.0),
+    "log10_mgr75_overall": Metric("log10 MGR 75th percentile, all steps", "log10 MGR 75%, all steps", False,
+                                  "log10_mgr", "all", percentile_of(75), best=0.0),
+    "log10_mgr95_overall": Metric("log10 MGR 95th percentile, all steps", "log10 MGR 95%, all steps", False,
+                                  "log10_mgr", "all", percentile_of(95), best=0.0),
+}
+POOLS = ("mean",)
+MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
+
+
+def metric_label(key: str, short: bool = False) -> str:
+    """A metric's label (``short`` for table headers); an unknown key is shown as itself."""
+    m = METRICS.get(key)
+    return key if m is None else m.short if short else m.label
+
+
+def higher_is_better(key: str) -> bool:
+    """The metric's direction; an unknown key (a newer summary) reads as higher-is-better."""
+    m = METRICS.get(key)
+    return True if m is None else m.higher_is_better
+
+
+def compute(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """Metrics of per-step values (..., R, K) per column (realizations × steps): arrays (...)."""
+    out = {}
+    for k in METRICS if keys is None else keys:
+        m = METRICS[k]
+        cols = (m.column,) if isinstance(m.column, str) else m.column
+        xs = []
+        for c in cols:
+            x = np.asarray(values[c])
+            xs.append((x[..., -1] if m.steps == "final" else x.reshape(*x.shape[:-2], -1)).astype(float))
+        out[k] = m.reduce(*xs)
+    return out
+
+
+def scalars(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None) -> dict[str, float]:
+    """``compute`` for one set of (R, K) values: plain floats."""
+    return {k: float(v) for k, v in compute(values, keys).items()}
+
+
+def posterior_metrics(post, truth, *, is_log: bool = False) -> dict[str, float]:
+    """Every metric of posteriors over realizations × steps (R, K, C)."""
+    return scalars(step_values(post, truth, is_log=is_log))
+
+
+def matrices(df, columns: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """(R, K) matrices, realizations × steps (NaN where absent), of one group of long result rows
+    (one method of one setting or scenario) for each per-step column."""
+    import pandas as pd
+
+    r_codes, r_vals = pd.factorize(df["realization"], sort=True)
+    k_codes, k_vals = pd.factorize(df["step"], sort=True)
+    out = {}
+    for col in STEP_COLUMNS if columns is None else columns:
+        m = np.full((len(r_vals), len(k_vals)), np.nan)
+        m[r_codes, k_codes] = df[col].to_numpy(float)
+        out[col] = m
+    return out
+
+
+# exp() of a log10 above this overflows float64; such an MGR is kept only as log10.
+_LOG10_MAX = float(np.log10(np.finfo(float).max))
+
+
+def with_mgr_ratios(row: Mapping[str, float]) -> dict[str, float | None]:
+    """``row`` plus, beside each ``log10_mgr<q>_<where>``, the ratio ``mgr<q>_<where>`` (None where
+    it overflows float64); an infinite log10 becomes None (JSON has no infinity)."""
     out: dict[str, float | None] = {}
-    for where, x in (("final", log_mgr_final), ("overall", log_mgr_all)):
-        for q in (75, 95):
-            out.update(mgr_fields(float(percentile(x, q)), f"{q}_{where}"))
+    for k, v in row.items():
+        if k.startswith("log10_mgr"):
+            v = float(v)
+            ratio = v if np.isnan(v) else float(10.0 ** v) if v < _LOG10_MAX else None
+            out[k.removeprefix("log10_")] = ratio
+            out[k] = v if not np.isinf(v) else None
+        else:
+            out[k] = v
     return out
 
 

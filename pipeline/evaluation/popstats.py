@@ -17,7 +17,8 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.labels import METHOD_SHORT, METRICS, comparison_key
+from pipeline.evaluation.labels import METHOD_SHORT, comparison_key
+from pipeline.evaluation.metrics import METRICS, percentile
 
 
 def wilson_interval(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -38,7 +39,7 @@ def _boot_means(x: np.ndarray, n_boot: int, n_slots: int, rng: np.random.Generat
 
 
 def _interval(samples: np.ndarray) -> tuple[float, float]:
-    lo, hi = np.percentile(samples, [50 * (1 - LEVEL), 50 * (1 + LEVEL)])
+    lo, hi = percentile(samples, [50 * (1 - LEVEL), 50 * (1 + LEVEL)])
     return float(lo), float(hi)
 
 
@@ -124,7 +125,7 @@ def paired_differences(cells: pd.DataFrame, method: str, baseline: str, metrics:
     tv = track_values(diff, metrics)
     want_targets, pooled, per_target = per_target, {}, {}
     for ki, k in enumerate(metrics):
-        higher = METRICS[k][1]
+        higher = METRICS[k].higher_is_better
         d = diff[k].to_numpy(float)
         names, groups = _groups(tv, k)
         est = hierarchical(groups, n_boot, [seed, 2, ki])
@@ -137,19 +138,13 @@ def paired_differences(cells: pd.DataFrame, method: str, baseline: str, metrics:
     return pooled, per_target
 
 
-# Best and worst possible value of each metric: cells where both methods sit there cannot tell
-# the methods apart (a ceiling or floor effect).
-_BEST = {"correct_final": 1.0, "correct_overall": 1.0, "prob_truth_final": 1.0, "msde_final": 0.0,
-         "log10_mgr75_final": 0.0, "log10_mgr95_final": 0.0, "log10_mgr75_overall": 0.0, "log10_mgr95_overall": 0.0}
-_WORST = {"correct_final": 0.0, "correct_overall": 0.0, "prob_truth_final": 0.0}
-
-
 def saturation(cells: pd.DataFrame, method: str, baseline: str, metric: str) -> tuple[int, int]:
-    """(cells where both methods are at the metric's best value, cells where both are at its worst)."""
+    """(cells where both methods are at the metric's best value, cells where both are at its worst):
+    those cannot tell the methods apart (a ceiling or floor effect; ``Metric.best``/``worst``)."""
     keys = ["target", "track", "setting"]
     a = cells[cells["method"] == method].set_index(keys)[metric]
     b = cells[cells["method"] == baseline].set_index(keys)[metric].reindex(a.index)
-    best, worst = _BEST.get(metric), _WORST.get(metric)
+    best, worst = METRICS[metric].best, METRICS[metric].worst
     both_best = int(((np.abs(a - best) < 1e-12) & (np.abs(b - best) < 1e-12)).sum()) if best is not None else 0
     both_worst = int(((np.abs(a - worst) < 1e-12) & (np.abs(b - worst) < 1e-12)).sum()) if worst is not None else 0
     return both_best, both_worst
@@ -183,7 +178,7 @@ def verdict(cells: pd.DataFrame, paired: dict[str, dict], scope: str) -> tuple[l
     for key, per_metric in paired.items():
         method, baseline = key.split("-", 1)
         for metric, est in per_metric.items():
-            label, higher = METRICS[metric]
+            label, higher = METRICS[metric].label, METRICS[metric].higher_is_better
             res = outcome(est, higher)
             top, bottom = saturation(cells, method, baseline, metric)
             n = est["n_cells"]

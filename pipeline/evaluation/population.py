@@ -23,6 +23,9 @@ from pipeline.method.names import DIRICHLET
 from pipeline.evaluation.track import TrackError, TrackPlan, bearing_rays, facing_error, intersect_rays, select_tracks
 
 
+DEFAULT = "default"   # the model-bank variant without an ablation override
+
+
 @dataclass(frozen=True)
 class Setting:
     experiment: str          # "biased" | "randomized" | "sensitivity"
@@ -239,6 +242,59 @@ def run_cell(banks, cell: Cell) -> dict:
     if dirichlet is not None:
         out["dirichlet_std"] = dirichlet[1]
     return out
+
+
+def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
+    """The targets (``evaluate.targets``): every planned instance the scanned features show, or
+    the listed ones (each must have a candidate set)."""
+    seen = sorted(avd.loc[(avd["difficulty"] <= ev.max_difficulty), "instance"].unique())
+    if isinstance(ev.targets, str):
+        return [t for t in seen if t in plan]
+    missing = [t for t in ev.targets if t not in plan]
+    if missing:
+        raise ValueError(f"evaluate.targets names {missing[0]!r}, for which the models stage planned no "
+                         f"candidate set (modelled: {', '.join(sorted(plan))})")
+    return list(ev.targets)
+
+
+def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
+                intr: dict, steps: dict, dirichlet=None) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
+    """Every (variant, target, track) cell of the ``evaluate`` section ``ev``: ``indexes`` maps
+    variant -> its model bank's index (the plan), ``intr``/``steps`` the scans' (fx, cx) and grid
+    steps. Targets without a usable track are skipped with a reason (returned). With
+    ``dirichlet`` models (``pipeline.method.dirichlet.DirichletModels``), every cell also carries
+    the candidates' Dirichlets and the views' whole probability vectors (the fourth method)."""
+    plan = indexes[DEFAULT]["candidate_sets"]
+    own = indexes[DEFAULT]["own_components"]
+    settings = tuple(population_settings(ev))
+    cells, tracks, skipped = [], [], []
+    for target in choose_targets(ev, avd, plan):
+        det = target_views(avd, target, ev.max_difficulty)
+        try:
+            infos = plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
+                                  tuple(ev.track_images))
+        except TrackError as e:
+            skipped.append({"target": target, "reason": str(e)})
+            continue
+        classes = plan[target]["classes"]
+        for info in infos:
+            yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
+            full = track_samples(avd, scores, info, ev.max_difficulty)
+            dm = None if dirichlet is None else dirichlet.subset(classes)
+            if dm is not None and full.shape[-1] != dm.dim:
+                raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
+            for variant, index in indexes.items():
+                comps = index["candidate_sets"][target]["components"]
+                data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
+                                   dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
+                                   probs=None if dm is None else full)
+                cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
+                                  classes.index(target), data, settings, ev.seed, ev.variance_floor,
+                                  difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss))
+            tracks.append(info)
+    if not cells:
+        raise TrackError("no target has a usable track: " + "; ".join(f"{s['target']}: {s['reason']}" for s in skipped))
+    return cells, tracks, skipped
 
 
 def yaw_for(target: str, scan: str, truth: dict | None, source: str, yaw_deg: float,

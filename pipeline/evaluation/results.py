@@ -1,9 +1,11 @@
 """Long-format result tables: one row per (..., realization, step, method), built column-wise.
 
-``result_block`` turns a dict of log posteriors (R, K, C) per method into numpy columns with the
-metrics (log10 MGR, as shown to people everywhere); ``write_results`` writes blocks as one Parquet
-file with the posterior as a fixed-size list column. Both the evaluate stage and the simulation use
-it, so every results file has the same columns and conventions.
+``result_block`` turns a dict of posteriors (R, K, C) per method into numpy columns with the
+per-step metric columns of ``pipeline.evaluation.metrics.STEP_COLUMNS`` (log10 MGR, as shown to
+people everywhere); ``write_results`` writes blocks as one Parquet file with the posterior as a
+fixed-size list column. The evaluate and simulate stages both write through here (``write_table``
+also writes the simulation's example table), so every results file has the same columns and
+conventions.
 """
 from __future__ import annotations
 
@@ -16,12 +18,13 @@ import numpy as np
 from pipeline.evaluation import metrics as M
 from pipeline.infra.cache import atomic_path
 
-LN10 = float(np.log(10.0))
 
 
-def result_block(posts: Mapping[str, np.ndarray], truth_index: int, **const: Any) -> dict[str, np.ndarray]:
+def result_block(posts: Mapping[str, np.ndarray], truth_index: int, *, is_log: bool = True,
+                 **const: Any) -> dict[str, np.ndarray]:
     """Columns for every (method, realization, step): ``const`` columns (repeated), realization,
-    step, method, posterior (n, C), p_truth, log10_mgr, msde, correct."""
+    step, method, posterior (n, C), then the ``STEP_COLUMNS`` (p_truth, log10_mgr, msde, correct).
+    ``posts`` are log posteriors unless ``is_log`` is false."""
     cols: dict[str, list] = {}
     for method, lp in posts.items():
         lp = np.asarray(lp, float)
@@ -32,12 +35,9 @@ def result_block(posts: Mapping[str, np.ndarray], truth_index: int, **const: Any
             "realization": np.repeat(np.arange(R, dtype=np.int32), K),
             "step": np.tile(np.arange(K, dtype=np.int16), R),
             "method": np.full(n, method, dtype=object),
-            "posterior": np.exp(lp).reshape(n, C),
-            "p_truth": M.prob_truth(lp, truth_index, is_log=True).ravel(),
-            "log10_mgr": M.log_mgr(lp, truth_index, is_log=True).ravel() / LN10,
-            "msde": M.msde(lp, truth_index, is_log=True).ravel(),
-            "correct": M.correct(lp, truth_index, is_log=True).ravel(),
+            "posterior": (np.exp(lp) if is_log else lp).reshape(n, C),
         })
+        part.update({k: v.ravel() for k, v in M.step_values(lp, truth_index, is_log=is_log).items()})
         for k, v in part.items():
             cols.setdefault(k, []).append(v)
     return {k: np.concatenate(v) for k, v in cols.items()}
@@ -49,19 +49,28 @@ _TYPES = {"track": "int16", "truth": "int16", "realization": "int32", "step": "i
 
 def write_results(blocks: Sequence[dict[str, np.ndarray]], path: str | Path, metadata: Mapping[str, str]) -> int:
     """Concatenate blocks (same columns) and write them as Parquet, atomically. Returns the rows."""
+    if not blocks:
+        raise ValueError("write_results: no result blocks")
+    return write_table({name: np.concatenate([b[name] for b in blocks]) for name in blocks[0]}, path, metadata)
+
+
+def write_table(columns: Mapping[str, np.ndarray], path: str | Path, metadata: Mapping[str, str]) -> int:
+    """Columns (equal length) as Parquet, atomically: 2D float arrays (n, C) become fixed-size
+    lists, object arrays of arrays variable-length lists, other object arrays strings. Returns
+    the rows."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    if not blocks:
-        raise ValueError("write_results: no result blocks")
-    names = list(blocks[0])
+    names = list(columns)
     arrays = []
     for name in names:
-        col = np.concatenate([b[name] for b in blocks])
-        if name == "posterior":
+        col = np.asarray(columns[name])
+        if col.ndim == 2:
             C = col.shape[1]
             flat = pa.array(np.ascontiguousarray(col, np.float64).ravel(), pa.float64())
             arrays.append(pa.FixedSizeListArray.from_arrays(flat, C))
+        elif col.dtype == object and len(col) and isinstance(col[0], np.ndarray):
+            arrays.append(pa.array([np.asarray(v, np.float64) for v in col], pa.list_(pa.float64())))
         elif col.dtype == object:
             arrays.append(pa.array(col.tolist(), pa.string()))
         else:
@@ -72,19 +81,19 @@ def write_results(blocks: Sequence[dict[str, np.ndarray]], path: str | Path, met
     return table.num_rows
 
 
+def frame(blocks: Sequence[Mapping[str, np.ndarray]], *, drop: Sequence[str] = ()):
+    """Blocks (same columns) as one pandas DataFrame, as a reader of the written file would see
+    them: a 2D column (n, C) holds one array per row. ``drop`` leaves columns out."""
+    import pandas as pd
+
+    cols = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0] if k not in drop}
+    return pd.DataFrame({k: list(v) if v.ndim == 2 else v for k, v in cols.items()})
+
+
 def cell_metrics(lp: np.ndarray, truth: int) -> dict[str, float]:
-    """A cell's metrics over its realizations (R, K, C) of log posteriors: the population table's
-    keys (``pipeline.evaluation.labels.METRICS``), MGR as log10 percentiles."""
-    row = M.summary_row(lp, truth, is_log=True)
-    lm = M.log_mgr(lp, truth, is_log=True) / LN10
-    return {
-        "correct_final": row["correct_final"], "correct_overall": row["correct_overall"],
-        "prob_truth_final": row["prob_truth_final"], "msde_final": row["msde_final"],
-        "log10_mgr75_final": float(M.percentile(lm[:, -1], 75)),
-        "log10_mgr95_final": float(M.percentile(lm[:, -1], 95)),
-        "log10_mgr75_overall": float(M.percentile(lm, 75)),
-        "log10_mgr95_overall": float(M.percentile(lm, 95)),
-    }
+    """A cell's metrics over its realizations (R, K, C) of log posteriors: every
+    ``pipeline.evaluation.metrics.METRICS`` key."""
+    return M.posterior_metrics(lp, truth, is_log=True)
 
 
 def metadata(**items: Any) -> dict[str, str]:

@@ -39,6 +39,7 @@ from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simp
 from pipeline.method.geometry import sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
+from pipeline.evaluation.results import result_block
 from pipeline.evaluation.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
 
 # The scenarios' measurements are synthetic GP scores, not classifier probability vectors, so the
@@ -134,20 +135,6 @@ def draw_nominal(mu: np.ndarray, cov: np.ndarray, rng: np.random.Generator, n: i
     x = mu[None] + np.einsum("fkj,nfj->nfk", L, z)
     x = x.transpose(0, 2, 1)                                # (n, K, F)
     return x[0] if n is None else x
-
-
-def conditional(mu: np.ndarray, cov: np.ndarray, k: int, past: np.ndarray) -> tuple[float, float]:
-    """GP conditional of step k given the values ``past`` (k,) at steps 0..k-1, one component.
-
-    Written out literally (explicit solve, no Cholesky) as the reference the generator is tested
-    against: mean ``mu_k + Σ_{k,p} Σ_p⁻¹ (past - mu_p)``, variance ``Σ_kk - Σ_{k,p} Σ_p⁻¹ Σ_{p,k}``.
-    """
-    if k == 0:
-        return float(mu[0]), float(cov[0, 0])
-    Sp = cov[:k, :k]
-    s = cov[k, :k]
-    w = np.linalg.solve(Sp, s)
-    return float(mu[k] + w @ (np.asarray(past, float) - mu[:k])), float(cov[k, k] - w @ s)
 
 
 def draw_sigma_u2(shape, sigma_max: float, rng: np.random.Generator) -> np.ndarray:
@@ -274,64 +261,47 @@ def run_scenario(models: GPClassModels, scenario: str, sim: SimulateConfig, *,
 
 
 # -- tables -------------------------------------------------------------------------------------------
-def long_rows(res: ScenarioResult) -> pd.DataFrame:
-    """One row per (realization, step, method): posterior and its metrics (like evaluate's)."""
-    frames = []
-    for method in METHODS:
-        p = res.posteriors[method]
-        R, K, C = p.shape
-        frames.append(pd.DataFrame({
-            "scenario": res.scenario,
-            "realization": np.repeat(np.arange(R, dtype=np.int32), K),
-            "step": np.tile(np.arange(K, dtype=np.int16), R),
-            "method": method,
-            "posterior": list(p.reshape(R * K, C)),
-            "p_truth": M.prob_truth(p, res.truth).ravel(),
-            "log_mgr": M.log_mgr(p, res.truth).ravel(),
-            "msde": M.msde(p, res.truth).ravel(),
-            "correct": M.correct(p, res.truth).ravel(),
-        }))
-    return pd.concat(frames, ignore_index=True)
+def result_columns(res: ScenarioResult) -> dict[str, np.ndarray]:
+    """One row per (method, realization, step): posterior and its per-step metric columns, the
+    evaluate stage's layout (``pipeline.evaluation.results.result_block``) plus ``scenario``."""
+    return result_block({m: res.posteriors[m] for m in METHODS}, res.truth, is_log=False, scenario=res.scenario)
 
 
-def example_rows(res: ScenarioResult, models: GPClassModels) -> pd.DataFrame:
+def example_columns(res: ScenarioResult, models: GPClassModels) -> dict[str, np.ndarray]:
     """The example realization per (step, component), with every class's GP mean and std at the
-    true and at the estimated poses (the measurement figures, paper Figs. 2 and 4)."""
+    true and at the estimated poses (the measurement figures, paper Figs. 2 and 4); per-row
+    vectors (samples, class means and stds) as 2D arrays."""
     e = res.example
     K, F = e["nominal"].shape
     mu_t, var_t = models.marginal(res.true_xy)              # (K, C, F)
-    mu_e, var_e = models.marginal(e["estimates"])
-    rows = []
-    for k in range(K):
-        for f in range(F):
-            rows.append({
-                "scenario": res.scenario, "step": k, "component": f,
-                "true_x": float(res.true_xy[k, 0]), "true_y": float(res.true_xy[k, 1]),
-                "est_x": float(e["estimates"][k, 0]), "est_y": float(e["estimates"][k, 1]),
-                "nominal": float(e["nominal"][k, f]), "noised": float(e["noised"][k, f]),
-                "sigma_u2": float(e["sigma_u2"][k]),
-                "samples": e["samples"][k, :, f].astype(float),
-                "class_mean": mu_t[k, :, f].astype(float),
-                "class_std": np.sqrt(np.maximum(var_t[k, :, f], 0.0)),
-                "class_mean_est": mu_e[k, :, f].astype(float),
-            })
-    return pd.DataFrame(rows)
+    mu_e, _ = models.marginal(e["estimates"])
+    k, f = np.repeat(np.arange(K), F), np.tile(np.arange(F), K)
+    return {
+        "scenario": np.full(K * F, res.scenario, dtype=object),
+        "step": k.astype(np.int64), "component": f.astype(np.int64),
+        "true_x": res.true_xy[k, 0].astype(float), "true_y": res.true_xy[k, 1].astype(float),
+        "est_x": e["estimates"][k, 0].astype(float), "est_y": e["estimates"][k, 1].astype(float),
+        "nominal": e["nominal"][k, f].astype(float), "noised": e["noised"][k, f].astype(float),
+        "sigma_u2": np.asarray(e["sigma_u2"], float)[k],
+        "samples": _rows_of(e["samples"][k, :, f].astype(float)),   # N_s differs between scenarios
+        "class_mean": mu_t[k, :, f].astype(float),
+        "class_std": np.sqrt(np.maximum(var_t[k, :, f], 0.0)),
+        "class_mean_est": mu_e[k, :, f].astype(float),
+    }
+
+
+def _rows_of(a: np.ndarray) -> np.ndarray:
+    out = np.empty(len(a), dtype=object)
+    out[:] = list(a)
+    return out
 
 
 def summarize(df: pd.DataFrame) -> pd.DataFrame:
-    """Per (scenario, method): correct ratio final/overall, MGR 75%/95% final/overall.
-
-    MGR is the ratio max_c P(c) / P(truth) (1 = truth most likely): exp of log-MGR percentiles,
-    with its log10 beside it (``metrics.mgr_percentile_fields``).
-    """
+    """Per (scenario, method): every metric of ``pipeline.evaluation.metrics.METRICS`` over the
+    realizations, each log10 MGR also as the ratio (``metrics.with_mgr_ratios``)."""
     rows = []
     for (scenario, method), g in df.groupby(["scenario", "method"], sort=False):
-        last = g[g["step"] == g["step"].max()]
-        rows.append({
-            "scenario": scenario, "method": method,
-            "correct_final": float(last["correct"].mean()),
-            "correct_overall": float(g["correct"].mean()),
-            **M.mgr_percentile_fields(last["log_mgr"].to_numpy(float), g["log_mgr"].to_numpy(float)),
-            "realizations": int(g["realization"].nunique()),
-        })
+        rows.append({"scenario": scenario, "method": method,
+                     **M.with_mgr_ratios(M.scalars(M.matrices(g))),
+                     "realizations": int(g["realization"].nunique())})
     return pd.DataFrame(rows)

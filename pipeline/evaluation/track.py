@@ -3,10 +3,10 @@
 Pure functions over arrays (the evaluate stage does the I/O):
 - ``bearing_rays`` turns box centres into 2D rays in the ground frame;
 - ``intersect_rays`` estimates the object's 2D position by least squares;
-- ``select_track`` picks K views at distinct grid points, roughly facing the object, spread over an
-  arc around it and ordered by bearing, i.e. a path a robot could drive;
-- ``select_tracks`` picks several such paths per target for the population evaluation: different
-  start bearings, both directions of travel, near and far where the scan offers both;
+- ``select_tracks`` picks several paths per target for the population evaluation, each K views
+  at distinct grid points, roughly facing the object, spread over an arc around it and ordered by
+  bearing (a path a robot could drive): different start bearings, both directions of travel, near
+  and far where the scan offers both;
 - ``grid_step`` reads the capture grid's spacing off the camera positions.
 """
 from __future__ import annotations
@@ -133,49 +133,6 @@ def select_tracks(cam_xy: np.ndarray, obj_xy: np.ndarray, facing_err: np.ndarray
                                      start_deg=start, direction=direction, distance=band))
                 break
     return out
-
-
-def select_track(cam_xy: np.ndarray, obj_xy: np.ndarray, facing_err: np.ndarray, k: int,
-                 *, grid_step: float = 0.3, max_arc_deg: float = 180.0) -> TrackChoice:
-    """Choose ``k`` views spread in bearing around the object, one per grid point.
-
-    ``facing_err`` is how far (radians) the object is from each view's optical axis: at a grid point
-    the view facing the object best is kept. Among the remaining points, the k whose bearings best
-    cover the widest arc (up to ``max_arc_deg``) are taken, ordered by bearing.
-    """
-    cam_xy = np.asarray(cam_xy, float)
-    cand = _viewpoints(cam_xy, np.abs(np.asarray(facing_err, float)), grid_step, k)
-    rel = cam_xy[cand] - np.asarray(obj_xy, float)
-    bear = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360.0
-    order = np.argsort(bear, kind="stable")
-    cand, bear, dist = cand[order], bear[order], np.hypot(*rel[order].T)
-    n = len(cand)
-    best_choice = None
-    for s in range(n):
-        # Bearings unwrapped from this start, within the allowed arc.
-        b = (bear - bear[s]) % 360.0
-        inside = np.nonzero(b <= max_arc_deg + 1e-9)[0]
-        if len(inside) < k:
-            continue
-        bi = b[inside]
-        span = bi.max()
-        targets = np.linspace(0.0, span, k)
-        picked: list[int] = []
-        for t in targets:
-            # nearest unused candidate in bearing; ties go to the closer camera
-            cost = np.abs(bi - t) + 1e-3 * dist[inside]
-            cost[picked] = np.inf
-            picked.append(int(np.argmin(cost)))
-        picked_sorted = sorted(picked, key=lambda j: bi[j])
-        sel = inside[picked_sorted]
-        gaps = np.diff(np.sort(bi[picked_sorted]))
-        score = (span, gaps.min() if len(gaps) else 0.0, -dist[sel].mean())
-        if best_choice is None or score > best_choice[0]:
-            best_choice = (score, sel, span)
-    if best_choice is None:  # pragma: no cover - len(cand) >= k guarantees a window at 360
-        raise TrackError("could not select a track")
-    _, sel, span = best_choice
-    return TrackChoice(index=cand[sel], bearing_deg=bear[sel], arc_deg=float(span))
 
 
 def facing_error(cam_xy: np.ndarray, heading: np.ndarray, obj_xy: np.ndarray) -> np.ndarray:

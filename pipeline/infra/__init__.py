@@ -1,5 +1,5 @@
 """Plumbing shared by every stage: configuration (schema, loading, checks), content-addressed
-caching and atomic writes, artifact names, executors (local and Ray), device and thread choice,
+caching and atomic writes, the data catalog (every artifact's name, reader and writer), executors (local and Ray), device and thread choice,
 progress reporting.
 
 May import: nothing else inside ``pipeline``.

@@ -21,7 +21,6 @@ from pipeline.infra.config_sections import (ABLATION_KEYS, BiasedConfig, BiasMap
                                             EvaluateConfig, RandomizedConfig, ReportConfig, SensitivityConfig,
                                             SimulateConfig, StudyConfig, canonical_json, to_dict)
 
-_merge = merge  # the earlier private name, still imported by tests
 
 __all__ = [
     "ABLATION_KEYS", "DEFAULT_INSTANCES", "BiasedConfig", "BiasMapsConfig", "ClassifierConfig", "Config",

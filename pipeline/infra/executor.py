@@ -25,17 +25,6 @@ from pipeline.infra.tasks import STATS, TransientError, item_label, record  # no
 KINDS = ("local", "ray")
 
 
-def preload(modules: Sequence[str], item: Any = None) -> int:
-    """A task that imports ``modules`` and returns its process id: warms a worker before timing it
-    (the benchmark), or shows which worker processes exist."""
-    import importlib
-    import os
-
-    for m in modules:
-        importlib.import_module(m)
-    return os.getpid()
-
-
 class Executor(Protocol):
     name: str
 

@@ -1,30 +1,144 @@
-"""The file names each stage writes into its folder, declared once.
+"""The data catalog: every artifact a stage writes, declared once with its reader and writer.
 
 Every module that writes or reads a stage's output takes the name from here (``name("evaluate",
-"results")``) instead of retyping it; ``stages.registry`` attaches the table to the stage specs.
-It lives on the bottom floor so that ``reports/`` and ``pipeline/`` can use it too.
+"results")``, ``path(folder, "evaluate", "results")``) instead of retyping it; the stage runner
+(``stages.runner``) refuses a stage whose folder holds a file that no entry here declares, and
+``tests/test_catalog.py`` fails on a literal artifact file name anywhere else in the packages.
+
+An entry's ``name`` is a file or folder name, or a glob pattern for a family (``*.png`` figures,
+one ``.npz`` per class). ``writer`` and ``reader`` name the one function that writes and the one
+that reads the artifact (``module:function``; the test imports each). This module sits in the
+infrastructure room and imports nothing of the project, so every floor can use it.
 """
 from __future__ import annotations
 
-OUTPUTS: dict[str, dict[str, str]] = {
-    "data": {"roots": "roots.json", "truth": "truth.json", "bigbird": "bigbird", "avd": "avd"},
-    "classifier": {"card": "card.json", "weights": "weights.npz"},
-    "features": {"bigbird": "bigbird.parquet", "avd": "avd.parquet"},
-    "models": {"index": "index.json", "dirichlet": "dirichlet"},  # dirichlet/: index.json + theta.npz
-    "evaluate": {"results": "results.parquet", "summary": "summary.json", "track": "track.json",
-                 "gp_models": "gp_models.npz", "bias_maps": "bias_maps.npz"},
-    "report": {"html": "index.html"},
-    "simulate": {"results": "results.parquet", "example": "example.parquet", "summary": "summary.json",
-                 "models": "models", "html": "index.html"},
+import fnmatch
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Artifact:
+    name: str                 # file or folder name, or a glob pattern
+    format: str               # json | parquet | npz | folder | html | png | text
+    writer: str               # "module:function" that writes it
+    reader: str | None        # "module:function" that reads it (None: read by people only)
+    doc: str = ""
+
+    @property
+    def pattern(self) -> bool:
+        return any(c in self.name for c in "*?[")
+
+
+_JSON_W = "pipeline.infra.cache:write_json"
+_JSON_R = "reports.artifacts:read_json"
+_RESULTS_W = "pipeline.evaluation.results:write_results"
+_RESULTS_R = "reports.artifacts:read_result_table"
+_BANK_W = "pipeline.method.gp:GPClassModels.save"
+_BANK_R = "pipeline.method.gp:GPClassModels.load"
+
+CATALOG: dict[str, dict[str, Artifact]] = {
+    "data": {
+        "roots": Artifact("roots.json", "json", _JSON_W, "stages.data:data_roots", "where the datasets are"),
+        "truth": Artifact("truth.json", "json", _JSON_W, "pipeline.evaluation.population:truth_entry",
+                          "synthetic ground truth: instance positions and yaws per scan"),
+        "bigbird": Artifact("bigbird", "folder", "loaders.synthetic.bigbird_writer:write_bigbird_object",
+                            "loaders.bigbird:BigBirdObject", "BigBIRD on-disk format"),
+        "avd": Artifact("avd", "folder", "loaders.synthetic.avd_writer:write_avd_scan", "loaders.avd:AVDScan",
+                        "AVD on-disk format"),
+    },
+    "classifier": {
+        "card": Artifact("card.json", "json", _JSON_W, "pipeline.scoring.classifier:read_card",
+                         "architecture, weights hash, output names, held-out accuracy"),
+        "weights": Artifact("weights.npz", "npz", "pipeline.scoring.classifier:save_state_dict_npz",
+                            "pipeline.scoring.classifier:load_classifier", "state dict, no pickles"),
+    },
+    "features": {
+        "bigbird": Artifact("bigbird.parquet", "parquet", "pipeline.scoring.features:write_table",
+                            "pipeline.scoring.features:read_features", "BigBIRD view scores"),
+        "avd": Artifact("avd.parquet", "parquet", "pipeline.scoring.features:write_table",
+                        "pipeline.scoring.features:read_features", "AVD box scores"),
+    },
+    "models": {
+        "index": Artifact("index.json", "json", _BANK_W, _BANK_R, "a model bank's index"),
+        "bank": Artifact("*.npz", "npz", _BANK_W, _BANK_R, "one GP class model per file"),
+        "ablations": Artifact("ablations", "folder", _BANK_W, _BANK_R, "one model bank per ablation"),
+        "dirichlet": Artifact("dirichlet", "folder", "pipeline.method.dirichlet:DirichletModels.save",
+                              "pipeline.method.dirichlet:DirichletModels.load",
+                              "the Dirichlet method's class models: index.json + theta.npz"),
+    },
+    "evaluate": {
+        "results": Artifact("results.parquet", "parquet", _RESULTS_W, _RESULTS_R,
+                            "one row per (cell, setting, realization, step, method)"),
+        "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "population statistics and verdict"),
+        "track": Artifact("track.json", "json", _JSON_W, _JSON_R, "the detailed track"),
+        "gp_models": Artifact("gp_models.npz", "npz", "stages.evaluate:single_track", "reports.artifacts:read_npz",
+                              "GP rasters of the detailed track's candidates"),
+        "bias_maps": Artifact("bias_maps.npz", "npz", "stages.evaluate:single_track", "reports.artifacts:read_npz",
+                              "single-view posteriors under a grid of biases"),
+    },
+    "report": {
+        "html": Artifact("index.html", "html", "reports.main_report:build_main_report", None),
+        "figures": Artifact("*.png", "png", "reports.figures:save", None),
+    },
+    "simulate": {
+        "results": Artifact("results.parquet", "parquet", _RESULTS_W, _RESULTS_R,
+                            "one row per (scenario, realization, step, method)"),
+        "example": Artifact("example.parquet", "parquet", _RESULTS_W, _RESULTS_R, "the example realization"),
+        "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "tables, findings, GP fits"),
+        "models": Artifact("models", "folder", _BANK_W, _BANK_R, "the fitted simulation GPs"),
+        "html": Artifact("index.html", "html", "reports.simulate_report:build_simulate_report", None),
+        "figures": Artifact("*.png", "png", "reports.figures:save", None),
+    },
+    # Not a stage: ``viewfuse study`` writes these into <run>/study/ beside the seed folders.
+    "study": {
+        "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "per-seed results side by side"),
+        "html": Artifact("index.html", "html", "reports.study_page:render_html", None),
+        "seeds": Artifact("seed-*", "folder", "stages.study:run_study", None, "one run folder per seed"),
+    },
 }
 
 MANIFEST = "manifest.json"  # written by the stage runner beside every stage's outputs
 
+# The name tables, for code that only needs names.
+OUTPUTS: dict[str, dict[str, str]] = {s: {k: a.name for k, a in arts.items()} for s, arts in CATALOG.items()}
+
+
+def artifact(stage: str, key: str) -> Artifact:
+    """The declaration of output ``key`` of ``stage``; KeyError names what exists."""
+    try:
+        return CATALOG[stage][key]
+    except KeyError:
+        known = ", ".join(CATALOG.get(stage, {})) or "none"
+        raise KeyError(f"stage {stage!r} declares no output {key!r} (declared: {known})") from None
+
 
 def name(stage: str, key: str) -> str:
-    """The file (or folder) name of output ``key`` of ``stage``; KeyError names what exists."""
-    try:
-        return OUTPUTS[stage][key]
-    except KeyError:
-        known = ", ".join(OUTPUTS.get(stage, {})) or "none"
-        raise KeyError(f"stage {stage!r} declares no output {key!r} (declared: {known})") from None
+    """The file (or folder) name of output ``key`` of ``stage``."""
+    a = artifact(stage, key)
+    if a.pattern:
+        raise KeyError(f"output {key!r} of stage {stage!r} is a family ({a.name}), not one name")
+    return a.name
+
+
+def path(folder: str | Path, stage: str, key: str) -> Path:
+    """``folder / name(stage, key)``: where output ``key`` of ``stage`` lies in its stage folder."""
+    return Path(folder) / name(stage, key)
+
+
+def declared(stage: str, relpath: str) -> bool:
+    """Whether a file at ``relpath`` (posix, relative to the stage folder) is a declared output:
+    its top-level component matches an entry (a folder entry covers everything inside it)."""
+    top = relpath.split("/", 1)[0]
+    for a in CATALOG.get(stage, {}).values():
+        inside = "/" in relpath
+        if inside and a.format != "folder":
+            continue
+        if fnmatch.fnmatchcase(top, a.name):
+            return True
+    return top == MANIFEST and "/" not in relpath
+
+
+def undeclared(stage: str, relpaths) -> list[str]:
+    """The paths among ``relpaths`` that no catalog entry of ``stage`` declares."""
+    return sorted(p for p in relpaths if not declared(stage, p))

@@ -34,10 +34,6 @@ def set_mode(mode: str) -> None:
     _mode = mode
 
 
-def get_mode() -> str:
-    return _mode
-
-
 def _use_tqdm() -> bool:
     if _mode == "on":
         return True

@@ -26,13 +26,14 @@ import numpy as np
 from scipy.special import digamma, gammaln, polygamma
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
+from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.dirichlet")
 
 FORMAT = "viewfuse.dirichlet_class_models"
 VERSION = 1
 PARAMS_FILE = "theta.npz"      # inside the folder models/dirichlet/ (pipeline.infra.outputs)
-INDEX_FILE = "index.json"
+INDEX_FILE = out_name("models", "index")   # the same index name as a GP model bank
 EULER = 0.5772156649015329
 
 

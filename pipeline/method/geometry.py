@@ -18,9 +18,14 @@ def rot(theta) -> np.ndarray:
 
 
 def project_unit_circle(r: np.ndarray, *, what: str = "relative position") -> np.ndarray:
-    """Project 2D vectors (..., 2) onto the unit circle; a zero vector has no direction (error)."""
+    """Project 2D vectors (..., 2) onto the unit circle (paper Eq. 47): the GP input of every view,
+    BigBIRD training views (``stages.features``) and AVD tracks alike. A vector within 1e-12 of
+    zero has no direction (error). ``numpy.hypot`` gives the length: no overflow, and rounding that
+    does not depend on how the caller batches its vectors."""
     r = np.asarray(r, dtype=float)
-    n = np.linalg.norm(r, axis=-1, keepdims=True)
+    if r.shape[-1:] != (2,):
+        raise ValueError(f"{what}: vectors must end in 2 coordinates, got shape {r.shape}")
+    n = np.hypot(r[..., 0], r[..., 1])[..., None]
     if not np.all(np.isfinite(r)):
         raise ValueError(f"{what}: non-finite coordinates")
     if np.any(n <= 1e-12):

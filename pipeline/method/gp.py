@@ -24,6 +24,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
+from pipeline.infra.outputs import name as out_name
+
+INDEX = out_name("models", "index")  # a model bank folder's index (models/, its ablations, simulate/models)
 
 FORMAT = "viewfuse.gp_class_models"
 VERSION = 1
@@ -296,13 +299,13 @@ class GPClassModels:
             if k in index:
                 raise ValueError(f"save: extra key {k!r} would overwrite a reserved index key")
             index[k] = v
-        write_json(folder / "index.json", index)
-        return folder / "index.json"
+        write_json(folder / INDEX, index)
+        return folder / INDEX
 
     @classmethod
     def load(cls, folder: str | Path) -> "GPClassModels":
         folder = Path(folder)
-        ipath = folder / "index.json"
+        ipath = folder / INDEX
         if not ipath.is_file():
             raise ModelFileError(ipath, "model index not found (run the 'models' stage)")
         try:
@@ -384,7 +387,7 @@ def _file_names(classes: Sequence[str]) -> dict[str, str]:
     for i, cls in enumerate(classes):
         base = re.sub(r"[^A-Za-z0-9._-]", "_", cls).strip(".") or f"class_{i}"
         name = f"{base}.npz"
-        if name.lower() in used or name == "index.json":
+        if name.lower() in used or name == INDEX:
             name = f"{base}_{i}.npz"
         used.add(name.lower())
         out[cls] = name

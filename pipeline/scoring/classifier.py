@@ -18,12 +18,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from pipeline.infra.outputs import name as out_name
 from pipeline.infra.cache import NpzFileError, atomic_path, hash_json, load_npz, sha256_file
 
 IMAGENET_FILE = "alexnet-owt-7be5be79.pth"   # torchvision AlexNet_Weights.IMAGENET1K_V1
 ARCHITECTURE = "torchvision.models.alexnet"
-CARD = "card.json"
-WEIGHTS_NPZ = "weights.npz"
+CARD = out_name("classifier", "card")
+WEIGHTS_NPZ = out_name("classifier", "weights")
 
 
 class WeightsError(ValueError):

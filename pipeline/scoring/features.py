@@ -322,9 +322,22 @@ def score_jobs(jobs: Iterator[CropJob], model: ScoringModel, policy, executor, *
     return out
 
 
-def unit_circle(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """GP input: the direction of (x, y) on the unit circle (paper Eq. 47)."""
-    r = np.hypot(x, y)
-    if np.any(r <= 0):
-        raise ValueError("a camera sits on the object's vertical axis: its direction is undefined")
-    return x / r, y / r
+def viewpoint_spread(objects: np.ndarray, scores: np.ndarray, names: list[str]) -> dict:
+    """Per object: how much its deterministic scores move with the viewpoint (std over views)."""
+    out = {}
+    for obj in sorted(set(objects)):
+        s = scores[objects == obj].astype(np.float64)
+        if len(s) < 2:
+            continue
+        std = s.std(axis=0)
+        mean = s.mean(axis=0)
+        top = np.argsort(mean)[::-1][:4]
+        arg = s.argmax(1)
+        out[obj] = {"views": int(len(s)),
+                    "top_components": [names[i] for i in top],
+                    "top_mean": [round(float(mean[i]), 4) for i in top],
+                    "top_std": [round(float(std[i]), 4) for i in top],
+                    "max_std": round(float(std.max()), 4),
+                    "mean_std_top4": round(float(std[top].mean()), 4),
+                    "argmax_classes_seen": int(len(np.unique(arg)))}
+    return out

@@ -29,7 +29,7 @@ def main() -> None:
     import cv2
     import numpy as np
 
-    from loaders.bigbird import _check_jpeg_complete, decode_jpeg
+    from loaders.bigbird import check_jpeg_complete, decode_jpeg
     from pipeline.infra.cache import file_record, record_changed
 
     rng = np.random.default_rng(0)
@@ -68,7 +68,7 @@ def main() -> None:
         return (time.perf_counter() - t0) / n
 
     def uncaptured():
-        _check_jpeg_complete(data, Path("bench.jpg"))
+        check_jpeg_complete(data, Path("bench.jpg"))
         bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         return np.ascontiguousarray(bgr[:, :, ::-1])
 

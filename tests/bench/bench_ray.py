@@ -46,6 +46,20 @@ def _load() -> str:
     return f"load {one:.2f} (1 min) {five:.2f} (5 min) on {os.cpu_count()} cores"
 
 
+def preloader():
+    """A task that imports its ``modules`` and returns its process id: warms a worker before
+    timing it. Made inside a function so that Ray ships it by value (this script is not an
+    importable module on the workers)."""
+    def preload(modules, item=None) -> int:
+        import importlib
+        import os
+
+        for m in modules:
+            importlib.import_module(m)
+        return os.getpid()
+    return preload
+
+
 def _run_evaluate(base_cfg, executor: str, workers: int) -> dict:
     """One forced evaluate run. For Ray, the local instance (``workers`` CPUs) is started before
     the stage and stopped after it (the stage joins it), and both are timed on their own."""
@@ -63,7 +77,7 @@ def _run_evaluate(base_cfg, executor: str, workers: int) -> dict:
     if hold is not None:
         # Worker processes up and the evaluation's modules imported: the grid then measures
         # scheduling, not Python start-up (which the start/stop column shows).
-        pids = hold.map(ex.preload, [None] * 4 * workers, shared=["pipeline.evaluation.population", "stages.evaluate"])
+        pids = hold.map(preloader(), [None] * 4 * workers, shared=["pipeline.evaluation.population", "stages.evaluate"])
         assert len(set(pids)) >= 1
     start = time.perf_counter() - t0
     del ex.STATS[:]
@@ -106,17 +120,16 @@ def main(argv: list[str] | None = None) -> None:
     if importlib.util.find_spec("ray") is None:
         print("Ray is not installed (make venv-ray): bench skipped")
         return
-    from pipeline.infra.config import _merge, load_config, parse_override
+    from pipeline.infra.config import merge, load_config, parse_override
     from stages.runner import ensure, read_manifest
 
     over: dict = {"run": {"device": "cpu"}}
     for o in args.overrides:
-        over = _merge(over, parse_override(o))
+        over = merge(over, parse_override(o))
     cfg = load_config(ROOT / "configs" / "synthetic.toml", over)
     print(f"default population in {cfg.run_dir}; upstream stages first if stale ({_load()})", flush=True)
     ensure(cfg, "models", device="cpu")
-    from pipeline.infra.executor import preload
-    preload(["pipeline.evaluation.population", "pipeline.evaluation.popstats", "stages.evaluate"])   # the local run starts warm too
+    preloader()(["pipeline.evaluation.population", "pipeline.evaluation.popstats", "stages.evaluate"])   # the local run starts warm too
     runs = [_run_evaluate(cfg, "local", 0), _run_evaluate(cfg, "ray", 1), _run_evaluate(cfg, "ray", 2)]
     local = runs[0]
     if not local["recs"]:
