@@ -1,5 +1,6 @@
 """Stage ``evaluate``: the population evaluation (every target x several tracks x the settings),
-its statistics and verdict, and the single-track figures for the first target's first track.
+its statistics and verdict, and the single-track figures for the showcase track
+(``pipeline.evaluation.showcase``: where the methods disagree most at the final step).
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
 experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.population``,
@@ -20,6 +21,7 @@ import pandas as pd
 
 from pipeline.evaluation import experiments as E
 from pipeline.evaluation import population as P
+from pipeline.evaluation import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config
 from pipeline.scoring.features import read_features
@@ -28,7 +30,7 @@ from pipeline.method.gp import GPClassModels
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.population import DEFAULT
 from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary, result_blocks
-from pipeline.evaluation.results import ResultsWriter, metadata, result_block
+from pipeline.evaluation.results import metadata, result_block, write_results
 from pipeline.evaluation.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
@@ -76,9 +78,8 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     return intr, steps
 
 
-def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict) -> None:
-    """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures).
-    ``blocks``: a list or a ``ResultsWriter`` (anything with ``append``) for the result rows."""
+def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
+    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
     if "gp_models" in ev.experiments:
@@ -148,55 +149,42 @@ def run(ctx) -> str:
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    first = cells[0]
-    # Cells stream: each cell's metrics rows and result rows are made as it finishes and its log
-    # posteriors dropped (kept only for the first cell and the first with a Dirichlet spread, which
-    # the summaries read), so memory does not grow with the population (configs/paper_grade.toml).
-    rows: list[dict] = []
-    results: list[dict] = []
-    need_dir = True
-    with ResultsWriter(ctx.out / out_name("evaluate", "results"), metadata(
-            config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
-            target=first.target)) as writer:
-        executor = executor_for(cfg)
-        try:
-            device, gpu = fusion_device(ctx, executor)
-            cells = [dataclasses.replace(c, device=device) for c in cells]
-            # (enumerate, not zip: the executor's generator must run to its end, where it records its stats)
-            for i, res in enumerate(executor.imap(P.run_cell, cells, shared=banks, desc="evaluate: cells",
-                                                  unit="cell", total=len(cells), gpu=gpu)):
-                cell = cells[i]
-                rows.append(cell_table([cell], [res]))
-                for b in result_blocks([cell], [res]):
-                    writer.write(b)
-                light = {k: v for k, v in res.items() if k != "posts"}
-                has_dir = cell.variant == DEFAULT and "dirichlet_std" in res
-                if i == 0 or (need_dir and has_dir):
-                    light["posts"] = res["posts"]
-                    need_dir = need_dir and not has_dir
-                results.append(light)
-        finally:
-            executor.close()
-        timings["population"] = time.perf_counter() - t0
-        log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
-                 len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
+    executor = executor_for(cfg)
+    try:
+        device, gpu = fusion_device(ctx, executor)
+        cells = [dataclasses.replace(c, device=device) for c in cells]
+        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell", gpu=gpu)
+    finally:
+        executor.close()
+    timings["population"] = time.perf_counter() - t0
+    log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
+             len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
 
-        t0 = time.perf_counter()
-        table = pd.concat(rows, ignore_index=True)
-        population = population_summary(cfg.evaluate, table, cells, results, tracks, skipped)
-        population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
-        timings["statistics"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    table = cell_table(cells, results)
+    population = population_summary(cfg.evaluate, table, cells, results, tracks, skipped)
+    population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
+    timings["statistics"] = time.perf_counter() - t0
 
-        # The first target's first track: its biased/randomized tables as before, plus the figures.
-        summary: dict = {}
-        for (experiment, label), posts in results[0]["posts"].items():
-            summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
-        from pipeline.method.fusion import engine_device
+    # The showcase track (pipeline/evaluation/showcase.py: where the methods disagree most): its
+    # biased/randomized tables, plus the single-track figures.
+    chosen = S.choose(table)
+    at = next(i for i, c in enumerate(cells)
+              if c.variant == DEFAULT and c.target == chosen["target"] and c.track == chosen["track"])
+    first = cells[at]
+    population["showcase"] = chosen
+    summary: dict = {}
+    for (experiment, label), posts in results[at]["posts"].items():
+        summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
+    blocks = result_blocks(cells, results)
+    from pipeline.method.fusion import engine_device
 
-        with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
-            single_track(cfg, ctx, banks, first, writer, summary, timings)
-    n_rows = writer.rows
-    info = tracks[0].as_dict()
+    with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
+        single_track(cfg, ctx, banks, first, blocks, summary, timings)
+    n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
+        config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
+        target=first.target, track=str(first.track)))
+    info = next(t for t in tracks if t.target == first.target and t.track == first.track).as_dict()
     obj_truth = P.truth_entry(truth, first.scan, first.target)
     info.update(classes=list(first.classes), yaw_deg=float(np.degrees(first.data.yaw)),
                 gp_inputs=first.data.inputs(first.data.cam_xy).tolist(),
@@ -207,7 +195,7 @@ def run(ctx) -> str:
                 float(np.linalg.norm(first.data.obj_xy - np.asarray(obj_truth["position"], float))))
     write_json(ctx.out / out_name("evaluate", "track"), info)
     write_json(ctx.out / out_name("evaluate", "summary"), {
-        "experiments": summary, "classes": list(first.classes), "target": first.target,
+        "experiments": summary, "classes": list(first.classes), "target": first.target, "track": first.track,
         "seeds": {"evaluate": ev.seed, "candidates": ev.candidate_seed},
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "features_meta": {k: v for k, v in meta.items() if k != "viewfuse.output_names"},
