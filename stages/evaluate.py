@@ -9,6 +9,8 @@ and ``pipeline.evaluation.population_summary``; cells run on ``run.executor``.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import logging
 import time
@@ -108,6 +110,19 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
         timings["bias_maps"] = time.perf_counter() - t0
 
 
+def fusion_device(ctx, executor) -> tuple[str, bool]:
+    """(device for the fusion engine in each cell, whether tasks ask the executor for a GPU).
+    In this process: run.device resolved here (auto -> cuda when torch sees a GPU). On Ray: each
+    task asks for a GPU where the cluster has one and resolves 'auto' in its worker."""
+    want = ctx.device_request
+    if executor.name == "local":
+        return ("cpu" if want == "cpu" else ctx.device), False
+    if want == "cuda" and not executor.gpus:
+        raise RuntimeError("run.device = 'cuda' (or --device cuda) but the Ray cluster has no GPU")
+    device = "cpu" if want == "cpu" or not executor.gpus else want
+    return device, device != "cpu"
+
+
 def run(ctx) -> str:
     from pipeline.infra.executor import executor_for
 
@@ -136,7 +151,9 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     executor = executor_for(cfg)
     try:
-        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell")
+        device, gpu = fusion_device(ctx, executor)
+        cells = [dataclasses.replace(c, device=device) for c in cells]
+        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell", gpu=gpu)
     finally:
         executor.close()
     timings["population"] = time.perf_counter() - t0
@@ -160,7 +177,10 @@ def run(ctx) -> str:
     for (experiment, label), posts in results[at]["posts"].items():
         summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
     blocks = result_blocks(cells, results)
-    single_track(cfg, ctx, banks, first, blocks, summary, timings)
+    from pipeline.method.fusion import engine_device
+
+    with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
+        single_track(cfg, ctx, banks, first, blocks, summary, timings)
     n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
         config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
         target=first.target, track=str(first.track)))
