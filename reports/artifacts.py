@@ -126,9 +126,18 @@ class EvaluateOutputs:
         return (self.meta.get("target") or (self.summary or {}).get("target")
                 or (self.track or {}).get("target") or "")
 
+    @property
+    def track_id(self) -> int | None:
+        """The showcase track's number (results metadata or summary.json); None in older runs,
+        whose detailed track is the target's first."""
+        for src in (self.meta.get("track"), (self.summary or {}).get("track")):
+            if src is not None and str(src).lstrip("-").isdigit():
+                return int(src)
+        return None
+
     def single_track(self, experiment: str) -> pd.DataFrame | None:
-        """Rows of one experiment on the detailed track: the default variant, the first target's
-        first track (population runs hold every (target, track); older runs only that one)."""
+        """Rows of one experiment on the detailed (showcase) track: the default variant, the
+        recorded target and track (older runs: the target's first track)."""
         if self.results is None:
             return None
         d = self.results[self.results["experiment"] == experiment]
@@ -137,7 +146,8 @@ class EvaluateOutputs:
         if "target" in d and self.target:
             d = d[d["target"] == self.target]
         if "track" in d and len(d):
-            d = d[d["track"] == d["track"].min()]
+            tid = self.track_id
+            d = d[d["track"] == (tid if tid is not None and (d["track"] == tid).any() else d["track"].min())]
         return d if len(d) else None
 
 

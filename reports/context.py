@@ -22,6 +22,9 @@ class ReportContext:
     comp_names: list[str] = field(default_factory=list)
     clipped: dict[str, int] = field(default_factory=dict)   # figure -> +inf values drawn at the axis top
     n_boot: int = 0
+    checks: dict[str, Any] = field(default_factory=dict)    # figure -> reports.figures.FigureCheck
+    alts: dict[str, str] = field(default_factory=dict)      # figure -> alt text stating its finding
+    bias_findings: dict | None = None                       # reports.figures_models.bias_map_findings
 
     @property
     def ev(self):
@@ -45,9 +48,13 @@ class ReportContext:
         self.sections.append(anchor)
 
     def figure(self, name: str, caption: str) -> None:
-        """A figure only where it was drawn (a missing one would be a broken image)."""
+        """A figure only where it was drawn (a missing one would be a broken image), with the alt
+        text of its finding and its smallest text size."""
         if name in self.figures:
-            self.page.figure(name, caption)
+            chk = self.checks.get(name)
+            self.page.figure(name, caption, alt=self.alts.get(name, ""),
+                             min_font_px=getattr(chk, "min_font_px", None),
+                             tick_overlaps=len(chk.overlaps) if chk is not None else None)
 
 
 def _find(d: Any, key: str) -> Any:

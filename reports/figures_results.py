@@ -1,8 +1,10 @@
 """Figures of the results: population (forest plot, per-target CIs) and the detailed track
 (biased track, percentile bands, σ sensitivity, the track from above).
 
-MGR is log10 on linear axes everywhere (``pipeline.evaluation.metrics.MGR_AXIS_LABEL``); every estimate
-that has a CI is drawn with its CI bar.
+MGR is log10 everywhere (``pipeline.evaluation.metrics.MGR_AXIS_LABEL``), drawn on a symmetric-log axis
+(``reports.figures.mgr_axis``: linear within ±1, logarithmic beyond) because the values span 0 to
+1e5; every estimate that has a CI is drawn with its CI bar. A panel whose data are constant says so
+on the panel instead of showing a bare flat line.
 """
 from __future__ import annotations
 
@@ -13,7 +15,8 @@ import pandas as pd
 
 from pipeline.evaluation.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
-from reports.figures import new_figure, new_subplots, percentile_bands, step_ticks, wrap_label
+from reports.figures import (MGR_SCALE_NOTE, mgr_axis, new_figure, new_subplots, percentile_bands, step_ticks,
+                             wrap_label)
 
 FOREST_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PER_TARGET_METRICS = ("correct_final", "log10_mgr95_final")
@@ -44,32 +47,47 @@ def fig_forest(pop: dict) -> Any:
     rows = targets + ["pooled (all targets)"]
     ppt, paired = pop.get("paired_per_target") or {}, pop.get("paired") or {}
     metrics = [m for m in FOREST_METRICS if m in (pop.get("metrics") or FOREST_METRICS)]
-    comparisons = present_comparisons(set(paired) | set(ppt))
-    fig, axes = new_subplots(1, len(metrics), w=1.8 + 3.4 * len(metrics),
-                             h=1.6 + 0.14 * (len(comparisons) + 1) * len(rows), sharey=True)
+    keys = _comparison_keys(paired, ppt)
+    fig, axes = new_subplots(1, len(metrics), w=min(1.6 + 3.0 * len(metrics), 10.8),
+                             h=1.6 + max(0.55, 0.14 * (len(keys) + 1)) * len(rows), sharey=True)
     marks = ("o", "s", "D", "^")
     for ax, metric in zip(axes[0], metrics):
-        for i, (m, base) in enumerate(comparisons):
-            key = comparison_key(m, base)
-            if key not in paired and key not in ppt:
-                continue
+        drawn = []
+        for i, key in enumerate(keys):
+            m, _, base = key.partition("-")
             entries = [(ppt.get(key, {}).get(t, {}) or {}).get(metric, {}) for t in targets]
             entries.append((paired.get(key) or {}).get(metric, {}))
-            ys = np.arange(len(rows)) + (i - (len(comparisons) - 1) / 2) * 0.22
+            ys = np.arange(len(rows)) + (i - (len(keys) - 1) / 2) * 0.22
             _ci_rows(ax, ys, entries, method_color(base), marks[i % len(marks)],
                      f"{method_label(m, True)} − {method_label(base, True)}")
+            drawn += [_num(e.get(k)) for e in entries for k in ("value", "ci_low", "ci_high")]
+        if "mgr" in metric:
+            mgr_axis(ax, drawn, axis="x")
         ax.axvline(0.0, color="#444444", lw=1)
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
         side = "right" if higher_is_better(metric) else "left"
         ax.set_title(f"{metric_label(metric)}\n(With Uncertainty better to the {side})", fontsize=9.5)
-        ax.set_xlabel("difference" + (" of log10 MGR" if "mgr" in metric else ""))
+        ax.set_xlabel("difference" + (f" of log10 MGR\n({MGR_SCALE_NOTE})" if "mgr" in metric else ""))
     axes[0, 0].set_yticks(range(len(rows)))
-    axes[0, 0].set_yticklabels([wrap_label(r, 24) for r in rows])
+    axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=max(len(comparisons), 1),
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=max(len(keys), 1),
                frameon=False)
     fig.suptitle("Paired differences per target, 95 % bootstrap CIs over tracks (pooled: over targets too)")
     return fig
+
+
+def _row_labels(pop: dict, targets: list[str]) -> list[str]:
+    """Target names with their track count (a 1-track target's point has no CI bar: say why)."""
+    from reports.bottom_line import counts
+    n = counts(pop)["tracks_per_target"]
+    lab = [wrap_label(t, 24) + (f"\n({n[t]} track{'s' if n[t] != 1 else ''}"
+                                + (": no CI)" if n[t] == 1 else ")") if t in n else "") for t in targets]
+    return lab + ["pooled (all targets)"]
+
+
+def _comparison_keys(*maps: dict) -> list[str]:
+    return [comparison_key(m, b) for m, b in present_comparisons({k for mp in maps for k in mp})]
 
 
 def fig_per_target(pop: dict) -> Any:
@@ -79,27 +97,57 @@ def fig_per_target(pop: dict) -> Any:
     per, pooled = pop.get("per_target") or {}, pop.get("pooled") or {}
     methods = ordered_methods(pop.get("methods") or pooled.keys())
     fig, axes = new_subplots(1, len(PER_TARGET_METRICS), w=2.0 + 3.6 * len(PER_TARGET_METRICS),
-                             h=1.6 + 0.5 * len(rows), sharey=True)
+                             h=1.6 + 0.6 * len(rows), sharey=True)
     for ax, metric in zip(axes[0], PER_TARGET_METRICS):
+        drawn: list[float] = []
         for i, m in enumerate(methods):
             entries = [((per.get(t) or {}).get(m) or {}).get(metric, {}) for t in targets]
             entries.append((pooled.get(m) or {}).get(metric, {}))
             ys = np.arange(len(rows)) + (i - (len(methods) - 1) / 2) * 0.2
             _ci_rows(ax, ys, entries, method_color(m), "o", method_label(m))
+            if "mgr" in metric:
+                drawn += [_num(e.get(k)) for e in entries for k in ("value", "ci_low", "ci_high")]
+        if "mgr" in metric:
+            mgr_axis(ax, drawn, axis="x")
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
         ax.set_title(metric_label(metric), fontsize=9.5)
-        ax.set_xlabel(MGR_AXIS_LABEL if "mgr" in metric else metric_label(metric))
+        ax.set_xlabel(f"{MGR_AXIS_LABEL}\n({MGR_SCALE_NOTE})" if "mgr" in metric else metric_label(metric))
     axes[0, 0].set_yticks(range(len(rows)))
-    axes[0, 0].set_yticklabels([wrap_label(r, 24) for r in rows])
+    axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=3, frameon=False)
     fig.suptitle("Per target and pooled, 95 % bootstrap CIs over tracks (pooled: over targets too)")
     return fig
 
 
-def fig_biased(df: pd.DataFrame, n_classes: int) -> Any:
-    fig, ax = new_figure(5.2, 3.9)
+def decisive_step(df: pd.DataFrame) -> dict | None:
+    """The view that moves P(truth) most on the biased track: the step k with the largest
+    |P_k − P_(k−1)| (median over realizations) over the methods; None on a one-step track."""
+    best = None
+    for m in ordered_methods(df["method"].unique()):
+        p = np.nanmedian(matrices(df[df["method"] == m])["p_truth"], axis=0)
+        if p.size < 2:
+            return None
+        d = np.diff(p)
+        k = int(np.nanargmax(np.abs(d)))
+        if best is None or abs(d[k]) > abs(best["change"]):
+            steps = np.sort(df["step"].unique())
+            best = {"step": int(steps[k + 1]), "method": m, "change": float(d[k]), "before": float(p[k]),
+                    "after": float(p[k + 1])}
+    return best
+
+
+def fig_biased(df: pd.DataFrame, n_classes: int, images: list[str] | None = None) -> Any:
+    fig, ax = new_figure(6.4, 4.2)
     steps = np.sort(df["step"].unique())
+    key = decisive_step(df)
+    if key is not None:
+        ax.axvspan(key["step"] - 0.5, key["step"] + 0.5, color="#f2d7a6", alpha=0.55, lw=0, zorder=0)
+        img = images[key["step"]] if images and 0 <= key["step"] < len(images) else ""
+        ax.annotate(f"view {key['step']}{' (' + img + ')' if img else ''} moves P(truth) most:\n"
+                    f"{method_label(key['method'], True)} {key['before']:.2f} → {key['after']:.2f}",
+                    xy=(key["step"], 1.02), xycoords=("data", "axes fraction"), ha="center", va="bottom",
+                    fontsize=8.5, annotation_clip=False)
     for m in ordered_methods(df["method"].unique()):
         v = matrices(df[df["method"] == m])["p_truth"]
         if v.shape[0] == 1:
@@ -115,7 +163,8 @@ def fig_biased(df: pd.DataFrame, n_classes: int) -> Any:
     ax.set_xlabel("track step k")
     ax.set_ylabel("P(ground-truth class | history)")
     step_ticks(ax, steps)
-    ax.legend(loc="best")
+    # Outside the axes: a legend inside covered the curves (a drop at the last steps).
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, frameon=False)
     return fig
 
 
@@ -133,16 +182,32 @@ def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[A
         bad = np.isposinf(v)
         clipped += int(bad.sum())
         percentile_bands(ax, steps, np.where(bad, cap, v), method_color(m))
-        ax.set_title(f"{method_label(m)}\nR = {v.shape[0]} realizations", fontsize=9.5)
+        note = constant_note(v)
+        # In the title, not on the data: a flat band is a finding, and a box would hide the line.
+        ax.set_title(f"{method_label(m)}\nR = {v.shape[0]} realizations" + (f"\n{note}" if note else ""),
+                     fontsize=9.5 if not note else 8.5)
         ax.set_xlabel("track step k")
         step_ticks(ax, steps)
-    axes[0, 0].set_ylabel(ylabel)
+    axes[0, 0].set_ylabel(ylabel if column == "p_truth" else f"{ylabel}\n({MGR_SCALE_NOTE})")
     if column == "p_truth":
         axes[0, 0].set_ylim(-0.02, 1.02)
     else:
-        axes[0, 0].set_ylim(bottom=min(-0.05 * max(cap, 1.0), 0.0))
+        mgr_axis(axes[0, 0], finite, axis="y")
     fig.suptitle(title)
     return fig, clipped
+
+
+def constant_note(v: np.ndarray) -> str:
+    """Words for a panel whose band has no width ('' when the realizations differ somewhere)."""
+    v = np.asarray(v, float)
+    if v.ndim != 2 or v.shape[0] < 2:
+        return ""
+    spread = np.nanmax(v, axis=0) - np.nanmin(v, axis=0)
+    if np.all(np.nan_to_num(spread, nan=0.0) < 1e-12):
+        flat = np.nanmax(v) - np.nanmin(v) < 1e-12
+        return ("all identical: the localization noise\ndoes not reach this method"
+                + (f" (constant {np.nanmax(v):.3g})" if flat else ""))
+    return ""
 
 
 def _ci_line(ax, x, ests, color: str, label: str, ls: str = "-") -> int:
@@ -174,8 +239,18 @@ def fig_sensitivity(summ: dict) -> Any:
     axes[0, 0].set_ylim(-0.02, 1.02)
     axes[0, 0].set_ylabel("correct ratio, final step")
     axes[0, 0].set_title("Correct ratio vs σ (higher is better)")
+    for ax, metric in zip(axes[0], ("correct_final", "log10_mgr95_final")):
+        vals = [_num(getattr(summ[s]["methods"][m].get(metric), k, None)) for s in settings for m in methods
+                if summ[s]["methods"].get(m, {}).get(metric) is not None for k in ("value", "low", "high")]
+        finite = [x for x in vals if np.isfinite(x)]
+        if metric.startswith("log10_mgr"):
+            mgr_axis(ax, finite, axis="y")
+        if finite and max(finite) - min(finite) < 1e-12:
+            ax.text(0.5, 0.5, f"{metric_label(metric)} is {finite[0]:.3g} for every method and σ",
+                    transform=ax.transAxes, ha="center", va="center", fontsize=8.5,
+                    bbox={"boxstyle": "round", "fc": "white", "ec": "#999999", "alpha": 0.92})
     axes[0, 1].axhline(0.0, color="#777777", ls="--", lw=1)
-    axes[0, 1].set_ylabel("95th percentile, final step:\n" + MGR_AXIS_LABEL, fontsize=8.5)
+    axes[0, 1].set_ylabel(f"95th percentile, final step:\n{MGR_AXIS_LABEL}\n({MGR_SCALE_NOTE})", fontsize=8.5)
     axes[0, 1].set_title("Confident misclassification vs σ (lower is better)")
     for ax in axes[0]:
         ax.set_xlabel("localization noise σ (m)")
@@ -214,5 +289,5 @@ def fig_track(track: dict, biases: list[tuple[float, float]]) -> Any:
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m, ground frame)")
     ax.set_ylabel("y (m, ground frame)")
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=7, frameon=False)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=8, frameon=False)
     return fig

@@ -30,7 +30,7 @@ nav { background:var(--panel); border-bottom:1px solid var(--line); padding:8px 
       display:flex; flex-wrap:wrap; gap:4px 18px; }
 nav a { color:var(--accent); text-decoration:none; white-space:nowrap; }
 nav a:hover { text-decoration:underline; }
-main { max-width:1180px; margin:0 auto; padding:8px 32px 48px; }
+main { max-width:1340px; margin:0 auto; padding:8px 32px 48px; }
 section { border-bottom:1px solid var(--line); padding:10px 0 18px; }
 section:last-child { border-bottom:none; }
 h2 { font-size:21px; margin:18px 0 8px; color:#17325a; }
@@ -47,10 +47,20 @@ table { border-collapse:collapse; margin:10px 0 4px; font-size:14px; }
 caption { caption-side:top; text-align:left; color:var(--muted); font-size:13.5px; padding-bottom:4px; }
 th, td { border:1px solid var(--line); padding:4px 9px; text-align:left; vertical-align:top; }
 th { background:var(--panel); font-weight:600; }
-td.num { text-align:right; white-space:nowrap; font-size:13px; font-variant-numeric:tabular-nums; font-family:ui-monospace,"DejaVu Sans Mono",monospace; }
+tbody th { font-weight:500; background:#fbfbfc; }
+td.num { text-align:right; font-size:13px; font-variant-numeric:tabular-nums; font-family:ui-monospace,"DejaVu Sans Mono",monospace; }
 tr:nth-child(even) td { background:#fbfbfc; }
-table.summary td:first-child, table.summary td:nth-child(2) { white-space:nowrap; }
-table.facts td:first-child { font-weight:600; background:var(--panel); white-space:nowrap; }
+span.nw { white-space:nowrap; }
+table.hyperparameters { font-size:12.5px; }
+table.hyperparameters td.num { font-size:12px; }
+td.changed { background:#fde2e2 !important; font-weight:600; }
+dl.glossary { display:grid; grid-template-columns: minmax(8em, 15em) 1fr; gap:4px 16px; max-width:1100px; }
+dl.glossary dt { font-weight:600; }
+dl.glossary dd { margin:0; }
+p.bottomline { font-size:17px; max-width:1060px; background:#eef4fb; border-left:4px solid var(--accent);
+               padding:8px 12px; }
+table.summary th:first-child, table.summary td:nth-child(2) { white-space:nowrap; }
+table.facts th:first-child { font-weight:600; background:var(--panel); white-space:nowrap; }
 pre { background:var(--panel); border:1px solid var(--line); padding:10px 12px; overflow-x:auto;
       font: 12.5px/1.4 ui-monospace, "DejaVu Sans Mono", monospace; max-height:520px; }
 .precap { color:var(--muted); font-size:13.5px; margin:10px 0 2px; }
@@ -136,19 +146,33 @@ class HtmlReport:
         c = f' class="{_esc(cls)}"' if cls else ""
         self._target().append(f"<p{c}>{body}</p>")
 
-    def figure(self, png_name: str, caption: str) -> None:
+    def figure(self, png_name: str, caption: str, alt: str = "", min_font_px: float | None = None,
+               tick_overlaps: int | None = None) -> None:
+        """A PNG with its caption; ``alt`` states the figure's finding (what a reader who cannot see
+        it should learn), ``min_font_px`` the smallest text in the PNG at 100 % (the browser test
+        checks that it stays legible at the page's width)."""
         name = str(png_name)
         if _SCHEME.match(name) or name.startswith(("/", "\\")) or ".." in Path(name).parts:
             raise ValueError(f"figure {name!r}: must be a file name relative to the report "
                              "(the page has to work opened from disk)")
         self.figures.append(name)
+        font = f' data-min-font-px="{min_font_px:.1f}"' if min_font_px else ""
+        if tick_overlaps is not None:
+            font += f' data-tick-overlaps="{int(tick_overlaps)}"'
         self._target().append(
-            f'<figure><img src="{_esc(name)}" alt="{_esc(caption)}">'
+            f'<figure><img src="{_esc(name)}" alt="{_esc(alt or caption)}"{font}>'
             f"<figcaption>{_esc(caption)}</figcaption></figure>")
 
+    def definitions(self, items: list[tuple[str, str]], cls: str = "glossary") -> None:
+        """A definition list (term, meaning), e.g. the glossary."""
+        body = "".join(f"<dt>{_esc(t)}</dt><dd>{_esc(d)}</dd>" for t, d in items)
+        self._target().append(f'<dl class="{_esc(cls)}">{body}</dl>')
+
     def table(self, header: list[str], rows: list[list], caption: str = "", cls: str = "",
-              collapsed: str = "") -> None:
-        """A table; with ``collapsed``, inside a closed <details> whose summary is that text."""
+              collapsed: str = "", highlight: set[tuple[int, int]] | None = None) -> None:
+        """A table; with ``collapsed``, inside a closed <details> whose summary is that text.
+        The first column's cells are row headers (``th scope=row``); ``highlight`` holds the
+        (row, column) cells to mark as changed."""
         width = len(header)
         for i, r in enumerate(rows):
             if len(r) != width:
@@ -159,14 +183,19 @@ class HtmlReport:
         if caption:
             out.append(f"<caption>{_esc(caption)}</caption>")
         if any(str(h) for h in header):  # an all-empty header means a key/value table: no head row
-            out.append("<thead><tr>" + "".join(f"<th>{_esc(str(h))}</th>" for h in header)
+            out.append("<thead><tr>" + "".join(f'<th scope="col">{_esc(str(h))}</th>' for h in header)
                        + "</tr></thead>")
         out.append("<tbody>")
-        for r in rows:
+        marked = highlight or set()
+        for i, r in enumerate(rows):
             cells = []
-            for v in r:
+            for j, v in enumerate(r):
                 text, numeric = format_cell(v)
-                cells.append(f'<td class="num">{_esc(text)}</td>' if numeric else f"<td>{_esc(text)}</td>")
+                cls_ = " ".join(c for c in ("num" if numeric else "", "changed" if (i, j) in marked else "") if c)
+                attr = f' class="{cls_}"' if cls_ else ""
+                tag = "th" if j == 0 else "td"
+                scope = ' scope="row"' if j == 0 else ""
+                cells.append(f"<{tag}{scope}{attr}>{_cell_html(text, numeric)}</{tag}>")
             out.append("<tr>" + "".join(cells) + "</tr>")
         out.append("</tbody></table></div>")
         body = "".join(out)
@@ -216,6 +245,14 @@ class HtmlReport:
         """Write the page atomically (temp name + rename)."""
         with atomic_path(Path(path)) as tmp:
             tmp.write_text(self.render(), encoding="utf-8")
+
+
+def _cell_html(text: str, numeric: bool) -> str:
+    """A numeric cell breaks only between a value and its '[lo, hi]' interval, so a wide table
+    wraps its estimates onto two lines instead of scrolling."""
+    if not numeric:
+        return _esc(text)
+    return " ".join(f'<span class="nw">{_esc(part)}</span>' for part in re.split(r" (?=\[)", text))
 
 
 def _esc(text: str) -> str:

@@ -17,6 +17,7 @@ from pipeline.infra.progress import bar as progress_bar
 from pipeline.evaluation.metrics import MGR_AXIS_LABEL
 from pipeline.infra.outputs import path as out_path
 from reports import sections_calibration as calibration_sections
+from reports import findings
 from reports import sections_track as track_sections
 from reports import sections_verdict as verdict_sections
 from reports.artifacts import load_run
@@ -26,6 +27,10 @@ from reports.figures_calibration import calibration_plan
 from reports.figures_models import fig_bias_maps, fig_gp_rasters, fig_gp_ring
 from reports.figures_results import (fig_bands, fig_biased, fig_forest, fig_per_target, fig_sensitivity,
                                      fig_track)
+from reports.figures_models import bias_map_findings, fig_bias_maps, fig_gp_rasters, fig_gp_ring
+from reports.figures_results import (decisive_step, fig_bands, fig_biased, fig_forest, fig_per_target,
+                                     fig_sensitivity, fig_track)
+from reports.glossary import glossary_section
 from reports.html import HtmlReport
 from reports.stats import BOOTSTRAP, track_summary
 from reports.tables import component_labels
@@ -36,7 +41,8 @@ SECTIONS = (verdict_sections.verdict_section, calibration_sections.calibration_s
             verdict_sections.population_section, verdict_sections.diagnostics_section,
             calibration_sections.domain_section, calibration_sections.attribution_section, track_sections.track_section,
             track_sections.randomized_section, track_sections.sensitivity_section,
-            track_sections.bias_maps_section, track_sections.gp_section, track_sections.details_section)
+            track_sections.bias_maps_section, track_sections.gp_section, glossary_section,
+            track_sections.details_section)
 
 
 @dataclass
@@ -54,8 +60,10 @@ def _population_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
     plan = []
     if pop.get("paired_per_target") or pop.get("paired"):
         plan.append(("forest.png", lambda: fig_forest(pop)))
+        ctx.alts["forest.png"] = findings.forest(pop)
     if pop.get("per_target"):
         plan.append(("per_target.png", lambda: fig_per_target(pop)))
+        ctx.alts["per_target.png"] = findings.per_target(pop)
     return plan + calibration_plan(pop)
 
 
@@ -64,19 +72,25 @@ def _track_plan(ctx: ReportContext, clipped: dict[str, int]) -> list[tuple[str, 
     plan = []
     biased = ev.single_track("biased")
     if biased is not None:
-        plan.append(("biased_ptruth.png", lambda: fig_biased(biased, len(ev.classes))))
+        images = [str(x) for x in track.get("images") or []]
+        plan.append(("biased_ptruth.png", lambda: fig_biased(biased, len(ev.classes), images)))
+        ctx.alts["biased_ptruth.png"] = findings.biased(biased, decisive_step(biased))
     if track.get("camera_xy"):
         biases = sorted({(float(x), float(y)) for x, y in zip(biased["bias_x"], biased["bias_y"])}) \
             if biased is not None else []
         plan.append(("track.png", lambda: fig_track(track, biases)))
+        ctx.alts["track.png"] = findings.track(track, biases)
     rnd = ev.single_track("randomized")
     for i, s in enumerate(ctx.track_summaries.get("randomized") or {}):
         sub = rnd[rnd["setting"] == s]
         plan.append((f"randomized_ptruth_{i}.png", lambda sub=sub, s=s: fig_bands(
             sub, "p_truth", "P(ground-truth class)", f"P(truth) per step, percentiles 10–90 % ({s})")[0]))
         plan.append((f"randomized_logmgr_{i}.png", lambda sub=sub, s=s, i=i: _logmgr_bands(sub, s, i, clipped)))
+        ctx.alts[f"randomized_ptruth_{i}.png"] = findings.bands(sub, "p_truth")
+        ctx.alts[f"randomized_logmgr_{i}.png"] = findings.bands(sub, "log10_mgr")
     if ctx.track_summaries.get("sensitivity"):
         plan.append(("sensitivity.png", lambda: fig_sensitivity(ctx.track_summaries["sensitivity"])))
+        ctx.alts["sensitivity.png"] = findings.sensitivity(ctx.track_summaries["sensitivity"])
     return plan
 
 
@@ -94,10 +108,13 @@ def _models_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
         inputs = track.get("gp_inputs")
         plan.append(("gp_rasters.png", lambda: fig_gp_rasters(ev.gp, gp_classes, ctx.comp_names, inputs)))
         plan.append(("gp_ring.png", lambda: fig_gp_ring(ev.gp, gp_classes, ctx.comp_names, inputs)))
+        ctx.alts["gp_rasters.png"] = ctx.alts["gp_ring.png"] = findings.gp(ev.gp, ctx.comp_names)
     if ev.bias_maps is not None:
         images = [str(x) for x in ev.bias_maps.get("images", track.get("images") or [])]
         bm_classes = [str(c) for c in ev.bias_maps["classes"]] if "classes" in ev.bias_maps else ev.classes
         plan.append(("bias_maps.png", lambda: fig_bias_maps(ev.bias_maps, bm_classes, ev.target, images)))
+        ctx.bias_findings = bias_map_findings(ev.bias_maps, bm_classes, ev.target)
+        ctx.alts["bias_maps.png"] = findings.bias_maps(ctx.bias_findings)
     return plan
 
 
@@ -118,8 +135,12 @@ def _scans(pop: dict, track: dict) -> str:
 
 def _subtitle(ctx: ReportContext) -> str:
     pop, track = ctx.population, ctx.ev.track or {}
-    parts = [f"run {ctx.run_name}" if ctx.run_name else "",
-             f"{pop.get('n_targets')} targets × {pop.get('n_tracks')} tracks" if pop else "one target, one track",
+    if pop:
+        from reports.bottom_line import counts, tracks_text
+        c = counts(pop)
+        size = (f"{c['n_targets']} targets · {tracks_text(c)} · {c['n_settings']} settings"
+                + (f" · {c['n_cells']} cells" if c.get("n_cells") else ""))
+    parts = [f"run {ctx.run_name}" if ctx.run_name else "", size if pop else "one target, one track",
              _scans(pop, track)]
     return " · ".join(p for p in parts if p)
 
@@ -137,8 +158,10 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     plan = _population_plan(ctx) + _track_plan(ctx, ctx.clipped) + _models_plan(ctx)
     written = []
     for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
-        save(build(), out / name, dpi)
+        ctx.checks[name] = chk = save(build(), out / name, dpi)
         written.append(name)
+        if chk.overlaps:
+            ctx.notes.append(f"{name}: tick labels overlap ({'; '.join(chk.overlaps[:3])})")
     ctx.figures = set(written)
     ctx.page.subtitle = _subtitle(ctx)
     if ctx.data_source == "synthetic":

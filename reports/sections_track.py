@@ -39,10 +39,15 @@ def track_section(ctx: ReportContext) -> None:
         return
     ctx.section("One track in detail", "track")
     K = len(track.get("images") or [])
-    where = f"target {ev.target or '?'}" + (f" in scan {track['scan']}" if track.get("scan") else "")
+    where = (f"target {ev.target or '?'}" + (f", track {ev.track_id}" if ev.track_id is not None else "")
+             + (f" in scan {track['scan']}" if track.get("scan") else ""))
+    show = (ctx.population or {}).get("showcase") or {}
+    why = (f"chosen by a recorded rule (summary.json population.showcase): {show.get('rule')}; here the methods' "
+           f"final correct ratios differ by {fmt(show.get('correct_spread'))} on average over the settings "
+           f"(of {show.get('candidates')} tracks{', ' + str(show.get('ties')) + ' tied' if show.get('ties') else ''})"
+           if show.get("rule") else "the population's first target and track")
     ctx.page.paragraph(
-        f"The paper's figures for one track ({where}, {K} views; the population's first target and track), "
-        f"candidates: {', '.join(ev.classes) or '—'}. "
+        f"The paper's figures for one track ({where}, {K} views), {why}. Candidates: {', '.join(ev.classes) or '—'}. "
         "Spread here comes from localization noise alone, not from other tracks or objects.")
     if biased is not None:
         b = sorted({(float(x), float(y)) for x, y in zip(biased["bias_x"], biased["bias_y"])})
@@ -55,7 +60,7 @@ def track_section(ctx: ReportContext) -> None:
                             "the object estimate and truth, and the biased pose estimates (hollow).")
     if biased is not None:
         ctx.figure("biased_ptruth.png", "P(ground-truth class) per step along the biased track (paper Fig. 17a). "
-                                        "Dashed: uniform prior.")
+                                        "Dashed: uniform prior; shaded: the view that moves P(truth) most.")
         track_table(ctx, "biased", "Biased track.")
 
 
@@ -86,7 +91,8 @@ def sensitivity_section(ctx: ReportContext) -> None:
     ctx.page.paragraph("The randomized experiment repeated over a sweep of localization noise σ on the detailed "
                        "track (paper Figs. 12–13), with 95 % CIs over realizations.")
     ctx.figure("sensitivity.png", "Left: correct ratio at the final step. Right: 95th percentile of log10 MGR at "
-                                  "the final step (linear axis; 0 = truth most likely). Bars: 95 % bootstrap CIs.")
+                                  "the final step (symlog axis: linear in [−1, 1]; 0 = truth most likely). Bars: 95 % "
+                                  "bootstrap CIs.")
     track_table(ctx, "sensitivity", "σ sweep, per σ and method.")
 
 
@@ -94,12 +100,15 @@ def bias_maps_section(ctx: ReportContext) -> None:
     if "bias_maps.png" not in ctx.figures:
         return
     ctx.section("Bias maps (one track)", "bias-maps")
+    from reports.findings import bias_caption
     ctx.page.paragraph("For each view of the detailed track alone, the Model Based class posterior when its pose "
-                       "estimate is off by a 2D bias (x, y): the hue is the most probable class, its brightness that "
-                       "class's probability (dark = near uniform; the colour scale is under the maps). Where the "
-                       "truth class loses, a small localization error flips the decision (paper Fig. 18).")
+                       "estimate is off by a 2D bias (x, y): the hue and the letter give the most probable class "
+                       "(black lines separate the classes, so the map also reads in greyscale), the brightness that "
+                       "class's probability (dark = near uniform; the colour scale is under the maps). "
+                       + (bias_caption(ctx.bias_findings) if ctx.bias_findings else ""))
     ctx.figure("bias_maps.png", "Single-view Model Based posterior over a grid of pose biases; '+' marks zero "
-                                "bias, the white outline the region where the truth class wins.")
+                                "bias, the white outline the region where the truth class wins; each title gives the "
+                                "share of the grid where it wins.")
 
 
 def gp_section(ctx: ReportContext) -> None:

@@ -7,16 +7,17 @@ from pipeline.evaluation.labels import (COMPARISONS, DIRICHLET, comparison_key, 
                                        ordered_methods, present_comparisons)
 from pipeline.evaluation.metrics import higher_is_better, metric_label
 from pipeline.evaluation.popstats import wilson_interval
+from reports.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.context import ReportContext
+from reports.numbers import Estimate, fmt, reformat_numbers
 from reports.sections_calibration import pooled_value
-from reports.numbers import Estimate, fmt
 from reports.tables import bound_counts, hyperparameter_table
 
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
 # in a collapsed list right under the pooled table.
 HEADLINE = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
 VERDICT_METRICS = ("correct_final", "confident_error_final", "nll_final", "correct_overall", "prob_truth_final",
-                   "log10_mgr95_final")
+                   "msde_final", "log10_mgr95_final")
 TARGET_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PAIRED_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_final",
                   "log10_mgr75_final", "log10_mgr95_final")
@@ -51,12 +52,11 @@ def context_sentence(ctx: ReportContext) -> str:
             else "real data (BigBIRD + AVD)" if src == "real" else f"data source '{src}'")
     pop = ctx.population
     if pop:
-        reps = sorted({int(s["realizations"]) for s in pop.get("settings") or [] if s.get("realizations")}
-                      or {pop.get("realizations")} - {None})
-        r_text = (f"{reps[0]}" if len(reps) == 1 else f"{reps[0]}–{reps[-1]}" if reps else "?")
-        size = (f"{pop.get('n_targets')} targets × {pop.get('n_tracks')} tracks "
-                f"({pop.get('tracks_per_target')} per target) × {len(pop.get('settings') or [])} "
-                f"localization settings × {r_text} realizations, {len(pop.get('methods') or [])} methods")
+        c = counts(pop)
+        size = f"{scope_text(c)}; {len(pop.get('methods') or [])} methods"
+        if c["single_track_targets"]:
+            size += (f"; {len(c['single_track_targets'])} target(s) with a single track "
+                     f"({', '.join(c['single_track_targets'])}: no CI of their own)")
     else:
         size = f"one target ({ctx.ev.target or '?'}) on one track"
     return f"What was evaluated: {what}; {size}; {classifier_text(ctx.run.card)}."
@@ -65,6 +65,10 @@ def context_sentence(ctx: ReportContext) -> str:
 def verdict_section(ctx: ReportContext) -> None:
     ctx.section("Verdict", "verdict")
     page, pop = ctx.page, ctx.population
+    for line in bottom_line(pop or {}, ctx.run.card)[:1]:
+        page.paragraph(line, cls="bottomline")
+    for line in bottom_line(pop or {}, ctx.run.card)[1:]:
+        page.paragraph(line, cls="context")
     page.paragraph(context_sentence(ctx), cls="context")
     if not pop:
         msg = ("This run has no population evaluation: summary.json has no 'population' key (an evaluate "
@@ -74,25 +78,46 @@ def verdict_section(ctx: ReportContext) -> None:
         ctx.notes.append(msg)
         page.paragraph(msg, cls="warn")
         return
-    sentences = [str(s) for s in pop.get("verdict") or []]
+    # summary.json's sentences, their numbers in the page's one format (reports/numbers.py)
+    sentences = [reformat_numbers(str(s)) for s in pop.get("verdict") or []]
     head = headline(sentences, pop.get("verdict_table") or [])
     page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
     methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
-    have = set().union(*[set(v) for v in (pop.get("pooled") or {}).values()] or [set()])
-    keys = [k for k in VERDICT_METRICS if k in have]  # an older summary has no calibration metrics
-    rows = [[method_label(m)] + [Estimate.of(pooled_value(pop, m, k)) for k in keys] for m in methods]
+    pooled = pop.get("pooled") or {}
+    shown = [k for k in VERDICT_METRICS if any(k in (pooled.get(m) or {}) for m in methods)]
+    rows = [[method_label(m)] + [Estimate.of(pooled_value(pop, m, k)) for k in shown] for m in methods]
     unit = str(pop.get("unit") or "")
-    page.table(["method"] + [metric_label(k, short=True) for k in keys], rows, cls="summary pooled",
+    page.table(["method"] + [metric_label(k, short=True) for k in shown], rows, cls="summary pooled",
                caption=f"Pooled over the population: value [95 % CI]; NLL and log10 MGR (unbounded) as the median "
                        f"over targets of the target means. {unit[:1].upper() + unit[1:]} "
                        f"({pop.get('bootstrap', '?')} bootstrap resamples.) log10 MGR: 0 when the truth is the "
-                       "most likely class.")
+                       "most likely class. MSDE: lower is better.")
+    every = list(dict.fromkeys(k for m in methods for k in (pooled.get(m) or {})))
+    if len(every) > len(shown):
+        page.table(["metric"] + [method_label(m, short=True) for m in methods],
+                   [[metric_label(k)] + [Estimate.of((pooled.get(m) or {}).get(k)) for m in methods] for k in every],
+                   cls="summary pooled-all", caption="Every pooled metric in summary.json, value [95 % CI].",
+                   collapsed=f"All {len(every)} pooled metrics")
     if len(head) < len(sentences):
         page.bullets(sentences, cls="verdict-all", collapsed=f"All {len(sentences)} verdict sentences "
                                                              "(every metric, every comparison)")
     ceiling = _ceiling_line(pop)
     if ceiling:
         page.paragraph(ceiling, cls="note")
+    page.paragraph(biased_rule(pop), cls="note")
+
+
+def biased_rule(pop: dict) -> str:
+    """How single-realization settings (the biased experiment) enter the pooled values."""
+    c = counts(pop)
+    single = c["single_realization_settings"]
+    if not single:
+        return "Every setting has several realizations; each enters the pooled values with the same weight."
+    return (f"Rule for the single-realization setting{'s' if len(single) > 1 else ''} ({'; '.join(single)}): with "
+            "one realization a cell's 'final-step percentile' of log10 MGR is that realization's value (the "
+            "'all steps' percentiles run over its steps). It enters the pooled values and the verdict with the same "
+            "weight as each randomized setting (a track's value is the mean over its settings); its own values "
+            "are in its own row of the per-setting table under 'Where the method wins and loses'.")
 
 
 def headline(sentences: list[str], table: list[dict]) -> list[str]:
@@ -132,8 +157,10 @@ def population_section(ctx: ReportContext) -> None:
         page.paragraph(note, cls="note")
     if pop.get("per_target"):
         ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
-        page.table(["target", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS], _target_rows(pop),
-                   cls="per-target", caption="Per target: value [95 % CI] over that target's tracks.")
+        page.table(["target (tracks)", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS],
+                   _target_rows(pop), cls="per-target",
+                   caption="Per target: value [95 % CI] over that target's tracks; a target with one track has "
+                           "no CI of its own (the bootstrap resamples tracks), only its value.")
     else:
         note = "summary.json's population.per_target is empty: no per-method values per target to show."
         ctx.notes.append(note)
@@ -144,12 +171,20 @@ def population_section(ctx: ReportContext) -> None:
         page.paragraph(f"Target {s.get('target')} skipped: {s.get('reason')}", cls="warn")
 
 
+def comparison_keys(pop: dict) -> list[str]:
+    """The paired comparisons in summary.json: the known ones in their order, then any others."""
+    have = list((pop.get("paired") or {}).keys())
+    known = [comparison_key(m, b) for m, b in COMPARISONS]
+    return [k for k in known if k in have] + [k for k in have if k not in known]
+
+
 def _paired_rows(pop: dict) -> list[list]:
     outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in pop.get("verdict_table") or []}
     rows = []
-    for m, base in present_comparisons((pop.get("paired") or {}).keys()):
-        key = comparison_key(m, base)
-        for metric in PAIRED_METRICS:
+    for key in comparison_keys(pop):
+        metrics = list(PAIRED_METRICS) + [k for k in (pop["paired"].get(key) or {}) if k not in PAIRED_METRICS
+                                          and "overall" not in k]
+        for metric in metrics:
             d = ((pop.get("paired") or {}).get(key) or {}).get(metric)
             if not d:
                 continue
@@ -191,26 +226,36 @@ def _share(v) -> str:
 
 def _target_rows(pop: dict) -> list[list]:
     per = pop.get("per_target") or {}
+    n_tracks = counts(pop)["tracks_per_target"]
     rows = []
     for t in pop.get("targets") or per.keys():
+        n = n_tracks.get(t)
+        name = f"{t} ({n} track{'s' if n != 1 else ''})" if n else t
         for m in ordered_methods((per.get(t) or {}).keys()):
-            rows.append([t, method_label(m, short=True)]
-                        + [Estimate.of((per[t][m] or {}).get(k)) for k in TARGET_METRICS])
+            ests = [(per[t][m] or {}).get(k) for k in TARGET_METRICS]
+            why = next((no_ci_reason(e, n) for e in ests if e and no_ci_reason(e, n)), "")
+            label = f"{t} ({why})" if why else name
+            rows.append([label, method_label(m, short=True)] + [Estimate.of(e) for e in ests])
     return rows
 
 
 def _by_setting(ctx: ReportContext, pop: dict) -> None:
     by = pop.get("by_setting") or {}
+    reps = counts(pop)["realizations"]
     rows = []
     for setting, entry in by.items():
-        for m, base in present_comparisons(((entry or {}).get("paired") or {}).keys()):
-            d = ((entry or {}).get("paired") or {}).get(comparison_key(m, base)) or {}
+        for key in comparison_keys(pop):
+            d = ((entry or {}).get("paired") or {}).get(key) or {}
             if d:
-                rows.append([setting, comparison_label(comparison_key(m, base)),
-                             Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True)])
+                rows.append([setting, reps.get(setting, "?"), comparison_label(key),
+                             Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("msde_final"), True),
+                             Estimate.of(d.get("log10_mgr95_final"), True)])
     if rows:
-        ctx.page.table(["setting", "comparison", "Δ correct, final", "Δ log10 MGR 95%, final"], rows,
-                       cls="by-setting", caption="Paired differences per localization setting, 95 % CIs.")
+        ctx.page.table(["setting", "realizations", "comparison", "Δ correct, final", "Δ MSDE, final",
+                        "Δ log10 MGR 95%, final"], rows, cls="by-setting",
+                       caption="Paired differences per localization setting (each setting on its own), 95 % CIs "
+                               "over targets and tracks. With 1 realization the log10 MGR percentile is that "
+                               "realization's value.")
 
 
 def _difficulty(ctx: ReportContext, pop: dict) -> None:
@@ -282,7 +327,7 @@ def _ablations(ctx: ReportContext) -> None:
             continue
         over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
         d = (a.get("paired") or {}).get(key) or {}
-        said = headline([str(s) for s in a.get("verdict") or []], a.get("verdict_table") or [])
+        said = headline([reformat_numbers(str(s)) for s in a.get("verdict") or []], a.get("verdict_table") or [])
         rows.append([over, Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True),
                      " ".join(said) or "—"])
     ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],

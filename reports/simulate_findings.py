@@ -2,18 +2,19 @@
 percentile-band widths, confident misclassifications and the inverse-view dip, MGR as log10."""
 from __future__ import annotations
 
-import math
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, method_label
-from pipeline.evaluation.metrics import percentile
+from pipeline.evaluation.metrics import confident_errors, percentile
 
 OURS = WITH_UNCERTAINTY
 OTHERS = (MODEL_BASED, SIMPLE_BAYES)
-CONFIDENT = 0.9   # "confidently wrong": a wrong class holds at least this posterior
+# "Confidently wrong": max P >= this on a wrong class, the evaluate stage's confident error
+# (``simulate.confident_threshold``; the stage passes the configured value).
+CONFIDENT = 0.99
 
 
 # -- numbers --------------------------------------------------------------------------------------------
@@ -39,15 +40,19 @@ def inverse_steps(ex: pd.DataFrame, scenario: str, truth: int) -> list[int]:
     return out
 
 
-def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int) -> dict[str, Any]:
-    """Numbers behind the paper's qualitative findings, per scenario present."""
-    out: dict[str, Any] = {}
+def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int,
+             posteriors: Mapping[str, Mapping[str, np.ndarray]], confident: float = CONFIDENT) -> dict[str, Any]:
+    """Numbers behind the paper's qualitative findings, per scenario present; "confidently wrong"
+    is ``metrics.confident_errors`` at ``confident`` on ``posteriors`` ({scenario: {method:
+    (R, K, C)}}, the rows of ``df``). The stage writes them to summary.json; the page reads them."""
+    out: dict[str, Any] = {"confident_threshold": confident}
     for scenario, g in df.groupby("scenario", sort=False):
         s: dict[str, Any] = {}
         for method, gm in g.groupby("method", sort=False):
             steps, pt = matrix(gm, "p_truth")
             _, lm = matrix(gm, "log10_mgr")
-            wrong_conf = (pt <= (1 - CONFIDENT)) & (lm > math.log10(CONFIDENT / (1 - CONFIDENT)))
+            with np.errstate(divide="ignore"):
+                wrong_conf = confident_errors(np.log(posteriors[scenario][method]), truth, confident)
             q10, q25, q50, q75, q90 = percentile(pt, [10, 25, 50, 75, 90], axis=0)
             s[method] = {
                 "ptruth_band_10_90_mean": float(np.mean(q90 - q10)),
@@ -83,6 +88,7 @@ def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int) -> dict[str, Any]:
 def findings_text(found: dict[str, Any]) -> list[str]:
     """Plain-language checks of the paper's three qualitative findings, with the numbers."""
     lines = []
+    conf = found.get("confident_threshold", CONFIDENT)
     mu = found.get("model_uncertainty")
     if mu:
         w = {m: mu[m]["ptruth_band_10_90_mean"] for m in (OURS,) + OTHERS if m in mu}
@@ -94,7 +100,7 @@ def findings_text(found: dict[str, Any]) -> list[str]:
             + "; 90th percentile of log10 MGR at its worst step: "
             + ", ".join(f"{mu[m]['log10_mgr_p90_max']:.2f} ({method_label(m, short=True)})"
                         for m in (OURS,) + OTHERS if m in mu)
-            + "; confidently wrong (a wrong class ≥ 0.9) over all steps / at some step of a realization: "
+            + f"; confidently wrong (max P ≥ {conf:g} on a wrong class) over all steps / at some step of a realization: "
             + ", ".join(f"{100 * mu[m]['confident_wrong_overall']:.1f}% / "
                         f"{100 * mu[m]['confident_wrong_any_step']:.0f}% ({method_label(m, short=True)})"
                         for m in (OURS,) + OTHERS if m in mu) + ".")
@@ -117,7 +123,7 @@ def findings_text(found: dict[str, Any]) -> list[str]:
     if lb and "model_based" in lb:
         mb, ours = lb["model_based"], lb.get(OURS, {})
         lines.append(
-            f"Localization bias — Model Based is confidently wrong (a wrong class ≥ 0.9) in "
+            f"Localization bias — Model Based is confidently wrong (max P ≥ {conf:g} on a wrong class) in "
             f"{100 * mb['confident_wrong_any_step']:.0f}% of realizations at some step and "
             f"{100 * mb['confident_wrong_final']:.0f}% at the last step; its median P(truth) bottoms at "
             f"{mb['ptruth_median_min']:.2f} (step {mb['ptruth_median_argmin_step']}). With Uncertainty: "

@@ -8,7 +8,9 @@ re-rendered from the artifacts. Same conventions as the main report: names and c
 
 Figures: class maps (model points, track, biased estimates); the measurements over the track for
 the example realization (paper Figs. 2 and 4); percentile bands over realizations per step of
-P(truth), log10 MGR and MSDE, each method against With Uncertainty (paper Figs. 3 and 5).
+P(truth), log10 MGR and MSDE, each method against With Uncertainty (paper Figs. 3 and 5); the
+confident-error rate per step; the regime sweep of the paper's claims (``reports.simulate_claims``,
+which also writes the claims table at the top of the page).
 """
 from __future__ import annotations
 
@@ -27,7 +29,8 @@ from pipeline.infra.outputs import path as out_path
 from reports.artifacts import load_simulate
 from reports.figures import new_subplots, percentile_bands, save
 from reports.html import HtmlReport
-from reports.simulate_findings import OTHERS, OURS, findings, findings_text, matrix
+from reports.simulate_claims import claims_section, fig_confident_errors, fig_sweep
+from reports.simulate_findings import OTHERS, OURS, findings_text, matrix
 from reports.stats import BOOTSTRAP, track_summary
 
 log = logging.getLogger("viewfuse.simulate")
@@ -206,8 +209,17 @@ def _plan(so, sim_dir: Path, scenarios: list[str]) -> list[tuple[str, Any]]:
         models = GPClassModels.load(sim_dir / out_name("simulate", "models"))
         true_xy, est = _example_poses(ex, scenarios)
         plan.append(("class_maps.png", lambda: fig_class_maps(models, true_xy, est, classes, truth)))
+    summ = so.summary
+    if summ.get("sweep"):
+        step = (summ.get("claim_params") or {}).get("step", 15)
+        plan.append(("claims_sweep.png", lambda: fig_sweep(summ["sweep"], step)))
+    conf = summ.get("confident_errors") or {}
+    thr = (summ.get("claim_params") or {}).get("confident_threshold", 0.99)
     for s in scenarios:
         plan.append((f"{s}_measurements.png", lambda s=s: fig_measurements(ex, s, classes, truth)))
+        if s in conf:
+            plan.append((f"{s}_confident_errors.png", lambda s=s: fig_confident_errors(
+                conf[s], thr, f"Confident errors per step — {SCENARIO_TITLES.get(s, s)}")))
         sub = df[df["scenario"] == s]
         for col, ylabel, short in METRICS:
             plan.append((f"{s}_{col}.png", lambda sub=sub, col=col, ylabel=ylabel, short=short, s=s: fig_bands_vs(
@@ -247,7 +259,8 @@ def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
                     "westward pose bias can alias class 2 into class 3.")
 
 
-def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int) -> None:
+def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int,
+                      page_written: tuple[str, ...] = ()) -> None:
     page.section(SCENARIO_TITLES.get(s, s), anchor=s)
     page.figure(f"{s}_measurements.png", "Measurements along the track for one realization (paper Figs. 2/4). "
                 "Lines: GP means of each class at the true poses (the truth's ±1 std shaded)"
@@ -257,6 +270,10 @@ def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int)
         page.figure(f"{s}_{col}.png", f"{short} per step over {R} realizations: nested 10–90 %, 20–80 %, 30–70 %, "
                     "40–60 % bands and the median, drawn as steps, each method against With Uncertainty "
                     "(paper Figs. 3/5).")
+    if f"{s}_confident_errors.png" in page_written:
+        page.figure(f"{s}_confident_errors.png", f"Share of the {R} realizations whose posterior puts max P ≥ "
+                    "the confident-error threshold on a wrong class, per step (the evaluate stage's definition, "
+                    "pipeline.evaluation.metrics.confident_errors); band: Wilson 95 % CI over realizations.")
     cell = summ.get(s) or {"methods": {}}
     page.table(["method"] + [metric_label(k, short=True) for k in TABLE],
                [[method_label(m, short=True)] + [est[k] for k in TABLE] for m, est in cell["methods"].items()],
@@ -283,13 +300,21 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
                       " · ".join(x for x in (f"run {run_name}" if run_name else "", "paper §5.3",
                                              f"seed {so.meta.get('seed', '?')}") if x), badge="simulated data")
     R, K = int(df["realization"].nunique()), int(df["step"].nunique())
+    claims_section(page, so.summary)
+    if "claims_sweep.png" in written:
+        g = so.summary["sweep"]["grid"]
+        page.figure("claims_sweep.png", f"Each claim over the {g['name']} sweep's grid: GP noise variance (set on "
+                    "every class model; below it the median predictive std along the track) x σ_max, "
+                    f"{g['realizations']} realizations per point, the same seeds at every point. Dark: the whole "
+                    "95 % CI agrees with the verdict; pale: it spans the threshold; numbers: the statistic.")
     _overview(page, so, R, K, written)
     summ = track_summary(df, n_boot=n_boot, seed=int(so.meta.get("seed", 0) or 0), by="scenario")
     for s in scenarios:
-        _scenario_section(page, s, summ, R, n_boot)
+        _scenario_section(page, s, summ, R, n_boot, tuple(written))
     page.section("Findings", anchor="findings")
     page.paragraph("The paper's qualitative findings, checked on these runs:")
-    for line in findings_text(findings(df, ex, so.truth)):
+    # Computed by the stage from the posteriors (reports.simulate_findings.findings), read here.
+    for line in findings_text(so.summary.get("findings") or {}):
         page.paragraph(line)
     fits = so.summary.get("gp_fit") or []
     if fits:

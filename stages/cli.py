@@ -114,6 +114,15 @@ def build_parser() -> argparse.ArgumentParser:
                                     "then write study/index.html and study/summary.json side by side.")
     _common(sy)
     sy.add_argument("--force", action="store_true", help="rerun each seed's evaluate stage")
+    cp = sub.add_parser("compare", help="finished runs side by side: config keys that differ, pooled metrics, verdicts",
+                        description="Compare finished runs (run folders, or folders of runs such as "
+                                    "<run>/study/: a seed group pooled over its seeds). Reads only each run's "
+                                    "evaluate/summary.json and stage manifests; prints a table and writes "
+                                    "an HTML page.")
+    cp.add_argument("runs", nargs="+", metavar="RUN_OR_DIR", help="artifacts/<run> or a folder of run folders")
+    cp.add_argument("--out", default=None, help="folder for index.html (default: <first run>/compare)")
+    cp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    cp.add_argument("--debug", action="store_true", help="on an error, print the Python traceback too")
     return p
 
 
@@ -214,6 +223,9 @@ def main(argv: list[str] | None = None) -> int:
 def _main(args) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
+    if args.stage == "compare":  # not a stage: reads finished runs only (stages/compare.py)
+        from stages.compare import run as compare_runs
+        return compare_runs(args.runs, args.out)
     from pipeline.infra import progress
     progress.set_mode(args.progress)
     cfg = _load(args)

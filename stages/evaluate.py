@@ -1,5 +1,6 @@
 """Stage ``evaluate``: the population evaluation (every target x several tracks x the settings),
-its statistics and verdict, and the single-track figures for the first target's first track.
+its statistics and verdict, and the single-track figures for the showcase track
+(``pipeline.evaluation.showcase``: where the methods disagree most at the final step).
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
 experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.population``,
@@ -7,6 +8,8 @@ experiments, the metrics and the statistics are pure functions in ``pipeline.eva
 and ``pipeline.evaluation.population_summary``; cells run on ``run.executor``.
 """
 from __future__ import annotations
+
+import dataclasses
 
 import json
 import logging
@@ -18,6 +21,7 @@ import pandas as pd
 
 from pipeline.evaluation import experiments as E
 from pipeline.evaluation import population as P
+from pipeline.evaluation import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config, is_model_ablation
 from pipeline.scoring.features import read_features
@@ -80,7 +84,7 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
 
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict,
                  domain: TestDomain | None = None) -> None:
-    """The first target's first track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
+    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
     if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
@@ -116,6 +120,19 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: 
         timings["bias_maps"] = time.perf_counter() - t0
 
 
+def fusion_device(ctx, executor) -> tuple[str, bool]:
+    """(device for the fusion engine in each cell, whether tasks ask the executor for a GPU).
+    In this process: run.device resolved here (auto -> cuda when torch sees a GPU). On Ray: each
+    task asks for a GPU where the cluster has one and resolves 'auto' in its worker."""
+    want = ctx.device_request
+    if executor.name == "local":
+        return ("cpu" if want == "cpu" else ctx.device), False
+    if want == "cuda" and not executor.gpus:
+        raise RuntimeError("run.device = 'cuda' (or --device cuda) but the Ray cluster has no GPU")
+    device = "cpu" if want == "cpu" or not executor.gpus else want
+    return device, device != "cpu"
+
+
 def run(ctx) -> str:
     from pipeline.infra.executor import executor_for
 
@@ -149,7 +166,9 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     executor = executor_for(cfg)
     try:
-        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell")
+        device, gpu = fusion_device(ctx, executor)
+        cells = [dataclasses.replace(c, device=device) for c in cells]
+        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell", gpu=gpu)
     finally:
         executor.close()
     timings["population"] = time.perf_counter() - t0
@@ -162,17 +181,25 @@ def run(ctx) -> str:
     population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
     timings["statistics"] = time.perf_counter() - t0
 
-    # The first target's first track: its biased/randomized tables as before, plus the figures.
-    first = cells[0]
+    # The showcase track (pipeline/evaluation/showcase.py: where the methods disagree most): its
+    # biased/randomized tables, plus the single-track figures.
+    chosen = S.choose(table)
+    at = next(i for i, c in enumerate(cells)
+              if c.variant == DEFAULT and c.target == chosen["target"] and c.track == chosen["track"])
+    first = cells[at]
+    population["showcase"] = chosen
     summary: dict = {}
-    for (experiment, label), posts in results[0]["posts"].items():
+    for (experiment, label), posts in results[at]["posts"].items():
         summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
     blocks = result_blocks(cells, results)
-    single_track(cfg, ctx, banks, first, blocks, summary, timings, domain)
+    from pipeline.method.fusion import engine_device
+
+    with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
+        single_track(cfg, ctx, banks, first, blocks, summary, timings, domain)
     n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
         config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
-        target=first.target))
-    info = tracks[0].as_dict()
+        target=first.target, track=str(first.track)))
+    info = next(t for t in tracks if t.target == first.target and t.track == first.track).as_dict()
     obj_truth = P.truth_entry(truth, first.scan, first.target)
     info.update(classes=list(first.classes), yaw_deg=float(np.degrees(first.data.yaw)),
                 gp_inputs=first.data.inputs(first.data.cam_xy).tolist(),
@@ -183,7 +210,7 @@ def run(ctx) -> str:
                 float(np.linalg.norm(first.data.obj_xy - np.asarray(obj_truth["position"], float))))
     write_json(ctx.out / out_name("evaluate", "track"), info)
     write_json(ctx.out / out_name("evaluate", "summary"), {
-        "experiments": summary, "classes": list(first.classes), "target": first.target,
+        "experiments": summary, "classes": list(first.classes), "target": first.target, "track": first.track,
         "seeds": {"evaluate": ev.seed, "candidates": ev.candidate_seed},
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "features_meta": {k: v for k, v in meta.items() if k != "viewfuse.output_names"},

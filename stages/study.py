@@ -181,6 +181,24 @@ def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = Fals
                             "chain_per_seed": {str(sd): chain_seconds(seed_config(cfg, sd)) for sd in cfg.study.seeds}}
     out = study_dir(cfg)
     write_json(out_path(out, "study", "summary"), summary)
-    write_text(out_path(out, "study", "html"), render_html(summary, cfg.run.name))
+    compared = write_compare(out, cfg.run.name, summary["sentence"])
+    page = render_html(summary, cfg.run.name)
+    if compared:  # the seeds side by side and pooled over seeds: viewfuse compare's page
+        page = page.replace("</h1>", '</h1>\n<p><a href="compare/index.html">Every seed side by side, with the '
+                                     "values pooled over seeds (viewfuse compare)</a></p>", 1)
+    write_text(out_path(out, "study", "html"), page)
     print(f"[study] {summary['sentence']} -> {out_path(out, 'study', 'html')}", flush=True)
     return summary
+
+
+def write_compare(out: Path, run_name: str, sentence: str) -> bool:
+    """``study/compare/index.html``: ``viewfuse compare`` over the seed folders (a seed group)."""
+    from reports.compare import CompareError, compare
+    from reports.compare_page import write_page
+    try:
+        c = compare([out])
+    except CompareError as e:
+        log.warning("study: no comparison page: %s", e)
+        return False
+    write_page(c, out / "compare", title=f"viewfuse seed study: {run_name}", intro=[sentence])
+    return True

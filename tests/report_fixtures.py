@@ -252,3 +252,14 @@ def rendered_run(tmp_path_factory):
                                     "report": {"dpi": 50}},
                             timings={"models": 1.5, "evaluate": 12.0})
     return facts, res
+
+
+@pytest.fixture(scope="session")
+def rendered_run_default_dpi(tmp_path_factory):
+    """A fake run rendered at the report's default dpi (110), as a reader sees it: the legibility
+    checks (text size, tick overlaps, the browser at 1400 px) need the real pixel sizes."""
+    from reports.main_report import build_main_report
+    root = tmp_path_factory.mktemp("report110")
+    facts = write_fake_run(root / "run", K=4, R=4, n_boot=50)
+    res = build_main_report(facts["run"], root / "out", run_name="fake", progress=False, n_boot=50)
+    return facts, res

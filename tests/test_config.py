@@ -105,3 +105,28 @@ def test_dotted_section_is_one_key():
     cfg = load_config(DEFAULT_CONFIG)
     assert cfg.section("evaluate.n_candidates") == 4
     assert cfg.section("evaluate.randomized.sigmas_m") == cfg.evaluate.randomized.sigmas_m
+
+
+def test_extends_inherits_and_overrides(tmp_path):
+    base = tmp_path / "base.toml"
+    base.write_text('[run]\nname = "b"\n[evaluate.randomized]\nrealizations = 7\nn_loc_samples = 3\n')
+    child = tmp_path / "child.toml"
+    child.write_text('extends = "base.toml"\n[evaluate.randomized]\nrealizations = 11\n')
+    cfg = load_config(child)
+    assert (cfg.run.name, cfg.evaluate.randomized.realizations, cfg.evaluate.randomized.n_loc_samples) == ("b", 11, 3)
+    (tmp_path / "loop.toml").write_text('extends = "loop.toml"\n')
+    with pytest.raises(ConfigError, match="cycle"):
+        load_config(tmp_path / "loop.toml")
+    (tmp_path / "gone.toml").write_text('extends = "nope.toml"\n')
+    with pytest.raises(ConfigError, match="nope.toml"):
+        load_config(tmp_path / "gone.toml")
+
+
+def test_paper_grade_preset_changes_only_the_population():
+    pg = load_config(ROOT / "configs" / "paper_grade.toml")
+    default = load_config(DEFAULT_CONFIG)
+    assert (pg.evaluate.randomized.realizations, pg.evaluate.randomized.n_loc_samples) == (500, 100)
+    assert pg.run.name == "paper_grade"
+    for section in ("data", "classifier", "features", "models"):   # upstream stages are shared
+        assert pg.section_hash(section) == default.section_hash(section)
+    assert dataclasses.replace(pg.evaluate, randomized=default.evaluate.randomized) == default.evaluate

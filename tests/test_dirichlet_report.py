@@ -51,5 +51,5 @@ def test_report_shows_the_dirichlet_when_the_results_hold_it(tmp_path):
     assert "forest.png" in res.figures
     fits = page.table("dirichlet-fits")
     assert fits["collapsed"] and fits["section"] == "diagnostics"
-    assert fits["rows"][1:] == [["a", "120", "35.5", "14", "yes", "4.32e+03"], ["b", "120", "3.50e+04", "20000", "no", "1.00"]]
+    assert fits["rows"][1:] == [["a", "120", "35.5", "14", "yes", "4320"], ["b", "120", "35000", "20000", "no", "1.00"]]
     assert "1 did not converge within 20000 steps" in text

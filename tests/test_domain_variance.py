@@ -119,3 +119,17 @@ def test_crop_residuals_average_the_dropout_passes_at_the_true_direction():
     assert (r["x0"], r["x1"]) == pytest.approx((0.0, 1.0))
     none = D.crop_residuals(avd, scores, m, {}, max_difficulty=4, var_floor=1e-6)
     assert none.empty
+
+
+def test_the_fusion_engine_carries_the_test_domain_variance():
+    from pipeline.method import engine
+
+    m = _models()
+    cal = m.with_test_variance([0.1, 0.2])
+    th = np.random.default_rng(6).uniform(-np.pi, np.pi, (3, 4))
+    X = np.stack([np.cos(th), np.sin(th)], -1)                    # (B, K, 2) on the unit circle
+    mu_e, cov_e = engine.predictive(cal, X)
+    mu_g, cov_g = cal.predict(X)
+    assert np.allclose(mu_e, mu_g, atol=1e-9) and np.allclose(cov_e, cov_g, atol=1e-9)
+    _, cov0 = engine.predictive(m, X)
+    assert np.allclose(cov_e - cov0, np.einsum("cf,kl->cfkl", [[0.1, 0.2]], np.eye(4))[None], atol=1e-9)

@@ -18,7 +18,7 @@ from reports.figures import new_figure, percentile_bands, save
 from reports.figures_models import bias_map_rgb
 from reports.html import HtmlReport
 from reports.main_report import build_main_report
-from reports.numbers import Estimate, fmt
+from reports.numbers import Estimate, fmt, reformat_numbers
 from reports.stats import bootstrap_track
 from reports.tables import dump_toml, hyperparameter_table
 from tests.report_fixtures import CLASSES, rendered_run, write_fake_run  # noqa: F401 (fixture)
@@ -97,7 +97,13 @@ def estimate(cell: str) -> tuple[float, float, float]:
 # -- numbers and labels -------------------------------------------------------------------------
 def test_one_number_format_with_significant_digits():
     assert [fmt(x) for x in (1, 0.8856, 0.1958, 77.8, 0.0)] == ["1.00", "0.886", "0.196", "77.8", "0.00"]
-    assert fmt(3.295e-4) == "3.29e-04" and fmt(123456.0) == "1.23e+05"
+    # plain decimals down to 1e-6 (no mixed formats in one column), a short exponent from 1e5
+    assert fmt(3.295e-4) == "0.000329" and fmt(-7.93e-4) == "−0.000793" and fmt(123456.0) == "1.23e5"
+    # below 1e-6 the digits are noise: "< 1e-6", never "7.62e-19"
+    assert fmt(7.62e-19) == "< 1e-6" and fmt(-2e-9) == "> −1e-6" and fmt(9.996) == "10.0"
+    assert fmt(9.5e-6) == "9.50e-6" and fmt(1836.2) == "1840"
+    assert Estimate(7.62e-19, 4.09e-20, 2.14e-18).text() == "< 1e-6 [< 1e-6, < 1e-6]"
+    assert Estimate(0.5, float("nan"), float("nan")).text() == "0.500"  # no interval: the value alone
     assert fmt(None) == fmt(float("nan")) == "n/a" and fmt(float("inf")) == "∞"
     assert Estimate(0.46, 0.31, 0.6).text() == "0.460 [0.310, 0.600]"
     assert Estimate(0.181, 0.0139, 0.319, signed=True).text() == "+0.181 [+0.0139, +0.319]"
@@ -191,8 +197,8 @@ def test_bias_map_rgb_hue_is_argmax_and_brightness_grows_with_probability():
     rgb, arg = bias_map_rgb(post, ["#ff0000", "#00ff00", "#0000ff"])
     assert arg.tolist() == [[0, 1, 2]]
     np.testing.assert_allclose(rgb[0, 2], [0, 0, 1])
-    np.testing.assert_allclose(rgb[0, 0], [0.25, 0, 0])
-    assert 0.25 < rgb[0, 1, 1] < 1 and rgb[0, 1, 0] == 0 == rgb[0, 1, 2]
+    np.testing.assert_allclose(rgb[0, 0], [0.45, 0, 0])
+    assert 0.45 < rgb[0, 1, 1] < 1 and rgb[0, 1, 0] == 0 == rgb[0, 1, 2]
 
 
 # -- CIs over realizations ----------------------------------------------------------------------
@@ -226,13 +232,17 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     assert page.sections[0] == "verdict" and res.sections[0] == "verdict"
     text = res.index.read_text()
     first = text[text.index('id="verdict"'):text.index('id="population"')]
-    assert "synthetic data (stand-ins rendered" in first and "3 targets × 6 tracks (2 per target)" in first
-    assert "2 localization settings × 5 realizations" in first and "held-out top-1 0.940 [" in first
+    assert "synthetic data (stand-ins rendered" in first
+    # honest counts: targets, tracks (per target), settings, cells, realizations
+    assert "3 targets, 6 tracks, 2 per target, 2 localization settings: 12 (target, track, setting) cells" in first
+    assert "5 realizations per cell" in first and "held-out top-1 0.940 [" in first
     assert "one training run (classifier.seed = 3)" in first and "viewfuse study" in first
     # The headline sentences (computed, verbatim) on the first screen; all of them collapsed below.
     head = [s for s, r in zip(pop["verdict"], pop["verdict_table"]) if r["metric"] in ("correct_final", "log10_mgr95_final")]
     assert len(head) == 4 and len(pop["verdict"]) == 16
-    assert page.verdict == head + pop["verdict"]
+    # verbatim but for the numbers, which go through the page's one formatter
+    head = [reformat_numbers(s) for s in head]
+    assert page.verdict == head + [reformat_numbers(s) for s in pop["verdict"]]
     assert first.index(head[-1]) < first.index('class="summary pooled"') < first.index("All 16 verdict sentences")
     pooled = page.table("pooled")
     assert pooled["section"] == "verdict"
@@ -240,7 +250,8 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     assert header[0] == "method" and header[1] == "correct, final"
     assert [r[0] for r in rows] == [labels.method_label(m) for m in labels.ordered_methods(pop["methods"])]
     for r, m in zip(rows, labels.ordered_methods(pop["methods"])):
-        for cell, key in zip(r[1:], ("correct_final", "correct_overall", "prob_truth_final", "log10_mgr95_final")):
+        for cell, key in zip(r[1:], ("correct_final", "correct_overall", "prob_truth_final", "msde_final",
+                                     "log10_mgr95_final")):
             want = pop["pooled"][m][key]
             assert cell == Estimate.of(want).text()
     assert 'class="tag">synthetic data' in text
@@ -259,11 +270,11 @@ def test_population_tables_show_paired_differences_per_target_and_ablations(rend
     assert first[2] == [r for r in pop["verdict_table"] if r["metric"] == "correct_final"][0]["outcome"]
     assert first[4] == f"{100 * d['wins']:.0f} %"
     per = page.table("per-target")["rows"][1:]
-    assert len(per) == 3 * 3 and {r[0] for r in per} == set(pop["targets"])
+    assert len(per) == 3 * 3 and {r[0] for r in per} == {f"{t} (2 tracks)" for t in pop["targets"]}
     abl = page.table("ablations")
     assert abl["section"] == "diagnostics"
     assert abl["rows"][1][0] == "models.noise_floor = dropout"
-    assert pop["ablations"]["models.noise_floor=dropout"]["verdict"][0] in abl["rows"][1][3]
+    assert reformat_numbers(pop["ablations"]["models.noise_floor=dropout"]["verdict"][0]) in abl["rows"][1][3]
     assert {"forest.png", "per_target.png"} <= set(res.figures)
 
 
@@ -324,7 +335,7 @@ def test_every_figure_is_written_and_the_page_works_from_disk(rendered_run):
     assert page.scripts == 0 and "http://" not in text and "https://" not in text
     assert all(h.startswith("#") for h in page.links)
     assert page.sections == ["verdict", "population", "diagnostics", "track", "randomized", "sensitivity",
-                             "bias-maps", "gp", "details"]
+                             "bias-maps", "gp", "glossary", "details"]
 
 
 def test_names_say_what_they_are_and_run_details_show_skips(rendered_run):

@@ -1,5 +1,8 @@
 """The report page in a real browser (headless Chromium, 1400 px wide): the verdict is the first
-section and on the first screen, every image loads, no table cell holds a raw MGR.
+section and on the first screen, every image loads, no table cell holds a raw MGR, no table
+scrolls sideways, every figure is shown at a size where its smallest text is >= 11 px and none has
+overlapping tick labels (the figure's own text-layout check, carried on the <img>); a full-page
+screenshot at 1400 px is kept in the test's output folder.
 
 The page itself carries no script. The test renders a COPY of it into which it injected a tiny
 on-load check that writes its findings into the DOM; ``--dump-dom`` then hands the DOM back.
@@ -16,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.report_fixtures import rendered_run  # noqa: F401 (fixture)
+from tests.report_fixtures import rendered_run, rendered_run_default_dpi  # noqa: F401 (fixtures)
 
 WIDTH, HEIGHT = 1400, 1000
 # A table column is an MGR column when its header says MGR; every number in its cells must be a
@@ -39,6 +42,18 @@ window.addEventListener('load', function () {
       });
     });
   });
+  var scrolling = [];
+  document.querySelectorAll('details').forEach(function (d) { d.open = true; });  // collapsed tables too
+  document.querySelectorAll('.tablewrap').forEach(function (w) {
+    if (w.scrollWidth > w.clientWidth + 1) scrolling.push(w.querySelector('table').className);
+  });
+  var small = [], overlaps = [];
+  imgs.forEach(function (i) {
+    var px = parseFloat(i.getAttribute('data-min-font-px') || '0');
+    var scale = i.naturalWidth ? i.getBoundingClientRect().width / i.naturalWidth : 0;
+    if (!(px * scale >= 11)) small.push(i.getAttribute('src') + ': ' + (px * scale).toFixed(1) + ' px');
+    if (i.getAttribute('data-tick-overlaps') !== '0') overlaps.push(i.getAttribute('src'));
+  });
   var first = document.querySelector('main section');
   var verdict = document.getElementById('verdict');
   var d = document.createElement('div');
@@ -46,7 +61,7 @@ window.addEventListener('load', function () {
   d.setAttribute('data-result', JSON.stringify({
     images: imgs.length, broken: broken, first_section: first ? first.id : null,
     verdict_top: verdict ? verdict.getBoundingClientRect().top : null,
-    mgr_columns: mgrColumns, raw_mgr: raw}));
+    mgr_columns: mgrColumns, raw_mgr: raw, scrolling: scrolling, small_text: small, overlaps: overlaps}));
   document.body.appendChild(d);
 });
 </script>"""
@@ -93,6 +108,40 @@ def test_verdict_first_every_image_loads_and_no_raw_mgr(page):
     assert found["mgr_columns"] >= 5 and found["raw_mgr"] == []
 
 
+@pytest.fixture(scope="module")
+def page110(rendered_run_default_dpi, tmp_path_factory):  # noqa: F811
+    exe = _chromium()
+    _, res = rendered_run_default_dpi
+    return exe, tmp_path_factory.mktemp("browser110"), res
+
+
+def test_at_1400px_tables_fit_and_every_figure_is_legible_without_overlapping_ticks(page110):
+    exe, root, res = page110
+    found = _check_in_browser(exe, res.index.parent, root / "profile")
+    assert found["images"] == len(res.figures) > 0 and found["broken"] == []
+    assert found["scrolling"] == [], "tables wider than the page at 1400 px"
+    assert found["small_text"] == [] and found["overlaps"] == []
+    # The page as a reviewer sees it, kept with the test's output.
+    shot = root / "report_1400px.png"
+    subprocess.run([exe, *FLAGS[:-1], "--window-size=1400,6000", f"--user-data-dir={root / 'profile4'}",
+                    f"--screenshot={shot}", res.index.as_uri()], capture_output=True, text=True, timeout=180)
+    assert shot.is_file()
+    print(f"screenshot: {shot}")
+
+
+def test_the_legibility_checks_catch_small_text_overlaps_and_a_scrolling_table(page110):
+    exe, root, res = page110
+    copy = root / "shrunk"
+    shutil.copytree(res.index.parent, copy)
+    html = (copy / "index.html").read_text()
+    html = html.replace('data-tick-overlaps="0"', 'data-tick-overlaps="2"', 1)
+    html = html.replace("<img ", '<img style="width:300px" ', 1)              # a figure shrunk below legibility
+    html = html.replace('<div class="tablewrap">', '<div class="tablewrap"><div style="width:3000px">x</div>', 1)
+    (copy / "index.html").write_text(html)
+    found = _check_in_browser(exe, copy, root / "profile5")
+    assert len(found["overlaps"]) == 1 and len(found["small_text"]) >= 1 and len(found["scrolling"]) == 1
+
+
 def test_the_checks_catch_a_missing_image_a_raw_mgr_and_a_late_verdict(page):
     # Guard against checks that always pass: break a copy of the page three ways.
     exe, root, res = page
@@ -100,7 +149,8 @@ def test_the_checks_catch_a_missing_image_a_raw_mgr_and_a_late_verdict(page):
     shutil.copytree(res.index.parent, copy)
     (copy / res.figures[0]).unlink()
     html = (copy / "index.html").read_text()
-    html = re.sub(r'(<td class="num">)([^<]*\[[^<]*)(</td></tr>)', r"\g<1>6.810e+77\g<3>", html, count=1)
+    html = re.sub(r'(<td class="num">)(<span class="nw">[^<]*</span> <span class="nw">\[[^<]*</span>)(</td></tr>)',
+                  r"\g<1>6.810e+77\g<3>", html, count=1)
     start = html.index('<section id="verdict">')
     end = html.index("</section>", start) + len("</section>")
     verdict = html[start:end]

@@ -12,13 +12,14 @@ import pandas as pd
 import pytest
 from scipy import stats
 
+from pipeline.evaluation import claims as CL
 from pipeline.evaluation import simulation as S
 from pipeline.infra.config import ConfigError, SimulateConfig
 from pipeline.method.gp import GPClassModels
 
 
 def small_sim(**kw) -> SimulateConfig:
-    base = dict(realizations=6, track_steps=6, n_samples=5, n_loc_samples=4, restarts=0, chunk=4)
+    base = dict(realizations=6, track_steps=6, n_samples=5, n_loc_samples=4, restarts=0, chunk=4, claim_step=3)
     base.update(kw)
     return dataclasses.replace(SimulateConfig(), **base)
 
@@ -237,6 +238,8 @@ def test_validate_names_the_key():
         S.validate(dataclasses.replace(SimulateConfig(), scores_class3=tuple(bad)), "c.toml")
     with pytest.raises(ConfigError, match="example_realization"):
         S.validate(small_sim(example_realization=6), "c.toml")
+    with pytest.raises(ConfigError, match=r"simulate\.claim_step.*track_steps"):
+        S.validate(small_sim(claim_step=6), "c.toml")
 
 
 def test_config_file_accepts_the_section(tmp_config):
@@ -255,7 +258,8 @@ def test_stage_writes_results_example_and_report(tmp_config):
     from stages.runner import ensure
 
     cfg = tmp_config({"simulate": {"realizations": 4, "track_steps": 6, "n_samples": 4, "n_loc_samples": 4,
-                                   "restarts": 0, "dpi": 40}})
+                                   "restarts": 0, "dpi": 40, "claim_step": 3, "sweep_noise": [1e-4],
+                                   "sweep_sigma_max": [0.5], "sweep_realizations": 3}})
     ensure(cfg, "simulate")
     out = cfg.stage_dir("simulate")
     t = pq.read_table(out / "results.parquet")
@@ -268,16 +272,26 @@ def test_stage_writes_results_example_and_report(tmp_config):
     assert len(ex) == 2 * 6 * 3
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["table"]) == 6 and "findings" in summary
+    # The paper's claims, the confident errors per step and the sweep (2 x 2 grid: the default added).
+    assert [c["key"] for c in summary["claims"]] == [c.key for c in CL.CLAIMS]
+    assert all(isinstance(c["holds"], bool) and c["n"] == 4 for c in summary["claims"])
+    assert len(summary["confident_errors"]["model_uncertainty"]["with_uncertainty"]["rate"]) == 6
+    sw = summary["sweep"]
+    assert sw["grid"]["sigma_max"] == [0.3, 0.5] and len(sw["records"]) == 2 * 2 * len(CL.CLAIMS)
+    assert sw["summary"]["sentence"]
     html = (out / "index.html").read_text()
+    assert html.index("The paper&#x27;s claims") < html.index("Overview")
+    assert "Dirichlet (Tchuiev &amp; Indelman)&#x27; does not apply here" in html and sw["summary"]["sentence"].split(".")[0].replace("'", "&#x27;") in html
     pngs = sorted(p.name for p in out.glob("*.png"))
-    assert len(pngs) == 1 + 2 * 4
+    assert len(pngs) == 1 + 1 + 2 * 5
     for p in pngs:
         assert f'src="{p}"' in html
     # The report's conventions: log10 MGR, the shared method names, every table value with its CI.
     assert "log10 MGR 95%, all steps" in html and "With Uncertainty (Feldman &amp; Indelman)" in html
     assert "(ours)" not in html and "log MGR =" not in html
     import re
-    cells = re.findall(r'<td class="num">([^<]*)</td>', html)
+    # cell text without its no-wrap spans; the page writes a typographic minus
+    cells = [re.sub(r"<[^>]+>", "", c).replace("−", "-") for c in re.findall(r'<td class="num">(.*?)</td>', html)]
     est = [c for c in cells if "[" in c]
     assert len(est) >= 2 * 3 * 4          # 2 scenarios x 3 methods x 4 metrics, each 'v [lo, hi]'
     for c in est:

@@ -98,6 +98,10 @@ def test_study_runs_each_seed_then_reuses_finished_ones(tmp_config):
     assert "With Uncertainty vs Model Based, correct ratio, final step" in page  # labels, not keys
     assert "0.910 <small>[0.890, 0.930]</small>" in page  # seed 1's accuracy with its CI
     assert page.index("Verdict per seed") < page.index("Pooled values")
+    # viewfuse compare's page over the seed folders, linked from the study page
+    assert 'href="compare/index.html"' in page
+    cmp = (out / "compare" / "index.html").read_text()
+    assert "seed-0" in cmp and "seed-1" in cmp and 'class="changed"' in cmp  # seed 1's verdict flipped
     # The data folder is shared, not rendered again per seed.
     assert (out / "seed-0" / "data").is_symlink()
     assert (out / "seed-0" / "data").resolve() == cfg.stage_dir("data").resolve()

@@ -296,3 +296,28 @@ def with_mgr_ratios(row: Mapping[str, float]) -> dict[str, float | None]:
         else:
             out[k] = v
     return out
+
+
+def confident_errors(log_post, truth, threshold: float) -> np.ndarray:
+    """Per posterior (..., C) of log probabilities: True where the most probable class is wrong
+    and holds P >= ``threshold`` ("max P >= 0.99 on a wrong class" at 0.99). The argmax is the
+    one ``correct`` uses (ties to the lowest index); log posteriors are renormalised first, so
+    unnormalised log weights give the same answer."""
+    t = float(threshold)
+    if not 0.0 < t <= 1.0:
+        raise ValueError(f"confident-error threshold must be in (0, 1], got {threshold!r}")
+    lp = np.asarray(log_post, dtype=float)
+    if np.any(np.isnan(lp)):
+        raise ValueError("posteriors contain NaN")
+    top = lp.max(axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lse = top[..., 0] + np.log(np.sum(np.exp(lp - top), axis=-1))
+    wrong = ~correct(lp, truth)
+    return wrong & (top[..., 0] - lse >= np.log(t))
+
+
+def confident_error_rate(log_post, truth, threshold: float, axis=None) -> np.ndarray | float:
+    """Share of posteriors that are confident errors (``confident_errors``), averaged over
+    ``axis`` (None: all posteriors). The evaluate and simulate stages both use this definition."""
+    e = confident_errors(log_post, truth, threshold)
+    return float(e.mean()) if axis is None else e.mean(axis=axis)

@@ -191,6 +191,7 @@ class Cell:
     test_variance: tuple[float, ...] | None = None  # δ² per component: the calibrated likelihood
     dirichlet: DirichletModels | None = None   # the candidates' Dirichlet models (needs data.probs)
     n_ss: int = 100                            # evaluate.dirichlet.n_ss
+    device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
 
 
 def dirichlet_rng(seed: int, target: str, track: int) -> np.random.Generator:
@@ -223,6 +224,13 @@ def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.
 def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None}."""
+    from pipeline.method.fusion import engine_device
+
+    with engine_device(cell.device):
+        return _run_cell(banks, cell)
+
+
+def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])

@@ -3,7 +3,7 @@
 ``result_block`` turns a dict of posteriors (R, K, C) per method into numpy columns with the
 per-step metric columns of ``pipeline.evaluation.metrics.STEP_COLUMNS`` (log10 MGR, as shown to
 people everywhere); ``write_results`` writes blocks as one Parquet file with the posterior as a
-fixed-size list column. The evaluate and simulate stages both write through here (``write_table``
+fixed-size list column (``ResultsWriter`` streams blocks into it). The evaluate and simulate stages both write through here (``write_table``
 also writes the simulation's example table), so every results file has the same columns and
 conventions.
 """
@@ -59,8 +59,17 @@ def write_table(columns: Mapping[str, np.ndarray], path: str | Path, metadata: M
     """Columns (equal length) as Parquet, atomically: 2D float arrays (n, C) become fixed-size
     lists, object arrays of arrays variable-length lists, other object arrays strings. Returns
     the rows."""
-    import pyarrow as pa
     import pyarrow.parquet as pq
+
+    table = arrow_table(columns, metadata)
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+    return table.num_rows
+
+
+def arrow_table(columns: Mapping[str, np.ndarray], metadata: Mapping[str, str]):
+    """The pyarrow table ``write_table`` writes."""
+    import pyarrow as pa
 
     names = list(columns)
     arrays = []
@@ -76,10 +85,75 @@ def write_table(columns: Mapping[str, np.ndarray], path: str | Path, metadata: M
             arrays.append(pa.array(col.tolist(), pa.string()))
         else:
             arrays.append(pa.array(col, type=getattr(pa, _TYPES[name])() if name in _TYPES else None))
-    table = pa.Table.from_arrays(arrays, names=names).replace_schema_metadata(dict(metadata))
-    with atomic_path(path) as tmp:
-        pq.write_table(table, tmp, compression="zstd")
-    return table.num_rows
+    return pa.Table.from_arrays(arrays, names=names).replace_schema_metadata(dict(metadata))
+
+
+class ResultsWriter:
+    """``write_results`` one block at a time: blocks are buffered up to ``rows_per_group`` rows and
+    written as a Parquet row group, so a stage streams its cells instead of holding every result
+    row at once (the same file content as ``write_results`` on all the blocks). Use as a context
+    manager; the file appears (atomically) only on a clean exit. ``append`` is ``write``, for code
+    that collects blocks in a list."""
+
+    def __init__(self, path: str | Path, metadata: Mapping[str, str], rows_per_group: int = 250_000):
+        self.path, self.metadata, self.rows_per_group = Path(path), dict(metadata), int(rows_per_group)
+        self.rows = 0
+        self._pending: list[Mapping[str, np.ndarray]] = []
+        self._n_pending = 0
+        self._writer = None
+        self._schema = None
+        self._ctx = None
+
+    def __enter__(self) -> "ResultsWriter":
+        self._ctx = atomic_path(self.path)
+        self._tmp = self._ctx.__enter__()
+        return self
+
+    def write(self, block: Mapping[str, np.ndarray]) -> None:
+        n = len(next(iter(block.values())))
+        if self._pending and list(block) != list(self._pending[0]):
+            raise ValueError(f"ResultsWriter: block columns {list(block)} differ from {list(self._pending[0])}")
+        self._pending.append(block)
+        self._n_pending += n
+        if self._n_pending >= self.rows_per_group:
+            self._flush()
+
+    append = write
+
+    def _flush(self) -> None:
+        import pyarrow.parquet as pq
+
+        if not self._pending:
+            return
+        cols = {k: np.concatenate([b[k] for b in self._pending]) for k in self._pending[0]}
+        table = arrow_table(cols, self.metadata)
+        if self._writer is None:
+            self._schema = table.schema
+            self._writer = pq.ParquetWriter(self._tmp, self._schema, compression="zstd")
+        elif table.schema != self._schema:
+            table = table.cast(self._schema)
+        self._writer.write_table(table)
+        self.rows += table.num_rows
+        self._pending, self._n_pending = [], 0
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            try:
+                self._flush()
+                if self._writer is None:
+                    raise ValueError("write_results: no result blocks")
+                self._writer.close()
+            except BaseException as e:
+                self._ctx.__exit__(type(e), e, e.__traceback__)   # removes the temporary file
+                raise
+            self._ctx.__exit__(None, None, None)
+            return False
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except Exception:  # noqa: BLE001 - the original error is the one to report
+                pass
+        return self._ctx.__exit__(exc_type, exc, tb)
 
 
 def frame(blocks: Sequence[Mapping[str, np.ndarray]], *, drop: Sequence[str] = ()):

@@ -1,6 +1,11 @@
 """Simulation scenarios of the paper's §5.3: GP class models from hand-specified responses, a
 straight track past the object, the measurement generator of Algorithm 2 and the realization loop.
 
+Model confidence: ``configured_models`` keeps the fit (``model_confidence = "fitted"``) or sets
+every GP's noise variance to ``hand_made_noise`` (``with_noise``), the knob the regime sweep
+(``pipeline.evaluation.sweep``) turns; the paper's claims are checked in
+``pipeline.evaluation.claims``.
+
 Pure functions over arrays and the ``[simulate]`` config section; the ``simulate`` stage does the
 I/O and ``reports.simulate_report`` the figures.
 
@@ -77,6 +82,28 @@ def fit_models(sim: SimulateConfig, *, progress: bool = True) -> tuple[GPClassMo
                             component_names=[f"score {n}" for n in sim.class_names], progress=progress,
                             # marginal likelihood alone: the tight [simulate] bounds do the priors' job
                             hyperprior="none")
+
+
+def with_noise(models: GPClassModels, noise: float) -> GPClassModels:
+    """The same class models with every GP's noise variance set to ``noise`` (prior mean, amplitude
+    and length scale kept): the model-confidence knob of the regime sweep and of
+    ``model_confidence = "hand_made"``. The predictive mean changes too (less smoothing)."""
+    m = models
+    return GPClassModels(m.classes, m.components, m.X, m.Y, m.mean, m.amplitude, m.length_scale,
+                         np.full_like(m.noise, float(noise)), component_names=m.component_names, meta=m.meta)
+
+
+def predictive_std(models: GPClassModels, sim: SimulateConfig) -> float:
+    """Median over the track's steps, classes and components of the GP predictive std (incl. the
+    noise): the scale against which σ_max is compared."""
+    _, var = models.marginal(track_positions(sim.track_start, sim.track_length, sim.track_steps))
+    return float(np.median(np.sqrt(np.maximum(var, 0.0))))
+
+
+def configured_models(fitted: GPClassModels, sim: SimulateConfig) -> GPClassModels:
+    """The models the scenarios use: the fit itself (``model_confidence = "fitted"``) or the fit
+    with every noise variance set to ``hand_made_noise`` (``"hand_made"``)."""
+    return fitted if sim.model_confidence == "fitted" else with_noise(fitted, sim.hand_made_noise)
 
 
 def track_positions(start, length: float, steps: int) -> np.ndarray:

@@ -178,6 +178,10 @@ def check_simulate(sim: SimulateConfig, where: str = "config") -> None:
     for key in ("amplitude_bounds", "length_scale_bounds", "noise_bounds"):
         problem = bounds_problem(getattr(sim, key))
         need(problem is None, f"'simulate.{key}' {problem}")
+    need(sim.claim_step < sim.track_steps,
+         f"'simulate.claim_step' = {sim.claim_step} must be below 'simulate.track_steps' = {sim.track_steps}")
+    for key in ("sweep_noise", "sweep_sigma_max", "sweep_full_noise", "sweep_full_sigma_max"):
+        need(len(getattr(sim, key)) >= 1, f"'simulate.{key}' must list at least one value")
     need(sim.example_realization < sim.realizations,
          f"'simulate.example_realization' = {sim.example_realization} must be below "
          f"'simulate.realizations' = {sim.realizations}")

@@ -118,6 +118,17 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
     """
     path = Path(path)
     where = str(path)
+    table = _read_table(path)
+    if overrides:
+        table = merge(table, overrides)
+    cfg = _build(Config, table, where, "")
+    cfg = dataclasses.replace(cfg, source_path=str(path.resolve()))
+    cross_checks(cfg, where)
+    return cfg
+
+
+def _read_toml(path: Path) -> dict:
+    where = str(path)
     if not path.is_file():
         raise ConfigError(f"{where}: config file not found")
     try:
@@ -131,15 +142,27 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
         raise ConfigError(f"{where}: not UTF-8 text{hint}: byte {e.start} is {data[e.start:e.start + 1]!r}; "
                           "TOML files must be UTF-8") from None
     try:
-        table = tomllib.loads(text.removeprefix("\ufeff"))
+        return tomllib.loads(text.removeprefix("\ufeff"))
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where}: not valid TOML: {e}") from None
-    if overrides:
-        table = merge(table, overrides)
-    cfg = _build(Config, table, where, "")
-    cfg = dataclasses.replace(cfg, source_path=str(path.resolve()))
-    cross_checks(cfg, where)
-    return cfg
+
+
+def _read_table(path: Path, seen: tuple = ()) -> dict:
+    """The file's tables; a top-level ``extends = "other.toml"`` (relative to the file) first reads
+    that config and merges this file's keys over it, so a preset states only what it changes."""
+    where = str(path)
+    table = _read_toml(path)
+    base = table.pop("extends", None)
+    if base is None:
+        return table
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"{where}: 'extends' must be a config file name, got {base!r}")
+    parent = (path.parent / base).resolve()
+    if parent in seen or parent == path.resolve():
+        raise ConfigError(f"{where}: 'extends' makes a cycle through {parent}")
+    if not parent.is_file():
+        raise ConfigError(f"{where}: 'extends' names {base!r}, not found at {parent}")
+    return merge(_read_table(parent, seen + (path.resolve(),)), table)
 
 
 def merge(base: dict, over: dict) -> dict:

@@ -161,6 +161,28 @@ class SimulateConfig:
     example_realization: int = _f(0, lo=0, hi=1000000, doc="realization drawn in the measurement figures")
     chunk: int = _f(25, lo=1, hi=100000, doc="realizations fused per batch (memory vs speed)")
     dpi: int = _f(110, lo=30, hi=600, doc="PNG resolution of the simulation report")
+    # The paper's §5.3 claims and the model-confidence regime sweep (pipeline/evaluation/claims.py,
+    # pipeline/evaluation/sweep.py).
+    model_confidence: str = _f("fitted", choices=("fitted", "hand_made"),
+                               doc="fitted: GP noise fitted within noise_bounds; hand_made: every GP's "
+                                   "noise variance set to hand_made_noise after the fit")
+    hand_made_noise: float = _f(1e-4, lo=1e-12, hi=1.0, doc="GP noise variance when model_confidence = hand_made")
+    claim_step: int = _f(15, lo=0, hi=499, doc="the paper's 'step 15' (0-based track step) of the claims")
+    confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
+                                    doc="confident error: max P >= this on a wrong class (as evaluate)")
+    sweep: str = _f("small", choices=("off", "small", "full"), doc="regime sweep over GP noise x sigma_max")
+    sweep_noise: tuple[float, ...] = _f(factory=lambda: (1e-5, 1e-4, 1e-3, 5e-3, 2e-2), lo=1e-12, hi=1.0,
+                                        doc="small sweep: GP noise variances")
+    sweep_sigma_max: tuple[float, ...] = _f(factory=lambda: (0.1, 0.3, 0.5, 0.7, 1.0), lo=0.0, hi=10.0,
+                                            doc="small sweep: sigma_max values")
+    sweep_realizations: int = _f(100, lo=2, hi=100000, doc="small sweep: realizations per grid point")
+    sweep_full_noise: tuple[float, ...] = _f(
+        factory=lambda: (1e-6, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2), lo=1e-12, hi=1.0,
+        doc="full sweep: GP noise variances")
+    sweep_full_sigma_max: tuple[float, ...] = _f(
+        factory=lambda: (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0, 1.5), lo=0.0, hi=10.0,
+        doc="full sweep: sigma_max values")
+    sweep_full_realizations: int = _f(300, lo=2, hi=100000, doc="full sweep: realizations per grid point")
 
 
 @dataclass(frozen=True)

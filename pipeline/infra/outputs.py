@@ -90,6 +90,11 @@ CATALOG: dict[str, dict[str, Artifact]] = {
         "html": Artifact("index.html", "html", "reports.simulate_report:build_simulate_report", None),
         "figures": Artifact("*.png", "png", "reports.figures:save", None),
     },
+    # Not a stage: ``viewfuse compare`` writes its page into <first run>/compare/ (or --out).
+    "compare": {
+        "html": Artifact("index.html", "html", "reports.compare_page:write_page", None,
+                         "finished runs side by side (config diff, pooled metrics, verdicts)"),
+    },
     # Not a stage: ``viewfuse study`` writes these into <run>/study/ beside the seed folders.
     "study": {
         "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "per-seed results side by side"),

@@ -15,24 +15,68 @@ With ``d = μ_z - μ`` (past dropout means minus predictive means) and ``y = M d
 variance is ``L_kk² (1 + Σ_{j<k} M_kj² v_j)``. Model Based is the same with the measurements in
 place of μ_z and no v_z term (the chain rule of one Gaussian).
 
-Batching: realizations × localization samples × classes × components in every array op; the
-train-test kernels are big GEMMs (``GPClassModels.predict``); the recursion along the track is a
-loop over K vectorized over everything else, in log space (logsumexp), so a confident posterior
-never becomes 0/0.
+Batching: realizations × localization samples × classes × components in every array op. The
+joint predictive comes from ``pipeline/method/engine.py`` (Fourier-feature GEMMs on the unit
+circle, else kernel rows whitened by a triangular multiply); the K×K Cholesky factor, M's rows, y
+and the q sums are computed in one batch-last pass (``_cond_stats``: every K×K step is a vector op
+over all blocks' matrices); the recursion along the track is a loop over K vectorized over
+everything else, in log space (logsumexp), so a confident posterior never becomes 0/0. The engine
+before this one is kept as ``tests/reference_fusion.py``; the tests hold the two equal to 1e-9.
+
+``engine_device`` runs the same blocks in torch float64 (``pipeline/method/engine_torch.py``) on a
+GPU, or on the CPU for the tests.
 """
 from __future__ import annotations
 
 import math
+import threading
+from contextlib import contextmanager
 
 import numpy as np
 
+from pipeline.method import engine
 from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
-# Elements per working array in one block (a few such arrays live at once): ~8 MB each. Blocks
-# this size keep the train-test kernel passes near the caches; more blocks cost little.
-DEFAULT_BLOCK = 1 << 20
+# Elements per working array in one block (a few such arrays live at once): ~2 MB each, about 180
+# trajectories at 4 x 4 GPs, K = 9, N_s = 10. Blocks this size keep the basis GEMMs and Grams in
+# the caches (measured faster than 4x larger blocks); more blocks cost little.
+DEFAULT_BLOCK = 1 << 18
+
+# Where the per-block work runs: "cpu" (numpy, pipeline/method/engine.py), "cuda" (torch float64 on
+# the GPU, pipeline/method/engine_torch.py) or "torch-cpu" (the torch code on the CPU: the tests'
+# and the bench's way to run it without a GPU). Set per thread by ``engine_device``.
+_STATE = threading.local()
+DEVICES = ("cpu", "cuda", "torch-cpu")
+
+
+def current_device() -> str:
+    return getattr(_STATE, "device", "cpu")
+
+
+@contextmanager
+def engine_device(device: str):
+    """Run the fusion calls inside on ``device``: "cpu", "cuda", "torch-cpu", or "auto" (cuda when
+    torch sees a GPU, else cpu). Results agree to rounding (tests/test_engine_torch.py)."""
+    if device == "auto":
+        from pipeline.infra.device import resolve_device
+        device = resolve_device("auto")
+    if device not in DEVICES:
+        raise ValueError(f"engine_device: unknown device {device!r}; use auto, {', '.join(DEVICES)}")
+    if device == "cuda":
+        from pipeline.infra.device import resolve_device
+        resolve_device("cuda")          # a clear error without a GPU
+    old = current_device()
+    _STATE.device = device
+    try:
+        yield device
+    finally:
+        _STATE.device = old
+
+
+def _torch_device(device: str) -> str:
+    return "cpu" if device == "torch-cpu" else device
 
 
 # -- small numerics ------------------------------------------------------------------------------
@@ -89,7 +133,7 @@ def _cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
 
 def track_factors(models: GPClassModels, X: np.ndarray):
     """mu (B, C, F, K), Cholesky factor L and its inverse M (B, C, F, K, K) for trajectories X (B, K, d)."""
-    mu, cov = models.predict(X)
+    mu, cov = engine.predictive(models, X)
     L = _cholesky(cov, models)
     del cov
     return mu, L, tri_inverse(L)
@@ -118,36 +162,110 @@ def _recursion(ll: np.ndarray, logp0: np.ndarray) -> np.ndarray:
     return out
 
 
+# -- the per-block kernel --------------------------------------------------------------------------
+def _batch_last(mu: np.ndarray, cov: np.ndarray):
+    """mu (b, C, F, K), cov (b, C, F, K, K) -> (K, nb) and (K, K, nb), nb = b·C·F: every small
+    K×K operation below is then one vector op over nb contiguous numbers."""
+    K = mu.shape[-1]
+    return (np.ascontiguousarray(mu.reshape(-1, K).T),
+            np.ascontiguousarray(cov.reshape(-1, K, K).transpose(1, 2, 0)))
+
+
+def _cond_stats(A: np.ndarray, D: np.ndarray, V: np.ndarray | None):
+    """Batch-last Cholesky ``A = L Lᵀ`` (K, K, nb) and ``M = L⁻¹``, reduced to what the recursion
+    needs: L_kk, y = M D and q_k = Σ_{j<k} M_kj² V_j (each (K, nb); q None without V).
+    None when some A is not positive definite (the caller names it). Only L's lower triangle is
+    ever written or read."""
+    K, nb = A.shape[0], A.shape[-1]
+    L = engine.workspace("L", A.shape)
+    for j in range(K):
+        s = A[j, j] - np.einsum("kb,kb->b", L[j, :j], L[j, :j]) if j else A[0, 0].copy()
+        if not np.all(s > 0):
+            return None
+        ljj = np.sqrt(s)
+        L[j, j] = ljj
+        if j + 1 < K:
+            t = A[j + 1:, j] - np.einsum("ikb,kb->ib", L[j + 1:, :j], L[j, :j]) if j else A[1:, 0].copy()
+            t /= ljj
+            L[j + 1:, j] = t
+    Ld = np.empty((K, nb))
+    y = np.empty((K, nb))
+    q = None if V is None else np.zeros((K, nb))
+    M = engine.workspace("M", A.shape, zero=True)   # only its lower triangle is ever written: the rest stays 0
+    for k in range(K):
+        Ld[k] = L[k, k]
+        inv = 1.0 / Ld[k]
+        M[k, k] = inv
+        if k:
+            # M[k, :k] = -(L[k, :k] @ M[:k, :k]) / L_kk (forward substitution by rows)
+            row = np.einsum("jb,jlb->lb", L[k, :k], M[:k, :k])
+            row *= -inv
+            M[k, :k] = row
+            y[k] = np.einsum("jb,jb->b", row, D[:k]) + inv * D[k]
+            if V is not None:
+                q[k] = np.einsum("jb,jb->b", row * row, V[:k])
+        else:
+            y[0] = inv * D[0]
+    return Ld, y, q
+
+
+def _stats_or_raise(models, mu, cov, D, V):
+    out = _cond_stats(*(_batch_last(mu, cov)[1:]), D, V)
+    if out is None:
+        _cholesky(cov, models)  # raises naming the (class, component)
+        raise ValueError("joint predictive covariance is not positive definite")  # pragma: no cover
+    return out
+
+
+def _recursion_kfirst(ll: np.ndarray, logp0: np.ndarray) -> np.ndarray:
+    """Eq. 24-26 in log space. ll (K, ..., C, S) per dropout sample -> log P(c|H_k) (..., K, C)."""
+    K, *lead, C, S = ll.shape
+    out = np.empty(tuple(lead) + (K, C))
+    logp = np.broadcast_to(logp0, tuple(lead) + (C,))
+    for k in range(K):
+        h = ll[k] + logp[..., None]                                # (..., C, S)
+        h -= logsumexp(h, axis=-2, keepdims=True)
+        logp = logsumexp(h, axis=-1) - math.log(S)
+        out[..., k, :] = logp
+    return out
+
+
 # -- Model with Uncertainty ----------------------------------------------------------------------
-def _mwu_block(models: GPClassModels, X: np.ndarray, dropout: np.ndarray, logp0: np.ndarray,
-               var_floor: float) -> np.ndarray:
-    """X (r, n, K, d) localization samples, dropout (r, K, S, F) -> per-sample log posteriors (r, n, K, C)."""
+def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.ndarray, samples: np.ndarray,
+               logp0: np.ndarray) -> np.ndarray:
+    """X (r, n, K, d) localization samples; per realization the dropout means and floored
+    variances mu_z, v_z (r, K, F) and the samples (r, K, S, F) -> per-sample log posteriors (r, n, K, C).
+
+    Per step k, class and component (module docstring): conditional mean μ_z,k - L_kk y_k and
+    variance L_kk² (1 + q_k) of each dropout sample, y = M (μ_z - μ), q_k = Σ_{j<k} M_kj² v_j.
+    """
     r, n, K, d = X.shape
     C, F = models.n_classes, models.n_components
-    mu, L, M = track_factors(models, X.reshape(r * n, K, d))
-    shape = (r, n, C, F, K)
-    mu, L, M = mu.reshape(shape), L.reshape(shape + (K,)), M.reshape(shape + (K,))
-    mu_z, v_z = _dropout_stats(dropout, var_floor)                 # (r, K, F)
-    mu_zt = np.swapaxes(mu_z, -1, -2)[:, None, None]               # (r, 1, 1, F, K)
-    v_zt = np.swapaxes(v_z, -1, -2)[:, None, None, :, None, :]     # (r, 1, 1, F, 1, K)
-    y = np.einsum("...kj,...j->...k", M, mu_zt - mu)               # M (μ_z - μ)
-    M *= M                                                          # M∘M, only its strict lower part is used
-    idx = np.arange(K)
-    M[..., idx, idx] = 0.0
-    q = np.einsum("...kj,...j->...k", M, v_zt[..., 0, :])          # Σ_{j<k} M_kj² v_j
-    del M
-    Ld = np.diagonal(L, axis1=-2, axis2=-1)                         # (r, n, C, F, K)
-    var = Ld * Ld * (1.0 + q)
-    cmean = mu_zt - Ld * y
-    del L, y, q
+    S = samples.shape[2]
+    mu, cov = engine.predictive(models, X.reshape(r * n, K, d))
+    mu5 = mu.reshape(r, n, C, F, K)
+    mzt = np.transpose(mu_z, (1, 0, 2))[:, :, None, None, :]        # (K, r, 1, 1, F)
+    D = (mzt - np.moveaxis(mu5, -1, 0)).reshape(K, -1)              # (K, nb), nb = (r, n, C, F)
+    V = np.broadcast_to(np.transpose(v_z, (1, 0, 2))[:, :, None, None, :], (K, r, n, C, F)).reshape(K, -1)
+    Ld, y, q = _stats_or_raise(models, mu, cov, D, V)
+    del cov
+    var = Ld * Ld
+    var *= 1.0 + q                                                  # (K, nb)
+    cmean = np.broadcast_to(mzt, (K, r, n, C, F)).reshape(K, -1) - Ld * y
     # Gaussian log density of every dropout sample s_k, summed over components (Eq. 17); the
     # -log(2π)/2 per component is the same for every class and cancels in the normalisation.
-    s = np.moveaxis(dropout, -1, -3)[:, None, None]                 # (r, 1, 1, F, K, S)
-    resid = s - cmean[..., None]                                    # (r, n, C, F, K, S)
-    resid *= resid
-    resid /= var[..., None]
-    ll = -0.5 * resid.sum(axis=-3) - 0.5 * np.log(var).sum(axis=-2)[..., None]   # (r, n, C, K, S)
-    return _recursion(ll, logp0)
+    w = (1.0 / np.sqrt(var)).reshape(K, r, n, C, F)
+    cmean = cmean.reshape(K, r, n, C, F)
+    s = np.transpose(samples, (1, 0, 3, 2))                         # (K, r, F, S)
+    ll = np.zeros((K, r, n, C, S))
+    for f in range(F):
+        t = s[:, :, None, None, f, :] - cmean[..., f, None]         # (K, r, n, C, S)
+        t *= w[..., f, None]
+        t *= t
+        ll += t
+    ll *= -0.5
+    ll += (np.log(w).sum(axis=-1))[..., None]                       # -½ Σ_f log var
+    return _recursion_kfirst(ll, logp0)
 
 
 def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None, var_floor: float = 1e-6,
@@ -192,9 +310,17 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
     acc = np.full((R, K, C), -np.inf)
     spans = _blocks(R, Nx, _per_sample_cost(models, K, Z.shape[2]), block)
 
+    mu_z, v_z = _dropout_stats(Z, var_floor)                       # (R, K, F), once per call
+
+    device = current_device()
+
     def work(span):
         r0, r1, x0, x1 = span
-        return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], Z[r0:r1], logp0, var_floor), axis=1)
+        if device != "cpu":
+            from pipeline.method import engine_torch
+            return engine_torch.mwu_block(models, _torch_device(device), X[r0:r1, x0:x1], mu_z[r0:r1],
+                                          v_z[r0:r1], Z[r0:r1], logp0)
+        return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0), axis=1)
 
     for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
@@ -231,14 +357,20 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
     logp0 = log_prior(prior, C)
     out = np.empty((R, K, C))
 
+    device = current_device()
+
     def work(span):
         r0, r1 = span[:2]
-        mu, L, M = track_factors(models, X[r0:r1])                  # (b, C, F, K[, K])
+        b = r1 - r0
+        if device != "cpu":
+            from pipeline.method import engine_torch
+            return engine_torch.mb_block(models, _torch_device(device), X[r0:r1], Z[r0:r1], logp0)
+        mu, cov = engine.predictive(models, X[r0:r1])               # (b, C, F, K[, K])
         resid = np.swapaxes(Z[r0:r1], -1, -2)[:, None] - mu         # z - μ
-        y = np.einsum("...kj,...j->...k", M, resid)                 # whitened innovations
-        Ld = np.diagonal(L, axis1=-2, axis2=-1)
-        ll = (-0.5 * y * y - np.log(Ld)).sum(axis=-2)               # (b, C, K): chain rule per step
-        return _recursion(ll[..., None], logp0)
+        D = np.ascontiguousarray(np.moveaxis(resid, -1, 0).reshape(K, -1))
+        Ld, y, _ = _stats_or_raise(models, mu, cov, D, None)       # y: whitened innovations
+        ll = (-0.5 * y * y - np.log(Ld)).reshape(K, b, C, F).sum(axis=-1)   # chain rule per step
+        return _recursion_kfirst(ll[..., None], logp0)
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
     for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED]):
@@ -301,7 +433,7 @@ def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progres
     from pipeline.infra.progress import bar as progress_bar
 
     n = max(1, min(int(threads or available_cores()), len(spans)))
-    models.factors()  # build the shared training factors once, before any worker reads them
+    engine.plan(models)  # build the shared routes and factors once, before any worker reads them
     bar = progress_bar(total=len(spans), desc=desc, unit="block", leave=False,
                        enabled=progress and len(spans) >= 2)
     try:  # installed with scikit-learn

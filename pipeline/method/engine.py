@@ -1,0 +1,189 @@
+"""The joint predictive per trajectory for the fusion engine, by the cheapest exact route per GP.
+
+Two routes per (class, component), chosen once per model bank (``plan``):
+
+* **basis** (``pipeline/method/circle_basis.py``): unit-circle inputs, P = 2M + 1 Fourier
+  features; per point one row of a (rows × P)·(P × P) GEMM, no exp. Taken when the class's
+  training inputs are unit vectors and P ≤ N (the training views).
+* **exact**: the reference route of ``GPClassModels.predict`` (kernel rows against the N training
+  views, whitened by the training Cholesky factor), with L⁻¹ precomputed so that the whitening is a
+  triangular *multiply* (TRMM, GEMM speed) instead of a triangular solve.
+
+A call uses the basis route of a GP only when every test input of the call is a unit vector to
+``UNIT_TOL``; otherwise that call takes the exact route for every GP.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import weakref
+
+import numpy as np
+
+from pipeline.method import circle_basis as cb
+from pipeline.method.gp import GPClassModels
+
+_PLANS: "weakref.WeakKeyDictionary[GPClassModels, Plan]" = weakref.WeakKeyDictionary()
+_LOCK = threading.Lock()
+_BASIS: dict[bytes, cb.BasisGP | None] = {}
+_BASIS_MAX = 8192
+
+
+def _basis_gp(models: GPClassModels, c: int, f: int) -> cb.BasisGP | None:
+    """``circle_basis.build`` for GP (c, f), cached by its content (inputs, targets, hyperparameters)."""
+    import hashlib
+
+    x, y = models.X[c], np.ascontiguousarray(models.Y[c][f])
+    h = hashlib.blake2b(digest_size=16)
+    for part in (x.tobytes(), y.tobytes(), np.array([models.mean[c, f], models.amplitude[c, f],
+                                                     models.length_scale[c, f], models.noise[c, f]]).tobytes()):
+        h.update(part)
+    key = h.digest()
+    with _LOCK:
+        if key in _BASIS:
+            return _BASIS[key]
+    g = cb.build(x, y, models.mean[c, f], models.amplitude[c, f], models.length_scale[c, f], models.noise[c, f])
+    with _LOCK:
+        if len(_BASIS) >= _BASIS_MAX:
+            _BASIS.clear()
+        _BASIS[key] = g
+    return g
+
+
+class Plan:
+    """Per-GP route and factors of one model bank (built once, shared by worker threads). Basis
+    factors come from a cache keyed by the GP's content, so the per-cell ``subset`` of a bank
+    reuses them; the exact route's factors are made on first use."""
+
+    def __init__(self, models: GPClassModels, basis: bool = True):
+        self.models = models
+        C, F = models.n_classes, models.n_components
+        self.basis: list[list[cb.BasisGP | None]] = [[None] * F for _ in range(C)]
+        self._linv: dict[tuple[int, int], np.ndarray] = {}
+        on_circle = models.input_dim == 2
+        for c in range(C):
+            N = len(models.X[c])
+            unit = on_circle and cb.unit_error(models.X[c]) <= cb.UNIT_TOL
+            for f in range(F):
+                g = _basis_gp(models, c, f) if basis and unit else None
+                self.basis[c][f] = g if g is not None and g.P <= N else None
+        self.P_max = max([g.P for row in self.basis for g in row if g is not None] or [0])
+        self.members = [(c, f) for c, row in enumerate(self.basis) for f, g in enumerate(row) if g is not None]
+        self.q_fortran = [self.basis[c][f].QF for c, f in self.members]
+        self.wbar = np.zeros((self.P_max, len(self.members)))
+        for i, (c, f) in enumerate(self.members):
+            g = self.basis[c][f]
+            self.wbar[:g.P, i] = g.wbar
+
+    def linv(self, c: int, f: int) -> np.ndarray:
+        """L⁻¹ (Fortran order) of GP (c, f)'s training Cholesky factor, for the exact route."""
+        out = self._linv.get((c, f))
+        if out is None:
+            from scipy.linalg import solve_triangular
+
+            L = self.models.factors()[c].L[f]
+            out = np.asfortranarray(solve_triangular(L, np.eye(len(L)), lower=True))
+            with _LOCK:
+                self._linv[(c, f)] = out
+        return out
+
+    def routes(self) -> dict:
+        """{'basis': n, 'exact': n, 'P': [...]} for logs and the bench."""
+        ps = [g.P for row in self.basis for g in row if g is not None]
+        return {"basis": len(ps), "exact": sum(g is None for row in self.basis for g in row), "P": ps}
+
+
+_WORK = threading.local()
+
+
+def workspace(name: str, shape: tuple, zero: bool = False) -> np.ndarray:
+    """A per-thread scratch array reused from block to block (fresh large arrays cost page
+    faults and zeroing on every block). ``zero``: zeroed when first made; callers that never write
+    some part (M's upper triangle) rely on it staying 0. Not for results handed back."""
+    cache = getattr(_WORK, "arrays", None)
+    if cache is None:
+        cache = _WORK.arrays = {}
+    key = (name, tuple(shape))
+    a = cache.get(key)
+    if a is None:
+        if len(cache) > 32:
+            cache.clear()
+        a = cache[key] = np.zeros(shape) if zero else np.empty(shape)
+    return a
+
+
+def plan(models: GPClassModels) -> Plan:
+    with _LOCK:
+        p = _PLANS.get(models)
+    if p is None:
+        p = Plan(models)
+        with _LOCK:
+            p = _PLANS.setdefault(models, p)
+    return p
+
+
+def predictive(models: GPClassModels, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """mu (B, C, F, K) and cov (B, C, F, K, K) (white noise included) for trajectories X (B, K, d):
+    ``GPClassModels.predict`` to rounding, faster."""
+    pl = plan(models)
+    X = np.ascontiguousarray(X, dtype=float)
+    B, K, d = X.shape
+    C, F = models.n_classes, models.n_components
+    flat = X.reshape(B * K, d)
+    mu = np.empty((B, C, F, K))
+    cov = np.empty((B, C, F, K, K))
+    use_basis = pl.P_max > 0 and cb.unit_error(flat) <= cb.UNIT_TOL
+    diag = np.arange(K)
+    if use_basis:
+        from scipy.linalg.blas import dtrmm
+
+        Phi = cb.features(flat / np.linalg.norm(flat, axis=1, keepdims=True), pl.P_max)
+        means = Phi @ pl.wbar                                          # (B·K, G): every basis mean
+        for i, (c, f) in enumerate(pl.members):
+            g = pl.basis[c][f]
+            mu[:, c, f, :] = means[:, i].reshape(B, K) + g.mean
+            # Z = Φ Qᵀ in place as Zᵀ = Q Φᵀ (Q lower triangular): a TRMM, half a GEMM's flops.
+            Z = workspace("Z", (B * K, g.P))                             # C order (B·K, P)
+            np.copyto(Z, Phi[:, :g.P])
+            out = dtrmm(1.0, pl.q_fortran[i], Z.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
+            if not np.shares_memory(out, Z):  # pragma: no cover - BLAS wrapper made a copy after all
+                Z[...] = out.T
+            Z3 = Z.reshape(B, K, g.P)
+            S = np.matmul(Z3, Z3.transpose(0, 2, 1))
+            S[:, diag, diag] += g.noise + models.test_variance[c, f]   # test noise: σ_n² + δ² (gp.py)
+            cov[:, c, f] = S
+    D2tt = None
+    for c in range(C):
+        exact_f = [f for f in range(F) if not (use_basis and pl.basis[c][f] is not None)]
+        if exact_f:
+            if D2tt is None:
+                diff = X[:, :, None, :] - X[:, None, :, :]
+                D2tt = np.einsum("bkld,bkld->bkl", diff, diff)
+            _exact_class(models, pl, c, exact_f, flat, B, K, D2tt, mu, cov)
+    return mu, cov
+
+
+def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> None:
+    """The reference route for class c's components fs, whitening by TRMM with L⁻¹."""
+    from scipy.linalg.blas import dtrmm
+
+    fc = models.factors()[c]
+    N = len(fc.T)
+    D2 = models._sqdist_train(c, flat)
+    V = np.empty_like(D2)
+    kk = np.empty((B, K, K))
+    diag = np.arange(K)
+    for f in fs:
+        models._kernel_from_sqdist(c, f, D2, out=V)
+        mu[:, c, f, :] = (V @ fc.alpha[f] + models.mean[c, f]).reshape(B, K)
+        out = dtrmm(1.0, pl.linv(c, f), V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
+        if not np.shares_memory(out, V):  # pragma: no cover - BLAS wrapper made a copy after all
+            V[...] = out.T
+        V3 = V.reshape(B, K, N)
+        S = np.matmul(V3, V3.transpose(0, 2, 1))
+        ell = models.length_scale[c, f]
+        np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
+        np.exp(kk, out=kk)
+        kk *= models.amplitude[c, f]
+        kk[:, diag, diag] += models.test_noise[c, f]   # σ_n² + the test-domain δ² (gp.py)
+        np.subtract(kk, S, out=cov[:, c, f])
