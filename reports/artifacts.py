@@ -20,15 +20,17 @@ from pipeline.infra.cache import NpzFileError, load_npz
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import path as out_path
-from pipeline.evaluation.labels import METHODS
+from pipeline.evaluation.labels import ATTRIBUTION, METHODS
 from pipeline.evaluation.metrics import STEP_COLUMNS
 
 log = logging.getLogger("viewfuse.report")
 
 # The main report never needs the posterior vectors: leaving them unread keeps loading fast.
+# Step columns added with the calibration metrics: optional, so a results file from before reads.
+CALIBRATION_COLUMNS = ("nll", "brier", "confidence")
 RESULT_COLUMNS = ("experiment", "setting", "sigma_m", "bias_x", "bias_y", "realization", "step",
-                  "method", *STEP_COLUMNS)
-POPULATION_COLUMNS = ("variant", "target", "track")
+                  "method", *(c for c in STEP_COLUMNS if c not in CALIBRATION_COLUMNS))
+POPULATION_COLUMNS = ("variant", "target", "track", *CALIBRATION_COLUMNS)
 GP_ARRAYS = ("grid", "raster_mean", "raster_std", "ring_theta", "ring_mean", "ring_std",
              "train_theta", "train_y")
 STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
@@ -151,7 +153,7 @@ class EvaluateOutputs:
 
 def read_results(path: Path) -> tuple[pd.DataFrame, dict]:
     df, meta = read_result_table(path, RESULT_COLUMNS, optional=POPULATION_COLUMNS)
-    unknown = sorted(set(df["method"].unique()) - set(METHODS)) if len(df) else []
+    unknown = sorted(set(df["method"].unique()) - set(METHODS) - set(ATTRIBUTION)) if len(df) else []
     if unknown:
         log.warning("%s: unknown method(s) %s are shown in grey", path, unknown)
     return df, meta
@@ -242,7 +244,8 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
 
 
 # -- the simulate stage's outputs --------------------------------------------------------------
-SIM_COLUMNS = ("scenario", "realization", "step", "method", *STEP_COLUMNS)
+SIM_COLUMNS = ("scenario", "realization", "step", "method",
+               *(c for c in STEP_COLUMNS if c not in CALIBRATION_COLUMNS))
 EXAMPLE_COLUMNS = ("scenario", "step", "component", "true_x", "true_y", "est_x", "est_y", "nominal",
                    "noised", "sigma_u2", "samples", "class_mean", "class_std", "class_mean_est")
 

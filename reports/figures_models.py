@@ -83,6 +83,10 @@ def fig_gp_ring(gp: dict, classes: list[str], comp_names: list[str], test_inputs
             th, y = gp["train_theta"][c], gp["train_y"][c, f]
             ok = np.isfinite(th) & np.isfinite(y)
             ax.scatter(np.degrees(_as_radians(th[ok])) % 360, y[ok], color=cols[c], s=7, alpha=0.55, lw=0)
+            if "obs_theta" in gp and c < len(gp["obs_theta"]):  # the class's AVD crops: test-domain fit
+                oth, oy = gp["obs_theta"][c], gp["obs_y"][c, f]
+                ok = np.isfinite(oth) & np.isfinite(oy)
+                ax.scatter(np.degrees(oth[ok]) % 360, oy[ok], color=cols[c], s=14, marker="x", lw=0.9)
         if test_inputs is not None and len(test_inputs):
             u = np.asarray(test_inputs, float)
             for a in np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360:
@@ -94,7 +98,9 @@ def fig_gp_ring(gp: dict, classes: list[str], comp_names: list[str], test_inputs
         ax.set_title(comp_names[f] if f < len(comp_names) else f"component {f}")
     fig.legend(*axes.flat[0].get_legend_handles_labels(), loc="outside lower center",
                ncol=min(C, 2), fontsize=8, frameon=False)
-    fig.suptitle("GP mean ± 2σ on the training ring, with training points (dotted: track views)")
+    fig.suptitle("GP mean ± 2σ on the training ring, with training points (dots), AVD crop scores of the "
+                 "scan (crosses; dotted: track views)" if "obs_theta" in gp else
+                 "GP mean ± 2σ on the training ring, with training points (dotted: track views)")
     return fig
 
 

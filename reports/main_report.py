@@ -16,12 +16,17 @@ from pipeline.infra.progress import bar as progress_bar
 
 from pipeline.evaluation.metrics import MGR_AXIS_LABEL
 from pipeline.infra.outputs import path as out_path
+from reports import sections_calibration as calibration_sections
 from reports import findings
 from reports import sections_track as track_sections
 from reports import sections_verdict as verdict_sections
 from reports.artifacts import load_run
 from reports.context import ReportContext
 from reports.figures import save
+from reports.figures_calibration import calibration_plan
+from reports.figures_models import fig_bias_maps, fig_gp_rasters, fig_gp_ring
+from reports.figures_results import (fig_bands, fig_biased, fig_forest, fig_per_target, fig_sensitivity,
+                                     fig_track)
 from reports.figures_models import bias_map_findings, fig_bias_maps, fig_gp_rasters, fig_gp_ring
 from reports.figures_results import (decisive_step, fig_bands, fig_biased, fig_forest, fig_per_target,
                                      fig_sensitivity, fig_track)
@@ -32,8 +37,9 @@ from reports.tables import component_labels
 
 log = logging.getLogger("viewfuse.report")
 
-SECTIONS = (verdict_sections.verdict_section, verdict_sections.population_section,
-            verdict_sections.diagnostics_section, track_sections.track_section,
+SECTIONS = (verdict_sections.verdict_section, calibration_sections.calibration_section,
+            verdict_sections.population_section, verdict_sections.diagnostics_section,
+            calibration_sections.domain_section, calibration_sections.attribution_section, track_sections.track_section,
             track_sections.randomized_section, track_sections.sensitivity_section,
             track_sections.bias_maps_section, track_sections.gp_section, glossary_section,
             track_sections.details_section)
@@ -58,7 +64,7 @@ def _population_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
     if pop.get("per_target"):
         plan.append(("per_target.png", lambda: fig_per_target(pop)))
         ctx.alts["per_target.png"] = findings.per_target(pop)
-    return plan
+    return plan + calibration_plan(pop)
 
 
 def _track_plan(ctx: ReportContext, clipped: dict[str, int]) -> list[tuple[str, Callable[[], Any]]]:

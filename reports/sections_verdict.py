@@ -10,12 +10,14 @@ from pipeline.evaluation.popstats import wilson_interval
 from reports.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt, reformat_numbers
+from reports.sections_calibration import pooled_value
 from reports.tables import bound_counts, hyperparameter_table
 
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
 # in a collapsed list right under the pooled table.
-HEADLINE = ("correct_final", "log10_mgr95_final")
-VERDICT_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_final", "log10_mgr95_final")
+HEADLINE = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
+VERDICT_METRICS = ("correct_final", "confident_error_final", "nll_final", "correct_overall", "prob_truth_final",
+                   "msde_final", "log10_mgr95_final")
 TARGET_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PAIRED_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_final",
                   "log10_mgr75_final", "log10_mgr95_final")
@@ -83,10 +85,11 @@ def verdict_section(ctx: ReportContext) -> None:
     methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
     pooled = pop.get("pooled") or {}
     shown = [k for k in VERDICT_METRICS if any(k in (pooled.get(m) or {}) for m in methods)]
-    rows = [[method_label(m)] + [Estimate.of((pooled.get(m) or {}).get(k)) for k in shown] for m in methods]
+    rows = [[method_label(m)] + [Estimate.of(pooled_value(pop, m, k)) for k in shown] for m in methods]
     unit = str(pop.get("unit") or "")
     page.table(["method"] + [metric_label(k, short=True) for k in shown], rows, cls="summary pooled",
-               caption=f"Pooled over the population: value [95 % CI]. {unit[:1].upper() + unit[1:]} "
+               caption=f"Pooled over the population: value [95 % CI]; NLL and log10 MGR (unbounded) as the median "
+                       f"over targets of the target means. {unit[:1].upper() + unit[1:]} "
                        f"({pop.get('bootstrap', '?')} bootstrap resamples.) log10 MGR: 0 when the truth is the "
                        "most likely class. MSDE: lower is better.")
     every = list(dict.fromkeys(k for m in methods for k in (pooled.get(m) or {})))
@@ -320,6 +323,8 @@ def _ablations(ctx: ReportContext) -> None:
     key = comparison_key(*COMPARISONS[0])
     rows = []
     for name, a in abl.items():
+        if a.get("kind") == "attribution":  # its own section (sections_calibration)
+            continue
         over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
         d = (a.get("paired") or {}).get(key) or {}
         said = headline([reformat_numbers(str(s)) for s in a.get("verdict") or []], a.get("verdict_table") or [])

@@ -27,7 +27,7 @@ def bootstrap_track(mats: dict[str, np.ndarray], n_boot: int = BOOTSTRAP, seed: 
     boot = compute({k: v[idx] for k, v in mats.items()})
     a = 100 * (1 - CI_LEVEL) / 2
     out = {}
-    for k in METRICS:
+    for k in point:  # the metrics whose columns the table has
         lo, hi = (float(x) for x in percentile(boot[k], [a, 100 - a], axis=-1))
         out[k] = Estimate(float(point[k]), lo, hi)
     return out

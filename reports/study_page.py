@@ -71,6 +71,10 @@ def render_html(summary: dict, run_name: str) -> str:
         for m in methods:
             rows.append(f"<tr><td>{html.escape(metric_label(k))} · {html.escape(method_label(m, short=True))}</td>"
                         + "".join(f"<td>{_cell((p.get(m) or {}).get(k))}</td>" for p in pooled) + "</tr>")
+    sp = summary.get("pooled_over_seeds") or {}
+    seed_verdict = ("<h2>Pooled over seeds</h2><p>One bootstrap over seeds, then targets, then tracks: these CIs "
+                    "cover classifier training runs.</p><ul>"
+                    + "".join(f"<li>{html.escape(v)}</li>" for v in sp.get("verdict") or []) + "</ul>") if sp else ""
     verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"
                        + "".join(f"<li>{html.escape(v)}</li>" for v in (per[s].get("verdict") or ["(no verdict)"]))
                        + "</ul>" for s in seeds)
@@ -84,6 +88,7 @@ tr.differs td{{background:#fde2e2}}small{{color:#666}}</style></head><body>
 <p>Each seed trains the classifier again (classifier.seed) and reruns features, models and evaluate on the
 same data. An outcome is computed from the 95 % bootstrap CI of the paired difference over targets and tracks
 (better / worse: the CI excludes 0); rows where the seeds disagree are shaded.</p>
+{seed_verdict}
 <h2>Verdict per seed</h2><table><tr><th>comparison, metric</th>{head}</tr>{''.join(out_rows)}</table>
 <h2>Pooled values</h2>
 <p>Value with its 95 % bootstrap CI over targets, then tracks within targets; MGR as log10.</p>

@@ -23,7 +23,7 @@ from pipeline.evaluation import experiments as E
 from pipeline.evaluation import population as P
 from pipeline.evaluation import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
-from pipeline.infra.config import Config
+from pipeline.infra.config import Config, is_model_ablation
 from pipeline.scoring.features import read_features
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
@@ -31,6 +31,7 @@ from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.population import DEFAULT
 from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary, result_blocks
 from pipeline.evaluation.results import metadata, result_block, write_results
+from stages.evaluate_calibration import TestDomain, test_variances
 from pipeline.evaluation.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
@@ -41,6 +42,9 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     index = _read_index(models_dir)
     banks, indexes = {DEFAULT: GPClassModels.load(models_dir)}, {DEFAULT: index}
     for a in ablations:
+        if not is_model_ablation(a):  # an evaluate.* variant: same models, another likelihood
+            banks[a], indexes[a] = banks[DEFAULT], index
+            continue
         sub = index.get("ablations", {}).get(a)
         if sub is None:
             raise ValueError(f"{models_dir / out_name('models', 'index')}: no model bank for ablation {a!r} "
@@ -78,14 +82,20 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     return intr, steps
 
 
-def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict) -> None:
+def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict,
+                 domain: TestDomain | None = None) -> None:
     """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
+    if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
+        models = models.with_test_variance(np.asarray(first.test_variance, float)[None, :])
     if "gp_models" in ev.experiments:
         t0 = time.perf_counter()
+        rasters = E.gp_rasters(models)
+        if domain is not None and not domain.table.empty:  # the observed AVD scores over the ±2σ band
+            rasters.update(domain.ring_overlay(first.scan, first.classes, first.components))
         with atomic_path(ctx.out / out_name("evaluate", "gp_models")) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **E.gp_rasters(models))
+            np.savez(f, **rasters)
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
@@ -146,8 +156,13 @@ def run(ctx) -> str:
         mine = [i for i in tracks if i.target == t]
         log.info("target %s: %d track(s) in %s; candidates %s", t, len(mine), ", ".join(sorted({i.scan for i in mine})),
                  ", ".join(next(c.classes for c in cells if c.target == t)))
+    t0 = time.perf_counter()
+    domain = TestDomain(cfg, avd, scores, banks[DEFAULT], truth, intr, sorted({c.target for c in cells}), scans)
+    cells = test_variances(cells, domain, cfg)
+    domain_fit = domain.summary()
+    domain_s = time.perf_counter() - t0
 
-    timings: dict[str, float] = {}
+    timings: dict[str, float] = {"domain_fit": domain_s}
     t0 = time.perf_counter()
     executor = executor_for(cfg)
     try:
@@ -161,8 +176,8 @@ def run(ctx) -> str:
              len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
 
     t0 = time.perf_counter()
-    table = cell_table(cells, results)
-    population = population_summary(cfg.evaluate, table, cells, results, tracks, skipped)
+    table = cell_table(cells, results, ev.confident_threshold)
+    population = population_summary(cfg, table, cells, results, tracks, skipped, domain_fit)
     population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
     timings["statistics"] = time.perf_counter() - t0
 
@@ -180,7 +195,7 @@ def run(ctx) -> str:
     from pipeline.method.fusion import engine_device
 
     with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
-        single_track(cfg, ctx, banks, first, blocks, summary, timings)
+        single_track(cfg, ctx, banks, first, blocks, summary, timings, domain)
     n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
         config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
         target=first.target, track=str(first.track)))

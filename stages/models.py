@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 
 from pipeline.evaluation.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
-from pipeline.infra.config import ablation_config
+from pipeline.infra.config import ablation_config, is_model_ablation
 from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.models")
@@ -26,11 +26,12 @@ def run(ctx) -> str:
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
                      candidate_seed=ev.candidate_seed)
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
-    extra["ablations"] = {a: ablation_dir(a) for a in ev.ablations}
+    model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
+    extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
     models.save(ctx.out, extra=extra)
     dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes)
     dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
-    for a in ev.ablations:
+    for a in model_ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)
         vm, vextra = fit_from_features(feats, vcfg.models, **plan_keys)
@@ -46,6 +47,6 @@ def run(ctx) -> str:
             f"{len(extra['candidate_sets'])} candidate sets ({cfg.models.component_rule}) fitted on "
             f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
             f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
-            + (f"; {len(ev.ablations)} ablation bank(s)" if ev.ablations else "")
+            + (f"; {len(model_ablations)} ablation bank(s)" if model_ablations else "")
             + f"; {len(dmodels.classes)} Dirichlet class models ({cfg.models.dirichlet.passes} passes, "
               f"{dextra['fits_not_converged']} not converged)")

@@ -81,6 +81,7 @@ def seed_result(scfg, reused: bool) -> dict:
         pop = json.loads(summ.read_text()).get("population") or {}
         for k in ("pooled", "verdict", "verdict_table"):
             out[k] = pop.get(k)
+        out["cells"] = pop.get("cells")  # for the seed-pooled bootstrap; not written per seed
     return out
 
 
@@ -112,10 +113,29 @@ def outcomes(result: dict) -> dict[str, str] | None:
     return None
 
 
-def summarize(results: dict[int, dict]) -> dict:
-    """Side by side: per seed the pooled values and the verdict; whether the verdict agrees."""
+def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
+    """Every seed's cells in one bootstrap (seeds, then targets, then tracks): pooled values, paired
+    differences and a verdict that covers training runs (``pipeline.evaluation.seedpool``)."""
+    from pipeline.evaluation.labels import COMPARISONS, METHODS
+    from pipeline.evaluation.metrics import METRICS
+    from pipeline.evaluation.seedpool import seed_pooled
+
+    cells = {str(s): r["cells"] for s, r in results.items() if r.get("cells")}
+    if not cells:
+        return None
+    present = {m for cs in cells.values() for c in cs for m in (c.get("values") or {})}
+    methods = [m for m in METHODS if m in present]
+    metrics = [k for k in METRICS if any(k in (c.get("values") or {}).get(methods[0], {})
+                                         for cs in cells.values() for c in cs[:1])]
+    return seed_pooled(cells, methods, metrics, COMPARISONS, n_boot)
+
+
+def summarize(results: dict[int, dict], n_boot: int = 2000) -> dict:
+    """Side by side: per seed the pooled values and the verdict; whether the verdict agrees; and
+    the verdict pooled over the seeds."""
     seeds = sorted(results)
-    per_seed = {str(s): results[s] for s in seeds}
+    pooled = pool_seeds(results, n_boot)
+    per_seed = {str(s): {k: v for k, v in results[s].items() if k != "cells"} for s in seeds}
     outs = {s: outcomes(results[s]) for s in seeds}
     missing = [s for s in seeds if outs[s] is None]
     keys = sorted({k for o in outs.values() if o for k in o})
@@ -135,7 +155,7 @@ def summarize(results: dict[int, dict]) -> dict:
     if not missing and decided:
         sentence += (" Held for every seed: " + "; ".join(f"{entry_label(k)}: {o}" for k, o in decided.items()) + ".")
     return {"seeds": seeds, "per_seed": per_seed, "outcomes": table, "differs_on": differ, "held": held,
-            "missing": missing, "verdict_same": same, "sentence": sentence}
+            "missing": missing, "verdict_same": same, "sentence": sentence, "pooled_over_seeds": pooled}
 
 
 def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = False,
@@ -156,7 +176,7 @@ def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = Fals
         timings[str(seed)] = round(time.perf_counter() - t, 2)
         reused = before is not None and before == _finished(scfg)
         results[seed] = seed_result(scfg, reused)
-    summary = summarize(results)
+    summary = summarize(results, cfg.evaluate.bootstrap)
     summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2),
                             "chain_per_seed": {str(sd): chain_seconds(seed_config(cfg, sd)) for sd in cfg.study.seeds}}
     out = study_dir(cfg)

@@ -12,7 +12,7 @@ TINY = {
     "features": {"n_samples": 3, "max_difficulty": 5, "batch_size": 32},
     "models": {"restarts": 0},
     "evaluate": {"track_length": 4, "max_difficulty": 5, "tracks_per_target": 2, "n_candidates": 3,
-                 "bootstrap": 200, "ablations": ["models.noise_floor=dropout"],
+                 "bootstrap": 200, "ablations": ["models.noise_floor=dropout", "evaluate.test_domain_variance=cross_fit"],
                  "biased": {"n_loc_samples": 5},
                  "randomized": {"sigmas_m": [0.1, 0.3], "realizations": 6, "n_loc_samples": 5},
                  "sensitivity": {"sigmas_m": [0.1, 0.4], "realizations": 3, "n_loc_samples": 4},

@@ -16,7 +16,8 @@ import pandas as pd
 from pipeline.evaluation import metrics as M
 from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
 from pipeline.method.geometry import relative_inputs, sample_localization
-from pipeline.evaluation.labels import METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
+from pipeline.evaluation.labels import (METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY,
+                                        WU_POSES_ONLY)
 
 __all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "biased",
            "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
@@ -52,7 +53,7 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
 
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
-              rng: np.random.Generator, *, var_floor: float) -> dict[str, np.ndarray]:
+              rng: np.random.Generator, *, var_floor: float, attribution: bool = False) -> dict[str, np.ndarray]:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each.
 
     Log space all the way to the metrics: a confident posterior's smallest entries underflow as
@@ -62,6 +63,12 @@ def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x
     with the stated σ (the same σ the estimate error was drawn with, as in the paper). Simple Bayes
     (when the track carries ``own`` scores) ignores the poses: the same posterior for every
     realization, repeated so that the methods pair up realization by realization.
+
+    ``attribution`` adds With Uncertainty with one ingredient each, on the same estimates (and
+    no extra random draws, so the other methods' results do not change): *poses only* (the same
+    localization samples, each step's dropout samples replaced by their mean: no model-uncertainty
+    term beyond ``var_floor``) and *dropout only* (no pose sampling: σ = 0, N_x = 1, the estimates
+    themselves).
     """
     r = len(estimates)
     mb = fuse_model_based(models, track.inputs(estimates),
@@ -74,25 +81,33 @@ def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x
     out = {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
     if track.own is not None:
         out[SIMPLE_BAYES] = np.broadcast_to(simple_bayes(track.own.mean(axis=1), return_log=True), wu.shape).copy()
+    if attribution:
+        mean_only = track.dropout.mean(axis=1, keepdims=True)          # (K, 1, F)
+        out[WU_POSES_ONLY] = fuse_with_uncertainty(models, track.inputs(samples),
+                                                   np.broadcast_to(mean_only, (r,) + mean_only.shape),
+                                                   var_floor=var_floor, return_log=True, progress=False)
+        out[WU_DROPOUT_ONLY] = fuse_with_uncertainty(models, track.inputs(estimates[:, None]),
+                                                     np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
+                                                     var_floor=var_floor, return_log=True, progress=False)
     return out
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
-           *, var_floor: float) -> dict[str, np.ndarray]:
+           *, var_floor: float, attribution: bool = False) -> dict[str, np.ndarray]:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
-    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor)
+    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
 
 
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25,
-               progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
+               progress: Callable[[int], None] | None = None, attribution: bool = False) -> dict[str, np.ndarray]:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C)."""
     out: dict[str, list[np.ndarray]] = {}
     for a, b in _chunks(realizations, chunk):
         noise = rng.normal(0.0, sigma, size=(b - a, track.k, 2)) if sigma > 0 else np.zeros((b - a, track.k, 2))
         est = track.cam_xy[None] + np.asarray(bias, float) + noise
-        res = run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor)
+        res = run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
         for m, v in res.items():
             out.setdefault(m, []).append(v)
         if progress:

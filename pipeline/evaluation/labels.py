@@ -6,19 +6,25 @@ hues that no method uses, so a method and a class never share a colour on one pa
 """
 from __future__ import annotations
 
-from pipeline.method.names import DIRICHLET, METHOD_SHORT, METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401
+from pipeline.method.names import (ATTRIBUTION, DIRICHLET, METHOD_SHORT, METHODS, MODEL_BASED,  # noqa: F401
+                                   SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY, WU_POSES_ONLY)
 
 METHOD_LABELS = {
     WITH_UNCERTAINTY: "With Uncertainty (Feldman & Indelman)",
     MODEL_BASED: "Model Based (Teacy et al.)",
     SIMPLE_BAYES: "Simple Bayes",
     DIRICHLET: "Dirichlet (Tchuiev & Indelman)",
+    WU_POSES_ONLY: "With Uncertainty, poses only (dropout samples -> their mean)",
+    WU_DROPOUT_ONLY: "With Uncertainty, dropout only (no pose sampling)",
 }
 METHOD_COLORS = {WITH_UNCERTAINTY: "#0072B2", MODEL_BASED: "#D55E00", SIMPLE_BAYES: "#009E73",
-                 DIRICHLET: "#CC79A7"}
+                 DIRICHLET: "#CC79A7", WU_POSES_ONLY: "#6699CC", WU_DROPOUT_ONLY: "#994F00"}
 
 # Paired comparisons reported by the population evaluation: (method, baseline).
 COMPARISONS = ((WITH_UNCERTAINTY, MODEL_BASED), (WITH_UNCERTAINTY, SIMPLE_BAYES), (WITH_UNCERTAINTY, DIRICHLET))
+# Attribution: each ingredient alone against Model Based, and what the full method adds to each.
+ATTRIBUTION_COMPARISONS = ((WU_POSES_ONLY, MODEL_BASED), (WU_DROPOUT_ONLY, MODEL_BASED),
+                           (WITH_UNCERTAINTY, WU_POSES_ONLY), (WITH_UNCERTAINTY, WU_DROPOUT_ONLY))
 
 
 def comparison_key(method: str, baseline: str) -> str:

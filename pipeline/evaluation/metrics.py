@@ -94,11 +94,34 @@ def correct(post, truth, *, is_log: bool = False) -> np.ndarray:
 
 
 # Column name -> function (post, truth, is_log=) -> per-step values (...). Order = column order.
+def nll(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """-ln P(c_gt): from log posteriors read off directly (finite where the probability underflows)."""
+    if is_log:
+        lp = np.asarray(post, dtype=float)
+        return -np.take_along_axis(lp, _truth(truth, lp)[..., None], axis=-1)[..., 0]
+    with np.errstate(divide="ignore"):
+        return -np.log(prob_truth(post, truth))
+
+
+def brier(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """Multi-class Brier score Σ_c (P(c) - 1[c = c_gt])² (= C · MSDE)."""
+    p = _post(post, is_log)
+    return msde(p, truth) * p.shape[-1]
+
+
+def confidence(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """Top-label confidence max_c P(c)."""
+    return _post(post, is_log).max(axis=-1)
+
+
 STEP_COLUMNS: dict[str, Callable[..., np.ndarray]] = {
     "p_truth": prob_truth,
     "log10_mgr": log10_mgr,
     "msde": msde,
     "correct": correct,
+    "nll": nll,
+    "brier": brier,
+    "confidence": confidence,
 }
 
 
@@ -175,8 +198,29 @@ METRICS: dict[str, Metric] = {
                                   "log10_mgr", "all", percentile_of(75), best=0.0),
     "log10_mgr95_overall": Metric("log10 MGR 95th percentile, all steps", "log10 MGR 95%, all steps", False,
                                   "log10_mgr", "all", percentile_of(95), best=0.0),
+    # Calibration (pipeline/evaluation/calibration.py; docs/design.md §8). The confident-error
+    # threshold here is the default of evaluate.confident_threshold; the evaluate stage recomputes
+    # these two keys with the configured threshold (pipeline.evaluation.results.cell_metrics).
+    "nll_final": Metric("NLL = -ln P(truth), final step", "NLL, final", False, "nll", "final", mean_of, best=0.0),
+    "nll_overall": Metric("NLL = -ln P(truth), all steps", "NLL, all steps", False, "nll", "all", mean_of, best=0.0),
+    "brier_final": Metric("Brier score, final step", "Brier, final", False, "brier", "final", mean_of,
+                          best=0.0, worst=2.0),
+    "brier_overall": Metric("Brier score, all steps", "Brier, all steps", False, "brier", "all", mean_of,
+                            best=0.0, worst=2.0),
+    "confident_error_final": Metric("confident-error rate (max P >= threshold on a wrong class), final step",
+                                    "confident errors, final", False, ("confidence", "correct"), "final",
+                                    lambda c, ok: confident_rate(c, ok), best=0.0, worst=1.0),
+    "confident_error_overall": Metric("confident-error rate (max P >= threshold on a wrong class), all steps",
+                                      "confident errors, all steps", False, ("confidence", "correct"), "all",
+                                      lambda c, ok: confident_rate(c, ok), best=0.0, worst=1.0),
 }
+CONFIDENT_THRESHOLD = 0.99
 POOLS = ("mean",)
+
+
+def confident_rate(conf: np.ndarray, ok: np.ndarray, threshold: float = CONFIDENT_THRESHOLD) -> np.ndarray:
+    """Share (last axis) of posteriors with confidence >= ``threshold`` on a wrong class."""
+    return ((conf >= threshold) & (ok < 0.5)).mean(axis=-1)
 MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
 
 
@@ -198,6 +242,8 @@ def compute(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None)
     for k in METRICS if keys is None else keys:
         m = METRICS[k]
         cols = (m.column,) if isinstance(m.column, str) else m.column
+        if keys is None and not all(c in values for c in cols):
+            continue  # a table written before the column existed (e.g. nll, brier, confidence)
         xs = []
         for c in cols:
             x = np.asarray(values[c])
@@ -225,6 +271,8 @@ def matrices(df, columns: Sequence[str] | None = None) -> dict[str, np.ndarray]:
     k_codes, k_vals = pd.factorize(df["step"], sort=True)
     out = {}
     for col in STEP_COLUMNS if columns is None else columns:
+        if columns is None and col not in df:
+            continue  # a table written before the column existed
         m = np.full((len(r_vals), len(k_vals)), np.nan)
         m[r_codes, k_codes] = df[col].to_numpy(float)
         out[col] = m

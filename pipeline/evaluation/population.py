@@ -187,6 +187,8 @@ class Cell:
     seed: int
     var_floor: float
     difficulty: bool = True
+    attribution: bool = False                       # add the With Uncertainty attribution variants
+    test_variance: tuple[float, ...] | None = None  # δ² per component: the calibrated likelihood
     dirichlet: DirichletModels | None = None   # the candidates' Dirichlet models (needs data.probs)
     n_ss: int = 100                            # evaluate.dirichlet.n_ss
     device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
@@ -230,16 +232,18 @@ def run_cell(banks, cell: Cell) -> dict:
 
 def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
+    if cell.test_variance is not None:
+        models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
     dirichlet = dirichlet_track(cell)
     posts = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
-                                                      var_floor=cell.var_floor)
+                                                      var_floor=cell.var_floor, attribution=cell.attribution)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
-                                                          rng, var_floor=cell.var_floor)
+                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution)
         if dirichlet is not None:
             posts[(s.experiment, s.label)] = with_dirichlet(posts[(s.experiment, s.label)], dirichlet[0])
     diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None
@@ -298,7 +302,8 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                                    probs=None if dm is None else full)
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                   classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                  difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss))
+                                  difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss,
+                                  attribution=ev.attribution and variant == DEFAULT))
             tracks.append(info)
     if not cells:
         raise TrackError("no target has a usable track: " + "; ".join(f"{s['target']}: {s['reason']}" for s in skipped))

@@ -14,11 +14,12 @@ from pipeline.evaluation import population as P
 from pipeline.evaluation.population import DEFAULT
 from pipeline.evaluation.labels import COMPARISONS, DIRICHLET, METHODS
 from pipeline.evaluation.metrics import METRICS, percentile
-from pipeline.evaluation.popstats import population_block
+from pipeline.evaluation.calibration import N_BINS as ECE_BINS
+from pipeline.evaluation.verdicts import full_block
 from pipeline.evaluation.results import cell_metrics, result_block
 
 
-def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
+def cell_table(cells: list[P.Cell], results: list[dict], threshold: float | None = None) -> pd.DataFrame:
     """One row per (variant, target, track, setting, method) with the cell's metrics."""
     rows = []
     for cell, res in zip(cells, results):
@@ -26,7 +27,7 @@ def cell_table(cells: list[P.Cell], results: list[dict]) -> pd.DataFrame:
             for method, lp in posts.items():
                 rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
                              "experiment": experiment, "setting": label, "method": method,
-                             **cell_metrics(lp, cell.truth)})
+                             **cell_metrics(lp, cell.truth, threshold)})
     return pd.DataFrame(rows)
 
 
@@ -44,11 +45,14 @@ def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
     return out
 
 
-def population_summary(ev, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
-                       tracks: list[P.TrackInfo], skipped: list[dict]) -> dict:
+def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
+                       tracks: list[P.TrackInfo], skipped: list[dict], domain_fit: dict | None = None) -> dict:
     """``summary.json``'s ``population`` object from the ``evaluate`` config section ``ev``, the
     cell table and the cells' results: pooled values, paired differences and verdicts (whole
     population, per setting, per ablation), difficulty, per-cell values and the tracks."""
+    from pipeline.evaluation.population_calibration import population_blocks
+
+    ev = cfg.evaluate
     metrics = list(METRICS)
     methods = [m for m in METHODS if m in set(table["method"])]
     settings = P.population_settings(ev)
@@ -56,19 +60,15 @@ def population_summary(ev, table: pd.DataFrame, cells: list[P.Cell], results: li
     n_targets = default["target"].nunique()
     n_tracks = len(tracks)
     scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
-    block = population_block(default, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope)
+    blocks = population_blocks(cfg, table, cells, results, scope, DEFAULT)
+    block, ablations = blocks["main"], blocks["ablations"]
+    main = default[default["method"].isin(methods)]
     by_setting = {}
     for s in settings:
-        sub = default[default["setting"] == s.label]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                             f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False)
-        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}
-    ablations = {}
-    for a in ev.ablations:
-        sub = table[table["variant"] == a]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed, scope, per_target=False)
-        key, value = (t.strip() for t in a.split("=", 1))
-        ablations[a] = {"override": {key: value}, **{k: b[k] for k in ("pooled", "paired", "verdict", "verdict_table")}}
+        sub = main[main["setting"] == s.label]
+        b = full_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
+                       f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False, loto=False)
+        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "robust", "verdict", "verdict_table")}
     difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
                   for c, r in zip(cells, results) if r["difficulty"] is not None]
     spread = {}
@@ -82,7 +82,13 @@ def population_summary(ev, table: pd.DataFrame, cells: list[P.Cell], results: li
                  for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
     return {
         "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
-        "n_cells": int(len(default) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
+        "n_cells": int(len(main) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
+        "confident_threshold": ev.confident_threshold, "ece_bins": ECE_BINS,
+        "likelihood": ev.test_domain_variance,
+        "calibration_weighting": ("ECE and the reliability diagram pool every posterior of the population, "
+                                  "weighted as the other pooled values: each target the same, each track of a "
+                                  "target the same, each setting of a track the same, each realization (final "
+                                  "step) or realization and step (all steps) of a setting the same"),
         "realizations": ev.randomized.realizations, "n_loc_samples": ev.randomized.n_loc_samples,
         "methods": methods, "metrics": metrics,
         "settings": [{"experiment": s.experiment, "setting": s.label, "sigma_m": s.sigma, "bias_m": list(s.bias),
@@ -100,6 +106,7 @@ def population_summary(ev, table: pd.DataFrame, cells: list[P.Cell], results: li
         "cells": cell_rows,
         "tracks": [t.as_dict() for t in tracks],
         "ablations": ablations,
+        "domain_fit": domain_fit or {},
         "skipped_targets": skipped,
     }
 

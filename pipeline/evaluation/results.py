@@ -16,6 +16,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from pipeline.evaluation import metrics as M
+from pipeline.evaluation.calibration import cell_calibration
 from pipeline.infra.cache import atomic_path
 
 
@@ -164,10 +165,15 @@ def frame(blocks: Sequence[Mapping[str, np.ndarray]], *, drop: Sequence[str] = (
     return pd.DataFrame({k: list(v) if v.ndim == 2 else v for k, v in cols.items()})
 
 
-def cell_metrics(lp: np.ndarray, truth: int) -> dict[str, float]:
+def cell_metrics(lp: np.ndarray, truth: int, confident_threshold: float | None = None) -> dict[str, float]:
     """A cell's metrics over its realizations (R, K, C) of log posteriors: every
-    ``pipeline.evaluation.metrics.METRICS`` key."""
-    return M.posterior_metrics(lp, truth, is_log=True)
+    ``pipeline.evaluation.metrics.METRICS`` key; the confident-error rates at ``confident_threshold``
+    (``evaluate.confident_threshold``) when given."""
+    out = M.posterior_metrics(lp, truth, is_log=True)
+    if confident_threshold is not None:
+        cal = cell_calibration(lp, truth, confident_threshold)
+        out.update({k: cal[k] for k in ("confident_error_final", "confident_error_overall")})
+    return out
 
 
 def metadata(**items: Any) -> dict[str, str]:

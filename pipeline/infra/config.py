@@ -19,7 +19,8 @@ from pipeline.infra.config_schema import (DEFAULT_INSTANCES, ClassifierConfig, C
                                           TrainingConfig)
 from pipeline.infra.config_sections import (ABLATION_KEYS, BiasedConfig, BiasMapsConfig, Config,
                                             EvaluateConfig, RandomizedConfig, ReportConfig, SensitivityConfig,
-                                            SimulateConfig, StudyConfig, canonical_json, to_dict)
+                                            SimulateConfig, StudyConfig, canonical_json, is_model_ablation,
+                                            test_domain_mode, to_dict)
 
 
 __all__ = [
@@ -27,5 +28,5 @@ __all__ = [
     "ConfigError", "DataConfig", "EvaluateConfig", "FeaturesConfig", "ModelsConfig", "RandomizedConfig",
     "ReportConfig", "RunConfig", "SensitivityConfig", "SimulateConfig", "StudyConfig", "SyntheticDataConfig",
     "TrainingConfig", "ablation_config", "bounds_problem", "canonical_json", "check_simulate", "cross_checks",
-    "load_config", "merge", "parse_override", "to_dict",
+    "is_model_ablation", "load_config", "merge", "parse_override", "test_domain_mode", "to_dict",
 ]

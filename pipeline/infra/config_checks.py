@@ -129,6 +129,9 @@ def cross_checks(cfg: Config, where: str) -> None:
         key = a.split("=", 1)[0].strip()
         need("=" in a and key in ABLATION_KEYS,
              f"'evaluate.ablations' entry {a!r} must be 'KEY=VALUE' with KEY one of {', '.join(ABLATION_KEYS)}")
+        if key == "evaluate.test_domain_variance":
+            need(a.split("=", 1)[1].strip().strip("'\"") in ("none", "cross_fit"),
+                 f"'evaluate.ablations' entry {a!r}: the value must be none or cross_fit")
     known = ("gp_models", "biased", "randomized", "sensitivity", "bias_maps")
     for e in cfg.evaluate.experiments:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")

@@ -100,8 +100,9 @@ def _check_range(value: Any, f: dataclasses.Field, key: str, where: str) -> None
 def ablation_config(cfg: Config, ablation: str) -> Config:
     """``cfg`` with one ``evaluate.ablations`` entry (``models.KEY=VALUE``) applied and validated."""
     key, raw = (t.strip() for t in ablation.split("=", 1))
-    if key not in ABLATION_KEYS:
-        raise ConfigError(f"evaluate.ablations: {ablation!r}: KEY must be one of {', '.join(ABLATION_KEYS)}")
+    if key not in ABLATION_KEYS or not key.startswith("models."):
+        raise ConfigError(f"evaluate.ablations: {ablation!r}: KEY must be one of {', '.join(ABLATION_KEYS)}"
+                          " with its own model bank (models.*)")
     table = merge({"models": to_dict(cfg.models)}, parse_override(f"{key}={raw}"))
     where = f"{cfg.source_path or 'config'} (evaluate.ablations entry {ablation!r})"
     models = _build(ModelsConfig, table["models"], where, "models.")

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.infra.config_schema import (ClassifierConfig, DataConfig, FeaturesConfig, ModelsConfig,
+from pipeline.infra.config_schema import (ClassifierConfig, ConfigError, DataConfig, FeaturesConfig, ModelsConfig,
                                           RunConfig, SEED_MAX, _f)
 
 
@@ -26,7 +26,7 @@ class RandomizedConfig:
     bias_m: tuple[float, ...] = _f(factory=lambda: (0.0, 0.0), lo=-100.0, hi=100.0, doc="[x, y] metres")
     sigmas_m: tuple[float, ...] = _f(factory=lambda: (0.1, 0.3, 0.5), lo=0.0, hi=10.0,
                                      doc="one population setting per sigma: estimate = truth + bias + N(0, sigma^2 I)")
-    realizations: int = _f(30, lo=1, hi=1000000, doc="realizations per (target, track, sigma)")
+    realizations: int = _f(20, lo=1, hi=1000000, doc="realizations per (target, track, sigma)")
     n_loc_samples: int = _f(25, lo=1, hi=100000, doc="N_x localization samples (With Uncertainty)")
 
 
@@ -71,9 +71,19 @@ class EvaluateConfig:
         factory=lambda: ("gp_models", "biased", "randomized", "sensitivity", "bias_maps"))
     seed: int = _f(0, lo=0, hi=SEED_MAX)
     bootstrap: int = _f(2000, lo=100, hi=1000000, doc="bootstrap resamples for every 95 % confidence interval")
-    ablations: tuple[str, ...] = _f(factory=tuple,
-                                    doc="'models.KEY=VALUE' variants evaluated on the same population "
-                                        "(KEY: component_rule, noise_floor, n_components, informative_min)")
+    ablations: tuple[str, ...] = _f(factory=lambda: ("evaluate.test_domain_variance=cross_fit",),
+                                    doc="'models.KEY=VALUE' or 'evaluate.test_domain_variance=VALUE' variants "
+                                        "evaluated on the same population (models KEY: component_rule, "
+                                        "noise_floor, n_components, informative_min)")
+    test_domain_variance: str = _f("none", choices=("none", "cross_fit"),
+                                   doc="likelihood of the GP-based methods: none = the paper's (GP predictive "
+                                       "alone); cross_fit = plus a test-domain variance per score component, "
+                                       "ML-estimated on labelled AVD crops of the other scans (one scan: of the "
+                                       "other instances), never the evaluated cell's own")
+    confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
+                                    doc="a confident error: max P >= this on a wrong class")
+    attribution: bool = _f(True, doc="also evaluate With Uncertainty with poses only (dropout samples -> their "
+                                     "mean) and with dropout only (no pose sampling), on the same population")
     biased: BiasedConfig = _f(factory=BiasedConfig)
     randomized: RandomizedConfig = _f(factory=RandomizedConfig)
     sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
@@ -249,4 +259,23 @@ def canonical_json(obj: Any) -> str:
 
 
 
-ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min")
+ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min",
+                 "evaluate.test_domain_variance")
+TEST_DOMAIN_MODES = ("none", "cross_fit")
+
+
+def is_model_ablation(ablation: str) -> bool:
+    """An ablation that needs its own model bank (a ``models.*`` override)."""
+    return ablation.split("=", 1)[0].strip().startswith("models.")
+
+
+def test_domain_mode(cfg: "Config", ablation: str | None) -> str:
+    """``evaluate.test_domain_variance`` of the default run (None) or of one ablation variant."""
+    if ablation is not None and "=" in ablation:
+        key, raw = (t.strip() for t in ablation.split("=", 1))
+        if key == "evaluate.test_domain_variance":
+            value = raw.strip("'\"")
+            if value not in TEST_DOMAIN_MODES:
+                raise ConfigError(f"evaluate.ablations: {ablation!r}: the value must be none or cross_fit")
+            return value
+    return cfg.evaluate.test_domain_variance

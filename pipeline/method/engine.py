@@ -150,7 +150,7 @@ def predictive(models: GPClassModels, X: np.ndarray) -> tuple[np.ndarray, np.nda
                 Z[...] = out.T
             Z3 = Z.reshape(B, K, g.P)
             S = np.matmul(Z3, Z3.transpose(0, 2, 1))
-            S[:, diag, diag] += g.noise
+            S[:, diag, diag] += g.noise + models.test_variance[c, f]   # test noise: σ_n² + δ² (gp.py)
             cov[:, c, f] = S
     D2tt = None
     for c in range(C):
@@ -185,5 +185,5 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> Non
         np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
         np.exp(kk, out=kk)
         kk *= models.amplitude[c, f]
-        kk[:, diag, diag] += models.noise[c, f]
+        kk[:, diag, diag] += models.test_noise[c, f]   # σ_n² + the test-domain δ² (gp.py)
         np.subtract(kk, S, out=cov[:, c, f])

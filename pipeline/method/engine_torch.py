@@ -30,13 +30,15 @@ class TorchPlan:
         t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float64, device=self.device)  # noqa: E731
         self.models, self.plan = models, pl
         self.P_max = pl.P_max
-        self.basis = [(i, c, f, pl.basis[c][f].P, t(pl.basis[c][f].QT), pl.basis[c][f].mean, pl.basis[c][f].noise)
+        # Test measurements carry σ_n² + δ² (GPClassModels.test_noise); the basis keeps the training σ_n².
+        self.basis = [(i, c, f, pl.basis[c][f].P, t(pl.basis[c][f].QT), pl.basis[c][f].mean,
+                       pl.basis[c][f].noise + float(models.test_variance[c, f]))
                       for i, (c, f) in enumerate(pl.members)]
         self.wbar = t(pl.wbar) if pl.members else None
         self._t = t
         self._exact: dict[int, dict] = {}
         self.amp, self.ell, self.noise, self.mean = (t(models.amplitude), t(models.length_scale),
-                                                     t(models.noise), t(models.mean))
+                                                     t(models.test_noise), t(models.mean))
 
 
     def exact(self, c: int) -> dict:

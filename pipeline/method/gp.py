@@ -11,6 +11,12 @@ Y - m, plus m). Train-test kernels are formed as large matrix products and the t
 one triangular solve with the training Cholesky factor over all test rows, so a whole batch of
 trajectories costs a few BLAS calls per (class, component).
 
+Test-domain variance: ``with_test_variance(extra)`` gives the same models whose *test*
+measurements carry noise σ_n² + δ² per (class, component) (``test_noise``) while the training
+factors keep σ_n²; ``predict`` and ``marginal`` use ``test_noise``, so every fusion engine built on
+them (and any engine that reads ``test_noise`` for the test diagonal) sees the calibrated
+likelihood unchanged (docs/design.md §5, "Calibrated likelihood").
+
 Files: ``index.json`` plus one ``<class>.npz`` per class (arrays only; loading never unpickles).
 """
 from __future__ import annotations
@@ -90,6 +96,36 @@ class GPClassModels:
             raise ValueError(f"GPClassModels: {F} components but {len(self.component_names)} component names")
         self.meta = dict(meta or {})
         self._factors: list[_ClassFactors] | None = None
+        self.test_variance = np.zeros((C, F))
+
+    @property
+    def test_noise(self) -> np.ndarray:
+        """(C, F) noise variance of a test measurement: σ_n² plus the test-domain variance δ²."""
+        return self.noise + self.test_variance
+
+    def with_test_variance(self, extra) -> "GPClassModels":
+        """These models with δ² = ``extra`` ((C, F), (F,) or a scalar, >= 0) added to the noise of
+        test measurements only; training arrays and factors are shared, not recomputed."""
+        d = np.broadcast_to(np.asarray(extra, dtype=float), self.noise.shape).copy()
+        if not np.all(np.isfinite(d)) or np.any(d < 0):
+            raise ValueError(f"with_test_variance: variances must be finite and >= 0, got {d.tolist()}")
+        out = self._copy(slice(None), slice(None))
+        out._factors = self._factors
+        out.test_variance = self.test_variance + d
+        return out
+
+    def _copy(self, ci, fi) -> "GPClassModels":
+        idx = range(self.n_classes)[ci] if isinstance(ci, slice) else ci
+        fidx = list(range(self.n_components)[fi]) if isinstance(fi, slice) else list(fi)
+        names = None if self.component_names is None else [self.component_names[i] for i in fidx]
+        out = GPClassModels([self.classes[i] for i in idx], [self.components[i] for i in fidx],
+                            [self.X[i] for i in idx],
+                            [self.Y[i] if fidx == list(range(self.n_components)) else self.Y[i][fidx] for i in idx],
+                            self.mean[np.ix_(list(idx), fidx)], self.amplitude[np.ix_(list(idx), fidx)],
+                            self.length_scale[np.ix_(list(idx), fidx)], self.noise[np.ix_(list(idx), fidx)],
+                            component_names=names, meta=self.meta)
+        out.test_variance = self.test_variance[np.ix_(list(idx), fidx)].copy()
+        return out
 
     @staticmethod
     def _param(v, name: str, C: int, F: int, positive: bool = True) -> np.ndarray:
@@ -124,10 +160,7 @@ class GPClassModels:
             if c not in self.classes:
                 raise KeyError(f"class {c!r} is not modelled (classes: {', '.join(self.classes)})")
             idx.append(self.classes.index(c))
-        return GPClassModels([self.classes[i] for i in idx], self.components,
-                             [self.X[i] for i in idx], [self.Y[i] for i in idx],
-                             self.mean[idx], self.amplitude[idx], self.length_scale[idx], self.noise[idx],
-                             component_names=self.component_names, meta=self.meta)
+        return self._copy(idx, slice(None))
 
     def subset(self, classes: Sequence[str], components: Sequence[int]) -> "GPClassModels":
         """The models of ``classes`` restricted to score ``components`` (both subsets or reorderings):
@@ -137,10 +170,7 @@ class GPClassModels:
             fi = [self.components.index(int(i)) for i in components]
         except ValueError:
             raise KeyError(f"components {list(components)} are not all modelled (have {self.components})") from None
-        names = None if self.component_names is None else [self.component_names[i] for i in fi]
-        return GPClassModels(sub.classes, [self.components[i] for i in fi], sub.X, [y[fi] for y in sub.Y],
-                             sub.mean[:, fi], sub.amplitude[:, fi], sub.length_scale[:, fi], sub.noise[:, fi],
-                             component_names=names, meta=self.meta)
+        return sub._copy(slice(None), fi)
 
     # -- training-side factors (computed once) ----------------------------------------------
     def factors(self) -> list[_ClassFactors]:
@@ -217,7 +247,8 @@ class GPClassModels:
     def predict(self, Xs) -> tuple[np.ndarray, np.ndarray]:
         """Joint predictive per trajectory: Xs (..., K, d) -> mu (..., C, F, K), cov (..., C, F, K, K).
 
-        ``cov`` includes the white noise σ_n² I (test measurements carry it, docs/design.md §5).
+        ``cov`` includes the white noise σ_n² I (test measurements carry it, docs/design.md §5), plus
+        the test-domain variance δ² of ``with_test_variance`` (zero unless set).
         """
         Xs = np.asarray(Xs, dtype=float)
         if Xs.ndim < 2 or Xs.shape[-1] != self.input_dim:
@@ -249,7 +280,7 @@ class GPClassModels:
                 np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
                 np.exp(kk, out=kk)
                 kk *= self.amplitude[c, f]
-                kk[:, diag, diag] += self.noise[c, f]
+                kk[:, diag, diag] += self.test_noise[c, f]
                 np.subtract(kk, S, out=cov[:, c, f])
         return mu.reshape(lead + (C, F, K)), cov.reshape(lead + (C, F, K, K))
 
@@ -264,7 +295,7 @@ class GPClassModels:
         for c in range(C):
             m, V = self.whitened(c, flat)
             mu[:, c] = m
-            var[:, c] = self.amplitude[c] + self.noise[c] - np.einsum("fnj,fnj->nf", V, V)
+            var[:, c] = self.amplitude[c] + self.test_noise[c] - np.einsum("fnj,fnj->nf", V, V)
         return mu.reshape(lead + (C, F)), var.reshape(lead + (C, F))
 
     # -- files -----------------------------------------------------------------------------------

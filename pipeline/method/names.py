@@ -10,7 +10,11 @@ MODEL_BASED = "model_based"
 SIMPLE_BAYES = "simple_bayes"
 DIRICHLET = "dirichlet"  # Tchuiev & Indelman 2018 (pipeline/method/dirichlet_fusion.py)
 METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES, DIRICHLET)
+# Attribution variants of With Uncertainty (one ingredient each), evaluated beside the methods.
+WU_POSES_ONLY = "with_uncertainty_poses_only"       # dropout samples replaced by their mean
+WU_DROPOUT_ONLY = "with_uncertainty_dropout_only"   # no pose sampling: σ = 0, N_x = 1 inside the method
+ATTRIBUTION = (WU_POSES_ONLY, WU_DROPOUT_ONLY)
 
 # Short names for progress bars and table headers.
 METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes",
-                DIRICHLET: "Dirichlet"}
+                DIRICHLET: "Dirichlet", WU_POSES_ONLY: "WU poses only", WU_DROPOUT_ONLY: "WU dropout only"}

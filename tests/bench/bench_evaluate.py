@@ -62,7 +62,11 @@ def stage(config: str) -> None:
     print(f"  grid {tim['population']:.1f} s ({traj} With Uncertainty trajectories: "
           f"{traj / tim['population']:.0f} trajectories/s incl. Model Based and Simple Bayes), "
           f"statistics {tim['statistics']:.1f} s, single-track figures "
-          f"{sum(tim.get(k, 0.0) for k in ('sensitivity', 'bias_maps', 'gp_models')):.1f} s")
+          f"{sum(tim.get(k, 0.0) for k in ('sensitivity', 'bias_maps', 'gp_models')):.1f} s, "
+          f"test-domain fit {tim.get('domain_fit', 0.0):.1f} s")
+    variants = [a for a in pop.get("ablations", {})]
+    print(f"  variants on: {', '.join(variants) or 'none'} (attribution = With Uncertainty poses only / dropout "
+          "only; each evaluate.ablations entry reruns the whole grid)")
     m = read_manifest(cfg, "evaluate")
     print(f"  manifest: {m['summary']}")
 
