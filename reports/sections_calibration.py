@@ -4,13 +4,7 @@ ingredient of With Uncertainty carries its difference to Model Based (attributio
 from __future__ import annotations
 
 from pipeline.evaluation.labels import comparison_label, method_label, ordered_methods
-from pipeline.evaluation.metrics import metric_label as _metric_label
-
-
-def metric_label(key: str, short: bool = False) -> str:
-    if key.startswith("ece_"):
-        return f"ECE, {key[4:]}" if short else f"top-label ECE (15 bins), {key[4:]}"
-    return _metric_label(key, short)
+from pipeline.evaluation.metrics import metric_label
 from reports.context import ReportContext
 from reports.numbers import Estimate, fmt
 

@@ -224,14 +224,27 @@ def confident_rate(conf: np.ndarray, ok: np.ndarray, threshold: float = CONFIDEN
 MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
 
 
+# Metrics of the pooled posteriors rather than of one cell (computed by
+# ``pipeline.evaluation.calibration``: ECE is a function of bin sums, so it cannot be averaged over
+# cells): key -> (label, short label); lower is better for each.
+POOLED_METRICS = {
+    "ece_final": ("top-label ECE (15 bins), final step", "ECE, final"),
+    "ece_overall": ("top-label ECE (15 bins), all steps", "ECE, all steps"),
+}
+
+
 def metric_label(key: str, short: bool = False) -> str:
     """A metric's label (``short`` for table headers); an unknown key is shown as itself."""
     m = METRICS.get(key)
-    return key if m is None else m.short if short else m.label
+    if m is None:
+        return POOLED_METRICS[key][1 if short else 0] if key in POOLED_METRICS else key
+    return m.short if short else m.label
 
 
 def higher_is_better(key: str) -> bool:
     """The metric's direction; an unknown key (a newer summary) reads as higher-is-better."""
+    if key in POOLED_METRICS:
+        return False
     m = METRICS.get(key)
     return True if m is None else m.higher_is_better
 

@@ -19,7 +19,7 @@ import pandas as pd
 
 from pipeline.evaluation import robust as R
 from pipeline.evaluation.labels import METHOD_SHORT, comparison_key
-from pipeline.evaluation.metrics import METRICS
+from pipeline.evaluation.metrics import METRICS, higher_is_better, metric_label
 from pipeline.evaluation.popstats import population_block, saturation, track_values
 
 UNBOUNDED_PREFIXES = ("log10_mgr", "nll")
@@ -29,16 +29,12 @@ def is_unbounded(metric: str) -> bool:
     return metric.startswith(UNBOUNDED_PREFIXES)
 
 
-# Metrics of the pooled posteriors, not means of cell values (pipeline.evaluation.pooled_calibration).
-POOLED_METRICS = {"ece_final": "top-label ECE (15 bins), final step", "ece_overall": "top-label ECE (15 bins), all steps"}
-
-
 def _higher(metric: str) -> bool:
-    return METRICS[metric].higher_is_better if metric in METRICS else False
+    return higher_is_better(metric)
 
 
 def _label(metric: str) -> str:
-    return METRICS[metric].label if metric in METRICS else POOLED_METRICS.get(metric, metric)
+    return metric_label(metric)
 
 
 def _target_groups(tv: pd.DataFrame, metric: str) -> tuple[list[str], list[np.ndarray]]:
