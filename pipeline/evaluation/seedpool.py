@@ -69,7 +69,7 @@ def seed_pooled(cells_by_seed: Mapping[str, Sequence[Mapping]], methods: Sequenc
     """{"pooled": {method: {metric: est}}, "paired": {key: {metric: est}}, "verdict_table": rows,
     "verdict": sentences} over every seed's cells."""
     from pipeline.evaluation.labels import METHOD_SHORT
-    from pipeline.evaluation.metrics import METRICS
+    from pipeline.evaluation.metrics import METRICS, metric_label
 
     seeds = sorted(cells_by_seed)
     out: dict = {"seeds": seeds, "pooled": {}, "paired": {}, "verdict": [], "verdict_table": [],
@@ -96,7 +96,7 @@ def seed_pooled(cells_by_seed: Mapping[str, Sequence[Mapping]], methods: Sequenc
                       "not distinguishable": "is not distinguishable from"}[res]
             spread = ", ".join(f"{v:+.3g}" for v in est["per_seed"])
             out["verdict"].append(
-                f"{METHOD_SHORT.get(a, a)} {phrase} {METHOD_SHORT.get(b, b)} on {METRICS[k].label if k in METRICS else k} "
+                f"{METHOD_SHORT.get(a, a)} {phrase} {METHOD_SHORT.get(b, b)} on {metric_label(k)} "
                 f"({out['statistic'][k]} of the differences {est['value']:+.3g}, 95 % CI [{est['ci_low']:+.3g}, "
                 f"{est['ci_high']:+.3g}] over {len(seeds)} seeds, their targets and tracks; per seed: {spread}).")
             out["verdict_table"].append({"comparison": key, "metric": k, "outcome": res, "value": est["value"],
