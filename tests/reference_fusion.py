@@ -1,5 +1,6 @@
 """The reference fusion engine: the product's engine before the circle-basis route
-(pipeline/method/engine.py), kept verbatim for the equality tests and the bench ratio.
+(pipeline/method/engine.py), its per-block kernels kept verbatim for the equality tests and the
+bench ratio; the helpers around them (numerics, chunking, threads) are the product's own.
 Its GP predictive is ``GPClassModels.predict`` (one triangular solve per test row).
 
 Batched fusion (docs/design.md §5): Model with Uncertainty, Model Based, Simple Bayes.
@@ -30,6 +31,9 @@ import math
 
 import numpy as np
 
+# The helpers that are not the engine (numerics, chunking, threads, Simple Bayes) are the product's own.
+from pipeline.method.fusion import (_blocks, _cholesky, _dropout_stats, _per_sample_cost, _run_blocks,  # noqa: F401
+                                    log_prior, logsumexp, simple_bayes)
 from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
@@ -40,25 +44,6 @@ DEFAULT_BLOCK = 1 << 20
 
 
 # -- small numerics ------------------------------------------------------------------------------
-def logsumexp(a: np.ndarray, axis: int, keepdims: bool = False) -> np.ndarray:
-    """log Σ exp(a) along ``axis``; rows that are all -inf give -inf (never NaN)."""
-    m = np.max(a, axis=axis, keepdims=True)
-    m = np.where(np.isfinite(m), m, 0.0)
-    out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
-    return out if keepdims else np.squeeze(out, axis=axis)
-
-
-def log_prior(prior, C: int) -> np.ndarray:
-    """Normalised log prior over C classes; None = uniform. Zero entries become -inf."""
-    if prior is None:
-        return np.full(C, -math.log(C))
-    p = np.asarray(prior, dtype=float)
-    if p.shape != (C,) or not np.all(np.isfinite(p)) or np.any(p < 0) or p.sum() <= 0:
-        raise ValueError(f"prior must be {C} non-negative finite numbers with a positive sum, got {p.tolist()}")
-    with np.errstate(divide="ignore"):
-        return np.log(p / p.sum())
-
-
 def tri_inverse(L: np.ndarray) -> np.ndarray:
     """Inverse of lower-triangular matrices (..., K, K) by forward substitution, vectorized over
     the batch (K steps; exactly triangular output)."""
@@ -73,37 +58,12 @@ def tri_inverse(L: np.ndarray) -> np.ndarray:
     return M
 
 
-def _cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
-    try:
-        return np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        # Name the culprit: (class, component) axes are -4 and -3.
-        ok = np.ones(cov.shape[-4:-2], dtype=bool)
-        flat = cov.reshape((-1,) + cov.shape[-4:])
-        for c in range(cov.shape[-4]):
-            for f in range(cov.shape[-3]):
-                try:
-                    np.linalg.cholesky(flat[:, c, f])
-                except np.linalg.LinAlgError:
-                    ok[c, f] = False
-        bad = [(models.classes[c], models.components[f]) for c, f in zip(*np.nonzero(~ok))]
-        raise ValueError(f"joint predictive covariance is not positive definite for (class, component) {bad}: "
-                         "white noise too small for the amplitude, or repeated inputs") from None
-
-
 def track_factors(models: GPClassModels, X: np.ndarray):
     """mu (B, C, F, K), Cholesky factor L and its inverse M (B, C, F, K, K) for trajectories X (B, K, d)."""
     mu, cov = models.predict(X)
     L = _cholesky(cov, models)
     del cov
     return mu, L, tri_inverse(L)
-
-
-def _dropout_stats(dropout: np.ndarray, var_floor: float):
-    """Per step and component: mean and population variance (ddof 0) floored at var_floor."""
-    mu_z = dropout.mean(axis=-2)                                   # (..., K, F)
-    v_z = np.maximum(dropout.var(axis=-2), var_floor)
-    return mu_z, v_z
 
 
 def _recursion(ll: np.ndarray, logp0: np.ndarray) -> np.ndarray:
@@ -200,7 +160,8 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
         r0, r1, x0, x1 = span
         return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], Z[r0:r1], logp0, var_floor), axis=1)
 
-    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
+    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY],
+                                                   prepare=GPClassModels.factors):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
     acc -= math.log(Nx)
     acc = acc - logsumexp(acc, axis=-1, keepdims=True)  # exact already; removes rounding drift
@@ -245,94 +206,9 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         return _recursion(ll[..., None], logp0)
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
-    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED]):
+    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED],
+                                                  prepare=GPClassModels.factors):
         out[r0:r1] = lp
     out = out - logsumexp(out, axis=-1, keepdims=True)
     out = out if return_log else np.exp(out)
     return out[0] if single else out
-
-
-# -- Simple Bayes --------------------------------------------------------------------------------
-def simple_bayes(scores, *, prior=None, return_log: bool = False) -> np.ndarray:
-    """Simple Bayes (Patten et al.): P(c|H_k) ∝ P(c|H_{k-1}) s_k[c]. scores (K, C) or (R, K, C),
-    one score component per candidate class. Zero scores are floored at the smallest normal
-    float so that a class can lose but never turn the posterior into 0/0."""
-    s = np.asarray(scores, dtype=float)
-    single = s.ndim == 2
-    if single:
-        s = s[None]
-    if s.ndim != 3 or s.shape[-1] < 1:
-        raise ValueError(f"simple_bayes: scores must be (K, C) or (R, K, C), got {np.shape(scores)}")
-    if not np.all(np.isfinite(s)) or np.any(s < 0):
-        raise ValueError("simple_bayes: scores must be finite and non-negative")
-    logp0 = log_prior(prior, s.shape[-1])
-    logs = np.log(np.maximum(s, np.finfo(float).tiny))
-    cum = np.cumsum(logs, axis=1) + logp0
-    out = cum - logsumexp(cum, axis=-1, keepdims=True)
-    out = out if return_log else np.exp(out)
-    return out[0] if single else out
-
-
-# -- chunking --------------------------------------------------------------------------------------
-def _per_sample_cost(models: GPClassModels, K: int, S: int) -> int:
-    """Largest working-array size (elements) per trajectory."""
-    C, F = models.n_classes, models.n_components
-    n_train = max(len(x) for x in models.X)
-    return max(K * n_train, C * F * K * K, C * F * K * S)
-
-
-def _blocks(R: int, Nx: int, per_sample: int, block: int) -> list[tuple[int, int, int, int]]:
-    """(r0, r1, x0, x1) spans: several whole realizations per block, or slices of one realization's
-    localization samples when a single realization is too big."""
-    per = max(1, block // max(per_sample, 1))
-    if per >= Nx:
-        step = max(1, per // Nx)
-        return [(r0, min(R, r0 + step), 0, Nx) for r0 in range(0, R, step)]
-    return [(r, r + 1, x0, min(Nx, x0 + per)) for r in range(R) for x0 in range(0, Nx, per)]
-
-
-def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progress: bool, desc: str):
-    """Yield (span, work(span)) in order, blocks spread over ``threads`` worker threads.
-
-    BLAS is held to one thread meanwhile: the blocks are small, and BLAS's own threads on small
-    products cost more in synchronisation than they gain (badly so on a busy machine); numpy and
-    BLAS release the GIL, so parallel blocks use the cores instead.
-    """
-    from concurrent.futures import ThreadPoolExecutor
-    from contextlib import nullcontext
-
-    from pipeline.infra.device import available_cores
-    from pipeline.infra.progress import bar as progress_bar
-
-    n = max(1, min(int(threads or available_cores()), len(spans)))
-    models.factors()  # build the shared training factors once, before any worker reads them
-    bar = progress_bar(total=len(spans), desc=desc, unit="block", leave=False,
-                       enabled=progress and len(spans) >= 2)
-    try:  # installed with scikit-learn
-        from threadpoolctl import threadpool_limits
-        one_blas_thread = threadpool_limits(limits=1, user_api="blas")
-    except ImportError:  # pragma: no cover - same results, only slower
-        one_blas_thread = nullcontext()
-    with one_blas_thread:
-        if n == 1:
-            for span in spans:
-                yield span, work(span)
-                bar.update(1)
-        else:
-            with ThreadPoolExecutor(max_workers=n) as pool:
-                # A bounded window of blocks in flight keeps memory at ~2n blocks.
-                pending = []
-                it = iter(spans)
-                for span in it:
-                    pending.append((span, pool.submit(work, span)))
-                    if len(pending) >= 2 * n:
-                        break
-                while pending:
-                    span, fut = pending.pop(0)
-                    res = fut.result()
-                    nxt = next(it, None)
-                    if nxt is not None:
-                        pending.append((nxt, pool.submit(work, nxt)))
-                    yield span, res
-                    bar.update(1)
-    bar.close()

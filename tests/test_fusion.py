@@ -4,7 +4,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes, tri_inverse
+from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
+from tests.reference_fusion import tri_inverse
 from pipeline.method.geometry import relative_inputs, rot, sample_localization
 from pipeline.method.gp import GPClassModels
 from tests.fusion_methods import (Episode, ModelBased, ModelWithUncertainty, Observation, SimpleBayes,

@@ -99,20 +99,6 @@ def log_prior(prior, C: int) -> np.ndarray:
         return np.log(p / p.sum())
 
 
-def tri_inverse(L: np.ndarray) -> np.ndarray:
-    """Inverse of lower-triangular matrices (..., K, K) by forward substitution, vectorized over
-    the batch (K steps; exactly triangular output)."""
-    K = L.shape[-1]
-    M = np.zeros_like(L)
-    inv_diag = 1.0 / np.diagonal(L, axis1=-2, axis2=-1)
-    for k in range(K):
-        if k:
-            # M[k, :k] = -(L[k, :k] @ M[:k, :k]) / L_kk
-            M[..., k, :k] = -np.einsum("...j,...jl->...l", L[..., k, :k], M[..., :k, :k]) * inv_diag[..., k, None]
-        M[..., k, k] = inv_diag[..., k]
-    return M
-
-
 def _cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
     try:
         return np.linalg.cholesky(cov)
@@ -131,14 +117,6 @@ def _cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
                          "white noise too small for the amplitude, or repeated inputs") from None
 
 
-def track_factors(models: GPClassModels, X: np.ndarray):
-    """mu (B, C, F, K), Cholesky factor L and its inverse M (B, C, F, K, K) for trajectories X (B, K, d)."""
-    mu, cov = engine.predictive(models, X)
-    L = _cholesky(cov, models)
-    del cov
-    return mu, L, tri_inverse(L)
-
-
 def _dropout_stats(dropout: np.ndarray, var_floor: float):
     """Per step and component: mean and population variance (ddof 0) floored at var_floor."""
     mu_z = dropout.mean(axis=-2)                                   # (..., K, F)
@@ -146,23 +124,6 @@ def _dropout_stats(dropout: np.ndarray, var_floor: float):
     return mu_z, v_z
 
 
-def _recursion(ll: np.ndarray, logp0: np.ndarray) -> np.ndarray:
-    """Eq. 24-26 in log space. ll (..., C, K, S) per dropout sample -> log P(c|H_k) (..., K, C).
-
-    For each step: h_c(s) = P(s|c, past) P(c|H_{k-1}) normalised over c, then P(c|H_k) = mean_s h_c(s).
-    """
-    *lead, C, K, S = ll.shape
-    out = np.empty(tuple(lead) + (K, C))
-    logp = np.broadcast_to(logp0, tuple(lead) + (C,))
-    for k in range(K):
-        h = ll[..., k, :] + logp[..., None]                        # (..., C, S)
-        h = h - logsumexp(h, axis=-2, keepdims=True)
-        logp = logsumexp(h, axis=-1) - math.log(S)
-        out[..., k, :] = logp
-    return out
-
-
-# -- the per-block kernel --------------------------------------------------------------------------
 def _batch_last(mu: np.ndarray, cov: np.ndarray):
     """mu (b, C, F, K), cov (b, C, F, K, K) -> (K, nb) and (K, K, nb), nb = b·C·F: every small
     K×K operation below is then one vector op over nb contiguous numbers."""
@@ -419,8 +380,10 @@ def _blocks(R: int, Nx: int, per_sample: int, block: int) -> list[tuple[int, int
     return [(r, r + 1, x0, min(Nx, x0 + per)) for r in range(R) for x0 in range(0, Nx, per)]
 
 
-def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progress: bool, desc: str):
+def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progress: bool, desc: str,
+                prepare=engine.plan):
     """Yield (span, work(span)) in order, blocks spread over ``threads`` worker threads.
+    ``prepare(models)`` runs first, so that shared state the workers read is built once.
 
     BLAS is held to one thread meanwhile: the blocks are small, and BLAS's own threads on small
     products cost more in synchronisation than they gain (badly so on a busy machine); numpy and
@@ -433,7 +396,7 @@ def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progres
     from pipeline.infra.progress import bar as progress_bar
 
     n = max(1, min(int(threads or available_cores()), len(spans)))
-    engine.plan(models)  # build the shared routes and factors once, before any worker reads them
+    prepare(models)  # the shared routes and factors, built before any worker reads them
     bar = progress_bar(total=len(spans), desc=desc, unit="block", leave=False,
                        enabled=progress and len(spans) >= 2)
     try:  # installed with scikit-learn
