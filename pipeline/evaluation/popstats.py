@@ -19,6 +19,7 @@ import pandas as pd
 
 from pipeline.evaluation.labels import METHOD_SHORT, comparison_key
 from pipeline.evaluation.metrics import METRICS, percentile
+from pipeline.evaluation.robust import outcome  # noqa: F401 (one verdict rule; re-exported)
 
 
 def wilson_interval(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -148,17 +149,6 @@ def saturation(cells: pd.DataFrame, method: str, baseline: str, metric: str) -> 
     both_best = int(((np.abs(a - best) < 1e-12) & (np.abs(b - best) < 1e-12)).sum()) if best is not None else 0
     both_worst = int(((np.abs(a - worst) < 1e-12) & (np.abs(b - worst) < 1e-12)).sum()) if worst is not None else 0
     return both_best, both_worst
-
-
-def outcome(est: dict, higher_is_better: bool) -> str:
-    lo, hi = est["ci_low"], est["ci_high"]
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return "not distinguishable"
-    if (lo > 0 and higher_is_better) or (hi < 0 and not higher_is_better):
-        return "better"
-    if (hi < 0 and higher_is_better) or (lo > 0 and not higher_is_better):
-        return "worse"
-    return "not distinguishable"
 
 
 _PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguishable": "is not distinguishable from"}
