@@ -54,8 +54,13 @@ def tail_order(kappa: float, tol: float = KERNEL_TOL) -> tuple[int, float]:
 def features(x: np.ndarray, P: int) -> np.ndarray:
     """φ (n, P) of unit vectors x (n, 2): 1, cos θ, sin θ, cos 2θ, sin 2θ, … by the angle-addition
     recurrence (relative error grows like n·ε, as cos(nθ) from a rounded θ would)."""
-    n = len(x)
-    out = np.empty((n, P))
+    return fill_features(np.empty((len(x), P)), x)
+
+
+def fill_features(out, x):
+    """``features`` into a preallocated (n, P) array ``out``: numpy or torch alike (only slicing
+    and elementwise arithmetic), so both engines compute the same recurrence."""
+    P = out.shape[1]
     out[:, 0] = 1.0
     if P == 1:
         return out

@@ -67,16 +67,7 @@ def features(x, P: int):
     """``circle_basis.features`` on a tensor."""
     import torch
 
-    out = torch.empty((x.shape[0], P), dtype=x.dtype, device=x.device)
-    out[:, 0] = 1.0
-    if P > 1:
-        c1, s1 = x[:, 0], x[:, 1]
-        out[:, 1], out[:, 2] = c1, s1
-        for k in range(2, (P - 1) // 2 + 1):
-            c, s = out[:, 2 * k - 3], out[:, 2 * k - 2]
-            out[:, 2 * k - 1] = c * c1 - s * s1
-            out[:, 2 * k] = s * c1 + c * s1
-    return out
+    return cb.fill_features(torch.empty((x.shape[0], P), dtype=x.dtype, device=x.device), x)
 
 
 def predictive(tp: TorchPlan, X_np: np.ndarray):
