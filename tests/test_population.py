@@ -86,14 +86,15 @@ def test_scores_are_gathered_per_view_in_pass_order():
     df = df.sample(frac=1.0, random_state=1)   # row order must not matter (the index keys the scores)
     det = P.target_views(df, "t", 4)
     (info,) = P.plan_tracks(det, "t", 1, 4, 0, {"s1": (FX, CX)}, {"s1": 0.3})
-    drop, own = P.gather_scores(df, scores, info, components=[3, 1], own=[0, 2, 2], max_difficulty=4)
+    samples = P.track_samples(df, scores, info, max_difficulty=4)
+    drop, own = samples[:, :, [3, 1]], samples[:, :, [0, 2, 2]]
     assert drop.shape == (4, 3, 2) and own.shape == (4, 3, 3)
     first = df[(df["image"] == info.images[0]) & (df["pass"] >= 0)].sort_values("pass")
     np.testing.assert_array_equal(drop[0], scores[first.index][:, [3, 1]])
     np.testing.assert_array_equal(own[0][:, 1], own[0][:, 2])
     missing = df[~((df["image"] == info.images[2]) & (df["pass"] >= 0))]
     with pytest.raises(TrackError, match="no MC-dropout samples"):
-        P.gather_scores(missing, scores, info, [0], [0], 4)
+        P.track_samples(missing, scores, info, 4)
 
 
 def _cell(variant="default", track=0, settings=None):

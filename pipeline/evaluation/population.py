@@ -163,14 +163,6 @@ def track_samples(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, max_di
     return np.stack(out).astype(np.float64)
 
 
-def gather_scores(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, components, own,
-                  max_difficulty: int) -> tuple[np.ndarray, np.ndarray]:
-    """Dropout samples of the track's views: (K, N_s, F) of ``components`` and (K, N_s, C) of
-    each candidate's ``own`` component (Simple Bayes)."""
-    s = track_samples(avd, scores, info, max_difficulty)
-    return s[:, :, list(components)], s[:, :, list(own)]
-
-
 # -- cells -------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Cell:
