@@ -128,7 +128,8 @@ def _factor(tp: TorchPlan, cov):
 
 
 def _recursion(ll, logp0):
-    """ll (..., C, K, S) -> log P(c | H_k) (..., K, C), as ``fusion._recursion``."""
+    """ll (..., C, K, S) -> log P(c | H_k) (..., K, C): Eq. 24-26 in log space, as the numpy engine's
+    ``_recursion_kfirst`` with the step axis after the classes."""
     import torch
 
     *lead, C, K, S = ll.shape
