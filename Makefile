@@ -6,6 +6,7 @@ BIN     := $(VENV)/bin
 CONFIG  ?= configs/synthetic.toml
 # Extra flags for viewfuse, e.g. make evaluate ARGS="--force --device cpu"
 ARGS    ?=
+, := ,
 STAGES  := data classifier features models evaluate report simulate
 
 .PHONY: help venv venv-ray $(STAGES) study test bench clean distclean
@@ -17,16 +18,26 @@ help:
 	@echo "make venv-ray                   add the optional Ray extra (run.executor = \"ray\" / --executor ray)"
 	@echo "make test | bench | clean | distclean"
 
+# Installs go through uv where it can be had (pip install uv, then uv pip install: it unpacks
+# torch's ~6 GB of wheels in parallel, about 1.6x faster than pip on a fresh clone), with pip's
+# own indexes, find-links and constraints (tools/uv_flags.py); pip installs when uv cannot.
+PIP     := $(BIN)/python -m pip install --quiet --disable-pip-version-check
+define install
+	@if $(PIP) uv >/dev/null 2>&1 && $(BIN)/uv pip install --quiet --python $(BIN)/python \
+	    $$($(BIN)/python tools/uv_flags.py) -e '$(1)'; then echo "installed $(1) with uv"; \
+	else echo "uv not available: installing $(1) with pip"; $(PIP) -e '$(1)'; fi
+endef
+
 $(VENV)/.installed: pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	$(call install,.[test])
 	@touch $@
 
 venv: $(VENV)/.installed
 
 # The optional Ray extra into the same .venv (the default install does not need it).
 $(VENV)/.installed-ray: $(VENV)/.installed
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test,ray]'
+	$(call install,.[test$(,)ray])
 	@touch $@
 
 venv-ray: $(VENV)/.installed-ray

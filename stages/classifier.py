@@ -9,7 +9,8 @@
 - ``path``: any AlexNet state dict (``.npz`` or a tensor-only torch file).
 
 ``card.json`` records the weights file and its sha256, output names, input size, normalisation,
-dropout p, accuracy with its Wilson 95 % CI over the held-out images and confusion (synthetic), training settings, wall and CPU timings, and (synthetic)
+dropout p, accuracy with its Wilson 95 % CI over the held-out images and confusion (synthetic), training settings, wall and CPU timings (with
+``train_split_s``: the training loop's wall seconds in augment, forward, backward and optimizer), and (synthetic)
 ``determinism``: the CPU flags that select kernels, thread count, library versions and what can
 differ on another machine; its ``hash`` is the
 identity of the scorer that the features stage records in its Parquet metadata.
@@ -122,6 +123,11 @@ def _render_sets(c, t) -> tuple:
     return xtr, ytr, xva, yva
 
 
+def _split_text(split: dict) -> str:
+    """'augment 5 s, forward 30 s, ...' from train_classifier's split."""
+    return ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in split.items())
+
+
 def _train_synthetic(ctx, device: str) -> str:
     import torch
 
@@ -142,10 +148,11 @@ def _train_synthetic(ctx, device: str) -> str:
     t1, c1 = time.perf_counter(), _cpu_s()
     model = init_for_training(build_alexnet(t.categories, c.dropout), c.seed)
     precision = resolve_precision(t.precision, device)
+    split: dict = {}
     history = train_classifier(model, xtr, ytr, epochs=t.epochs, batch_size=t.batch_size, lr=t.lr,
                                weight_decay=t.weight_decay, warmup_steps=t.warmup_steps, seed=c.seed,
                                mean=c.mean, std=c.std, device=device, precision=precision,
-                               log=log.info)
+                               log=log.info, split=split)
     timings["train_s"], cpu["train_s"] = round(time.perf_counter() - t1, 2), round(_cpu_s() - c1, 2)
 
     t2, c2 = time.perf_counter(), _cpu_s()
@@ -171,6 +178,7 @@ def _train_synthetic(ctx, device: str) -> str:
                      "schedule": "linear warmup + cosine", "augment": "dihedral flips, contrast/brightness",
                      "init": "He normal (fan-in)", "history": history},
         "timings": timings,
+        "train_split_s": split,
         "cpu_seconds": cpu,
         "device": device,
         "torch_threads": torch.get_num_threads(),
@@ -190,5 +198,5 @@ def _train_synthetic(ctx, device: str) -> str:
     return (f"synthetic AlexNet: {t.categories} categories, held-out top-1 {acc:.3f} [{acc_ci[0]:.3f}, "
             f"{acc_ci[1]:.3f}] on {len(yva)} images; "
             f"render {timings['render_s']:.0f} s ({t.render_workers} processes) + train {timings['train_s']:.0f} s "
-            f"({precision}, {device}, {c.input_size} px) + validate {timings['validate_s']:.0f} s = {total:.0f} s "
+            f"({precision}, {device}, {c.input_size} px; {_split_text(split)}) + validate {timings['validate_s']:.0f} s = {total:.0f} s "
             f"wall, {sum(cpu.values()):.0f} CPU s; sha256 {sha[:12]}")

@@ -4,8 +4,9 @@ held-out top-1 >= 0.90, and no GP fit at a bound among components whose training
 
 Runs data -> classifier -> features -> models on the default config in a temporary folder. Prints
 the stage's split (render, train, validate: wall and CPU seconds; wall on an idle 2-core machine is
-about CPU s / 2, so a loaded machine shows in wall minus CPU/2), the held-out accuracy, and the GP
-fits at a bound.
+about CPU s / 2, so a loaded machine shows in wall minus CPU/2), the training loop's own split
+(augment, forward, backward, optimizer: wall seconds and seconds per step), the held-out accuracy,
+and the GP fits at a bound.
 """
 from __future__ import annotations
 
@@ -39,6 +40,10 @@ def main() -> None:
               f"{secs / GOAL_S:.2f}); render {tm['render_s']:.0f} s + train {tm['train_s']:.0f} s + validate "
               f"{tm['validate_s']:.0f} s wall; CPU s render {cpu['render_s']:.0f}, train {cpu['train_s']:.0f}, "
               f"validate {cpu['validate_s']:.0f}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+        sp, tr = card["train_split_s"], card["training"]
+        steps = tr["epochs"] * -(-tr["train_images"] // tr["batch_size"])
+        print(f"bench_classifier: train loop {sum(sp.values()):.1f} s over {steps} steps of {tr['batch_size']}: "
+              + ", ".join(f"{k.removesuffix('_s')} {v:.1f} s ({1000 * v / steps:.0f} ms/step)" for k, v in sp.items()))
         lo, hi = card["accuracy_ci95"]
         print(f"bench_classifier: held-out top-1 {card['accuracy']:.3f} [{lo:.3f}, {hi:.3f}] (Wilson 95 % CI over "
               f"the {card['val_images']} held-out images) "
