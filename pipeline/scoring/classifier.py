@@ -310,7 +310,7 @@ def augment(xb: np.ndarray, gen: np.random.Generator, mean, std) -> torch.Tensor
     families have no preferred orientation) and a per-image contrast/brightness jitter.
 
     Returns float32 (N, 3, H, W) in channels_last memory (the layout training runs in): the images
-    are turned in groups of equal (turn, flip), then normalised and jittered in one pass.
+    are turned in groups of equal (turn, flip), not one by one.
     """
     n = len(xb)
     k = gen.integers(0, 4, n)
@@ -327,13 +327,17 @@ def augment(xb: np.ndarray, gen: np.random.Generator, mean, std) -> torch.Tensor
             if len(sel):
                 t = np.rot90(xb[sel], kk, axes=(1, 2))
                 out[sel] = t[:, :, ::-1] if ff else t
-    # ((x / 255 - mean) / std) * c + b as one scale and one shift per image and channel, applied to
-    # the HWC bytes; the NCHW view of that memory is channels_last.
-    m = np.asarray(mean, np.float64).reshape(1, 1, 1, 3)
-    s = np.asarray(std, np.float64).reshape(1, 1, 1, 3)
-    scale = torch.from_numpy((c / (255.0 * s)).astype(np.float32))
-    shift = torch.from_numpy((b - c * m / s).astype(np.float32))
-    return torch.from_numpy(out).float().mul_(scale).add_(shift).permute(0, 3, 1, 2)
+    # crops.to_tensor's float32 arithmetic, then c and b, op by op as before the batching (the
+    # same roundings, so a seed's weights are byte-identical to the image-by-image version's), in
+    # numpy on the HWC array: about 4x faster than torch's broadcasts, and its NCHW view is
+    # channels_last.
+    x = out.astype(np.float32)
+    x /= np.float32(255.0)
+    x -= np.asarray(mean, np.float32)
+    x /= np.asarray(std, np.float32)
+    x *= c.astype(np.float32)
+    x += b.astype(np.float32)
+    return torch.from_numpy(x).permute(0, 3, 1, 2)
 
 
 def resolve_precision(precision: str, device: str) -> str:
