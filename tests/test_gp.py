@@ -159,6 +159,12 @@ def test_load_errors_name_the_file(tmp_path):
     (tmp_path / "index.json").write_text("{not json")
     with pytest.raises(ModelFileError, match="not valid JSON"):
         GPClassModels.load(tmp_path)
+    (tmp_path / "index.json").write_bytes(b'{"format": "\xff\xfe"}')     # not UTF-8
+    with pytest.raises(ModelFileError, match=r"index\.json: not valid JSON"):
+        GPClassModels.load(tmp_path)
+    (tmp_path / "index.json").write_text('{"format": "viewfuse.gp_class_models", "version": 99}')
+    with pytest.raises(ModelFileError, match="unsupported model index version 99"):
+        GPClassModels.load(tmp_path)
 
 
 def test_invalid_models_and_inputs_raise():
