@@ -43,6 +43,7 @@ def load_bank(cls, folder: str | Path):
     folder = Path(folder)
     ipath = folder / INDEX
     index = read_index(ipath, FORMAT, VERSION, ("classes", "components", "files"), ModelFileError, "model index")
+    _check_shapes(ipath, index)
     comps = [int(i) for i in index["components"]]
     arrays: dict[str, list] = {k: [] for k in ("X", "Y", "mean", "amplitude", "length_scale", "noise")}
     for name in index["classes"]:
@@ -71,6 +72,20 @@ def load_bank(cls, folder: str | Path):
                    component_names=index.get("component_names"), meta=index.get("meta"))
     except ValueError as e:
         raise ModelFileError(folder, f"inconsistent model files: {e}") from None
+
+
+def _check_shapes(ipath: Path, index: dict) -> None:
+    """The index's own structure, before anything indexes into it: classes a non-empty list of
+    names, components a non-empty list of integers, files and sha256 objects."""
+    classes, comps = index["classes"], index["components"]
+    if not isinstance(classes, list) or not classes or not all(isinstance(c, str) and c for c in classes):
+        raise ModelFileError(ipath, f"'classes' must be a non-empty list of names, got {classes!r:.80}")
+    if (not isinstance(comps, list) or not comps
+            or not all(isinstance(i, int) and not isinstance(i, bool) for i in comps)):
+        raise ModelFileError(ipath, f"'components' must be a non-empty list of integers, got {comps!r:.80}")
+    for key in ("files", "sha256"):
+        if key in index and not isinstance(index[key], dict):
+            raise ModelFileError(ipath, f"'{key}' must be an object (class -> file), got {type(index[key]).__name__}")
 
 
 def _check_digest(ipath: Path, index: dict, fname: str) -> None:
