@@ -250,6 +250,13 @@ def mb_loglik(cov, Z, w, idx, val, diag_add, mu, z, ll, vprod):
 
 # Below this a probability is summed in log space: exp of it would lose digits as a subnormal.
 _SAFE = math.exp(-650.0)
+_UNDER = -745.2         # exp of anything below is 0.0 in double precision
+
+
+@njit(**_NJIT)
+def _exp(x):
+    """exp(x) for x <= 0, without calling exp where the result is 0.0 anyway (confident steps)."""
+    return math.exp(x) if x > _UNDER else 0.0
 
 
 @njit(**_NJIT)
@@ -293,7 +300,7 @@ def recursion_mean(ll, vprod, logp0, n_per, out):
                         m = 0.0
                     tot = 0.0
                     for c in range(C):
-                        x = math.exp(h[c, s] - m)
+                        x = _exp(h[c, s] - m)
                         e[c, s] = x
                         tot += x
                     inv[s] = 1.0 / tot
@@ -314,7 +321,7 @@ def recursion_mean(ll, vprod, logp0, n_per, out):
                     if math.isfinite(mx):
                         acc = 0.0
                         for s in range(S):
-                            acc += math.exp(g[s] - mx)
+                            acc += _exp(g[s] - mx)
                         logp[c] = math.log(acc) + mx - logS
                     else:
                         logp[c] = -np.inf
@@ -329,7 +336,7 @@ def recursion_mean(ll, vprod, logp0, n_per, out):
                 if math.isfinite(mx):
                     acc = 0.0
                     for t in range(n_per):
-                        acc += math.exp(lp[t, k, c] - mx)
+                        acc += _exp(lp[t, k, c] - mx)
                     out[i, k, c] = math.log(acc) + mx
                 else:
                     out[i, k, c] = -np.inf
