@@ -19,8 +19,8 @@ from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.evaluation.labels import (METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY,
                                         WU_POSES_ONLY)
 
-__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "biased",
-           "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
+__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "fuse_track",
+           "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -54,15 +54,24 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float, attribution: bool = False) -> dict[str, np.ndarray]:
-    """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each.
+    """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
+    draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
+    samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
+    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution)
+
+
+def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
+               attribution: bool = False) -> dict[str, np.ndarray]:
+    """The methods on realizations of pose estimates (R, K, 2) and their localization samples
+    (R, N_x, K, 2) -> log posteriors (R, K, C) each.
 
     Log space all the way to the metrics: a confident posterior's smallest entries underflow as
     probabilities, and log MGR must stay finite.
 
-    Model Based trusts the estimates; Model with Uncertainty samples N_x trajectories around them
-    with the stated σ (the same σ the estimate error was drawn with, as in the paper). Simple Bayes
-    (when the track carries ``own`` scores) ignores the poses: the same posterior for every
-    realization, repeated so that the methods pair up realization by realization.
+    Model Based trusts the estimates; Model with Uncertainty fuses the N_x trajectories sampled
+    around them with the stated σ (the same σ the estimate error was drawn with, as in the paper).
+    Simple Bayes (when the track carries ``own`` scores) ignores the poses: the same posterior for
+    every realization, repeated so that the methods pair up realization by realization.
 
     ``attribution`` adds With Uncertainty with one ingredient each, on the same estimates (and
     no extra random draws, so the other methods' results do not change): *poses only* (the same
@@ -74,7 +83,6 @@ def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x
     mb = fuse_model_based(models, track.inputs(estimates),
                           np.broadcast_to(track.measurement, (r,) + track.measurement.shape),
                           return_log=True, progress=False)
-    samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
     wu = fuse_with_uncertainty(models, track.inputs(samples),
                                np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
                                var_floor=var_floor, return_log=True, progress=False)
@@ -99,19 +107,46 @@ def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.rando
     return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
 
 
+# With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
+# positions): every call has a fixed cost (thread pool, BLAS limits, the engine's plan), which
+# 25-realization calls paid hundreds of times per cell at paper grade.
+BATCH_TRAJECTORIES = 100_000
+
+
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
-               rng: np.random.Generator, *, var_floor: float, chunk: int = 25,
+               rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
                progress: Callable[[int], None] | None = None, attribution: bool = False) -> dict[str, np.ndarray]:
-    """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C)."""
+    """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
+
+    The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
+    localization samples, which fixes the random stream; ``batch`` realizations (default: as many
+    as make ``BATCH_TRAJECTORIES`` trajectories) are fused per call, which changes speed and
+    memory only. ``progress`` is told the realizations of each fused batch."""
+    per_call = int(batch) if batch else max(1, BATCH_TRAJECTORIES // max(int(n_x), 1))
     out: dict[str, list[np.ndarray]] = {}
+    est_parts: list[np.ndarray] = []
+    smp_parts: list[np.ndarray] = []
+
+    def fuse() -> None:
+        est, smp = np.concatenate(est_parts), np.concatenate(smp_parts)
+        est_parts.clear(), smp_parts.clear()
+        for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution).items():
+            out.setdefault(m, []).append(v)
+        if progress:
+            progress(len(est))
+
+    pending = 0
     for a, b in _chunks(realizations, chunk):
         noise = rng.normal(0.0, sigma, size=(b - a, track.k, 2)) if sigma > 0 else np.zeros((b - a, track.k, 2))
         est = track.cam_xy[None] + np.asarray(bias, float) + noise
-        res = run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
-        for m, v in res.items():
-            out.setdefault(m, []).append(v)
-        if progress:
-            progress(b - a)
+        est_parts.append(est)
+        smp_parts.append(sample_localization(est, sigma, n_x, rng))
+        pending += b - a
+        if pending >= per_call:
+            fuse()
+            pending = 0
+    if pending:
+        fuse()
     return {m: np.concatenate(v, axis=0) for m, v in out.items()}
 
 
