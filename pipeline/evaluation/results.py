@@ -27,23 +27,28 @@ def result_block(posts: Mapping[str, np.ndarray], truth_index: int, *, is_log: b
     step, method, posterior (n, C), then the ``STEP_COLUMNS`` (p_truth, log10_mgr, msde, correct).
     ``posts`` are log posteriors unless ``is_log`` is false. ``values``: per method, its
     ``metrics.step_values``, when the caller has them already."""
+    lps = {method: np.asarray(lp, float) for method, lp in posts.items()}
+    if not lps:
+        return {}
+    total = sum(lp.shape[0] * lp.shape[1] for lp in lps.values())
+    # Constant columns are made once for the whole block (object arrays are slow to fill).
+    out = {k: np.full(total, v, dtype=object if isinstance(v, str) else None) for k, v in const.items()}
     cols: dict[str, list] = {}
-    for method, lp in posts.items():
-        lp = np.asarray(lp, float)
+    for method, lp in lps.items():
         R, K, C = lp.shape
         n = R * K
-        part = {k: np.full(n, v, dtype=object if isinstance(v, str) else None) for k, v in const.items()}
-        part.update({
+        part = {
             "realization": np.repeat(np.arange(R, dtype=np.int32), K),
             "step": np.tile(np.arange(K, dtype=np.int16), R),
             "method": np.full(n, method, dtype=object),
             "posterior": (np.exp(lp) if is_log else lp).reshape(n, C),
-        })
+        }
         sv = values[method] if values is not None else M.step_values(lp, truth_index, is_log=is_log)
         part.update({k: np.asarray(v).ravel() for k, v in sv.items()})
         for k, v in part.items():
             cols.setdefault(k, []).append(v)
-    return {k: np.concatenate(v) for k, v in cols.items()}
+    out.update({k: np.concatenate(v) for k, v in cols.items()})
+    return out
 
 
 # Arrow types of the known columns; others are inferred.
