@@ -170,6 +170,7 @@ def run(ctx) -> str:
     # so memory does not grow with the population (configs/paper_grade.toml). The results file's
     # metadata names the showcase track, known only after the grid: the writer takes it at the end.
     kept: list[dict] = []
+    fusion: dict[str, float] = {}   # per method: its fusion calls' seconds, summed over the cells
     t_reduce = t_write = 0.0
     t0 = time.perf_counter()
     writer = ResultsWriter(ctx.out / out_name("evaluate", "results"))
@@ -182,6 +183,8 @@ def run(ctx) -> str:
                                  total=len(cells), gpu=gpu)
             for cell, res in zip(cells, done):
                 t1 = time.perf_counter()
+                for m, sec in res.get("seconds", {}).items():
+                    fusion[m] = fusion.get(m, 0.0) + sec
                 k, blocks = reduce_cell(cell, res, ev.confident_threshold, tables=cell.variant == DEFAULT)
                 t2 = time.perf_counter()
                 for b in blocks:
@@ -192,6 +195,7 @@ def run(ctx) -> str:
         finally:
             executor.close()
         timings["population"] = time.perf_counter() - t0 - t_reduce - t_write
+        timings.update({f"population_{m}": sec for m, sec in fusion.items()})
         timings["cell_reduce"] = t_reduce
         log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
                  len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Iterable
 
+import time
+
 import numpy as np
 import pandas as pd
 
@@ -53,15 +55,26 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
 
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
-              rng: np.random.Generator, *, var_floor: float, attribution: bool = False) -> dict[str, np.ndarray]:
+              rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
+              clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
     draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
-    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution)
+    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, clock=clock)
+
+
+def _timed(clock: dict[str, float] | None, key: str, fn, *args, **kw):
+    """``fn(*args, **kw)``, its wall time added to ``clock[key]`` when a clock is given."""
+    if clock is None:
+        return fn(*args, **kw)
+    t0 = time.perf_counter()
+    out = fn(*args, **kw)
+    clock[key] = clock.get(key, 0.0) + time.perf_counter() - t0
+    return out
 
 
 def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
-               attribution: bool = False) -> dict[str, np.ndarray]:
+               attribution: bool = False, clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
     """The methods on realizations of pose estimates (R, K, 2) and their localization samples
     (R, N_x, K, 2) -> log posteriors (R, K, C) each.
 
@@ -78,33 +91,36 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
     localization samples, each step's dropout samples replaced by their mean: no model-uncertainty
     term beyond ``var_floor``) and *dropout only* (no pose sampling: σ = 0, N_x = 1, the estimates
     themselves).
+
+    ``clock``: wall seconds per method are added to it (the bench's time split).
     """
     r = len(estimates)
-    mb = fuse_model_based(models, track.inputs(estimates),
-                          np.broadcast_to(track.measurement, (r,) + track.measurement.shape),
-                          return_log=True, progress=False)
-    wu = fuse_with_uncertainty(models, track.inputs(samples),
-                               np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
-                               var_floor=var_floor, return_log=True, progress=False)
+    mb = _timed(clock, MODEL_BASED, fuse_model_based, models, track.inputs(estimates),
+                np.broadcast_to(track.measurement, (r,) + track.measurement.shape), return_log=True, progress=False)
+    wu = _timed(clock, WITH_UNCERTAINTY, fuse_with_uncertainty, models, track.inputs(samples),
+                np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
+                var_floor=var_floor, return_log=True, progress=False)
     out = {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
     if track.own is not None:
         out[SIMPLE_BAYES] = np.broadcast_to(simple_bayes(track.own.mean(axis=1), return_log=True), wu.shape).copy()
     if attribution:
         mean_only = track.dropout.mean(axis=1, keepdims=True)          # (K, 1, F)
-        out[WU_POSES_ONLY] = fuse_with_uncertainty(models, track.inputs(samples),
-                                                   np.broadcast_to(mean_only, (r,) + mean_only.shape),
-                                                   var_floor=var_floor, return_log=True, progress=False)
-        out[WU_DROPOUT_ONLY] = fuse_with_uncertainty(models, track.inputs(estimates[:, None]),
-                                                     np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
-                                                     var_floor=var_floor, return_log=True, progress=False)
+        out[WU_POSES_ONLY] = _timed(clock, WU_POSES_ONLY, fuse_with_uncertainty, models, track.inputs(samples),
+                                    np.broadcast_to(mean_only, (r,) + mean_only.shape),
+                                    var_floor=var_floor, return_log=True, progress=False)
+        out[WU_DROPOUT_ONLY] = _timed(clock, WU_DROPOUT_ONLY, fuse_with_uncertainty, models,
+                                      track.inputs(estimates[:, None]),
+                                      np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
+                                      var_floor=var_floor, return_log=True, progress=False)
     return out
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
-           *, var_floor: float, attribution: bool = False) -> dict[str, np.ndarray]:
+           *, var_floor: float, attribution: bool = False, clock: dict[str, float] | None = None
+           ) -> dict[str, np.ndarray]:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
-    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
+    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, clock=clock)
 
 
 # With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
@@ -115,13 +131,15 @@ BATCH_TRAJECTORIES = 100_000
 
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
-               progress: Callable[[int], None] | None = None, attribution: bool = False) -> dict[str, np.ndarray]:
+               progress: Callable[[int], None] | None = None, attribution: bool = False,
+               clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
 
     The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
     localization samples, which fixes the random stream; ``batch`` realizations (default: as many
     as make ``BATCH_TRAJECTORIES`` trajectories) are fused per call, which changes speed and
-    memory only. ``progress`` is told the realizations of each fused batch."""
+    memory only. ``progress`` is told the realizations of each fused batch; ``clock`` as in
+    ``fuse_track``."""
     per_call = int(batch) if batch else max(1, BATCH_TRAJECTORIES // max(int(n_x), 1))
     out: dict[str, list[np.ndarray]] = {}
     est_parts: list[np.ndarray] = []
@@ -130,7 +148,8 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
     def fuse() -> None:
         est, smp = np.concatenate(est_parts), np.concatenate(smp_parts)
         est_parts.clear(), smp_parts.clear()
-        for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution).items():
+        for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution,
+                               clock=clock).items():
             out.setdefault(m, []).append(v)
         if progress:
             progress(len(est))
