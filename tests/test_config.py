@@ -132,7 +132,8 @@ def test_paper_grade_preset_changes_only_the_population():
         assert pg.section_hash(section) == default.section_hash(section)
     # The extra With Uncertainty variants are off (their cost: the preset comments); the rest is the default.
     assert (pg.evaluate.ablations, pg.evaluate.attribution) == ((), False)
-    assert dataclasses.replace(pg.evaluate, randomized=default.evaluate.randomized, ablations=default.evaluate.ablations,
+    assert dataclasses.replace(pg.evaluate, randomized=default.evaluate.randomized,
+                               ablations=default.evaluate.ablations,
                                attribution=default.evaluate.attribution) == default.evaluate
     # and they come back with --set, as the preset says
     back = load_config(ROOT / "configs" / "paper_grade.toml", merge(
