@@ -27,8 +27,9 @@ def cell_table(kept: list[dict]) -> pd.DataFrame:
 def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
                        tracks: list[P.TrackInfo], skipped: list[dict], domain_fit: dict | None = None) -> dict:
     """``summary.json``'s ``population`` object from the ``evaluate`` config section ``ev``, the
-    cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences and verdicts (whole
-    population, per setting, per ablation), difficulty, per-cell values and the tracks."""
+    cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences
+    and verdicts (whole population, per setting, per ablation), difficulty, per-cell values and
+    the tracks."""
     from pipeline.evaluation.population_calibration import population_blocks
 
     ev = cfg.evaluate
