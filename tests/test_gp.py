@@ -159,6 +159,18 @@ def test_load_errors_name_the_file(tmp_path):
     (tmp_path / "index.json").write_text("{not json")
     with pytest.raises(ModelFileError, match="not valid JSON"):
         GPClassModels.load(tmp_path)
+    (tmp_path / "index.json").write_bytes(b'{"format": "\xff\xfe"}')     # not UTF-8
+    with pytest.raises(ModelFileError, match=r"index\.json: not valid JSON"):
+        GPClassModels.load(tmp_path)
+    for bad, msg in (('"classes": "k0", "components": [0], "files": {}', "'classes' must be a non-empty list"),
+                     ('"classes": ["k0"], "components": [0.5], "files": {}', "'components' must be a non-empty list"),
+                     ('"classes": ["k0"], "components": [0], "files": ["a.npz"]', "'files' must be an object")):
+        (tmp_path / "index.json").write_text('{"format": "viewfuse.gp_class_models", "version": 1, ' + bad + "}")
+        with pytest.raises(ModelFileError, match=msg):
+            GPClassModels.load(tmp_path)
+    (tmp_path / "index.json").write_text('{"format": "viewfuse.gp_class_models", "version": 99}')
+    with pytest.raises(ModelFileError, match="unsupported model index version 99"):
+        GPClassModels.load(tmp_path)
 
 
 def test_invalid_models_and_inputs_raise():

@@ -25,7 +25,8 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.special import digamma, gammaln, polygamma
 
-from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
+from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
+from pipeline.method.bank_index import read_index, write_index
 from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.dirichlet")
@@ -209,28 +210,14 @@ class DirichletModels:
                  "classes": self.classes, "dim": self.dim, "floor": self.floor, "file": PARAMS_FILE,
                  "sha256": digest, "fingerprint": self.fingerprint(), "meta": self.meta,
                  "theta": {c: self.theta[i].tolist() for i, c in enumerate(self.classes)}}
-        for k, v in (extra or {}).items():
-            if k in index:
-                raise ValueError(f"save: extra key {k!r} would overwrite a reserved index key")
-            index[k] = v
-        write_json(folder / INDEX_FILE, index)
-        return folder / INDEX_FILE
+        return write_index(folder / INDEX_FILE, index, extra)
 
     @classmethod
     def load(cls, folder: str | Path) -> "DirichletModels":
         folder = Path(folder)
         ipath = folder / INDEX_FILE
-        if not ipath.is_file():
-            raise DirichletFileError(ipath, "Dirichlet model index not found (rerun the 'models' stage)")
-        try:
-            index = json.loads(ipath.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise DirichletFileError(ipath, f"not valid JSON: {e}") from None
-        if not isinstance(index, dict) or index.get("format") != FORMAT or index.get("version") != VERSION:
-            raise DirichletFileError(ipath, f"not a viewfuse Dirichlet index (format {FORMAT!r} version {VERSION})")
-        for key in ("classes", "sha256", "fingerprint"):
-            if key not in index:
-                raise DirichletFileError(ipath, f"missing key '{key}'")
+        index = read_index(ipath, FORMAT, VERSION, ("classes", "sha256", "fingerprint"), DirichletFileError,
+                           "Dirichlet model index")
         path = folder / PARAMS_FILE
         if not path.is_file():
             raise DirichletFileError(path, "Dirichlet parameter file not found (rerun the 'models' stage)")

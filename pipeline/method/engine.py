@@ -50,6 +50,14 @@ def _basis_gp(models: GPClassModels, c: int, f: int) -> cb.BasisGP | None:
     return g
 
 
+def _cheaper(g: cb.BasisGP, N: int) -> bool:
+    """Whether the basis route beats the exact one (N training views): per point the dense basis
+    costs P² (TRMM), the sparse form r·P, the exact route N² plus N kernel entries."""
+    if g.q2 is not None or g.idx is not None:
+        return g.P * g.idx.shape[1] <= N * N // 2
+    return g.P <= N
+
+
 class Plan:
     """Per-GP route and factors of one model bank (built once, shared by worker threads). Basis
     factors come from a cache keyed by the GP's content, so the per-cell ``subset`` of a bank
@@ -66,10 +74,12 @@ class Plan:
             unit = on_circle and cb.unit_error(models.X[c]) <= cb.UNIT_TOL
             for f in range(F):
                 g = _basis_gp(models, c, f) if basis and unit else None
-                self.basis[c][f] = g if g is not None and g.P <= N else None
+                self.basis[c][f] = g if g is not None and _cheaper(g, N) else None
         self.P_max = max([g.P for row in self.basis for g in row if g is not None] or [0])
         self.members = [(c, f) for c, row in enumerate(self.basis) for f, g in enumerate(row) if g is not None]
         self.q_fortran = [self.basis[c][f].QF for c, f in self.members]
+        self.ones = np.ones(self.P_max)
+        self.no_idx, self.no_val = np.zeros((0, 1), dtype=np.int64), np.zeros((0, 1))
         self.wbar = np.zeros((self.P_max, len(self.members)))
         for i, (c, f) in enumerate(self.members):
             g = self.basis[c][f]
@@ -88,12 +98,15 @@ class Plan:
         return out
 
     def routes(self) -> dict:
-        """{'basis': n, 'exact': n, 'P': [...]} for logs and the bench."""
-        ps = [g.P for row in self.basis for g in row if g is not None]
-        return {"basis": len(ps), "exact": sum(g is None for row in self.basis for g in row), "P": ps}
+        """{'basis': n, 'diagonal': n (of them), 'exact': n, 'P': [...]} for logs and the bench."""
+        gs = [g for row in self.basis for g in row if g is not None]
+        return {"basis": len(gs), "diagonal": sum(g.q2 is not None for g in gs),
+                "exact": sum(g is None for row in self.basis for g in row), "P": [g.P for g in gs]}
 
 
 _WORK = threading.local()
+_NONE = np.empty((0, 0, 0))   # the unused one of (S, Z) in per_gp's items
+_NO_W = np.empty(0)
 
 
 def workspace(name: str, shape: tuple, zero: bool = False) -> np.ndarray:
@@ -125,33 +138,64 @@ def plan(models: GPClassModels) -> Plan:
 def predictive(models: GPClassModels, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """mu (B, C, F, K) and cov (B, C, F, K, K) (white noise included) for trajectories X (B, K, d):
     ``GPClassModels.predict`` to rounding, faster."""
+    X = np.ascontiguousarray(X, dtype=float)
+    B, K, _ = X.shape
+    mu = np.empty((B, models.n_classes, models.n_components, K))
+    cov = np.empty((B, models.n_classes, models.n_components, K, K))
+    diag = np.arange(K)
+    for c, f, m, S, Z, w, idx, val, add in per_gp(models, X):
+        mu[:, c, f] = m
+        if len(idx):   # sparse form: z_p = Σ_t val[p, t] φ_idx[p, t]
+            Zq = np.einsum("bkpt,pt->bkp", Z[..., idx], val)
+            cov[:, c, f] = np.matmul(Zq, Zq.transpose(0, 2, 1))
+        elif len(w):
+            Zp = Z[..., :len(w)]
+            cov[:, c, f] = np.matmul(Zp * w, Zp.transpose(0, 2, 1))
+        else:
+            cov[:, c, f] = S
+        cov[:, c, f, diag, diag] += add
+    return mu, cov
+
+
+def per_gp(models: GPClassModels, X: np.ndarray):
+    """Yield, GP by GP, (c, f, mu (B, K), S, Z, w, idx, val, add) for trajectories X (B, K, d).
+    The joint predictive covariance is, on the basis route (circle_basis.py; S empty), z_i·z_j +
+    add·δ_ij with z = Q φ(θ) given as: the features Z = Φ (B, K, ≥ P) and Q's sparse form idx,
+    val (P, r) (w empty); or, diagonal, Z = Φ and w = diag(Q)² (z_i·z_j = Σ_p w_p Φ_ip Φ_jp); or
+    Z = Φ Qᵀ and w = 1. On the exact route it is S (B, K, K) + add·I (w and idx empty). The
+    arrays are scratch space, valid until the next item."""
+    from pipeline.method import kernels
+
     pl = plan(models)
     X = np.ascontiguousarray(X, dtype=float)
     B, K, d = X.shape
     C, F = models.n_classes, models.n_components
     flat = X.reshape(B * K, d)
-    mu = np.empty((B, C, F, K))
-    cov = np.empty((B, C, F, K, K))
     use_basis = pl.P_max > 0 and cb.unit_error(flat) <= cb.UNIT_TOL
-    diag = np.arange(K)
     if use_basis:
         from scipy.linalg.blas import dtrmm
 
-        Phi = cb.features(flat / np.linalg.norm(flat, axis=1, keepdims=True), pl.P_max)
+        Phi = kernels.features(flat / np.linalg.norm(flat, axis=1, keepdims=True), workspace("Phi", (B * K, pl.P_max)))
         means = Phi @ pl.wbar                                          # (B·K, G): every basis mean
+        mu = workspace("mu", (B, K))
+        Phi3 = Phi.reshape(B, K, pl.P_max)
         for i, (c, f) in enumerate(pl.members):
             g = pl.basis[c][f]
-            mu[:, c, f, :] = means[:, i].reshape(B, K) + g.mean
+            np.add(means[:, i].reshape(B, K), g.mean, out=mu)
+            add = g.noise + models.test_variance[c, f]   # test noise: σ_n² + δ² (gp.py)
+            if g.q2 is not None:                          # diagonal form: no whitening at all
+                yield c, f, mu, _NONE, Phi3, g.q2, pl.no_idx, pl.no_val, add
+                continue
+            if g.idx is not None:                         # sparse form: z = Q φ in the kernel
+                yield c, f, mu, _NONE, Phi3, _NO_W, g.idx, g.val, add
+                continue
             # Z = Φ Qᵀ in place as Zᵀ = Q Φᵀ (Q lower triangular): a TRMM, half a GEMM's flops.
             Z = workspace("Z", (B * K, g.P))                             # C order (B·K, P)
             np.copyto(Z, Phi[:, :g.P])
             out = dtrmm(1.0, pl.q_fortran[i], Z.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
             if not np.shares_memory(out, Z):  # pragma: no cover - BLAS wrapper made a copy after all
                 Z[...] = out.T
-            Z3 = Z.reshape(B, K, g.P)
-            S = np.matmul(Z3, Z3.transpose(0, 2, 1))
-            S[:, diag, diag] += g.noise + models.test_variance[c, f]   # test noise: σ_n² + δ² (gp.py)
-            cov[:, c, f] = S
+            yield c, f, mu, _NONE, Z.reshape(B, K, g.P), pl.ones[:g.P], pl.no_idx, pl.no_val, add
     D2tt = None
     for c in range(C):
         exact_f = [f for f in range(F) if not (use_basis and pl.basis[c][f] is not None)]
@@ -159,11 +203,10 @@ def predictive(models: GPClassModels, X: np.ndarray) -> tuple[np.ndarray, np.nda
             if D2tt is None:
                 diff = X[:, :, None, :] - X[:, None, :, :]
                 D2tt = np.einsum("bkld,bkld->bkl", diff, diff)
-            _exact_class(models, pl, c, exact_f, flat, B, K, D2tt, mu, cov)
-    return mu, cov
+            yield from _exact_class(models, pl, c, exact_f, flat, B, K, D2tt)
 
 
-def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> None:
+def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt):
     """The reference route for class c's components fs, whitening by TRMM with L⁻¹."""
     from scipy.linalg.blas import dtrmm
 
@@ -172,10 +215,11 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> Non
     D2 = models._sqdist_train(c, flat)
     V = np.empty_like(D2)
     kk = np.empty((B, K, K))
+    cov = np.empty((B, K, K))
     diag = np.arange(K)
     for f in fs:
         models._kernel_from_sqdist(c, f, D2, out=V)
-        mu[:, c, f, :] = (V @ fc.alpha[f] + models.mean[c, f]).reshape(B, K)
+        mu = (V @ fc.alpha[f] + models.mean[c, f]).reshape(B, K)
         out = dtrmm(1.0, pl.linv(c, f), V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
         if not np.shares_memory(out, V):  # pragma: no cover - BLAS wrapper made a copy after all
             V[...] = out.T
@@ -186,4 +230,5 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt, mu, cov) -> Non
         np.exp(kk, out=kk)
         kk *= models.amplitude[c, f]
         kk[:, diag, diag] += models.test_noise[c, f]   # σ_n² + the test-domain δ² (gp.py)
-        np.subtract(kk, S, out=cov[:, c, f])
+        np.subtract(kk, S, out=cov)
+        yield c, f, mu, cov, _NONE, _NO_W, pl.no_idx, pl.no_val, 0.0

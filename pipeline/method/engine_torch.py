@@ -31,7 +31,7 @@ class TorchPlan:
         self.models, self.plan = models, pl
         self.P_max = pl.P_max
         # Test measurements carry σ_n² + δ² (GPClassModels.test_noise); the basis keeps the training σ_n².
-        self.basis = [(i, c, f, pl.basis[c][f].P, t(pl.basis[c][f].QT), pl.basis[c][f].mean,
+        self.basis = [(i, c, f, pl.basis[c][f].P, t(cb.dense_q(pl.basis[c][f]).T), pl.basis[c][f].mean,
                        pl.basis[c][f].noise + float(models.test_variance[c, f]))
                       for i, (c, f) in enumerate(pl.members)]
         self.wbar = t(pl.wbar) if pl.members else None
@@ -129,7 +129,7 @@ def _factor(tp: TorchPlan, cov):
 
 def _recursion(ll, logp0):
     """ll (..., C, K, S) -> log P(c | H_k) (..., K, C): Eq. 24-26 in log space, as the numpy engine's
-    ``_recursion_kfirst`` with the step axis after the classes."""
+    ``kernels.recursion_mean`` with the step axis after the classes."""
     import torch
 
     *lead, C, K, S = ll.shape

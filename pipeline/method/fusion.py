@@ -15,13 +15,14 @@ With ``d = μ_z - μ`` (past dropout means minus predictive means) and ``y = M d
 variance is ``L_kk² (1 + Σ_{j<k} M_kj² v_j)``. Model Based is the same with the measurements in
 place of μ_z and no v_z term (the chain rule of one Gaussian).
 
-Batching: realizations × localization samples × classes × components in every array op. The
-joint predictive comes from ``pipeline/method/engine.py`` (Fourier-feature GEMMs on the unit
-circle, else kernel rows whitened by a triangular multiply); the K×K Cholesky factor, M's rows, y
-and the q sums are computed in one batch-last pass (``_cond_stats``: every K×K step is a vector op
-over all blocks' matrices); the recursion along the track is a loop over K vectorized over
-everything else, in log space (logsumexp), so a confident posterior never becomes 0/0. The engine
-before this one is kept as ``tests/reference_fusion.py``; the tests hold the two equal to 1e-9.
+Batching: realizations × localization samples per block; per (class, component) GP the joint
+predictive comes from ``pipeline/method/engine.py`` (on the unit circle as Fourier features, in
+the diagonal or sparse form a turntable's evenly spaced training views allow, else kernel rows
+whitened by a triangular multiply), and the compiled kernels of ``pipeline/method/kernels.py``
+do the rest per trajectory: the K×K Cholesky factor, M's rows, y and the q sums, the Gaussian
+log densities of the dropout samples, and the recursion along the track in log space
+(logsumexp), so a confident posterior never becomes 0/0. The engine before this one is kept as
+``tests/reference_fusion.py``; the tests hold the two equal to 1e-9.
 
 ``engine_device`` runs the same blocks in torch float64 (``pipeline/method/engine_torch.py``) on a
 GPU, or on the CPU for the tests.
@@ -124,109 +125,37 @@ def _dropout_stats(dropout: np.ndarray, var_floor: float):
     return mu_z, v_z
 
 
-def _batch_last(mu: np.ndarray, cov: np.ndarray):
-    """mu (b, C, F, K), cov (b, C, F, K, K) -> (K, nb) and (K, K, nb), nb = b·C·F: every small
-    K×K operation below is then one vector op over nb contiguous numbers."""
-    K = mu.shape[-1]
-    return (np.ascontiguousarray(mu.reshape(-1, K).T),
-            np.ascontiguousarray(cov.reshape(-1, K, K).transpose(1, 2, 0)))
-
-
-def _cond_stats(A: np.ndarray, D: np.ndarray, V: np.ndarray | None):
-    """Batch-last Cholesky ``A = L Lᵀ`` (K, K, nb) and ``M = L⁻¹``, reduced to what the recursion
-    needs: L_kk, y = M D and q_k = Σ_{j<k} M_kj² V_j (each (K, nb); q None without V).
-    None when some A is not positive definite (the caller names it). Only L's lower triangle is
-    ever written or read."""
-    K, nb = A.shape[0], A.shape[-1]
-    L = engine.workspace("L", A.shape)
-    for j in range(K):
-        s = A[j, j] - np.einsum("kb,kb->b", L[j, :j], L[j, :j]) if j else A[0, 0].copy()
-        if not np.all(s > 0):
-            return None
-        ljj = np.sqrt(s)
-        L[j, j] = ljj
-        if j + 1 < K:
-            t = A[j + 1:, j] - np.einsum("ikb,kb->ib", L[j + 1:, :j], L[j, :j]) if j else A[1:, 0].copy()
-            t /= ljj
-            L[j + 1:, j] = t
-    Ld = np.empty((K, nb))
-    y = np.empty((K, nb))
-    q = None if V is None else np.zeros((K, nb))
-    M = engine.workspace("M", A.shape, zero=True)   # only its lower triangle is ever written: the rest stays 0
-    for k in range(K):
-        Ld[k] = L[k, k]
-        inv = 1.0 / Ld[k]
-        M[k, k] = inv
-        if k:
-            # M[k, :k] = -(L[k, :k] @ M[:k, :k]) / L_kk (forward substitution by rows)
-            row = np.einsum("jb,jlb->lb", L[k, :k], M[:k, :k])
-            row *= -inv
-            M[k, :k] = row
-            y[k] = np.einsum("jb,jb->b", row, D[:k]) + inv * D[k]
-            if V is not None:
-                q[k] = np.einsum("jb,jb->b", row * row, V[:k])
-        else:
-            y[0] = inv * D[0]
-    return Ld, y, q
-
-
-def _stats_or_raise(models, mu, cov, D, V):
-    out = _cond_stats(*(_batch_last(mu, cov)[1:]), D, V)
-    if out is None:
-        _cholesky(cov, models)  # raises naming the (class, component)
-        raise ValueError("joint predictive covariance is not positive definite")  # pragma: no cover
-    return out
-
-
-def _recursion_kfirst(ll: np.ndarray, logp0: np.ndarray) -> np.ndarray:
-    """Eq. 24-26 in log space. ll (K, ..., C, S) per dropout sample -> log P(c|H_k) (..., K, C)."""
-    K, *lead, C, S = ll.shape
-    out = np.empty(tuple(lead) + (K, C))
-    logp = np.broadcast_to(logp0, tuple(lead) + (C,))
-    for k in range(K):
-        h = ll[k] + logp[..., None]                                # (..., C, S)
-        h -= logsumexp(h, axis=-2, keepdims=True)
-        logp = logsumexp(h, axis=-1) - math.log(S)
-        out[..., k, :] = logp
-    return out
-
-
 # -- Model with Uncertainty ----------------------------------------------------------------------
 def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.ndarray, samples: np.ndarray,
                logp0: np.ndarray) -> np.ndarray:
     """X (r, n, K, d) localization samples; per realization the dropout means and floored
-    variances mu_z, v_z (r, K, F) and the samples (r, K, S, F) -> per-sample log posteriors (r, n, K, C).
+    variances mu_z, v_z (r, K, F) and the samples (r, K, S, F) -> per realization the log of the
+    summed posteriors over its n samples (r, K, C) (the caller subtracts log n).
 
-    Per step k, class and component (module docstring): conditional mean μ_z,k - L_kk y_k and
-    variance L_kk² (1 + q_k) of each dropout sample, y = M (μ_z - μ), q_k = Σ_{j<k} M_kj² v_j.
+    Per GP (``engine.per_gp``) the compiled kernel adds each trajectory's Gaussian log densities of
+    the dropout samples (Eq. 17, module docstring: mean μ_z,k - L_kk y_k, variance L_kk² (1 + q_k));
+    the -log(2π)/2 per component is the same for every class and cancels in the normalisation.
     """
+    from pipeline.method import kernels
+
     r, n, K, d = X.shape
-    C, F = models.n_classes, models.n_components
+    C = models.n_classes
     S = samples.shape[2]
-    mu, cov = engine.predictive(models, X.reshape(r * n, K, d))
-    mu5 = mu.reshape(r, n, C, F, K)
-    mzt = np.transpose(mu_z, (1, 0, 2))[:, :, None, None, :]        # (K, r, 1, 1, F)
-    D = (mzt - np.moveaxis(mu5, -1, 0)).reshape(K, -1)              # (K, nb), nb = (r, n, C, F)
-    V = np.broadcast_to(np.transpose(v_z, (1, 0, 2))[:, :, None, None, :], (K, r, n, C, F)).reshape(K, -1)
-    Ld, y, q = _stats_or_raise(models, mu, cov, D, V)
-    del cov
-    var = Ld * Ld
-    var *= 1.0 + q                                                  # (K, nb)
-    cmean = np.broadcast_to(mzt, (K, r, n, C, F)).reshape(K, -1) - Ld * y
-    # Gaussian log density of every dropout sample s_k, summed over components (Eq. 17); the
-    # -log(2π)/2 per component is the same for every class and cancels in the normalisation.
-    w = (1.0 / np.sqrt(var)).reshape(K, r, n, C, F)
-    cmean = cmean.reshape(K, r, n, C, F)
-    s = np.transpose(samples, (1, 0, 3, 2))                         # (K, r, F, S)
-    ll = np.zeros((K, r, n, C, S))
-    for f in range(F):
-        t = s[:, :, None, None, f, :] - cmean[..., f, None]         # (K, r, n, C, S)
-        t *= w[..., f, None]
-        t *= t
-        ll += t
-    ll *= -0.5
-    ll += (np.log(w).sum(axis=-1))[..., None]                       # -½ Σ_f log var
-    return _recursion_kfirst(ll, logp0)
+    mz = np.ascontiguousarray(np.moveaxis(mu_z, -1, 0))             # (F, r, K)
+    vz = np.ascontiguousarray(np.moveaxis(v_z, -1, 0))
+    smp = np.ascontiguousarray(np.moveaxis(samples, -1, 0))   # (F, r, K, S)
+    ll = np.zeros((C, r * n, K, S))
+    vprod = np.ones((C, r * n, K))
+    for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X.reshape(r * n, K, d)):
+        if kernels.wu_loglik(cov, Zg, w, idx, val, add, mu, mz[f], vz[f], smp[f], n, ll[c], vprod[c]) >= 0:
+            _not_pd(models, c, f)
+    return kernels.recursion_mean(ll, vprod, logp0, n, np.empty((r, K, C)))
+
+
+def _not_pd(models: GPClassModels, c: int, f: int):
+    raise ValueError(f"joint predictive covariance is not positive definite for (class, component) "
+                     f"{[(models.classes[c], models.components[f])]}: white noise too small for the amplitude, "
+                     "or repeated inputs")
 
 
 def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None, var_floor: float = 1e-6,
@@ -281,7 +210,7 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
             from pipeline.method import engine_torch
             return engine_torch.mwu_block(models, _torch_device(device), X[r0:r1, x0:x1], mu_z[r0:r1],
                                           v_z[r0:r1], Z[r0:r1], logp0)
-        return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0), axis=1)
+        return _mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0)
 
     for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
@@ -326,12 +255,15 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         if device != "cpu":
             from pipeline.method import engine_torch
             return engine_torch.mb_block(models, _torch_device(device), X[r0:r1], Z[r0:r1], logp0)
-        mu, cov = engine.predictive(models, X[r0:r1])               # (b, C, F, K[, K])
-        resid = np.swapaxes(Z[r0:r1], -1, -2)[:, None] - mu         # z - μ
-        D = np.ascontiguousarray(np.moveaxis(resid, -1, 0).reshape(K, -1))
-        Ld, y, _ = _stats_or_raise(models, mu, cov, D, None)       # y: whitened innovations
-        ll = (-0.5 * y * y - np.log(Ld)).reshape(K, b, C, F).sum(axis=-1)   # chain rule per step
-        return _recursion_kfirst(ll[..., None], logp0)
+        from pipeline.method import kernels
+
+        z = np.ascontiguousarray(np.moveaxis(Z[r0:r1], -1, 0))      # (F, b, K)
+        ll = np.zeros((C, b, K, 1))
+        vprod = np.ones((C, b, K))
+        for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X[r0:r1]):
+            if kernels.mb_loglik(cov, Zg, w, idx, val, add, mu, z[f], ll[c], vprod[c]) >= 0:
+                _not_pd(models, c, f)
+        return kernels.recursion_mean(ll, vprod, logp0, 1, np.empty((b, K, C)))
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
     for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED]):
@@ -367,7 +299,7 @@ def _per_sample_cost(models: GPClassModels, K: int, S: int) -> int:
     """Largest working-array size (elements) per trajectory."""
     C, F = models.n_classes, models.n_components
     n_train = max(len(x) for x in models.X)
-    return max(K * n_train, C * F * K * K, C * F * K * S)
+    return max(K * n_train, K * engine.plan(models).P_max, C * F * K * K, C * F * K * S)
 
 
 def _blocks(R: int, Nx: int, per_sample: int, block: int) -> list[tuple[int, int, int, int]]:

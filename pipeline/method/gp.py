@@ -17,19 +17,17 @@ factors keep σ_n²; ``predict`` and ``marginal`` use ``test_noise``, so every f
 them (and any engine that reads ``test_noise`` for the test diagonal) sees the calibrated
 likelihood unchanged (docs/design.md §5, "Calibrated likelihood").
 
-Files: ``index.json`` plus one ``<class>.npz`` per class (arrays only; loading never unpickles).
+Files: ``index.json`` plus one ``<class>.npz`` per class (arrays only; loading never unpickles;
+``pipeline/method/gp_files.py``).
 """
 from __future__ import annotations
 
-import json
-import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file, write_json
 from pipeline.infra.outputs import name as out_name
 
 INDEX = out_name("models", "index")  # a model bank folder's index (models/, its ablations, simulate/models)
@@ -308,98 +306,18 @@ class GPClassModels:
                 for c, cls in enumerate(self.classes)}
 
     def save(self, folder: str | Path, extra: dict | None = None) -> Path:
-        """Write ``index.json`` + one ``<class>.npz`` per class into ``folder`` (atomic per file)."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
-        files = _file_names(self.classes)
-        digests = {}
-        for c, cls in enumerate(self.classes):
-            with atomic_path(folder / files[cls]) as tmp:
-                with open(tmp, "wb") as fh:  # a file object: np.savez must not append ".npz"
-                    np.savez(fh, X=self.X[c], Y=self.Y[c], mean=self.mean[c], amplitude=self.amplitude[c],
-                             length_scale=self.length_scale[c], noise=self.noise[c],
-                             components=np.asarray(self.components, dtype=np.int64))
-                digests[files[cls]] = sha256_file(tmp)
-        index = {
-            "format": FORMAT, "version": VERSION, "kernel": KERNEL_TEXT,
-            "classes": self.classes, "components": self.components,
-            "component_names": self.component_names, "input_dim": self.input_dim,
-            "files": files, "sha256": digests, "hyperparameters": self.hyperparameters(), "meta": self.meta,
-        }
-        for k, v in (extra or {}).items():
-            if k in index:
-                raise ValueError(f"save: extra key {k!r} would overwrite a reserved index key")
-            index[k] = v
-        write_json(folder / INDEX, index)
-        return folder / INDEX
+        """Write ``index.json`` + one ``<class>.npz`` per class into ``folder`` (atomic per file;
+        ``pipeline/method/gp_files.py``)."""
+        from pipeline.method.gp_files import save_bank
+
+        return save_bank(self, folder, extra)
 
     @classmethod
     def load(cls, folder: str | Path) -> "GPClassModels":
-        folder = Path(folder)
-        ipath = folder / INDEX
-        if not ipath.is_file():
-            raise ModelFileError(ipath, "model index not found (run the 'models' stage)")
-        try:
-            index = json.loads(ipath.read_text())
-        except json.JSONDecodeError as e:
-            raise ModelFileError(ipath, f"not valid JSON: {e}") from None
-        if not isinstance(index, dict) or index.get("format") != FORMAT:
-            fmt = index.get("format") if isinstance(index, dict) else None
-            raise ModelFileError(ipath, f"not a viewfuse model index (format {fmt!r}, expected {FORMAT!r})")
-        if index.get("version") != VERSION:
-            raise ModelFileError(ipath, f"unsupported model index version {index.get('version')!r} "
-                                        f"(expected {VERSION})")
-        for key in ("classes", "components", "files"):
-            if key not in index:
-                raise ModelFileError(ipath, f"missing key '{key}'")
-        comps = [int(i) for i in index["components"]]
-        arrays: dict[str, list] = {k: [] for k in ("X", "Y", "mean", "amplitude", "length_scale", "noise")}
-        for name in index["classes"]:
-            fname = index["files"].get(name)
-            if not fname or "/" in fname or "\\" in fname:
-                raise ModelFileError(ipath, f"no valid file entry for class {name!r}")
-            path = folder / fname
-            if not path.is_file():
-                raise ModelFileError(path, f"model file of class {name!r} not found")
-            _check_digest(ipath, index, fname)
-            try:
-                data = load_npz(path)
-            except NpzFileError as e:
-                raise ModelFileError(path, f"unreadable model file: {e.problem}") from None
-            for k in list(arrays) + ["components"]:
-                if k not in data:
-                    raise ModelFileError(path, f"missing array '{k}'")
-            if [int(i) for i in data["components"]] != comps:
-                raise ModelFileError(path, f"components {data['components'].tolist()} differ from the index {comps}")
-            for k in arrays:
-                arrays[k].append(data[k])
-        try:
-            return cls(index["classes"], comps, arrays["X"], arrays["Y"],
-                       np.stack(arrays["mean"]), np.stack(arrays["amplitude"]),
-                       np.stack(arrays["length_scale"]), np.stack(arrays["noise"]),
-                       component_names=index.get("component_names"), meta=index.get("meta"))
-        except ValueError as e:
-            raise ModelFileError(folder, f"inconsistent model files: {e}") from None
+        """The bank ``save`` wrote, checked file by file (``pipeline/method/gp_files.py``)."""
+        from pipeline.method.gp_files import load_bank
 
-
-def _check_digest(ipath: Path, index: dict, fname: str) -> None:
-    """The file's sha256 must be the one index.json recorded when the models were saved: a file
-    swapped with another class's, or rewritten, is an error naming both files."""
-    recorded = index.get("sha256")
-    if recorded is None:
-        return  # written before digests were recorded
-    if not isinstance(recorded, dict) or fname not in recorded:
-        raise ModelFileError(ipath, f"no sha256 recorded for {fname!r}")
-    path = ipath.parent / fname
-    actual = sha256_file(path)
-    if actual == recorded[fname]:
-        return
-    other = [f for f, h in recorded.items() if h == actual and f != fname]
-    if other:
-        raise ModelFileError(path, f"holds the content index.json records for {ipath.parent / other[0]} "
-                                   f"(files swapped or copied?); rerun the 'models' stage")
-    raise ModelFileError(path, f"content differs from the sha256 recorded in {ipath} "
-                               "(file changed after the models were saved); rerun the 'models' stage")
+        return load_bank(cls, folder)
 
 
 def _whiten_rows(L: np.ndarray, V: np.ndarray) -> None:
@@ -410,16 +328,3 @@ def _whiten_rows(L: np.ndarray, V: np.ndarray) -> None:
     out = dtrsm(1.0, L, V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
     if not np.shares_memory(out, V):  # pragma: no cover - BLAS wrapper made a copy after all
         V[...] = out.T
-
-
-def _file_names(classes: Sequence[str]) -> dict[str, str]:
-    """A safe, unique file name per class (class names are folder names, but be careful)."""
-    out, used = {}, set()
-    for i, cls in enumerate(classes):
-        base = re.sub(r"[^A-Za-z0-9._-]", "_", cls).strip(".") or f"class_{i}"
-        name = f"{base}.npz"
-        if name.lower() in used or name == INDEX:
-            name = f"{base}_{i}.npz"
-        used.add(name.lower())
-        out[cls] = name
-    return out

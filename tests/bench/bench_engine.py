@@ -1,7 +1,8 @@
 """The fusion engine against the reference engine (tests/reference_fusion.py), side by side.
 
-Workload (issue 24): 4 classes x 4 components, 120 training views per class, K = 9, N_s = 10,
-40 realizations x N_x = 50 trajectories per call. Both engines run interleaved, several rounds,
+Workload (issue 24): 4 classes x 4 components, 120 training views per class (a full turntable
+ring, as BigBIRD's: the basis route's diagonal form applies), K = 9, N_s = 10, 40 realizations x
+N_x = 50 trajectories per call. Both engines run interleaved, several rounds,
 in one process: the ratio is the number to read, since other processes on the machine slow both
 alike. Printed per thread count: With Uncertainty trajectories per second (best round, wall clock
 and CPU time) of each engine and their ratio (goal >= 6x, 20,000 trajectories/s), the largest log
@@ -59,8 +60,8 @@ def main(argv=None) -> None:
     n = R * n_x
     routes = engine.plan(models).routes()
     print(f"workload: 4 classes x 4 components, 120 training views, K=9, N_s=10, {R} x N_x={n_x} = {n} trajectories; "
-          f"routes: {routes['basis']} basis (P = {min(routes['P'], default=0)}..{max(routes['P'], default=0)}), "
-          f"{routes['exact']} exact")
+          f"routes: {routes['basis']} basis (P = {min(routes['P'], default=0)}..{max(routes['P'], default=0)}; "
+          f"{routes['diagonal']} of them diagonal), {routes['exact']} exact")
     a = fuse_with_uncertainty(models, X, Z, return_log=True, progress=False)
     b = ref.fuse_with_uncertainty(models, X, Z, return_log=True, progress=False)
     print(f"max |log posterior difference| vs reference: {np.max(np.abs(a - b)):.1e} "
@@ -70,8 +71,10 @@ def main(argv=None) -> None:
     # The default run's fits are shorter (median ℓ about 0.2): P near N, less to gain.
     short = GPClassModels(models.classes, models.components, models.X, models.Y, models.mean, models.amplitude,
                           np.random.default_rng(3).uniform(0.1, 0.3, models.length_scale.shape), models.noise)
-    ps = engine.plan(short).routes()["P"]
-    print(f"short length scales (ℓ 0.1..0.3, P = {min(ps, default=0)}..{max(ps, default=0)}):")
+    rs = engine.plan(short).routes()
+    ps = rs["P"]
+    print(f"short length scales (ℓ 0.1..0.3, P = {min(ps, default=0)}..{max(ps, default=0)}; {rs['diagonal']} diagonal, "
+          f"{rs['basis'] - rs['diagonal']} sparse with P > N, {rs['exact']} exact):")
     ratio_line(short, X, Z, n, 2, args.rounds)
     torch_lines(models, X, Z, n, n_x)
 

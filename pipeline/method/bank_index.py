@@ -1,0 +1,40 @@
+"""The JSON index of a model bank folder (GP banks: ``gp_files.py``; Dirichlet banks:
+``dirichlet.py``): one reader that checks it before anything trusts it, one writer that merges a
+caller's extra keys without letting them overwrite the bank's own."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from pipeline.infra.cache import write_json
+
+
+def read_index(ipath: Path, fmt: str, version: int, keys: tuple[str, ...], error, what: str) -> dict:
+    """index.json at ``ipath`` as a dict with format ``fmt``, version ``version`` and ``keys``;
+    else ``error(path, problem)`` naming the file (``what``: e.g. "model index")."""
+    if not ipath.is_file():
+        raise error(ipath, f"{what} not found (run the 'models' stage)")
+    try:
+        index = json.loads(ipath.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise error(ipath, f"not valid JSON: {e}") from None
+    if not isinstance(index, dict) or index.get("format") != fmt:
+        got = index.get("format") if isinstance(index, dict) else None
+        raise error(ipath, f"not a viewfuse {what} (format {got!r}, expected {fmt!r})")
+    if index.get("version") != version:
+        raise error(ipath, f"unsupported {what} version {index.get('version')!r} (expected {version})")
+    for key in keys:
+        if key not in index:
+            raise error(ipath, f"missing key '{key}'")
+    return index
+
+
+def write_index(path: Path, index: dict, extra: dict | None) -> Path:
+    """Write ``index`` plus ``extra`` (whose keys may not overwrite the index's) to ``path``."""
+    out = dict(index)
+    for k, v in (extra or {}).items():
+        if k in out:
+            raise ValueError(f"save: extra key {k!r} would overwrite a reserved index key")
+        out[k] = v
+    write_json(path, out)
+    return path
