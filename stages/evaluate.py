@@ -181,7 +181,8 @@ def run(ctx) -> str:
             cells = [dataclasses.replace(c, device=device) for c in cells]
             done = executor.imap(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell",
                                  total=len(cells), gpu=gpu)
-            for cell, res in zip(cells, done):
+            for i, res in enumerate(done):   # to its end: the executor records its tasks there
+                cell = cells[i]
                 t1 = time.perf_counter()
                 for m, sec in res.get("seconds", {}).items():
                     fusion[m] = fusion.get(m, 0.0) + sec
