@@ -7,10 +7,9 @@ rows by ``pipeline.evaluation.results`` and into the single-track tables by ``su
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable, Iterable
-
-import time
 
 import numpy as np
 import pandas as pd
@@ -147,7 +146,8 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
 
     def fuse() -> None:
         est, smp = np.concatenate(est_parts), np.concatenate(smp_parts)
-        est_parts.clear(), smp_parts.clear()
+        est_parts.clear()
+        smp_parts.clear()
         for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution,
                                clock=clock).items():
             out.setdefault(m, []).append(v)
