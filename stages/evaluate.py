@@ -29,8 +29,9 @@ from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.population import DEFAULT
-from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary, result_blocks
-from pipeline.evaluation.results import metadata, result_block, write_results
+from pipeline.evaluation.cell_reduce import reduce_cell
+from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary
+from pipeline.evaluation.results import ResultsWriter, metadata, result_block
 from stages.evaluate_calibration import TestDomain, test_variances
 from pipeline.evaluation.track import TrackError, grid_step
 
@@ -82,9 +83,10 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     return intr, steps
 
 
-def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks: list, summary: dict, timings: dict,
+def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict,
                  domain: TestDomain | None = None) -> None:
-    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures)."""
+    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures); the
+    sensitivity rows go to ``blocks`` (a list or a ``ResultsWriter``: ``append``)."""
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
     if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
@@ -163,42 +165,67 @@ def run(ctx) -> str:
     domain_s = time.perf_counter() - t0
 
     timings: dict[str, float] = {"domain_fit": domain_s}
+    # The cells stream: each is reduced as it finishes (its rows written, its metrics, calibration
+    # sums and, for the default variant, its single-track tables kept) and its posteriors dropped,
+    # so memory does not grow with the population (configs/paper_grade.toml). The results file's
+    # metadata names the showcase track, known only after the grid: the writer takes it at the end.
+    kept: list[dict] = []
+    fusion: dict[str, float] = {}   # per method: its fusion calls' seconds, summed over the cells
+    t_reduce = t_write = 0.0
     t0 = time.perf_counter()
-    executor = executor_for(cfg)
-    try:
-        device, gpu = fusion_device(ctx, executor)
-        cells = [dataclasses.replace(c, device=device) for c in cells]
-        results = executor.map(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell", gpu=gpu)
-    finally:
-        executor.close()
-    timings["population"] = time.perf_counter() - t0
-    log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
-             len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
+    writer = ResultsWriter(ctx.out / out_name("evaluate", "results"))
+    with writer:
+        executor = executor_for(cfg)
+        try:
+            device, gpu = fusion_device(ctx, executor)
+            cells = [dataclasses.replace(c, device=device) for c in cells]
+            done = executor.imap(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell",
+                                 total=len(cells), gpu=gpu)
+            for i, res in enumerate(done):   # to its end: the executor records its tasks there
+                cell = cells[i]
+                t1 = time.perf_counter()
+                for m, sec in res.get("seconds", {}).items():
+                    fusion[m] = fusion.get(m, 0.0) + sec
+                k, blocks = reduce_cell(cell, res, ev.confident_threshold, tables=cell.variant == DEFAULT)
+                t2 = time.perf_counter()
+                for b in blocks:
+                    writer.write(b)
+                kept.append(k)
+                t_reduce += t2 - t1
+                t_write += time.perf_counter() - t2
+        finally:
+            executor.close()
+        timings["population"] = time.perf_counter() - t0 - t_reduce - t_write
+        timings.update({f"population_{m}": sec for m, sec in fusion.items()})
+        timings["cell_reduce"] = t_reduce
+        log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
+                 len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
 
-    t0 = time.perf_counter()
-    table = cell_table(cells, results, ev.confident_threshold)
-    population = population_summary(cfg, table, cells, results, tracks, skipped, domain_fit)
-    population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, results)
-    timings["statistics"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        table = cell_table(kept)
+        population = population_summary(cfg, table, cells, kept, tracks, skipped, domain_fit)
+        population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, kept)
+        timings["statistics"] = time.perf_counter() - t0
 
-    # The showcase track (pipeline/evaluation/showcase.py: where the methods disagree most): its
-    # biased/randomized tables, plus the single-track figures.
-    chosen = S.choose(table)
-    at = next(i for i, c in enumerate(cells)
-              if c.variant == DEFAULT and c.target == chosen["target"] and c.track == chosen["track"])
-    first = cells[at]
-    population["showcase"] = chosen
-    summary: dict = {}
-    for (experiment, label), posts in results[at]["posts"].items():
-        summary.setdefault(experiment, {})[label] = E.summarize(posts, first.truth)
-    blocks = result_blocks(cells, results)
-    from pipeline.method.fusion import engine_device
+        # The showcase track (pipeline/evaluation/showcase.py: where the methods disagree most): its
+        # biased/randomized tables, kept from the grid, plus the single-track figures.
+        chosen = S.choose(table)
+        at = next(i for i, c in enumerate(cells)
+                  if c.variant == DEFAULT and c.target == chosen["target"] and c.track == chosen["track"])
+        first = cells[at]
+        population["showcase"] = chosen
+        summary: dict = {}
+        for (experiment, label), tables in kept[at]["tables"].items():
+            summary.setdefault(experiment, {})[label] = tables
+        from pipeline.method.fusion import engine_device
 
-    with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
-        single_track(cfg, ctx, banks, first, blocks, summary, timings, domain)
-    n_rows = write_results(blocks, ctx.out / out_name("evaluate", "results"), metadata(
-        config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed), classes=list(first.classes),
-        target=first.target, track=str(first.track)))
+        with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
+            single_track(cfg, ctx, banks, first, writer, summary, timings, domain)
+        writer.metadata = metadata(config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed),
+                                   classes=list(first.classes), target=first.target, track=str(first.track))
+        t0 = time.perf_counter()
+    timings["writing"] = t_write + time.perf_counter() - t0
+    n_rows = writer.rows
     info = next(t for t in tracks if t.target == first.target and t.track == first.track).as_dict()
     obj_truth = P.truth_entry(truth, first.scan, first.target)
     info.update(classes=list(first.classes), yaw_deg=float(np.degrees(first.data.yaw)),

@@ -3,6 +3,7 @@ import dataclasses
 import pytest
 
 from pipeline.infra.config import ConfigError, load_config, parse_override, to_dict
+from pipeline.infra.config_load import merge
 from tests.conftest import DEFAULT_CONFIG, ROOT
 
 
@@ -129,4 +130,13 @@ def test_paper_grade_preset_changes_only_the_population():
     assert pg.run.name == "paper_grade"
     for section in ("data", "classifier", "features", "models"):   # upstream stages are shared
         assert pg.section_hash(section) == default.section_hash(section)
-    assert dataclasses.replace(pg.evaluate, randomized=default.evaluate.randomized) == default.evaluate
+    # The extra With Uncertainty variants are off (their cost: the preset comments); the rest is the default.
+    assert (pg.evaluate.ablations, pg.evaluate.attribution) == ((), False)
+    assert dataclasses.replace(pg.evaluate, randomized=default.evaluate.randomized,
+                               ablations=default.evaluate.ablations,
+                               attribution=default.evaluate.attribution) == default.evaluate
+    # and they come back with --set, as the preset says
+    back = load_config(ROOT / "configs" / "paper_grade.toml", merge(
+        parse_override('evaluate.ablations=["evaluate.test_domain_variance=cross_fit"]'),
+        parse_override("evaluate.attribution=true")))
+    assert dataclasses.replace(back.evaluate, randomized=default.evaluate.randomized) == default.evaluate

@@ -42,3 +42,22 @@ def test_failed_stream_leaves_no_file(tmp_path):
         with ResultsWriter(tmp_path / "y.parquet", {}):
             pass
     assert not list(tmp_path.iterdir())
+
+
+def test_metadata_given_at_the_end_makes_the_same_file(tmp_path):
+    import pyarrow.parquet as pq
+
+    bs = blocks()
+    write_results(bs, tmp_path / "one.parquet", {"viewfuse.k": "v", "viewfuse.track": "3"})
+    with ResultsWriter(tmp_path / "late.parquet", rows_per_group=30) as w:
+        for b in bs:
+            w.write(b)
+        w.metadata = {"viewfuse.k": "v", "viewfuse.track": "3"}
+    a, b = pq.read_table(tmp_path / "one.parquet"), pq.read_table(tmp_path / "late.parquet")
+    assert a.equals(b) and a.schema.equals(b.schema, check_metadata=True)
+    assert pq.ParquetFile(tmp_path / "late.parquet").num_row_groups > 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["late.parquet", "one.parquet"]   # spill removed
+    with pytest.raises(ValueError, match="never set"):
+        with ResultsWriter(tmp_path / "never.parquet") as w:
+            w.write(bs[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["late.parquet", "one.parquet"]

@@ -7,6 +7,7 @@ rows by ``pipeline.evaluation.results`` and into the single-track tables by ``su
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable, Iterable
 
@@ -19,8 +20,8 @@ from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.evaluation.labels import (METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY,
                                         WU_POSES_ONLY)
 
-__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "biased",
-           "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
+__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "fuse_track",
+           "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -53,65 +54,118 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
 
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
-              rng: np.random.Generator, *, var_floor: float, attribution: bool = False) -> dict[str, np.ndarray]:
-    """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each.
+              rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
+              clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
+    draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
+    samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
+    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, clock=clock)
+
+
+def _timed(clock: dict[str, float] | None, key: str, fn, *args, **kw):
+    """``fn(*args, **kw)``, its wall time added to ``clock[key]`` when a clock is given."""
+    if clock is None:
+        return fn(*args, **kw)
+    t0 = time.perf_counter()
+    out = fn(*args, **kw)
+    clock[key] = clock.get(key, 0.0) + time.perf_counter() - t0
+    return out
+
+
+def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
+               attribution: bool = False, clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """The methods on realizations of pose estimates (R, K, 2) and their localization samples
+    (R, N_x, K, 2) -> log posteriors (R, K, C) each.
 
     Log space all the way to the metrics: a confident posterior's smallest entries underflow as
     probabilities, and log MGR must stay finite.
 
-    Model Based trusts the estimates; Model with Uncertainty samples N_x trajectories around them
-    with the stated σ (the same σ the estimate error was drawn with, as in the paper). Simple Bayes
-    (when the track carries ``own`` scores) ignores the poses: the same posterior for every
-    realization, repeated so that the methods pair up realization by realization.
+    Model Based trusts the estimates; Model with Uncertainty fuses the N_x trajectories sampled
+    around them with the stated σ (the same σ the estimate error was drawn with, as in the paper).
+    Simple Bayes (when the track carries ``own`` scores) ignores the poses: the same posterior for
+    every realization, repeated so that the methods pair up realization by realization.
 
     ``attribution`` adds With Uncertainty with one ingredient each, on the same estimates (and
     no extra random draws, so the other methods' results do not change): *poses only* (the same
     localization samples, each step's dropout samples replaced by their mean: no model-uncertainty
     term beyond ``var_floor``) and *dropout only* (no pose sampling: σ = 0, N_x = 1, the estimates
     themselves).
+
+    ``clock``: wall seconds per method are added to it (the bench's time split).
     """
     r = len(estimates)
-    mb = fuse_model_based(models, track.inputs(estimates),
-                          np.broadcast_to(track.measurement, (r,) + track.measurement.shape),
-                          return_log=True, progress=False)
-    samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
-    wu = fuse_with_uncertainty(models, track.inputs(samples),
-                               np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
-                               var_floor=var_floor, return_log=True, progress=False)
+    mb = _timed(clock, MODEL_BASED, fuse_model_based, models, track.inputs(estimates),
+                np.broadcast_to(track.measurement, (r,) + track.measurement.shape), return_log=True, progress=False)
+    wu = _timed(clock, WITH_UNCERTAINTY, fuse_with_uncertainty, models, track.inputs(samples),
+                np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
+                var_floor=var_floor, return_log=True, progress=False)
     out = {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
     if track.own is not None:
         out[SIMPLE_BAYES] = np.broadcast_to(simple_bayes(track.own.mean(axis=1), return_log=True), wu.shape).copy()
     if attribution:
         mean_only = track.dropout.mean(axis=1, keepdims=True)          # (K, 1, F)
-        out[WU_POSES_ONLY] = fuse_with_uncertainty(models, track.inputs(samples),
-                                                   np.broadcast_to(mean_only, (r,) + mean_only.shape),
-                                                   var_floor=var_floor, return_log=True, progress=False)
-        out[WU_DROPOUT_ONLY] = fuse_with_uncertainty(models, track.inputs(estimates[:, None]),
-                                                     np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
-                                                     var_floor=var_floor, return_log=True, progress=False)
+        out[WU_POSES_ONLY] = _timed(clock, WU_POSES_ONLY, fuse_with_uncertainty, models, track.inputs(samples),
+                                    np.broadcast_to(mean_only, (r,) + mean_only.shape),
+                                    var_floor=var_floor, return_log=True, progress=False)
+        out[WU_DROPOUT_ONLY] = _timed(clock, WU_DROPOUT_ONLY, fuse_with_uncertainty, models,
+                                      track.inputs(estimates[:, None]),
+                                      np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
+                                      var_floor=var_floor, return_log=True, progress=False)
     return out
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
-           *, var_floor: float, attribution: bool = False) -> dict[str, np.ndarray]:
+           *, var_floor: float, attribution: bool = False, clock: dict[str, float] | None = None
+           ) -> dict[str, np.ndarray]:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
-    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
+    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, clock=clock)
+
+
+# With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
+# positions): every call has a fixed cost (thread pool, BLAS limits, the engine's plan), which
+# 25-realization calls paid hundreds of times per cell at paper grade.
+BATCH_TRAJECTORIES = 100_000
 
 
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
-               rng: np.random.Generator, *, var_floor: float, chunk: int = 25,
-               progress: Callable[[int], None] | None = None, attribution: bool = False) -> dict[str, np.ndarray]:
-    """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C)."""
+               rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
+               progress: Callable[[int], None] | None = None, attribution: bool = False,
+               clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
+
+    The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
+    localization samples, which fixes the random stream; ``batch`` realizations (default: as many
+    as make ``BATCH_TRAJECTORIES`` trajectories) are fused per call, which changes speed and
+    memory only. ``progress`` is told the realizations of each fused batch; ``clock`` as in
+    ``fuse_track``."""
+    per_call = int(batch) if batch else max(1, BATCH_TRAJECTORIES // max(int(n_x), 1))
     out: dict[str, list[np.ndarray]] = {}
+    est_parts: list[np.ndarray] = []
+    smp_parts: list[np.ndarray] = []
+
+    def fuse() -> None:
+        est, smp = np.concatenate(est_parts), np.concatenate(smp_parts)
+        est_parts.clear()
+        smp_parts.clear()
+        for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution,
+                               clock=clock).items():
+            out.setdefault(m, []).append(v)
+        if progress:
+            progress(len(est))
+
+    pending = 0
     for a, b in _chunks(realizations, chunk):
         noise = rng.normal(0.0, sigma, size=(b - a, track.k, 2)) if sigma > 0 else np.zeros((b - a, track.k, 2))
         est = track.cam_xy[None] + np.asarray(bias, float) + noise
-        res = run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
-        for m, v in res.items():
-            out.setdefault(m, []).append(v)
-        if progress:
-            progress(b - a)
+        est_parts.append(est)
+        smp_parts.append(sample_localization(est, sigma, n_x, rng))
+        pending += b - a
+        if pending >= per_call:
+            fuse()
+            pending = 0
+    if pending:
+        fuse()
     return {m: np.concatenate(v, axis=0) for m, v in out.items()}
 
 

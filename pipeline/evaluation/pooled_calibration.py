@@ -20,22 +20,34 @@ from pipeline.evaluation.robust import estimate, leave_one_out_values, resample
 WHERE = ("final", "overall")
 
 
+def cell_sums(posts: dict, truth: int) -> dict[str, np.ndarray]:
+    """One cell's {method: (2, 3, n_bins + 1) bin sums (final, overall)} over its settings
+    ``posts`` ({(experiment, label): {method: log posteriors (R, K, C)}}); each setting weighs
+    1 / n_settings, each realization (final) or (realization, step) (overall) the same within it."""
+    out: dict[str, np.ndarray] = {}
+    n_set = len(posts)
+    for by_method in posts.values():
+        for method, lp in by_method.items():
+            conf, ok = K.top_label(lp, truth)                  # (R, K)
+            R, Kn = conf.shape
+            s = np.stack([K.bin_sums(conf[:, -1], ok[:, -1], 1.0 / (n_set * R)),
+                          K.bin_sums(conf, ok, 1.0 / (n_set * R * Kn))])
+            out[method] = out.get(method, 0.0) + s
+    return out
+
+
 def track_sums(cells, results, variant: str) -> dict[tuple[str, str, int], np.ndarray]:
     """{(method, target, track): (2, 3, n_bins + 1) bin sums (final, overall)} for one variant;
-    every track's weights sum to 1 for each of final and overall."""
+    every track's weights sum to 1 for each of final and overall. A result holds its cell's
+    ``cell_sums`` as ``calibration`` (the evaluate stage's streamed cells) or its ``posts``."""
     out: dict[tuple[str, str, int], np.ndarray] = {}
     for cell, res in zip(cells, results):
         if cell.variant != variant:
             continue
-        n_set = len(res["posts"])
-        for posts in res["posts"].values():
-            for method, lp in posts.items():
-                conf, ok = K.top_label(lp, cell.truth)                  # (R, K)
-                R, Kn = conf.shape
-                s = np.stack([K.bin_sums(conf[:, -1], ok[:, -1], 1.0 / (n_set * R)),
-                              K.bin_sums(conf, ok, 1.0 / (n_set * R * Kn))])
-                key = (method, cell.target, cell.track)
-                out[key] = out.get(key, 0.0) + s
+        sums = res["calibration"] if "calibration" in res else cell_sums(res["posts"], cell.truth)
+        for method, s in sums.items():
+            key = (method, cell.target, cell.track)
+            out[key] = out.get(key, 0.0) + s
     return out
 
 

@@ -9,6 +9,7 @@ grid is split or scheduled, and an ablation variant sees the same noise as the d
 from __future__ import annotations
 
 import math
+import time
 import zlib
 from dataclasses import dataclass
 
@@ -215,7 +216,8 @@ def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.
 
 def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
-    "difficulty": {method: share of views that alone rank the truth first} or None}."""
+    "difficulty": {method: share of views that alone rank the truth first} or None, "seconds":
+    {method: wall seconds in its fusion calls}}."""
     from pipeline.method.fusion import engine_device
 
     with engine_device(cell.device):
@@ -226,23 +228,29 @@ def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
+    clock: dict[str, float] = {}
+    t0 = time.perf_counter()
     dirichlet = dirichlet_track(cell)
-    posts = {}
+    if dirichlet is not None:
+        clock[DIRICHLET] = time.perf_counter() - t0
+    posts: dict = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
-                                                      var_floor=cell.var_floor, attribution=cell.attribution)
+                                                      var_floor=cell.var_floor, attribution=cell.attribution,
+                                                      clock=clock)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
-                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution)
+                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution,
+                                                          clock=clock)
         if dirichlet is not None:
             posts[(s.experiment, s.label)] = with_dirichlet(posts[(s.experiment, s.label)], dirichlet[0])
     diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None
     if diff is not None and dirichlet is not None:
         one = DF.single_view(cell.dirichlet, cell.data.probs)
         diff[DIRICHLET] = float(np.mean(M.correct(one, cell.truth, is_log=True)))
-    out = {"posts": posts, "difficulty": diff}
+    out = {"posts": posts, "difficulty": diff, "seconds": clock}
     if dirichlet is not None:
         out["dirichlet_std"] = dirichlet[1]
     return out

@@ -1,9 +1,9 @@
-"""The population evaluation's tables and summary, from the cells' results (pure functions).
+"""The population evaluation's tables and summary, from the cells' reduced results (pure functions).
 
-``cell_table``: one row per (variant, target, track, setting, method) with the cell's metrics
-(``pipeline.evaluation.metrics``); ``result_blocks``: the long results columns
-(``pipeline.evaluation.results``); ``population_summary``: the ``population`` object of
-``evaluate/summary.json`` (statistics from ``pipeline.evaluation.popstats``).
+The evaluate stage keeps of each cell only its ``pipeline.evaluation.cell_reduce.reduce_cell``
+summary (``kept``). ``cell_table``: one row per (variant, target, track, setting, method) with the
+cell's metrics (``pipeline.evaluation.metrics``); ``population_summary``: the ``population`` object
+of ``evaluate/summary.json`` (statistics from ``pipeline.evaluation.popstats``).
 """
 from __future__ import annotations
 
@@ -12,44 +12,24 @@ import pandas as pd
 
 from pipeline.evaluation import population as P
 from pipeline.evaluation.population import DEFAULT
-from pipeline.evaluation.labels import COMPARISONS, DIRICHLET, METHODS
+from pipeline.evaluation.labels import COMPARISONS, METHODS
 from pipeline.evaluation.metrics import METRICS, percentile
 from pipeline.evaluation.calibration import N_BINS as ECE_BINS
 from pipeline.evaluation.verdicts import full_block
-from pipeline.evaluation.results import cell_metrics, result_block
 
 
-def cell_table(cells: list[P.Cell], results: list[dict], threshold: float | None = None) -> pd.DataFrame:
-    """One row per (variant, target, track, setting, method) with the cell's metrics."""
-    rows = []
-    for cell, res in zip(cells, results):
-        for (experiment, label), posts in res["posts"].items():
-            for method, lp in posts.items():
-                rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
-                             "experiment": experiment, "setting": label, "method": method,
-                             **cell_metrics(lp, cell.truth, threshold)})
-    return pd.DataFrame(rows)
-
-
-def result_blocks(cells: list[P.Cell], results: list[dict]) -> list[dict]:
-    """The results.parquet columns of every cell and setting (``results.result_block``)."""
-    out = []
-    for cell, res in zip(cells, results):
-        by_label = {(s.experiment, s.label): s for s in cell.settings}
-        for key, posts in res["posts"].items():
-            s = by_label[key]
-            out.append(result_block(posts, cell.truth, variant=cell.variant, experiment=s.experiment, setting=s.label,
-                                    sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
-                                    scan=cell.scan, target=cell.target, track=cell.track,
-                                    candidates=",".join(cell.classes), truth=cell.truth))
-    return out
+def cell_table(kept: list[dict]) -> pd.DataFrame:
+    """One row per (variant, target, track, setting, method) with the cell's metrics, from the
+    cells' ``cell_reduce.reduce_cell`` summaries in grid order."""
+    return pd.DataFrame([row for k in kept for row in k["rows"]])
 
 
 def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
                        tracks: list[P.TrackInfo], skipped: list[dict], domain_fit: dict | None = None) -> dict:
     """``summary.json``'s ``population`` object from the ``evaluate`` config section ``ev``, the
-    cell table and the cells' results: pooled values, paired differences and verdicts (whole
-    population, per setting, per ablation), difficulty, per-cell values and the tracks."""
+    cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences
+    and verdicts (whole population, per setting, per ablation), difficulty, per-cell values and
+    the tracks."""
     from pipeline.evaluation.population_calibration import population_blocks
 
     ev = cfg.evaluate
@@ -114,13 +94,13 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
 def dirichlet_summary(ev, cells: list[P.Cell], results: list[dict]) -> dict | None:
     """What the Dirichlet's posterior cloud says besides its mean: the spread (std of λ) of the
     truth's probability at the final step over the default cells, and the first cell's per-step
-    E[λ] and std."""
+    E[λ] and std. ``results``: the cells' ``reduce_cell`` summaries."""
     pairs = [(c, r) for c, r in zip(cells, results) if c.variant == DEFAULT and "dirichlet_std" in r]
     if not pairs:
         return None
     final = np.array([r["dirichlet_std"][-1, c.truth] for c, r in pairs])
     c0, r0 = pairs[0]
-    mean0 = np.exp(next(iter(r0["posts"].values()))[DIRICHLET][0])
+    mean0 = r0["dirichlet_mean0"]
     return {"n_ss": ev.dirichlet.n_ss, "poses": "ignored: the same posterior for every realization",
             "truth_std_final": {"median": float(np.median(final)), "q25": float(percentile(final, 25)),
                                 "q75": float(percentile(final, 75)), "max": float(final.max()),

@@ -33,6 +33,7 @@ class Artifact:
 _JSON_W = "pipeline.infra.cache:write_json"
 _JSON_R = "reports.artifacts:read_json"
 _RESULTS_W = "pipeline.evaluation.results:write_results"
+_STREAM_W = "pipeline.evaluation.results:ResultsWriter"   # streamed one cell at a time
 _RESULTS_R = "reports.artifacts:read_result_table"
 _BANK_W = "pipeline.method.gp:GPClassModels.save"
 _BANK_R = "pipeline.method.gp:GPClassModels.load"
@@ -68,7 +69,7 @@ CATALOG: dict[str, dict[str, Artifact]] = {
                               "the Dirichlet method's class models: index.json + theta.npz"),
     },
     "evaluate": {
-        "results": Artifact("results.parquet", "parquet", _RESULTS_W, _RESULTS_R,
+        "results": Artifact("results.parquet", "parquet", _STREAM_W, _RESULTS_R,
                             "one row per (cell, setting, realization, step, method)"),
         "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "population statistics and verdict"),
         "track": Artifact("track.json", "json", _JSON_W, _JSON_R, "the detailed track"),

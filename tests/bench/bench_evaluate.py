@@ -8,8 +8,9 @@
    4 components, 120 training views, N_s = 10), the figure the issue sizes the defaults by.
 3. The paper-grade preset (configs/paper_grade.toml: 500 realizations x N_x = 100 per σ): its
    evaluate stage, forced, in a child process, reusing the default run's upstream stages (linked
-   into artifacts/paper_grade/); wall time (goal <= 10 min on the 2-core machine) and the child's
-   peak RSS (goal <= 4 GB).
+   into artifacts/paper_grade/); wall time (goal <= 10 min on the 2-core machine), the child's
+   peak RSS (goal <= 4 GB) and the stage's time split (grid, of it the With Uncertainty fusion;
+   per-cell metrics and rows; writing; statistics; showcase).
 
     python tests/bench/bench_evaluate.py [--config FILE] [--skip-stage] [--skip-paper-grade]
 """
@@ -59,11 +60,8 @@ def stage(config: str) -> None:
     traj = sum(s["realizations"] * s["n_loc_samples"] for s in pop["settings"]) * pop["n_tracks"]
     print(f"evaluate stage: {took:.1f} s wall (goal < 180 s) for {pop['n_targets']} targets x {pop['n_tracks']} tracks "
           f"x {len(pop['settings'])} settings ({pop['n_cells']} cells), bootstrap {pop['bootstrap']}")
-    print(f"  grid {tim['population']:.1f} s ({traj} With Uncertainty trajectories: "
-          f"{traj / tim['population']:.0f} trajectories/s incl. Model Based and Simple Bayes), "
-          f"statistics {tim['statistics']:.1f} s, single-track figures "
-          f"{sum(tim.get(k, 0.0) for k in ('sensitivity', 'bias_maps', 'gp_models')):.1f} s, "
-          f"test-domain fit {tim.get('domain_fit', 0.0):.1f} s")
+    grids = 1 + sum(a != "attribution" for a in pop.get("ablations", {}))   # each ablation reruns the grid
+    print(f"  {traj} With Uncertainty trajectories per grid x {grids}; " + split(tim, traj * grids))
     variants = [a for a in pop.get("ablations", {})]
     print(f"  variants on: {', '.join(variants) or 'none'} (attribution = With Uncertainty poses only / dropout "
           "only; each evaluate.ablations entry reruns the whole grid)")
@@ -106,9 +104,22 @@ def paper_grade(config: str) -> None:
     pop, tim = summary["population"], summary["timings_s"]
     traj = sum(s["realizations"] * s["n_loc_samples"] for s in pop["settings"]) * pop["n_tracks"]
     print(f"paper-grade evaluate (configs/paper_grade.toml): {took:.0f} s wall incl. start-up "
-          f"(goal <= 600 s), peak RSS {rss / 2**20:.2f} GiB (goal <= 4 GiB); grid {tim['population']:.0f} s for "
-          f"{traj} With Uncertainty trajectories ({traj / tim['population']:.0f}/s incl. Model Based, Simple Bayes, "
-          f"metrics and result rows), statistics {tim['statistics']:.0f} s")
+          f"(goal <= 600 s), peak RSS {rss / 2**20:.2f} GiB (goal <= 4 GiB); {traj} With Uncertainty trajectories")
+    print("  " + split(tim, traj))
+
+
+def split(tim: dict, traj: int) -> str:
+    """The evaluate stage's time split from summary.json's timings_s (seconds)."""
+    wu = tim.get("population_with_uncertainty", 0.0)
+    total = sum(tim.get(k, 0.0) for k in ("domain_fit", "population", "cell_reduce", "statistics", "writing",
+                                           "gp_models", "sensitivity", "bias_maps"))
+    showcase = sum(tim.get(k, 0.0) for k in ("gp_models", "sensitivity", "bias_maps"))
+    mb = tim.get("population_model_based", 0.0)
+    return (f"grid {tim['population']:.0f} s (With Uncertainty fusion {wu:.0f} s = {wu / max(total, 1e-9):.0%} of the "
+            f"stage, {traj / max(wu, 1e-9):.0f} trajectories/s; Model Based {mb:.0f} s), "
+            f"per-cell metrics and rows {tim.get('cell_reduce', 0.0):.0f} s, writing {tim.get('writing', 0.0):.0f} s, "
+            f"statistics {tim['statistics']:.0f} s, showcase {showcase:.0f} s, test-domain fit "
+            f"{tim.get('domain_fit', 0.0):.0f} s")
 
 
 def main(argv: list[str] | None = None) -> None:
