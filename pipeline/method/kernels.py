@@ -10,7 +10,7 @@ variance of each step given the past (pipeline/method/fusion.py's module docstri
 log density of every dropout sample, and finally the recursion over the track with the mean over
 localization samples, in log space.
 
-Arithmetic is plain IEEE double except in ``_gram``, whose dot products may be reassociated
+Arithmetic is plain IEEE double except in ``_gram`` and ``_sparse_z``, whose sums may be reassociated
 (summed in SIMD lanes): a different rounding order, no other change. Results equal the
 reference engine to rounding (tests/test_engine.py).
 """
@@ -68,53 +68,25 @@ def _fill(cov, Z, w, idx, val, b, ones, zbuf, A):
                 A[i, j] = cov[b, i, j]
 
 
-@njit(**_NJIT)
-def _factor(cov, Z, w, idx, val, b, diag_add, ones, zbuf, A, L, M, Ld):
-    """Cholesky rows of trajectory b's covariance (``_fill``) + diag_add·I."""
-    _fill(cov, Z, w, idx, val, b, ones, zbuf, A)
-    return _chol_rows(A, diag_add, L, M, Ld)
-
-
-@njit(**_NJIT)
-def _chol_rows(A, diag_add, L, M, Ld):
-    """L Lᵀ = A + diag_add·I (K×K, lower), M = L⁻¹ (lower), Ld = diag(L). False if not positive definite."""
-    K = A.shape[0]
-    for j in range(K):
-        s = A[j, j] + diag_add
-        for i in range(j):
-            s -= L[j, i] * L[j, i]
-        if not s > 0.0:
-            return False
-        ljj = math.sqrt(s)
-        L[j, j] = ljj
-        Ld[j] = ljj
-        inv = 1.0 / ljj
-        M[j, j] = inv
-        for i in range(j + 1, K):
-            t = A[i, j]
-            for m in range(j):
-                t -= L[i, m] * L[j, m]
-            L[i, j] = t * inv
-    for k in range(1, K):
-        inv = M[k, k]
-        for m in range(k):              # M[k, :k] = -(L[k, :k] @ M[:k, :k]) / L_kk
-            t = 0.0
-            for j in range(m, k):
-                t += L[k, j] * M[j, m]
-            M[k, m] = -t * inv
-    return True
-
-
 # Trajectories factored side by side: every K×K step below is a loop over the T lanes, which the
 # compiler turns into SIMD instructions (one 9×9 Cholesky alone is too small and too serial).
 T = 8
 
 
 @njit(**_NJIT)
-def _tile_factor(cov, Z, w, idx, val, b0, nt, diag_add, ones, zbuf, g, A, L, M, Ld):
-    """Cholesky rows of trajectories b0 .. b0+nt-1 side by side (lane t = trajectory b0 + t):
-    A[:, :, t] the covariance (``_factor``), L its factor, M = L⁻¹, Ld = diag(L), all (K, K, T)
-    or (K, T), lower triangles only; ones, zbuf, g scratch for ``_fill``. Returns the first lane that is not positive definite, or -1."""
+def _tile_scratch(K, P):
+    """The arrays ``_tile_factor`` works in: (A, L, M, Ld, g, zbuf, ones) for K steps and P features."""
+    return (np.zeros((K, K, T)), np.zeros((K, K, T)), np.zeros((K, K, T)), np.empty((K, T)),
+            np.empty((K, K)), np.empty((K, P)), np.ones(P))
+
+
+@njit(**_NJIT)
+def _tile_factor(cov, Z, w, idx, val, b0, nt, diag_add, ws):
+    """Cholesky rows of trajectories b0 .. b0+nt-1 side by side (lane t = trajectory b0 + t), in
+    the arrays ws of ``_tile_scratch``: A[:, :, t] the covariance (``_fill``) plus diag_add, L its
+    factor, M = L⁻¹, Ld = diag(L), all (K, K, T) or (K, T), lower triangles only; g, zbuf, ones
+    scratch for ``_fill``. Returns the first lane that is not positive definite, or -1."""
+    A, L, M, Ld, g, zbuf, ones = ws
     K = A.shape[0]
     for t in range(nt):
         _fill(cov, Z, w, idx, val, b0 + t, ones, zbuf, g)
@@ -156,29 +128,24 @@ def wu_loglik(cov, Z, w, idx, val, diag_add, mu, mz, vz, smp, n_per, ll, vprod):
     """Add one GP's term to ll (B, K, S) and vprod (B, K): for trajectory b (realization b // n_per),
     step k and dropout sample s, log N(s; μ_z,k - L_kk y_k, v) = -(s - mean)²/(2v) - log(v)/2 (up
     to -log(2π)/2): the first part goes to ll, v multiplies vprod (one log for all components later,
-    in ``recursion_mean``; ``_fold`` keeps the product in range).
+    in ``recursion_mean``; ``_times_var`` keeps the product in range).
 
     The joint predictive covariance (cov, Z, w, idx, val) is described in ``engine.per_gp``, plus
-    diag_add·I; mu (B, K) predictive means, mz / vz
-    (r, K) past dropout means / floored variances, smp (r, K, S) the samples.
+    diag_add·I; mu (B, K) predictive means, mz / vz (r, K) past dropout means / floored
+    variances, smp (r, K, S) the samples.
     Returns the index of a trajectory whose covariance is not positive definite, or -1.
     """
     B, K = mu.shape
     S = smp.shape[2]
-    A = np.zeros((K, K, T))
-    L = np.zeros((K, K, T))
-    M = np.zeros((K, K, T))
-    Ld = np.empty((K, T))
+    ws = _tile_scratch(K, idx.shape[0])
+    M, Ld = ws[2], ws[3]
     d = np.empty((K, T))
     v = np.empty((K, T))
     y = np.empty(T)
     q = np.empty(T)
-    g = np.empty((K, K))
-    zbuf = np.empty((K, idx.shape[0]))
-    ones = np.ones(idx.shape[0])
     for b0 in range(0, B, T):
         nt = min(T, B - b0)
-        bad = _tile_factor(cov, Z, w, idx, val, b0, nt, diag_add, ones, zbuf, g, A, L, M, Ld)
+        bad = _tile_factor(cov, Z, w, idx, val, b0, nt, diag_add, ws)
         if bad >= 0:
             return b0 + bad
         for t in range(nt):
@@ -204,47 +171,45 @@ def wu_loglik(cov, Z, w, idx, val, diag_add, mu, mz, vz, smp, n_per, ll, vprod):
                 for s in range(S):
                     e = smp[r, k, s] - cm
                     ll[b, k, s] += h * e * e
-                p = vprod[b, k] * var
-                if not (1e-250 < p < 1e250):
-                    _fold(vprod, ll, b, k)
-                    p = var
-                vprod[b, k] = p
+                _times_var(vprod, ll, b, k, var)
     return -1
 
 
 @njit(**_NJIT)
-def _fold(vprod, ll, b, k):
-    """Move vprod[b, k] into ll[b, k, :] as -log(vprod)/2 (before a product leaves the normal range)."""
-    lg = -0.5 * math.log(vprod[b, k])
-    for s in range(ll.shape[2]):
-        ll[b, k, s] += lg
+def _times_var(vprod, ll, b, k, v):
+    """vprod[b, k] *= v; where the product would leave the normal range, the old product goes into
+    ll[b, k, :] as -log(vprod)/2 first and the product restarts at v."""
+    p = vprod[b, k] * v
+    if not (1e-250 < p < 1e250):
+        lg = -0.5 * math.log(vprod[b, k])
+        for s in range(ll.shape[2]):
+            ll[b, k, s] += lg
+        p = v
+    vprod[b, k] = p
 
 
 @njit(**_NJIT)
 def mb_loglik(cov, Z, w, idx, val, diag_add, mu, z, ll, vprod):
     """Add one GP's term to ll (B, K, 1) and vprod (B, K): the chain rule of one Gaussian,
     -y_k²/2 - log L_kk with y = M (z - μ) (z (B, K) the measurements; covariance as in
-    ``wu_loglik``); L_kk² multiplies vprod as in ``wu_loglik``. Returns a failing trajectory's index, or -1."""
+    ``wu_loglik``); L_kk² multiplies vprod as in ``wu_loglik``. Returns a failing trajectory's
+    index, or -1."""
     B, K = mu.shape
-    A = np.zeros((K, K))
-    L = np.zeros((K, K))
-    M = np.zeros((K, K))
-    Ld = np.empty(K)
-    zbuf = np.empty((K, idx.shape[0]))
-    ones = np.ones(idx.shape[0])
-    for b in range(B):
-        if not _factor(cov, Z, w, idx, val, b, diag_add, ones, zbuf, A, L, M, Ld):
-            return b
-        for k in range(K):
-            y = 0.0
-            for j in range(k + 1):
-                y += M[k, j] * (z[b, j] - mu[b, j])
-            ll[b, k, 0] += -0.5 * y * y
-            p = vprod[b, k] * Ld[k] * Ld[k]
-            if not (1e-250 < p < 1e250):
-                _fold(vprod, ll, b, k)
-                p = Ld[k] * Ld[k]
-            vprod[b, k] = p
+    ws = _tile_scratch(K, idx.shape[0])
+    M, Ld = ws[2], ws[3]
+    for b0 in range(0, B, T):
+        nt = min(T, B - b0)
+        bad = _tile_factor(cov, Z, w, idx, val, b0, nt, diag_add, ws)
+        if bad >= 0:
+            return b0 + bad
+        for t in range(nt):
+            b = b0 + t
+            for k in range(K):
+                y = 0.0
+                for j in range(k + 1):
+                    y += M[k, j, t] * (z[b, j] - mu[b, j])
+                ll[b, k, 0] += -0.5 * y * y
+                _times_var(vprod, ll, b, k, Ld[k, t] * Ld[k, t])
     return -1
 
 
