@@ -109,10 +109,10 @@ _NONE = np.empty((0, 0, 0))   # the unused one of (S, Z) in per_gp's items
 _NO_W = np.empty(0)
 
 
-def workspace(name: str, shape: tuple, zero: bool = False) -> np.ndarray:
+def workspace(name: str, shape: tuple) -> np.ndarray:
     """A per-thread scratch array reused from block to block (fresh large arrays cost page
-    faults and zeroing on every block). ``zero``: zeroed when first made; callers that never write
-    some part (M's upper triangle) rely on it staying 0. Not for results handed back."""
+    faults on every block); its contents are whatever the last user left. Not for results handed
+    back."""
     cache = getattr(_WORK, "arrays", None)
     if cache is None:
         cache = _WORK.arrays = {}
@@ -121,7 +121,7 @@ def workspace(name: str, shape: tuple, zero: bool = False) -> np.ndarray:
     if a is None:
         if len(cache) > 32:
             cache.clear()
-        a = cache[key] = np.zeros(shape) if zero else np.empty(shape)
+        a = cache[key] = np.empty(shape)
     return a
 
 

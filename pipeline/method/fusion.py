@@ -113,9 +113,7 @@ def _cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
                     np.linalg.cholesky(flat[:, c, f])
                 except np.linalg.LinAlgError:
                     ok[c, f] = False
-        bad = [(models.classes[c], models.components[f]) for c, f in zip(*np.nonzero(~ok))]
-        raise ValueError(f"joint predictive covariance is not positive definite for (class, component) {bad}: "
-                         "white noise too small for the amplitude, or repeated inputs") from None
+        _not_pd(models, zip(*np.nonzero(~ok)))
 
 
 def _dropout_stats(dropout: np.ndarray, var_floor: float):
@@ -148,14 +146,16 @@ def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.n
     vprod = np.ones((C, r * n, K))
     for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X.reshape(r * n, K, d)):
         if kernels.wu_loglik(cov, Zg, w, idx, val, add, mu, mz[f], vz[f], smp[f], n, ll[c], vprod[c]) >= 0:
-            _not_pd(models, c, f)
+            _not_pd(models, [(c, f)])
     return kernels.recursion_mean(ll, vprod, logp0, n, np.empty((r, K, C)))
 
 
-def _not_pd(models: GPClassModels, c: int, f: int):
-    raise ValueError(f"joint predictive covariance is not positive definite for (class, component) "
-                     f"{[(models.classes[c], models.components[f])]}: white noise too small for the amplitude, "
-                     "or repeated inputs")
+def _not_pd(models: GPClassModels, gps) -> None:
+    """Raise the error naming the (class, component) GPs ``gps`` ((c, f) index pairs) whose joint
+    predictive covariance is not positive definite."""
+    bad = [(models.classes[c], models.components[f]) for c, f in gps]
+    raise ValueError(f"joint predictive covariance is not positive definite for (class, component) {bad}: "
+                     "white noise too small for the amplitude, or repeated inputs") from None
 
 
 def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None, var_floor: float = 1e-6,
@@ -262,7 +262,7 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         vprod = np.ones((C, b, K))
         for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X[r0:r1]):
             if kernels.mb_loglik(cov, Zg, w, idx, val, add, mu, z[f], ll[c], vprod[c]) >= 0:
-                _not_pd(models, c, f)
+                _not_pd(models, [(c, f)])
         return kernels.recursion_mean(ll, vprod, logp0, 1, np.empty((b, K, C)))
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
