@@ -27,6 +27,7 @@ from pipeline.infra.config import Config, is_model_ablation
 from pipeline.scoring.features import read_features
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
+from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.population import DEFAULT
 from pipeline.evaluation.cell_reduce import reduce_cell
@@ -40,7 +41,7 @@ log = logging.getLogger("viewfuse.evaluate")
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
     """{variant: model bank} and {variant: models/index.json} for the default and every ablation."""
-    index = _read_index(models_dir)
+    index = read_bank_index(models_dir)
     banks, indexes = {DEFAULT: GPClassModels.load(models_dir)}, {DEFAULT: index}
     for a in ablations:
         if not is_model_ablation(a):  # an evaluate.* variant: same models, another likelihood
@@ -51,19 +52,8 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
             raise ValueError(f"{models_dir / out_name('models', 'index')}: no model bank for ablation {a!r} "
                              "(rerun the models stage)")
         banks[a] = GPClassModels.load(models_dir / sub)
-        indexes[a] = _read_index(models_dir / sub)
+        indexes[a] = read_bank_index(models_dir / sub)
     return banks, indexes
-
-
-def _read_index(folder: Path) -> dict:
-    """A model bank's index.json, or an error naming the file."""
-    path = folder / out_name("models", "index")
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{path}: model index missing (rerun the models stage)") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: not valid JSON ({e}); rerun the models stage") from None
 
 
 def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict]:

@@ -37,13 +37,21 @@ def save_bank(models, folder: str | Path, extra: dict | None = None) -> Path:
     return write_index(folder / INDEX, index, extra)
 
 
+def read_bank_index(folder: str | Path) -> dict:
+    """A GP bank folder's index.json, its format, version and structure checked, or a
+    ModelFileError naming the file."""
+    ipath = Path(folder) / INDEX
+    index = read_index(ipath, FORMAT, VERSION, ("classes", "components", "files"), ModelFileError, "model index")
+    _check_shapes(ipath, index)
+    return index
+
+
 def load_bank(cls, folder: str | Path):
     """A GPClassModels bank from ``folder``: index, per-class digests and arrays checked, or a
     ModelFileError naming the file."""
     folder = Path(folder)
     ipath = folder / INDEX
-    index = read_index(ipath, FORMAT, VERSION, ("classes", "components", "files"), ModelFileError, "model index")
-    _check_shapes(ipath, index)
+    index = read_bank_index(folder)
     comps = [int(i) for i in index["components"]]
     arrays: dict[str, list] = {k: [] for k in ("X", "Y", "mean", "amplitude", "length_scale", "noise")}
     for name in index["classes"]:
