@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 
-from loaders.bigbird import jpeg_size, read_rgb
+from loaders.jpeg import jpeg_size, read_rgb
 from loaders.errors import BadInputError, SkipLog
 from loaders.files import checked_file, read_checked
 from pipeline.infra.cache import note_read
