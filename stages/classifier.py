@@ -130,7 +130,12 @@ def _split_text(split: dict) -> str:
 
 
 def _train_synthetic(ctx, device: str) -> str:
+    import dataclasses
+
     import torch
+
+    from pipeline.infra import footprints
+    from pipeline.infra.budget import budget, cap_workers, require
 
     from loaders.synthetic.source_domain import category_names
     from pipeline.infra.fingerprint import machine_fingerprint
@@ -142,6 +147,13 @@ def _train_synthetic(ctx, device: str) -> str:
 
     c = ctx.cfg.classifier
     t = c.training
+    limit = budget(ctx.cfg)
+    # The training set lives in memory whole (it is shuffled every epoch): refuse before rendering.
+    require("classifier.training.train_images", t.train_images, footprints.classifier_training(c), limit,
+            f"the in-memory training set ({t.train_images} + {t.val_images} images of {c.input_size} px) and AlexNet")
+    t = dataclasses.replace(t, render_workers=cap_workers("classifier.training.render_workers", t.render_workers,
+                                                          footprints.render_worker(c), limit,
+                                                          parent=footprints.classifier_training(c)))
     names = category_names(t.categories)
     timings, cpu = {}, {}
     t0, c0 = time.perf_counter(), _cpu_s()

@@ -13,13 +13,14 @@ BigBIRD and AVD roots are in either case.
 from __future__ import annotations
 
 import hashlib
-import multiprocessing
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from loaders.errors import BadInputError
+from pipeline.infra import footprints
+from pipeline.infra.budget import budget, cap_workers
 from pipeline.infra.cache import tree_fingerprint, write_json
+from pipeline.infra.workers import worker_pool
 from pipeline.infra.outputs import name as out_name
 from stages.framework.roots import data_roots
 from pipeline.infra.progress import bar as progress_bar
@@ -193,9 +194,10 @@ def _write_synthetic(ctx) -> str:
 
     boxes: dict[str, list] = {}  # image names carry the scan's prefix: unique across scans
     bar = progress_bar(total=total, desc="data: render views", unit="view")
-    if syn.workers > 1:
-        ctx_mp = multiprocessing.get_context("spawn")  # no fork after OpenCV threads started
-        with ProcessPoolExecutor(syn.workers, mp_context=ctx_mp, initializer=_init_worker) as pool:
+    workers = cap_workers("data.synthetic.workers", syn.workers, footprints.data_worker(syn), budget(cfg),
+                          parent=footprints.data_worker(syn))
+    if workers > 1:
+        with worker_pool(workers, initializer=_init_worker) as pool:
             for kind, n, res in pool.map(_work, tasks):
                 if kind == "avd-shots":
                     boxes.update(res)
@@ -233,7 +235,7 @@ def _write_synthetic(ctx) -> str:
     ctx.extra.update({"bigbird_views": len(views) * len(syn.instances), "avd_images": n_images,
                       "avd_interpolated": interp, "avd_boxes": n_boxes, "megabytes": round(mb, 1),
                       "scans": {s: sorted(placed[s]) for s in plans},
-                      "workers": syn.workers, "seconds": round(time.perf_counter() - t0, 2)})
+                      "workers": workers, "seconds": round(time.perf_counter() - t0, 2)})
     per_scan = ", ".join(f"{s}: {len(p.shots)} images, {len(placed[s])} instances" for s, p in plans.items())
     return (f"synthetic: {len(syn.instances)} BigBIRD objects x {len(views)} views; {per_scan} "
             f"({interp} interpolated, {n_boxes} boxes); {mb:.0f} MB in {time.perf_counter() - t0:.0f} s")

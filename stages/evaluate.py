@@ -10,10 +10,10 @@ and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor
 from __future__ import annotations
 
 import dataclasses
-
 import json
 import logging
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +112,20 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
         timings["bias_maps"] = time.perf_counter() - t0
 
 
+def check_budget(cfg: Config, n_targets: int, width: int) -> None:
+    """Refuse, before the grid runs, settings whose memory does not stream: the bootstrap's
+    (B, targets, tracks) draws and one cell's kept results, which grow with the realizations."""
+    from pipeline.infra import footprints
+    from pipeline.infra.budget import budget, require
+
+    ev, limit = cfg.evaluate, budget(cfg)
+    require("evaluate.bootstrap", ev.bootstrap, footprints.bootstrap(ev.bootstrap, n_targets, width), limit,
+            f"the two-level bootstrap over {n_targets} targets x up to {width} tracks")
+    require("evaluate.randomized.realizations", ev.randomized.realizations,
+            footprints.randomized_cell(ev, ev.track_length, ev.n_candidates), limit,
+            f"one cell's results ({len(ev.randomized.sigmas_m)} sigmas x {ev.track_length} steps per realization)")
+
+
 def fusion_device(ctx, executor) -> tuple[str, bool]:
     """(device for the fusion engine in each cell, whether tasks ask the executor for a GPU).
     In this process: run.device resolved here (auto -> cuda when torch sees a GPU). On Ray: each
@@ -142,6 +156,8 @@ def run(ctx) -> str:
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
     cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet)
+    per_target = Counter(i.target for i in tracks)
+    check_budget(cfg, len(per_target), max(per_target.values(), default=1))
     for sk in skipped:
         log.warning("target %s skipped: %s", sk["target"], sk["reason"])
     for t in sorted({c.target for c in cells}):

@@ -18,10 +18,13 @@ Fits the three hand-specified class models, runs every configured scenario over
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 
 from pipeline.evaluation.simulation import scenarios as S
+from pipeline.infra import footprints
+from pipeline.infra.budget import budget, cap_batch, require
 from pipeline.method.gp_files import save_bank
 from pipeline.evaluation.simulation import sweep as SW
 from pipeline.evaluation.metrics.results import frame, metadata, write_results
@@ -35,10 +38,22 @@ from reports.simulate.page import build_simulate_report
 log = logging.getLogger("viewfuse.simulate")
 
 
+def _fit_budget(sim, limit: int):
+    """The results of every realization are kept (refused when they cannot fit); a fused batch
+    holds ``simulate.chunk`` realizations (capped to a quarter of the budget; the results do not
+    depend on it: every realization draws from its own generator)."""
+    rows = sim.realizations * len(sim.scenarios) * 3 * sim.track_steps  # (method, realization, step)
+    require("simulate.realizations", sim.realizations, rows * 25 * 8 * 2, limit,
+            f"the results table ({rows} rows, kept in memory until written)")
+    chunk = cap_batch("simulate.chunk", sim.chunk, footprints.simulate_realization(sim), limit / 4)
+    return dataclasses.replace(sim, chunk=chunk) if chunk != sim.chunk else sim
+
+
 def run(ctx) -> str:
     cfg: Config = ctx.cfg
     sim = cfg.simulate
     S.validate(sim, cfg.source_path or "config")
+    sim = _fit_budget(sim, budget(cfg))
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
 

@@ -262,12 +262,11 @@ def render_set_parallel(n: int, size: int, categories: int, seed: int, stream: i
         if progress is not None:
             progress.update(n)
         return images, labels
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    from pipeline.infra.workers import worker_pool
 
     images = np.empty((n, size, size, 3), np.uint8)
     tasks = [(labels[s:s + chunk], size, categories, seed, stream, s) for s in range(0, n, chunk)]
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with worker_pool(workers) as pool:
         for start, block in pool.map(_render_chunk, tasks):
             images[start:start + len(block)] = block
             if progress is not None:

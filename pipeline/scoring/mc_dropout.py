@@ -60,6 +60,11 @@ def fast_head(classifier: nn.Module, device: str, onednn: bool = True) -> list[n
     return [OneDNNLinear(m) if use and isinstance(m, nn.Linear) else m for m in classifier]
 
 
+# (crop, sample) rows per head pass: about 150 kB each (masks, masked activations), so a pass holds
+# at most ~0.3 GB however large N_s grows; the default batch (64 crops x 10 samples) is one pass.
+HEAD_ROWS = 2048
+
+
 class MCDropoutScorer:
     """Trunk once per crop, then the head in eval mode and/or ``N_s`` times with dropout masks.
 
@@ -146,5 +151,9 @@ class MCDropoutScorer:
             return det, None
         if seeds is None or len(seeds) != f.shape[0]:
             raise ValueError("score: one mask seed per crop is needed for MC samples")
-        mc = F.softmax(self.head_samples(f, self.draw_masks(seeds, n_samples)), dim=-1)
-        return det, mc
+        # Crops in groups of HEAD_ROWS // N_s: each crop's masks come from its own generator and its
+        # rows are its own, so the grouping changes memory only.
+        per = max(1, HEAD_ROWS // int(n_samples))
+        parts = [F.softmax(self.head_samples(f[a:a + per], self.draw_masks(seeds[a:a + per], n_samples)), dim=-1)
+                 for a in range(0, f.shape[0], per)]
+        return det, parts[0] if len(parts) == 1 else torch.cat(parts)

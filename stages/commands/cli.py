@@ -8,7 +8,9 @@ import dataclasses
 import errno
 import logging
 import os
+import signal
 import sys
+import threading
 import traceback
 
 from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
@@ -191,9 +193,25 @@ def describe(e: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     """The error boundary: every failure ends in one line on stderr (the traceback too with
     --debug). Exit codes: 0 done, 1 a runtime error, 2 a config error, 130 interrupted, 141 stdout
-    closed early (``viewfuse status | head -1``)."""
+    closed early (``viewfuse status | head -1``), 143 terminated (SIGTERM)."""
     args = build_parser().parse_args(argv)
     where = f"viewfuse {args.stage}"
+    from pipeline.infra.workers import raise_on_sigterm
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    before = signal.getsignal(signal.SIGTERM) if main_thread else None
+    if main_thread:
+        raise_on_sigterm()  # SIGTERM cleans up as Ctrl-C does: pools stopped, partial outputs removed
+    try:
+        return _boundary(args, where)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, before)
+
+
+def _boundary(args, where: str) -> int:
+    from pipeline.infra.workers import Terminated
+
     try:
         rc = _main(args)
         sys.stdout.flush()  # a closed pipe shows here, inside the boundary, not at exit
@@ -204,9 +222,10 @@ def main(argv: list[str] | None = None) -> int:
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
         return 141
-    except KeyboardInterrupt:
-        print(f"{where}: interrupted; partial outputs were discarded", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        how = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+        print(f"{where}: {how}; partial outputs were discarded", file=sys.stderr)
+        return 143 if isinstance(e, Terminated) else 130
     except Exception as e:  # noqa: BLE001 - the boundary: nothing escapes as a raw traceback
         if args.debug:
             traceback.print_exc()

@@ -23,6 +23,7 @@ from pipeline.infra.config import Config, ConfigError
 from pipeline.infra.config.checks import RUN_NAME
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.progress import echo
+from pipeline.infra.workers import stop_leftovers
 from stages.framework import registry
 
 log = logging.getLogger("viewfuse")
@@ -37,6 +38,7 @@ class StagePaths:
     tmp: Path     # .<stage>.tmp: the running stage's output
     old: Path     # .<stage>.old: the previous output during the swap
     lock: Path    # .<stage>.lock: held (flock) while a process runs the stage
+    workers: Path  # .<stage>.workers: pids of the stage's pool workers (pipeline.infra.workers)
 
 
 def stage_paths(cfg: Config, stage: str) -> StagePaths:
@@ -51,7 +53,7 @@ def stage_paths(cfg: Config, stage: str) -> StagePaths:
         raise RuntimeError(f"{run_dir}: the run folder is a symlink; refusing to write through it "
                            f"(set run.artifacts to where the outputs should go)")
     return StagePaths(run_dir, run_dir / stage, run_dir / f".{stage}.tmp", run_dir / f".{stage}.old",
-                      run_dir / f".{stage}.lock")
+                      run_dir / f".{stage}.lock", run_dir / f".{stage}.workers")
 
 
 def mark_owned(folder: Path) -> None:
@@ -175,11 +177,12 @@ def remove_orphans(cfg: Config) -> list[Path]:
         return removed
     for name in registry.STAGES:
         paths = stage_paths(cfg, name)
-        if not any(p.exists() or p.is_symlink() for p in (paths.tmp, paths.old)):
+        if not any(p.exists() or p.is_symlink() for p in (paths.tmp, paths.old, paths.workers)):
             continue
         with stage_lock(cfg, name, wait=False) as held:
             if not held:
                 continue  # that stage is running in another process: its folders are live
+            stop_leftovers(paths.workers)  # they would keep writing into the folders removed below
             recover_swap(cfg, name)
             for p in (paths.tmp, paths.old):
                 if (p.exists() or p.is_symlink()) and not _writer_alive(p / OWNER) and remove_leftover(p):

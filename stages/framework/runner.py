@@ -28,6 +28,7 @@ from pipeline.infra.cache import folder_records, hash_json, record_changed, reco
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.progress import echo
+from pipeline.infra.workers import pid_file, stop_leftovers
 from stages.framework.registry import STAGES, StageSpec, code_version, defines
 from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
                                stage_lock, stage_paths, swap_in)
@@ -206,6 +207,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     paths = stage_paths(cfg, spec.name)
     final, tmp = paths.final, paths.tmp
     paths.run_dir.mkdir(parents=True, exist_ok=True)
+    stop_leftovers(paths.workers)  # a killed run's workers would still write into its .tmp
     if tmp.exists() or tmp.is_symlink():
         remove_leftover(tmp, required=True)  # left by an interrupted run (we hold the lock)
     tmp.mkdir()
@@ -216,7 +218,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     echo(f"[{spec.name}] running: {spec.help}")
     t0 = time.perf_counter()
     try:
-        with recording_inputs() as rec:
+        with recording_inputs() as rec, pid_file(paths.workers):
             summary = mod.run(ctx)
         # Files in the run folder are upstream outputs, already covered by the upstream digests;
         # leaving them out also keeps a moved artifacts folder valid.

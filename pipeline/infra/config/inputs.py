@@ -37,6 +37,10 @@ class RunConfig:
     ray_address: str = _f("", doc="executor ray: empty = start a local Ray instance (loopback only); "
                                   "'auto' or 'ray://host:port' = join that cluster")
     ray_workers: int = _f(0, lo=0, hi=4096, doc="executor ray, local instance: CPUs it gets; 0 = all cores")
+    memory_gb: float = _f(0.0, lo=0.0, hi=1e6,
+                          doc="memory budget, GiB: settings whose peak would exceed it are refused before the work "
+                              "starts, and batch sizes and worker counts are capped to fit; 0 = 80 % of this "
+                              "machine's memory (or of its cgroup limit)")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,130 @@
+"""Worker process pools that never outlive the run that started them.
+
+A pool worker asks the kernel to kill it when its parent dies (Linux ``PR_SET_PDEATHSIG``; a
+parent-pid watchdog thread elsewhere), so a run killed with SIGKILL leaves no process writing into
+its folder, and the multiprocessing resource tracker, which lives as long as someone holds its
+pipe, ends with them. A pool left by an exception (SIGINT, SIGTERM: ``Terminated``) is terminated,
+not drained. Each worker appends its pid to the stage's pid file (``<run>/.<stage>.workers``, set
+by the runner with ``pid_file``), so a rerun can stop any leftover (``stop_leftovers``).
+"""
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import logging
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Callable, Iterator
+
+import psutil
+
+log = logging.getLogger("viewfuse")
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_PID_FILE: list[Path | None] = [None]
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread: the same clean-up path as Ctrl-C (exit 143)."""
+
+
+def raise_on_sigterm() -> None:
+    """Turn SIGTERM into ``Terminated`` in this (main) process."""
+    def handler(signum, frame):
+        raise Terminated(f"signal {signum}")
+    signal.signal(signal.SIGTERM, handler)
+
+
+@contextlib.contextmanager
+def pid_file(path: Path) -> Iterator[Path]:
+    """Within the block, pools record their workers' pids in ``path``; removed at the end."""
+    _PID_FILE[0] = path
+    try:
+        yield path
+    finally:
+        _PID_FILE[0] = None
+        path.unlink(missing_ok=True)
+
+
+def _die_with_parent(parent: int) -> None:
+    ok = False
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+            ok = libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+    if os.getppid() != parent:  # the parent died before the request took effect
+        os._exit(1)
+    if not ok:
+        def watch():
+            while os.getppid() == parent:
+                time.sleep(0.5)
+            os._exit(1)
+        threading.Thread(target=watch, daemon=True).start()
+
+
+def _start(parent: int, pids: str, initializer: Callable | None, initargs: tuple) -> None:
+    _die_with_parent(parent)
+    if pids:
+        with contextlib.suppress(OSError):
+            fd = os.open(pids, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            try:
+                os.write(fd, f"{os.getpid()}\n".encode())
+            finally:
+                os.close(fd)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+@contextlib.contextmanager
+def worker_pool(workers: int, initializer: Callable | None = None, initargs: tuple = ()) -> Iterator[ProcessPoolExecutor]:
+    """A spawn-context ``ProcessPoolExecutor`` whose workers die with this process; on an
+    exception (including SIGINT/SIGTERM) the workers are terminated at once."""
+    pids = str(_PID_FILE[0] or "")
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start,
+                               initargs=(os.getpid(), pids, initializer, initargs))
+    try:
+        yield pool
+    except BaseException:
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.kill()
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.join(5)
+        raise
+    pool.shutdown(wait=True)
+
+
+def stop_leftovers(path: Path, timeout: float = 10.0) -> list[int]:
+    """Kill the workers a dead run recorded in ``path`` that still live (a pid reused since by
+    another program is left alone: only processes started before the file's last write and running
+    Python's multiprocessing are ours); wait for them to end; remove the file. Returns their pids."""
+    try:
+        text, written = path.read_text(), path.stat().st_mtime
+    except OSError:
+        return []
+    procs = []
+    for line in text.split():
+        with contextlib.suppress(ValueError, psutil.Error):
+            p = psutil.Process(int(line))
+            if p.pid != os.getpid() and p.create_time() <= written + 1 and \
+                    any("multiprocessing" in a for a in p.cmdline()):
+                procs.append(p)
+    for p in procs:
+        with contextlib.suppress(psutil.Error):
+            p.kill()
+    psutil.wait_procs(procs, timeout=timeout)
+    if procs:
+        log.warning("stopped %d worker process(es) a killed run left (pids %s; %s)",
+                    len(procs), ", ".join(str(p.pid) for p in procs), path)
+    path.unlink(missing_ok=True)
+    return [p.pid for p in procs]
