@@ -77,3 +77,30 @@ def test_evaluate_refuses_cells_whose_results_exceed_the_budget():
     big = dataclasses.replace(c, run=dataclasses.replace(c.run, memory_gb=2), evaluate=ev)
     with pytest.raises(ConfigError, match=r"'evaluate.randomized.realizations' = 500000"):
         check_budget(big, 12, 8)
+
+
+def test_data_workers_are_capped_by_the_cores(tmp_path, monkeypatch, caplog):
+    import contextlib
+    import json
+    import logging
+
+    import stages.data
+    from pipeline.infra.budget import cores
+    from tests.support.tiny_world import TINY
+    asked = []
+
+    @contextlib.contextmanager
+    def no_pool(n, **kw):  # record the count, render nothing
+        asked.append(n)
+        raise RuntimeError("stopped by the test")
+        yield
+    monkeypatch.setattr(stages.data, "worker_pool", no_pool)
+    args = ["data", "--set", f"run.artifacts={tmp_path}", "--set", f"data.scans={json.dumps(TINY['data']['scans'])}",
+            "--set", "data.synthetic.instances_per_scan=0", "--set", "data.synthetic.workers=64"]
+    with caplog.at_level(logging.WARNING, "viewfuse"):
+        assert main(args) == 1
+    if cores() == 1:
+        assert asked == []  # one worker: rendered in this process, not a pool
+    else:
+        assert asked == [min(64, cores())]
+    assert "data.synthetic.workers = 64 capped" in caplog.text
