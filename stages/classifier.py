@@ -47,10 +47,22 @@ def extra_key(cfg) -> str:
 
 def run(ctx) -> str:
     c = ctx.cfg.classifier
+    if c.weights == "synthetic":
+        _check_budget(ctx.cfg)  # before torch is even imported: a refusal is immediate
     device = ctx.device
     if c.weights == "synthetic":
         return _train_synthetic(ctx, device)
     return _file_weights(ctx, device)
+
+
+def _check_budget(cfg) -> None:
+    """The training set lives in memory whole (it is reshuffled every epoch): refuse before rendering."""
+    from pipeline.infra import footprints
+    from pipeline.infra.budget import budget, require
+
+    c, t = cfg.classifier, cfg.classifier.training
+    require("classifier.training.train_images", t.train_images, footprints.classifier_training(c), budget(cfg),
+            f"the in-memory training set ({t.train_images} + {t.val_images} images of {c.input_size} px) and AlexNet")
 
 
 def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
@@ -135,7 +147,7 @@ def _train_synthetic(ctx, device: str) -> str:
     import torch
 
     from pipeline.infra import footprints
-    from pipeline.infra.budget import budget, cap_workers, require
+    from pipeline.infra.budget import budget, cap_workers
 
     from loaders.synthetic.source_domain import category_names
     from pipeline.infra.fingerprint import machine_fingerprint
@@ -148,9 +160,6 @@ def _train_synthetic(ctx, device: str) -> str:
     c = ctx.cfg.classifier
     t = c.training
     limit = budget(ctx.cfg)
-    # The training set lives in memory whole (it is shuffled every epoch): refuse before rendering.
-    require("classifier.training.train_images", t.train_images, footprints.classifier_training(c), limit,
-            f"the in-memory training set ({t.train_images} + {t.val_images} images of {c.input_size} px) and AlexNet")
     t = dataclasses.replace(t, render_workers=cap_workers("classifier.training.render_workers", t.render_workers,
                                                           footprints.render_worker(c), limit,
                                                           parent=footprints.classifier_training(c)))

@@ -22,18 +22,12 @@ import dataclasses
 import logging
 import time
 
-from pipeline.evaluation.simulation import scenarios as S
 from pipeline.infra import footprints
 from pipeline.infra.budget import budget, cap_batch, require
-from pipeline.method.gp_files import save_bank
-from pipeline.evaluation.simulation import sweep as SW
-from pipeline.evaluation.metrics.results import frame, metadata, write_results
 from pipeline.infra.cache import write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
-from reports.simulate.findings import findings
-from reports.simulate.page import build_simulate_report
 
 log = logging.getLogger("viewfuse.simulate")
 
@@ -43,7 +37,7 @@ def _fit_budget(sim, limit: int):
     holds ``simulate.chunk`` realizations (capped to a quarter of the budget; the results do not
     depend on it: every realization draws from its own generator)."""
     rows = sim.realizations * len(sim.scenarios) * 3 * sim.track_steps  # (method, realization, step)
-    require("simulate.realizations", sim.realizations, rows * 25 * 8 * 2, limit,
+    require("simulate.realizations", sim.realizations, rows * 800, limit,  # ~100 float64 per row in its copies
             f"the results table ({rows} rows, kept in memory until written)")
     chunk = cap_batch("simulate.chunk", sim.chunk, footprints.simulate_realization(sim), limit / 4)
     return dataclasses.replace(sim, chunk=chunk) if chunk != sim.chunk else sim
@@ -51,9 +45,15 @@ def _fit_budget(sim, limit: int):
 
 def run(ctx) -> str:
     cfg: Config = ctx.cfg
-    sim = cfg.simulate
+    sim = _fit_budget(cfg.simulate, budget(cfg))  # before the heavy imports below: a refusal is immediate
+    from pipeline.evaluation.metrics.results import frame, metadata, write_results
+    from pipeline.evaluation.simulation import scenarios as S
+    from pipeline.evaluation.simulation import sweep as SW
+    from pipeline.method.gp_files import save_bank
+    from reports.simulate.findings import findings
+    from reports.simulate.page import build_simulate_report
+
     S.validate(sim, cfg.source_path or "config")
-    sim = _fit_budget(sim, budget(cfg))
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
 
