@@ -8,12 +8,14 @@ cannot locate (too few views, parallel rays, rays that do not meet) instead of g
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from loaders.avd import MOVES, AVDBox, AVDScan
+from loaders.avd_boxes import BoxNotes
 from loaders.errors import SkipLog
 from pipeline.evaluation.location import InconsistentRays, locate_rays
 from pipeline.evaluation.track import TrackError
@@ -48,6 +50,8 @@ class ScanPaths:
     instances: dict[str, LocatedInstance]
     excluded: list[dict] = field(default_factory=list)   # {"instance", "scan", "reason", "residual_m" | None}
     skips: SkipLog | None = None                        # the reader's counted skips
+    box_notes: BoxNotes | None = None                   # boxes kept after a repair (loaders.avd_boxes)
+    n_boxes: int = 0                                    # boxes read, every difficulty
 
 
 def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_residual_m: float = 0.25,
@@ -82,5 +86,50 @@ def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_resi
                              "residual_m": e.residual_m if isinstance(e, InconsistentRays) else None})
             continue
         located[inst] = LocatedInstance(inst, loc.xy, loc.residual_m, {img.name: b for img, b in views})
-    return ScanPaths(scan, fx, cx, s.image_size, step, nodes, located, excluded, skip)
+    return ScanPaths(scan, fx, cx, s.image_size, step, nodes, located, excluded, skip, s.box_notes,
+                     sum(len(img.boxes) for img in s.images.values()))
 
+
+
+def summary_rows(root: str | Path, max_difficulty: int = 4, max_residual_m: float = 0.25) -> tuple[list[dict], list[float]]:
+    """Per scan under ``root``: what the reader read, refused and repaired, the grid, the located
+    and excluded instances; and the residuals of every located instance (no limit applied)."""
+    from pipeline.evaluation.track import grid_step
+
+    rows, residuals = [], []
+    root = Path(root)
+    for scan in sorted(p.name for p in root.iterdir() if (p / "annotations.json").is_file()):
+        skip = SkipLog("AVD entry")
+        sp = scan_paths(root, scan, max_difficulty=max_difficulty, max_residual_m=math.inf, skip=skip)
+        xy = np.array([n.position for n in sp.nodes.values()])
+        over = {i: loc.residual_m for i, loc in sp.instances.items() if not loc.residual_m <= max_residual_m}
+        residuals += [loc.residual_m for i, loc in sp.instances.items() if i not in over]
+        rows.append({"scan": scan, "images": len(sp.nodes), "boxes": sp.n_boxes, "refused": skip.count, "refusals": dict(skip.reasons),
+                     "difficulty_assigned": sp.box_notes.unassigned, "clipped": sp.box_notes.clipped,
+                     "grid_points": len({n.grid_point for n in sp.nodes.values()}),
+                     "grid_step_positions_m": grid_step(xy), "grid_step_m": sp.grid_step_m,
+                     "located": len(sp.instances) - len(over), "excluded": over})
+    return rows, residuals
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m loaders.avd_paths <avd root>``: the table of ``summary_rows``."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap.add_argument("root")
+    ap.add_argument("--max-difficulty", type=int, default=4)
+    ap.add_argument("--max-residual-m", type=float, default=0.25)
+    a = ap.parse_args(argv)
+    rows, res = summary_rows(a.root, a.max_difficulty, a.max_residual_m)
+    print("scan        images  boxes refused d0->size clipped stops step(pos) step(stops) located excluded (RMS m)")
+    for r in rows:
+        print(f"{r['scan']:<11} {r['images']:>6} {r['boxes']:>6} {r['refused']:>7} {r['difficulty_assigned']:>8} {r['clipped']:>7} "
+              f"{r['grid_points']:>5} {r['grid_step_positions_m']:>9.4f} {r['grid_step_m']:>11.4f} {r['located']:>7} "
+              + ", ".join(f"{i} {v:.2f}" for i, v in sorted(r["excluded"].items())))
+    print(f"located (instance, scan) pairs: {len(res)}; ray residual (RMS) median {np.median(res) * 100:.2f} cm, "
+          f"p90 {np.percentile(res, 90) * 100:.2f} cm, max {np.max(res) * 100:.2f} cm")
+
+
+if __name__ == "__main__":
+    main()

@@ -2,8 +2,9 @@
 
 AVD's robot stops at the points of a ~30 cm grid and turns on the spot, 12 images 30 degrees apart
 (docs/formats/avd.md §1.2). In real reconstructions the 12 camera centres of one stop are not one
-point: they lie 1.7-2.2 cm apart (the camera sits off the turning axis and COLMAP's centres carry
-noise), so rounding positions cannot tell stops apart from turns. The move graph can: images joined
+point: two of them lie a median 3.5 cm apart (docs/formats/avd.md §3.1; the camera sits off the
+turning axis and COLMAP's centres carry noise), so rounding positions cannot tell stops apart
+from turns. The move graph can: images joined
 by ``rotate_cw`` / ``rotate_ccw`` edges are turns on the same stop. ``grid_points`` takes the
 connected components of those edges; a scan without rotate edges falls back to
 ``cluster_positions`` (camera centres closer than ``MERGE_RADIUS_M`` chained together).
@@ -15,8 +16,8 @@ from collections.abc import Mapping
 import numpy as np
 
 ROTATE_MOVES = ("rotate_cw", "rotate_ccw")
-# Chaining radius for the fallback: 5x the measured spread of one stop's centres (2 cm), a third
-# of the nominal 30 cm grid step.
+# Chaining radius for the fallback: about 3x the median distance between two centres of one real
+# stop (3.5 cm), a third of the nominal 30 cm grid step.
 MERGE_RADIUS_M = 0.1
 
 

@@ -64,7 +64,8 @@ def test_every_real_scan_parses(real, scan):
     every, _, strict, raw = real[scan]
     n_img, n_box, n_refused, n_assigned, n_clipped, n_grid = COUNTS[scan]
     assert len(every.nodes) == len(raw) == n_img           # every annotated image read
-    assert every.skips.count == n_refused
+    assert every.skips.count == n_refused and every.n_boxes == n_box
+    assert (every.box_notes.unassigned, every.box_notes.clipped) == (n_assigned, n_clipped)
     assert sum(len(v["bounding_boxes"]) for v in raw.values()) == n_box + n_refused
     if n_refused:   # the only refusals: zero-area boxes, a defect of the file
         assert set(every.skips.reasons) and all("degenerate box" in r for r in every.skips.reasons)
