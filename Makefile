@@ -9,14 +9,16 @@ ARGS    ?=
 , := ,
 STAGES  := data classifier features models evaluate report simulate
 
-.PHONY: help venv venv-ray $(STAGES) study test bench clean distclean
+.PHONY: help venv venv-ray $(STAGES) study test test-fast bench clean distclean
 
 help:
 	@echo "make features models evaluate   run the main job on CONFIG (default $(CONFIG))"
 	@echo "make <stage>                    one stage (+ stale upstream): $(STAGES)"
 	@echo "make study                      seed study: the chain once per study.seeds classifier seed"
 	@echo "make venv-ray                   add the optional Ray extra (run.executor = \"ray\" / --executor ray)"
-	@echo "make test | bench | clean | distclean"
+	@echo "make test                       every test (real stages included; CI runs this)"
+	@echo "make test-fast                  the unit tests only (no test marked slow), under a minute"
+	@echo "make bench | clean | distclean"
 
 # Installs go through uv where it can be had (pip install uv, then uv pip install: it unpacks
 # torch's ~6 GB of wheels in parallel: 38 s against 130 s for pip on a fresh clone), with pip's
@@ -50,6 +52,9 @@ study: $(VENV)/.installed
 
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+test-fast: $(VENV)/.installed
+	$(BIN)/python -m pytest -q -m 'not slow' $(PYTEST_ARGS)
 
 bench: $(VENV)/.installed
 	$(BIN)/python tests/bench/run_all.py $(BENCH_ARGS)

@@ -68,7 +68,7 @@ def read_checked(path: str | Path, root: str | Path | None = None, what: str = "
 
 
 # SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
-_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 
 
 def declared_size(data: bytes) -> tuple[int, int] | None:
@@ -94,7 +94,7 @@ def declared_size(data: bytes) -> tuple[int, int] | None:
         if code in (0xD9, 0xDA):
             return None  # end of image / start of scan before any frame header
         (length,) = struct.unpack(">H", data[i + 2:i + 4])
-        if code in _SOF:
+        if code in SOF_MARKERS:
             if i + 9 > n:
                 return None
             h, w = struct.unpack(">HH", data[i + 5:i + 9])

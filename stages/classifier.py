@@ -2,7 +2,7 @@
 
 - ``synthetic`` (default): render the synthetic source domain (``loaders.synthetic.source_domain``)
   in ``training.render_workers`` processes, train torchvision's AlexNet on it
-  (``pipeline.scoring.classifier.train_classifier`` gets the arrays: the method layer never imports the
+  (``pipeline.scoring.training.train_classifier`` gets the arrays: the method layer never imports the
   loaders), report held-out top-1, fail below ``training.min_accuracy``, and store
   ``weights.npz`` (plain arrays, no pickle) beside ``card.json``.
 - ``imagenet``: torchvision's IMAGENET1K_V1 file from the local torch cache (never downloaded).
@@ -35,7 +35,7 @@ def extra_key(cfg) -> str:
     c = cfg.classifier
     if c.weights == "synthetic":
         return ""
-    from pipeline.scoring.classifier import imagenet_dir, IMAGENET_FILE
+    from pipeline.scoring.alexnet import imagenet_dir, IMAGENET_FILE
 
     p = imagenet_dir() / IMAGENET_FILE if c.weights == "imagenet" else cfg.resolve(c.path)
     try:
@@ -54,7 +54,7 @@ def run(ctx) -> str:
 
 
 def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
-    from pipeline.scoring.classifier import ARCHITECTURE
+    from pipeline.scoring.alexnet import ARCHITECTURE
 
     return {"architecture": ARCHITECTURE, "weights": c.weights, "weights_file": weights_file,
             "weights_sha256": sha, "num_classes": int(num_classes), "output_names": names,
@@ -65,8 +65,9 @@ def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: st
 def _file_weights(ctx, device: str) -> str:
     import torch
 
-    from pipeline.scoring.classifier import (build_alexnet, card_hash, imagenet_checkpoint, imagenet_names,
-                                     load_into, load_state_dict_file, num_classes_of, read_card)
+    from pipeline.scoring.alexnet import build_alexnet, imagenet_checkpoint, imagenet_names
+    from pipeline.scoring.card import card_hash, read_card
+    from pipeline.scoring.weight_files import load_into, load_state_dict_file, num_classes_of
 
     cfg, c = ctx.cfg, ctx.cfg.classifier
     t0 = time.perf_counter()
@@ -74,7 +75,7 @@ def _file_weights(ctx, device: str) -> str:
     state = load_state_dict_file(path)
     n = num_classes_of(state, path)
     if c.weights == "path" and c.num_classes and c.num_classes != n:
-        from pipeline.scoring.classifier import WeightsError
+        from pipeline.scoring.weight_files import WeightsError
         raise WeightsError(path, f"has {n} outputs but 'classifier.num_classes' = {c.num_classes}")
     model = load_into(build_alexnet(n, c.dropout), state, path)  # validates the fit now, not later
     # A quick forward pass at the configured input size catches an unusable size early.
@@ -132,10 +133,12 @@ def _train_synthetic(ctx, device: str) -> str:
     import torch
 
     from loaders.synthetic.source_domain import category_names
-    from pipeline.scoring.classifier import (WEIGHTS_NPZ, build_alexnet, card_hash, confusion_matrix,
-                                     init_for_training, machine_fingerprint, predict, resolve_precision,
-                                     save_state_dict_npz, train_classifier)
-    from pipeline.evaluation.popstats import wilson_interval
+    from pipeline.infra.fingerprint import machine_fingerprint
+    from pipeline.scoring.alexnet import build_alexnet, init_for_training
+    from pipeline.scoring.card import WEIGHTS_NPZ, card_hash
+    from pipeline.scoring.training import confusion_matrix, predict, resolve_precision, train_classifier
+    from pipeline.scoring.weight_files import save_state_dict_npz
+    from pipeline.evaluation.statistics.popstats import wilson_interval
 
     c = ctx.cfg.classifier
     t = c.training

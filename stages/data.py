@@ -21,18 +21,10 @@ from pathlib import Path
 from loaders.errors import BadInputError
 from pipeline.infra.cache import tree_fingerprint, write_json
 from pipeline.infra.outputs import name as out_name
+from stages.framework.roots import data_roots
 from pipeline.infra.progress import bar as progress_bar
 
 CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
-
-
-def data_roots(cfg) -> tuple[Path, Path]:
-    """(BigBIRD root, AVD root): the stage's subfolders for synthetic data, the config paths for
-    real data."""
-    if cfg.data.source == "real":
-        return cfg.resolve(cfg.data.bigbird_root), cfg.resolve(cfg.data.avd_root)
-    d = cfg.stage_dir("data")
-    return d / out_name("data", "bigbird"), d / out_name("data", "avd")
 
 
 def extra_key(cfg) -> str:

@@ -1,11 +1,11 @@
 """Stage ``evaluate``: the population evaluation (every target x several tracks x the settings),
 its statistics and verdict, and the single-track figures for the showcase track
-(``pipeline.evaluation.showcase``: where the methods disagree most at the final step).
+(``pipeline.evaluation.grid.showcase``: where the methods disagree most at the final step).
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
-experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.population``,
-``pipeline.evaluation.experiments``, ``pipeline.evaluation.metrics``, ``pipeline.evaluation.popstats``
-and ``pipeline.evaluation.population_summary``; cells run on ``run.executor``.
+experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.grid.population``,
+``pipeline.evaluation.grid.experiments``, ``pipeline.evaluation.metrics.spec``, ``pipeline.evaluation.statistics.popstats``
+and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor``.
 """
 from __future__ import annotations
 
@@ -19,22 +19,22 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation import experiments as E
-from pipeline.evaluation import population as P
-from pipeline.evaluation import showcase as S
+from pipeline.evaluation.grid import experiments as E
+from pipeline.method.gp_files import load_bank
+from pipeline.evaluation.grid import population as P
+from pipeline.evaluation.grid import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config, is_model_ablation
 from pipeline.scoring.features import read_features
 from pipeline.method.dirichlet import DirichletModels
-from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
-from pipeline.evaluation.population import DEFAULT
-from pipeline.evaluation.cell_reduce import reduce_cell
-from pipeline.evaluation.population_summary import cell_table, dirichlet_summary, population_summary
-from pipeline.evaluation.results import ResultsWriter, metadata, result_block
-from stages.evaluate_calibration import TestDomain, test_variances
-from pipeline.evaluation.track import TrackError, grid_step
+from pipeline.evaluation.grid.population import DEFAULT
+from pipeline.evaluation.grid.cell_reduce import reduce_cell
+from pipeline.evaluation.grid.population_summary import cell_table, dirichlet_summary, population_summary
+from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
+from pipeline.evaluation.domain.test_domain import TestDomain, test_variances
+from pipeline.evaluation.grid.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -42,7 +42,7 @@ log = logging.getLogger("viewfuse.evaluate")
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
     """{variant: model bank} and {variant: models/index.json} for the default and every ablation."""
     index = read_bank_index(models_dir)
-    banks, indexes = {DEFAULT: GPClassModels.load(models_dir)}, {DEFAULT: index}
+    banks, indexes = {DEFAULT: load_bank(models_dir)}, {DEFAULT: index}
     for a in ablations:
         if not is_model_ablation(a):  # an evaluate.* variant: same models, another likelihood
             banks[a], indexes[a] = banks[DEFAULT], index
@@ -51,7 +51,7 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
         if sub is None:
             raise ValueError(f"{models_dir / out_name('models', 'index')}: no model bank for ablation {a!r} "
                              "(rerun the models stage)")
-        banks[a] = GPClassModels.load(models_dir / sub)
+        banks[a] = load_bank(models_dir / sub)
         indexes[a] = read_bank_index(models_dir / sub)
     return banks, indexes
 
@@ -62,7 +62,7 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     as the features stage, so an entry features skipped does not stop this stage; geometry needs
     no frames, so a metadata-only copy (no jpg_rgb/) is read as one."""
     from loaders.avd import AVDScan
-    from stages.data import data_roots
+    from stages.framework.roots import data_roots
 
     _, avd_root = data_roots(cfg)
     intr, steps, grids = {}, {}, {}
@@ -201,7 +201,7 @@ def run(ctx) -> str:
         population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, kept)
         timings["statistics"] = time.perf_counter() - t0
 
-        # The showcase track (pipeline/evaluation/showcase.py: where the methods disagree most): its
+        # The showcase track (pipeline/evaluation/grid/showcase.py: where the methods disagree most): its
         # biased/randomized tables, kept from the grid, plus the single-track figures.
         chosen = S.choose(table)
         at = next(i for i, c in enumerate(cells)

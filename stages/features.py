@@ -142,7 +142,7 @@ def _scorer_released():
 
 def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
-    from pipeline.scoring.classifier import load_classifier
+    from pipeline.scoring.card import load_classifier
     from pipeline.scoring.mc_dropout import MCDropoutScorer
     from pipeline.scoring.features import ScoringModel, register_scorer
 
@@ -169,7 +169,7 @@ def run(ctx) -> str:
     from pipeline.infra.executor import executor_for
     from pipeline.scoring.features import build_table, metadata, score_jobs, viewpoint_spread, write_table
     from pipeline.infra.outputs import name as out_name
-    from stages.data import data_roots
+    from stages.framework.roots import data_roots
 
     cfg = ctx.cfg
     f = cfg.features

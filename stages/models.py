@@ -1,6 +1,6 @@
 """``models`` stage: plan each target's candidate set and components, fit the GPs they need.
 
-Wiring only: reads ``features/bigbird.parquet`` through ``pipeline.evaluation.model_bank`` (the
+Wiring only: reads ``features/bigbird.parquet`` through ``pipeline.banks.model_bank`` (the
 checks, training sets, candidate plan, noise floor and fits) and writes one model bank,
 ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``):
 every modelled class x every component that some target's candidate set uses, with the plan in
@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import logging
 
-from pipeline.evaluation.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
+from pipeline.banks.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
+from pipeline.method.gp_files import save_bank
 from pipeline.infra.config import ablation_config, is_model_ablation
 from pipeline.infra.outputs import name as out_name
 
@@ -28,14 +29,14 @@ def run(ctx) -> str:
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
-    models.save(ctx.out, extra=extra)
+    save_bank(models, ctx.out, extra=extra)
     dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes)
     dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)
         vm, vextra = fit_from_features(feats, vcfg.models, **plan_keys)
-        vm.save(ctx.out / ablation_dir(a), extra={**vextra, "ablation": a})
+        save_bank(vm, ctx.out / ablation_dir(a), extra={**vextra, "ablation": a})
     ctx.extra.update({"classes": models.classes, "components": models.components,
                       "component_names": models.component_names,
                       "candidate_sets": len(extra["candidate_sets"]),

@@ -8,8 +8,8 @@ nothing but plotting percentiles and the detailed track's CIs over realizations 
 from __future__ import annotations
 
 from pipeline.infra.config import to_dict
-from reports.main_report import build_main_report
-from stages.runner import stage_timings
+from reports.main.page import build_main_report
+from stages.framework.runner import stage_timings
 
 
 def run(ctx) -> str:

@@ -4,32 +4,33 @@ Fits the three hand-specified class models, runs every configured scenario over
 ``simulate.realizations`` realizations with all three methods, and writes into the stage folder:
 
 - ``results.parquet``: one row per (scenario, realization, step, method): posterior, P(truth),
-  log10 MGR, MSDE, correct (written by ``pipeline.evaluation.results``, as evaluate's); metadata:
+  log10 MGR, MSDE, correct (written by ``pipeline.evaluation.metrics.results``, as evaluate's); metadata:
   classes, truth, config hash, seed.
 - ``example.parquet``: the example realization's measurements per (scenario, step, component),
   with every class's GP mean/std along the track (the measurement figures).
-- ``summary.json``: the table (every metric of ``pipeline.evaluation.metrics``), the findings checks,
+- ``summary.json``: the table (every metric of ``pipeline.evaluation.metrics.spec``), the findings checks,
   the paper's §5.3 claims checked (``claims``: statistic, 95 % CI, holds), the confident-error rate
   per step (``confident_errors``), the regime sweep over GP noise x σ_max (``sweep``, unless
   ``simulate.sweep = "off"``) and the claims re-run at full size where most of them hold
   (``best_regime``), GP fit diagnostics, seeds and timings.
 - ``models/``: the fitted simulation GPs (``index.json`` + ``.npz``, no pickles).
-- ``index.html`` + PNGs (``reports.simulate_report``: log10 MGR, shared method names, CIs over realizations).
+- ``index.html`` + PNGs (``reports.simulate.page``: log10 MGR, shared method names, CIs over realizations).
 """
 from __future__ import annotations
 
 import logging
 import time
 
-from pipeline.evaluation import simulation as S
-from pipeline.evaluation import sweep as SW
-from pipeline.evaluation.results import frame, metadata, write_results
+from pipeline.evaluation.simulation import scenarios as S
+from pipeline.method.gp_files import save_bank
+from pipeline.evaluation.simulation import sweep as SW
+from pipeline.evaluation.metrics.results import frame, metadata, write_results
 from pipeline.infra.cache import write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
-from reports.simulate_findings import findings
-from reports.simulate_report import build_simulate_report
+from reports.simulate.findings import findings
+from reports.simulate.page import build_simulate_report
 
 log = logging.getLogger("viewfuse.simulate")
 
@@ -44,7 +45,7 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     fitted, diags = S.fit_models(sim)
     models = S.configured_models(fitted, sim)
-    models.save(ctx.out / out_name("simulate", "models"), extra={"fit_diagnostics": diags, "source": "simulate"})
+    save_bank(models, ctx.out / out_name("simulate", "models"), extra={"fit_diagnostics": diags, "source": "simulate"})
     timings["fit"] = time.perf_counter() - t0
     # Hyperparameters at a bound are expected here (the bounds are tight on purpose, see the
     # config); they are listed in summary.json and the report. Other optimizer warnings are not.

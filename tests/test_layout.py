@@ -1,12 +1,14 @@
 """The package layout is enforced, not only documented (docs/design.md, section 1): imports run
-down the floors stages -> reports -> loaders -> pipeline, and inside ``pipeline/`` only along the
-allowed arrows between its subpackages."""
+down the floors stages -> reports -> loaders -> pipeline; inside ``pipeline/`` only along the
+allowed arrows between its subpackages and between the evaluation's sub-rooms; report pages import
+the shared room, never each other; a stage imports the stage framework, never another stage or a
+command; and no module imports another module's private (``_``-prefixed) name."""
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[1]
 
 FLOORS = {"pipeline": 0, "loaders": 1, "reports": 2, "stages": 3}
 # pipeline subpackage -> the pipeline subpackages it may import (besides itself).
@@ -15,7 +17,19 @@ SUBPACKAGES = {
     "method": {"infra"},
     "scoring": {"infra"},
     "evaluation": {"method", "scoring", "infra"},
+    "banks": {"evaluation", "method", "scoring", "infra"},
 }
+# pipeline/evaluation sub-room -> the sub-rooms it may import (besides itself).
+EVALUATION_ROOMS = {
+    "metrics": set(),
+    "statistics": {"metrics"},
+    "grid": {"metrics", "statistics"},
+    "simulation": {"metrics", "statistics"},
+    "domain": {"grid", "metrics"},
+}
+REPORT_ROOMS = {"shared": set(), "main": {"shared"}, "simulate": {"shared"}, "compare": {"shared"},
+                "study": {"shared"}}
+STAGE_ROOMS = ("framework", "commands")  # stages/<room>/; every other stages/<name>.py is a stage
 
 
 def project_imports(path: Path) -> list[tuple[int, str]]:
@@ -62,6 +76,84 @@ def subpackage_violations(root: Path) -> list[str]:
     return bad
 
 
+def _imports_by_module(root: Path, floor: str):
+    for path in sorted((root / floor).rglob("*.py")):
+        yield path, project_imports(path)
+
+
+def room_violations(root: Path) -> list[str]:
+    """Arrows between the sub-rooms of pipeline/evaluation, of reports/ and of stages/."""
+    bad = []
+    for path, imports in _imports_by_module(root, "pipeline"):
+        rel = path.relative_to(root / "pipeline").parts
+        if len(rel) < 3 or rel[0] != "evaluation":
+            continue
+        own = rel[1]
+        if own not in EVALUATION_ROOMS:
+            bad.append(f"pipeline/{'/'.join(rel)}: unknown evaluation room {own!r}")
+            continue
+        for line, mod in imports:
+            parts = mod.split(".")
+            if parts[:2] == ["pipeline", "evaluation"] and len(parts) > 2 and parts[2] != own \
+                    and parts[2] not in EVALUATION_ROOMS[own]:
+                bad.append(f"pipeline/{'/'.join(rel)}:{line} imports {mod} "
+                           f"(evaluation.{own} may import {sorted(EVALUATION_ROOMS[own]) or 'no other room'})")
+    for path, imports in _imports_by_module(root, "reports"):
+        rel = path.relative_to(root / "reports").parts
+        if len(rel) < 2:
+            if rel[0] != "__init__.py":
+                bad.append(f"reports/{rel[0]}: module outside the page rooms {sorted(REPORT_ROOMS)}")
+            continue
+        own = rel[0]
+        if own not in REPORT_ROOMS:
+            bad.append(f"reports/{'/'.join(rel)}: unknown report room {own!r}")
+            continue
+        for line, mod in imports:
+            parts = mod.split(".")
+            if parts[0] == "reports" and (len(parts) < 2 or (parts[1] != own and parts[1] not in REPORT_ROOMS[own])):
+                bad.append(f"reports/{'/'.join(rel)}:{line} imports {mod} (a report page imports reports.shared only)")
+    for path, imports in _imports_by_module(root, "stages"):
+        rel = path.relative_to(root / "stages").parts
+        own = rel[0] if len(rel) > 1 else None
+        if own is None and rel[0] == "__init__.py":
+            continue
+        for line, mod in imports:
+            parts = mod.split(".")
+            if parts[0] != "stages":
+                continue
+            target = parts[1] if len(parts) > 1 else ""
+            if own is None:  # a stage module
+                if target != "framework":
+                    bad.append(f"stages/{rel[0]}:{line} imports {mod} (a stage imports stages.framework only)")
+            elif own == "framework" and target != "framework":
+                bad.append(f"stages/{'/'.join(rel)}:{line} imports {mod} (the framework names stages by string)")
+    return bad
+
+
+def private_name_violations(root: Path) -> list[str]:
+    """``from a.b import _c`` (or ``a.b._c``) of another project module's private name."""
+    bad = []
+    for floor in FLOORS:
+        for path in sorted((root / floor).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ImportFrom) and node.module and not node.level \
+                        and node.module.split(".")[0] in FLOORS:
+                    for a in node.names:
+                        if a.name.startswith("_") and not a.name.startswith("__"):
+                            bad.append(f"{path.relative_to(root)}:{node.lineno} imports {node.module}.{a.name}")
+    return bad
+
+
+def test_rooms_import_only_along_their_arrows():
+    bad = room_violations(ROOT)
+    assert not bad, "forbidden imports between rooms:\n" + "\n".join(bad)
+
+
+def test_no_module_imports_another_modules_private_name():
+    bad = private_name_violations(ROOT)
+    assert not bad, "imports of private names:\n" + "\n".join(bad)
+
+
 def test_no_module_imports_a_floor_above_its_own():
     bad = floor_violations(ROOT)
     assert not bad, "imports up the floors:\n" + "\n".join(bad)
@@ -78,6 +170,10 @@ def test_every_subpackage_says_what_lives_there_and_what_it_may_import():
     for sub in SUBPACKAGES:
         doc = importlib.import_module(f"pipeline.{sub}").__doc__ or ""
         assert "May import" in doc, f"pipeline/{sub}/__init__.py docstring"
+    rooms = [f"pipeline.evaluation.{r}" for r in EVALUATION_ROOMS] + [f"reports.{r}" for r in REPORT_ROOMS] \
+        + [f"stages.{r}" for r in STAGE_ROOMS]
+    for room in rooms:
+        assert (importlib.import_module(room).__doc__ or "").strip(), f"{room}: __init__.py says what lives there"
 
 
 def _plant(tmp_path: Path, sub: str, source: str) -> Path:
@@ -90,12 +186,33 @@ def _plant(tmp_path: Path, sub: str, source: str) -> Path:
 
 
 def test_the_checks_catch_a_planted_forbidden_import(tmp_path):
-    root = _plant(tmp_path, "method", "def f():\n    from pipeline.evaluation.metrics import x\n")
+    root = _plant(tmp_path, "method", "def f():\n    from pipeline.evaluation.metrics.spec import x\n")
     assert subpackage_violations(root) == [
-        "pipeline/method/planted.py:2 imports pipeline.evaluation.metrics (method may import ['infra'])"]
-    (root / "pipeline" / "infra" / "up.py").write_text("import stages.runner\n")
-    assert floor_violations(root) == ["pipeline/infra/up.py:1 imports stages.runner"]
+        "pipeline/method/planted.py:2 imports pipeline.evaluation.metrics.spec (method may import ['infra'])"]
+    (root / "pipeline" / "infra" / "up.py").write_text("import stages.framework.runner\n")
+    assert floor_violations(root) == ["pipeline/infra/up.py:1 imports stages.framework.runner"]
     (root / "pipeline" / "infra" / "up.py").write_text("from pipeline import method\n")
     assert any("infra/up.py:1 imports pipeline.method" in b for b in subpackage_violations(root))
     (root / "pipeline" / "infra" / "up.py").write_text("from pipeline.infra import cache\n")
     assert not [b for b in subpackage_violations(root) if "up.py" in b]
+
+
+def test_the_room_checks_catch_planted_violations(tmp_path):
+    root = _plant(tmp_path, "evaluation", "")
+    for d in ("pipeline/evaluation/metrics", "reports/main", "reports/shared", "stages/framework"):
+        (root / d).mkdir(parents=True, exist_ok=True)
+    (root / "pipeline/evaluation/metrics/up.py").write_text("from pipeline.evaluation.grid.population import x\n")
+    (root / "reports/shared/up.py").write_text("from reports.main.page import build\n")
+    (root / "reports/main/side.py").write_text("import reports.simulate.page\n")
+    (root / "stages/evaluate.py").write_text("from stages.data import extra_key\nfrom stages.framework.runner import ok\n")
+    (root / "stages/framework/up.py").write_text("from stages.evaluate import run\n")
+    assert room_violations(root) == [
+        "pipeline/evaluation/metrics/up.py:1 imports pipeline.evaluation.grid.population "
+        "(evaluation.metrics may import no other room)",
+        "reports/main/side.py:1 imports reports.simulate.page (a report page imports reports.shared only)",
+        "reports/shared/up.py:1 imports reports.main.page (a report page imports reports.shared only)",
+        "stages/evaluate.py:1 imports stages.data (a stage imports stages.framework only)",
+        "stages/framework/up.py:1 imports stages.evaluate (the framework names stages by string)",
+    ]
+    (root / "stages/report.py").write_text("def f():\n    from stages.framework.runner import _manifest\n")
+    assert private_name_violations(root) == ["stages/report.py:2 imports stages.framework.runner._manifest"]

@@ -7,22 +7,22 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_test_only_helpers_are_not_in_the_package():
-    import pipeline.scoring.classifier
+    import pipeline.scoring.mc_dropout
     import pipeline.scoring.features
     import pipeline.method.fusion
-    import pipeline.evaluation.metrics
-    import pipeline.evaluation.simulation
-    import pipeline.evaluation.track
+    import pipeline.evaluation.metrics.spec
+    import pipeline.evaluation.simulation.scenarios
+    import pipeline.evaluation.grid.track
     import pipeline.infra.executor
 
     assert not (ROOT / "pipeline" / "methods.py").exists()
-    for mod, name in ((pipeline.scoring.classifier, "full_passes_with_masks"), (pipeline.method.fusion, "fuse_with_uncertainty_sampled"),
-                      (pipeline.evaluation.metrics, "summary_table"), (pipeline.scoring.features, "meta_columns"),
-                      (pipeline.evaluation.track, "select_track"), (pipeline.evaluation.simulation, "conditional"),
+    for mod, name in ((pipeline.scoring.mc_dropout, "full_passes_with_masks"), (pipeline.method.fusion, "fuse_with_uncertainty_sampled"),
+                      (pipeline.evaluation.metrics.spec, "summary_table"), (pipeline.scoring.features, "meta_columns"),
+                      (pipeline.evaluation.grid.track, "select_track"), (pipeline.evaluation.simulation.scenarios, "conditional"),
                       (pipeline.infra.executor, "preload")):
         assert not hasattr(mod, name), f"{mod.__name__}.{name}"
-    import stages.runner
-    assert not hasattr(stages.runner, "StageNotImplemented")
+    import stages.framework.runner
+    assert not hasattr(stages.framework.runner, "StageNotImplemented")
 
 
 def test_no_citations_of_files_outside_the_repository():

@@ -261,8 +261,8 @@ def _region_of(normal_xy: np.ndarray) -> str:
 
 
 def _hsv(h: float, s: float, v: float) -> tuple:
-    from loaders.synthetic.textures import _hsv_to_rgb
-    return tuple(float(c) for c in _hsv_to_rgb(h, s, v))
+    from loaders.synthetic.textures import hsv_to_rgb
+    return tuple(float(c) for c in hsv_to_rgb(h, s, v))
 
 
 def prism_faces(foot: np.ndarray, z0: float, z1: float, *, side_color=(0.5, 0.5, 0.5),

@@ -24,7 +24,7 @@ _HUES = (
 )
 
 
-def _hsv_to_rgb(h: float, s: float, v: float) -> np.ndarray:
+def hsv_to_rgb(h: float, s: float, v: float) -> np.ndarray:
     h = (h % 360) / 60.0
     c = v * s
     x = c * (1 - abs(h % 2 - 1))
@@ -35,8 +35,8 @@ def _hsv_to_rgb(h: float, s: float, v: float) -> np.ndarray:
 
 def palette(category: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     h1, h2 = _HUES[category % len(_HUES)]
-    c1 = _hsv_to_rgb(h1 + rng.uniform(-15, 15), rng.uniform(0.55, 0.95), rng.uniform(0.55, 0.95))
-    c2 = _hsv_to_rgb(h2 + rng.uniform(-15, 15), rng.uniform(0.35, 0.8), rng.uniform(0.2, 0.6))
+    c1 = hsv_to_rgb(h1 + rng.uniform(-15, 15), rng.uniform(0.55, 0.95), rng.uniform(0.55, 0.95))
+    c2 = hsv_to_rgb(h2 + rng.uniform(-15, 15), rng.uniform(0.35, 0.8), rng.uniform(0.2, 0.6))
     return c1, c2
 
 

@@ -1,7 +1,15 @@
-"""The evaluation protocol: candidate classes and the model bank fitted for them, tracks,
-localization settings, the population grid (experiments, cells) and its summary, the one metric
-specification (``metrics``) and the statistics (bootstrap CIs, paired differences, verdicts),
-the results tables and their one writer, the paper's 5.3 simulation, and method labels for people.
+"""The evaluation protocol, one sub-room per concern:
+
+- ``grid``: candidate sets, tracks, localization settings, the population grid (experiments, cells,
+  their reduction) and the population's summary and calibration blocks; the showcase tracks.
+- ``metrics``: the one metric specification (``spec``), calibration, the results tables and their one
+  writer, method and comparison labels.
+- ``statistics``: bootstrap CIs, paired differences, robust estimates, verdicts, seed pooling.
+- ``domain``: the test domain (residuals of labelled crops, cross-fitted test-domain variance).
+- ``simulation``: the paper's section 5.3 scenarios, the claims checked on them, the regime sweep.
+
+Inside: ``metrics`` imports no other sub-room; ``statistics`` may import ``metrics``; ``grid`` and
+``simulation`` may import ``metrics`` and ``statistics``; ``domain`` may import ``grid`` and ``metrics``.
 
 May import: ``pipeline.method``, ``pipeline.scoring``, ``pipeline.infra``.
 """

@@ -2,7 +2,7 @@
 
 Every module that writes or reads a stage's output takes the name from here (``name("evaluate",
 "results")``, ``path(folder, "evaluate", "results")``) instead of retyping it; the stage runner
-(``stages.runner``) refuses a stage whose folder holds a file that no entry here declares, and
+(``stages.framework.runner``) refuses a stage whose folder holds a file that no entry here declares, and
 ``tests/test_catalog.py`` fails on a literal artifact file name anywhere else in the packages.
 
 An entry's ``name`` is a file or folder name, or a glob pattern for a family (``*.png`` figures,
@@ -31,17 +31,17 @@ class Artifact:
 
 
 _JSON_W = "pipeline.infra.cache:write_json"
-_JSON_R = "reports.artifacts:read_json"
-_RESULTS_W = "pipeline.evaluation.results:write_results"
-_STREAM_W = "pipeline.evaluation.results:ResultsWriter"   # streamed one cell at a time
-_RESULTS_R = "reports.artifacts:read_result_table"
-_BANK_W = "pipeline.method.gp:GPClassModels.save"
-_BANK_R = "pipeline.method.gp:GPClassModels.load"
+_JSON_R = "reports.shared.artifacts:read_json"
+_RESULTS_W = "pipeline.evaluation.metrics.results:write_results"
+_STREAM_W = "pipeline.evaluation.metrics.results:ResultsWriter"   # streamed one cell at a time
+_RESULTS_R = "reports.shared.artifacts:read_result_table"
+_BANK_W = "pipeline.method.gp_files:save_bank"
+_BANK_R = "pipeline.method.gp_files:load_bank"
 
 CATALOG: dict[str, dict[str, Artifact]] = {
     "data": {
-        "roots": Artifact("roots.json", "json", _JSON_W, "stages.data:data_roots", "where the datasets are"),
-        "truth": Artifact("truth.json", "json", _JSON_W, "pipeline.evaluation.population:truth_entry",
+        "roots": Artifact("roots.json", "json", _JSON_W, "stages.framework.roots:data_roots", "where the datasets are"),
+        "truth": Artifact("truth.json", "json", _JSON_W, "pipeline.evaluation.grid.population:truth_entry",
                           "synthetic ground truth: instance positions and yaws per scan"),
         "bigbird": Artifact("bigbird", "folder", "loaders.synthetic.bigbird_writer:write_bigbird_object",
                             "loaders.bigbird:BigBirdObject", "BigBIRD on-disk format"),
@@ -49,10 +49,10 @@ CATALOG: dict[str, dict[str, Artifact]] = {
                         "AVD on-disk format"),
     },
     "classifier": {
-        "card": Artifact("card.json", "json", _JSON_W, "pipeline.scoring.classifier:read_card",
+        "card": Artifact("card.json", "json", _JSON_W, "pipeline.scoring.card:read_card",
                          "architecture, weights hash, output names, held-out accuracy"),
-        "weights": Artifact("weights.npz", "npz", "pipeline.scoring.classifier:save_state_dict_npz",
-                            "pipeline.scoring.classifier:load_classifier", "state dict, no pickles"),
+        "weights": Artifact("weights.npz", "npz", "pipeline.scoring.weight_files:save_state_dict_npz",
+                            "pipeline.scoring.card:load_classifier", "state dict, no pickles"),
     },
     "features": {
         "bigbird": Artifact("bigbird.parquet", "parquet", "pipeline.scoring.features:write_table",
@@ -73,14 +73,14 @@ CATALOG: dict[str, dict[str, Artifact]] = {
                             "one row per (cell, setting, realization, step, method)"),
         "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "population statistics and verdict"),
         "track": Artifact("track.json", "json", _JSON_W, _JSON_R, "the detailed track"),
-        "gp_models": Artifact("gp_models.npz", "npz", "stages.evaluate:single_track", "reports.artifacts:read_npz",
+        "gp_models": Artifact("gp_models.npz", "npz", "stages.evaluate:single_track", "reports.shared.artifacts:read_npz",
                               "GP rasters of the detailed track's candidates"),
-        "bias_maps": Artifact("bias_maps.npz", "npz", "stages.evaluate:single_track", "reports.artifacts:read_npz",
+        "bias_maps": Artifact("bias_maps.npz", "npz", "stages.evaluate:single_track", "reports.shared.artifacts:read_npz",
                               "single-view posteriors under a grid of biases"),
     },
     "report": {
-        "html": Artifact("index.html", "html", "reports.main_report:build_main_report", None),
-        "figures": Artifact("*.png", "png", "reports.figures:save", None),
+        "html": Artifact("index.html", "html", "reports.main.page:build_main_report", None),
+        "figures": Artifact("*.png", "png", "reports.shared.figures:save", None),
     },
     "simulate": {
         "results": Artifact("results.parquet", "parquet", _RESULTS_W, _RESULTS_R,
@@ -88,19 +88,19 @@ CATALOG: dict[str, dict[str, Artifact]] = {
         "example": Artifact("example.parquet", "parquet", _RESULTS_W, _RESULTS_R, "the example realization"),
         "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "tables, findings, GP fits"),
         "models": Artifact("models", "folder", _BANK_W, _BANK_R, "the fitted simulation GPs"),
-        "html": Artifact("index.html", "html", "reports.simulate_report:build_simulate_report", None),
-        "figures": Artifact("*.png", "png", "reports.figures:save", None),
+        "html": Artifact("index.html", "html", "reports.simulate.page:build_simulate_report", None),
+        "figures": Artifact("*.png", "png", "reports.shared.figures:save", None),
     },
     # Not a stage: ``viewfuse compare`` writes its page into <first run>/compare/ (or --out).
     "compare": {
-        "html": Artifact("index.html", "html", "reports.compare_page:write_page", None,
+        "html": Artifact("index.html", "html", "reports.compare.page:write_page", None,
                          "finished runs side by side (config diff, pooled metrics, verdicts)"),
     },
     # Not a stage: ``viewfuse study`` writes these into <run>/study/ beside the seed folders.
     "study": {
         "summary": Artifact("summary.json", "json", _JSON_W, _JSON_R, "per-seed results side by side"),
-        "html": Artifact("index.html", "html", "reports.study_page:render_html", None),
-        "seeds": Artifact("seed-*", "folder", "stages.study:run_study", None, "one run folder per seed"),
+        "html": Artifact("index.html", "html", "reports.study.page:render_html", None),
+        "seeds": Artifact("seed-*", "folder", "stages.commands.study:run_study", None, "one run folder per seed"),
     },
 }
 

@@ -14,7 +14,6 @@ A call uses the basis route of a GP only when every test input of the call is a 
 """
 from __future__ import annotations
 
-import math
 import threading
 import weakref
 
@@ -232,3 +231,29 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt):
         kk[:, diag, diag] += models.test_noise[c, f]   # σ_n² + the test-domain δ² (gp.py)
         np.subtract(kk, S, out=cov)
         yield c, f, mu, cov, _NONE, _NO_W, pl.no_idx, pl.no_val, 0.0
+
+
+def not_positive_definite(models: GPClassModels, gps) -> None:
+    """Raise the error naming the (class, component) GPs ``gps`` ((c, f) index pairs) whose joint
+    predictive covariance is not positive definite."""
+    bad = [(models.classes[c], models.components[f]) for c, f in gps]
+    raise ValueError(f"joint predictive covariance is not positive definite for (class, component) {bad}: "
+                     "white noise too small for the amplitude, or repeated inputs") from None
+
+
+def named_cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
+    """The Cholesky factor of ``cov`` (..., C, F, n, n), or the error naming every (class, component)
+    whose covariance is not positive definite."""
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        # Name the culprit: (class, component) axes are -4 and -3.
+        ok = np.ones(cov.shape[-4:-2], dtype=bool)
+        flat = cov.reshape((-1,) + cov.shape[-4:])
+        for c in range(cov.shape[-4]):
+            for f in range(cov.shape[-3]):
+                try:
+                    np.linalg.cholesky(flat[:, c, f])
+                except np.linalg.LinAlgError:
+                    ok[c, f] = False
+        not_positive_definite(models, zip(*np.nonzero(~ok)))

@@ -118,9 +118,8 @@ def _factor(tp: TorchPlan, cov):
     torch = tp.torch
     L, info = torch.linalg.cholesky_ex(cov)
     if bool((info != 0).any()):
-        from pipeline.method.fusion import _cholesky
 
-        _cholesky(cov.cpu().numpy(), tp.models)
+        engine.named_cholesky(cov.cpu().numpy(), tp.models)
         raise ValueError("joint predictive covariance is not positive definite")  # pragma: no cover
     K = cov.shape[-1]
     eye = torch.eye(K, dtype=cov.dtype, device=cov.device).expand_as(L)

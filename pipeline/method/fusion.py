@@ -22,7 +22,7 @@ whitened by a triangular multiply), and the compiled kernels of ``pipeline/metho
 do the rest per trajectory: the K×K Cholesky factor, M's rows, y and the q sums, the Gaussian
 log densities of the dropout samples, and the recursion along the track in log space
 (logsumexp), so a confident posterior never becomes 0/0. The engine before this one is kept as
-``tests/reference_fusion.py``; the tests hold the two equal to 1e-9.
+``tests/support/reference_fusion.py``; the tests hold the two equal to 1e-9.
 
 ``engine_device`` runs the same blocks in torch float64 (``pipeline/method/engine_torch.py``) on a
 GPU, or on the CPU for the tests.
@@ -36,7 +36,6 @@ from contextlib import contextmanager
 import numpy as np
 
 from pipeline.method import engine
-from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
@@ -100,22 +99,6 @@ def log_prior(prior, C: int) -> np.ndarray:
         return np.log(p / p.sum())
 
 
-def _cholesky(cov: np.ndarray, models: GPClassModels) -> np.ndarray:
-    try:
-        return np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        # Name the culprit: (class, component) axes are -4 and -3.
-        ok = np.ones(cov.shape[-4:-2], dtype=bool)
-        flat = cov.reshape((-1,) + cov.shape[-4:])
-        for c in range(cov.shape[-4]):
-            for f in range(cov.shape[-3]):
-                try:
-                    np.linalg.cholesky(flat[:, c, f])
-                except np.linalg.LinAlgError:
-                    ok[c, f] = False
-        _not_pd(models, zip(*np.nonzero(~ok)))
-
-
 def _dropout_stats(dropout: np.ndarray, var_floor: float):
     """Per step and component: mean and population variance (ddof 0) floored at var_floor."""
     mu_z = dropout.mean(axis=-2)                                   # (..., K, F)
@@ -146,16 +129,8 @@ def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.n
     vprod = np.ones((C, r * n, K))
     for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X.reshape(r * n, K, d)):
         if kernels.wu_loglik(cov, Zg, w, idx, val, add, mu, mz[f], vz[f], smp[f], n, ll[c], vprod[c]) >= 0:
-            _not_pd(models, [(c, f)])
+            engine.not_positive_definite(models, [(c, f)])
     return kernels.recursion_mean(ll, vprod, logp0, n, np.empty((r, K, C)))
-
-
-def _not_pd(models: GPClassModels, gps) -> None:
-    """Raise the error naming the (class, component) GPs ``gps`` ((c, f) index pairs) whose joint
-    predictive covariance is not positive definite."""
-    bad = [(models.classes[c], models.components[f]) for c, f in gps]
-    raise ValueError(f"joint predictive covariance is not positive definite for (class, component) {bad}: "
-                     "white noise too small for the amplitude, or repeated inputs") from None
 
 
 def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None, var_floor: float = 1e-6,
@@ -262,7 +237,7 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         vprod = np.ones((C, b, K))
         for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X[r0:r1]):
             if kernels.mb_loglik(cov, Zg, w, idx, val, add, mu, z[f], ll[c], vprod[c]) >= 0:
-                _not_pd(models, [(c, f)])
+                engine.not_positive_definite(models, [(c, f)])
         return kernels.recursion_mean(ll, vprod, logp0, 1, np.empty((b, K, C)))
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)

@@ -305,20 +305,6 @@ class GPClassModels:
                       for f, comp in enumerate(self.components)}
                 for c, cls in enumerate(self.classes)}
 
-    def save(self, folder: str | Path, extra: dict | None = None) -> Path:
-        """Write ``index.json`` + one ``<class>.npz`` per class into ``folder`` (atomic per file;
-        ``pipeline/method/gp_files.py``)."""
-        from pipeline.method.gp_files import save_bank
-
-        return save_bank(self, folder, extra)
-
-    @classmethod
-    def load(cls, folder: str | Path) -> "GPClassModels":
-        """The bank ``save`` wrote, checked file by file (``pipeline/method/gp_files.py``)."""
-        from pipeline.method.gp_files import load_bank
-
-        return load_bank(cls, folder)
-
 
 def _whiten_rows(L: np.ndarray, V: np.ndarray) -> None:
     """In place: rows v of V (n, N, C-ordered) become L⁻¹ v, i.e. V <- V L⁻ᵀ (what scikit-learn's

@@ -10,7 +10,7 @@ import numpy as np
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
 from pipeline.method.bank_index import read_index, write_index
-from pipeline.method.gp import FORMAT, INDEX, KERNEL_TEXT, VERSION, ModelFileError
+from pipeline.method.gp import FORMAT, INDEX, KERNEL_TEXT, VERSION, GPClassModels, ModelFileError
 
 
 def save_bank(models, folder: str | Path, extra: dict | None = None) -> Path:
@@ -46,7 +46,7 @@ def read_bank_index(folder: str | Path) -> dict:
     return index
 
 
-def load_bank(cls, folder: str | Path):
+def load_bank(folder: str | Path) -> GPClassModels:
     """A GPClassModels bank from ``folder``: index, per-class digests and arrays checked, or a
     ModelFileError naming the file."""
     folder = Path(folder)
@@ -74,7 +74,7 @@ def load_bank(cls, folder: str | Path):
         for k in arrays:
             arrays[k].append(data[k])
     try:
-        return cls(index["classes"], comps, arrays["X"], arrays["Y"],
+        return GPClassModels(index["classes"], comps, arrays["X"], arrays["Y"],
                    np.stack(arrays["mean"]), np.stack(arrays["amplitude"]),
                    np.stack(arrays["length_scale"]), np.stack(arrays["noise"]),
                    component_names=index.get("component_names"), meta=index.get("meta"))

@@ -16,7 +16,7 @@ from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
 
 
-# The defaults are the config's ([models] in pipeline/infra/config_schema.py): one source.
+# The defaults are the config's ([models] in pipeline/infra/config/learning.py): one source.
 _DEFAULTS = ModelsConfig()
 
 

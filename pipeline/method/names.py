@@ -1,6 +1,6 @@
 """Method keys: the stable strings under which every method's results are stored.
 
-They live with the methods (not with the display labels in ``pipeline.evaluation.labels``) so that
+They live with the methods (not with the display labels in ``pipeline.evaluation.metrics.labels``) so that
 the fusion engine can name its own progress bars without importing the evaluation protocol.
 """
 from __future__ import annotations

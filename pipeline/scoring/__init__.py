@@ -1,5 +1,7 @@
-"""The classifier and what it measures: the dropout AlexNet, MC-dropout scoring, crop
-preparation, and the feature tables (per-view score vectors) the features stage writes.
+"""The classifier and what it measures: the dropout AlexNet (``alexnet``), weight files without
+pickles (``weight_files``), the classifier card (``card``), training on the source domain
+(``training``), MC-dropout scoring (``mc_dropout``), crop preparation (``crops``) and the feature
+tables (per-view score vectors) the features stage writes (``features``).
 
 May import: ``pipeline.infra``.
 """

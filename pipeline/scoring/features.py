@@ -237,7 +237,8 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.scoring.classifier import build_alexnet, load_into
+        from pipeline.scoring.alexnet import build_alexnet
+        from pipeline.scoring.weight_files import load_into
         from pipeline.scoring.mc_dropout import MCDropoutScorer
 
         if model.weights is None:

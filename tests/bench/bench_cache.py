@@ -29,7 +29,7 @@ def main() -> None:
     import cv2
     import numpy as np
 
-    from loaders.bigbird import check_jpeg_complete, decode_jpeg
+    from loaders.jpeg import check_jpeg_complete, decode_jpeg
     from pipeline.infra.cache import file_record, record_changed
 
     rng = np.random.default_rng(0)

@@ -25,8 +25,8 @@ GOAL_S, GOAL_ACC = 180.0, 0.90
 
 def main() -> None:
     from pipeline.infra.config import load_config
-    from stages.runner import ensure, read_manifest
-    from tests.world_checks import VARYING_STD, bound_report
+    from stages.framework.runner import ensure, read_manifest
+    from tests.support.world_checks import VARYING_STD, bound_report
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(ROOT / "configs" / "synthetic.toml", {"run": {"artifacts": tmp}})

@@ -40,7 +40,7 @@ def main() -> None:
     from loaders.synthetic.objects import make_instance
     from loaders.synthetic.scene import scan_instances
     from pipeline.infra.config import load_config
-    from stages.runner import ensure
+    from stages.framework.runner import ensure
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(ROOT / "configs" / "synthetic.toml", {"run": {"artifacts": tmp}})

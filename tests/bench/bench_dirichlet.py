@@ -5,7 +5,7 @@ D = 12 probability vector, 4 candidates x 4 GP components on 120-view rings; the
 biased experiment (1 realization, N_x = 50) and three randomized ones (30 realizations, N_x = 25).
 With Uncertainty and Model Based run once per realization (their posteriors depend on the pose
 estimates); Simple Bayes and the Dirichlet ignore the poses and run once per cell
-(``pipeline.evaluation.population.run_cell``). Also: the Dirichlet's cost against N_ss, and the
+(``pipeline.evaluation.grid.population.run_cell``). Also: the Dirichlet's cost against N_ss, and the
 models stage's Dirichlet fit (12 classes x 120 vectors).
 
     python tests/bench/bench_dirichlet.py

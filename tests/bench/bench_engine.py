@@ -1,4 +1,4 @@
-"""The fusion engine against the reference engine (tests/reference_fusion.py), side by side.
+"""The fusion engine against the reference engine (tests/support/reference_fusion.py), side by side.
 
 Workload (issue 24): 4 classes x 4 components, 120 training views per class (a full turntable
 ring, as BigBIRD's: the basis route's diagonal form applies), K = 9, N_s = 10, 40 realizations x
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from pipeline.method import engine  # noqa: E402
 from pipeline.method.gp import GPClassModels  # noqa: E402
 from pipeline.method.fusion import engine_device, fuse_model_based, fuse_with_uncertainty  # noqa: E402
-from tests import reference_fusion as ref  # noqa: E402
+from tests.support import reference_fusion as ref  # noqa: E402
 from tests.bench.bench_fusion import workload  # noqa: E402
 
 

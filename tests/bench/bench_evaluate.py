@@ -45,7 +45,7 @@ def engine_throughput(K: int, R: int = 20, n_x: int = 50) -> float:
 
 def stage(config: str) -> None:
     from pipeline.infra.config import load_config
-    from stages.runner import ensure, read_manifest
+    from stages.framework.runner import ensure, read_manifest
 
     cfg = load_config(config)
     keys: dict = {}
@@ -74,7 +74,7 @@ def paper_grade(config: str) -> None:
     import subprocess
 
     from pipeline.infra.config import load_config
-    from stages.runner import ensure
+    from stages.framework.runner import ensure
 
     base = load_config(config)
     ensure(base, "models")
@@ -89,7 +89,7 @@ def paper_grade(config: str) -> None:
             os.symlink(os.path.relpath(src, dst.parent), dst, target_is_directory=True)
     child = ("import resource, sys\n"
              "from pipeline.infra.config import load_config\n"
-             "from stages.runner import ensure\n"
+             "from stages.framework.runner import ensure\n"
              f"ensure(load_config({str(pg_path)!r}), 'evaluate', force=True)\n"
              "print('MAXRSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n")
     env = dict(os.environ, PYTHONPATH=str(ROOT))

@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import torch  # noqa: E402
 
-from pipeline.scoring.classifier import build_alexnet, init_for_training  # noqa: E402
+from pipeline.scoring.alexnet import build_alexnet, init_for_training  # noqa: E402
 from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed, fast_head  # noqa: E402
 from pipeline.infra.device import configure_threads  # noqa: E402
 

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from pipeline.method.fusion import fuse_with_uncertainty  # noqa: E402
 from pipeline.method.gp import GPClassModels  # noqa: E402
-from tests.literal_paper import literal_uncertainty  # noqa: E402
+from tests.support.literal_paper import literal_uncertainty  # noqa: E402
 
 
 def workload(seed=0, C=4, F=4, n_train=120):

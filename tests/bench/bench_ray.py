@@ -68,7 +68,7 @@ def _run_evaluate(base_cfg, executor: str, workers: int) -> dict:
     import pyarrow.parquet as pq
 
     from pipeline.infra import executor as ex
-    from stages.runner import ensure
+    from stages.framework.runner import ensure
 
     cfg = dataclasses.replace(base_cfg, run=dataclasses.replace(base_cfg.run, executor=executor, ray_workers=workers))
     before = _load()
@@ -77,7 +77,7 @@ def _run_evaluate(base_cfg, executor: str, workers: int) -> dict:
     if hold is not None:
         # Worker processes up and the evaluation's modules imported: the grid then measures
         # scheduling, not Python start-up (which the start/stop column shows).
-        pids = hold.map(preloader(), [None] * 4 * workers, shared=["pipeline.evaluation.population", "stages.evaluate"])
+        pids = hold.map(preloader(), [None] * 4 * workers, shared=["pipeline.evaluation.grid.population", "stages.evaluate"])
         assert len(set(pids)) >= 1
     start = time.perf_counter() - t0
     del ex.STATS[:]
@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> None:
         print("Ray is not installed (make venv-ray): bench skipped")
         return
     from pipeline.infra.config import merge, load_config, parse_override
-    from stages.runner import ensure, read_manifest
+    from stages.framework.runner import ensure, read_manifest
 
     over: dict = {"run": {"device": "cpu"}}
     for o in args.overrides:
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> None:
     cfg = load_config(ROOT / "configs" / "synthetic.toml", over)
     print(f"default population in {cfg.run_dir}; upstream stages first if stale ({_load()})", flush=True)
     ensure(cfg, "models", device="cpu")
-    preloader()(["pipeline.evaluation.population", "pipeline.evaluation.popstats", "stages.evaluate"])   # the local run starts warm too
+    preloader()(["pipeline.evaluation.grid.population", "pipeline.evaluation.statistics.popstats", "stages.evaluate"])   # the local run starts warm too
     runs = [_run_evaluate(cfg, "local", 0), _run_evaluate(cfg, "ray", 1), _run_evaluate(cfg, "ray", 2)]
     local = runs[0]
     if not local["recs"]:

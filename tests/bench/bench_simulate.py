@@ -23,7 +23,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--config", default=str(ROOT / "configs" / "synthetic.toml"))
     args = ap.parse_args(argv or [])
     from pipeline.infra.config import load_config
-    from stages.runner import ensure
+    from stages.framework.runner import ensure
 
     cfg = load_config(args.config)
     t0 = time.perf_counter()

@@ -44,7 +44,7 @@ def _drop_page_cache(*roots: Path) -> int:
 def _status(artifacts: str, env: dict) -> tuple[float, float]:
     """(wall, CPU) seconds of one ``viewfuse status``; CPU time is what a loaded machine does not inflate."""
     r0, t = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    subprocess.run([sys.executable, "-m", "stages.cli", "status", "--set", f"run.artifacts={artifacts}"],
+    subprocess.run([sys.executable, "-m", "stages.commands.cli", "status", "--set", f"run.artifacts={artifacts}"],
                    cwd=ROOT, env=env, check=True, capture_output=True)
     wall, r1 = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)

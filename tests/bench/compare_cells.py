@@ -1,10 +1,10 @@
 """Every cell of a finished default run (its models and features), through the engine and the
-reference engine (tests/reference_fusion.py), interleaved cell by cell in one process: the largest
+reference engine (tests/support/reference_fusion.py), interleaved cell by cell in one process: the largest
 relative log-posterior difference and both times (wall and CPU). Reads the run, writes nothing.
 
     python tests/bench/compare_cells.py [ARTIFACTS_ROOT]   # default: the project's artifacts/
 """
-import json, os, sys, time
+import json, sys, time
 from pathlib import Path
 import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -12,17 +12,17 @@ from pipeline.infra.config import load_config
 from pipeline.infra.outputs import name as out_name
 from pipeline.scoring.features import read_features
 from stages import evaluate as SE
-from pipeline.evaluation import population as P, experiments as E
+from pipeline.evaluation.grid import population as P, experiments as E
 import pipeline.method.fusion as Fu
 from pipeline.method import engine
-from tests import reference_fusion as R
+from tests.support import reference_fusion as R
 over = {"run": {"artifacts": sys.argv[1]}} if len(sys.argv) > 1 else None
 cfg = load_config(Path(__file__).resolve().parents[2] / "configs" / "synthetic.toml", over)
 root = cfg.run_dir
 banks, indexes = SE.load_banks(root / "models", ())
 avd, scores, meta = read_features(root / "features" / out_name("features", "avd"))
 scans = sorted(avd["scan"].unique())
-from stages.runner import SkipPolicy
+from stages.framework.runner import SkipPolicy
 intr, steps, grids = SE.scan_geometry(cfg, scans, avd, SkipPolicy(True))
 truth = json.loads((root / "data" / "truth.json").read_text())
 cells, tracks, skipped = P.build_cells(cfg.evaluate, avd, scores, indexes, truth, intr, steps, None, grids)

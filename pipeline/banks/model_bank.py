@@ -1,0 +1,284 @@
+"""The GP model bank of the ``models`` stage, as pure functions over the features file.
+
+Reads ``features/bigbird.parquet`` (training views: rows with camera == models.camera; GP inputs
+(u_x, u_y) from the deterministic pass, pass == -1; targets = score components, by default the mean
+of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the deterministic pass),
+checks it (``FeaturesError`` names the file and the problem), plans each target's candidate set
+and components (``pipeline.evaluation.grid.candidates``), sets the dropout noise floor where
+``models.noise_floor = "dropout"``, fits every GP the plan needs (``pipeline.method.gp_fit``) and
+returns the bank with its index extras (the plan, diagnostics, fit settings); and the Dirichlet
+method's class models (``dirichlet_from_features``, ``pipeline.method.dirichlet``).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import re
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from pipeline.evaluation.grid.candidates import candidate_sets, own_components, plan_components
+from pipeline.infra.config import ModelsConfig, to_dict
+from pipeline.infra.outputs import name as out_name
+from pipeline.method.dirichlet import DirichletModels, fit_class_dirichlets
+from pipeline.method.gp import GPClassModels
+from pipeline.method.gp_fit import fit_class_models
+
+log = logging.getLogger("viewfuse.models")
+
+# A component "varies" with the viewpoint when its training scores' std over the views exceeds this.
+VARYING_STD = 0.01
+
+REQUIRED = ("object", "camera", "angle_deg", "pass", "u_x", "u_y", "scores")
+
+
+class FeaturesError(ValueError):
+    """The features Parquet is missing or does not hold what the models need; names the file."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path, self.problem = str(path), problem
+        super().__init__(f"{path}: {problem}")
+
+
+def read_training_views(path: str | Path, camera: int):
+    """One camera ring, from one read of the file: its deterministic-pass rows (table columns as
+    numpy dict, scores (n, D)), the Parquet metadata, and its MC-dropout rows (pass >= 0) as a
+    table for ``dropout_passes``."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from pipeline.scoring.features import check_scores
+
+    path = Path(path)
+    if not path.is_file():
+        raise FeaturesError(path, "features file not found (run the 'features' stage)")
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as e:
+        raise FeaturesError(path, f"not a readable Parquet file: {e}") from None
+    missing = [c for c in REQUIRED if c not in table.column_names]
+    if missing:
+        raise FeaturesError(path, f"missing column(s) {', '.join(missing)}")
+    meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
+            if k.decode().startswith("viewfuse.")}
+    cam = table.column("camera").to_numpy()
+    pas = table.column("pass").to_numpy()
+    keep = np.nonzero((cam == camera) & (pas == -1))[0]
+    dropout = table.take(pa.array(np.nonzero((cam == camera) & (pas >= 0))[0]))
+    table = table.take(pa.array(keep))
+    cols = {c: table.column(c).to_numpy(zero_copy_only=False) for c in ("object", "angle_deg", "u_x", "u_y")}
+    scores = _scores_matrix(table.column("scores"), path)
+    try:
+        check_scores(scores, path, keep)
+        check_scores(_scores_matrix(dropout.column("scores"), path), path, np.nonzero((cam == camera) & (pas >= 0))[0])
+    except ValueError as e:
+        raise FeaturesError(path, str(e).removeprefix(f"{path}: ")) from None
+    return cols, scores, meta, dropout
+
+
+def _scores_matrix(col, path: Path) -> np.ndarray:
+    import pyarrow as pa
+
+    arr = col.combine_chunks() if isinstance(col, pa.ChunkedArray) else col
+    if arr.null_count:
+        raise FeaturesError(path, f"{arr.null_count} row(s) have no scores")
+    if pa.types.is_fixed_size_list(arr.type):
+        D = arr.type.list_size
+        return arr.flatten().to_numpy(zero_copy_only=False).astype(np.float64).reshape(len(arr), D)
+    rows = arr.to_pylist()  # variable-length lists: accept only if they all have the same length
+    lens = {len(r) for r in rows}
+    if len(lens) > 1:
+        raise FeaturesError(path, f"score vectors have different lengths {sorted(lens)}")
+    return np.asarray(rows, dtype=np.float64).reshape(len(rows), -1)
+
+
+def dropout_passes(table, path: str | Path) -> dict[str, dict[int, np.ndarray]]:
+    """Per object and turntable angle: the MC-dropout score samples (N_s, D) of the dropout rows
+    ``read_training_views`` returned; empty when the features hold no dropout passes."""
+    if table.num_rows == 0:
+        return {}
+    scores = _scores_matrix(table.column("scores"), Path(path))
+    if not np.all(np.isfinite(scores)):
+        raise FeaturesError(path, "non-finite scores in the MC-dropout passes of the training views")
+    objects = table.column("object").to_numpy(zero_copy_only=False).astype(str)
+    angles = table.column("angle_deg").to_numpy()
+    order = np.lexsort((table.column("pass").to_numpy(), angles, objects))  # independent of row order
+    out: dict[str, dict[int, np.ndarray]] = {}
+    for obj in np.unique(objects):
+        rows = order[objects[order] == obj]
+        out[str(obj)] = {int(a): scores[rows[angles[rows] == a]] for a in np.unique(angles[rows])}
+    return out
+
+
+def dropout_variance(passes: dict[str, dict[int, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Per object: the MC-dropout variance of every score component, averaged over its views."""
+    return {obj: np.mean([s.var(axis=0) for s in views.values()], axis=0) for obj, views in passes.items()}
+
+
+def dropout_means(path: Path, passes: dict[str, dict[int, np.ndarray]], cls: str, angles) -> np.ndarray:
+    """(N, D) mean of the dropout passes at each of a class's training angles, in that order."""
+    views = passes.get(cls)
+    if not views:
+        raise FeaturesError(path, f"models.targets = 'dropout_mean' needs MC-dropout passes of the BigBIRD "
+                                  f"views (features.bigbird_samples > 0); class {cls!r} has none")
+    lack = [a for a in angles if a not in views]
+    if lack:
+        raise FeaturesError(path, f"class {cls!r}: no MC-dropout passes at angle(s) {lack[:5]} of the training views")
+    return np.stack([views[a].mean(axis=0) for a in angles])
+
+
+def dropout_noise_floor(path: Path, passes: dict[str, dict[int, np.ndarray]], pool: Sequence[str],
+                        comps: Sequence[int], noise_bounds) -> np.ndarray:
+    """(C, F) lower bound of each GP's noise variance: the class's MC-dropout variance of the
+    component, kept inside the noise bounds (at least the lower bound, at most half the upper one,
+    so the optimizer keeps room above it)."""
+    var = dropout_variance(passes)
+    missing = [c for c in pool if c not in var]
+    if missing:
+        raise FeaturesError(path, f"models.noise_floor = 'dropout' needs MC-dropout passes of the BigBIRD views "
+                                  f"(features.bigbird_samples > 0); class {missing[0]!r} has none")
+    floor = np.maximum(np.array([[var[c][i] for i in comps] for c in pool]), noise_bounds[0])
+    return np.minimum(floor, 0.5 * noise_bounds[1])
+
+
+def _training_sets(path: Path, mcfg: ModelsConfig):
+    """Per modelled class: GP inputs (N, 2), training scores (N, D) (``models.targets``), angles;
+    plus output names, Parquet metadata and the dropout passes read (for the noise floor)."""
+    cols, scores, meta, dropout = read_training_views(path, mcfg.camera)
+    objects = cols["object"].astype(str)
+    present = sorted(set(objects))
+    pool = present if isinstance(mcfg.classes, str) else list(mcfg.classes)
+    if len(pool) < 2:
+        raise FeaturesError(path, f"models need at least two classes; the features hold {len(pool)}")
+    X_by, S_by, angles = {}, {}, {}
+    for cls in pool:
+        rows = np.nonzero(objects == cls)[0]
+        if len(rows) == 0:
+            raise FeaturesError(path, f"class {cls!r} (models.classes) has no training views for camera "
+                                      f"{mcfg.camera}, deterministic pass; objects present: {', '.join(present) or 'none'}")
+        if len(rows) < mcfg.min_views:
+            raise FeaturesError(path, f"class {cls!r} has {len(rows)} training views, fewer than "
+                                      f"models.min_views = {mcfg.min_views}")
+        rows = rows[np.argsort(cols["angle_deg"][rows], kind="stable")]   # deterministic order
+        ang = cols["angle_deg"][rows]
+        if len(np.unique(ang)) != len(ang):
+            raise FeaturesError(path, f"class {cls!r}: duplicate (camera {mcfg.camera}, angle) rows in the deterministic pass")
+        X = np.stack([cols["u_x"][rows], cols["u_y"][rows]], axis=1).astype(np.float64)
+        if not np.all(np.isfinite(X)):
+            raise FeaturesError(path, f"class {cls!r}: non-finite GP inputs (u_x, u_y)")
+        X_by[cls], S_by[cls], angles[cls] = X, scores[rows], [int(a) for a in ang]
+    passes = dropout_passes(dropout, path) if (mcfg.targets == "dropout_mean" or mcfg.noise_floor == "dropout") else {}
+    if mcfg.targets == "dropout_mean":
+        S_by = {cls: dropout_means(path, passes, cls, angles[cls]) for cls in pool}
+    names = None
+    if "viewfuse.output_names" in meta:
+        try:
+            names = json.loads(meta["viewfuse.output_names"])
+        except json.JSONDecodeError:
+            raise FeaturesError(path, "metadata 'viewfuse.output_names' is not a JSON list") from None
+        if not isinstance(names, list) or len(names) != scores.shape[1]:
+            raise FeaturesError(path, f"metadata 'viewfuse.output_names' lists {len(names) if isinstance(names, list) else '?'} "
+                                      f"names for {scores.shape[1]} score components")
+    else:
+        log.warning("%s: no 'viewfuse.output_names' metadata; component names left empty", path)
+    return pool, X_by, S_by, angles, names, meta, passes
+
+
+def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
+                      n_candidates: int = 4, candidates: str | Sequence[str] = "all", candidate_seed: int = 0,
+                      progress: bool = True) -> tuple[GPClassModels, dict[str, Any]]:
+    """The models stage's pure function: features Parquet + [models] config + the candidate plan -> one
+    model bank (every modelled class x every component any candidate set uses) and index extras.
+
+    ``targets``/``n_candidates``/``candidates``/``candidate_seed`` are the ``evaluate`` keys of the
+    same names; the plan (candidate classes and components per target) goes into the index, and
+    the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
+    """
+    path = Path(path)
+    pool, X_by, S_by, angles, names, meta, passes = _training_sets(path, mcfg)
+    unknown = [] if isinstance(targets, str) else [t for t in targets if t not in pool]
+    if unknown:
+        raise ValueError(f"'evaluate.targets' names {unknown[0]!r}, which is not a modelled instance "
+                         f"(modelled, from {path}: {', '.join(pool)})")
+    tlist = pool if isinstance(targets, str) else list(targets)
+    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed)
+    plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
+                           mcfg.informative_min)
+    comps = sorted({i for p in plan.values() for i in p["components"]})
+    for p in plan.values():
+        p["component_names"] = None if names is None else [str(names[i]) for i in p["components"]]
+    comp_names = None if names is None else [str(names[i]) for i in comps]
+    floor = dropout_noise_floor(path, passes, pool, comps, mcfg.noise_bounds) if mcfg.noise_floor == "dropout" else None
+    models, diags = fit_class_models(
+        [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], pool, comps, restarts=mcfg.restarts,
+        amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
+        noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
+        noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=tuple(mcfg.noise_prior))
+    for d in diags:
+        log.debug("GP %s / %s: a=%.4g l=%.4g noise=%.3g lml=%.2f%s", d["class"], d["component_name"] or d["component"],
+                  d["amplitude"], d["length_scale"], d["noise"], d["log_marginal_likelihood"],
+                  f" [{'; '.join(d['at_bound'])}]" if d["at_bound"] else "")
+    varying = [d for d in diags if d["train_std"] > VARYING_STD]
+    extra = {
+        "candidate_sets": plan,
+        "own_components": own_components(S_by),
+        "component_choice": next(iter(plan.values()))["choice"] if len(plan) == 1 else
+        {"rule": mcfg.component_rule, "n_components": mcfg.n_components, "per_target": True},
+        "camera": mcfg.camera,
+        "training_angles_deg": angles,
+        "features": {"file": path.name, "rows_used": int(sum(len(x) for x in X_by.values())),
+                     "score_dim": int(S_by[pool[0]].shape[1]), "metadata": meta},
+        "fit": {"restarts": mcfg.restarts, "amplitude_bounds": list(mcfg.amplitude_bounds),
+                "length_scale_bounds": list(mcfg.length_scale_bounds),
+                "noise_bounds": list(mcfg.noise_bounds), "noise_floor": mcfg.noise_floor, "seed": mcfg.seed,
+                "targets": mcfg.targets, "hyperprior": mcfg.hyperprior, "noise_prior": list(mcfg.noise_prior)},
+        "config": to_dict(mcfg),
+        "diagnostics": diags,
+        "fits_with_warnings": sum(1 for d in diags if d["warnings"] or d["at_bound"]),
+        "varying_fits_at_bound": sum(1 for d in varying if d["at_bound"]),
+        "varying_std_threshold": VARYING_STD,
+    }
+    return models, extra
+
+
+def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Sequence[str]
+                            ) -> tuple[DirichletModels, dict[str, Any]]:
+    """The Dirichlet method's class models: per class, Dir(γ; θ_c) fitted to the whole score
+    vectors of its training ring (``models.dirichlet.passes``), and the index extras."""
+    path = Path(path)
+    dcfg = mcfg.dirichlet
+    cols, scores, _, dropout = read_training_views(path, mcfg.camera)
+    objects = cols["object"].astype(str)
+    passes = dropout_passes(dropout, path) if dcfg.passes != "deterministic" else {}
+    vectors = {}
+    for cls in classes:
+        parts = []
+        if dcfg.passes in ("deterministic", "both"):
+            parts.append(scores[objects == cls])
+        if dcfg.passes in ("dropout", "both"):
+            if not passes.get(cls):
+                raise FeaturesError(path, f"models.dirichlet.passes = {dcfg.passes!r} needs MC-dropout passes of the "
+                                          f"BigBIRD views (features.bigbird_samples > 0); class {cls!r} has none")
+            parts.extend(passes[cls][a] for a in sorted(passes[cls]))
+        g = np.concatenate(parts) if parts else np.empty((0, scores.shape[1]))
+        if len(g) < 2:
+            raise FeaturesError(path, f"class {cls!r}: {len(g)} probability vector(s) for its Dirichlet fit")
+        dev = float(np.max(np.abs(g.sum(axis=1) - 1.0)))
+        if dev > 1e-3:
+            raise FeaturesError(path, f"class {cls!r}: score vectors sum to 1 only within {dev:.3g}: the Dirichlet "
+                                      "method needs probability vectors (softmax outputs)")
+        vectors[cls] = g
+    models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter,
+                                         accelerate=dcfg.accelerate)
+    extra = {"fit": {"method": "Minka fixed point from the moment estimate"
+                               + (", SQUAREM-accelerated" if dcfg.accelerate else ""), "camera": mcfg.camera,
+                     **to_dict(dcfg)},
+             "diagnostics": diags, "fits_not_converged": sum(1 for d in diags if not d["converged"])}
+    return models, extra
+
+
+def ablation_dir(ablation: str) -> str:
+    """Folder (under models/) of one evaluate.ablations variant's model bank."""
+    return out_name("models", "ablations") + "/" + re.sub(r"[^A-Za-z0-9._-]+", "-", ablation).strip("-")

@@ -1,0 +1,111 @@
+"""The evaluate stage's test-domain parts: the labelled crops' residuals, the cross-fitted
+test-domain variance of the calibrated likelihood and the domain-fit summary. The statistics are
+pure functions in ``pipeline.evaluation`` (``domain_fit``, ``test_domain_variance``); the
+population blocks are in ``pipeline.evaluation.grid.population_calibration``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pandas as pd
+
+from pipeline.evaluation.domain import fit as D
+from pipeline.evaluation.grid import population as P
+from pipeline.evaluation.domain import variance as V
+from pipeline.infra.config import test_domain_mode
+
+log = logging.getLogger("viewfuse.evaluate")
+
+def instance_poses(cfg, avd: pd.DataFrame, truth: dict | None, intr: dict, classes) -> tuple[dict, str]:
+    """{(scan, instance): (object xy, yaw rad)} for every modelled instance the AVD features show,
+    from the synthetic sidecar (position and yaw) or, with ``yaw_source = 'config'``, the located
+    object and the configured yaw (configured targets only). Returns the poses and their source."""
+    ev = cfg.evaluate
+    out = {}
+    det = avd[(avd["pass"] == -1) & (avd["difficulty"] <= ev.max_difficulty) & avd["instance"].isin(classes)]
+    for (scan, inst), d in det.groupby(["scan", "instance"], sort=True):
+        entry = P.truth_entry(truth, scan, inst)
+        if ev.yaw_source == "truth" and entry is not None and "position" in entry:
+            out[(scan, inst)] = (np.asarray(entry["position"], float), math.radians(float(entry["yaw_deg"])))
+        elif ev.yaw_source == "config" and not isinstance(ev.targets, str) and inst in ev.targets:
+            d = d.drop_duplicates("image")
+            if len(d) >= 2:
+                yaw = P.yaw_for(inst, scan, truth, "config", ev.yaw_deg, ev.targets, ev.yaws_deg)
+                try:
+                    out[(scan, inst)] = (P.locate(d, *intr[scan], ev.max_ray_residual_m), yaw)
+                except P.InconsistentRays as e:  # no pose, so none of its crops enters the test domain
+                    log.warning("test domain: %s in %s left out: %s", inst, scan, e)
+    return out, ("synthetic sidecar (truth.json)" if ev.yaw_source == "truth" else "located object, configured yaw")
+
+
+class TestDomain:
+    """Residuals of the labelled crops, the cross-fitted δ² per fold and the domain-fit summary."""
+
+    def __init__(self, cfg, avd, scores, bank, truth, intr, targets, scans):
+        self.poses, self.pose_source = instance_poses(cfg, avd, truth, intr, bank.classes)
+        self.table = D.crop_residuals(avd, scores, bank, self.poses, cfg.evaluate.max_difficulty,
+                                      cfg.evaluate.variance_floor)
+        self.components = list(bank.components)
+        keys = scans if len(scans) >= 2 else targets
+        by = "scan" if len(scans) >= 2 else "instance"
+        if self.table.empty:
+            self.by, self.est, self.used = by, {str(k): {int(f): 0.0 for f in self.components} for k in keys}, {}
+        else:
+            self.by, self.est, self.used = V.cross_fit(self.table, self.components, by=by, keys=keys)
+
+    def cell_variance(self, scan: str, target: str, components) -> tuple[float, ...]:
+        est = self.est.get(str(V.cell_fold(self.by, scan, target)), {})
+        return tuple(float(est.get(int(c), 0.0)) for c in components)
+
+    def summary(self) -> dict:
+        t = self.table
+        if t.empty:
+            return {"n_crops": 0, "note": "no labelled AVD crop of a modelled class with a known pose"}
+        delta = V.row_variances(t, self.by, self.est)
+        z = {kind: D.standardized(t, kind, delta if kind == "gp_calibrated" else None)
+             for kind in ("gp", "gp_plus_dropout", "gp_calibrated")}
+        out = D.summarize(t, z)
+        n_crops = int(t.groupby(["scan", "instance", "image"]).ngroups)
+        return {**out, "n_crops": n_crops, "pose_source": self.pose_source,
+                "observed": "mean of the crop's MC-dropout scores; z = (observed - GP mean) / sqrt(variance)",
+                "kinds": {"gp": "GP predictive variance (sigma_n^2 included): what Model Based uses",
+                          "gp_plus_dropout": "plus the view's dropout variance: what With Uncertainty adds",
+                          "gp_calibrated": "plus the cross-fitted test-domain variance (each crop's own fold)"},
+                "test_domain_variance": {
+                    "unit": "one additive variance per score component, shared by every class",
+                    "folds_by": self.by, "per_fold": {k: {str(f): v for f, v in e.items()} for k, e in self.est.items()},
+                    "rows_used": {k: {str(f): v for f, v in e.items()} for k, e in self.used.items()},
+                    "rule": ("cells of scan s use the estimate from the other scans' crops" if self.by == "scan" else
+                             "cells of target t use the estimate from the other instances' crops")}}
+
+    def ring_overlay(self, scan: str, classes, components) -> dict[str, np.ndarray]:
+        """Observed mean scores of each class's crops in ``scan`` on the ring: theta (C, n) and y (C, F, n)."""
+        per = []
+        for c in classes:
+            sub = self.table[(self.table["scan"] == scan) & (self.table["instance"] == c)]
+            per.append(sub)
+        n = max([len(s[s["component"] == components[0]]) for s in per] + [1])
+        th = np.full((len(classes), n), np.nan)
+        y = np.full((len(classes), len(components), n), np.nan)
+        for ci, sub in enumerate(per):
+            for fi, f in enumerate(components):
+                s = sub[sub["component"] == f]
+                y[ci, fi, : len(s)] = s["obs"].to_numpy(float)
+                if fi == 0:
+                    th[ci, : len(s)] = np.arctan2(s["x1"].to_numpy(float), s["x0"].to_numpy(float))
+        return {"obs_theta": th, "obs_y": y}
+
+
+def test_variances(cells: list[P.Cell], domain: TestDomain, cfg) -> list[P.Cell]:
+    """Cells with their δ² where their variant's likelihood is the calibrated one."""
+    import dataclasses
+
+    out = []
+    for c in cells:
+        mode = test_domain_mode(cfg, None if c.variant == "default" else c.variant)
+        if mode == "cross_fit":
+            c = dataclasses.replace(c, test_variance=domain.cell_variance(c.scan, c.target, c.components))
+        out.append(c)
+    return out

@@ -1,0 +1,364 @@
+"""The population grid: targets x tracks x localization settings, as independent cells.
+
+Pure functions: the evaluate stage reads the files and hands over the AVD feature rows, the model
+banks and the plan; an executor (``pipeline.infra.executor``) runs ``run_cell`` on every cell. Each cell
+draws its localization noise from a generator seeded by (evaluate seed, target, track, setting),
+never by its position in the grid or the worker it runs on, so results do not depend on how the
+grid is split or scheduled, and an ablation variant sees the same noise as the default.
+"""
+from __future__ import annotations
+
+import math
+import time
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from pipeline.evaluation.grid import experiments as E
+from pipeline.evaluation.metrics import spec as M
+from pipeline.method import dirichlet_fusion as DF
+from pipeline.method.dirichlet import DirichletModels
+from pipeline.method.names import DIRICHLET
+from pipeline.evaluation.grid.location import InconsistentRays, Location, locate_rays
+from pipeline.evaluation.grid.track import TrackError, TrackPlan, facing_error, select_tracks
+
+
+DEFAULT = "default"   # the model-bank variant without an ablation override
+
+
+@dataclass(frozen=True)
+class Setting:
+    experiment: str          # "biased" | "randomized" | "sensitivity"
+    label: str
+    sigma: float
+    bias: tuple[float, float]
+    realizations: int
+    n_x: int
+
+
+def setting_label(sigma: float, bias) -> str:
+    # ``g`` keeps every digit a user typed: sigmas 0.001 and 0.004 stay two settings.
+    return f"sigma={sigma:g} m, bias=({bias[0]:+g}, {bias[1]:+g}) m"
+
+
+def population_settings(ev) -> list[Setting]:
+    """The settings every (target, track) runs: the biased experiment and one randomized setting
+    per sigma, from the ``evaluate`` config section."""
+    out = []
+    if "biased" in ev.experiments:
+        b = ev.biased
+        out.append(Setting("biased", setting_label(b.sigma_m, b.bias_m), b.sigma_m, tuple(b.bias_m), 1,
+                           b.n_loc_samples))
+    if "randomized" in ev.experiments:
+        r = ev.randomized
+        for s in r.sigmas_m:
+            out.append(Setting("randomized", setting_label(s, r.bias_m), s, tuple(r.bias_m), r.realizations,
+                               r.n_loc_samples))
+    labels = [(s.experiment, s.label) for s in out]
+    if len(set(labels)) != len(labels):
+        raise ValueError("evaluate.randomized.sigmas_m lists the same sigma twice")
+    return out
+
+
+def sensitivity_settings(ev) -> list[Setting]:
+    s = ev.sensitivity
+    out = [Setting("sensitivity", setting_label(sig, ev.randomized.bias_m), sig, tuple(ev.randomized.bias_m),
+                   s.realizations, s.n_loc_samples) for sig in s.sigmas_m]
+    if len({x.label for x in out}) != len(out):
+        raise ValueError("evaluate.sensitivity.sigmas_m lists the same sigma twice")
+    return out
+
+
+# -- tracks ------------------------------------------------------------------------------------------
+def target_views(avd: pd.DataFrame, target: str, max_difficulty: int) -> pd.DataFrame:
+    """Deterministic-pass rows of the target's boxes up to ``max_difficulty``: one per (scan, image)."""
+    tgt = avd[(avd["instance"] == target) & (avd["difficulty"] <= max_difficulty) & (avd["pass"] == -1)]
+    return tgt.drop_duplicates(["scan", "image"])
+
+
+def located(det: pd.DataFrame, fx: float, cx: float, max_residual_m: float = math.inf) -> Location:
+    """The object's 2D position from the rays through its box centres in every view that sees it,
+    with the rays' RMS distance from it; ``InconsistentRays`` past ``max_residual_m``."""
+    box_cx = 0.5 * (det["box_x0"].to_numpy(float) + det["box_x1"].to_numpy(float))
+    return locate_rays(det[["cam_x", "cam_y"]].to_numpy(float), det["heading"].to_numpy(float), box_cx, fx, cx,
+                       max_residual_m)
+
+
+def locate(det: pd.DataFrame, fx: float, cx: float, max_residual_m: float = math.inf) -> np.ndarray:
+    """``located(...).xy``."""
+    return located(det, fx, cx, max_residual_m).xy
+
+
+@dataclass(frozen=True)
+class TrackInfo:
+    target: str
+    scan: str
+    track: int
+    images: tuple[str, ...]
+    cam_xy: np.ndarray
+    heading: np.ndarray
+    obj_xy: np.ndarray
+    plan: TrackPlan | None = None
+
+    def as_dict(self) -> dict:
+        d = {"target": self.target, "scan": self.scan, "track": self.track, "images": list(self.images),
+             "camera_xy": self.cam_xy.tolist(), "heading_rad": self.heading.tolist(),
+             "object_xy_est": self.obj_xy.tolist()}
+        if self.plan is not None:
+            d.update(start_bearing_deg=round(self.plan.start_deg, 2), direction=self.plan.direction,
+                     distance=self.plan.distance, arc_deg=round(self.plan.arc_deg, 2),
+                     bearings_deg=[round(float(b), 2) for b in self.plan.bearing_deg])
+        return d
+
+
+def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int,
+                intrinsics: dict[str, tuple[float, float]], grid_steps: dict[str, float],
+                explicit: tuple[str, ...] = (), *, grid_points: dict[str, dict[str, int]] | None = None,
+                max_residual_m: float = math.inf, refused: list[dict] | None = None) -> list[TrackInfo]:
+    """``n_tracks`` tracks of ``k`` views of one target, spread over the scans that see it (track j
+    goes to the j-th scan in turn). ``explicit`` image names give exactly one track.
+
+    ``grid_points`` ({scan: {image: grid point id}}, ``AVDScan.grid_points``) say which views share
+    a stop; without them views of one stop must share a position. A scan whose rays do not meet
+    (``max_residual_m``, ``pipeline.evaluation.grid.location``) gives no track; with ``refused`` (a
+    list) each such scan is appended to it as {"target", "scan", "reason", "residual_m"}."""
+    scans = sorted(det["scan"].unique())
+    if not scans:
+        raise TrackError(f"no AVD view of {target!r}")
+    out: list[TrackInfo] = []
+    if explicit:
+        for scan in scans:
+            d = det[det["scan"] == scan].set_index("image")
+            if all(n in d.index for n in explicit):
+                sel = d.loc[list(explicit)]
+                obj = locate(d, *intrinsics[scan], max_residual_m)
+                return [TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
+                                  sel["heading"].to_numpy(float), obj)]
+        raise TrackError(f"evaluate.track_images: not every image has a scored box of {target!r} in one scan")
+    per_scan = {s: len(range(i, n_tracks, len(scans))) for i, s in enumerate(scans)}
+    errors = []
+    for scan in scans:
+        d = det[det["scan"] == scan].reset_index(drop=True)
+        if len(d) < 2:
+            errors.append(f"{scan}: {len(d)} view(s)")
+            continue
+        try:
+            obj = locate(d, *intrinsics[scan], max_residual_m)
+            cam = d[["cam_x", "cam_y"]].to_numpy(float)
+            err = facing_error(cam, d["heading"].to_numpy(float), obj)
+            gid = None if grid_points is None else view_grid_ids(d["image"], grid_points[scan], scan)
+            plans = select_tracks(cam, obj, err, k, per_scan[scan], seed=[seed, zlib.crc32(f"{scan}/{target}".encode())],
+                                  grid_step=grid_steps[scan], grid_id=gid)
+        except TrackError as e:
+            errors.append(f"{scan}: {e}")
+            if isinstance(e, InconsistentRays) and refused is not None:
+                refused.append({"target": target, "scan": scan, "reason": f"{scan}: {e}",
+                                "residual_m": round(e.residual_m, 4)})
+            continue
+        for p in plans:
+            sel = d.iloc[p.index]
+            out.append(TrackInfo(target, scan, len(out), tuple(sel["image"]), sel[["cam_x", "cam_y"]].to_numpy(float),
+                                 sel["heading"].to_numpy(float), obj, p))
+    if not out:
+        raise TrackError(f"no usable track of {target!r}: " + "; ".join(errors))
+    return out
+
+
+def view_grid_ids(images, grid: dict[str, int], scan: str) -> np.ndarray:
+    """The grid point id of each image name (a name the scan's grid does not know is an error)."""
+    try:
+        return np.array([grid[n] for n in images], dtype=np.int64)
+    except KeyError as e:
+        raise TrackError(f"{scan}: image {e.args[0]!r} has no grid point in the scan read") from None
+
+
+def track_samples(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, max_difficulty: int) -> np.ndarray:
+    """Whole score vectors of the dropout samples of the track's views, (K, N_s, D), in pass order."""
+    rows = avd[(avd["instance"] == info.target) & (avd["scan"] == info.scan) & (avd["pass"] >= 0)
+               & (avd["difficulty"] <= max_difficulty)]
+    out = []
+    for name in info.images:
+        r = rows[rows["image"] == name].sort_values("pass")
+        if r.empty:
+            raise TrackError(f"view {info.scan}/{name} has no MC-dropout samples in avd.parquet")
+        out.append(scores[r.index.to_numpy()])
+    if len({len(x) for x in out}) != 1:
+        raise TrackError(f"the views of track {info.track} of {info.target!r} have different numbers of dropout samples")
+    return np.stack(out).astype(np.float64)
+
+
+# -- cells -------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Cell:
+    """One (variant, target, track): every setting runs on it. Arrays are small (K views)."""
+    variant: str
+    target: str
+    track: int
+    scan: str
+    classes: tuple[str, ...]
+    components: tuple[int, ...]
+    truth: int
+    data: E.TrackData
+    settings: tuple[Setting, ...]
+    seed: int
+    var_floor: float
+    difficulty: bool = True
+    attribution: bool = False                       # add the With Uncertainty attribution variants
+    test_variance: tuple[float, ...] | None = None  # δ² per component: the calibrated likelihood
+    dirichlet: DirichletModels | None = None   # the candidates' Dirichlet models (needs data.probs)
+    n_ss: int = 100                            # evaluate.dirichlet.n_ss
+    device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
+
+
+def dirichlet_rng(seed: int, target: str, track: int) -> np.random.Generator:
+    """The Dirichlet cloud's subsampling stream: from the cell's identity only (not the variant or
+    the setting: the method ignores both), so Ray and local runs draw the same points."""
+    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, zlib.crc32(b"dirichlet")])
+
+
+def dirichlet_track(cell: Cell) -> tuple[np.ndarray, np.ndarray] | None:
+    """The Dirichlet method on the cell's track: log E[λ] and std λ per step, (K, C) each, or None
+    when the cell has no Dirichlet models or no probability vectors."""
+    if cell.dirichlet is None or cell.data.probs is None:
+        return None
+    return DF.fuse_dirichlet(cell.dirichlet, cell.data.probs, n_ss=cell.n_ss,
+                             rng=dirichlet_rng(cell.seed, cell.target, cell.track))
+
+
+def with_dirichlet(posts: dict[str, np.ndarray], log_mean: np.ndarray) -> dict[str, np.ndarray]:
+    """``posts`` plus the Dirichlet's (K, C) log posterior repeated over the realizations (it
+    ignores the poses: the same posterior for every realization, paired with the others')."""
+    r = next(iter(posts.values())).shape[0]
+    return {**posts, DIRICHLET: np.broadcast_to(log_mean, (r,) + log_mean.shape).copy()}
+
+
+def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
+    key = zlib.crc32(f"{setting.experiment}/{setting.label}".encode())
+    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, key])
+
+
+def run_cell(banks, cell: Cell) -> dict:
+    """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
+    "difficulty": {method: share of views that alone rank the truth first} or None, "seconds":
+    {method: wall seconds in its fusion calls}}."""
+    from pipeline.method.fusion import engine_device
+
+    with engine_device(cell.device):
+        return _run_cell(banks, cell)
+
+
+def _run_cell(banks, cell: Cell) -> dict:
+    models = banks[cell.variant].subset(cell.classes, cell.components)
+    if cell.test_variance is not None:
+        models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
+    clock: dict[str, float] = {}
+    t0 = time.perf_counter()
+    dirichlet = dirichlet_track(cell)
+    if dirichlet is not None:
+        clock[DIRICHLET] = time.perf_counter() - t0
+    posts: dict = {}
+    for s in cell.settings:
+        rng = cell_rng(cell.seed, cell.target, cell.track, s)
+        if s.experiment == "biased":
+            posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
+                                                      var_floor=cell.var_floor, attribution=cell.attribution,
+                                                      clock=clock)
+        else:
+            posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
+                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution,
+                                                          clock=clock)
+        if dirichlet is not None:
+            posts[(s.experiment, s.label)] = with_dirichlet(posts[(s.experiment, s.label)], dirichlet[0])
+    diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None
+    if diff is not None and dirichlet is not None:
+        one = DF.single_view(cell.dirichlet, cell.data.probs)
+        diff[DIRICHLET] = float(np.mean(M.correct(one, cell.truth, is_log=True)))
+    out = {"posts": posts, "difficulty": diff, "seconds": clock}
+    if dirichlet is not None:
+        out["dirichlet_std"] = dirichlet[1]
+    return out
+
+
+def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
+    """The targets (``evaluate.targets``): every planned instance the scanned features show, or
+    the listed ones (each must have a candidate set)."""
+    seen = sorted(avd.loc[(avd["difficulty"] <= ev.max_difficulty), "instance"].unique())
+    if isinstance(ev.targets, str):
+        return [t for t in seen if t in plan]
+    missing = [t for t in ev.targets if t not in plan]
+    if missing:
+        raise ValueError(f"evaluate.targets names {missing[0]!r}, for which the models stage planned no "
+                         f"candidate set (modelled: {', '.join(sorted(plan))})")
+    return list(ev.targets)
+
+
+def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
+                intr: dict, steps: dict, dirichlet=None, grid_points: dict | None = None
+                ) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
+    """Every (variant, target, track) cell of the ``evaluate`` section ``ev``: ``indexes`` maps
+    variant -> its model bank's index (the plan), ``intr``/``steps``/``grid_points`` the scans'
+    (fx, cx), grid steps and {image: grid point}. Targets without a usable track are skipped with
+    a reason (returned), and so is each (target, scan) whose rays do not meet (with its scan and
+    residual_m; the target keeps its other scans' tracks). With
+    ``dirichlet`` models (``pipeline.method.dirichlet.DirichletModels``), every cell also carries
+    the candidates' Dirichlets and the views' whole probability vectors (the fourth method)."""
+    plan = indexes[DEFAULT]["candidate_sets"]
+    own = indexes[DEFAULT]["own_components"]
+    settings = tuple(population_settings(ev))
+    cells, tracks, skipped = [], [], []
+    for target in choose_targets(ev, avd, plan):
+        det = target_views(avd, target, ev.max_difficulty)
+        refused: list[dict] = []
+        try:
+            infos = plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
+                                tuple(ev.track_images), grid_points=grid_points,
+                                max_residual_m=ev.max_ray_residual_m, refused=refused)
+        except TrackError as e:  # its reason names every scan, the inconsistent ones included
+            skipped.append({"target": target, "reason": str(e)})
+            continue
+        skipped.extend(refused)  # an inconsistent scan of a target with tracks elsewhere: named too
+        classes = plan[target]["classes"]
+        for info in infos:
+            yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
+            full = track_samples(avd, scores, info, ev.max_difficulty)
+            dm = None if dirichlet is None else dirichlet.subset(classes)
+            if dm is not None and full.shape[-1] != dm.dim:
+                raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
+            for variant, index in indexes.items():
+                comps = index["candidate_sets"][target]["components"]
+                data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
+                                   dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
+                                   probs=None if dm is None else full)
+                cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
+                                  classes.index(target), data, settings, ev.seed, ev.variance_floor,
+                                  difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss,
+                                  attribution=ev.attribution and variant == DEFAULT))
+            tracks.append(info)
+    if not cells:
+        raise TrackError("no target has a usable track: " + "; ".join(f"{s['target']}: {s['reason']}" for s in skipped))
+    return cells, tracks, skipped
+
+
+def yaw_for(target: str, scan: str, truth: dict | None, source: str, yaw_deg: float,
+            targets, yaws_deg) -> float:
+    """Object yaw (rad): from the synthetic ground-truth sidecar or from the config."""
+    if source == "config":
+        if yaws_deg:
+            return math.radians(yaws_deg[list(targets).index(target)])
+        return math.radians(yaw_deg)
+    entry = truth_entry(truth, scan, target)
+    if entry is None:
+        raise ValueError(f"truth.json has no yaw for {target!r} in scan {scan} (evaluate.yaw_source = 'truth' "
+                         "needs the data stage's synthetic sidecar; for real data set yaw_source = 'config')")
+    return math.radians(float(entry["yaw_deg"]))
+
+
+def truth_entry(truth: dict | None, scan: str, target: str) -> dict | None:
+    """The synthetic sidecar's record of one instance in one scan (per-scan layout, or one layout
+    shared by every scan)."""
+    if not truth:
+        return None
+    per_scan = truth.get("scans", {}).get(scan, {}).get("instances", {})
+    return per_scan.get(target) or truth.get("instances", {}).get(target)

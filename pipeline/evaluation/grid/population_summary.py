@@ -1,0 +1,109 @@
+"""The population evaluation's tables and summary, from the cells' reduced results (pure functions).
+
+The evaluate stage keeps of each cell only its ``pipeline.evaluation.grid.cell_reduce.reduce_cell``
+summary (``kept``). ``cell_table``: one row per (variant, target, track, setting, method) with the
+cell's metrics (``pipeline.evaluation.metrics.spec``); ``population_summary``: the ``population`` object
+of ``evaluate/summary.json`` (statistics from ``pipeline.evaluation.statistics.popstats``).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from pipeline.evaluation.grid import population as P
+from pipeline.evaluation.grid.population import DEFAULT
+from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
+from pipeline.evaluation.metrics.spec import METRICS, percentile
+from pipeline.evaluation.metrics.calibration import N_BINS as ECE_BINS
+from pipeline.evaluation.statistics.verdicts import full_block
+
+
+def cell_table(kept: list[dict]) -> pd.DataFrame:
+    """One row per (variant, target, track, setting, method) with the cell's metrics, from the
+    cells' ``cell_reduce.reduce_cell`` summaries in grid order."""
+    return pd.DataFrame([row for k in kept for row in k["rows"]])
+
+
+def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
+                       tracks: list[P.TrackInfo], skipped: list[dict], domain_fit: dict | None = None) -> dict:
+    """``summary.json``'s ``population`` object from the ``evaluate`` config section ``ev``, the
+    cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences
+    and verdicts (whole population, per setting, per ablation), difficulty, per-cell values and
+    the tracks."""
+    from pipeline.evaluation.grid.population_calibration import population_blocks
+
+    ev = cfg.evaluate
+    metrics = list(METRICS)
+    methods = [m for m in METHODS if m in set(table["method"])]
+    settings = P.population_settings(ev)
+    default = table[table["variant"] == DEFAULT]
+    n_targets = default["target"].nunique()
+    n_tracks = len(tracks)
+    scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
+    blocks = population_blocks(cfg, table, cells, results, scope, DEFAULT)
+    block, ablations = blocks["main"], blocks["ablations"]
+    main = default[default["method"].isin(methods)]
+    by_setting = {}
+    for s in settings:
+        sub = main[main["setting"] == s.label]
+        b = full_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
+                       f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False, loto=False)
+        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "robust", "verdict", "verdict_table")}
+    difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
+                  for c, r in zip(cells, results) if r["difficulty"] is not None]
+    spread = {}
+    for m in methods:
+        v = np.array([d["single_view_first"][m] for d in difficulty])
+        spread[m] = {"min": float(v.min()), "q25": float(percentile(v, 25)), "median": float(np.median(v)),
+                     "q75": float(percentile(v, 75)), "max": float(v.max()), "mean": float(v.mean())}
+    first = {c.target: c for c in cells if c.variant == DEFAULT}
+    cell_rows = [{"target": t, "track": int(tr), "experiment": e, "setting": s,
+                  "values": {r["method"]: {k: r[k] for k in metrics} for _, r in g.iterrows()}}
+                 for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
+    return {
+        "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
+        "n_cells": int(len(main) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
+        "confident_threshold": ev.confident_threshold, "ece_bins": ECE_BINS,
+        "likelihood": ev.test_domain_variance,
+        "calibration_weighting": ("ECE and the reliability diagram pool every posterior of the population, "
+                                  "weighted as the other pooled values: each target the same, each track of a "
+                                  "target the same, each setting of a track the same, each realization (final "
+                                  "step) or realization and step (all steps) of a setting the same"),
+        "realizations": ev.randomized.realizations, "n_loc_samples": ev.randomized.n_loc_samples,
+        "methods": methods, "metrics": metrics,
+        "settings": [{"experiment": s.experiment, "setting": s.label, "sigma_m": s.sigma, "bias_m": list(s.bias),
+                      "realizations": s.realizations, "n_loc_samples": s.n_x} for s in settings],
+        "targets": sorted(first), "candidates": {t: list(c.classes) for t, c in sorted(first.items())},
+        "components": {t: list(c.components) for t, c in sorted(first.items())},
+        "unit": ("a cell is one (target, track, setting); its metric is computed over its realizations. "
+                 "Pooled values average tracks' means (over settings) within each target, then targets; "
+                 "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks)."),
+        **block,
+        "by_setting": by_setting,
+        "difficulty": {"tracks": difficulty, "summary": spread,
+                       "meaning": "share of a track's views whose single-view posterior at the true pose ranks "
+                                  "the target first"},
+        "cells": cell_rows,
+        "tracks": [t.as_dict() for t in tracks],
+        "ablations": ablations,
+        "domain_fit": domain_fit or {},
+        "skipped_targets": skipped,
+    }
+
+
+def dirichlet_summary(ev, cells: list[P.Cell], results: list[dict]) -> dict | None:
+    """What the Dirichlet's posterior cloud says besides its mean: the spread (std of λ) of the
+    truth's probability at the final step over the default cells, and the first cell's per-step
+    E[λ] and std. ``results``: the cells' ``reduce_cell`` summaries."""
+    pairs = [(c, r) for c, r in zip(cells, results) if c.variant == DEFAULT and "dirichlet_std" in r]
+    if not pairs:
+        return None
+    final = np.array([r["dirichlet_std"][-1, c.truth] for c, r in pairs])
+    c0, r0 = pairs[0]
+    mean0 = r0["dirichlet_mean0"]
+    return {"n_ss": ev.dirichlet.n_ss, "poses": "ignored: the same posterior for every realization",
+            "truth_std_final": {"median": float(np.median(final)), "q25": float(percentile(final, 25)),
+                                "q75": float(percentile(final, 75)), "max": float(final.max()),
+                                "n_cells": int(len(final))},
+            "first_track": {"target": c0.target, "track": c0.track, "classes": list(c0.classes),
+                            "mean": mean0.tolist(), "std": r0["dirichlet_std"].tolist()}}

@@ -1,0 +1,336 @@
+"""The metric specification: every classification metric of the paper's §5.1, computed here only.
+
+Two levels, each a registry where adding a metric is one entry:
+
+- ``STEP_COLUMNS``: per-step quantities of one posterior (..., C) against the truth, the columns of
+  every results table (``pipeline.evaluation.metrics.results``):
+  ``p_truth`` P(c_gt | H); ``log10_mgr`` log10(max_c P(c) / P(c_gt)) (0 when the truth is the
+  most likely class; the only MGR base anywhere); ``msde`` (1/C) Σ_c (P(c|H) - 1[c = c_gt])²
+  (paper Eq. 44); ``correct`` argmax = truth (ties go to the lowest class index, as
+  ``numpy.argmax``).
+- ``METRICS``: what a cell, a track table or a simulation scenario reports: a ``Metric`` reduces
+  per-step columns of realizations × steps (R, K) to one number, with its labels, direction,
+  bounds and how cells pool (``pipeline.evaluation.statistics.popstats``). ``compute`` applies every metric
+  at once, vectorized over leading axes (the reports' bootstrap resamples).
+
+Infinities: a truth probability of exactly 0 gives ``log10_mgr = +inf`` (from log posteriors it
+stays finite). ``percentile`` treats +inf as a value above every other: a percentile that
+interpolates toward it is +inf (one rule for every caller). Means propagate +inf. JSON writes
++inf as null (``pipeline.infra.cache.write_json``).
+
+Posteriors are arrays (..., C), probabilities or, with ``is_log=True``, log probabilities;
+``truth`` is a class index (an int, or an integer array broadcastable to the leading shape).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+LN10 = float(np.log(10.0))
+
+
+# -- per-step quantities ----------------------------------------------------------------------------
+def _post(post, is_log: bool) -> np.ndarray:
+    p = np.asarray(post, dtype=float)
+    if p.ndim < 1 or p.shape[-1] < 1:
+        raise ValueError(f"posteriors must have a class axis, got shape {p.shape}")
+    if np.any(np.isnan(p)):
+        raise ValueError("posteriors contain NaN")
+    return np.exp(p) if is_log else p
+
+
+def _truth(truth, p: np.ndarray) -> np.ndarray:
+    t = np.asarray(truth)
+    if not np.issubdtype(t.dtype, np.integer):
+        raise ValueError(f"truth must be integer class indices, got {t.dtype}")
+    C = p.shape[-1]
+    if np.any(t < 0) or np.any(t >= C):
+        raise ValueError(f"truth index out of range for {C} classes: {np.unique(t).tolist()}")
+    return np.broadcast_to(t, p.shape[:-1])
+
+
+def prob_truth(post, truth, *, is_log: bool = False) -> np.ndarray:
+    p = _post(post, is_log)
+    t = _truth(truth, p)
+    return np.take_along_axis(p, t[..., None], axis=-1)[..., 0]
+
+
+def msde(post, truth, *, is_log: bool = False) -> np.ndarray:
+    p = _post(post, is_log)
+    t = _truth(truth, p)
+    onehot = np.arange(p.shape[-1]) == t[..., None]
+    return np.mean((p - onehot) ** 2, axis=-1)
+
+
+def log_mgr(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """ln(max_c P(c) / P(c_gt)) >= 0, the natural log ``log10_mgr`` is derived from. From log
+    posteriors it stays finite where probabilities underflow; from probabilities a zero P(c_gt)
+    gives +inf."""
+    lp = np.asarray(post, dtype=float)
+    if not is_log:
+        with np.errstate(divide="ignore"):
+            lp = np.log(_post(lp, False))
+    elif np.any(np.isnan(lp)):
+        raise ValueError("posteriors contain NaN")
+    t = _truth(truth, lp)
+    lt = np.take_along_axis(lp, t[..., None], axis=-1)[..., 0]
+    with np.errstate(invalid="ignore"):
+        out = lp.max(axis=-1) - lt
+    return np.where(np.isnan(out), np.inf, out)  # -inf - -inf: truth impossible and so is all else
+
+
+def log10_mgr(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """log10(max_c P(c) / P(c_gt)): the MGR every table, figure and summary shows."""
+    return log_mgr(post, truth, is_log=is_log) / LN10
+
+
+def correct(post, truth, *, is_log: bool = False) -> np.ndarray:
+    p = np.asarray(post, dtype=float)  # argmax is the same in log space
+    if np.any(np.isnan(p)):
+        raise ValueError("posteriors contain NaN")
+    return np.argmax(p, axis=-1) == _truth(truth, p)
+
+
+# Column name -> function (post, truth, is_log=) -> per-step values (...). Order = column order.
+def nll(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """-ln P(c_gt): from log posteriors read off directly (finite where the probability underflows)."""
+    if is_log:
+        lp = np.asarray(post, dtype=float)
+        return -np.take_along_axis(lp, _truth(truth, lp)[..., None], axis=-1)[..., 0]
+    with np.errstate(divide="ignore"):
+        return -np.log(prob_truth(post, truth))
+
+
+def brier(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """Multi-class Brier score Σ_c (P(c) - 1[c = c_gt])² (= C · MSDE)."""
+    p = _post(post, is_log)
+    return msde(p, truth) * p.shape[-1]
+
+
+def confidence(post, truth, *, is_log: bool = False) -> np.ndarray:
+    """Top-label confidence max_c P(c)."""
+    return _post(post, is_log).max(axis=-1)
+
+
+STEP_COLUMNS: dict[str, Callable[..., np.ndarray]] = {
+    "p_truth": prob_truth,
+    "log10_mgr": log10_mgr,
+    "msde": msde,
+    "correct": correct,
+    "nll": nll,
+    "brier": brier,
+    "confidence": confidence,
+}
+
+
+def step_values(post, truth, *, is_log: bool = False) -> dict[str, np.ndarray]:
+    """Every ``STEP_COLUMNS`` quantity of posteriors (..., C): arrays (...)."""
+    return {k: f(post, truth, is_log=is_log) for k, f in STEP_COLUMNS.items()}
+
+
+# -- the one percentile -----------------------------------------------------------------------------
+_BIG = np.finfo(float).max / 4   # +inf's stand-in: finite, so numpy interpolates instead of NaN
+_INF_ABOVE = 1e300               # any interpolation weight on the stand-in lands above this
+
+
+def percentile(x, q, axis: int | None = None) -> np.ndarray:
+    """Linear-interpolation percentile (``numpy.percentile``) that keeps +inf as a value: a
+    result that interpolates toward an infinite entry is +inf. ``axis=None`` flattens."""
+    x = np.asarray(x, dtype=float)
+    if axis is None:
+        x = x.ravel()
+        if x.size == 0:
+            return np.full(np.shape(q), np.nan)
+    out = np.percentile(np.where(np.isposinf(x), _BIG, x), q, axis=-1 if axis is None else axis)
+    return np.where(out > _INF_ABOVE, np.inf, out)
+
+
+# -- aggregate metrics -------------------------------------------------------------------------------
+def mean_of(x: np.ndarray) -> np.ndarray:
+    return x.mean(axis=-1)
+
+
+def percentile_of(q: float) -> Callable[[np.ndarray], np.ndarray]:
+    def reduce(x: np.ndarray) -> np.ndarray:
+        return percentile(x, q, axis=-1)
+    reduce.__name__ = f"percentile_{q:g}"
+    return reduce
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One reported metric: ``reduce`` maps the values of ``column`` over realizations (final
+    step) or over realizations × steps (all steps), flattened on the last axis, to one number.
+    A metric of several per-step columns (a calibration error needs confidence and correctness)
+    names them as a tuple; ``reduce`` then gets one array per column, in that order.
+    ``best``/``worst`` are the attainable extremes (None: unbounded that way); cells where both
+    methods of a comparison sit at one cannot tell them apart. Cells pool by ``pool``."""
+    label: str                       # for sentences and captions
+    short: str                       # for table headers
+    higher_is_better: bool
+    column: str | tuple[str, ...]    # ``STEP_COLUMNS`` key(s)
+    steps: str                       # "final" | "all"
+    reduce: Callable[[np.ndarray], np.ndarray]
+    best: float | None = None
+    worst: float | None = None
+    pool: str = "mean"               # over settings within a track, tracks within a target, targets
+
+    @property
+    def bounded(self) -> bool:
+        return self.best is not None and self.worst is not None
+
+
+METRICS: dict[str, Metric] = {
+    "correct_final": Metric("correct ratio, final step", "correct, final", True, "correct", "final", mean_of,
+                            best=1.0, worst=0.0),
+    "correct_overall": Metric("correct ratio, all steps", "correct, all steps", True, "correct", "all", mean_of,
+                              best=1.0, worst=0.0),
+    "prob_truth_final": Metric("P(truth), final step", "P(truth), final", True, "p_truth", "final", mean_of,
+                               best=1.0, worst=0.0),
+    "msde_final": Metric("MSDE, final step", "MSDE, final", False, "msde", "final", mean_of, best=0.0),
+    "log10_mgr75_final": Metric("log10 MGR 75th percentile, final step", "log10 MGR 75%, final", False,
+                                "log10_mgr", "final", percentile_of(75), best=0.0),
+    "log10_mgr95_final": Metric("log10 MGR 95th percentile, final step", "log10 MGR 95%, final", False,
+                                "log10_mgr", "final", percentile_of(95), best=0.0),
+    "log10_mgr75_overall": Metric("log10 MGR 75th percentile, all steps", "log10 MGR 75%, all steps", False,
+                                  "log10_mgr", "all", percentile_of(75), best=0.0),
+    "log10_mgr95_overall": Metric("log10 MGR 95th percentile, all steps", "log10 MGR 95%, all steps", False,
+                                  "log10_mgr", "all", percentile_of(95), best=0.0),
+    # Calibration (pipeline/evaluation/metrics/calibration.py; docs/design.md §8). The confident-error
+    # threshold here is the default of evaluate.confident_threshold; the evaluate stage recomputes
+    # these two keys with the configured threshold (pipeline.evaluation.metrics.results.cell_metrics).
+    "nll_final": Metric("NLL = -ln P(truth), final step", "NLL, final", False, "nll", "final", mean_of, best=0.0),
+    "nll_overall": Metric("NLL = -ln P(truth), all steps", "NLL, all steps", False, "nll", "all", mean_of, best=0.0),
+    "brier_final": Metric("Brier score, final step", "Brier, final", False, "brier", "final", mean_of,
+                          best=0.0, worst=2.0),
+    "brier_overall": Metric("Brier score, all steps", "Brier, all steps", False, "brier", "all", mean_of,
+                            best=0.0, worst=2.0),
+    "confident_error_final": Metric("confident-error rate (max P >= threshold on a wrong class), final step",
+                                    "confident errors, final", False, ("confidence", "correct"), "final",
+                                    lambda c, ok: confident_rate(c, ok), best=0.0, worst=1.0),
+    "confident_error_overall": Metric("confident-error rate (max P >= threshold on a wrong class), all steps",
+                                      "confident errors, all steps", False, ("confidence", "correct"), "all",
+                                      lambda c, ok: confident_rate(c, ok), best=0.0, worst=1.0),
+}
+CONFIDENT_THRESHOLD = 0.99
+POOLS = ("mean",)
+
+
+def confident_rate(conf: np.ndarray, ok: np.ndarray, threshold: float = CONFIDENT_THRESHOLD) -> np.ndarray:
+    """Share (last axis) of posteriors with confidence >= ``threshold`` on a wrong class."""
+    return ((conf >= threshold) & (ok < 0.5)).mean(axis=-1)
+MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
+
+
+# Metrics of the pooled posteriors rather than of one cell (computed by
+# ``pipeline.evaluation.metrics.calibration``: ECE is a function of bin sums, so it cannot be averaged over
+# cells): key -> (label, short label); lower is better for each.
+POOLED_METRICS = {
+    "ece_final": ("top-label ECE (15 bins), final step", "ECE, final"),
+    "ece_overall": ("top-label ECE (15 bins), all steps", "ECE, all steps"),
+}
+
+
+def metric_label(key: str, short: bool = False) -> str:
+    """A metric's label (``short`` for table headers); an unknown key is shown as itself."""
+    m = METRICS.get(key)
+    if m is None:
+        return POOLED_METRICS[key][1 if short else 0] if key in POOLED_METRICS else key
+    return m.short if short else m.label
+
+
+def higher_is_better(key: str) -> bool:
+    """The metric's direction; an unknown key (a newer summary) reads as higher-is-better."""
+    if key in POOLED_METRICS:
+        return False
+    m = METRICS.get(key)
+    return True if m is None else m.higher_is_better
+
+
+def compute(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """Metrics of per-step values (..., R, K) per column (realizations × steps): arrays (...)."""
+    out = {}
+    for k in METRICS if keys is None else keys:
+        m = METRICS[k]
+        cols = (m.column,) if isinstance(m.column, str) else m.column
+        if keys is None and not all(c in values for c in cols):
+            continue  # a table written before the column existed (e.g. nll, brier, confidence)
+        xs = []
+        for c in cols:
+            x = np.asarray(values[c])
+            xs.append((x[..., -1] if m.steps == "final" else x.reshape(*x.shape[:-2], -1)).astype(float))
+        out[k] = m.reduce(*xs)
+    return out
+
+
+def scalars(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None) -> dict[str, float]:
+    """``compute`` for one set of (R, K) values: plain floats."""
+    return {k: float(v) for k, v in compute(values, keys).items()}
+
+
+def posterior_metrics(post, truth, *, is_log: bool = False) -> dict[str, float]:
+    """Every metric of posteriors over realizations × steps (R, K, C)."""
+    return scalars(step_values(post, truth, is_log=is_log))
+
+
+def matrices(df, columns: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """(R, K) matrices, realizations × steps (NaN where absent), of one group of long result rows
+    (one method of one setting or scenario) for each per-step column."""
+    import pandas as pd
+
+    r_codes, r_vals = pd.factorize(df["realization"], sort=True)
+    k_codes, k_vals = pd.factorize(df["step"], sort=True)
+    out = {}
+    for col in STEP_COLUMNS if columns is None else columns:
+        if columns is None and col not in df:
+            continue  # a table written before the column existed
+        m = np.full((len(r_vals), len(k_vals)), np.nan)
+        m[r_codes, k_codes] = df[col].to_numpy(float)
+        out[col] = m
+    return out
+
+
+# exp() of a log10 above this overflows float64; such an MGR is kept only as log10.
+_LOG10_MAX = float(np.log10(np.finfo(float).max))
+
+
+def with_mgr_ratios(row: Mapping[str, float]) -> dict[str, float | None]:
+    """``row`` plus, beside each ``log10_mgr<q>_<where>``, the ratio ``mgr<q>_<where>`` (None where
+    it overflows float64); an infinite log10 becomes None (JSON has no infinity)."""
+    out: dict[str, float | None] = {}
+    for k, v in row.items():
+        if k.startswith("log10_mgr"):
+            v = float(v)
+            ratio = v if np.isnan(v) else float(10.0 ** v) if v < _LOG10_MAX else None
+            out[k.removeprefix("log10_")] = ratio
+            out[k] = v if not np.isinf(v) else None
+        else:
+            out[k] = v
+    return out
+
+
+def confident_errors(log_post, truth, threshold: float) -> np.ndarray:
+    """Per posterior (..., C) of log probabilities: True where the most probable class is wrong
+    and holds P >= ``threshold`` ("max P >= 0.99 on a wrong class" at 0.99). The argmax is the
+    one ``correct`` uses (ties to the lowest index); log posteriors are renormalised first, so
+    unnormalised log weights give the same answer."""
+    t = float(threshold)
+    if not 0.0 < t <= 1.0:
+        raise ValueError(f"confident-error threshold must be in (0, 1], got {threshold!r}")
+    lp = np.asarray(log_post, dtype=float)
+    if np.any(np.isnan(lp)):
+        raise ValueError("posteriors contain NaN")
+    top = lp.max(axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lse = top[..., 0] + np.log(np.sum(np.exp(lp - top), axis=-1))
+    wrong = ~correct(lp, truth)
+    return wrong & (top[..., 0] - lse >= np.log(t))
+
+
+def confident_error_rate(log_post, truth, threshold: float, axis=None) -> np.ndarray | float:
+    """Share of posteriors that are confident errors (``confident_errors``), averaged over
+    ``axis`` (None: all posteriors). The evaluate and simulate stages both use this definition."""
+    e = confident_errors(log_post, truth, threshold)
+    return float(e.mean()) if axis is None else e.mean(axis=axis)

@@ -1,0 +1,123 @@
+"""The sections of the evaluation protocol and its report: ``[evaluate]`` (targets, candidates,
+localization settings, statistics, ablations, the test domain) and ``[report]``."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from pipeline.infra.config.fields import SEED_MAX, ConfigError, setting as _f
+
+if TYPE_CHECKING:  # the root config imports this module
+    from pipeline.infra.config.root import Config
+
+
+@dataclass(frozen=True)
+class BiasedConfig:
+    bias_m: tuple[float, ...] = _f(factory=lambda: (-0.30, 0.20), lo=-100.0, hi=100.0, doc="[x, y] metres")
+    sigma_m: float = _f(0.30, lo=0.0, hi=10.0)
+    n_loc_samples: int = _f(50, lo=1, hi=100000)
+
+
+@dataclass(frozen=True)
+class RandomizedConfig:
+    bias_m: tuple[float, ...] = _f(factory=lambda: (0.0, 0.0), lo=-100.0, hi=100.0, doc="[x, y] metres")
+    sigmas_m: tuple[float, ...] = _f(factory=lambda: (0.1, 0.3, 0.5), lo=0.0, hi=10.0,
+                                     doc="one population setting per sigma: estimate = truth + bias + N(0, sigma^2 I)")
+    realizations: int = _f(20, lo=1, hi=1000000, doc="realizations per (target, track, sigma)")
+    n_loc_samples: int = _f(25, lo=1, hi=100000, doc="N_x localization samples (With Uncertainty)")
+
+
+@dataclass(frozen=True)
+class SensitivityConfig:
+    sigmas_m: tuple[float, ...] = _f(factory=lambda: (0.05, 0.1, 0.2, 0.3, 0.5), lo=0.0, hi=10.0)
+    realizations: int = _f(100, lo=1, hi=1000000)
+    n_loc_samples: int = _f(50, lo=1, hi=100000)
+
+
+@dataclass(frozen=True)
+class BiasMapsConfig:
+    extent_m: float = _f(0.6, lo=0.01, hi=10.0, doc="bias grid spans [-extent, extent] in x and y")
+    steps: int = _f(25, lo=3, hi=401)
+
+
+@dataclass(frozen=True)
+class DirichletEvalConfig:
+    n_ss: int = _f(100, lo=1, hi=1000000, doc="N_ss: posterior-cloud points kept after each step (Dirichlet method)")
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    targets: tuple[str, ...] = _f("all", words=("all",),
+                                  doc="'all' = every modelled instance present in the scanned AVD features, "
+                                      "or a list of instance names")
+    n_candidates: int = _f(4, lo=2, hi=1000, doc="candidate classes per target, the target included")
+    candidates: tuple[str, ...] = _f("sampled", words=("sampled", "all"),
+                                     doc="'sampled' = the target + n_candidates - 1 others drawn per target; "
+                                         "'all' = every modelled class; or a list of the other candidates")
+    candidate_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="seeds the per-target candidate draw")
+    tracks_per_target: int = _f(8, lo=1, hi=1000, doc="distinct tracks per target")
+    track_images: tuple[str, ...] = _f(factory=tuple, doc="explicit track (one target only); empty = build tracks")
+    track_length: int = _f(9, lo=2, hi=200)
+    max_difficulty: int = _f(4, lo=1, hi=5)
+    max_ray_residual_m: float = _f(0.25, lo=1e-3, hi=100.0,
+                                   doc="an instance whose rays through its box centres lie farther than this (RMS, "
+                                       "metres) from their least-squares point is excluded from that scan, its "
+                                       "residual named (a duplicated or moved object; real scans: at most 8 cm when "
+                                       "consistent, 2.6-3.2 m for the duplicated ones)")
+    yaw_source: str = _f("truth", choices=("truth", "config"))
+    yaw_deg: float = _f(0.0, lo=-360.0, hi=360.0, doc="yaw_source = 'config' with a single target")
+    yaws_deg: tuple[float, ...] = _f(factory=tuple, lo=-360.0, hi=360.0,
+                                     doc="yaw_source = 'config': one yaw per entry of 'targets'")
+    variance_floor: float = _f(1e-6, lo=0.0, hi=1.0)
+    experiments: tuple[str, ...] = _f(
+        factory=lambda: ("gp_models", "biased", "randomized", "sensitivity", "bias_maps"))
+    seed: int = _f(0, lo=0, hi=SEED_MAX)
+    bootstrap: int = _f(2000, lo=100, hi=1000000, doc="bootstrap resamples for every 95 % confidence interval")
+    ablations: tuple[str, ...] = _f(factory=lambda: ("evaluate.test_domain_variance=cross_fit",),
+                                    doc="'models.KEY=VALUE' or 'evaluate.test_domain_variance=VALUE' variants "
+                                        "evaluated on the same population (models KEY: component_rule, "
+                                        "noise_floor, n_components, informative_min)")
+    test_domain_variance: str = _f("none", choices=("none", "cross_fit"),
+                                   doc="likelihood of the GP-based methods: none = the paper's (GP predictive "
+                                       "alone); cross_fit = plus a test-domain variance per score component, "
+                                       "ML-estimated on labelled AVD crops of the other scans (one scan: of the "
+                                       "other instances), never the evaluated cell's own")
+    confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
+                                    doc="a confident error: max P >= this on a wrong class")
+    attribution: bool = _f(True, doc="also evaluate With Uncertainty with poses only (dropout samples -> their "
+                                     "mean) and with dropout only (no pose sampling), on the same population")
+    biased: BiasedConfig = _f(factory=BiasedConfig)
+    randomized: RandomizedConfig = _f(factory=RandomizedConfig)
+    sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
+    bias_maps: BiasMapsConfig = _f(factory=BiasMapsConfig)
+    dirichlet: DirichletEvalConfig = _f(factory=DirichletEvalConfig)
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    title: str = _f("viewfuse report")
+    dpi: int = _f(110, lo=30, hi=600)
+
+
+
+
+ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min",
+                 "evaluate.test_domain_variance")
+TEST_DOMAIN_MODES = ("none", "cross_fit")
+
+
+def is_model_ablation(ablation: str) -> bool:
+    """An ablation that needs its own model bank (a ``models.*`` override)."""
+    return ablation.split("=", 1)[0].strip().startswith("models.")
+
+
+def test_domain_mode(cfg: "Config", ablation: str | None) -> str:
+    """``evaluate.test_domain_variance`` of the default run (None) or of one ablation variant."""
+    if ablation is not None and "=" in ablation:
+        key, raw = (t.strip() for t in ablation.split("=", 1))
+        if key == "evaluate.test_domain_variance":
+            value = raw.strip("'\"")
+            if value not in TEST_DOMAIN_MODES:
+                raise ConfigError(f"evaluate.ablations: {ablation!r}: the value must be none or cross_fit")
+            return value
+    return cfg.evaluate.test_domain_variance

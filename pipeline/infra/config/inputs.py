@@ -1,0 +1,106 @@
+"""The sections that say what a run is and what it reads: ``[run]`` and ``[data]`` (synthetic
+stand-ins or real dataset roots)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pipeline.infra.config.fields import SEED_MAX, setting as _f
+
+
+# The real AVD instance names used by the synthetic stand-ins (all are BigBIRD folder names; the
+# same list and order as loaders.synthetic.objects.DEFAULT_OBJECTS, whose test checks they agree).
+DEFAULT_INSTANCES = (
+    "aunt_jemima_original_syrup",
+    "cholula_chipotle_hot_sauce",
+    "crystal_hot_sauce",
+    "honey_bunches_of_oats_honey_roasted",
+    "honey_bunches_of_oats_with_almonds",
+    "mahatma_rice",
+    "pepto_bismol",
+    "tapatio_hot_sauce",
+    "coca_cola_glass_bottle",
+    "pringles_bbq",
+    "listerine_green",
+    "red_bull",
+)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    name: str = _f("synthetic", doc="run name; outputs go to <artifacts>/<name>/<stage>/")
+    artifacts: str = _f("artifacts", doc="artifacts root, relative to the config's project root")
+    device: str = _f("auto", choices=("auto", "cpu", "cuda"))
+    threads: int = _f(0, lo=0, hi=256, doc="torch/BLAS threads; 0 = number of cores")
+    executor: str = _f("local", choices=("local", "ray"),
+                       doc="where the features and evaluate stages run their tasks: local = this "
+                           "process; ray = Ray tasks (pip install -e '.[ray]'); outputs are the same")
+    ray_address: str = _f("", doc="executor ray: empty = start a local Ray instance (loopback only); "
+                                  "'auto' or 'ray://host:port' = join that cluster")
+    ray_workers: int = _f(0, lo=0, hi=4096, doc="executor ray, local instance: CPUs it gets; 0 = all cores")
+
+
+@dataclass(frozen=True)
+class SyntheticDataConfig:
+    instances: tuple[str, ...] = _f(factory=lambda: DEFAULT_INSTANCES)
+    instances_per_scan: int = _f(9, lo=0, hi=1000,
+                                 doc="instances placed in each AVD scan: scan k of S takes this many "
+                                     "consecutive instances (cyclically) starting at round(k * n / S); "
+                                     "0 = all in every scan")
+    bigbird_cameras: tuple[int, ...] = _f(factory=lambda: (1,), lo=1, hi=5)
+    angle_step_deg: int = _f(3, lo=3, hi=120, doc="turntable step; a multiple of 3 as in BigBIRD")
+    bigbird_width: int = _f(1280, lo=64, hi=4096)
+    bigbird_height: int = _f(1024, lo=64, hi=4096)
+    write_depth: bool = _f(False)
+    # BigBIRD rig nuisance (per view unless said otherwise); 0 switches each one off.
+    bigbird_read_noise: float = _f(1.5, lo=0.0, hi=50.0,
+                                   doc="sensor read noise std, grey levels (Carmine-class CMOS)")
+    bigbird_shot_noise: float = _f(0.04, lo=0.0, hi=10.0,
+                                   doc="shot noise: variance grows by this many grey levels^2 per grey level")
+    bigbird_exposure_jitter: float = _f(0.04, lo=0.0, hi=0.5, doc="per-view exposure gain std (fraction)")
+    bigbird_wb_jitter: float = _f(0.02, lo=0.0, hi=0.5, doc="per-view white-balance gain std per channel")
+    bigbird_decentre_mm: float = _f(6.0, lo=0.0, hi=50.0,
+                                    doc="object placed this far off the turntable axis (per object, "
+                                        "random direction), so it orbits as the table turns")
+    bigbird_wobble_deg: float = _f(0.8, lo=0.0, hi=10.0, doc="per-view yaw wobble std of the object")
+    bigbird_wobble_mm: float = _f(1.0, lo=0.0, hi=20.0, doc="per-view position wobble std of the object")
+    bigbird_mask_error_px: int = _f(2, lo=0, hi=10,
+                                    doc="mask boundary moved in or out by up to this many pixels per view, "
+                                        "plus ragged edge pixels")
+    bigbird_jpeg_quality: int = _f(75, lo=50, hi=100, doc="BigBIRD JPEG quality (an estimate of the rig's)")
+    avd_width: int = _f(640, lo=64, hi=1920)
+    avd_height: int = _f(360, lo=36, hi=1080)
+    grid_step_m: float = _f(0.3, lo=0.05, hi=2.0)
+    room_size_m: tuple[float, ...] = _f(factory=lambda: (3.6, 3.0), lo=0.5, hi=100.0)
+    distractors: int = _f(6, lo=0, hi=100, doc="clutter boxes in the AVD room")
+    occluders: int = _f(4, lo=0, hi=100,
+                        doc="small clutter items put right beside instances, so some views see them "
+                            "partly occluded")
+    interpolated_fraction: float = _f(0.25, lo=0.0, hi=0.9,
+                                      doc="share of AVD images left unregistered (empty R, t)")
+    jpeg_quality: int = _f(88, lo=50, hi=100, doc="AVD JPEG quality")
+    avd_camera_height_m: float = _f(0.95, lo=0.2, hi=2.0, doc="AVD camera height above the floor")
+    avd_pitch_deg: float = _f(10.0, lo=0.0, hi=30.0, doc="AVD camera pitch below the horizon")
+    # AVD capture nuisance.
+    avd_auto_exposure: float = _f(0.6, lo=0.0, hi=1.0,
+                                  doc="auto-exposure strength: each image's gain moves its mean "
+                                      "brightness this far (fraction) towards mid-grey, plus 4 % jitter")
+    avd_motion_blur_fraction: float = _f(0.08, lo=0.0, hi=1.0, doc="share of AVD images with motion blur")
+    avd_motion_blur_px: int = _f(7, lo=1, hi=51, doc="longest motion-blur streak, pixels")
+    avd_box_jitter_px: int = _f(3, lo=0, hi=50, doc="annotation box sides moved by up to this many pixels")
+    workers: int = _f(2, lo=1, hi=64, doc="processes rendering views; the files do not depend on it")
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    source: str = _f("synthetic", choices=("synthetic", "real"))
+    bigbird_root: str = _f("", doc="real data: folder holding BigBIRD object folders")
+    avd_root: str = _f("", doc="real data: AVD root holding instance_id_map.txt and scan folders")
+    scans: tuple[str, ...] = _f(factory=lambda: ("Home_001_1", "Home_002_1"),
+                                doc="AVD scan folders; every one is scored (features) and evaluated")
+    seed: int = _f(0, lo=0, hi=SEED_MAX)
+    skip_bad_views: bool = _f(True, doc="every stage reading the data counts, logs and skips bad entries "
+                                         "(images, boxes, poses) in its manifest; false = the first one stops the stage")
+    max_image_megapixels: float = _f(64.0, lo=0.01, hi=10000.0,
+                                     doc="images whose header declares more pixels are bad entries, not decoded "
+                                         "(real BigBIRD views are 1.3 MP, AVD images 2.1 MP)")
+    synthetic: SyntheticDataConfig = _f(factory=SyntheticDataConfig)

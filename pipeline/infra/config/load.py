@@ -1,0 +1,196 @@
+"""Loading a TOML config: decode, type-check and range-check every key against the schema, merge
+``--set`` overrides, then run the cross-key checks (``pipeline.infra.config.checks``).
+
+Every problem raises ``ConfigError`` naming the file and the dotted key: an unknown key, a wrong
+type, a value out of range, a string with a NUL byte, a file that is not UTF-8 TOML.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from pathlib import Path
+from typing import Any
+
+try:  # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+from pipeline.infra.config.checks import cross_checks
+from pipeline.infra.config.fields import ConfigError
+from pipeline.infra.config.learning import ModelsConfig
+from pipeline.infra.config.evaluation import ABLATION_KEYS
+from pipeline.infra.config.root import Config, to_dict
+
+
+def _check_scalar(value: Any, tp: Any, key: str, where: str) -> Any:
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: '{key}' must be true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: '{key}' must be an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: '{key}' must be a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise ConfigError(f"{where}: '{key}' must be finite, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: '{key}' must be a string, got {value!r}")
+        if "\x00" in value:
+            raise ConfigError(f"{where}: '{key}' contains a NUL byte")
+        return value
+    raise TypeError(f"unsupported config type {tp} for {key}")  # pragma: no cover
+
+
+def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        allowed = ", ".join(sorted(fields))
+        raise ConfigError(f"{where}: unknown key '{prefix}{unknown[0]}' (allowed here: {allowed})")
+    kwargs = {}
+    for name, f in fields.items():
+        if name not in table:
+            continue
+        key = prefix + name
+        tp = hints[name]
+        value = table[name]
+        if dataclasses.is_dataclass(tp):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{where}: '{key}' must be a table")
+            kwargs[name] = _build(tp, value, where, key + ".")
+            continue
+        if typing.get_origin(tp) is tuple:
+            inner = typing.get_args(tp)[0]
+            words = f.metadata.get("words") or ()
+            if isinstance(value, str) and words:
+                if value not in words:
+                    raise ConfigError(f"{where}: '{key}' = {value!r} must be a list or one of "
+                                      f"{', '.join(map(repr, words))}")
+                kwargs[name] = value
+                continue
+            if not isinstance(value, list):
+                raise ConfigError(f"{where}: '{key}' must be a list, got {value!r}")
+            items = tuple(_check_scalar(v, inner, f"{key}[{i}]", where) for i, v in enumerate(value))
+            for i, v in enumerate(items):
+                _check_range(v, f, f"{key}[{i}]", where)
+            kwargs[name] = items
+            continue
+        value = _check_scalar(value, tp, key, where)
+        _check_range(value, f, key, where)
+        kwargs[name] = value
+    return cls(**kwargs)
+
+
+def _check_range(value: Any, f: dataclasses.Field, key: str, where: str) -> None:
+    lo, hi, choices = f.metadata.get("lo"), f.metadata.get("hi"), f.metadata.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"{where}: '{key}' = {value!r} is not one of {', '.join(map(repr, choices))}")
+    if lo is not None and value < lo:
+        raise ConfigError(f"{where}: '{key}' = {value!r} is below the minimum {lo}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{where}: '{key}' = {value!r} is above the maximum {hi}")
+
+
+def ablation_config(cfg: Config, ablation: str) -> Config:
+    """``cfg`` with one ``evaluate.ablations`` entry (``models.KEY=VALUE``) applied and validated."""
+    key, raw = (t.strip() for t in ablation.split("=", 1))
+    if key not in ABLATION_KEYS or not key.startswith("models."):
+        raise ConfigError(f"evaluate.ablations: {ablation!r}: KEY must be one of {', '.join(ABLATION_KEYS)}"
+                          " with its own model bank (models.*)")
+    table = merge({"models": to_dict(cfg.models)}, parse_override(f"{key}={raw}"))
+    where = f"{cfg.source_path or 'config'} (evaluate.ablations entry {ablation!r})"
+    models = _build(ModelsConfig, table["models"], where, "models.")
+    out = dataclasses.replace(cfg, models=models)
+    cross_checks(out, where)
+    return out
+
+
+def load_config(path: str | Path, overrides: dict | None = None) -> Config:
+    """Read, type-check and validate a TOML config.
+
+    ``overrides`` is a nested dict merged over the file's tables (used by tests and ``--set``).
+    """
+    path = Path(path)
+    where = str(path)
+    table = _read_table(path)
+    if overrides:
+        table = merge(table, overrides)
+    cfg = _build(Config, table, where, "")
+    cfg = dataclasses.replace(cfg, source_path=str(path.resolve()))
+    cross_checks(cfg, where)
+    return cfg
+
+
+def _read_toml(path: Path) -> dict:
+    where = str(path)
+    if not path.is_file():
+        raise ConfigError(f"{where}: config file not found")
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise ConfigError(f"{where}: cannot read the config file ({e.strerror or e})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        hint = " (it looks like UTF-16)" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else ""
+        raise ConfigError(f"{where}: not UTF-8 text{hint}: byte {e.start} is {data[e.start:e.start + 1]!r}; "
+                          "TOML files must be UTF-8") from None
+    try:
+        return tomllib.loads(text.removeprefix("\ufeff"))
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{where}: not valid TOML: {e}") from None
+
+
+def _read_table(path: Path, seen: tuple = ()) -> dict:
+    """The file's tables; a top-level ``extends = "other.toml"`` (relative to the file) first reads
+    that config and merges this file's keys over it, so a preset states only what it changes."""
+    where = str(path)
+    table = _read_toml(path)
+    base = table.pop("extends", None)
+    if base is None:
+        return table
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"{where}: 'extends' must be a config file name, got {base!r}")
+    parent = (path.parent / base).resolve()
+    if parent in seen or parent == path.resolve():
+        raise ConfigError(f"{where}: 'extends' makes a cycle through {parent}")
+    if not parent.is_file():
+        raise ConfigError(f"{where}: 'extends' names {base!r}, not found at {parent}")
+    return merge(_read_table(parent, seen + (path.resolve(),)), table)
+
+
+def merge(base: dict, over: dict) -> dict:
+    """``over`` merged into ``base``, tables recursively (a new dict)."""
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def parse_override(text: str) -> dict:
+    """``a.b.c=VALUE`` (VALUE in TOML syntax) -> nested dict, for ``--set`` on the command line."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE")
+    key, raw = text.split("=", 1)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw  # bare words are strings
+    out: dict = {}
+    cur = out
+    parts = key.strip().split(".")
+    for p in parts[:-1]:
+        cur = cur.setdefault(p, {})
+    cur[parts[-1]] = value
+    return out

@@ -1,0 +1,89 @@
+"""The root ``Config`` (every section, the run's derived locations) with ``[study]``, and the
+canonical forms a config is hashed and written in."""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.infra.config.fields import SEED_MAX, setting as _f
+from pipeline.infra.config.evaluation import EvaluateConfig, ReportConfig
+from pipeline.infra.config.inputs import DataConfig, RunConfig
+from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, ModelsConfig
+from pipeline.infra.config.simulate import SimulateConfig
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    seeds: tuple[int, ...] = _f(factory=lambda: (0, 1, 2), lo=0, hi=SEED_MAX,
+                                doc="classifier seeds: classifier -> features -> models -> evaluate once "
+                                    "per seed under <run>/study/seed-<n>/ (data shared with the run)")
+
+
+@dataclass(frozen=True)
+class Config:
+    run: RunConfig = _f(factory=RunConfig)
+    data: DataConfig = _f(factory=DataConfig)
+    classifier: ClassifierConfig = _f(factory=ClassifierConfig)
+    features: FeaturesConfig = _f(factory=FeaturesConfig)
+    models: ModelsConfig = _f(factory=ModelsConfig)
+    evaluate: EvaluateConfig = _f(factory=EvaluateConfig)
+    report: ReportConfig = _f(factory=ReportConfig)
+    simulate: SimulateConfig = _f(factory=SimulateConfig)
+    study: StudyConfig = _f(factory=StudyConfig)
+    # Where the config file lives; relative paths in it resolve against its project root.
+    source_path: str = field(default="", compare=False, metadata={"internal": True})
+
+    # -- derived locations -------------------------------------------------------------------
+    @property
+    def root(self) -> Path:
+        """Project root: the parent of ``configs/`` for files there, else the file's folder."""
+        if not self.source_path:
+            return Path.cwd()
+        p = Path(self.source_path).resolve().parent
+        return p.parent if p.name == "configs" else p
+
+    def resolve(self, path: str) -> Path:
+        p = Path(path).expanduser()
+        return p if p.is_absolute() else self.root / p
+
+    @property
+    def artifacts_dir(self) -> Path:
+        """The artifacts root, absolute and normalised (``..`` folded away)."""
+        return Path(os.path.abspath(self.resolve(self.run.artifacts)))
+
+    @property
+    def run_dir(self) -> Path:
+        return self.artifacts_dir / self.run.name
+
+    def stage_dir(self, stage: str) -> Path:
+        return self.run_dir / stage
+
+    def section(self, name: str) -> Any:
+        """A section or, dotted, one key (``evaluate.candidates``): a stage may depend on single keys."""
+        obj = self
+        for part in name.split("."):
+            obj = getattr(obj, part)
+        return obj
+
+    def section_hash(self, name: str) -> str:
+        return hashlib.sha256(canonical_json(to_dict(self.section(name))).encode()).hexdigest()
+
+
+# ----------------------------------------------------------------------------------------------
+def to_dict(obj: Any) -> Any:
+    """Plain (JSON-able) form of a config or section."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if not f.metadata.get("internal")}
+    if isinstance(obj, (tuple, list)):
+        return [to_dict(v) for v in obj]
+    return obj
+
+
+def canonical_json(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True)

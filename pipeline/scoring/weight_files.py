@@ -1,0 +1,102 @@
+"""Weight files without pickles: our checkpoints are ``.npz`` (plain arrays, read with
+``allow_pickle=False``); torch checkpoint files are read with ``torch.load(weights_only=True)``,
+which refuses to run code. Loading checks the keys and shapes against the model."""
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
+
+
+class WeightsError(ValueError):
+    """A weights file is unreadable or does not fit the architecture; names the file."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path, self.problem = str(path), problem
+        super().__init__(f"{path}: {problem}")
+
+
+class WeightsNotFoundError(FileNotFoundError):
+    """The requested weights file is not on disk (and will not be downloaded)."""
+
+
+def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
+    """A state dict from ``.npz`` (ours) or a torch file read with the safe loader."""
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsNotFoundError(f"{path}: weights file not found")
+    if path.suffix == ".npz":
+        try:
+            state = {k: torch.from_numpy(np.array(v)) for k, v in load_npz(path).items()}
+        except NpzFileError as e:
+            raise WeightsError(path, f"not a readable .npz state dict ({e.problem})") from None
+    else:
+        try:
+            obj = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # the safe loader raises UnpicklingError/RuntimeError on anything odd
+            raise WeightsError(path, f"not a tensor-only torch state dict (loaded with weights_only=True): "
+                                     f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+        if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
+            obj = obj["state_dict"]
+        if not isinstance(obj, dict):
+            raise WeightsError(path, f"expected a dict of tensors, got {type(obj).__name__}")
+        state = obj
+    out = {}
+    for k, v in state.items():
+        if not isinstance(v, torch.Tensor):
+            raise WeightsError(path, f"entry {k!r} is not a tensor ({type(v).__name__})")
+        out[k[7:] if k.startswith("module.") else k] = v  # DataParallel prefix
+    if not out:
+        raise WeightsError(path, "empty state dict")
+    return out
+
+
+def num_classes_of(state: dict[str, torch.Tensor], path: str | Path) -> int:
+    w = state.get("classifier.6.weight")
+    if w is None or w.ndim != 2:
+        raise WeightsError(path, "no 'classifier.6.weight' matrix: not an AlexNet state dict")
+    return int(w.shape[0])
+
+
+def load_into(model: nn.Module, state: dict[str, torch.Tensor], path: str | Path) -> nn.Module:
+    """Strict load with an error that names the file and the first mismatches."""
+    own = model.state_dict()
+    missing = sorted(set(own) - set(state))
+    unexpected = sorted(set(state) - set(own))
+    bad = [k for k in own if k in state and tuple(state[k].shape) != tuple(own[k].shape)]
+    if missing or unexpected or bad:
+        parts = []
+        if missing:
+            parts.append(f"missing keys {missing[:4]}")
+        if unexpected:
+            parts.append(f"unexpected keys {unexpected[:4]}")
+        if bad:
+            k = bad[0]
+            parts.append(f"shape mismatch for {k!r}: file {tuple(state[k].shape)} vs AlexNet {tuple(own[k].shape)}")
+        raise WeightsError(path, "does not fit torchvision's AlexNet: " + "; ".join(parts))
+    model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)
+    return model
+
+
+def save_state_dict_npz(model_or_state, path: str | Path) -> str:
+    """Write a state dict as ``.npz`` atomically and reproducibly; returns the file's sha256.
+
+    Each array goes in as ``<name>.npy`` with a fixed zip timestamp, so identical weights give an
+    identical file (and hash). ``np.load(path, allow_pickle=False)`` reads it back.
+    """
+    state = model_or_state.state_dict() if isinstance(model_or_state, nn.Module) else model_or_state
+    with atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for k in sorted(state):
+                arr = np.ascontiguousarray(state[k].detach().cpu().numpy())
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, arr, allow_pickle=False)
+                info = zipfile.ZipInfo(k + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+                zf.writestr(info, buf.getvalue())
+    return sha256_file(path)

@@ -1,0 +1,1 @@
+"""The main report of a run (``page``): bottom line, verdict, track, calibration sections, figures."""

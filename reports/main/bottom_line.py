@@ -1,0 +1,137 @@
+"""The report's first lines, computed from ``summary.json``'s population (never hand-written): the
+bottom line (what holds, what does not, over what it varies) and honest counts of the population.
+
+Generic over the comparisons and metrics the verdict table holds: a new method or metric shows up
+here without an edit (labels from ``pipeline.evaluation.metrics.labels``).
+"""
+from __future__ import annotations
+
+import math
+import re
+from collections import Counter
+
+from pipeline.evaluation.metrics.labels import comparison_label
+from pipeline.evaluation.metrics.spec import higher_is_better as _higher, metric_label
+
+OUTCOMES = ("better", "worse", "not distinguishable")
+
+
+def _join(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def counts(pop: dict) -> dict:
+    """Targets, tracks per target (min–max), settings, cells and realizations per setting."""
+    per_target = Counter(str(t.get("target")) for t in pop.get("tracks") or [] if isinstance(t, dict))
+    targets = list(pop.get("targets") or per_target)
+    n = [per_target[t] for t in targets if t in per_target]
+    settings = pop.get("settings") or []
+    reps = {str(s.get("setting")): s.get("realizations") or pop.get("realizations") for s in settings}
+    kinds = {str(s.get("setting")): str(s.get("experiment") or "") for s in settings}
+    return {"n_targets": int(pop.get("n_targets") or len(targets)), "n_tracks": int(pop.get("n_tracks") or sum(n)),
+            "tracks_min": min(n) if n else None, "tracks_max": max(n) if n else None,
+            "tracks_per_target": dict(per_target),
+            "single_track_targets": sorted(t for t in targets if per_target.get(t) == 1),
+            "n_settings": len(settings), "n_cells": pop.get("n_cells"), "realizations": reps,
+            "single_realization_settings": [s for s, r in reps.items() if r == 1], "experiments": kinds}
+
+
+def tracks_text(c: dict) -> str:
+    lo, hi = c["tracks_min"], c["tracks_max"]
+    per = "" if lo is None else (f", {lo} per target" if lo == hi else f", {lo}–{hi} per target")
+    return f"{c['n_tracks']} tracks{per}"
+
+
+def scope_text(c: dict) -> str:
+    """'12 targets, 83 tracks (1–8 per target), 4 settings: 332 (target, track, setting) cells'."""
+    reps = sorted({int(r) for r in c["realizations"].values() if r})
+    r = "" if not reps else (f"; {reps[0]} realizations per cell" if len(reps) == 1 else
+                             "; realizations per cell: " + realizations_text(c))
+    cells = f": {c['n_cells']} (target, track, setting) cells" if c.get("n_cells") else ""
+    return f"{c['n_targets']} targets, {tracks_text(c)}, {c['n_settings']} localization settings{cells}{r}"
+
+
+def realizations_text(c: dict) -> str:
+    """'1 (the biased setting), 30 (each of the 3 randomized settings)': grouped by experiment."""
+    groups: dict[tuple[str, int], list[str]] = {}
+    for s, r in c["realizations"].items():
+        groups.setdefault((c.get("experiments", {}).get(s) or s, int(r or 0)), []).append(s)
+    parts = []
+    for (exp, r), names in groups.items():
+        if exp in names:  # no experiment name: the setting itself
+            parts.append(f"{r} ({exp})")
+        else:
+            parts.append(f"{r} ({'the ' + exp + ' setting' if len(names) == 1 else f'each of the {len(names)} {exp} settings'})")
+    return ", ".join(parts)
+
+
+def _by_comparison(table: list[dict]) -> dict[str, dict[str, str]]:
+    """comparison -> {metric: outcome}, in table order."""
+    out: dict[str, dict[str, str]] = {}
+    for row in table:
+        out.setdefault(str(row.get("comparison")), {})[str(row.get("metric"))] = str(row.get("outcome"))
+    return out
+
+
+def metric_family(metric: str) -> str:
+    """'log10 MGR 95th percentile, final step' -> 'log10 MGR'; 'correct ratio, final step' -> 'correct ratio'."""
+    head = metric_label(metric).split(",")[0]
+    return re.sub(r"\s*\d+(st|nd|rd|th) percentile", "", head).strip()
+
+
+def _grouped(outcomes: dict[str, str]) -> dict[str, list[str]]:
+    """Outcome -> phrases: a metric family whose entries share one outcome is named once."""
+    fam: dict[str, list[str]] = {}
+    for m in outcomes:
+        fam.setdefault(metric_family(m), []).append(m)
+    out: dict[str, list[str]] = {o: [] for o in OUTCOMES}
+    for name, ms in fam.items():
+        kinds = {outcomes[m] for m in ms}
+        if len(kinds) == 1:
+            out.setdefault(kinds.pop(), []).append(name + (f" (all {len(ms)} entries)" if len(ms) > 2 else ""))
+        else:
+            for m in ms:
+                out.setdefault(outcomes[m], []).append(metric_label(m))
+    return out
+
+
+def comparison_clause(key: str, outcomes: dict[str, str]) -> str:
+    a, _, b = comparison_label(key).partition(" − ")
+    g = _grouped(outcomes)
+    if not g["better"] and not g["worse"]:
+        return f"{a} is not distinguishable from {b} on any metric"
+    parts = [f"{o} on {_join(g[o])}" for o in OUTCOMES if g.get(o)]
+    return f"{a} vs {b}: " + "; ".join(parts)
+
+
+def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
+    """One or two sentences from the verdict table: per comparison what holds and what does not,
+    then what the CIs vary over."""
+    table = pop.get("verdict_table") or []
+    if not table:
+        return []
+    clauses = [comparison_clause(k, r) for k, r in _by_comparison(table).items()]
+    c = counts(pop)
+    first = "Bottom line. " + " ".join(cl + "." for cl in clauses)
+    seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
+    second = (f"Each outcome is read off the 95 % CI of a paired difference over {c['n_targets']} targets and "
+              f"{tracks_text(c)}; it varies over targets and tracks only, with {seeds} (`viewfuse study` repeats "
+              "it over training seeds).")
+    return [first, second]
+
+
+def higher_is_better(metric: str) -> bool:
+    return _higher(metric)
+
+
+def no_ci_reason(entry: dict | None, n_tracks: int | None) -> str:
+    """Why an estimate has no CI ('' when it has one)."""
+    e = entry or {}
+    lo, hi = e.get("ci_low"), e.get("ci_high")
+    ok = lo is not None and hi is not None and not (isinstance(lo, float) and math.isnan(lo)) \
+        and not (isinstance(hi, float) and math.isnan(hi))
+    if ok:
+        return ""
+    if n_tracks == 1:
+        return "1 track: no CI (a CI over tracks needs at least 2)"
+    return "no CI in summary.json"

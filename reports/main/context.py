@@ -1,0 +1,68 @@
+"""What every section of the main report reads: the run's artifacts and what was derived once."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from reports.shared.artifacts import RunArtifacts
+from reports.shared.html import HtmlReport
+
+
+@dataclass
+class ReportContext:
+    page: HtmlReport
+    run: RunArtifacts
+    run_name: str = ""
+    config: dict = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    figures: set[str] = field(default_factory=set)          # PNGs written
+    notes: list[str] = field(default_factory=list)          # warnings shown on the page and logged
+    sections: list[str] = field(default_factory=list)       # anchors, in page order
+    track_summaries: dict[str, dict] = field(default_factory=dict)  # experiment -> stats.track_summary
+    comp_names: list[str] = field(default_factory=list)
+    clipped: dict[str, int] = field(default_factory=dict)   # figure -> +inf values drawn at the axis top
+    n_boot: int = 0
+    checks: dict[str, Any] = field(default_factory=dict)    # figure -> reports.shared.figures.FigureCheck
+    alts: dict[str, str] = field(default_factory=dict)      # figure -> alt text stating its finding
+    bias_findings: dict | None = None                       # reports.main.figures_models.bias_map_findings
+
+    @property
+    def ev(self):
+        return self.run.evaluate
+
+    @property
+    def population(self) -> dict | None:
+        return self.run.evaluate.population
+
+    @property
+    def data_source(self) -> str:
+        """'synthetic' or 'real' (from the resolved config, else the data stage's manifest)."""
+        src = (self.config.get("data") or {}).get("source")
+        if not src:
+            parts = (self.run.manifests.get("data") or {}).get("parts") or {}
+            src = _find(parts, "source")
+        return str(src or "unknown")
+
+    def section(self, title: str, anchor: str) -> None:
+        self.page.section(title, anchor=anchor)
+        self.sections.append(anchor)
+
+    def figure(self, name: str, caption: str) -> None:
+        """A figure only where it was drawn (a missing one would be a broken image), with the alt
+        text of its finding and its smallest text size."""
+        if name in self.figures:
+            chk = self.checks.get(name)
+            self.page.figure(name, caption, alt=self.alts.get(name, ""),
+                             min_font_px=getattr(chk, "min_font_px", None),
+                             tick_overlaps=len(chk.overlaps) if chk is not None else None)
+
+
+def _find(d: Any, key: str) -> Any:
+    if isinstance(d, dict):
+        if key in d and not isinstance(d[key], dict):
+            return d[key]
+        for v in d.values():
+            r = _find(v, key)
+            if r is not None:
+                return r
+    return None

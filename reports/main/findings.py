@@ -1,0 +1,133 @@
+"""Alt text that states what each figure shows (its finding), computed from the same data as the
+figure: a reader who cannot see the image learns the result, not the caption again."""
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.evaluation.metrics.labels import comparison_label, method_label, ordered_methods
+from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
+from reports.shared.numbers import Estimate, fmt
+
+
+def _outcome(e: Estimate, higher: bool) -> str:
+    if not e.excludes_zero():
+        return "not distinguishable from 0"
+    return "better" if (float(e.value) > 0) == higher else "worse"
+
+
+def forest(pop: dict) -> str:
+    paired, ppt = pop.get("paired") or {}, pop.get("paired_per_target") or {}
+    parts = []
+    for key, per in paired.items():
+        for metric in ("correct_final", "log10_mgr95_final"):
+            if metric not in per:
+                continue
+            higher = higher_is_better(metric)
+            e = Estimate.of(per[metric], signed=True)
+            excl = sum(1 for t in (ppt.get(key) or {}).values() if Estimate.of((t or {}).get(metric)).excludes_zero())
+            parts.append(f"{comparison_label(key)}, {metric_label(metric)}: pooled {e.text()} "
+                         f"({_outcome(e, higher)}); {excl} of {len(ppt.get(key) or {})} targets have a CI excluding 0")
+    return "Forest plot of paired differences. " + "; ".join(parts) + "." if parts else "Forest plot of paired differences."
+
+
+def per_target(pop: dict) -> str:
+    pooled, per = pop.get("pooled") or {}, pop.get("per_target") or {}
+    methods = ordered_methods(pooled)
+    out = []
+    for metric in ("correct_final", "log10_mgr95_final"):
+        vals = ", ".join(f"{method_label(m, True)} {Estimate.of((pooled.get(m) or {}).get(metric)).text()}"
+                         for m in methods)
+        out.append(f"pooled {metric_label(metric)}: {vals}")
+    worst = [(float(((per[t].get(m) or {}).get("log10_mgr95_final") or {}).get("value") or 0), t, m)
+             for t in per for m in per[t]]
+    if worst:
+        v, t, m = max(worst)
+        out.append(f"largest per-target log10 MGR95: {t} with {method_label(m, True)} ({fmt(v)})")
+    return "Per-target values with CIs. " + "; ".join(out) + "."
+
+
+def biased(df, key: dict | None) -> str:
+    fin = df[df["step"] == df["step"].max()].groupby("method")["p_truth"].median()
+    vals = ", ".join(f"{method_label(m, True)} {fmt(fin[m])}" for m in ordered_methods(fin.index))
+    moved = (f"; view {key['step']} moves P(truth) most ({method_label(key['method'], True)}: "
+             f"{fmt(key['before'])} → {fmt(key['after'])})" if key else "")
+    return f"P(truth) along the biased showcase track; final step: {vals}{moved}."
+
+
+def bands(df, column: str) -> str:
+    fin = df[df["step"] == df["step"].max()]
+    parts = []
+    for m in ordered_methods(fin["method"].unique()):
+        v = fin[fin["method"] == m][column].to_numpy(float)
+        lo, med, hi = (np.percentile(np.where(np.isposinf(v), np.inf, v), q) for q in (10, 50, 90))
+        parts.append(f"{method_label(m, True)} median {fmt(med)} (10–90 %: {fmt(lo)} to {fmt(hi)})")
+    what = "P(truth)" if column == "p_truth" else "log10 MGR"
+    return f"{what} at the final step over realizations: " + "; ".join(parts) + "."
+
+
+def sensitivity(summ: dict) -> str:
+    settings = sorted(summ, key=lambda s: summ[s]["sigma_m"])
+    if not settings:
+        return "σ sweep."
+    a, b = settings[0], settings[-1]
+    parts = []
+    for m in ordered_methods({m for s in settings for m in summ[s]["methods"]}):
+        e0, e1 = (summ[s]["methods"].get(m, {}).get("correct_final") for s in (a, b))
+        if e0 is not None and e1 is not None:
+            parts.append(f"{method_label(m, True)} {fmt(e0.value)} → {fmt(e1.value)}")
+    return (f"Correct ratio at the final step from σ = {fmt(summ[a]['sigma_m'])} m to σ = {fmt(summ[b]['sigma_m'])} m: "
+            + ", ".join(parts) + ".")
+
+
+def bias_maps(found: dict) -> str:
+    views = found["views"]
+    n0 = found["n_truth_at_zero"]
+    flips = [v for v in views if v["flip_radius_m"] is not None]
+    near = min(flips, key=lambda v: v["flip_radius_m"]) if flips else None
+    lost = [v for v in views if not v["truth_at_zero"]]
+    out = [f"The truth class {found['truth']} wins at zero bias in {n0} of {found['n_views']} views"]
+    if near is not None:
+        out.append(f"the smallest bias that flips a correct view is {fmt(near['flip_radius_m'])} m (view {near['view']})")
+    if lost:
+        out.append("views where another class wins already at zero bias: "
+                   + ", ".join(f"{v['view']} ({v['winner_at_zero']})" for v in lost[:6]))
+    return "; ".join(out) + "."
+
+
+def bias_caption(found: dict) -> str:
+    """The section's claim, from the maps themselves (it must not say 'a small error flips the
+    decision' where the truth loses everywhere)."""
+    flips = [v for v in found["views"] if v["flip_radius_m"] is not None]
+    lost = [v for v in found["views"] if not v["truth_at_zero"]]
+    s = f"In {found['n_truth_at_zero']} of {found['n_views']} views the truth class wins at zero bias"
+    if flips:
+        r = min(v["flip_radius_m"] for v in flips)
+        s += f"; there a bias of {fmt(r)} m or more can flip the decision (paper Fig. 18)"
+    if lost:
+        s += f"; in {len(lost)} view(s) another class wins even at zero bias, so no localization error is needed"
+    return s + "."
+
+
+def gp(gpd: dict, comp_names: list[str]) -> str:
+    rm = np.asarray(gpd["ring_mean"], float)   # (C, F, T)
+    C, F = rm.shape[:2]
+    spread = np.nanmean(np.nanmax(rm, 0) - np.nanmin(rm, 0), axis=-1)   # per component
+    f = int(np.nanargmax(spread)) if F else 0
+    name = comp_names[f] if f < len(comp_names) else f"component {f}"
+    return (f"GP means of {C} classes on {F} score components; the component that separates the classes most along "
+            f"the ring is {name} (mean gap between the highest and lowest class {fmt(spread[f])}).")
+
+
+def track(track: dict, biases: list) -> str:
+    cam = np.asarray(track.get("camera_xy") or [], float).reshape(-1, 2)
+    est = track.get("object_xy_est")
+    tru = track.get("object_xy_truth")
+    out = [f"The track: {len(cam)} camera positions"]
+    if est is not None and len(cam):
+        d = np.hypot(*(cam - np.asarray(est, float)).T)
+        out.append(f"{fmt(d.min())}–{fmt(d.max())} m from the estimated object")
+    if est is not None and tru is not None:
+        out.append(f"object estimate {fmt(100 * float(np.hypot(est[0] - tru[0], est[1] - tru[1])))} cm from the truth")
+    if biases:
+        out.append("biased estimates shifted by " + ", ".join(f"({fmt(b[0])}, {fmt(b[1])}) m" for b in biases[:3]))
+    return "; ".join(out) + "."

@@ -1,0 +1,51 @@
+"""The report's glossary: every term a reviewer meets on the page, in one place."""
+from __future__ import annotations
+
+from reports.main.context import ReportContext
+from reports.shared.figures import MGR_SCALE_NOTE
+
+
+def terms(ctx: ReportContext) -> list[tuple[str, str]]:
+    card = ctx.run.card or {}
+    comps = ("the classifier's output scores, one per texture family of the synthetic source domain it was "
+             "trained on (" + str(card.get("num_classes", "?")) + " families): texture families, not objects"
+             if card.get("weights") == "synthetic" else
+             "the classifier's output scores (e.g. ImageNet classes), not the object instances")
+    return [
+        ("P(truth)", "the fused posterior probability of the ground-truth class after the views seen so far."),
+        ("correct ratio", "share of realizations whose most probable class is the truth (final step, or over all "
+                          "steps)."),
+        ("MGR", "the paper's ratio max_c P(c) / P(truth): the factor by which the most probable class beats the "
+                "truth; 1 when the truth is the most likely class, large when a method is confidently wrong."),
+        ("log10 MGR", "log10 of MGR: 0 when the truth wins, 3 when a wrong class is 1000 times more probable. "
+                      "Percentiles (75th, 95th) over realizations say how confidently wrong a method gets. "
+                      f"Figures draw it on a {MGR_SCALE_NOTE}."),
+        ("MSDE", "mean squared detection error: (1/C) Σ_c (P(c) − 1[c = truth])², 0 for a certain correct answer "
+                 "(paper Eq. 44); lower is better."),
+        ("target", "an object instance whose class is to be recognised; each has its own candidate classes."),
+        ("track", "a path of views of one target in one AVD scan (start bearing, direction and distance differ)."),
+        ("setting", "one localization-error condition: the biased experiment (a fixed pose shift) or a randomized "
+                    "one (pose noise N(0, σ²) per view)."),
+        ("realization", "one draw of the localization noise on a track; the biased setting has one."),
+        ("cell", "one (target, track, setting): its metric is computed over its realizations; paired differences "
+                 "and win shares are counted per cell."),
+        ("pooled value", "the mean over targets of each target's mean over its tracks (each track averaged over "
+                         "its settings)."),
+        ("95 % CI", "a hierarchical bootstrap over targets, then tracks within targets (per target: over its "
+                    "tracks; one track gives no CI). It does not cover classifier training runs."),
+        ("better / worse / not distinguishable", "the paired difference's 95 % CI lies entirely on the good side / "
+                                                 "the bad side of 0 / contains 0."),
+        ("ceiling / floor", "cells where both methods sit at the best (e.g. correct ratio 1) or worst possible value: "
+                            "they cannot tell the methods apart."),
+        ("score component", comps + "; each class gets a GP per chosen component."),
+        ("component rule", "how a target's N_f components are chosen (models.component_rule: top_mean = the "
+                           "components with the highest mean score over the candidates' training views, top_min, "
+                           "target_informative, explicit)."),
+        ("showcase track", "the one track shown in detail (paper figures), chosen by the rule in summary.json "
+                           "(population.showcase)."),
+    ]
+
+
+def glossary_section(ctx: ReportContext) -> None:
+    ctx.section("Glossary", "glossary")
+    ctx.page.definitions(terms(ctx))

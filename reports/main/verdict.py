@@ -1,0 +1,336 @@
+"""The population sections of the main report: the verdict first, then the evidence per target,
+then the diagnostics that drive it (GP fits at a bound, ablations). All numbers come from
+``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
+from __future__ import annotations
+
+from pipeline.evaluation.metrics.labels import (COMPARISONS, DIRICHLET, comparison_key, comparison_label, method_label,
+                                       ordered_methods)
+from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
+from pipeline.evaluation.statistics.popstats import wilson_interval
+from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
+from reports.main.context import ReportContext
+from reports.shared.numbers import Estimate, fmt, reformat_numbers
+from reports.main.calibration import pooled_value
+from reports.shared.tables import bound_counts, hyperparameter_table
+
+# The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
+# in a collapsed list right under the pooled table.
+HEADLINE = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
+VERDICT_METRICS = ("correct_final", "confident_error_final", "nll_final", "correct_overall", "prob_truth_final",
+                   "msde_final", "log10_mgr95_final")
+TARGET_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
+PAIRED_METRICS = ("correct_final", "correct_overall", "prob_truth_final", "msde_final",
+                  "log10_mgr75_final", "log10_mgr95_final")
+
+
+def wilson(k: float, n: int, z: float = 1.96) -> Estimate:
+    """A proportion k/n with its Wilson 95 % interval."""
+    return Estimate(k / n, *wilson_interval(k, n, z))
+
+
+def classifier_text(card: dict | None) -> str:
+    if not card:
+        return "classifier: unknown (classifier/card.json not found)"
+    w = card.get("weights")
+    if w == "synthetic":
+        acc, n = card.get("accuracy"), card.get("val_images")
+        acc_t = (wilson(round(float(acc) * n), int(n)).text() + f" on {n} held-out images" if acc is not None and n
+                 else fmt(acc))
+        seed = (card.get("training") or {}).get("seed")
+        run = f"classifier.seed = {seed}" if seed is not None else "one seed"
+        return (f"classifier: AlexNet trained here on {card.get('num_classes', '?')} synthetic texture "
+                f"families (the source domain), held-out top-1 {acc_t}; one training run ({run}): the CIs "
+                f"cover targets and tracks, not training runs, which `viewfuse study` repeats with other seeds")
+    if w == "imagenet":
+        return "classifier: torchvision's ImageNet AlexNet (IMAGENET1K_V1), no held-out accuracy on these objects"
+    return f"classifier: AlexNet weights from {card.get('weights_file', 'a file')}"
+
+
+def context_sentence(ctx: ReportContext) -> str:
+    src = ctx.data_source
+    what = ("synthetic data (stand-ins rendered in the BigBIRD and AVD formats, not real images)" if src == "synthetic"
+            else "real data (BigBIRD + AVD)" if src == "real" else f"data source '{src}'")
+    pop = ctx.population
+    if pop:
+        c = counts(pop)
+        size = f"{scope_text(c)}; {len(pop.get('methods') or [])} methods"
+        if c["single_track_targets"]:
+            size += (f"; {len(c['single_track_targets'])} target(s) with a single track "
+                     f"({', '.join(c['single_track_targets'])}: no CI of their own)")
+    else:
+        size = f"one target ({ctx.ev.target or '?'}) on one track"
+    return f"What was evaluated: {what}; {size}; {classifier_text(ctx.run.card)}."
+
+
+def verdict_section(ctx: ReportContext) -> None:
+    ctx.section("Verdict", "verdict")
+    page, pop = ctx.page, ctx.population
+    for line in bottom_line(pop or {}, ctx.run.card)[:1]:
+        page.paragraph(line, cls="bottomline")
+    for line in bottom_line(pop or {}, ctx.run.card)[1:]:
+        page.paragraph(line, cls="context")
+    page.paragraph(context_sentence(ctx), cls="context")
+    if not pop:
+        msg = ("This run has no population evaluation: summary.json has no 'population' key (an evaluate "
+               "stage from before the population evaluation wrote it), so there is no verdict. The numbers "
+               "below come from one target on one track; their CIs cover only the localization noise, "
+               "not other tracks, objects or classifiers. Rerun `viewfuse evaluate` for a verdict.")
+        ctx.notes.append(msg)
+        page.paragraph(msg, cls="warn")
+        return
+    # summary.json's sentences, their numbers in the page's one format (reports/shared/numbers.py)
+    sentences = [reformat_numbers(str(s)) for s in pop.get("verdict") or []]
+    head = headline(sentences, pop.get("verdict_table") or [])
+    page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
+    methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
+    pooled = pop.get("pooled") or {}
+    shown = [k for k in VERDICT_METRICS if any(k in (pooled.get(m) or {}) for m in methods)]
+    rows = [[method_label(m)] + [Estimate.of(pooled_value(pop, m, k)) for k in shown] for m in methods]
+    unit = str(pop.get("unit") or "")
+    page.table(["method"] + [metric_label(k, short=True) for k in shown], rows, cls="summary pooled",
+               caption=f"Pooled over the population: value [95 % CI]; NLL and log10 MGR (unbounded) as the median "
+                       f"over targets of the target means. {unit[:1].upper() + unit[1:]} "
+                       f"({pop.get('bootstrap', '?')} bootstrap resamples.) log10 MGR: 0 when the truth is the "
+                       "most likely class. MSDE: lower is better.")
+    every = list(dict.fromkeys(k for m in methods for k in (pooled.get(m) or {})))
+    if len(every) > len(shown):
+        page.table(["metric"] + [method_label(m, short=True) for m in methods],
+                   [[metric_label(k)] + [Estimate.of((pooled.get(m) or {}).get(k)) for m in methods] for k in every],
+                   cls="summary pooled-all", caption="Every pooled metric in summary.json, value [95 % CI].",
+                   collapsed=f"All {len(every)} pooled metrics")
+    if len(head) < len(sentences):
+        page.bullets(sentences, cls="verdict-all", collapsed=f"All {len(sentences)} verdict sentences "
+                                                             "(every metric, every comparison)")
+    ceiling = _ceiling_line(pop)
+    if ceiling:
+        page.paragraph(ceiling, cls="note")
+    page.paragraph(biased_rule(pop), cls="note")
+
+
+def biased_rule(pop: dict) -> str:
+    """How single-realization settings (the biased experiment) enter the pooled values."""
+    c = counts(pop)
+    single = c["single_realization_settings"]
+    if not single:
+        return "Every setting has several realizations; each enters the pooled values with the same weight."
+    return (f"Rule for the single-realization setting{'s' if len(single) > 1 else ''} ({'; '.join(single)}): with "
+            "one realization a cell's 'final-step percentile' of log10 MGR is that realization's value (the "
+            "'all steps' percentiles run over its steps). It enters the pooled values and the verdict with the same "
+            "weight as each randomized setting (a track's value is the mean over its settings); its own values "
+            "are in its own row of the per-setting table under 'Where the method wins and loses'.")
+
+
+def headline(sentences: list[str], table: list[dict]) -> list[str]:
+    """The verdict sentences of the headline metrics (the table rows pair 1:1 with the sentences);
+    all of them where the pairing is not there."""
+    if len(table) != len(sentences):
+        return sentences
+    head = [s for s, r in zip(sentences, table) if r.get("metric") in HEADLINE]
+    return head or sentences
+
+
+def _ceiling_line(pop: dict) -> str:
+    rows = [r for r in pop.get("verdict_table") or [] if r.get("metric") == "correct_final"]
+    if not rows:
+        return ""
+    r = rows[0]
+    return (f"Difficulty: of {r.get('n_cells')} (target, track, setting) cells, {r.get('ceiling_cells', 0)} have "
+            f"both methods at a correct ratio of 1 (ceiling) and {r.get('floor_cells', 0)} at 0 (floor); "
+            "the verdict rests on the others.")
+
+
+def population_section(ctx: ReportContext) -> None:
+    pop = ctx.population
+    if not pop:
+        return
+    ctx.section("Where the method wins and loses", "population")
+    page = ctx.page
+    ctx.figure("forest.png", "Paired differences With Uncertainty − baseline on the same (target, track, "
+                             "realization), per target and pooled, with 95 % bootstrap CIs over tracks. "
+                             "A bar that crosses 0 is not distinguishable from no difference.")
+    page.table(["comparison", "metric", "outcome", "difference [95 % CI]", "cells won", "cells lost", "cells"],
+               _paired_rows(pop), cls="paired",
+               caption="Paired differences, pooled. Won/lost: share of (target, track, setting) cells where "
+                       "With Uncertainty is strictly better / worse.")
+    note = dirichlet_note(pop)
+    if note:
+        page.paragraph(note, cls="note")
+    if pop.get("per_target"):
+        ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
+        page.table(["target (tracks)", "method"] + [metric_label(k, short=True) for k in TARGET_METRICS],
+                   _target_rows(pop), cls="per-target",
+                   caption="Per target: value [95 % CI] over that target's tracks; a target with one track has "
+                           "no CI of its own (the bootstrap resamples tracks), only its value.")
+    else:
+        note = "summary.json's population.per_target is empty: no per-method values per target to show."
+        ctx.notes.append(note)
+        page.paragraph(note, cls="warn")
+    _by_setting(ctx, pop)
+    _difficulty(ctx, pop)
+    for s in pop.get("skipped_targets") or []:
+        page.paragraph(f"Target {s.get('target')} skipped: {s.get('reason')}", cls="warn")
+
+
+def comparison_keys(pop: dict) -> list[str]:
+    """The paired comparisons in summary.json: the known ones in their order, then any others."""
+    have = list((pop.get("paired") or {}).keys())
+    known = [comparison_key(m, b) for m, b in COMPARISONS]
+    return [k for k in known if k in have] + [k for k in have if k not in known]
+
+
+def _paired_rows(pop: dict) -> list[list]:
+    outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in pop.get("verdict_table") or []}
+    rows = []
+    for key in comparison_keys(pop):
+        metrics = list(PAIRED_METRICS) + [k for k in (pop["paired"].get(key) or {}) if k not in PAIRED_METRICS
+                                          and "overall" not in k]
+        for metric in metrics:
+            d = ((pop.get("paired") or {}).get(key) or {}).get(metric)
+            if not d:
+                continue
+            rows.append([comparison_label(key), metric_label(metric, short=True),
+                         outcome.get((key, metric)) or _outcome(d, metric), Estimate.of(d, signed=True),
+                         _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells")])
+    return rows
+
+
+def dirichlet_note(pop: dict) -> str:
+    """What the Dirichlet comparison isolates, and how wide its posterior cloud is (summary.json)."""
+    if DIRICHLET not in (pop.get("methods") or ()):
+        return ""
+    d = pop.get("dirichlet") or {}
+    spread = d.get("truth_std_final") or {}
+    cloud = (f" Its posterior cloud (N_ss = {d.get('n_ss')} points) has a median std of P(truth) at the final "
+             f"step of {fmt(spread.get('median'))} (quartiles {fmt(spread.get('q25'))}–{fmt(spread.get('q75'))}, "
+             f"max {fmt(spread.get('max'))}) over {spread.get('n_cells')} tracks." if spread else "")
+    return (f"{method_label(DIRICHLET, short=True)} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the "
+            "classifier's whole probability vector (every output, where the GP methods model their N_f chosen score "
+            "components) and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple "
+            "Bayes it ignores the poses: its posterior is the same for every localization realization and setting "
+            "of a track, so With Uncertainty − Dirichlet measures what the viewpoint-dependent models (with the "
+            "pose handling) add over a view-independent model that also accounts for model uncertainty." + cloud)
+
+
+def _outcome(d: dict, metric: str) -> str:
+    """better / worse / not distinguishable from the CI, where the verdict table lacks the row."""
+    e = Estimate.of(d)
+    if not e.excludes_zero():
+        return "not distinguishable"
+    higher = higher_is_better(metric)
+    return "better" if (float(e.value) > 0) == higher else "worse"
+
+
+def _share(v) -> str:
+    return "—" if v is None else f"{100 * float(v):.0f} %"
+
+
+def _target_rows(pop: dict) -> list[list]:
+    per = pop.get("per_target") or {}
+    n_tracks = counts(pop)["tracks_per_target"]
+    rows = []
+    for t in pop.get("targets") or per.keys():
+        n = n_tracks.get(t)
+        name = f"{t} ({n} track{'s' if n != 1 else ''})" if n else t
+        for m in ordered_methods((per.get(t) or {}).keys()):
+            ests = [(per[t][m] or {}).get(k) for k in TARGET_METRICS]
+            why = next((no_ci_reason(e, n) for e in ests if e and no_ci_reason(e, n)), "")
+            label = f"{t} ({why})" if why else name
+            rows.append([label, method_label(m, short=True)] + [Estimate.of(e) for e in ests])
+    return rows
+
+
+def _by_setting(ctx: ReportContext, pop: dict) -> None:
+    by = pop.get("by_setting") or {}
+    reps = counts(pop)["realizations"]
+    rows = []
+    for setting, entry in by.items():
+        for key in comparison_keys(pop):
+            d = ((entry or {}).get("paired") or {}).get(key) or {}
+            if d:
+                rows.append([setting, reps.get(setting, "?"), comparison_label(key),
+                             Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("msde_final"), True),
+                             Estimate.of(d.get("log10_mgr95_final"), True)])
+    if rows:
+        ctx.page.table(["setting", "realizations", "comparison", "Δ correct, final", "Δ MSDE, final",
+                        "Δ log10 MGR 95%, final"], rows, cls="by-setting",
+                       caption="Paired differences per localization setting (each setting on its own), 95 % CIs "
+                               "over targets and tracks. With 1 realization the log10 MGR percentile is that "
+                               "realization's value.")
+
+
+def _difficulty(ctx: ReportContext, pop: dict) -> None:
+    summ = (pop.get("difficulty") or {}).get("summary") or {}
+    if not summ:
+        return
+    keys = ("min", "q25", "median", "q75", "max", "mean")
+    ctx.page.table(["method"] + list(keys),
+                   [[method_label(m, short=True)] + [(summ[m] or {}).get(k) for k in keys]
+                    for m in ordered_methods(summ.keys())], cls="difficulty",
+                   caption="Difficulty over the population's tracks: share of a track's views whose "
+                           "single-view posterior ranks the target first (1 = every view alone is enough).")
+
+
+def diagnostics_section(ctx: ReportContext) -> None:
+    """GP fits at a bound, next to the ablations that measure what they do to the verdict."""
+    ctx.section("What drives the result: GP fits and ablations", "diagnostics")
+    page, index = ctx.page, ctx.run.index
+    if not index:
+        page.paragraph("models/index.json not found; GP fit diagnostics not shown.", cls="note")
+    else:
+        n = bound_counts(index)
+        page.paragraph(
+            f"{n['at_bound']} of {n['fits']} GP fits (class × component) ended with a hyperparameter at a bound; "
+            f"in {n['noise_lower']} the noise variance sits at its lower bound. Such a fit treats its class's "
+            "score as almost exactly known, so one off-model (domain-shifted) score makes that class nearly "
+            "impossible: this is what produces very large log10 MGR values.")
+        header, rows, _ = hyperparameter_table(index)
+        if rows:
+            page.table(header, rows, cls="hyperparameters", collapsed=f"All {len(rows)} fits (hyperparameters, "
+                       "bound flags and optimizer messages)", caption="GP hyperparameters from models/index.json.")
+    _dirichlet_fits(ctx)
+    _ablations(ctx)
+
+
+def _dirichlet_fits(ctx: ReportContext) -> None:
+    """The Dirichlet method's class models (models/dirichlet/index.json): one row per class."""
+    dj = getattr(ctx.run, "dirichlet", None)
+    if not isinstance(dj, dict) or not dj.get("diagnostics"):
+        return
+    fit = dj.get("fit") or {}
+    diags = dj["diagnostics"]
+    bad = sum(1 for d in diags if not d.get("converged"))
+    ctx.page.paragraph(
+        f"{method_label(DIRICHLET)}: {len(diags)} class models Dir(γ; θ_c) over the {dj.get('dim', '?')} classifier "
+        f"outputs, fitted on the {fit.get('passes', '?')} pass(es) of each class's BigBIRD views by maximum "
+        f"likelihood ({fit.get('method', 'fixed point')}, tolerance {fmt(fit.get('tol'))}); {bad} did not converge "
+        f"within {fit.get('max_iter', '?')} steps. Entries below {fmt(dj.get('floor'))} are raised to it.",
+        cls="note")
+    rows = [[d.get("class"), d.get("n"), fmt(d.get("precision")), d.get("iterations"),
+             "yes" if d.get("converged") else "no", fmt(d.get("log_likelihood"))] for d in diags]
+    ctx.page.table(["class", "vectors", "precision Σθ", "fixed-point steps", "converged", "log likelihood"], rows,
+                   cls="dirichlet-fits", collapsed=f"All {len(rows)} Dirichlet fits",
+                   caption="Dirichlet class models from models/dirichlet/index.json.")
+
+
+def _ablations(ctx: ReportContext) -> None:
+    pop = ctx.population or {}
+    abl = pop.get("ablations") or {}
+    if not abl:
+        ctx.page.paragraph("No ablations ran (evaluate.ablations is empty). Listing, e.g., "
+                           "models.noise_floor=dropout measures how much of the verdict the fits at the "
+                           "noise bound carry.", cls="note")
+        return
+    key = comparison_key(*COMPARISONS[0])
+    rows = []
+    for name, a in abl.items():
+        if a.get("kind") == "attribution":  # its own section (sections_calibration)
+            continue
+        over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
+        d = (a.get("paired") or {}).get(key) or {}
+        said = headline([reformat_numbers(str(s)) for s in a.get("verdict") or []], a.get("verdict_table") or [])
+        rows.append([over, Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True),
+                     " ".join(said) or "—"])
+    ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],
+                   rows, cls="ablations", caption=f"Ablations on the same population: "
+                   f"{comparison_label(key)}, 95 % CIs; each row's verdict is computed as the main one (headline "
+                   "metrics here; every metric in summary.json, population.ablations).")

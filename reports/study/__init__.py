@@ -1,0 +1,1 @@
+"""The seed study's page."""

@@ -1,0 +1,98 @@
+"""The seed study's page (``viewfuse study``): the verdict per seed side by side, pooled values
+with their CIs, every seed's verdict sentences. Numbers go through ``reports.shared.numbers.fmt``, as in
+the main report; the stage (``stages.commands.study``) gathers the summary this renders."""
+from __future__ import annotations
+
+import html
+from typing import Any
+
+from pipeline.evaluation.metrics.labels import method_label, ordered_methods
+from pipeline.evaluation.metrics.spec import metric_label
+from reports.shared.numbers import fmt
+
+
+def entry_label(key: str) -> str:
+    """'with_uncertainty-model_based / correct_final' -> 'With Uncertainty vs Model Based, correct
+    ratio, final step' (keys that are not (comparison / metric) are shown as they are)."""
+    comp, _, metric = key.partition(" / ")
+    a, _, b = comp.partition("-")
+    if not metric or not b:
+        return key
+    return f"{method_label(a, short=True)} vs {method_label(b, short=True)}, {metric_label(metric)}"
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return fmt(v)
+    return html.escape(str(v))
+
+
+def _cell(entry: Any) -> str:
+    if not isinstance(entry, dict):
+        return _fmt(entry)
+    return f"{_fmt(entry.get('value'))} <small>[{_fmt(entry.get('ci_low'))}, {_fmt(entry.get('ci_high'))}]</small>"
+
+
+def _accuracy(seed: dict) -> str:
+    """Held-out top-1 with its 95 % CI over the held-out images, where the card has one."""
+    ci = seed.get("classifier_accuracy_ci95")
+    if not ci:
+        return _fmt(seed.get("classifier_accuracy"))
+    return _cell({"value": seed.get("classifier_accuracy"), "ci_low": ci[0], "ci_high": ci[1]})
+
+
+def render_html(summary: dict, run_name: str) -> str:
+    """One page: the answer (does the verdict hold across seeds), the outcome per entry and seed,
+    then the pooled values with their CIs and every seed's verdict sentences."""
+    seeds = [str(s) for s in summary["seeds"]]
+    per = summary["per_seed"]
+    head = "".join(f"<th>seed {s}</th>" for s in seeds)
+    out_rows = []
+    for k, row in summary["outcomes"].items():
+        cls = ' class="differs"' if k in summary["differs_on"] else ""
+        out_rows.append(f"<tr{cls}><td>{html.escape(entry_label(k))}</td>"
+                        + "".join(f"<td>{_fmt(row[s])}</td>" for s in seeds) + "</tr>")
+    rows = [f"<tr><td>classifier held-out top-1 <small>[95 % CI over the held-out images]</small></td>"
+            + "".join(f"<td>{_accuracy(per[s])}</td>" for s in seeds) + "</tr>",
+            "<tr><td>GP fits with varying scores (std over views &gt; 0.01) · at a bound</td>"
+            + "".join(f"<td>{_fmt(per[s].get('varying_fits'))} · {_fmt(per[s].get('varying_fits_at_bound'))}</td>"
+                      for s in seeds) + "</tr>"]
+    chain = (summary.get("timings_s") or {}).get("chain_per_seed") or {}
+    if chain:
+        rows.append("<tr><td>seconds to compute the chain (classifier + features + models + evaluate)</td>"
+                    + "".join(f"<td>{_fmt(sum(v for v in (chain.get(s) or {}).values() if v is not None) or None)}</td>"
+                              for s in seeds) + "</tr>")
+    pooled = [per[s].get("pooled") or {} for s in seeds]
+    methods = ordered_methods({m for p in pooled for m in p})
+    metrics = list(dict.fromkeys(k for p in pooled for d in p.values() for k in d))
+    for k in metrics:
+        for m in methods:
+            rows.append(f"<tr><td>{html.escape(metric_label(k))} · {html.escape(method_label(m, short=True))}</td>"
+                        + "".join(f"<td>{_cell((p.get(m) or {}).get(k))}</td>" for p in pooled) + "</tr>")
+    sp = summary.get("pooled_over_seeds") or {}
+    seed_verdict = ("<h2>Pooled over seeds</h2><p>One bootstrap over seeds, then targets, then tracks: these CIs "
+                    "cover classifier training runs.</p><ul>"
+                    + "".join(f"<li>{html.escape(v)}</li>" for v in sp.get("verdict") or []) + "</ul>") if sp else ""
+    verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"
+                       + "".join(f"<li>{html.escape(v)}</li>" for v in (per[s].get("verdict") or ["(no verdict)"]))
+                       + "</ul>" for s in seeds)
+    return f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>viewfuse seed study: {html.escape(run_name)}</title>
+<style>body{{font-family:sans-serif;max-width:75em;margin:1em auto;line-height:1.4}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:.2em .5em;text-align:right}}td:first-child,th:first-child{{text-align:left}}
+tr.differs td{{background:#fde2e2}}small{{color:#666}}</style></head><body>
+<h1>Seed study: {html.escape(run_name)}</h1>
+<p><b>{html.escape(summary['sentence'])}</b></p>
+<p>Each seed trains the classifier again (classifier.seed) and reruns features, models and evaluate on the
+same data. An outcome is computed from the 95 % bootstrap CI of the paired difference over targets and tracks
+(better / worse: the CI excludes 0); rows where the seeds disagree are shaded.</p>
+{seed_verdict}
+<h2>Verdict per seed</h2><table><tr><th>comparison, metric</th>{head}</tr>{''.join(out_rows)}</table>
+<h2>Pooled values</h2>
+<p>Value with its 95 % bootstrap CI over targets, then tracks within targets; MGR as log10.</p>
+<table><tr><th>metric · method</th>{head}</tr>{''.join(rows)}</table>
+<h2>Verdict sentences</h2>{verdicts}
+</body></html>
+"""

@@ -1,0 +1,1 @@
+"""The commands: ``viewfuse`` (cli), ``viewfuse study`` and ``viewfuse compare``."""

@@ -1,0 +1,204 @@
+"""``viewfuse study``: does the verdict survive another classifier training run?
+
+For every seed of ``study.seeds`` the chain classifier -> features -> models -> evaluate runs again
+with ``classifier.seed = n`` under ``<run>/study/seed-<n>/`` (a config whose run folder points
+there; the stage runner's manifests make a rerun skip finished seeds). The data stage is shared:
+it is brought up to date once in the run folder and linked into every seed folder (its cache key
+does not depend on the classifier seed). Then ``study/summary.json`` and ``study/index.html`` put
+each seed's ``population.pooled`` and ``population.verdict`` (evaluate/summary.json) side by side
+and say whether the verdict is the same for every seed: the same outcome (better / worse / not
+distinguishable) for every (comparison, metric) of ``population.verdict_table``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import re
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from pipeline.infra.cache import write_json, write_text
+from reports.study.page import entry_label, render_html
+from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import path as out_path
+
+log = logging.getLogger("viewfuse.study")
+
+CHAIN = ("classifier", "features", "models", "evaluate")
+CHAIN_END = CHAIN[-1]
+
+
+def study_dir(cfg) -> Path:
+    return cfg.run_dir / "study"
+
+
+def seed_config(cfg, seed: int):
+    """The run config with classifier.seed = ``seed`` and its run folder at <run>/study/seed-<n>."""
+    run = dataclasses.replace(cfg.run, artifacts=str(study_dir(cfg)), name=f"seed-{seed}")
+    clf = dataclasses.replace(cfg.classifier, seed=int(seed))
+    return dataclasses.replace(cfg, run=run, classifier=clf)
+
+
+def share_data(cfg, scfg) -> None:
+    """Link the run's data folder into a seed folder (relative link; nothing copied)."""
+    src, dst = cfg.stage_dir("data"), scfg.stage_dir("data")
+    if dst.exists() or dst.is_symlink():
+        return
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    os.symlink(os.path.relpath(src, dst.parent), dst, target_is_directory=True)
+
+
+def _finished(scfg) -> str | None:
+    p = scfg.stage_dir(CHAIN_END) / MANIFEST
+    try:
+        return json.loads(p.read_text()).get("finished")
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
+def seed_result(scfg, reused: bool) -> dict:
+    """What the side-by-side page needs from one seed's folder (missing parts are None)."""
+    out: dict[str, Any] = {"run_dir": str(scfg.run_dir), "reused": reused, "classifier_accuracy": None,
+                           "classifier_accuracy_ci95": None,
+                           "varying_fits": None, "varying_fits_at_bound": None,
+                           "pooled": None, "verdict": None, "verdict_table": None}
+    card = out_path(scfg.stage_dir("classifier"), "classifier", "card")
+    if card.is_file():
+        c = json.loads(card.read_text())
+        out["classifier_accuracy"] = c.get("accuracy")
+        out["classifier_accuracy_ci95"] = c.get("accuracy_ci95")
+    index = out_path(scfg.stage_dir("models"), "models", "index")
+    if index.is_file():  # the GP-fit health of this seed's scores: no varying fit at a bound
+        idx = json.loads(index.read_text())
+        thr = float(idx.get("varying_std_threshold", 0.01))
+        out["varying_fits"] = sum(1 for d in idx.get("diagnostics", []) if d.get("train_std", 0.0) > thr)
+        out["varying_fits_at_bound"] = idx.get("varying_fits_at_bound")
+    summ = out_path(scfg.stage_dir(CHAIN_END), CHAIN_END, "summary")
+    if summ.is_file():
+        pop = json.loads(summ.read_text()).get("population") or {}
+        for k in ("pooled", "verdict", "verdict_table"):
+            out[k] = pop.get(k)
+        out["cells"] = pop.get("cells")  # for the seed-pooled bootstrap; not written per seed
+    return out
+
+
+def chain_seconds(scfg) -> dict[str, float | None]:
+    """Seconds each stage of a seed's chain took when it last ran (its manifest), so a rerun that
+    reuses the seed still reports what computing it cost."""
+    out: dict[str, float | None] = {}
+    for stage in CHAIN:
+        try:
+            out[stage] = json.loads((scfg.stage_dir(stage) / MANIFEST).read_text()).get("seconds")
+        except (FileNotFoundError, json.JSONDecodeError):
+            out[stage] = None
+    return out
+
+
+def _numbers_out(sentence: str) -> str:
+    """A verdict sentence without its numbers (they always move a little between seeds)."""
+    return re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", sentence)
+
+
+def outcomes(result: dict) -> dict[str, str] | None:
+    """(comparison / metric) -> outcome for one seed; from the verdict table, else from the
+    sentences with the numbers taken out; None without a population verdict."""
+    table = result.get("verdict_table")
+    if table:
+        return {f"{r['comparison']} / {r['metric']}": str(r["outcome"]) for r in table}
+    if result.get("verdict"):
+        return {f"sentence {i + 1}": _numbers_out(s) for i, s in enumerate(result["verdict"])}
+    return None
+
+
+def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
+    """Every seed's cells in one bootstrap (seeds, then targets, then tracks): pooled values, paired
+    differences and a verdict that covers training runs (``pipeline.evaluation.statistics.seedpool``)."""
+    from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
+    from pipeline.evaluation.metrics.spec import METRICS
+    from pipeline.evaluation.statistics.seedpool import seed_pooled
+
+    cells = {str(s): r["cells"] for s, r in results.items() if r.get("cells")}
+    if not cells:
+        return None
+    present = {m for cs in cells.values() for c in cs for m in (c.get("values") or {})}
+    methods = [m for m in METHODS if m in present]
+    metrics = [k for k in METRICS if any(k in (c.get("values") or {}).get(methods[0], {})
+                                         for cs in cells.values() for c in cs[:1])]
+    return seed_pooled(cells, methods, metrics, COMPARISONS, n_boot)
+
+
+def summarize(results: dict[int, dict], n_boot: int = 2000) -> dict:
+    """Side by side: per seed the pooled values and the verdict; whether the verdict agrees; and
+    the verdict pooled over the seeds."""
+    seeds = sorted(results)
+    pooled = pool_seeds(results, n_boot)
+    per_seed = {str(s): {k: v for k, v in results[s].items() if k != "cells"} for s in seeds}
+    outs = {s: outcomes(results[s]) for s in seeds}
+    missing = [s for s in seeds if outs[s] is None]
+    keys = sorted({k for o in outs.values() if o for k in o})
+    table = {k: {str(s): (outs[s] or {}).get(k) for s in seeds} for k in keys}
+    differ = sorted(k for k, row in table.items() if len(set(row.values())) > 1)
+    held = {k: next(iter(row.values())) for k, row in table.items() if k not in differ and None not in row.values()}
+    same = not missing and not differ
+    if missing:
+        sentence = (f"Seed(s) {', '.join(map(str, missing))} have no population verdict (evaluate/summary.json "
+                    f"lacks 'population'); the verdicts cannot be compared yet.")
+    elif same:
+        sentence = f"The verdict is the same for every seed ({', '.join(map(str, seeds))})."
+    else:
+        sentence = (f"The verdict differs between seeds on {len(differ)} of {len(keys)} "
+                    f"(comparison / metric) entries: {'; '.join(entry_label(k) for k in differ)}.")
+    decided = {k: o for k, o in held.items() if o in ("better", "worse")}
+    if not missing and decided:
+        sentence += (" Held for every seed: " + "; ".join(f"{entry_label(k)}: {o}" for k, o in decided.items()) + ".")
+    return {"seeds": seeds, "per_seed": per_seed, "outcomes": table, "differs_on": differ, "held": held,
+            "missing": missing, "verdict_same": same, "sentence": sentence, "pooled_over_seeds": pooled}
+
+
+def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = False,
+              ensure: Callable | None = None) -> dict:
+    """Run (or reuse) every seed's chain, then write study/summary.json and study/index.html."""
+    if ensure is None:
+        from stages.framework.runner import ensure
+    t0 = time.perf_counter()
+    ensure(cfg, "data", device=device, threads=threads)
+    results, timings = {}, {}
+    for seed in cfg.study.seeds:
+        scfg = seed_config(cfg, seed)
+        share_data(cfg, scfg)
+        before = _finished(scfg)
+        t = time.perf_counter()
+        print(f"[study] seed {seed}: {scfg.run_dir}", flush=True)
+        ensure(scfg, CHAIN_END, force=force, device=device, threads=threads, _keys={})
+        timings[str(seed)] = round(time.perf_counter() - t, 2)
+        reused = before is not None and before == _finished(scfg)
+        results[seed] = seed_result(scfg, reused)
+    summary = summarize(results, cfg.evaluate.bootstrap)
+    summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2),
+                            "chain_per_seed": {str(sd): chain_seconds(seed_config(cfg, sd)) for sd in cfg.study.seeds}}
+    out = study_dir(cfg)
+    write_json(out_path(out, "study", "summary"), summary)
+    compared = write_compare(out, cfg.run.name, summary["sentence"])
+    page = render_html(summary, cfg.run.name)
+    if compared:  # the seeds side by side and pooled over seeds: viewfuse compare's page
+        page = page.replace("</h1>", '</h1>\n<p><a href="compare/index.html">Every seed side by side, with the '
+                                     "values pooled over seeds (viewfuse compare)</a></p>", 1)
+    write_text(out_path(out, "study", "html"), page)
+    print(f"[study] {summary['sentence']} -> {out_path(out, 'study', 'html')}", flush=True)
+    return summary
+
+
+def write_compare(out: Path, run_name: str, sentence: str) -> bool:
+    """``study/compare/index.html``: ``viewfuse compare`` over the seed folders (a seed group)."""
+    from reports.compare.runs import CompareError, compare
+    from reports.compare.page import write_page
+    try:
+        c = compare([out])
+    except CompareError as e:
+        log.warning("study: no comparison page: %s", e)
+        return False
+    write_page(c, out / "compare", title=f"viewfuse seed study: {run_name}", intro=[sentence])
+    return True

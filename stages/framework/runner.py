@@ -1,0 +1,267 @@
+"""Run stages with manifests: skip what is up to date, rerun what is stale, write atomically.
+
+Each stage writes into a temporary sibling folder ``.<stage>.tmp``; only when it finishes is that
+folder swapped in and the manifest written, so an interrupted run never leaves output that looks
+complete (and the next run of any stage removes what a killed run left). Where the runner may
+write, the per-stage lock and the swap are ``stages.framework.run_folder``.
+
+A manifest records the stage's key (config sections, code version, upstream digests, the stage's
+``extra_key``), the sha256 of every output file and of every dataset file the stage read. A stage
+is up to date when its key matches and none of those files changed; otherwise it reruns and says
+why. A stage's *digest* (key + its outputs' hashes) is what downstream keys are built from, so
+rewriting an upstream output (a model file, results) makes everything below it stale.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from loaders.errors import SkipPolicy
+from loaders.files import set_max_megapixels
+from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, write_json
+from pipeline.infra.config import Config, to_dict
+from pipeline.infra.outputs import MANIFEST, undeclared
+from pipeline.infra.progress import echo
+from stages.framework.registry import STAGES, StageSpec, code_version, defines
+from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
+                               stage_lock, stage_paths, swap_in)
+
+log = logging.getLogger("viewfuse")
+
+HASHES = "\0hashes"  # ensure()'s per-run memo of file hashes, kept in its digest dict
+
+
+
+@dataclass
+class StageContext:
+    """What a stage's ``run`` gets: the config, its temporary output folder, upstream folders."""
+    cfg: Config
+    stage: str
+    out: Path
+    device_request: str = "auto"
+    threads: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)  # the stage may record facts for its manifest
+    skips: SkipPolicy = field(default_factory=lambda: SkipPolicy(True))  # data.skip_bad_views
+    _device: str | None = None
+
+    def input(self, stage: str) -> Path:
+        """Final folder of an upstream stage."""
+        return self.cfg.stage_dir(stage)
+
+    @property
+    def device(self) -> str:
+        if self._device is None:
+            from pipeline.infra.device import configure_threads, resolve_device
+            self._device = resolve_device(self.device_request)
+            configure_threads(self.threads)
+        return self._device
+
+
+def read_manifest(cfg: Config, stage: str) -> dict | None:
+    p = cfg.stage_dir(stage) / MANIFEST
+    if not p.is_file():
+        return None
+    try:
+        m = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        return None
+    return m if isinstance(m, dict) else None
+
+
+def digest(manifest: dict) -> str:
+    """What downstream stages key on: the stage's key and the content of its outputs."""
+    outs = {k: v.get("sha256") for k, v in (manifest.get("outputs") or {}).items()}
+    return hash_json({"key": manifest.get("key"), "outputs": outs})
+
+
+def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[str, dict]:
+    code, per_module = code_version(spec)
+    parts = {
+        "stage": spec.name,
+        "sections": {s: to_dict(cfg.section(s)) for s in spec.sections},
+        "code": code,
+        "upstream": upstream,
+    }
+    # Import the stage module only when it has an extra_key: importing one that does not (evaluate,
+    # report) would pull in pandas and matplotlib just to compute a status.
+    extra_key = None if defines(spec.module, "extra_key") is False else getattr(_load(spec), "extra_key", None)
+    if extra_key is not None:
+        parts["inputs"] = extra_key(cfg)
+    return hash_json(parts), {**parts, "code_modules": per_module}
+
+
+def _load(spec: StageSpec):
+    return importlib.import_module(spec.module)
+
+
+# ------------------------------------------------------------------------------------------------
+# Why is a stage stale?
+
+def _key_reason(old: dict, new: dict) -> str:
+    """Which part of the key moved, in words."""
+    oldp, newp = old.get("parts") or {}, new
+    for s, v in newp.get("sections", {}).items():
+        if (oldp.get("sections") or {}).get(s) != v:
+            return f"config [{s}] changed"
+    for u, v in newp.get("upstream", {}).items():
+        if (oldp.get("upstream") or {}).get(u) != v:
+            return f"upstream stage '{u}' changed"
+    if oldp.get("code") != newp.get("code"):
+        om, nm = oldp.get("code_modules") or {}, newp.get("code_modules") or {}
+        changed = sorted(m for m in set(om) | set(nm) if om.get(m) != nm.get(m))
+        return "code changed" + (f" ({', '.join(changed[:4])}{', ...' if len(changed) > 4 else ''})" if changed else "")
+    if oldp.get("inputs") != newp.get("inputs"):
+        return "its dataset or weights inputs changed"
+    return "cache key changed"
+
+
+def stale_reason(cfg: Config, name: str, key: str, parts: dict, verify: dict | None = None) -> str | None:
+    """None when stage ``name`` is up to date for ``key``; otherwise why not. ``verify``: hash the
+    stage's outputs against their recorded sha256 (memo for one run; see ``record_changed``)."""
+    m = read_manifest(cfg, name)
+    if m is None:
+        return "missing (never run here)"
+    if m.get("key") != key:
+        return _key_reason(m, parts)
+    final = cfg.stage_dir(name)
+    if "outputs" not in m:
+        return "manifest predates content hashes"
+    for rel, rec in m["outputs"].items():
+        why = record_changed(final / rel, rec, verify)
+        if why:
+            return f"output {final / rel} {why}"
+    for path, rec in (m.get("inputs") or {}).items():
+        why = record_changed(path, rec)
+        if why:
+            return f"input {path} {why}"
+    return None
+
+
+def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
+    """Status of a stage without running anything: {state: up to date|stale|missing, why, digest}."""
+    memo = {} if _memo is None else _memo
+    if name in memo:
+        return memo[name]
+    spec = STAGES[name]
+    ups = {u: plan(cfg, u, memo) for u in spec.upstream}
+    key, parts = stage_key(cfg, spec, {u: p["digest"] for u, p in ups.items()})
+    why = stale_reason(cfg, name, key, parts)
+    bad_up = [u for u, p in ups.items() if p["state"] != "up to date"]
+    m = read_manifest(cfg, name)
+    if m is None:
+        res = {"state": "missing", "why": why}
+    elif bad_up:
+        res = {"state": "stale", "why": f"upstream stage '{bad_up[0]}' is {ups[bad_up[0]]['state']}"}
+    elif why is not None:
+        res = {"state": "stale", "why": why}
+    else:
+        res = {"state": "up to date", "why": None}
+    res["digest"] = digest(m) if res["state"] == "up to date" else hash_json({"planned": key})
+    memo[name] = res
+    return res
+
+
+# ------------------------------------------------------------------------------------------------
+# Running
+
+def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto", threads: int = 0,
+           _keys: dict[str, str] | None = None, _hashes: dict | None = None) -> str:
+    """Bring stage ``name`` up to date (upstream first); return its digest. A stage found up to
+    date has had its outputs' sha256 checked against its manifest (each file hashed once per run,
+    ``_hashes``), so an output edited with its size and mtime restored is caught before a
+    downstream stage uses it: the stage reruns."""
+    keys = {} if _keys is None else _keys
+    hashes = keys.setdefault(HASHES, {}) if _hashes is None else _hashes
+    if name in keys:
+        return keys[name]
+    spec = STAGES[name]
+    up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys, _hashes=hashes) for u in spec.upstream}
+    key, parts = stage_key(cfg, spec, up)
+    final = stage_paths(cfg, name).final
+    # One run of a stage at a time: a second one waits here, then finds the first one's output.
+    with stage_lock(cfg, name):
+        recover_swap(cfg, name)
+        if not force:
+            why = stale_reason(cfg, name, key, parts, verify=hashes)
+            if why is None:
+                echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
+                keys[name] = digest(read_manifest(cfg, name) or {})
+                return keys[name]
+            if not why.startswith("missing"):
+                echo(f"[{name}] stale: {why}")
+        manifest = run_stage(cfg, spec, key, parts, device=device, threads=threads)
+    keys[name] = digest(manifest)
+    return keys[name]
+
+
+def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: str, threads: int) -> dict:
+    """Run one stage into its temporary folder and swap it in; the caller holds the stage's lock."""
+    mod = _load(spec)
+    paths = stage_paths(cfg, spec.name)
+    final, tmp = paths.final, paths.tmp
+    paths.run_dir.mkdir(parents=True, exist_ok=True)
+    if tmp.exists() or tmp.is_symlink():
+        remove_leftover(tmp, required=True)  # left by an interrupted run (we hold the lock)
+    tmp.mkdir()
+    mark_owned(tmp)
+    set_max_megapixels(cfg.data.max_image_megapixels)  # the dataset readers' image size limit
+    ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads,
+                       skips=SkipPolicy.from_config(cfg))
+    echo(f"[{spec.name}] running: {spec.help}")
+    t0 = time.perf_counter()
+    try:
+        with recording_inputs() as rec:
+            summary = mod.run(ctx)
+        # Files in the run folder are upstream outputs, already covered by the upstream digests;
+        # leaving them out also keeps a moved artifacts folder valid.
+        inputs = rec.records(exclude=cfg.run_dir)
+        outputs = folder_records(tmp, skip=(MANIFEST, OWNER))
+        stray = undeclared(spec.name, outputs)
+        if stray:  # the catalog is the one list of what a stage writes
+            raise RuntimeError(f"stage {spec.name!r} wrote output(s) that pipeline/infra/outputs.py does not "
+                               f"declare: {', '.join(stray[:5])}")
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    elapsed = time.perf_counter() - t0
+    if ctx.skips.enabled:
+        ctx.extra.setdefault("skipped", {}).update(ctx.skips.summary())
+    manifest = {
+        "stage": spec.name,
+        "key": key,
+        "parts": parts,
+        "seconds": round(elapsed, 3),
+        "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "summary": summary,
+        "device": ctx._device,
+        "extra": ctx.extra,
+        "outputs": outputs,
+        "inputs": inputs,
+    }
+    write_json(tmp / MANIFEST, manifest)
+    swap_in(paths)
+    echo(f"[{spec.name}] done in {_fmt(elapsed)}: {summary} -> {final}")
+    if ctx.skips.count:
+        echo(f"[{spec.name}] {ctx.skips.count} bad entr{'y' if ctx.skips.count == 1 else 'ies'} skipped "
+             f"(data.skip_bad_views); see {final / MANIFEST} 'extra.skipped'")
+    return manifest
+
+
+def _fmt(s: float) -> str:
+    return f"{s:.1f} s" if s < 120 else f"{s / 60:.1f} min"
+
+
+def stage_timings(cfg: Config) -> dict[str, float]:
+    """Seconds each finished stage took (for the report)."""
+    out = {}
+    for name in STAGES:
+        m = read_manifest(cfg, name)
+        if m:
+            out[name] = m.get("seconds", float("nan"))
+    return out

@@ -1,0 +1,134 @@
+"""``viewfuse compare``: N runs side by side from their summary.json and manifests only."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reports.compare.runs import CompareError, compare, pool_over_seeds
+from reports.compare.page import build_page, render_text
+from stages.commands.cli import main
+
+METHODS = ("with_uncertainty", "model_based", "simple_bayes")
+KEY = "with_uncertainty-model_based"
+
+
+def _est(v: float, w: float = 0.1) -> dict:
+    return {"value": v, "ci_low": v - w, "ci_high": v + w}
+
+
+def write_run(d: Path, *, correct: float = 0.6, mgr: float = 2.0, outcome: str = "better", sigmas=(0.1, 0.3),
+              seed: int = 0, table: bool = True, population: bool = True) -> Path:
+    """A finished run as compare reads it: evaluate/summary.json and stage manifests."""
+    pop = {"pooled": {m: {"correct_final": _est(correct - 0.1 * i), "log10_mgr95_final": _est(mgr + i)}
+                      for i, m in enumerate(METHODS)},
+           "paired": {KEY: {"correct_final": {**_est(0.2 if outcome == "better" else 0.0), "better": "higher"},
+                            "log10_mgr95_final": {**_est(-1.0, 0.5), "better": "lower"}}}}
+    if table:
+        pop["verdict_table"] = [{"comparison": KEY, "metric": "correct_final", "outcome": outcome,
+                                 **pop["paired"][KEY]["correct_final"]},
+                                {"comparison": KEY, "metric": "log10_mgr95_final", "outcome": "better",
+                                 **pop["paired"][KEY]["log10_mgr95_final"]}]
+    (d / "evaluate").mkdir(parents=True, exist_ok=True)
+    summary = {"population": pop} if population else {"experiments": {}, "target": "x"}
+    (d / "evaluate" / "summary.json").write_text(json.dumps(summary))
+    sections = {"classifier": {"classifier": {"seed": seed, "epochs": 7}},
+                "evaluate": {"evaluate": {"seed": 0, "randomized": {"sigmas_m": list(sigmas), "realizations": 20}}},
+                "models": {"models": {"component_rule": "top_mean"}, "evaluate.n_candidates": 4}}
+    for stage in ("data", "classifier", "features", "models", "evaluate"):
+        (d / stage).mkdir(parents=True, exist_ok=True)
+        (d / stage / "manifest.json").write_text(json.dumps({"stage": stage, "parts": {"sections": sections.get(stage, {})}}))
+    return d
+
+
+def test_one_run_has_no_config_diff_and_says_there_is_nothing_to_compare(tmp_path):
+    c = compare([write_run(tmp_path / "a")])
+    assert c.config == {} and len(c.columns) == 1
+    text = render_text(c)
+    assert "nothing to compare against" in text and "0.600 [0.500, 0.700]" in text
+
+
+def test_two_runs_show_only_the_changed_key_and_mark_changed_outcomes(tmp_path):
+    a = write_run(tmp_path / "synthetic")
+    b = write_run(tmp_path / "b", sigmas=(0.2,), outcome="not distinguishable", correct=0.5)
+    c = compare([a, b])
+    assert c.config == {"evaluate.randomized.sigmas_m": [[0.1, 0.3], [0.2]]}   # only the key that changed
+    assert c.changed[(KEY, "correct_final")] == [False, True]
+    assert c.changed[(KEY, "log10_mgr95_final")] == [False, False]
+    assert [e["value"] for e in c.pooled[("with_uncertainty", "correct_final")]] == [0.6, 0.5]
+    text = render_text(c)
+    assert "evaluate.randomized.sigmas_m  [0.1, 0.3]  [0.2]" in text
+    assert "*not distinguishable" in text and "*better" not in text
+    html = build_page(c).render()
+    assert html.count('class="changed"') == 1 and "evaluate.randomized.sigmas_m" in html
+    assert html.count("evaluate.seed") == 0        # unchanged keys stay out
+
+
+def test_three_runs_with_a_seed_group_pool_over_seeds(tmp_path):
+    base = write_run(tmp_path / "synthetic", correct=0.7)
+    study = tmp_path / "study"
+    for s, (cv, mg) in enumerate(((0.6, 2.0), (0.5, 40.0), (0.7, 3.0))):
+        write_run(study / f"seed-{s}", correct=cv, mgr=mg, seed=s, outcome="better" if s != 1 else "worse")
+    c = compare([base, study])
+    names = [col.name for col in c.columns]
+    assert names == ["synthetic", "study/seed-0", "study/seed-1", "study/seed-2", "study: pooled over 3 seeds"]
+    assert c.config == {"classifier.seed": [0, 0, 1, 2]}
+    pooled = c.pooled[("with_uncertainty", "correct_final")][-1]
+    v = np.array([0.6, 0.5, 0.7])
+    half = 4.302652729911275 * v.std(ddof=1) / math.sqrt(3)          # t(0.975, 2)
+    assert pooled["value"] == pytest.approx(0.6) and pooled["ci_high"] - pooled["value"] == pytest.approx(half)
+    mgr = c.pooled[("with_uncertainty", "log10_mgr95_final")][-1]
+    assert (mgr["value"], mgr["ci_low"], mgr["ci_high"]) == (3.0, 2.0, 40.0)   # median, [min, max]: robust
+    v = c.verdicts[(KEY, "correct_final")][-1]
+    assert v["outcome"].startswith("mixed") and not v["held_for_every_seed"]
+    assert c.changed[(KEY, "correct_final")] == [False, False, True, False, True]
+
+
+def test_pool_over_seeds_of_one_seed_is_its_value_without_an_interval():
+    assert pool_over_seeds([_est(0.4)], "correct_final") == {"value": 0.4, "ci_low": None, "ci_high": None, "n": 1,
+                                                             "how": "1 seed"}
+
+
+def test_a_missing_run_is_named(tmp_path, capsys):
+    a = write_run(tmp_path / "a")
+    with pytest.raises(CompareError, match=r"run .*nope.*not found"):
+        compare([a, tmp_path / "nope"])
+    half = tmp_path / "half"
+    (half / "models").mkdir(parents=True)        # a run whose evaluate stage never finished
+    with pytest.raises(CompareError, match=r"run half: .*summary.json not found"):
+        compare([half])
+    assert main(["compare", str(a), str(tmp_path / "nope")]) == 1
+    assert "nope" in capsys.readouterr().err
+
+
+def test_an_older_summary_is_named_or_read_from_its_paired_cis(tmp_path):
+    old = write_run(tmp_path / "old", population=False)
+    with pytest.raises(CompareError, match=r"run old: .*no 'population'.*older evaluate stage"):
+        compare([write_run(tmp_path / "a"), old])
+    no_table = write_run(tmp_path / "no_table", table=False)
+    c = compare([write_run(tmp_path / "a"), no_table])
+    assert [v["outcome"] for v in c.verdicts[(KEY, "correct_final")]] == ["better", "better"]
+    assert [v["outcome"] for v in c.verdicts[(KEY, "log10_mgr95_final")]] == ["better", "better"]
+    assert any("older summary format" in n for n in c.notes)
+
+
+def test_cli_prints_the_table_and_writes_the_page(tmp_path, capsys):
+    a, b = write_run(tmp_path / "synthetic"), write_run(tmp_path / "b", sigmas=(0.2,))
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "cmp")]) == 0
+    out = capsys.readouterr().out
+    assert "Config keys that differ:" in out and "evaluate.randomized.sigmas_m" in out
+    page = (tmp_path / "cmp" / "index.html").read_text()
+    assert '<th scope="col">synthetic</th>' in page and "Paired verdicts" in page
+
+
+def test_three_plain_runs_are_three_columns_and_each_changed_key_is_listed_once(tmp_path):
+    a = write_run(tmp_path / "a")
+    b = write_run(tmp_path / "b", sigmas=(0.2,))
+    c3 = write_run(tmp_path / "c", seed=4, outcome="worse")
+    c = compare([a, b, c3])
+    assert [col.name for col in c.columns] == ["a", "b", "c"] and not any(col.pooled_over_seeds for col in c.columns)
+    assert c.config == {"classifier.seed": [0, 0, 4], "evaluate.randomized.sigmas_m": [[0.1, 0.3], [0.2], [0.1, 0.3]]}
+    assert c.changed[(KEY, "correct_final")] == [False, False, True]

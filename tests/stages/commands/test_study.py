@@ -1,0 +1,118 @@
+"""The seed study: per-seed configs, side-by-side summary, verdict agreement, reuse of finished seeds."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from pipeline.infra.cache import write_json
+from reports.study.page import render_html
+from stages.commands.study import outcomes, run_study, seed_config, summarize
+
+
+def _population(outcome: str, value: float) -> dict:
+    cell = {"value": value, "ci_low": value - 0.1, "ci_high": value + 0.1}
+    return {"pooled": {"with_uncertainty": {"correct_final": cell}, "model_based": {"correct_final": cell}},
+            "verdict": [f"With Uncertainty is {outcome} than Model Based (difference {value:.2f}, 95 % CI "
+                        f"[{value - 0.1:.2f}, {value + 0.1:.2f}], over 12 targets x 96 tracks)"],
+            "verdict_table": [{"comparison": "with_uncertainty-model_based", "metric": "correct_final",
+                               "outcome": outcome, "value": value, "ci_low": value - 0.1, "ci_high": value + 0.1}]}
+
+
+def _fake_ensure(outcome_by_seed: dict, calls: list):
+    """Stands in for the runner: 'runs' a seed's chain only when its evaluate manifest is absent,
+    writing a tiny card and evaluate/summary.json, as the real manifests make finished seeds skip."""
+    def ensure(cfg, name, force=False, device="auto", threads=0, _keys=None):
+        calls.append((cfg.run.name, name, cfg.classifier.seed))
+        if name == "data":
+            write_json(cfg.stage_dir("data") / "manifest.json", {"stage": "data"})
+            return "k"
+        ev = cfg.stage_dir("evaluate")
+        if (ev / "manifest.json").is_file() and not force:
+            return "k"
+        seed = cfg.classifier.seed
+        write_json(cfg.stage_dir("classifier") / "card.json", {"accuracy": 0.9 + seed / 100,
+                                                               "accuracy_ci95": [0.88 + seed / 100, 0.92 + seed / 100]})
+        diags = [{"train_std": 0.05, "at_bound": []}, {"train_std": 0.002, "at_bound": ["noise at lower bound"]},
+                 {"train_std": 0.03, "at_bound": ["length_scale at lower bound"] * seed}]
+        write_json(cfg.stage_dir("models") / "index.json", {"diagnostics": diags, "varying_std_threshold": 0.01,
+                                                            "varying_fits_at_bound": seed})
+        write_json(ev / "summary.json", {"population": _population(*outcome_by_seed[seed])})
+        write_json(ev / "manifest.json", {"finished": f"run {len(calls)}", "seconds": 1.5 + seed})
+        return "k"
+    return ensure
+
+
+def test_seed_config_moves_the_run_folder_and_changes_only_the_classifier_seed(tmp_config):
+    cfg = tmp_config({"study": {"seeds": [3, 5]}})
+    s = seed_config(cfg, 5)
+    assert s.run_dir == cfg.run_dir / "study" / "seed-5"
+    assert s.classifier.seed == 5 and cfg.classifier.seed == 0
+    assert (s.data, s.features, s.models, s.evaluate) == (cfg.data, cfg.features, cfg.models, cfg.evaluate)
+    assert s.section_hash("data") == cfg.section_hash("data")  # shared data has the same cache key
+    assert s.section_hash("classifier") != cfg.section_hash("classifier")
+
+
+def test_summary_puts_seeds_side_by_side_and_says_whether_the_verdict_agrees():
+    same = summarize({0: {"pooled": {}, **_population("better", 0.2), "classifier_accuracy": 0.9, "reused": False},
+                      1: {"pooled": {}, **_population("better", 0.4), "classifier_accuracy": 0.9, "reused": True}})
+    assert same["verdict_same"] and same["differs_on"] == [] and "same for every seed" in same["sentence"]
+    assert same["outcomes"] == {"with_uncertainty-model_based / correct_final": {"0": "better", "1": "better"}}
+    assert same["held"] == {"with_uncertainty-model_based / correct_final": "better"}
+    assert "Held for every seed: With Uncertainty vs Model Based, correct ratio, final step: better." in same["sentence"]
+    flip = summarize({0: _population("better", 0.2), 1: _population("not distinguishable", 0.0)})
+    assert not flip["verdict_same"] and flip["differs_on"] == ["with_uncertainty-model_based / correct_final"]
+    assert flip["held"] == {} and "Held for every seed" not in flip["sentence"]
+    assert "differs" in flip["sentence"]
+    missing = summarize({0: _population("better", 0.2), 1: {"verdict": None, "verdict_table": None}})
+    assert not missing["verdict_same"] and missing["missing"] == [1]
+    json.dumps(flip, allow_nan=False)  # strict JSON
+
+
+def test_sentences_without_a_table_are_compared_without_their_numbers():
+    a, b = _population("better", 0.2), _population("better", 0.35)
+    for r in (a, b):
+        r["verdict_table"] = None
+    assert outcomes(a) == outcomes(b)
+    c = _population("worse", 0.2)
+    c["verdict_table"] = None
+    assert outcomes(a) != outcomes(c)
+
+
+def test_study_runs_each_seed_then_reuses_finished_ones(tmp_config):
+    cfg = tmp_config({"study": {"seeds": [0, 1]}})
+    calls: list = []
+    ensure = _fake_ensure({0: ("better", 0.2), 1: ("worse", -0.2)}, calls)
+    first = run_study(cfg, ensure=ensure)
+    assert [c for c in calls if c[1] == "evaluate"] == [("seed-0", "evaluate", 0), ("seed-1", "evaluate", 1)]
+    assert [first["per_seed"][s]["reused"] for s in ("0", "1")] == [False, False]
+    assert not first["verdict_same"]
+    out = cfg.run_dir / "study"
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert on_disk["per_seed"]["1"]["classifier_accuracy"] == pytest.approx(0.91)
+    assert [on_disk["per_seed"][s]["varying_fits"] for s in ("0", "1")] == [2, 2]
+    assert [on_disk["per_seed"][s]["varying_fits_at_bound"] for s in ("0", "1")] == [0, 1]
+    assert on_disk["per_seed"]["0"]["pooled"]["with_uncertainty"]["correct_final"]["value"] == pytest.approx(0.2)
+    page = (out / "index.html").read_text()
+    assert "seed 0" in page and "seed 1" in page and "differs" in page
+    assert "With Uncertainty vs Model Based, correct ratio, final step" in page  # labels, not keys
+    assert "0.910 <small>[0.890, 0.930]</small>" in page  # seed 1's accuracy with its CI
+    assert page.index("Verdict per seed") < page.index("Pooled values")
+    # viewfuse compare's page over the seed folders, linked from the study page
+    assert 'href="compare/index.html"' in page
+    cmp = (out / "compare" / "index.html").read_text()
+    assert "seed-0" in cmp and "seed-1" in cmp and 'class="changed"' in cmp  # seed 1's verdict flipped
+    # The data folder is shared, not rendered again per seed.
+    assert (out / "seed-0" / "data").is_symlink()
+    assert (out / "seed-0" / "data").resolve() == cfg.stage_dir("data").resolve()
+    again = run_study(cfg, ensure=ensure)
+    assert [again["per_seed"][s]["reused"] for s in ("0", "1")] == [True, True]
+    # What computing each seed cost is still reported after a rerun that reused it.
+    assert again["timings_s"]["chain_per_seed"]["1"]["evaluate"] == pytest.approx(2.5)
+    assert again["timings_s"]["chain_per_seed"]["1"]["classifier"] is None  # the fake chain wrote no manifest
+    assert again["per_seed"] == {s: {**first["per_seed"][s], "reused": True} for s in ("0", "1")}
+
+
+def test_page_escapes_text():
+    s = summarize({0: {**_population("better", 0.1), "verdict": ["<b>x</b>"]}})
+    assert "&lt;b&gt;x&lt;/b&gt;" in render_html(s, "r<1>") and "r&lt;1&gt;" in render_html(s, "r<1>")
