@@ -20,12 +20,15 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def start(tmp_path: Path) -> subprocess.Popen:
-    syn = {**TINY["data"]["synthetic"], "workers": 2}
-    args = [sys.executable, "-m", "stages.commands.cli", "data", "--progress", "off",
-            "--set", f"run.artifacts={tmp_path}", "--set", f"data.scans={json.dumps(TINY['data']['scans'])}"]
-    for k, v in syn.items():
-        args += ["--set", f"data.synthetic.{k}={json.dumps(v)}"]
+def start(tmp_path: Path, stage: str = "data") -> subprocess.Popen:
+    args = [sys.executable, "-m", "stages.commands.cli", stage, "--progress", "off", "--set", f"run.artifacts={tmp_path}"]
+    if stage == "data":
+        syn = {**TINY["data"]["synthetic"], "workers": 2}
+        args += ["--set", f"data.scans={json.dumps(TINY['data']['scans'])}"]
+        for k, v in syn.items():
+            args += ["--set", f"data.synthetic.{k}={json.dumps(v)}"]
+    else:  # the classifier renders its source domain in 2 processes, 250 images per task
+        args += ["--set", "classifier.training.train_images=20000", "--set", "classifier.training.render_workers=2"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -47,8 +50,9 @@ def gone(procs: list[psutil.Process], timeout: float = 10.0) -> list[psutil.Proc
     return alive
 
 
-def test_sigterm_stops_the_workers_and_removes_the_partial_output(tmp_path):
-    proc = start(tmp_path)
+@pytest.mark.parametrize("stage", ["data", "classifier"])
+def test_sigterm_stops_the_workers_and_removes_the_partial_output(tmp_path, stage):
+    proc = start(tmp_path, stage)
     kids = workers_of(proc)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
@@ -56,7 +60,7 @@ def test_sigterm_stops_the_workers_and_removes_the_partial_output(tmp_path):
     assert "terminated (SIGTERM); partial outputs were discarded" in err
     assert not gone(kids), "pool workers or the resource tracker outlived the stage"
     run = tmp_path / "synthetic"
-    assert not (run / ".data.tmp").exists() and not (run / ".data.workers").exists()
+    assert not (run / f".{stage}.tmp").exists() and not (run / f".{stage}.workers").exists()
 
 
 def test_after_sigkill_no_worker_writes_and_a_rerun_succeeds(tmp_path):
