@@ -23,6 +23,7 @@ from typing import Any
 
 from loaders.errors import BadInputError
 from loaders.files import checked_file
+from pipeline.infra.nesting import depth
 
 # Real summaries are ~3 MB (the paper-grade evaluate), manifests a few kB: the caps leave room
 # for growth and stop a multi-GB file before it is read.
@@ -61,19 +62,6 @@ def read_json(path: Path, max_bytes: int, what: str) -> Any:
     if depth(value) > MAX_DEPTH:
         raise RunFileError(f"{path}: {what} is nested deeper than {MAX_DEPTH} levels; not read")
     return value
-
-
-def depth(value: Any) -> int:
-    """Nesting depth of a JSON value (a scalar is 0), without recursion."""
-    deepest, stack = 0, [(value, 0)]
-    while stack:
-        v, d = stack.pop()
-        if isinstance(v, dict):
-            v = list(v.values())
-        if isinstance(v, list):
-            deepest = max(deepest, d + 1)
-            stack += [(x, d + 1) for x in v if isinstance(x, (dict, list))]
-    return deepest
 
 
 # -- schema ------------------------------------------------------------------------------------------

@@ -10,7 +10,8 @@ import signal
 import pytest
 
 from reports.compare.page import render_text
-from reports.compare.read import MAX_DEPTH, MAX_SUMMARY_BYTES, depth, printable
+from pipeline.infra.nesting import depth
+from reports.compare.read import MAX_DEPTH, MAX_SUMMARY_BYTES, printable
 from reports.compare.runs import CompareError, compare
 from stages.commands.cli import main
 from tests.stages.commands.test_compare import write_run
