@@ -119,10 +119,12 @@ def write_table(table, path: str | Path) -> None:
         pq.write_table(table, tmp, compression="zstd")
 
 
-def read_features(path: str | Path, kind: str | None = None) -> tuple["Any", np.ndarray, dict[str, str]]:
+def read_features(path: str | Path, kind: str | None = None,
+                  required: Iterable[str] = ()) -> tuple["Any", np.ndarray, dict[str, str]]:
     """(DataFrame of every column but ``scores`` (RangeIndex = row number), scores (n, D) float32,
     ``viewfuse.*`` metadata as strings). The columns are checked against the ``kind`` table's
-    contract (bigbird or avd; default: from the file name), ``table_checks.check_table``."""
+    contract (bigbird or avd; default: from the file name), the ``required`` ones (those the
+    caller uses) must be there (``table_checks.check_table``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -137,7 +139,8 @@ def read_features(path: str | Path, kind: str | None = None) -> tuple["Any", np.
         raise ValueError(f"{path}: not a readable Parquet file ({e})") from None
     if "scores" not in table.column_names:
         raise ValueError(f"{path}: no 'scores' column")
-    check_table(table, kind or kind_of(path, table.column_names), path, lambda p, m: ValueError(f"{p}: {m}"))
+    check_table(table, kind or kind_of(path, table.column_names), path, lambda p, m: ValueError(f"{p}: {m}"),
+                required)
     meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
             if k.decode().startswith("viewfuse.")}
     col = table.column("scores").combine_chunks()

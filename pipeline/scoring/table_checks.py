@@ -5,7 +5,7 @@ confusing failure later ("models need at least two classes", "SVD did not conver
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -35,23 +35,32 @@ def kind_of(path: str | Path, names: list[str]) -> str:
     return "bigbird" if "object" in names else "avd"
 
 
-def check_table(table, kind: str, path: str | Path, error: Callable[[str, str], Exception]) -> None:
+def check_table(table, kind: str, path: str | Path, error: Callable[[str, str], Exception],
+                required: Iterable[str] = ()) -> None:
     """Raise ``error(path, problem)`` for the first column of ``table`` that breaks the ``kind``
-    feature-table contract (``pipeline.scoring.features.schema``)."""
+    feature-table contract (``pipeline.scoring.features.schema``): one of ``required`` (the
+    columns the reader uses) missing, or a contract column present but of another type, null,
+    or (a pose) not finite."""
     from pipeline.scoring.features import columns
 
-    for name, t in columns(kind):
-        want = _family(t)
+    contract = dict(columns(kind))
+    for name in required:
         if name not in table.column_names:
-            raise error(path, f"missing column '{name}' (expected {want} {t}) of the {kind} feature table")
-        col = table.column(name)
+            t = contract[name]
+            raise error(path, f"missing column '{name}' (expected type {t}) of the {kind} feature table")
+    for name, t in contract.items():
+        if name not in table.column_names:
+            continue
+        want, col = _family(t), table.column(name)
         got = _family(col.type)
         # integers may stand in for floats (a pose written as whole numbers); nothing else converts
         if got != want and not (want == "float" and got == "integer"):
-            raise error(path, f"column '{name}' holds {col.type} ({got}), expected {want} {t}")
+            raise error(path, f"column '{name}' has type {col.type}, expected {t} (or another {want} type)")
         if col.null_count:
             raise error(path, f"column '{name}' has {col.null_count} null value(s); expected none")
     for name in POSE_COLS[kind]:
+        if name not in table.column_names:
+            continue
         v = table.column(name).to_numpy().astype(np.float64)
         bad = ~np.isfinite(v)
         if bad.any():

@@ -77,3 +77,16 @@ def test_a_linked_models_folder_still_loads(run, tmp_path):
     os.symlink(run, tmp_path / "linked")
     banks, _ = load_banks(tmp_path / "linked", (ABL,))
     assert len(banks) == 2
+
+
+def test_a_dirichlet_parameter_file_linked_out_of_its_folder_is_refused(tmp_path):
+    from pipeline.method.dirichlet import DirichletFileError, DirichletModels
+
+    m = DirichletModels(["a", "b"], np.arange(1, 7, dtype=float).reshape(2, 3), floor=1e-5)
+    m.save(tmp_path / "elsewhere")
+    m.save(tmp_path / "bank")
+    assert DirichletModels.load(tmp_path / "bank").classes == ["a", "b"]
+    (tmp_path / "bank" / "theta.npz").unlink()
+    os.symlink(tmp_path / "elsewhere" / "theta.npz", tmp_path / "bank" / "theta.npz")
+    with pytest.raises(DirichletFileError, match=r"index.json: the parameter file 'theta.npz' resolves to .*outside"):
+        DirichletModels.load(tmp_path / "bank")
