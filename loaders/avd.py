@@ -21,9 +21,11 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 
+from loaders.avd_boxes import AVDBox, BoxNotes, difficulty, parse_box  # noqa: F401 - AVDBox, difficulty: public here
 from loaders.jpeg import jpeg_size, read_rgb
 from loaders.errors import BadInputError, SkipLog
 from loaders.files import checked_file, read_checked
+from pipeline.evaluation.grid.viewpoints import scan_grid_points
 from pipeline.infra.cache import note_read
 from pipeline.infra.progress import bar
 
@@ -42,21 +44,6 @@ KINECT_K = np.array([[1070.0016, 0.0, 927.2688],
                      [0.0, 1069.1226, 545.7610],
                      [0.0, 0.0, 1.0]])
 
-# Boxes may overshoot the image by this many pixels before they count as "outside": the labels
-# were drawn in MATLAB (1-based), so an inclusive right/bottom edge can land one past the end.
-_EDGE_TOLERANCE_PX = 1
-
-
-@dataclass(frozen=True)
-class AVDBox:
-    x0: int
-    y0: int
-    x1: int
-    y1: int
-    instance_id: int
-    difficulty: int
-
-
 @dataclass
 class AVDImage:
     name: str
@@ -67,16 +54,6 @@ class AVDImage:
     heading: float         # radians, optical-axis direction in that ground frame
     registered: bool       # False for interpolated entries (empty R, t, quat)
     struct: dict = field(repr=False)  # all 16 image_structs fields (empty arrays where missing)
-
-
-def difficulty(x0: float, y0: float, x1: float, y1: float) -> int:
-    """AVD's size-only difficulty (1 easiest .. 5), with w = x1-x0, h = y1-y0."""
-    w, h = x1 - x0, y1 - y0
-    big, small = max(w, h), min(w, h)
-    for level, (lb, ls) in enumerate(((300, 100), (200, 75), (100, 50), (50, 30)), start=1):
-        if big >= lb and small >= ls:
-            return level
-    return 5
 
 
 def read_instance_map(path: str | Path, root: str | Path | None = None) -> dict[str, int]:
@@ -214,27 +191,41 @@ class AVDScan:
     With ``skip`` (a SkipLog), bad entries that should not stop a run are counted and logged
     there instead of raising: annotation entries naming images not in jpg_rgb/, JPGs without
     an annotation or image_structs entry or with an unreadable header, images whose pose is
-    NaN (dropped), and single bad boxes (degenerate, outside the image, unknown instance).
+    NaN (dropped), and single bad boxes (degenerate, mostly outside the image, unknown instance).
+    Boxes with difficulty 0 (not assigned) or overshooting the image edge are kept, repaired
+    (``loaders.avd_boxes``) and counted in ``box_notes``.
+
+    ``frames=False`` is the metadata-only mode, for a copy without ``jpg_rgb/`` (the real
+    metadata in ``../shared/realdata/avd``): the images are the annotations.json entries, each
+    ``image_size`` pixels (default the published 1920x1080, docs/formats/avd.md §2), and
+    ``read_image`` refuses. Poses, boxes and the move graph read exactly as with frames.
     """
 
-    def __init__(self, root: str | Path, scan: str, skip: SkipLog | None = None):
+    def __init__(self, root: str | Path, scan: str, skip: SkipLog | None = None, *, frames: bool = True,
+                 image_size: tuple[int, int] = KINECT_SIZE):
         self.root = Path(root)
         self.scan = scan
         self.folder = self.root / scan
         self.skip = skip
+        self.frames = bool(frames)
+        self.box_notes = BoxNotes()
         if not self.folder.is_dir():
             raise BadInputError(self.folder, "AVD scan folder is missing")
         self.instance_ids = read_instance_map(self.root / "instance_id_map.txt", self.root)
         self.instance_names = {i: n for n, i in self.instance_ids.items()}
         jpg_dir = self.folder / "jpg_rgb"
-        if not jpg_dir.is_dir():
-            raise BadInputError(jpg_dir, "jpg_rgb/ folder is missing")
-        files = {p.name: p for p in jpg_dir.iterdir() if p.suffix.lower() == ".jpg"}
+        if self.frames and not jpg_dir.is_dir():
+            raise BadInputError(jpg_dir, "jpg_rgb/ folder is missing (a metadata-only copy reads with frames=False)")
+        self._image_size: tuple[int, int] | None = None if self.frames else (int(image_size[0]), int(image_size[1]))
         ann_path = self.folder / "annotations.json"
         annotations = self._read_annotations(ann_path)
         self.structs_path = self.folder / "image_structs.mat"
         self.scale, structs = _read_structs(self.structs_path, self.root)
         self.present_instances = self._read_present(self.folder / "present_instance_names.txt", annotations)
+        if self.frames:
+            files = {p.name: p for p in jpg_dir.iterdir() if p.suffix.lower() == ".jpg"}
+        else:
+            files = {name: jpg_dir / name for name in annotations}
 
         for name in sorted(set(annotations) - set(files)):
             self._bad(BadInputError(ann_path, f"annotation names image {name!r}, which is not in jpg_rgb/"))
@@ -285,7 +276,9 @@ class AVDScan:
             self.images[name] = AVDImage(name=name, path=path, boxes=boxes, moves=moves,
                                          position=pos, heading=float(math.atan2(dg[1], dg[0])),
                                          registered=R is not None, struct=structs[name])
-        self._image_size: tuple[int, int] | None = None
+        if self.box_notes.unassigned or self.box_notes.clipped:
+            log.info("%s: kept %d box(es) with difficulty 0 (size rule's level assigned) and %d clipped to the "
+                     "image edge", ann_path, self.box_notes.unassigned, self.box_notes.clipped)
 
     # ---- parsing helpers -----------------------------------------------------------------------
     def _bad(self, err: BadInputError) -> None:
@@ -333,35 +326,14 @@ class AVDScan:
             raise BadInputError(ann_path, f"image {name}: 'bounding_boxes' is not a list")
         if not raw:
             return []
-        w, h = jpeg_size(img_path, self.root)
+        w, h = jpeg_size(img_path, self.root) if self.frames else self._image_size
         out = []
         for b in raw:
             try:
-                out.append(self._box(b, name, w, h, ann_path))
+                out.append(parse_box(b, name, w, h, ann_path, self.instance_names, self.box_notes))
             except BadInputError as err:
                 self._bad(err)  # one bad box: skip just that box when skipping
         return out
-
-    def _box(self, b, name: str, w: int, h: int, ann_path: Path) -> AVDBox:
-        if not isinstance(b, (list, tuple)) or len(b) != 6:
-            raise BadInputError(ann_path, f"image {name}: box {b!r} is not [x0, y0, x1, y1, id, difficulty]")
-        vals = []
-        for v in b:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer():
-                raise BadInputError(ann_path, f"image {name}: box {b!r} has a non-integer value {v!r}")
-            vals.append(int(v))
-        x0, y0, x1, y1, iid, diff = vals
-        if iid not in self.instance_names or iid == 0:
-            raise BadInputError(ann_path, f"image {name}: box {b!r} has unknown instance id {iid}")
-        if x1 <= x0 or y1 <= y0:
-            raise BadInputError(ann_path, f"image {name}: degenerate box {b!r} (needs x1 > x0 and y1 > y0)")
-        tol = _EDGE_TOLERANCE_PX
-        if x0 < 0 or y0 < 0 or x1 > w + tol or y1 > h + tol:
-            raise BadInputError(ann_path, f"image {name}: box {b!r} lies outside the {w}x{h} image")
-        x1, y1 = min(x1, w), min(y1, h)
-        if not 1 <= diff <= 5:
-            raise BadInputError(ann_path, f"image {name}: box {b!r} has difficulty {diff}, expected 1..5")
-        return AVDBox(x0, y0, x1, y1, iid, diff)
 
     # ---- public API ----------------------------------------------------------------------------
     def __repr__(self) -> str:
@@ -369,6 +341,8 @@ class AVDScan:
 
     def read_image(self, name: str) -> np.ndarray:
         """RGB uint8 (H, W, 3)."""
+        if not self.frames:
+            raise BadInputError(self.folder / "jpg_rgb" / name, "scan read metadata-only (frames=False): no frames")
         img = self.images.get(name)
         return read_rgb(img.path if img is not None else self.folder / "jpg_rgb" / name, self.root)
 
@@ -402,6 +376,12 @@ class AVDScan:
         iid = self.instance_ids[instance]
         return [(img, b) for img in self.images.values() for b in img.boxes
                 if b.instance_id == iid and b.difficulty <= max_difficulty]
+
+    def grid_points(self) -> dict[str, int]:
+        """{image: grid point id}: images the robot took from one stop, turning on the spot
+        (``pipeline.evaluation.grid.viewpoints``: the move graph's rotate edges, else chained centres)."""
+        return scan_grid_points({n: img.moves for n, img in self.images.items()},
+                                {n: img.position for n, img in self.images.items()})
 
 
 def _read_colmap_camera(path: Path, root: Path | None = None) -> tuple[tuple[int, int], np.ndarray]:

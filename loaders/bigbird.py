@@ -113,6 +113,35 @@ def uncalibrated_objects(root: str | Path) -> list[Path]:
     return out
 
 
+def opening_px(shape: tuple[int, int]) -> int:
+    """Default side of the speck-removing opening: about 0.5 % of the shorter image side, >= 3 px."""
+    return max(3, int(round(min(shape) * 0.005)))
+
+
+def mask_box(mask: np.ndarray, open_px: int | None = None, where: str | Path = "mask") -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1), exclusive ends, of the largest 8-connected component of a bool mask after
+    a square ``open_px`` opening (None: ``opening_px``; BigBIRD masks carry spurious specks).
+    ``where`` names the mask in errors."""
+    mask = np.asarray(mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"mask must be 2-D, got shape {mask.shape}")
+    if not mask.any():
+        raise BadInputError(where, "mask is empty (no object pixels)")
+    k = open_px if open_px is not None else opening_px(mask.shape)
+    opened = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN,
+                              cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    n, _, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
+    if n <= 1:
+        raise BadInputError(where, f"mask has only specks: nothing survives a {k}x{k} opening")
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    x0, y0 = int(stats[best, cv2.CC_STAT_LEFT]), int(stats[best, cv2.CC_STAT_TOP])
+    x1 = x0 + int(stats[best, cv2.CC_STAT_WIDTH])
+    y1 = y0 + int(stats[best, cv2.CC_STAT_HEIGHT])
+    if x1 <= x0 or y1 <= y0:  # cannot happen for a non-empty component; guard anyway
+        raise BadInputError(where, f"degenerate object box {(x0, y0, x1, y1)}")
+    return x0, y0, x1, y1
+
+
 class BigBirdObject:
     """One BigBIRD object folder.
 
@@ -209,34 +238,9 @@ class BigBirdObject:
         return self.camera_pose(camera, angle)[:3, 3].copy()
 
     # ---- boxes -------------------------------------------------------------------------------
-    def _kernel_px(self, shape: tuple[int, int]) -> int:
-        if self.open_px is not None:
-            return self.open_px
-        return max(3, int(round(min(shape) * 0.005)))
-
     def object_box(self, mask: np.ndarray, path: str | Path | None = None) -> tuple[int, int, int, int]:
-        """(x0, y0, x1, y1), exclusive ends, of the largest 8-connected component after a
-        square opening (BigBIRD masks carry spurious specks). ``path`` only names the mask in
-        errors."""
-        where = path if path is not None else f"{self.folder} (mask)"
-        mask = np.asarray(mask, dtype=bool)
-        if mask.ndim != 2:
-            raise ValueError(f"mask must be 2-D, got shape {mask.shape}")
-        if not mask.any():
-            raise BadInputError(where, "mask is empty (no object pixels)")
-        k = self._kernel_px(mask.shape)
-        opened = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN,
-                                  cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
-        n, _, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
-        if n <= 1:
-            raise BadInputError(where, f"mask has only specks: nothing survives a {k}x{k} opening")
-        best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-        x0, y0 = int(stats[best, cv2.CC_STAT_LEFT]), int(stats[best, cv2.CC_STAT_TOP])
-        x1 = x0 + int(stats[best, cv2.CC_STAT_WIDTH])
-        y1 = y0 + int(stats[best, cv2.CC_STAT_HEIGHT])
-        if x1 <= x0 or y1 <= y0:  # cannot happen for a non-empty component; guard anyway
-            raise BadInputError(where, f"degenerate object box {(x0, y0, x1, y1)}")
-        return x0, y0, x1, y1
+        """``mask_box`` with this object's opening size; ``path`` only names the mask in errors."""
+        return mask_box(mask, self.open_px, path if path is not None else f"{self.folder} (mask)")
 
     # ---- iteration -----------------------------------------------------------------------------
     def read_view(self, view: BigBirdView) -> ViewRecord:

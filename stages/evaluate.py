@@ -58,21 +58,25 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     return banks, indexes
 
 
-def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict]:
-    """Per scan: (fx, cx) of the camera and the capture grid's spacing read off the positions.
-    The scan is read under the same skip policy as the features stage, so an entry features
-    skipped does not stop this stage."""
+def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict]:
+    """Per scan: (fx, cx) of the camera, the capture grid's spacing and {image: grid point id}
+    (the move graph's stops, ``AVDScan.grid_points``). The scan is read under the same skip policy
+    as the features stage, so an entry features skipped does not stop this stage; geometry needs
+    no frames, so a metadata-only copy (no jpg_rgb/) is read as one."""
     from loaders.avd import AVDScan
     from stages.framework.roots import data_roots
 
     _, avd_root = data_roots(cfg)
-    intr, steps = {}, {}
+    intr, steps, grids = {}, {}, {}
     for s in scans:
-        K = AVDScan(avd_root, s, skip=skips.log("avd", "AVD entry")).intrinsics()
+        scan = AVDScan(avd_root, s, skip=skips.log("avd", "AVD entry"), frames=(Path(avd_root) / s / "jpg_rgb").is_dir())
+        K = scan.intrinsics()
         intr[s] = (float(K[0, 0]), float(K[0, 2]))
-        cams = avd.loc[avd["scan"] == s, ["cam_x", "cam_y"]].to_numpy(float)
-        steps[s] = grid_step(cams)
-    return intr, steps
+        grids[s] = scan.grid_points()
+        rows = avd.loc[avd["scan"] == s, ["image", "cam_x", "cam_y"]]
+        steps[s] = grid_step(rows[["cam_x", "cam_y"]].to_numpy(float),
+                             P.view_grid_ids(rows["image"], grids[s], s))
+    return intr, steps, grids
 
 
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict,
@@ -140,12 +144,12 @@ def run(ctx) -> str:
     if avd.empty:
         raise TrackError(f"{avd_path} holds no AVD box: nothing to evaluate")
     scans = sorted(avd["scan"].unique())
-    intr, steps = scan_geometry(cfg, scans, avd, ctx.skips)
+    intr, steps, grids = scan_geometry(cfg, scans, avd, ctx.skips)
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet)
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
     for sk in skipped:
-        log.warning("target %s skipped: %s", sk["target"], sk["reason"])
+        log.warning("target %s skipped%s: %s", sk["target"], f" in {sk['scan']}" if "scan" in sk else "", sk["reason"])
     for t in sorted({c.target for c in cells}):
         mine = [i for i in tracks if i.target == t]
         log.info("target %s: %d track(s) in %s; candidates %s", t, len(mine), ", ".join(sorted({i.scan for i in mine})),

@@ -23,9 +23,9 @@ banks, indexes = SE.load_banks(root / "models", ())
 avd, scores, meta = read_features(root / "features" / out_name("features", "avd"))
 scans = sorted(avd["scan"].unique())
 from stages.framework.runner import SkipPolicy
-intr, steps = SE.scan_geometry(cfg, scans, avd, SkipPolicy(True))
+intr, steps, grids = SE.scan_geometry(cfg, scans, avd, SkipPolicy(True))
 truth = json.loads((root / "data" / "truth.json").read_text())
-cells, tracks, skipped = P.build_cells(cfg.evaluate, avd, scores, indexes, truth, intr, steps, None)
+cells, tracks, skipped = P.build_cells(cfg.evaluate, avd, scores, indexes, truth, intr, steps, None, grids)
 bank = banks["default"]
 ps = engine.plan(bank).routes()
 print(len(cells), "cells;", bank, "routes", {k: v for k, v in ps.items() if k != "P"}, "P percentiles", np.percentile(ps["P"], [0, 25, 50, 75, 100]))

@@ -217,8 +217,9 @@ def _edit_box(i_img: int, box):
 @pytest.mark.parametrize("box,problem", [
     ([100, 50, 100, 130, 2, 2], "degenerate"),      # x1 == x0
     ([100, 130, 350, 50, 2, 2], "degenerate"),      # y1 < y0
-    ([100, 50, 700, 130, 2, 2], "outside"),         # past the 480-wide image
-    ([-5, 50, 100, 130, 2, 2], "outside"),
+    ([100, 50, 1000, 130, 2, 2], "outside"),        # 380 of its 900 px width inside the 480-wide image
+    ([-300, 50, 100, 130, 2, 2], "outside"),        # a quarter of it inside
+    ([100, 50, 350, 130, 2, 6], "difficulty 6"),
     ([100, 50, 350, 130, 99, 2], "unknown instance id 99"),
     ([100, 50, 350, 130, 2], "is not [x0"),
 ])
@@ -237,8 +238,31 @@ def test_bad_box_raises_or_is_skipped(tmp_path, box, problem):
 
 def test_box_one_past_the_edge_is_clipped(tmp_path):
     make_avd_scan(tmp_path, annotation_edit=_edit_box(2, [400, 200, 481, 271, 2, 4]))
-    b = AVDScan(tmp_path, SCAN).images[n(2)].boxes[0]
+    s = AVDScan(tmp_path, SCAN)
+    b = s.images[n(2)].boxes[0]
     assert (b.x0, b.y0, b.x1, b.y1) == (400, 200, 480, 270)
+    assert s.box_notes.clipped == 0  # MATLAB's inclusive edge, not a repair
+
+
+@pytest.mark.parametrize("box,clipped", [
+    ([420, 200, 491, 271, 2, 4], (420, 200, 480, 270)),   # 11 px past, as in the real Home_007_1
+    ([-5, 50, 100, 130, 2, 2], (0, 50, 100, 130)),
+])
+def test_box_past_the_edge_is_clipped_and_counted(tmp_path, box, clipped):
+    make_avd_scan(tmp_path, annotation_edit=_edit_box(2, box))
+    s = AVDScan(tmp_path, SCAN)
+    b = s.images[n(2)].boxes[0]
+    assert (b.x0, b.y0, b.x1, b.y1) == clipped
+    assert s.box_notes.clipped == 1 and b.difficulty == box[5]  # the stated level stays
+
+
+def test_difficulty_zero_gets_the_size_rule(tmp_path):
+    """The real files hold difficulty 0 (not assigned): kept, with the level the size gives."""
+    make_avd_scan(tmp_path, annotation_edit=_edit_box(2, [100, 50, 350, 130, 2, 0]))
+    s = AVDScan(tmp_path, SCAN)
+    b = s.images[n(2)].boxes[0]
+    assert (b.instance_id, b.difficulty) == (2, 2)   # 250 x 80 -> 2
+    assert s.box_notes.unassigned == 1 and len(s.images[n(2)].boxes) == 2
 
 
 def test_missing_struct_entry(tmp_path):

@@ -33,7 +33,10 @@ def instance_poses(cfg, avd: pd.DataFrame, truth: dict | None, intr: dict, class
             d = d.drop_duplicates("image")
             if len(d) >= 2:
                 yaw = P.yaw_for(inst, scan, truth, "config", ev.yaw_deg, ev.targets, ev.yaws_deg)
-                out[(scan, inst)] = (P.locate(d, *intr[scan]), yaw)
+                try:
+                    out[(scan, inst)] = (P.locate(d, *intr[scan], ev.max_ray_residual_m), yaw)
+                except P.InconsistentRays as e:  # no pose, so none of its crops enters the test domain
+                    log.warning("test domain: %s in %s left out: %s", inst, scan, e)
     return out, ("synthetic sidecar (truth.json)" if ev.yaw_source == "truth" else "located object, configured yaw")
 
 

@@ -21,7 +21,8 @@ from pipeline.evaluation.metrics import spec as M
 from pipeline.method import dirichlet_fusion as DF
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.names import DIRICHLET
-from pipeline.evaluation.grid.track import TrackError, TrackPlan, bearing_rays, facing_error, intersect_rays, select_tracks
+from pipeline.evaluation.grid.location import InconsistentRays, Location, locate_rays
+from pipeline.evaluation.grid.track import TrackError, TrackPlan, facing_error, select_tracks
 
 
 DEFAULT = "default"   # the model-bank variant without an ablation override
@@ -77,11 +78,17 @@ def target_views(avd: pd.DataFrame, target: str, max_difficulty: int) -> pd.Data
     return tgt.drop_duplicates(["scan", "image"])
 
 
-def locate(det: pd.DataFrame, fx: float, cx: float) -> np.ndarray:
-    """The object's 2D position from the rays through its box centres in every view that sees it."""
+def located(det: pd.DataFrame, fx: float, cx: float, max_residual_m: float = math.inf) -> Location:
+    """The object's 2D position from the rays through its box centres in every view that sees it,
+    with the rays' RMS distance from it; ``InconsistentRays`` past ``max_residual_m``."""
     box_cx = 0.5 * (det["box_x0"].to_numpy(float) + det["box_x1"].to_numpy(float))
-    return intersect_rays(*bearing_rays(det[["cam_x", "cam_y"]].to_numpy(float), det["heading"].to_numpy(float),
-                                        box_cx, fx, cx))
+    return locate_rays(det[["cam_x", "cam_y"]].to_numpy(float), det["heading"].to_numpy(float), box_cx, fx, cx,
+                       max_residual_m)
+
+
+def locate(det: pd.DataFrame, fx: float, cx: float, max_residual_m: float = math.inf) -> np.ndarray:
+    """``located(...).xy``."""
+    return located(det, fx, cx, max_residual_m).xy
 
 
 @dataclass(frozen=True)
@@ -108,9 +115,15 @@ class TrackInfo:
 
 def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int,
                 intrinsics: dict[str, tuple[float, float]], grid_steps: dict[str, float],
-                explicit: tuple[str, ...] = ()) -> list[TrackInfo]:
+                explicit: tuple[str, ...] = (), *, grid_points: dict[str, dict[str, int]] | None = None,
+                max_residual_m: float = math.inf, refused: list[dict] | None = None) -> list[TrackInfo]:
     """``n_tracks`` tracks of ``k`` views of one target, spread over the scans that see it (track j
-    goes to the j-th scan in turn). ``explicit`` image names give exactly one track."""
+    goes to the j-th scan in turn). ``explicit`` image names give exactly one track.
+
+    ``grid_points`` ({scan: {image: grid point id}}, ``AVDScan.grid_points``) say which views share
+    a stop; without them views of one stop must share a position. A scan whose rays do not meet
+    (``max_residual_m``, ``pipeline.evaluation.grid.location``) gives no track; with ``refused`` (a
+    list) each such scan is appended to it as {"target", "scan", "reason", "residual_m"}."""
     scans = sorted(det["scan"].unique())
     if not scans:
         raise TrackError(f"no AVD view of {target!r}")
@@ -120,7 +133,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
             d = det[det["scan"] == scan].set_index("image")
             if all(n in d.index for n in explicit):
                 sel = d.loc[list(explicit)]
-                obj = locate(d, *intrinsics[scan])
+                obj = locate(d, *intrinsics[scan], max_residual_m)
                 return [TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
                                   sel["heading"].to_numpy(float), obj)]
         raise TrackError(f"evaluate.track_images: not every image has a scored box of {target!r} in one scan")
@@ -132,13 +145,17 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
             errors.append(f"{scan}: {len(d)} view(s)")
             continue
         try:
-            obj = locate(d, *intrinsics[scan])
+            obj = locate(d, *intrinsics[scan], max_residual_m)
             cam = d[["cam_x", "cam_y"]].to_numpy(float)
             err = facing_error(cam, d["heading"].to_numpy(float), obj)
+            gid = None if grid_points is None else view_grid_ids(d["image"], grid_points[scan], scan)
             plans = select_tracks(cam, obj, err, k, per_scan[scan], seed=[seed, zlib.crc32(f"{scan}/{target}".encode())],
-                                  grid_step=grid_steps[scan])
+                                  grid_step=grid_steps[scan], grid_id=gid)
         except TrackError as e:
             errors.append(f"{scan}: {e}")
+            if isinstance(e, InconsistentRays) and refused is not None:
+                refused.append({"target": target, "scan": scan, "reason": f"{scan}: {e}",
+                                "residual_m": round(e.residual_m, 4)})
             continue
         for p in plans:
             sel = d.iloc[p.index]
@@ -147,6 +164,14 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
     if not out:
         raise TrackError(f"no usable track of {target!r}: " + "; ".join(errors))
     return out
+
+
+def view_grid_ids(images, grid: dict[str, int], scan: str) -> np.ndarray:
+    """The grid point id of each image name (a name the scan's grid does not know is an error)."""
+    try:
+        return np.array([grid[n] for n in images], dtype=np.int64)
+    except KeyError as e:
+        raise TrackError(f"{scan}: image {e.args[0]!r} has no grid point in the scan read") from None
 
 
 def track_samples(avd: pd.DataFrame, scores: np.ndarray, info: TrackInfo, max_difficulty: int) -> np.ndarray:
@@ -270,10 +295,13 @@ def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
 
 
 def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
-                intr: dict, steps: dict, dirichlet=None) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
+                intr: dict, steps: dict, dirichlet=None, grid_points: dict | None = None
+                ) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
     """Every (variant, target, track) cell of the ``evaluate`` section ``ev``: ``indexes`` maps
-    variant -> its model bank's index (the plan), ``intr``/``steps`` the scans' (fx, cx) and grid
-    steps. Targets without a usable track are skipped with a reason (returned). With
+    variant -> its model bank's index (the plan), ``intr``/``steps``/``grid_points`` the scans'
+    (fx, cx), grid steps and {image: grid point}. Targets without a usable track are skipped with
+    a reason (returned), and so is each (target, scan) whose rays do not meet (with its scan and
+    residual_m; the target keeps its other scans' tracks). With
     ``dirichlet`` models (``pipeline.method.dirichlet.DirichletModels``), every cell also carries
     the candidates' Dirichlets and the views' whole probability vectors (the fourth method)."""
     plan = indexes[DEFAULT]["candidate_sets"]
@@ -282,12 +310,15 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
     cells, tracks, skipped = [], [], []
     for target in choose_targets(ev, avd, plan):
         det = target_views(avd, target, ev.max_difficulty)
+        refused: list[dict] = []
         try:
             infos = plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
-                                  tuple(ev.track_images))
-        except TrackError as e:
+                                tuple(ev.track_images), grid_points=grid_points,
+                                max_residual_m=ev.max_ray_residual_m, refused=refused)
+        except TrackError as e:  # its reason names every scan, the inconsistent ones included
             skipped.append({"target": target, "reason": str(e)})
             continue
+        skipped.extend(refused)  # an inconsistent scan of a target with tracks elsewhere: named too
         classes = plan[target]["classes"]
         for info in infos:
             yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)

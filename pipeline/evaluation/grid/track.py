@@ -7,7 +7,7 @@ Pure functions over arrays (the evaluate stage does the I/O):
   at distinct grid points, roughly facing the object, spread over an arc around it and ordered by
   bearing (a path a robot could drive): different start bearings, both directions of travel, near
   and far where the scan offers both;
-- ``grid_step`` reads the capture grid's spacing off the camera positions.
+- ``grid_step`` reads the capture grid's spacing off the camera positions (or grid points).
 """
 from __future__ import annotations
 
@@ -52,10 +52,20 @@ class TrackChoice:
     arc_deg: float           # bearing span of the track
 
 
-def grid_step(cam_xy: np.ndarray) -> float:
-    """The capture grid's spacing (m): the median distance from each distinct camera position to
-    its nearest neighbour. AVD captures several headings per grid point, so positions repeat."""
-    pts = np.unique(np.round(np.asarray(cam_xy, float), 3), axis=0)
+def grid_step(cam_xy: np.ndarray, grid_id: np.ndarray | None = None) -> float:
+    """The capture grid's spacing (m): the median distance from each grid point to its nearest
+    neighbour. Without ``grid_id`` a grid point is a distinct camera position (to the mm), as in
+    the synthetic scans, where the headings of a stop share one centre; with ``grid_id`` (one id
+    per camera, ``pipeline.evaluation.grid.viewpoints``) it is the mean centre of the cameras sharing an
+    id, as real reconstructions need (a stop's centres lie ~2 cm apart)."""
+    xy = np.asarray(cam_xy, float)
+    if grid_id is not None:
+        gid = np.asarray(grid_id)
+        if gid.shape != (len(xy),):
+            raise ValueError(f"grid_id has shape {gid.shape}, expected ({len(xy)},): one id per camera")
+        keys, inv = np.unique(gid, return_inverse=True)
+        xy = np.stack([np.bincount(inv, xy[:, a], len(keys)) / np.bincount(inv, None, len(keys)) for a in (0, 1)], axis=1)
+    pts = np.unique(np.round(xy, 3), axis=0)
     if len(pts) < 2:
         raise TrackError(f"cannot read a grid step off {len(pts)} distinct camera position(s)")
     d = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))
@@ -63,11 +73,18 @@ def grid_step(cam_xy: np.ndarray) -> float:
     return float(np.median(d.min(axis=1)))
 
 
-def _viewpoints(cam_xy: np.ndarray, facing_err: np.ndarray, grid_step: float, k: int) -> np.ndarray:
-    """One view per grid point: the one facing the object best (indices, sorted)."""
-    cell = np.round(cam_xy / (grid_step / 2)).astype(np.int64)
-    best: dict[tuple, int] = {}
-    for i, key in enumerate(map(tuple, cell)):
+def _viewpoints(cam_xy: np.ndarray, facing_err: np.ndarray, grid_step: float, k: int,
+                grid_id: np.ndarray | None = None) -> np.ndarray:
+    """One view per grid point: the one facing the object best (indices, sorted). Grid points are
+    ``grid_id`` where given, else cells of half the grid step (positions of one stop coincide)."""
+    if grid_id is None:
+        cell = map(tuple, np.round(cam_xy / (grid_step / 2)).astype(np.int64))
+    else:
+        cell = np.asarray(grid_id).tolist()
+        if len(cell) != len(cam_xy):
+            raise ValueError(f"grid_id has {len(cell)} entries for {len(cam_xy)} cameras")
+    best: dict = {}
+    for i, key in enumerate(cell):
         if key not in best or facing_err[i] < facing_err[best[key]]:
             best[key] = i
     cand = np.array(sorted(best.values()), dtype=np.int64)
@@ -85,18 +102,20 @@ class TrackPlan(TrackChoice):
 
 
 def select_tracks(cam_xy: np.ndarray, obj_xy: np.ndarray, facing_err: np.ndarray, k: int, n_tracks: int,
-                  seed: int, *, grid_step: float = 0.3, max_arc_deg: float = 180.0) -> list[TrackPlan]:
+                  seed: int, *, grid_step: float = 0.3, max_arc_deg: float = 180.0,
+                  grid_id: np.ndarray | None = None) -> list[TrackPlan]:
     """Up to ``n_tracks`` paths of ``k`` views, each a distinct set of views, deterministic for ``seed``.
 
     Track j starts at bearing ``offset + j * 360 / n_tracks`` (offset drawn from the seed), runs
     counter-clockwise for even j and clockwise for odd j, and prefers the nearer or the farther
     half of the viewpoints in turn (j // 2 even: near), which spreads the population over where
     a robot could have driven. Within its arc a path takes the view nearest each of k evenly spaced
-    bearings, one per grid point. A path whose view set repeats an earlier one is moved on by a
-    few degrees; a scan that cannot give ``n_tracks`` distinct paths gives fewer.
+    bearings, one per grid point (``grid_id`` per camera where given, else cells of the grid step).
+    A path whose view set repeats an earlier one is moved on by a few degrees; a scan that cannot
+    give ``n_tracks`` distinct paths gives fewer.
     """
     cam_xy = np.asarray(cam_xy, float)
-    cand = _viewpoints(cam_xy, np.abs(np.asarray(facing_err, float)), grid_step, k)
+    cand = _viewpoints(cam_xy, np.abs(np.asarray(facing_err, float)), grid_step, k, grid_id)
     rel = cam_xy[cand] - np.asarray(obj_xy, float)
     bear = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360.0
     dist = np.hypot(*rel.T)

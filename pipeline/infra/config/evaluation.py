@@ -59,6 +59,11 @@ class EvaluateConfig:
     track_images: tuple[str, ...] = _f(factory=tuple, doc="explicit track (one target only); empty = build tracks")
     track_length: int = _f(9, lo=2, hi=200)
     max_difficulty: int = _f(4, lo=1, hi=5)
+    max_ray_residual_m: float = _f(0.25, lo=1e-3, hi=100.0,
+                                   doc="an instance whose rays through its box centres lie farther than this (RMS, "
+                                       "metres) from their least-squares point is excluded from that scan, its "
+                                       "residual named (a duplicated or moved object; real scans: at most 8 cm when "
+                                       "consistent, 2.6-3.2 m for the duplicated ones)")
     yaw_source: str = _f("truth", choices=("truth", "config"))
     yaw_deg: float = _f(0.0, lo=-360.0, hi=360.0, doc="yaw_source = 'config' with a single target")
     yaws_deg: tuple[float, ...] = _f(factory=tuple, lo=-360.0, hi=360.0,
