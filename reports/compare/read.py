@@ -24,6 +24,7 @@ from typing import Any
 from loaders.errors import BadInputError
 from loaders.files import checked_file
 from pipeline.infra.nesting import depth
+from pipeline.infra.outputs import name as out_name
 
 # Real summaries are ~3 MB (the paper-grade evaluate), manifests a few kB: the caps leave room
 # for growth and stop a multi-GB file before it is read.
@@ -128,7 +129,7 @@ def check(value: Any, schema: Any, where: str = "") -> None:
 def read_summary(path: Path) -> Any:
     """summary.json, read safely and checked against ``SUMMARY_SCHEMA``; RunFileError names the
     file and the field."""
-    value = read_json(path, MAX_SUMMARY_BYTES, "summary.json")
+    value = read_json(path, MAX_SUMMARY_BYTES, out_name("evaluate", "summary"))
     try:
         check(value, SUMMARY_SCHEMA)
     except RunFileError as e:
