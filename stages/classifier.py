@@ -37,7 +37,7 @@ def extra_key(cfg) -> str:
         return ""
     from pipeline.scoring.alexnet import imagenet_dir, IMAGENET_FILE
 
-    p = imagenet_dir() / IMAGENET_FILE if c.weights == "imagenet" else cfg.resolve(c.path)
+    p = imagenet_dir() / IMAGENET_FILE if c.weights == "imagenet" else cfg.path("classifier.path")
     try:
         st = p.stat()
         return f"{p}|{st.st_size}|{st.st_mtime_ns}"
@@ -83,7 +83,7 @@ def _file_weights(ctx, device: str) -> str:
 
     cfg, c = ctx.cfg, ctx.cfg.classifier
     t0 = time.perf_counter()
-    path = imagenet_checkpoint() if c.weights == "imagenet" else cfg.resolve(c.path)
+    path = imagenet_checkpoint() if c.weights == "imagenet" else cfg.path("classifier.path")
     state = load_state_dict_file(path)
     n = num_classes_of(state, path)
     if c.weights == "path" and c.num_classes and c.num_classes != n:

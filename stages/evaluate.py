@@ -37,6 +37,8 @@ from pipeline.evaluation.domain.test_domain import TestDomain, test_variances
 from pipeline.evaluation.grid.track import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
+# The avd.parquet columns evaluate uses (checked present and typed on read).
+AVD_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_x1", "cam_x", "cam_y", "heading", "pass")
 
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
@@ -152,7 +154,7 @@ def run(ctx) -> str:
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
     dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
     avd_path = ctx.input("features") / out_name("features", "avd")
-    avd, scores, meta = read_features(avd_path)
+    avd, scores, meta = read_features(avd_path, "avd", AVD_COLUMNS)
     if avd.empty:
         raise TrackError(f"{avd_path} holds no AVD box: nothing to evaluate")
     scans = sorted(avd["scan"].unique())

@@ -50,6 +50,7 @@ def read_training_views(path: str | Path, camera: int):
     import pyarrow.parquet as pq
 
     from pipeline.scoring.features import check_scores
+    from pipeline.scoring.table_checks import check_table
 
     path = Path(path)
     if not path.is_file():
@@ -61,6 +62,7 @@ def read_training_views(path: str | Path, camera: int):
     missing = [c for c in REQUIRED if c not in table.column_names]
     if missing:
         raise FeaturesError(path, f"missing column(s) {', '.join(missing)}")
+    check_table(table, "bigbird", path, FeaturesError, [c for c in REQUIRED if c != "scores"])
     meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
             if k.decode().startswith("viewfuse.")}
     cam = table.column("camera").to_numpy()

@@ -4,6 +4,7 @@ caller's extra keys without letting them overwrite the bank's own."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from pipeline.infra.cache import write_json
@@ -38,3 +39,19 @@ def write_index(path: Path, index: dict, extra: dict | None) -> Path:
         out[k] = v
     write_json(path, out)
     return path
+
+
+def inside(folder: Path, rel, ipath: Path, error, what: str) -> Path:
+    """``folder / rel`` for a path an index names, if ``rel`` is a relative path that stays, symlinks
+    followed, inside ``folder``; else ``error(ipath, problem)``. An index is a file in a run folder,
+    so an absolute or ``../..`` entry would make a stage load (and depend on) files elsewhere. The
+    folder itself may be a link (a run's ``models/`` linked to another run's)."""
+    if not isinstance(rel, str) or not rel or "\x00" in rel:
+        raise error(ipath, f"{what} must be a relative path, got {rel!r:.80}")
+    if os.path.isabs(rel):
+        raise error(ipath, f"{what} {rel!r:.80} is an absolute path; an index names files inside its own folder")
+    real_folder = os.path.realpath(folder)
+    real = os.path.realpath(os.path.join(real_folder, rel))
+    if real == real_folder or os.path.commonpath([real, real_folder]) != real_folder:
+        raise error(ipath, f"{what} {rel!r:.80} resolves to {real}, outside {folder}; refused")
+    return Path(folder) / rel

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.special import digamma, gammaln, polygamma
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
-from pipeline.method.bank_index import read_index, write_index
+from pipeline.method.bank_index import inside, read_index, write_index
 from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.dirichlet")
@@ -218,9 +218,9 @@ class DirichletModels:
         ipath = folder / INDEX_FILE
         index = read_index(ipath, FORMAT, VERSION, ("classes", "sha256", "fingerprint"), DirichletFileError,
                            "Dirichlet model index")
-        path = folder / PARAMS_FILE
-        if not path.is_file():
-            raise DirichletFileError(path, "Dirichlet parameter file not found (rerun the 'models' stage)")
+        if not (folder / PARAMS_FILE).is_file():
+            raise DirichletFileError(folder / PARAMS_FILE, "Dirichlet parameter file not found (rerun the 'models' stage)")
+        path = inside(folder, PARAMS_FILE, ipath, DirichletFileError, "the parameter file")  # a link out is refused
         if sha256_file(path) != index["sha256"]:
             raise DirichletFileError(path, f"content differs from the sha256 recorded in {ipath}; rerun the 'models' stage")
         try:

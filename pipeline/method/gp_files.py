@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
-from pipeline.method.bank_index import read_index, write_index
+from pipeline.method.bank_index import inside, read_index, write_index
 from pipeline.method.gp import FORMAT, INDEX, KERNEL_TEXT, VERSION, GPClassModels, ModelFileError
 
 
@@ -56,9 +56,9 @@ def load_bank(folder: str | Path) -> GPClassModels:
     arrays: dict[str, list] = {k: [] for k in ("X", "Y", "mean", "amplitude", "length_scale", "noise")}
     for name in index["classes"]:
         fname = index["files"].get(name)
-        if not fname or "/" in fname or "\\" in fname:
+        if not isinstance(fname, str) or not fname or "/" in fname or "\\" in fname:
             raise ModelFileError(ipath, f"no valid file entry for class {name!r}")
-        path = folder / fname
+        path = inside(folder, fname, ipath, ModelFileError, f"the file of class {name!r}")
         if not path.is_file():
             raise ModelFileError(path, f"model file of class {name!r} not found")
         _check_digest(ipath, index, fname)
@@ -94,6 +94,11 @@ def _check_shapes(ipath: Path, index: dict) -> None:
     for key in ("files", "sha256"):
         if key in index and not isinstance(index[key], dict):
             raise ModelFileError(ipath, f"'{key}' must be an object (class -> file), got {type(index[key]).__name__}")
+    ablations = index.get("ablations", {})
+    if not isinstance(ablations, dict):
+        raise ModelFileError(ipath, f"'ablations' must be an object (ablation -> folder), got {type(ablations).__name__}")
+    for name, sub in ablations.items():   # each bank folder stays inside this one
+        inside(ipath.parent, sub, ipath, ModelFileError, f"'ablations' entry {name!r}")
 
 
 def _check_digest(ipath: Path, index: dict, fname: str) -> None:

@@ -17,6 +17,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from pipeline.infra.cache import atomic_path
+from pipeline.scoring.table_checks import check_finite_scores
 
 BOX_COLS = ("box_x0", "box_y0", "box_x1", "box_y1")
 CROP_COLS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
@@ -36,6 +37,13 @@ def _fields(kind: str) -> list[tuple[str, Any]]:
     else:
         raise ValueError(f"unknown feature table kind {kind!r} (bigbird or avd)")
     return head + [(c, i32) for c in BOX_COLS] + [(c, i32) for c in CROP_COLS] + tail
+
+
+def columns(kind: str) -> list[tuple[str, Any]]:
+    """(name, arrow type) of every column of a ``kind`` table but ``scores``."""
+    import pyarrow as pa
+
+    return _fields(kind) + [("pass", pa.int16())]
 
 
 def schema(kind: str, dim: int, metadata: dict[str, str] | None = None):
@@ -79,6 +87,7 @@ def build_table(kind: str, columns: dict[str, Iterable], det: np.ndarray, mc: np
     else:
         ns = 0
         scores = det
+    check_finite_scores(kind, columns, det, mc)
     per = 1 + ns
     rep = np.repeat(np.arange(n), per)
     passes = np.tile(np.arange(-1, ns, dtype=np.int16), n)
@@ -110,11 +119,16 @@ def write_table(table, path: str | Path) -> None:
         pq.write_table(table, tmp, compression="zstd")
 
 
-def read_features(path: str | Path) -> tuple["Any", np.ndarray, dict[str, str]]:
+def read_features(path: str | Path, kind: str | None = None,
+                  required: Iterable[str] = ()) -> tuple["Any", np.ndarray, dict[str, str]]:
     """(DataFrame of every column but ``scores`` (RangeIndex = row number), scores (n, D) float32,
-    ``viewfuse.*`` metadata as strings)."""
+    ``viewfuse.*`` metadata as strings). The columns are checked against the ``kind`` table's
+    contract (bigbird or avd; default: from the file name), the ``required`` ones (those the
+    caller uses) must be there (``table_checks.check_table``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
+
+    from pipeline.scoring.table_checks import check_table, kind_of
 
     path = Path(path)
     if not path.is_file():
@@ -125,6 +139,8 @@ def read_features(path: str | Path) -> tuple["Any", np.ndarray, dict[str, str]]:
         raise ValueError(f"{path}: not a readable Parquet file ({e})") from None
     if "scores" not in table.column_names:
         raise ValueError(f"{path}: no 'scores' column")
+    check_table(table, kind or kind_of(path, table.column_names), path, lambda p, m: ValueError(f"{p}: {m}"),
+                required)
     meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
             if k.decode().startswith("viewfuse.")}
     col = table.column("scores").combine_chunks()

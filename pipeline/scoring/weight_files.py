@@ -33,9 +33,13 @@ def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
         raise WeightsNotFoundError(f"{path}: weights file not found")
     if path.suffix == ".npz":
         try:
-            state = {k: torch.from_numpy(np.array(v)) for k, v in load_npz(path).items()}
+            arrays = load_npz(path)
         except NpzFileError as e:
             raise WeightsError(path, f"not a readable .npz state dict ({e.problem})") from None
+        for k, v in arrays.items():
+            if np.asarray(v).dtype.kind not in "biuf":  # torch.from_numpy raises TypeError on the rest
+                raise WeightsError(path, f"entry {k!r} holds {np.asarray(v).dtype} values, expected numbers")
+        state = {k: torch.from_numpy(np.array(v)) for k, v in arrays.items()}
     else:
         try:
             obj = torch.load(path, map_location="cpu", weights_only=True)
@@ -54,13 +58,26 @@ def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
         out[k[7:] if k.startswith("module.") else k] = v  # DataParallel prefix
     if not out:
         raise WeightsError(path, "empty state dict")
+    for k, v in out.items():
+        if v.is_complex() or not (v.is_floating_point() or v.dtype in _INTEGER):
+            raise WeightsError(path, f"entry {k!r} holds {v.dtype} values, expected real numbers")
+        if v.is_floating_point():
+            bad = int((~torch.isfinite(v)).sum())
+            if bad:  # a NaN weight gives NaN scores for every crop
+                raise WeightsError(path, f"entry {k!r} {tuple(v.shape)} has {bad} non-finite value(s)")
     return out
+
+
+_INTEGER = (torch.bool, torch.uint8, torch.int8, torch.int16, torch.int32, torch.int64)
 
 
 def num_classes_of(state: dict[str, torch.Tensor], path: str | Path) -> int:
     w = state.get("classifier.6.weight")
     if w is None or w.ndim != 2:
         raise WeightsError(path, "no 'classifier.6.weight' matrix: not an AlexNet state dict")
+    if w.shape[0] < 1:
+        raise WeightsError(path, f"'classifier.6.weight' is {tuple(w.shape)}: no output rows (classes); "
+                                 "expected one row per class")
     return int(w.shape[0])
 
 

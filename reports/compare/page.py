@@ -10,6 +10,7 @@ from typing import Any
 from pipeline.evaluation.metrics.labels import comparison_label, method_label
 from pipeline.evaluation.metrics.spec import metric_label
 from pipeline.infra.outputs import path as out_path
+from reports.compare.read import printable
 from reports.compare.runs import Comparison
 from reports.shared.html import HtmlReport
 from reports.shared.numbers import Estimate, fmt
@@ -47,8 +48,9 @@ def headline(c: Comparison) -> str:
 # -- terminal ----------------------------------------------------------------------------------------
 def _grid(header: list[str], rows: list[list[str]], marks: list[list[bool]] | None = None, width: int = 48) -> str:
     """Aligned columns; only the first (label) column is shortened to ``width``, values never."""
-    cells = [[textwrap.shorten(str(x), width=width, placeholder="…") if j == 0 else str(x) for j, x in enumerate(r)]
-             for r in [header] + rows]
+    # values come from run folders compare did not write: control characters are shown escaped
+    cells = [[textwrap.shorten(printable(x), width=width, placeholder="…") if j == 0 else printable(x)
+              for j, x in enumerate(r)] for r in [header] + rows]
     if marks:
         for i, row in enumerate(marks):
             for j, m in enumerate(row):
@@ -61,7 +63,7 @@ def _grid(header: list[str], rows: list[list[str]], marks: list[list[bool]] | No
 
 def render_text(c: Comparison) -> str:
     names = [col.name for col in c.columns]
-    out = [headline(c), ""]
+    out = [printable(headline(c)), ""]
     if c.config:
         out += ["Config keys that differ:",
                 _grid(["key"] + [r.name for r in c.runs], [[k] + [_value(v) for v in vals] for k, vals in c.config.items()]),
@@ -76,7 +78,7 @@ def render_text(c: Comparison) -> str:
     marks = [[False] + c.changed[k] for k in c.verdicts]
     out += ["Paired verdicts (* = outcome differs from the first column):",
             _grid(["comparison: metric"] + names, vrows, marks, width=56)]
-    out += [f"note: {n}" for n in c.notes]
+    out += [f"note: {printable(n)}" for n in c.notes]
     return "\n".join(out) + "\n"
 
 

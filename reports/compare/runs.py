@@ -29,6 +29,7 @@ from pipeline.evaluation.metrics.labels import ordered_methods
 from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import name as out_name
+from reports.compare.read import RunFileError, manifest_sections, read_summary
 
 STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
 SUMMARY = Path("evaluate") / out_name("evaluate", "summary")
@@ -57,12 +58,13 @@ class Column:
 
 # -- reading ---------------------------------------------------------------------------------------
 def _json(path: Path, run: str) -> Any:
+    """summary.json read as untrusted input (reports.compare.read); errors name the run."""
     try:
-        return json.loads(path.read_text())
+        return read_summary(path)
     except FileNotFoundError:
         raise CompareError(f"run {run}: {path} not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CompareError(f"run {run}: {path} is not valid JSON ({e})") from None
+    except RunFileError as e:
+        raise CompareError(f"run {run}: {e}") from None
 
 
 def flatten(d: Any, prefix: str = "") -> dict[str, Any]:
@@ -80,23 +82,22 @@ def run_config(path: Path) -> tuple[dict[str, Any], list[str]]:
     stages is the same in each); notes for the manifests that are missing."""
     cfg: dict[str, Any] = {}
     missing = []
+    unreadable = []
     for stage in STAGES:
         p = path / stage / MANIFEST
-        if not p.is_file():
-            missing.append(stage)
+        sections, why = manifest_sections(p)
+        if sections is None:
+            if why == "missing":
+                missing.append(stage)
+            else:
+                unreadable.append(f"{p} is unreadable ({why}): the {stage} stage's config is not compared")
             continue
-        try:
-            m = json.loads(p.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            missing.append(stage)
-            continue
-        sections = ((m.get("parts") or {}).get("sections") or {}) if isinstance(m, dict) else {}
         for sec, values in sections.items():
             cfg.update(flatten(values, sec))
     # The report stage is optional (presentation only); a run without any manifest says so once.
     missing = [s for s in missing if s != "report"]
     notes = [f"no readable manifest for stage(s) {', '.join(missing)}: their config is not compared"] if missing else []
-    return cfg, notes
+    return cfg, notes + unreadable
 
 
 def load_run(path: str | Path, name: str | None = None) -> Run:

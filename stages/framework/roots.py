@@ -11,6 +11,6 @@ def data_roots(cfg) -> tuple[Path, Path]:
     """(BigBIRD root, AVD root): the stage's subfolders for synthetic data, the config paths for
     real data."""
     if cfg.data.source == "real":
-        return cfg.resolve(cfg.data.bigbird_root), cfg.resolve(cfg.data.avd_root)
+        return cfg.path("data.bigbird_root"), cfg.path("data.avd_root")
     d = cfg.stage_dir("data")
     return d / out_name("data", "bigbird"), d / out_name("data", "avd")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import typing
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,13 @@ from pipeline.infra.config.checks import cross_checks
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.learning import ModelsConfig
 from pipeline.infra.config.evaluation import ABLATION_KEYS
-from pipeline.infra.config.root import Config, to_dict
+from pipeline.infra.config.root import PATH_KEYS, Config, project_root, to_dict
+from pipeline.infra.nesting import depth
+
+# Limits on what a config file may do, so a hostile or broken one is a named error, never a
+# RecursionError: the shipped configs use one `extends` link and nest 3 tables deep.
+MAX_EXTENDS = 16   # files in one `extends` chain (the file itself included)
+MAX_NESTING = 16   # levels of tables and arrays in one file
 
 
 def _check_scalar(value: Any, tp: Any, key: str, where: str) -> Any:
@@ -120,11 +127,16 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
     """
     path = Path(path)
     where = str(path)
-    table = _read_table(path)
+    table, set_in = _read_table(path)
     if overrides:
+        if depth(overrides) > MAX_NESTING:
+            raise ConfigError(f"--set: a value nests deeper than {MAX_NESTING} levels (MAX_NESTING)")
         table = merge(table, overrides)
+        # a --set path counts as written in the file --config names
+        set_in.update({k: path for k in PATH_KEYS if k.split(".")[1] in (overrides.get(k.split(".")[0]) or {})})
     cfg = _build(Config, table, where, "")
-    cfg = dataclasses.replace(cfg, source_path=str(path.resolve()))
+    roots = tuple((k, str(project_root(set_in[k]))) for k in PATH_KEYS if k in set_in)
+    cfg = dataclasses.replace(cfg, source_path=str(path.resolve()), path_roots=roots)
     cross_checks(cfg, where)
     return cfg
 
@@ -143,28 +155,59 @@ def _read_toml(path: Path) -> dict:
         hint = " (it looks like UTF-16)" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else ""
         raise ConfigError(f"{where}: not UTF-8 text{hint}: byte {e.start} is {data[e.start:e.start + 1]!r}; "
                           "TOML files must be UTF-8") from None
+    _check_key_depth(text, where)
     try:
-        return tomllib.loads(text.removeprefix("\ufeff"))
+        table = tomllib.loads(text.removeprefix("\ufeff"))
+    except RecursionError:
+        raise ConfigError(f"{where}: a value nests deeper than {MAX_NESTING} levels (MAX_NESTING)") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where}: not valid TOML: {e}") from None
+    if depth(table) > MAX_NESTING:
+        raise ConfigError(f"{where}: a value nests deeper than {MAX_NESTING} levels (MAX_NESTING)")
+    return table
 
 
-def _read_table(path: Path, seen: tuple = ()) -> dict:
-    """The file's tables; a top-level ``extends = "other.toml"`` (relative to the file) first reads
-    that config and merges this file's keys over it, so a preset states only what it changes."""
-    where = str(path)
-    table = _read_toml(path)
-    base = table.pop("extends", None)
-    if base is None:
-        return table
-    if not isinstance(base, str) or not base:
-        raise ConfigError(f"{where}: 'extends' must be a config file name, got {base!r}")
-    parent = (path.parent / base).resolve()
-    if parent in seen or parent == path.resolve():
-        raise ConfigError(f"{where}: 'extends' makes a cycle through {parent}")
-    if not parent.is_file():
-        raise ConfigError(f"{where}: 'extends' names {base!r}, not found at {parent}")
-    return merge(_read_table(parent, seen + (path.resolve(),)), table)
+def _check_key_depth(text: str, where: str) -> None:
+    """A dotted key (``a.b.c = 1`` or ``[a.b.c]``) deeper than MAX_NESTING, refused before parsing:
+    tomllib's time and memory grow with the square of a dotted key's length."""
+    deep = re.compile(r"\s*\[{0,2}\s*[\w-]+(?:\s*\.\s*[\w-]+){%d}" % MAX_NESTING)
+    for n, line in enumerate(text.splitlines(), 1):
+        if deep.match(line):
+            raise ConfigError(f"{where}: line {n}: a key nests deeper than {MAX_NESTING} levels (MAX_NESTING)")
+
+
+def _read_table(path: Path) -> tuple[dict, dict[str, Path]]:
+    """The file's tables, and for each PATH_KEYS entry set the file that set it. A top-level
+    ``extends = "other.toml"`` (relative to the file) first reads that config and merges this
+    file's keys over it, so a preset states only what it changes; at most MAX_EXTENDS files."""
+    chain: list[tuple[Path, dict]] = []
+    while True:
+        where = str(path)
+        table = _read_toml(path)
+        chain.append((path, table))
+        base = table.pop("extends", None)
+        if base is None:
+            break
+        if not isinstance(base, str) or not base:
+            raise ConfigError(f"{where}: 'extends' must be a config file name, got {base!r}")
+        parent = (path.parent / base).resolve()
+        if parent in {p.resolve() for p, _ in chain}:
+            raise ConfigError(f"{where}: 'extends' makes a cycle through {parent}")
+        if not parent.is_file():
+            raise ConfigError(f"{where}: 'extends' names {base!r}, not found at {parent}")
+        if len(chain) >= MAX_EXTENDS:
+            raise ConfigError(f"{chain[0][0]}: its 'extends' chain is longer than {MAX_EXTENDS} files "
+                              f"(MAX_EXTENDS); {where} extends {base!r}")
+        path = parent
+    merged: dict = {}
+    set_in: dict[str, Path] = {}
+    for p, table in reversed(chain):   # the base first, each file's keys over it
+        merged = merge(merged, table)
+        for key in PATH_KEYS:
+            section, name = key.split(".")
+            if isinstance(table.get(section), dict) and name in table[section]:
+                set_in[key] = p
+    return merged, set_in
 
 
 def merge(base: dict, over: dict) -> dict:

@@ -17,6 +17,18 @@ from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, Mod
 from pipeline.infra.config.simulate import SimulateConfig
 
 
+# The settings that name files or folders. A relative one resolves against the project root of the
+# config file that sets it (``project_root``), so a key inherited through ``extends`` from
+# configs/synthetic.toml means the same folder whichever file extends it.
+PATH_KEYS = ("run.artifacts", "data.bigbird_root", "data.avd_root", "classifier.path")
+
+
+def project_root(config_file: str | Path) -> Path:
+    """The parent of ``configs/`` for a file there, else the file's own folder."""
+    p = Path(config_file).resolve().parent
+    return p.parent if p.name == "configs" else p
+
+
 @dataclass(frozen=True)
 class StudyConfig:
     seeds: tuple[int, ...] = _f(factory=lambda: (0, 1, 2), lo=0, hi=SEED_MAX,
@@ -37,24 +49,32 @@ class Config:
     study: StudyConfig = _f(factory=StudyConfig)
     # Where the config file lives; relative paths in it resolve against its project root.
     source_path: str = field(default="", compare=False, metadata={"internal": True})
+    # (path key, project root of the file that set it) for each PATH_KEYS entry set in a file of
+    # the `extends` chain: a path resolves against the root of the file it is written in.
+    path_roots: tuple[tuple[str, str], ...] = field(default=(), compare=False, metadata={"internal": True})
 
     # -- derived locations -------------------------------------------------------------------
     @property
     def root(self) -> Path:
         """Project root: the parent of ``configs/`` for files there, else the file's folder."""
-        if not self.source_path:
-            return Path.cwd()
-        p = Path(self.source_path).resolve().parent
-        return p.parent if p.name == "configs" else p
+        return project_root(self.source_path) if self.source_path else Path.cwd()
 
-    def resolve(self, path: str) -> Path:
+    def resolve(self, path: str, key: str | None = None) -> Path:
+        """``path`` made absolute: against the project root of the file that set ``key`` (see
+        ``path_roots``), else against this config's own root."""
         p = Path(path).expanduser()
-        return p if p.is_absolute() else self.root / p
+        if p.is_absolute():
+            return p
+        return Path(dict(self.path_roots).get(key, self.root)) / p
+
+    def path(self, key: str) -> Path:
+        """The path setting ``key`` (one of PATH_KEYS, e.g. ``data.avd_root``), resolved."""
+        return self.resolve(self.section(key), key)
 
     @property
     def artifacts_dir(self) -> Path:
         """The artifacts root, absolute and normalised (``..`` folded away)."""
-        return Path(os.path.abspath(self.resolve(self.run.artifacts)))
+        return Path(os.path.abspath(self.path("run.artifacts")))
 
     @property
     def run_dir(self) -> Path:
