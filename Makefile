@@ -21,7 +21,7 @@ help:
 	@echo "make bench | clean | distclean"
 
 # Installs go through uv where it can be had (pip install uv, then uv pip install: it unpacks
-# torch's ~6 GB of wheels in parallel: 38 s against 130 s for pip on a fresh clone), with pip's
+# torch's ~6 GB of wheels in parallel, several times faster than pip: docs/benchmarks.md), with pip's
 # own indexes, find-links and constraints (tools/uv_flags.py); pip installs when uv cannot.
 PIP     := $(BIN)/python -m pip install --quiet --disable-pip-version-check
 define install

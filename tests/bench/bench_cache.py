@@ -3,7 +3,7 @@
 - Checking that 1000 recorded input files are unchanged (what every up-to-date stage does before
   it is skipped): goal under 0.1 s (size and mtime match, nothing is read).
 - Hashing 1000 AVD-size JPEG files when their mtimes changed (a copied dataset): goal under 2 s.
-- Decoding a JPEG with libjpeg's warnings captured (``loaders.bigbird.decode_jpeg``) against the
+- Decoding a JPEG with libjpeg's warnings captured (``loaders.jpeg.decode_jpeg``) against the
   same decode without the capture (marker check, ``cv2.imdecode``, BGR -> RGB): goal under 1.15x
   (the capture redirects one file descriptor per image).
 

@@ -1,6 +1,6 @@
 """The evaluate stage's test-domain parts: the labelled crops' residuals, the cross-fitted
 test-domain variance of the calibrated likelihood and the domain-fit summary. The statistics are
-pure functions in ``pipeline.evaluation`` (``domain_fit``, ``test_domain_variance``); the
+pure functions beside it (``domain.fit``, ``domain.variance``); the
 population blocks are in ``pipeline.evaluation.grid.population_calibration``.
 """
 from __future__ import annotations
