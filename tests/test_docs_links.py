@@ -31,14 +31,17 @@ def links(text: str) -> list[tuple[int, str]]:
     return out
 
 
+def file_links(doc: Path) -> list[tuple[int, str, Path]]:
+    """(line number, target, resolved path) of ``doc``'s links to files: URLs (https:, mailto:) and
+    anchors in the page left out."""
+    return [(no, t, (doc.parent / t.split("#", 1)[0]).resolve()) for no, t in links(doc.read_text())
+            if not re.match(r"^[a-z][a-z0-9+.-]*:", t, re.IGNORECASE) and not t.startswith("#")]
+
+
 def broken_links(root: Path) -> list[str]:
     bad = []
     for doc in documents(root):
-        for no, target in links(doc.read_text()):
-            if re.match(r"^[a-z][a-z0-9+.-]*:", target, re.IGNORECASE) or target.startswith("#"):
-                continue                                   # a URL (https:, mailto:) or an anchor in the page
-            path = target.split("#", 1)[0]
-            resolved = (doc.parent / path).resolve()
+        for no, target, resolved in file_links(doc):
             if not resolved.exists():
                 bad.append(f"{doc.relative_to(root)}:{no}: {target} (no {resolved})")
             elif root.resolve() not in resolved.parents and resolved != root.resolve():
@@ -52,9 +55,7 @@ def test_every_relative_link_in_the_docs_resolves():
 
 
 def linked_files(doc: Path) -> set[Path]:
-    """The files ``doc`` links to, resolved (URLs and in-page anchors left out)."""
-    return {(doc.parent / t.split("#", 1)[0]).resolve() for _, t in links(doc.read_text())
-            if not re.match(r"^[a-z][a-z0-9+.-]*:", t, re.IGNORECASE) and not t.startswith("#")}
+    return {resolved for _, _, resolved in file_links(doc)}
 
 
 def test_the_readme_is_a_short_guide_that_links_the_docs():
@@ -71,16 +72,17 @@ def test_the_readme_is_a_short_guide_that_links_the_docs():
 
 
 def test_the_link_check_catches_a_planted_broken_link(tmp_path):
-    (tmp_path / "docs").mkdir()
-    (tmp_path / "docs" / "design.md").write_text("see [fusion](../pipeline/method/fusion.py)\n")
-    (tmp_path / "README.md").write_text(
+    root = tmp_path / "repo"                               # elsewhere.md beside it, outside the repository
+    (root / "docs").mkdir(parents=True)
+    (root / "docs" / "design.md").write_text("see [fusion](../pipeline/method/fusion.py)\n")
+    (root / "README.md").write_text(
         "[ok](docs/design.md) [web](https://example.org) [here](#top)\n"
         "`[not a link](nowhere.md)`\n"
         "```\n[in a fence](nowhere.md)\n```\n"
         "[gone](docs/missing.md#part)\n"
         "[outside](../elsewhere.md)\n")
-    (tmp_path.parent / "elsewhere.md").write_text("x")
-    bad = broken_links(tmp_path)
+    (tmp_path / "elsewhere.md").write_text("x")
+    bad = broken_links(root)
     assert len(bad) == 3, bad
     assert any("docs/design.md:1: ../pipeline/method/fusion.py" in b for b in bad)
     assert any("README.md:6: docs/missing.md#part" in b for b in bad)
