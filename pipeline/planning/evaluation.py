@@ -66,7 +66,7 @@ def run_planning(cfg, cells, tracks, avd, scores, moves: dict, banks, executor, 
     block = planning_block(table, tasks[0].planners, plan.budget, plan.confidence, ev.bootstrap, ev.seed)
     ms = np.asarray(times) * 1e3
     block["decision_ms"] = {"median": float(np.median(ms)) if len(ms) else None,
-                            "p90": float(np.percentile(ms, 90)) if len(ms) else None, "n": int(len(ms))}
+                            "p90": float(np.percentile(ms, 90)) if len(ms) else None, "n": len(ms)}
     block["example"] = example_path(tasks, results)
     block["seconds"] = {"episodes": round(run_s, 3), "statistics": round(time.perf_counter() - t0 - run_s, 3)}
     return block

@@ -8,8 +8,8 @@ only there does a step give a measurement.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 MOVES = ("rotate_cw", "rotate_ccw", "forward", "backward", "left", "right")
 
@@ -20,7 +20,7 @@ class MoveGraph:
     moves: Mapping[str, Mapping[str, str]]
 
     @classmethod
-    def from_moves(cls, moves: Mapping[str, Mapping[str, str]]) -> "MoveGraph":
+    def from_moves(cls, moves: Mapping[str, Mapping[str, str]]) -> MoveGraph:
         nodes = set(moves)
         return cls({n: {m: t for m, t in (moves[n] or {}).items() if m in MOVES and t and t in nodes}
                     for n in sorted(nodes)})

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pipeline.infra.config.fields import SEED_MAX, setting as _f
+from pipeline.infra.config.fields import SEED_MAX
+from pipeline.infra.config.fields import setting as _f
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,8 @@
 information gain against an exact integral."""
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pytest
 
@@ -79,7 +81,7 @@ def test_planners_move_only_along_the_graph(name):
         assert len(ep.nodes) == 8
         for prev, path in zip(ep.nodes, ep.paths):
             hops = (prev,) + path
-            assert all(world.graph.linked(a, b) for a, b in zip(hops, hops[1:])), (name, hops)
+            assert all(world.graph.linked(a, b) for a, b in pairwise(hops)), (name, hops)
 
 
 def test_candidates_fall_back_to_the_nearest_unvisited_views():
