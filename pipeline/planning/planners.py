@@ -28,12 +28,13 @@ class InfoGain:
     name = "info_gain"
     known_pose = False
 
-    def __init__(self, eps: np.ndarray):
-        self.eps = eps
+    def __init__(self, eps: np.ndarray, table=None):
+        self.eps, self.table = eps, table     # table: the models' ``eig.RingTable`` (None: exact GPs)
 
     def gains(self, belief, nodes) -> np.ndarray:
         pos = belief.predicted(nodes, known_pose=self.known_pose)
-        return expected_information_gain(belief.models, belief.world.inputs(pos), belief.log_post, self.eps)
+        return expected_information_gain(belief.models, belief.world.inputs(pos), belief.log_post, self.eps,
+                                         table=self.table)
 
     def choose(self, belief, candidates: dict, rng) -> str:
         nodes = sorted(candidates)
@@ -78,8 +79,9 @@ class Fixed:
     name = "fixed"
 
 
-def make_planner(name: str, eps: np.ndarray):
+def make_planner(name: str, eps: np.ndarray, table=None):
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; use one of {', '.join(PLANNERS)}")
-    return {"info_gain": lambda: InfoGain(eps), "known_pose": lambda: KnownPose(eps), "random": RandomWalk,
+    return {"info_gain": lambda: InfoGain(eps, table), "known_pose": lambda: KnownPose(eps, table),
+            "random": RandomWalk,
             "fixed": Fixed, "orbit": Orbit, "hindsight": Hindsight}[name]()

@@ -136,3 +136,22 @@ def test_hindsight_is_an_upper_bound_on_the_truth_at_each_next_step():
     for name in ("info_gain", "random", "orbit"):
         other = episode(name, world, horizon=1, budget=2, confidence=None)
         assert h.log_post[1, world.truth] >= other.log_post[1, world.truth] - 1e-12
+
+
+def test_ring_table_matches_the_gp_predictive():
+    from pipeline.planning.eig import RingTable
+    from tests.bench.bench_planning import class_models
+
+    for m in (models(), class_models(C=3, F=2)):
+        th = np.random.default_rng(0).uniform(-4, 4, 300)
+        x = np.stack([np.cos(th), np.sin(th)], -1)
+        mu, var = m.marginal(x)
+        tmu, tvar = RingTable(m)(x)
+        scale = m.amplitude.max()
+        assert np.max(np.abs(tmu - mu)) < 1e-3 * scale + 1e-9
+        assert np.max(np.abs(tvar - var)) < 1e-3 * scale + 1e-9
+        lp = np.log(np.full(m.n_classes, 1 / m.n_classes))
+        eps = standard_draws(64, m.n_components, 0)
+        exact = expected_information_gain(m, x[:12].reshape(3, 4, 2), lp, eps)
+        fast = expected_information_gain(m, x[:12].reshape(3, 4, 2), lp, eps, table=RingTable(m))
+        np.testing.assert_allclose(fast, exact, atol=2e-3)
