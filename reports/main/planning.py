@@ -4,7 +4,8 @@ pooled table, the verdict sentences (computed there from the paired CIs) and one
 Nothing is recomputed here."""
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
