@@ -58,8 +58,8 @@ def episode_values(table: pd.DataFrame, budget: int, confidence: float) -> pd.Da
     ep = table.groupby(keys).size().rename("n").reset_index()[keys]
     ep["steps_to_decision"] = ep.set_index(keys).index.map(first).to_numpy(float)
     ep["steps_to_decision"] = ep["steps_to_decision"].fillna(budget + 1.0)
-    for k in AT_STEPS:
-        at = table[table["step"] == min(k, budget)].set_index(keys)
+    for k in at_steps(budget):
+        at = table[table["step"] == k].set_index(keys)
         for m in STEP_METRICS:
             ep[f"{m}_at_{k}"] = ep.set_index(keys).index.map(at[m]).to_numpy(float)
     return ep
@@ -73,10 +73,15 @@ def _units(df: pd.DataFrame, cols) -> pd.DataFrame:
     return df.groupby(UNIT, sort=True)[list(cols)].mean().reset_index()
 
 
-def pooled_metrics() -> dict[str, tuple[str, bool]]:
+def at_steps(budget: int) -> list[int]:
+    """The steps of ``AT_STEPS`` the budget reaches."""
+    return [k for k in AT_STEPS if k <= budget]
+
+
+def pooled_metrics(budget: int) -> dict[str, tuple[str, bool]]:
     """The episode-level keys of the pooled table: {key: (label, higher_is_better)}."""
     out = dict(EPISODE_METRICS)
-    for k in AT_STEPS:
+    for k in at_steps(budget):
         for m, (label, hi) in STEP_METRICS.items():
             out[f"{m}_at_{k}"] = (f"{label} at step {k}", hi)
     return out
@@ -92,7 +97,7 @@ _PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguis
 def planning_block(table: pd.DataFrame, planners, budget: int, confidence: float, n_boot: int, seed: int) -> dict:
     """The summary.json ``planning`` block: curves per step, pooled table, paired verdicts."""
     ep = episode_values(table, budget, confidence)
-    metrics = pooled_metrics()
+    metrics = pooled_metrics(budget)
     n_t, n_u = ep["target"].nunique(), len(ep.drop_duplicates(UNIT))
     settings = sorted(ep["setting"].unique())
     scope = f"{n_t} targets x {n_u} starts x {len(settings)} localization settings"
@@ -121,6 +126,6 @@ def planning_block(table: pd.DataFrame, planners, budget: int, confidence: float
                 sentences.append(f"{a} {_PHRASE[est['outcome']]} {b} on {label} (difference {_num(est['value'])}, "
                                  f"95 % CI [{_num(est['ci_low'])}, {_num(est['ci_high'])}], over {scope}).")
     return {"planners": list(planners), "settings": settings, "budget": budget, "confidence": confidence,
-            "at_steps": [k for k in AT_STEPS], "n_targets": int(n_t), "n_starts": int(n_u), "scope": scope,
+            "at_steps": at_steps(budget), "n_targets": int(n_t), "n_starts": int(n_u), "scope": scope,
             "curves": curves, "pooled": pooled, "paired": paired, "verdict": sentences,
             "labels": {m: lab for m, (lab, _) in {**STEP_METRICS, **metrics}.items()}}

@@ -104,7 +104,7 @@ def planning_section(ctx: ReportContext) -> None:
     rows = [[p, _ci(block["pooled"][p]["steps_to_decision"])] + [_ci(block["pooled"][p][f"correct_at_{k}"]) for k in at]
             for p in block["planners"]]
     ctx.page.table(["planner", "steps to a confident correct decision"] + [f"correct ratio at step {k}" for k in at],
-                   rows, caption=f"Pooled over {block['scope']}; no confident correct decision within the budget "
+                   rows, cls="planning", caption=f"Pooled over {block['scope']}; no confident correct decision within the budget "
                                  f"counts as {block['budget'] + 1} steps.")
     if block.get("verdict"):
         ctx.page.bullets(list(block["verdict"]))
