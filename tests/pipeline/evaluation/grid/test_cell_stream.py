@@ -13,6 +13,7 @@ from tests.pipeline.method.test_dirichlet_fusion import D, models as dirichlet_m
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
 
 import pytest
+from tests.support.params import PARAMS
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
 
@@ -57,7 +58,7 @@ def test_streamed_results_file_and_kept_values_equal_the_all_at_once_ones(tmp_pa
     kept = []
     with ResultsWriter(tmp_path / "new.parquet", rows_per_group=40) as w:   # metadata deferred, as the stage
         for cell, res in zip(cells, results):
-            k, blocks = reduce_cell(cell, res, 0.99, tables=cell.variant == "default")
+            k, blocks = reduce_cell(cell, res, PARAMS, tables=cell.variant == "default")
             for b in blocks:
                 w.write(b)
             kept.append(k)
@@ -70,12 +71,12 @@ def test_streamed_results_file_and_kept_values_equal_the_all_at_once_ones(tmp_pa
     # The cell table's rows, the calibration sums and the Dirichlet extras, as from the posteriors.
     rows = [r for k in kept for r in k["rows"]]
     want = [{"variant": c.variant, "target": c.target, "track": c.track, "scan": c.scan, "experiment": e,
-             "setting": s, "method": m, **cell_metrics(lp, c.truth, 0.99)}
+             "setting": s, "method": m, **cell_metrics(lp, c.truth, PARAMS)}
             for c, r in zip(cells, results) for (e, s), posts in r["posts"].items() for m, lp in posts.items()]
     assert rows == want
     assert {E.WU_POSES_ONLY, E.WU_DROPOUT_ONLY, DIRICHLET} <= {r["method"] for r in rows}
     for variant in ("default", "abl"):
-        a, b = track_sums(cells, kept, variant), track_sums(cells, results, variant)
+        a, b = track_sums(cells, kept, variant, PARAMS.ece_bins), track_sums(cells, results, variant, PARAMS.ece_bins)
         assert a.keys() == b.keys() and all(np.array_equal(a[key], b[key]) for key in a)
     for c, r, k in zip(cells, results, kept):
         assert k["difficulty"] == r["difficulty"]
@@ -91,9 +92,9 @@ def test_the_showcase_tables_kept_from_the_grid_equal_a_recomputed_cell():
     for cell, res in zip(cells, results):
         if cell.variant != "default":
             continue
-        kept, _ = reduce_cell(cell, res, 0.99, tables=True)
+        kept, _ = reduce_cell(cell, res, PARAMS, tables=True)
         again = P.run_cell(banks, cell)
         assert list(kept["tables"]) == list(again["posts"])
         for key, posts in again["posts"].items():
-            assert kept["tables"][key] == E.summarize(posts, cell.truth)
-        assert kept["calibration"].keys() == cell_sums(again["posts"], cell.truth).keys()
+            assert kept["tables"][key] == E.summarize(posts, cell.truth, PARAMS)
+        assert kept["calibration"].keys() == cell_sums(again["posts"], cell.truth, PARAMS.ece_bins).keys()
