@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from pathlib import Path
 
 
 def _before_rows(pop: dict) -> dict:
@@ -75,30 +76,30 @@ def pooled_table(before: dict, after: dict) -> list[str]:
 
 
 def ci_shifts(before: dict, after: dict) -> tuple[float, str, int]:
-    """Largest |CI end shift| / CI width over the pooled (method, metric) values whose statistic
-    is the mean in both summaries; the entry; how many were compared."""
+    """Largest |CI end shift| / CI width over the pooled values and paired differences whose
+    statistic is the mean in both summaries (same value); the entry; how many were compared."""
     worst, where, n = 0.0, "", 0
-    for m, per in (after.get("pooled") or {}).items():
-        for k, e in per.items():
-            old = ((before.get("pooled") or {}).get(m) or {}).get(k)
-            if not old or e.get("pooling") != "mean" or None in (old.get("ci_low"), old.get("ci_high"),
-                                                                  e.get("ci_low"), e.get("ci_high")):
-                continue
-            if old["value"] != old["value"] or abs(old["value"] - e["value"]) > 1e-9 * max(1.0, abs(e["value"])):
-                continue  # a different statistic or value: not a reproduction check
-            width = old["ci_high"] - old["ci_low"]
-            if not width > 0 or not math.isfinite(width):
-                continue
-            n += 1
-            s = max(abs(old["ci_low"] - e["ci_low"]), abs(old["ci_high"] - e["ci_high"])) / width
-            if s > worst:
-                worst, where = s, f"{m} {k}"
+    pairs = [(blk, m, k, e) for blk in ("pooled", "paired") for m, per in (after.get(blk) or {}).items()
+             for k, e in per.items()]
+    for blk, m, k, e in pairs:
+        old = ((before.get(blk) or {}).get(m) or {}).get(k)
+        if not old or e.get("pooling") != "mean" or None in (old.get("ci_low"), old.get("ci_high"),
+                                                              e.get("ci_low"), e.get("ci_high")):
+            continue
+        if old["value"] != old["value"] or abs(old["value"] - e["value"]) > 1e-9 * max(1.0, abs(e["value"])):
+            continue  # a different statistic or value: not a reproduction check
+        width = old["ci_high"] - old["ci_low"]
+        if not width > 0 or not math.isfinite(width):
+            continue
+        n += 1
+        s = max(abs(old["ci_low"] - e["ci_low"]), abs(old["ci_high"] - e["ci_high"])) / width
+        if s > worst:
+            worst, where = s, f"{blk} {m} {k}"
     return worst, where, n
 
 
 def main(argv: list[str]) -> None:
-    before = json.load(open(argv[0]))["population"]
-    after = json.load(open(argv[1]))["population"]
+    before, after = (json.loads(Path(a).read_text())["population"] for a in argv[:2])
     print("Verdicts whose outcome changed (or that exist on one side only):\n")
     print("\n".join(verdict_table(before, after)))
     print("\nNumbers shown next to a verdict label that changed:\n")
@@ -106,7 +107,8 @@ def main(argv: list[str]) -> None:
     print("\nPooled values whose statistic changed:\n")
     print("\n".join(pooled_table(before, after)))
     worst, where, n = ci_shifts(before, after)
-    print(f"\nPooled mean-statistic CIs compared: {n}; largest end shift {100 * worst:.1f} % of the CI width ({where}).")
+    print(f"\nMean-statistic CIs compared (pooled and paired): {n}; largest end shift {100 * worst:.1f} % of the CI "
+          f"width ({where}).")
 
 
 if __name__ == "__main__":

@@ -94,9 +94,8 @@ def records(paired: dict, n_targets: int, n_tracks: int, wide: pd.DataFrame) -> 
     out = []
     for a, b in COMPARISONS:
         key = f"{a}-{b}"
-        for k in METRICS:
+        for k, higher in METRICS.items():
             d = paired[key][k]
-            higher = METRICS[k]
             if d["ci_low"] > 0 or d["ci_high"] < 0:
                 outcome = "better" if (d["ci_low"] > 0) == higher else "worse"
             else:
