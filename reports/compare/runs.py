@@ -235,15 +235,12 @@ def pooled_value(col: Column, method: str, metric: str) -> dict | None:
 
 
 def outcome_from_ci(est: dict, metric: str) -> str:
+    """The one outcome rule (``records.outcome``) on an older summary's paired CI."""
+    from pipeline.evaluation.statistics.records import outcome
+
     lo, hi = _num(est.get("ci_low")), _num(est.get("ci_high"))
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        return "not distinguishable"
     higher = METRICS[metric].higher_is_better if metric in METRICS else est.get("better", "higher") == "higher"
-    if (lo > 0 and higher) or (hi < 0 and not higher):
-        return "better"
-    if (hi < 0 and higher) or (lo > 0 and not higher):
-        return "worse"
-    return "not distinguishable"
+    return outcome(lo, hi, higher) if math.isfinite(lo) and math.isfinite(hi) else "not distinguishable"
 
 
 def verdicts(run: Run) -> dict[tuple[str, str], dict]:

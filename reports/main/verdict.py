@@ -6,6 +6,7 @@ from __future__ import annotations
 from pipeline.evaluation.metrics.labels import (COMPARISONS, DIRICHLET, comparison_key, comparison_label, method_label,
                                        ordered_methods)
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
+from pipeline.evaluation.statistics.records import outcome
 from pipeline.evaluation.statistics.resampler import wilson_interval
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
@@ -205,12 +206,9 @@ def dirichlet_note(pop: dict) -> str:
 
 
 def _outcome(d: dict, metric: str) -> str:
-    """better / worse / not distinguishable from the CI, where the verdict table lacks the row."""
-    e = Estimate.of(d)
-    if not e.excludes_zero():
-        return "not distinguishable"
-    higher = higher_is_better(metric)
-    return "better" if (float(e.value) > 0) == higher else "worse"
+    """better / worse / not distinguishable from the CI (the one rule, ``records.outcome``), where
+    the records lack the row."""
+    return outcome(d.get("ci_low"), d.get("ci_high"), higher_is_better(metric))
 
 
 def _share(v) -> str:
