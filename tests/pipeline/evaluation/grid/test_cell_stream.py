@@ -2,17 +2,22 @@
 cell and writes of it equals what the stage computed from every cell's posteriors at once."""
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 
 from pipeline.evaluation.grid import experiments as E
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
+from pipeline.evaluation.metrics.results import (
+    ResultsWriter,
+    cell_metrics,
+    result_block,
+    write_results,
+)
 from pipeline.evaluation.statistics.pooled_calibration import cell_sums, track_sums
-from pipeline.evaluation.metrics.results import ResultsWriter, cell_metrics, result_block, write_results
 from pipeline.method.names import DIRICHLET
-from tests.pipeline.method.test_dirichlet_fusion import D, models as dirichlet_models
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
-
-import pytest
+from tests.pipeline.method.test_dirichlet_fusion import D
+from tests.pipeline.method.test_dirichlet_fusion import models as dirichlet_models
 from tests.support.params import PARAMS
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
@@ -103,12 +108,12 @@ def test_the_showcase_tables_kept_from_the_grid_equal_a_recomputed_cell():
 def test_showcase_and_population_agree_at_a_non_default_confident_threshold():
     # The showcase tables, the population's cell rows and the report's single-track bootstrap all
     # compute the confident-error rate from the one spec at the configured threshold.
-    from pipeline.evaluation.metrics.spec import Params, matrices
     from pipeline.evaluation.metrics.results import frame
+    from pipeline.evaluation.metrics.spec import Params, matrices
     from pipeline.evaluation.statistics.engine import over_realizations
 
     low = Params(0.6, 10)
-    banks, cells, results = population()
+    _, cells, results = population()
     moved = 0
     for cell, res in zip(cells, results):
         if cell.variant != "default":

@@ -8,9 +8,18 @@ import pandas as pd
 import pytest
 
 from pipeline.evaluation.metrics import spec as M
-from pipeline.evaluation.statistics.engine import over_members, population_block, seed_block
+from pipeline.evaluation.statistics.engine import (
+    over_members,
+    population_block,
+    seed_block,
+)
 from pipeline.evaluation.statistics.records import consistent, outcome
-from pipeline.evaluation.statistics.resampler import Resampler, draws, interval, wilson_interval
+from pipeline.evaluation.statistics.resampler import (
+    Resampler,
+    draws,
+    interval,
+    wilson_interval,
+)
 from pipeline.infra.cache import write_json
 
 AB = [("a", "b")]
