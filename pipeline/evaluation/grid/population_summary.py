@@ -43,7 +43,9 @@ def check_primary(keys) -> None:
 
     bad = [k for k in keys if k not in METRICS and k not in POOLED_METRICS]
     if bad or not keys:
-        raise ValueError(f"config 'evaluate.primary_metrics' = {list(keys)!r}: {'unknown metric(s) ' + ', '.join(bad) if bad else 'empty'}"
+        from pipeline.infra.config.fields import ConfigError
+
+        raise ConfigError(f"config 'evaluate.primary_metrics' = {list(keys)!r}: {'unknown metric(s) ' + ', '.join(bad) if bad else 'empty'}"
                          f" (known: {', '.join([*METRICS, *POOLED_METRICS])})")
 
 
@@ -53,7 +55,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences
     and verdicts (whole population, per setting, per ablation), difficulty, per-cell values and
     the tracks."""
-    from pipeline.evaluation.grid.population_calibration import BLOCK_KEYS, population_blocks
+    from pipeline.evaluation.grid import population_calibration as PC
 
     ev = cfg.evaluate
     metrics = list(METRICS)
@@ -64,7 +66,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     n_tracks = len(tracks)
     scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
     check_primary(ev.primary_metrics)
-    blocks = population_blocks(cfg, table, cells, results, scope, DEFAULT)
+    blocks = PC.population_blocks(cfg, table, cells, results, scope, DEFAULT)
     block, ablations = blocks["main"], blocks["ablations"]
     main = default[default["method"].isin(methods)]
     by_setting = {}
@@ -72,7 +74,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         sub = main[main["setting"] == s.label]
         b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
                              primary=tuple(ev.primary_metrics), per_target=False, loto=False)
-        by_setting[s.label] = {k: b[k] for k in BLOCK_KEYS}
+        by_setting[s.label] = {k: b[k] for k in PC.BLOCK_KEYS}
     difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
                   for c, r in zip(cells, results) if r["difficulty"] is not None]
     spread = {}
