@@ -155,7 +155,7 @@ def _train_synthetic(ctx, device: str) -> str:
     from pipeline.scoring.card import WEIGHTS_NPZ, card_hash
     from pipeline.scoring.training import confusion_matrix, predict, resolve_precision, train_classifier
     from pipeline.scoring.weight_files import save_state_dict_npz
-    from pipeline.evaluation.statistics.popstats import wilson_interval
+    from pipeline.evaluation.statistics.resampler import wilson_interval
 
     c = ctx.cfg.classifier
     t = c.training

@@ -4,7 +4,7 @@ its statistics and verdict, and the single-track figures for the showcase track
 
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
 experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.grid.population``,
-``pipeline.evaluation.grid.experiments``, ``pipeline.evaluation.metrics.spec``, ``pipeline.evaluation.statistics.popstats``
+``pipeline.evaluation.grid.experiments``, ``pipeline.evaluation.metrics.spec``, ``pipeline.evaluation.statistics.engine``
 and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor``.
 """
 from __future__ import annotations
@@ -31,8 +31,9 @@ from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
-from pipeline.evaluation.grid.population_summary import cell_table, dirichlet_summary, population_summary
+from pipeline.evaluation.grid.population_summary import cell_table, check_primary, dirichlet_summary, population_summary
 from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
+from pipeline.evaluation.metrics.spec import Params
 from pipeline.evaluation.domain.test_domain import TestDomain, test_variances
 from pipeline.evaluation.grid.track import TrackError, grid_step
 
@@ -111,7 +112,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
                                        candidates=",".join(first.classes), truth=first.truth))
-            summary.setdefault("sensitivity", {})[s.label] = E.summarize(posts, first.truth)
+            summary.setdefault("sensitivity", {})[s.label] = E.summarize(posts, first.truth, Params.of(ev))
         timings["sensitivity"] = time.perf_counter() - t0
     if "bias_maps" in ev.experiments:
         t0 = time.perf_counter()
@@ -155,6 +156,7 @@ def run(ctx) -> str:
     cfg: Config = ctx.cfg
     ev = cfg.evaluate
     t_start = time.perf_counter()
+    check_primary(ev.primary_metrics)   # a config error before any cell runs
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
     dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
     avd_path = ctx.input("features") / out_name("features", "avd")
@@ -203,7 +205,7 @@ def run(ctx) -> str:
                 t1 = time.perf_counter()
                 for m, sec in res.get("seconds", {}).items():
                     fusion[m] = fusion.get(m, 0.0) + sec
-                k, blocks = reduce_cell(cell, res, ev.confident_threshold, tables=cell.variant == DEFAULT)
+                k, blocks = reduce_cell(cell, res, Params.of(ev), tables=cell.variant == DEFAULT)
                 t2 = time.perf_counter()
                 for b in blocks:
                     writer.write(b)

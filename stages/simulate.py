@@ -47,6 +47,7 @@ def run(ctx) -> str:
     cfg: Config = ctx.cfg
     sim = _fit_budget(cfg.simulate, budget(cfg))  # before the heavy imports below: a refusal is immediate
     from pipeline.evaluation.metrics.results import frame, metadata, write_results
+    from pipeline.evaluation.metrics.spec import Params
     from pipeline.evaluation.simulation import scenarios as S
     from pipeline.evaluation.simulation import sweep as SW
     from pipeline.method.gp_files import save_bank
@@ -88,7 +89,7 @@ def run(ctx) -> str:
                   metadata(**meta, example_realization=str(sim.example_realization)))
     df, ex = frame(blocks, drop=("posterior",)), frame(examples)
 
-    table = S.summarize(df)
+    table = S.summarize(df, Params.of(sim))
     found = findings(df, ex, sim.truth_class - 1, posts, sim.confident_threshold)
     block, t_claims = SW.claims_block(fitted, models, sim, posts)
     timings.update(t_claims)

@@ -4,7 +4,7 @@
   their reduction) and the population's summary and calibration blocks; the showcase tracks.
 - ``metrics``: the one metric specification (``spec``), calibration, the results tables and their one
   writer, method and comparison labels.
-- ``statistics``: bootstrap CIs, paired differences, robust estimates, verdicts, seed pooling.
+- ``statistics``: the statistics engine (one resampler, interval, outcome rule and verdict record for every population, ablation and seed pool).
 - ``domain``: the test domain (residuals of labelled crops, cross-fitted test-domain variance).
 - ``simulation``: the paper's section 5.3 scenarios, the claims checked on them, the regime sweep.
 

@@ -39,7 +39,7 @@ def simulate_realization(sim, n_classes: int = 3) -> float:
 
 
 def bootstrap(n_boot: int, groups: int, width: int) -> float:
-    """The two-level bootstrap (``statistics.robust.Resample``): about nine (B, T, width) arrays
+    """The hierarchical bootstrap (``statistics.resampler.Resampler``): about nine (B, T, width) arrays
     of 8 bytes (uniforms, member indices, counts, gathered values, weights)."""
     return 9 * 8 * float(n_boot) * groups * width
 

@@ -8,7 +8,8 @@ its value is the mean over the localization settings; the pooled value is the me
 of their starts' mean, with the hierarchical bootstrap CI over targets, then starts. A paired
 difference is computed the same way on the per-episode differences (same target, start, setting).
 
-All statistics go through ``_estimate`` (one call site for the statistics room).
+All statistics go through ``_estimate`` (one call site for the statistics engine); the block holds
+numbers only: its verdict sentences are rendered in ``reports/main/planning.py``.
 """
 from __future__ import annotations
 
@@ -24,14 +25,27 @@ UNIT = ["target", "start"]
 
 
 def _estimate(groups, n_boot: int, seed, higher: bool | None = None) -> dict:
-    """Mean over groups (targets) of their members' mean (starts), its hierarchical bootstrap
-    95 % CI and, with ``higher``, the verdict (better / worse / not distinguishable, from the CI)."""
-    from pipeline.evaluation.statistics.popstats import hierarchical
-    from pipeline.evaluation.statistics.robust import outcome
+    """Mean over groups (targets) of their members' mean (starts), with the statistics engine's
+    hierarchical interval (targets, then starts) and, with ``higher``, the one outcome rule's
+    verdict. Every call of one block passes the same seed: the engine's draws are shared, so a
+    paired difference and its two planners' values are resampled alike."""
+    from pipeline.evaluation.statistics.records import outcome
+    from pipeline.evaluation.statistics.resampler import draws
 
-    est = hierarchical(groups, n_boot, seed)
+    groups = [np.asarray(g, float) for g in groups if len(g)]
+    if not groups:
+        est = {"value": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
+    else:
+        sizes = [len(g) for g in groups]
+        values = np.zeros((1, len(groups), max(sizes)))
+        for t, g in enumerate(groups):
+            values[0, t, : len(g)] = g
+        est = draws([sizes], n_boot, seed).estimate(values, "mean")
+    est.update(pooling="mean", over=["targets", "starts"],
+               n={"targets": len(groups), "starts": int(sum(len(g) for g in groups))})
     if higher is not None:
-        est["outcome"] = outcome(est, higher)
+        est["better"] = "higher" if higher else "lower"
+        est["outcome"] = outcome(est["ci_low"], est["ci_high"], higher)
     return est
 
 
@@ -87,13 +101,6 @@ def pooled_metrics(budget: int) -> dict[str, tuple[str, bool]]:
     return out
 
 
-def _num(x: float) -> str:
-    return "n/a" if not np.isfinite(x) else f"{x:+.3g}" if x else "0"
-
-
-_PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguishable": "is not distinguishable from"}
-
-
 def planning_block(table: pd.DataFrame, planners, budget: int, confidence: float, n_boot: int, seed: int) -> dict:
     """The summary.json ``planning`` block: curves per step, pooled table, paired verdicts."""
     ep = episode_values(table, budget, confidence)
@@ -102,30 +109,28 @@ def planning_block(table: pd.DataFrame, planners, budget: int, confidence: float
     settings = sorted(ep["setting"].unique())
     scope = f"{n_t} targets x {n_u} starts x {len(settings)} localization settings"
     curves, pooled = {}, {}
-    for pi, p in enumerate(planners):
+    draw_seed = [seed, 10]   # one set of draws for the whole block (the engine caches it)
+    for p in planners:
         sub = table[table["planner"] == p]
         curves[p] = {m: [] for m in STEP_METRICS}
         for k in range(1, budget + 1):
             u = _units(sub[sub["step"] == k], STEP_METRICS)
-            for mi, m in enumerate(STEP_METRICS):
-                curves[p][m].append(_estimate(_groups(u, m), n_boot, [seed, 10, pi, mi, k]))
+            for m in STEP_METRICS:
+                curves[p][m].append(_estimate(_groups(u, m), n_boot, draw_seed))
         u = _units(ep[ep["planner"] == p], metrics)
-        pooled[p] = {m: _estimate(_groups(u, m), n_boot, [seed, 11, pi, mi]) for mi, m in enumerate(metrics)}
-    paired, sentences = {}, []
+        pooled[p] = {m: _estimate(_groups(u, m), n_boot, draw_seed) for m in metrics}
+    paired = {}
     keys = UNIT + ["setting"]
-    for ci, (a, b) in enumerate(COMPARISONS):
+    for a, b in COMPARISONS:
         if a not in planners or b not in planners:
             continue
         da = ep[ep["planner"] == a].set_index(keys).sort_index()
         db = ep[ep["planner"] == b].set_index(keys).sort_index()
         diff = _units((da[list(metrics)] - db[list(metrics)]).reset_index(), metrics)
         block = paired[f"{a}-{b}"] = {}
-        for mi, (m, (label, higher)) in enumerate(metrics.items()):
-            est = block[m] = _estimate(_groups(diff, m), n_boot, [seed, 12, ci, mi], higher)
-            if m == "steps_to_decision" or m.startswith("correct_at"):
-                sentences.append(f"{a} {_PHRASE[est['outcome']]} {b} on {label} (difference {_num(est['value'])}, "
-                                 f"95 % CI [{_num(est['ci_low'])}, {_num(est['ci_high'])}], over {scope}).")
+        for m, (_label, higher) in metrics.items():
+            block[m] = _estimate(_groups(diff, m), n_boot, draw_seed, higher)
     return {"planners": list(planners), "settings": settings, "budget": budget, "confidence": confidence,
             "at_steps": at_steps(budget), "n_targets": int(n_t), "n_starts": int(n_u), "scope": scope,
-            "curves": curves, "pooled": pooled, "paired": paired, "verdict": sentences,
+            "curves": curves, "pooled": pooled, "paired": paired,
             "labels": {m: lab for m, (lab, _) in {**STEP_METRICS, **metrics}.items()}}

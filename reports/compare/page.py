@@ -109,9 +109,9 @@ def build_page(c: Comparison, title: str = "viewfuse compare", intro: list[str] 
         page.paragraph("No config key differs between the runs." if len(c.runs) > 1 else "One run: nothing to diff.")
     page.section("Pooled values", anchor="pooled")
     pooled_cols = [col for col in c.columns if col.pooled_over_seeds]
-    how = (" Seed-group columns pool the seeds' values: bounded metrics as the mean with a 95 % t-interval over "
-           "seeds (it covers classifier training runs), unbounded ones (log10 MGR, MSDE) as the median with the "
-           "seeds' [min, max]."
+    how = (" Seed-group columns pool the seeds' cells in one bootstrap over seeds, then targets, then tracks (the "
+           "statistics engine, as `viewfuse study`): the CI covers classifier training runs; each metric pooled "
+           "over targets as in the main report."
            if pooled_cols else "")
     page.table(["metric", "method"] + names,
                [[metric_label(k), method_label(m, short=True)] + [Estimate.of(v) if v else None for v in c.pooled[(m, k)]]
@@ -125,7 +125,7 @@ def build_page(c: Comparison, title: str = "viewfuse compare", intro: list[str] 
     page.table(["comparison", "metric"] + names, rows, cls="verdict-compare", highlight=marks,
                caption="Outcome of each paired difference (better / worse / not distinguishable: its 95 % CI above, "
                        "below or across 0) with the difference [95 % CI]; shaded: the outcome differs from the first "
-                       "column. A seed group says 'mixed' when its seeds disagree.")
+                       "column. A seed group's outcome is that of the difference pooled over its seeds.")
     if c.planning:
         page.section("View planning", anchor="planning")
         page.table(["metric", "planner"] + names,

@@ -73,11 +73,16 @@ NUMBER = "number or null"
 ESTIMATE = ("object", {"value": NUMBER, "ci_low": NUMBER, "ci_high": NUMBER})
 VERDICT_ROW = ("object", {"comparison": "string", "metric": "string", "outcome": "string",
                           "value": NUMBER, "ci_low": NUMBER, "ci_high": NUMBER})
-REQUIRED = {id(VERDICT_ROW): ("comparison", "metric", "outcome")}  # keys every verdict row has
+RECORD = ("object", {"comparison": "string", "metric": "string", "outcome": "string",
+                     "value": NUMBER, "lo": NUMBER, "hi": NUMBER})
+REQUIRED = {id(VERDICT_ROW): ("comparison", "metric", "outcome"),   # keys every verdict row has
+            id(RECORD): ("comparison", "metric", "outcome")}
 SUMMARY_SCHEMA = ("object", {"population": ("object", {
     "pooled": ("map", ("map", ESTIMATE)),
     "paired": ("map", ("map", "any")),
-    "verdict_table": ("list", VERDICT_ROW),
+    "records": ("list", RECORD),
+    "verdict_table": ("list", VERDICT_ROW),   # summaries before the records
+    "cells": ("list", "any"),
 }), "planning": ("object", {"pooled": ("map", ("map", ESTIMATE)), "paired": ("map", ("map", ESTIMATE)),
                             "planners": ("list", "string")})})
 MANIFEST_SCHEMA = ("object", {"parts": ("object", {"sections": ("map", "any")})})

@@ -8,7 +8,8 @@ column. The comparison holds:
 
 - the config keys whose values differ between the runs (only those, like ``dvc params diff``);
 - the pooled metrics with their 95 % CIs, one column per run (and per seed group: pooled over
-  seeds, see ``pool_over_seeds``);
+  seeds by the statistics engine, seeds -> targets -> tracks over the runs' ``population.cells``,
+  the same bootstrap ``viewfuse study`` uses, see ``seed_pool``);
 - the paired verdicts (better / worse / not distinguishable) side by side, a changed outcome
   (against the first column) marked.
 
@@ -22,8 +23,6 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from pipeline.evaluation.metrics.labels import ordered_methods
 from pipeline.evaluation.metrics.spec import METRICS
@@ -116,8 +115,8 @@ def load_run(path: str | Path, name: str | None = None) -> Run:
     if not isinstance(pop.get("pooled"), dict):
         raise CompareError(f"run {label}: {p / SUMMARY} population has no 'pooled' values: incompatible version")
     cfg, notes = run_config(p)
-    if "verdict_table" not in pop:
-        notes.append("older summary format (no verdict_table): outcomes derived from the paired CIs")
+    if "records" not in pop:
+        notes.append("older summary format (no records): outcomes derived from the verdict table or the paired CIs")
     return Run(label, p, pop, cfg, notes, planning=planning_block(summary))
 
 
@@ -194,32 +193,28 @@ def _num(x: Any) -> float:
     return v
 
 
-def unbounded(metric: str) -> bool:
-    """A metric without both bounds (log10 MGR; MSDE has no worst value) is pooled over seeds by
-    the median, never the mean (pipeline.evaluation.metrics.spec); an unknown key by its name."""
-    m = METRICS.get(metric)
-    return (not m.bounded) if m is not None else "mgr" in metric
+_POOLS: dict[int, dict | None] = {}
 
 
-def pool_over_seeds(entries: list[dict | None], metric: str) -> dict:
-    """Seeds' pooled values -> one estimate over seeds. Bounded metrics: the mean with a 95 %
-    t-interval over seeds (it covers training runs, which the per-run CIs do not); unbounded ones
-    (log10 MGR, MSDE): the median with the seeds' min–max (a mean would be one seed's outlier).
-    One seed: its value."""
-    v = np.array([_num((e or {}).get("value")) for e in entries], float)
-    v = v[np.isfinite(v)]
-    n = int(v.size)
-    if n == 0:
-        return {"value": None, "ci_low": None, "ci_high": None, "n": 0, "how": "no value"}
-    if unbounded(metric):
-        return {"value": float(np.median(v)), "ci_low": float(v.min()), "ci_high": float(v.max()), "n": n,
-                "how": f"median over {n} seeds [min, max]"}
-    if n == 1:
-        return {"value": float(v[0]), "ci_low": None, "ci_high": None, "n": 1, "how": "1 seed"}
-    from scipy import stats
-    half = float(stats.t.ppf(0.975, n - 1) * v.std(ddof=1) / math.sqrt(n))
-    return {"value": float(v.mean()), "ci_low": float(v.mean() - half), "ci_high": float(v.mean() + half), "n": n,
-            "how": f"mean over {n} seeds [95 % t-interval over seeds]"}
+def seed_pool(col: Column) -> dict | None:
+    """The engine's seed block (``pipeline.evaluation.statistics.engine.seed_block``) over the
+    column's runs' cells: pooled values and records over seeds, then targets, then tracks; None
+    when a run's summary holds no cells. Computed once per column."""
+    if id(col) in _POOLS:
+        return _POOLS[id(col)]
+    from pipeline.evaluation.metrics.labels import COMPARISONS
+    from pipeline.evaluation.statistics.engine import seed_block
+
+    pops = [r.population for r in col.runs]
+    out = None
+    if all(p.get("cells") for p in pops):
+        methods = ordered_methods({m for p in pops for m in p["pooled"]})
+        metrics = [k for k in METRICS if all(k in (p["cells"][0].get("values") or {}).get(methods[0], {})
+                                             for p in pops)]
+        out = seed_block({r.name: r.population["cells"] for r in col.runs}, methods, metrics, COMPARISONS,
+                         int(pops[0].get("bootstrap") or 1000), primary=tuple(pops[0].get("primary_metrics") or ()))
+    _POOLS[id(col)] = out
+    return out
 
 
 def metric_order(keys) -> list[str]:
@@ -236,29 +231,34 @@ def metrics_of(cols: list[Column]) -> list[str]:
 
 
 def pooled_value(col: Column, method: str, metric: str) -> dict | None:
-    entries = [((r.population["pooled"].get(method) or {}).get(metric)) for r in col.runs]
     if not col.pooled_over_seeds:
-        return entries[0]
-    return pool_over_seeds(entries, metric)
+        return (col.runs[0].population["pooled"].get(method) or {}).get(metric)
+    pool = seed_pool(col)
+    return ((pool or {}).get("pooled", {}).get(method) or {}).get(metric)
 
 
 def outcome_from_ci(est: dict, metric: str) -> str:
+    """The one outcome rule (``records.outcome``) on an older summary's paired CI."""
+    from pipeline.evaluation.statistics.records import outcome
+
     lo, hi = _num(est.get("ci_low")), _num(est.get("ci_high"))
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        return "not distinguishable"
     higher = METRICS[metric].higher_is_better if metric in METRICS else est.get("better", "higher") == "higher"
-    if (lo > 0 and higher) or (hi < 0 and not higher):
-        return "better"
-    if (hi < 0 and higher) or (lo > 0 and not higher):
-        return "worse"
-    return "not distinguishable"
+    return outcome(lo, hi, higher) if math.isfinite(lo) and math.isfinite(hi) else "not distinguishable"
 
 
 def verdicts(run: Run) -> dict[tuple[str, str], dict]:
-    """(comparison, metric) -> {"outcome", "value", "ci_low", "ci_high"}; from the verdict table,
-    else (older summaries) from the paired CIs."""
-    pop = run.population
+    """(comparison, metric) -> {"outcome", "value", "ci_low", "ci_high"}; from the records (older
+    summaries: the verdict table, else the paired CIs)."""
+    return _verdicts(run.population)
+
+
+def _verdicts(pop: dict) -> dict[tuple[str, str], dict]:
     out = {}
+    if pop.get("records"):
+        for r in pop["records"]:
+            out[(str(r["comparison"]), str(r["metric"]))] = {"outcome": r.get("outcome"), "value": r.get("value"),
+                                                             "ci_low": r.get("lo"), "ci_high": r.get("hi")}
+        return out
     table = pop.get("verdict_table")
     if table:
         for r in table:
@@ -282,10 +282,12 @@ def column_verdict(col: Column, key: tuple[str, str]) -> dict | None:
         return None
     kinds = [v["outcome"] for v in got]
     same = len(set(kinds)) == 1 and len(got) == len(vs)
-    pooled = pool_over_seeds(got, key[1])
-    summary = kinds[0] if same else "mixed: " + ", ".join(f"{k} ×{kinds.count(k)}" for k in dict.fromkeys(kinds))
-    return {"outcome": summary, "value": pooled["value"], "ci_low": pooled["ci_low"], "ci_high": pooled["ci_high"],
-            "held_for_every_seed": same}
+    pooled = _verdicts(seed_pool(col) or {}).get(key)
+    if pooled is None:
+        return {"outcome": "no pooled value (a run's summary has no cells)", "value": None, "ci_low": None,
+                "ci_high": None, "held_for_every_seed": same}
+    return {**pooled, "held_for_every_seed": same,
+            "per_seed": kinds[0] if same else ", ".join(f"{k} ×{kinds.count(k)}" for k in dict.fromkeys(kinds))}
 
 
 def verdict_keys(cols: list[Column]) -> list[tuple[str, str]]:

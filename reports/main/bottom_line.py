@@ -12,6 +12,7 @@ from collections import Counter
 
 from pipeline.evaluation.metrics.labels import comparison_label
 from pipeline.evaluation.metrics.spec import higher_is_better as _higher, metric_label
+from reports.shared.records import records_of
 
 OUTCOMES = ("better", "worse", "not distinguishable")
 
@@ -105,14 +106,18 @@ def comparison_clause(key: str, outcomes: dict[str, str]) -> str:
 
 
 def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
-    """One or two sentences from the verdict table: per comparison what holds and what does not,
-    then what the CIs vary over."""
-    table = pop.get("verdict_table") or []
+    """One or two sentences from the verdict records of the primary metrics
+    (``evaluate.primary_metrics``): per comparison what holds and what does not, then what the CIs
+    vary over."""
+    recs = records_of(pop)
+    table = [r for r in recs if r.get("primary")] or recs
     if not table:
         return []
     clauses = [comparison_clause(k, r) for k, r in _by_comparison(table).items()]
     c = counts(pop)
-    first = "Bottom line. " + " ".join(cl + "." for cl in clauses)
+    prim = sorted({metric_label(r["metric"]) for r in table if r.get("primary")})
+    first = ("Bottom line" + (f" (primary metrics: {_join(prim)}; every other metric is exploratory)" if prim
+                              else "") + ". " + " ".join(cl + "." for cl in clauses))
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
     second = (f"Each outcome is read off the 95 % CI of a paired difference over {c['n_targets']} targets and "
               f"{tracks_text(c)}; it varies over targets and tracks only, with {seeds} (`viewfuse study` repeats "

@@ -7,18 +7,16 @@ from pipeline.evaluation.metrics.labels import comparison_label, method_label, o
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt
+from reports.shared.records import records_of, sentences
 
 CALIBRATED = "evaluate.test_domain_variance=cross_fit"
 ATTRIBUTION = "attribution"
-# The pooled table of the calibration section: bounded metrics as means, unbounded as the robust median.
-TABLE = ("correct_final", "confident_error_final", "ece_final", "brier_final", "nll_final", "log10_mgr95_final")
+# The pooled table of the calibration section: each metric as its spec pools it (the verdict's statistic).
+TABLE = ("correct_final", "confident_error_final", "ece_final", "msde_final", "nll_final", "log10_mgr95_final")
 
 
 def pooled_value(block: dict, method: str, metric: str) -> dict | None:
-    """The value the verdict uses: the robust statistic for unbounded metrics, else the mean."""
-    rob = ((block.get("robust") or {}).get(metric) or {}).get("pooled") or {}
-    if method in rob:
-        return rob[method]
+    """The pooled value: the statistic the verdict uses (summary.json holds only that one)."""
     return ((block.get("pooled") or {}).get(method) or {}).get(metric)
 
 
@@ -34,10 +32,7 @@ def _rows(name: str, block: dict) -> list[list]:
 
 
 def _sentences(block: dict, keys: tuple[str, ...]) -> list[str]:
-    table, sents = block.get("verdict_table") or [], block.get("verdict") or []
-    if len(table) != len(sents):
-        return []
-    return [s for s, r in zip(sents, table) if r.get("metric") in keys]
+    return sentences(records_of(block), keys)
 
 
 def calibration_section(ctx: ReportContext) -> None:
@@ -46,12 +41,12 @@ def calibration_section(ctx: ReportContext) -> None:
         return
     ctx.section("Calibration: how often is each method confidently wrong?", "calibration")
     page = ctx.page
-    thr = pop.get("confident_threshold", 0.99)
+    thr, bins = pop.get("confident_threshold"), pop.get("ece_bins")
     cal = (pop.get("ablations") or {}).get(CALIBRATED)
     rows = _rows("paper (GP predictive)", pop) + (_rows("calibrated (+ test-domain variance)", cal) if cal else [])
     page.table(_header(), rows, cls="calibration pooled",
                caption=f"Pooled over the population, value [95 % CI] (targets, then tracks). Confident errors: share "
-                       f"of posteriors with max P >= {thr:g} on a wrong class. ECE: top-label, 15 equal-width bins "
+                       f"of posteriors with max P >= {thr:g} on a wrong class. ECE: top-label, {bins} equal-width bins "
                        "(torchmetrics' definition), over the pooled posteriors weighted as every pooled value. NLL = "
                        "-ln P(truth) and log10 MGR are unbounded: shown (and judged) as the median over targets of "
                        "the target means, so that no single target carries them.")
@@ -115,8 +110,7 @@ def attribution_section(ctx: ReportContext) -> None:
     rows = []
     keys = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
     for comp, per in (att.get("paired") or {}).items():
-        rows.append([comparison_label(comp)] + [Estimate.of(((att.get("robust") or {}).get(k, {}).get("paired") or {})
-                                                            .get(comp) or per.get(k), signed=True) for k in keys])
+        rows.append([comparison_label(comp)] + [Estimate.of(per.get(k), signed=True) for k in keys])
     page.table(["comparison"] + [metric_label(k, short=True) for k in keys], rows, cls="attribution",
                caption="With Uncertainty with one ingredient each, on the same cells and realizations: poses only "
                        "(dropout samples replaced by their mean) and dropout only (no pose sampling: σ = 0, N_x = 1). "

@@ -6,13 +6,14 @@ import numpy as np
 
 from pipeline.evaluation.metrics.labels import comparison_label, method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
+from pipeline.evaluation.statistics.records import outcome
 from reports.shared.numbers import Estimate, fmt
 
 
 def _outcome(e: Estimate, higher: bool) -> str:
-    if not e.excludes_zero():
-        return "not distinguishable from 0"
-    return "better" if (float(e.value) > 0) == higher else "worse"
+    """The one outcome rule (``records.outcome``) on the estimate's interval."""
+    res = outcome(e.low, e.high, higher)
+    return "not distinguishable from 0" if res == "not distinguishable" else res
 
 
 def forest(pop: dict) -> str:

@@ -32,7 +32,7 @@ from reports.main.figures_models import bias_map_findings
 from reports.main.figures_results import (decisive_step)
 from reports.main.glossary import glossary_section
 from reports.shared.html import HtmlReport
-from reports.shared.stats import BOOTSTRAP, track_summary
+from reports.shared.stats import BOOTSTRAP, metric_params, track_summary
 from reports.shared.tables import component_labels
 
 log = logging.getLogger("viewfuse.report")
@@ -123,7 +123,8 @@ def _summaries(ctx: ReportContext, seed: int) -> None:
     for exp in ("biased", "randomized", "sensitivity"):
         d = ctx.ev.single_track(exp)
         if d is not None:
-            ctx.track_summaries[exp] = track_summary(d, n_boot=ctx.n_boot, seed=seed)
+            ctx.track_summaries[exp] = track_summary(d, metric_params(ctx.population or {}, ctx.config),
+                                                     n_boot=ctx.n_boot, seed=seed)
 
 
 def _scans(pop: dict, track: dict) -> str:

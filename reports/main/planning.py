@@ -12,10 +12,25 @@ import numpy as np
 from reports.main.context import ReportContext
 from reports.shared.figures import new_subplots, step_ticks
 from reports.shared.numbers import fmt
+from reports.shared.records import PHRASE, interval_text
 
 COLOURS = {"info_gain": "#0072B2", "known_pose": "#56B4E9", "random": "#999999", "fixed": "#000000",
            "orbit": "#E69F00", "hindsight": "#009E73"}
 CURVES = (("correct", "correct ratio"), ("confident_error", "confident-error rate"), ("nll", "NLL of the truth"))
+
+
+def verdict_sentences(block: dict) -> list[str]:
+    """One sentence per paired entry on steps to a decision and on the correct ratio at a step."""
+    out = []
+    for comp, entries in (block.get("paired") or {}).items():
+        a, b = comp.split("-", 1)
+        for m, est in entries.items():
+            if m != "steps_to_decision" and not m.startswith("correct_at"):
+                continue
+            rec = {"lo": est.get("ci_low"), "hi": est.get("ci_high")}
+            out.append(f"{a} {PHRASE[est['outcome']]} {b} on {block['labels'].get(m, m)} (mean over targets of "
+                       f"the differences {fmt(est['value'], signed=True)}, {interval_text(rec)}, over {block['scope']}).")
+    return out
 
 
 def _block(ctx: ReportContext) -> dict | None:
@@ -106,8 +121,9 @@ def planning_section(ctx: ReportContext) -> None:
     ctx.page.table(["planner", "steps to a confident correct decision"] + [f"correct ratio at step {k}" for k in at],
                    rows, cls="planning", caption=f"Pooled over {block['scope']}; no confident correct decision within the budget "
                                  f"counts as {block['budget'] + 1} steps.")
-    if block.get("verdict"):
-        ctx.page.bullets(list(block["verdict"]))
+    sentences = verdict_sentences(block)
+    if sentences:
+        ctx.page.bullets(sentences)
     d = block.get("decision_ms") or {}
     if d.get("median") is not None:
         ctx.page.paragraph(f"One information-gain decision took {fmt(d['median'])} ms (median; 90th percentile "

@@ -6,10 +6,12 @@ from __future__ import annotations
 from pipeline.evaluation.metrics.labels import (COMPARISONS, DIRICHLET, comparison_key, comparison_label, method_label,
                                        ordered_methods)
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
-from pipeline.evaluation.statistics.popstats import wilson_interval
+from pipeline.evaluation.statistics.records import outcome
+from pipeline.evaluation.statistics.resampler import wilson_interval
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt, reformat_numbers
+from reports.shared.numbers import Estimate, fmt
+from reports.shared.records import records_of, sentences as render
 from reports.main.calibration import pooled_value
 from reports.shared.tables import bound_counts, hyperparameter_table
 
@@ -78,9 +80,10 @@ def verdict_section(ctx: ReportContext) -> None:
         ctx.notes.append(msg)
         page.paragraph(msg, cls="warn")
         return
-    # summary.json's sentences, their numbers in the page's one format (reports/shared/numbers.py)
-    sentences = [reformat_numbers(str(s)) for s in pop.get("verdict") or []]
-    head = headline(sentences, pop.get("verdict_table") or [])
+    # the sentences rendered from summary.json's records (reports/shared/records.py)
+    recs = records_of(pop)
+    sentences = render(recs)
+    head = render(recs, HEADLINE) or sentences
     page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
     methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
     pooled = pop.get("pooled") or {}
@@ -120,21 +123,12 @@ def biased_rule(pop: dict) -> str:
             "are in its own row of the per-setting table under 'Where the method wins and loses'.")
 
 
-def headline(sentences: list[str], table: list[dict]) -> list[str]:
-    """The verdict sentences of the headline metrics (the table rows pair 1:1 with the sentences);
-    all of them where the pairing is not there."""
-    if len(table) != len(sentences):
-        return sentences
-    head = [s for s, r in zip(sentences, table) if r.get("metric") in HEADLINE]
-    return head or sentences
-
-
 def _ceiling_line(pop: dict) -> str:
-    rows = [r for r in pop.get("verdict_table") or [] if r.get("metric") == "correct_final"]
+    rows = [r for r in records_of(pop) if r.get("metric") == "correct_final"]
     if not rows:
         return ""
     r = rows[0]
-    return (f"Difficulty: of {r.get('n_cells')} (target, track, setting) cells, {r.get('ceiling_cells', 0)} have "
+    return (f"Difficulty: of {(r.get('n') or {}).get('cells', r.get('n_cells'))} (target, track, setting) cells, {r.get('ceiling_cells', 0)} have "
             f"both methods at a correct ratio of 1 (ceiling) and {r.get('floor_cells', 0)} at 0 (floor); "
             "the verdict rests on the others.")
 
@@ -179,7 +173,7 @@ def comparison_keys(pop: dict) -> list[str]:
 
 
 def _paired_rows(pop: dict) -> list[list]:
-    outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in pop.get("verdict_table") or []}
+    outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in records_of(pop)}
     rows = []
     for key in comparison_keys(pop):
         metrics = list(PAIRED_METRICS) + [k for k in (pop["paired"].get(key) or {}) if k not in PAIRED_METRICS
@@ -212,12 +206,9 @@ def dirichlet_note(pop: dict) -> str:
 
 
 def _outcome(d: dict, metric: str) -> str:
-    """better / worse / not distinguishable from the CI, where the verdict table lacks the row."""
-    e = Estimate.of(d)
-    if not e.excludes_zero():
-        return "not distinguishable"
-    higher = higher_is_better(metric)
-    return "better" if (float(e.value) > 0) == higher else "worse"
+    """better / worse / not distinguishable from the CI (the one rule, ``records.outcome``), where
+    the records lack the row."""
+    return outcome(d.get("ci_low"), d.get("ci_high"), higher_is_better(metric))
 
 
 def _share(v) -> str:
@@ -327,7 +318,7 @@ def _ablations(ctx: ReportContext) -> None:
             continue
         over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
         d = (a.get("paired") or {}).get(key) or {}
-        said = headline([reformat_numbers(str(s)) for s in a.get("verdict") or []], a.get("verdict_table") or [])
+        said = render(records_of(a), HEADLINE)
         rows.append([over, Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True),
                      " ".join(said) or "—"])
     ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],

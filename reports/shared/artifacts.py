@@ -27,7 +27,7 @@ log = logging.getLogger("viewfuse.report")
 
 # The main report never needs the posterior vectors: leaving them unread keeps loading fast.
 # Step columns added with the calibration metrics: optional, so a results file from before reads.
-CALIBRATION_COLUMNS = ("nll", "brier", "confidence")
+CALIBRATION_COLUMNS = ("nll", "confidence")
 RESULT_COLUMNS = ("experiment", "setting", "sigma_m", "bias_x", "bias_y", "realization", "step",
                   "method", *(c for c in STEP_COLUMNS if c not in CALIBRATION_COLUMNS))
 POPULATION_COLUMNS = ("variant", "target", "track", *CALIBRATION_COLUMNS)

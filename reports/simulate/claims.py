@@ -69,7 +69,7 @@ def claims_section(page, summary: Mapping[str, Any]) -> None:
     page.table(CLAIMS_HEADER, claims_rows(claims), cls="claims",
                caption="The paper's wording as quoted in the project's issue 20; 'step' is the 0-based "
                        f"track step {cp.get('step', '?')}; confident error: max P ≥ "
-                       f"{cp.get('confident_threshold', 0.99):g} on a wrong class.")
+                       f"{cp.get('confident_threshold', float('nan')):g} on a wrong class.")
     sw = summary.get("sweep")
     if sw:
         s = sw["summary"]

@@ -12,9 +12,8 @@ from pipeline.evaluation.metrics.spec import confident_errors, percentile
 
 OURS = WITH_UNCERTAINTY
 OTHERS = (MODEL_BASED, SIMPLE_BAYES)
-# "Confidently wrong": max P >= this on a wrong class, the evaluate stage's confident error
-# (``simulate.confident_threshold``; the stage passes the configured value).
-CONFIDENT = 0.99
+# "Confidently wrong": max P >= ``simulate.confident_threshold`` on a wrong class (the stage passes
+# the configured value; no built-in one).
 
 
 # -- numbers --------------------------------------------------------------------------------------------
@@ -41,7 +40,7 @@ def inverse_steps(ex: pd.DataFrame, scenario: str, truth: int) -> list[int]:
 
 
 def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int,
-             posteriors: Mapping[str, Mapping[str, np.ndarray]], confident: float = CONFIDENT) -> dict[str, Any]:
+             posteriors: Mapping[str, Mapping[str, np.ndarray]], confident: float) -> dict[str, Any]:
     """Numbers behind the paper's qualitative findings, per scenario present; "confidently wrong"
     is ``metrics.confident_errors`` at ``confident`` on ``posteriors`` ({scenario: {method:
     (R, K, C)}}, the rows of ``df``). The stage writes them to summary.json; the page reads them."""
@@ -88,7 +87,7 @@ def findings(df: pd.DataFrame, ex: pd.DataFrame, truth: int,
 def findings_text(found: dict[str, Any]) -> list[str]:
     """Plain-language checks of the paper's three qualitative findings, with the numbers."""
     lines = []
-    conf = found.get("confident_threshold", CONFIDENT)
+    conf = found["confident_threshold"]
     mu = found.get("model_uncertainty")
     if mu:
         w = {m: mu[m]["ptruth_band_10_90_mean"] for m in (OURS,) + OTHERS if m in mu}

@@ -32,7 +32,7 @@ from reports.shared.figures import new_subplots, percentile_bands, save
 from reports.shared.html import HtmlReport
 from reports.simulate.claims import claims_section, fig_confident_errors, fig_sweep
 from reports.simulate.findings import OTHERS, OURS, findings_text, matrix
-from reports.shared.stats import BOOTSTRAP, track_summary
+from reports.shared.stats import BOOTSTRAP, metric_params, track_summary
 
 log = logging.getLogger("viewfuse.simulate")
 
@@ -214,7 +214,7 @@ def _plan(so, sim_dir: Path, scenarios: list[str]) -> list[tuple[str, Any]]:
         step = (summ.get("claim_params") or {}).get("step", 15)
         plan.append(("claims_sweep.png", lambda: fig_sweep(summ["sweep"], step)))
     conf = summ.get("confident_errors") or {}
-    thr = (summ.get("claim_params") or {}).get("confident_threshold", 0.99)
+    thr = (summ.get("claim_params") or {}).get("confident_threshold")
     for s in scenarios:
         plan.append((f"{s}_measurements.png", lambda s=s: fig_measurements(ex, s, classes, truth)))
         if s in conf:
@@ -308,7 +308,8 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
                     f"{g['realizations']} realizations per point, the same seeds at every point. Dark: the whole "
                     "95 % CI agrees with the verdict; pale: it spans the threshold; numbers: the statistic.")
     _overview(page, so, R, K, written)
-    summ = track_summary(df, n_boot=n_boot, seed=int(so.meta.get("seed", 0) or 0), by="scenario")
+    summ = track_summary(df, metric_params(so.summary), n_boot=n_boot, seed=int(so.meta.get("seed", 0) or 0),
+                         by="scenario")
     for s in scenarios:
         _scenario_section(page, s, summ, R, n_boot, tuple(written))
     page.section("Findings", anchor="findings")

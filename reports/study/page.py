@@ -9,6 +9,7 @@ from typing import Any
 from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.shared.numbers import fmt
+from reports.shared.records import records_of, sentences
 
 
 def entry_label(key: str) -> str:
@@ -74,9 +75,9 @@ def render_html(summary: dict, run_name: str) -> str:
     sp = summary.get("pooled_over_seeds") or {}
     seed_verdict = ("<h2>Pooled over seeds</h2><p>One bootstrap over seeds, then targets, then tracks: these CIs "
                     "cover classifier training runs.</p><ul>"
-                    + "".join(f"<li>{html.escape(v)}</li>" for v in sp.get("verdict") or []) + "</ul>") if sp else ""
+                    + "".join(f"<li>{html.escape(v)}</li>" for v in sentences(records_of(sp))) + "</ul>") if sp else ""
     verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"
-                       + "".join(f"<li>{html.escape(v)}</li>" for v in (per[s].get("verdict") or ["(no verdict)"]))
+                       + "".join(f"<li>{html.escape(v)}</li>" for v in (sentences(records_of(per[s])) or ["(no verdict)"]))
                        + "</ul>" for s in seeds)
     return f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>viewfuse seed study: {html.escape(run_name)}</title>

@@ -5,9 +5,9 @@ with ``classifier.seed = n`` under ``<run>/study/seed-<n>/`` (a config whose run
 there; the stage runner's manifests make a rerun skip finished seeds). The data stage is shared:
 it is brought up to date once in the run folder and linked into every seed folder (its cache key
 does not depend on the classifier seed). Then ``study/summary.json`` and ``study/index.html`` put
-each seed's ``population.pooled`` and ``population.verdict`` (evaluate/summary.json) side by side
+each seed's ``population.pooled`` and ``population.records`` (evaluate/summary.json) side by side
 and say whether the verdict is the same for every seed: the same outcome (better / worse / not
-distinguishable) for every (comparison, metric) of ``population.verdict_table``.
+distinguishable) for every (comparison, metric) record.
 """
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ import dataclasses
 import json
 import logging
 import os
-import re
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -64,7 +63,7 @@ def seed_result(scfg, reused: bool) -> dict:
     out: dict[str, Any] = {"run_dir": str(scfg.run_dir), "reused": reused, "classifier_accuracy": None,
                            "classifier_accuracy_ci95": None,
                            "varying_fits": None, "varying_fits_at_bound": None,
-                           "pooled": None, "verdict": None, "verdict_table": None}
+                           "pooled": None, "records": None}
     card = out_path(scfg.stage_dir("classifier"), "classifier", "card")
     if card.is_file():
         c = json.loads(card.read_text())
@@ -79,8 +78,9 @@ def seed_result(scfg, reused: bool) -> dict:
     summ = out_path(scfg.stage_dir(CHAIN_END), CHAIN_END, "summary")
     if summ.is_file():
         pop = json.loads(summ.read_text()).get("population") or {}
-        for k in ("pooled", "verdict", "verdict_table"):
+        for k in ("pooled", "records"):
             out[k] = pop.get(k)
+        out["primary_metrics"] = pop.get("primary_metrics")
         out["cells"] = pop.get("cells")  # for the seed-pooled bootstrap; not written per seed
     return out
 
@@ -97,28 +97,21 @@ def chain_seconds(scfg) -> dict[str, float | None]:
     return out
 
 
-def _numbers_out(sentence: str) -> str:
-    """A verdict sentence without its numbers (they always move a little between seeds)."""
-    return re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", sentence)
-
-
 def outcomes(result: dict) -> dict[str, str] | None:
-    """(comparison / metric) -> outcome for one seed; from the verdict table, else from the
-    sentences with the numbers taken out; None without a population verdict."""
-    table = result.get("verdict_table")
+    """(comparison / metric) -> outcome for one seed, from its records (an older summary: its
+    ``verdict_table``); None without a population verdict."""
+    table = result.get("records") or result.get("verdict_table")
     if table:
         return {f"{r['comparison']} / {r['metric']}": str(r["outcome"]) for r in table}
-    if result.get("verdict"):
-        return {f"sentence {i + 1}": _numbers_out(s) for i, s in enumerate(result["verdict"])}
     return None
 
 
 def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
     """Every seed's cells in one bootstrap (seeds, then targets, then tracks): pooled values, paired
-    differences and a verdict that covers training runs (``pipeline.evaluation.statistics.seedpool``)."""
+    differences and records that cover training runs (``pipeline.evaluation.statistics.engine.seed_block``)."""
     from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
     from pipeline.evaluation.metrics.spec import METRICS
-    from pipeline.evaluation.statistics.seedpool import seed_pooled
+    from pipeline.evaluation.statistics.engine import seed_block
 
     cells = {str(s): r["cells"] for s, r in results.items() if r.get("cells")}
     if not cells:
@@ -127,7 +120,8 @@ def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
     methods = [m for m in METHODS if m in present]
     metrics = [k for k in METRICS if any(k in (c.get("values") or {}).get(methods[0], {})
                                          for cs in cells.values() for c in cs[:1])]
-    return seed_pooled(cells, methods, metrics, COMPARISONS, n_boot)
+    primary = next((r.get("primary_metrics") for r in results.values() if r.get("primary_metrics")), ())
+    return seed_block(cells, methods, metrics, COMPARISONS, n_boot, primary=tuple(primary or ()))
 
 
 def summarize(results: dict[int, dict], n_boot: int = 2000) -> dict:

@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> None:
     cfg = load_config(ROOT / "configs" / "synthetic.toml", over)
     print(f"default population in {cfg.run_dir}; upstream stages first if stale ({_load()})", flush=True)
     ensure(cfg, "models", device="cpu")
-    preloader()(["pipeline.evaluation.grid.population", "pipeline.evaluation.statistics.popstats", "stages.evaluate"])   # the local run starts warm too
+    preloader()(["pipeline.evaluation.grid.population", "pipeline.evaluation.statistics.engine", "stages.evaluate"])   # the local run starts warm too
     runs = [_run_evaluate(cfg, "local", 0), _run_evaluate(cfg, "ray", 1), _run_evaluate(cfg, "ray", 2)]
     local = runs[0]
     if not local["recs"]:

@@ -48,7 +48,14 @@ def test_the_section_shows_the_block(tmp_path, block):
         assert v == pytest.approx(want["value"], rel=2e-3) and lo == pytest.approx(want["ci_low"], rel=2e-3)
         assert hi == pytest.approx(want["ci_high"], rel=2e-3)
     html = res.index.read_text()
-    assert all(s.split(" (")[0] in html for s in block["verdict"])
+    from reports.main.planning import verdict_sentences
+    sentences = verdict_sentences(block)
+    assert len(sentences) >= 3 and all(s.split(" (")[0] in html for s in sentences)
+    # each sentence's label is its entry's outcome under the one rule
+    from pipeline.evaluation.statistics.records import outcome
+    for entries in block["paired"].values():
+        for e in entries.values():
+            assert e["outcome"] == outcome(e["ci_low"], e["ci_high"], e["better"] == "higher")
 
 
 def test_a_run_without_planning_has_no_section(tmp_path):

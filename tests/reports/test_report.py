@@ -14,13 +14,15 @@ import pytest
 
 from loaders.errors import BadInputError
 from pipeline.evaluation.metrics import labels
-from reports.shared.figures import new_figure, percentile_bands, save
 from reports.main.figures_models import bias_map_rgb
-from reports.shared.html import HtmlReport
 from reports.main.page import build_main_report
-from reports.shared.numbers import Estimate, fmt, reformat_numbers
+from reports.shared.figures import new_figure, percentile_bands, save
+from reports.shared.html import HtmlReport
+from reports.shared.numbers import Estimate, fmt
+from reports.shared.records import sentence
 from reports.shared.stats import bootstrap_track
 from reports.shared.tables import dump_toml, hyperparameter_table
+from tests.support.params import PARAMS
 from tests.support.report_fixtures import CLASSES, rendered_run, write_fake_run  # noqa: F401 (fixture)
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
@@ -211,7 +213,7 @@ def test_bootstrap_ci_over_realizations_covers_a_known_rate_near_nominally():
     for t in range(trials):
         c = (rng.random((R, K)) < p).astype(float)
         m = {"correct": c, "p_truth": c, "msde": c, "log10_mgr": rng.exponential(1.0, (R, K))}
-        e = bootstrap_track(m, n_boot=400, seed=t)["correct_final"]
+        e = bootstrap_track(m, PARAMS, n_boot=400, seed=t)["correct_final"]
         hits += e.low <= p <= e.high
     assert 0.85 <= hits / trials <= 0.99
 
@@ -221,7 +223,7 @@ def test_bootstrap_of_a_constant_is_that_constant_and_inf_stays_inf():
     m = {"correct": np.ones((R, K)), "p_truth": np.full((R, K), 0.3), "msde": np.zeros((R, K)),
          "log10_mgr": np.zeros((R, K))}
     m["log10_mgr"][:, -1] = np.inf
-    e = bootstrap_track(m, n_boot=50)
+    e = bootstrap_track(m, PARAMS, n_boot=50)
     assert (e["correct_final"].value, e["correct_final"].low, e["correct_final"].high) == (1.0, 1.0, 1.0)
     assert e["log10_mgr95_final"].high == np.inf and e["log10_mgr95_overall"].value == np.inf
 
@@ -239,12 +241,12 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     assert "3 targets, 6 tracks, 2 per target, 2 localization settings: 12 (target, track, setting) cells" in first
     assert "5 realizations per cell" in first and "held-out top-1 0.940 [" in first
     assert "one training run (classifier.seed = 3)" in first and "viewfuse study" in first
-    # The headline sentences (computed, verbatim) on the first screen; all of them collapsed below.
-    head = [s for s, r in zip(pop["verdict"], pop["verdict_table"]) if r["metric"] in ("correct_final", "log10_mgr95_final")]
-    assert len(head) == 4 and len(pop["verdict"]) == 16
-    # verbatim but for the numbers, which go through the page's one formatter
-    head = [reformat_numbers(s) for s in head]
-    assert page.verdict == head + [reformat_numbers(s) for s in pop["verdict"]]
+    # The headline sentences, rendered from summary.json's records, on the first screen; all of them
+    # collapsed below.
+    recs = pop["records"]
+    head = [sentence(r) for r in recs if r["metric"] in ("correct_final", "log10_mgr95_final")]
+    assert len(head) == 4 and len(recs) == 16
+    assert page.verdict == head + [sentence(r) for r in recs]
     assert first.index(head[-1]) < first.index('class="summary pooled"') < first.index("All 16 verdict sentences")
     pooled = page.table("pooled")
     assert pooled["section"] == "verdict"
@@ -269,14 +271,14 @@ def test_population_tables_show_paired_differences_per_target_and_ablations(rend
     first = rows[0]
     d = pop["paired"]["with_uncertainty-model_based"]["correct_final"]
     assert first[0] == "With Uncertainty − Model Based" and first[3] == Estimate.of(d, signed=True).text()
-    assert first[2] == [r for r in pop["verdict_table"] if r["metric"] == "correct_final"][0]["outcome"]
+    assert first[2] == [r for r in pop["records"] if r["metric"] == "correct_final"][0]["outcome"]
     assert first[4] == f"{100 * d['wins']:.0f} %"
     per = page.table("per-target")["rows"][1:]
     assert len(per) == 3 * 3 and {r[0] for r in per} == {f"{t} (2 tracks)" for t in pop["targets"]}
     abl = page.table("ablations")
     assert abl["section"] == "diagnostics"
     assert abl["rows"][1][0] == "models.noise_floor = dropout"
-    assert reformat_numbers(pop["ablations"]["models.noise_floor=dropout"]["verdict"][0]) in abl["rows"][1][3]
+    assert sentence(pop["ablations"]["models.noise_floor=dropout"]["records"][0]) in abl["rows"][1][3]
     assert {"forest.png", "per_target.png"} <= set(res.figures)
 
 
@@ -466,8 +468,8 @@ def test_dump_toml_nests_tables():
 
 # -- the stage ----------------------------------------------------------------------------------
 def test_report_stage_renders_from_existing_results(tmp_config, tmp_path):
-    from stages.report import run
     from stages.framework.runner import StageContext
+    from stages.report import run
     cfg = tmp_config({"report": {"dpi": 40, "title": "Stage test"}})
     write_fake_run(cfg.run_dir, experiments=("biased", "randomized"), R=3, K=3, T=2, tracks=1)
     before = {p.name: p.read_bytes() for p in (cfg.run_dir / "evaluate").iterdir()}

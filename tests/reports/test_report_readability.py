@@ -10,8 +10,8 @@ import pytest
 
 from pipeline.evaluation.grid import showcase
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason
-from reports.shared.figures import check, mgr_axis, new_figure, tick_overlaps
 from reports.main.figures_results import constant_note, fig_forest
+from reports.shared.figures import check, mgr_axis, new_figure, tick_overlaps
 from tests.support.report_fixtures import rendered_run, rendered_run_default_dpi  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
@@ -56,6 +56,16 @@ def test_bottom_line_is_computed_from_the_verdict_table_and_names_the_scope():
     assert bottom_line(flipped)[0] != first          # the sentence follows the table, it is not fixed text
 
 
+def test_bottom_line_speaks_of_the_primary_metrics_only():
+    pop = _pop()
+    pop["records"] = [{**r, "primary": r["metric"] == "correct_final"} for r in pop.pop("verdict_table")]
+    first = bottom_line(pop)[0]
+    assert first.startswith("Bottom line (primary metrics: correct ratio, final step; every other metric is "
+                            "exploratory).")
+    assert "With Uncertainty is not distinguishable from Model Based on any metric" in first
+    assert "worse on correct ratio" in first and "log10 MGR" not in first.split(").", 1)[1]
+
+
 def test_the_showcase_is_the_track_where_the_methods_disagree_most():
     rows = []
     spread = {("a", 0): (0.0, 0.0), ("a", 1): (0.5, 0.5), ("b", 0): (0.5, 0.9), ("b", 1): (0.1, 0.1)}
@@ -90,7 +100,7 @@ def test_tick_overlap_check_catches_labels_that_run_together():
 
 def test_forest_with_huge_mgr_differences_has_no_overlapping_ticks_and_legible_text():
     targets = [f"target_{i}" for i in range(6)]
-    e = lambda v: {"value": v, "ci_low": v - abs(v) / 4 - 0.1, "ci_high": v + abs(v) / 4 + 0.1}  # noqa: E731
+    e = lambda v: {"value": v, "ci_low": v - abs(v) / 4 - 0.1, "ci_high": v + abs(v) / 4 + 0.1}
     ppt = {WU_MB: {t: {"correct_final": e(0.1 * i), "prob_truth_final": e(0.05), "log10_mgr95_final": e(-(10 ** i))}
                    for i, t in enumerate(targets)}}
     pop = {"targets": targets, "paired_per_target": ppt,
@@ -115,7 +125,7 @@ def test_alt_text_states_findings_and_headers_have_scope(rendered_run):  # noqa:
         assert re.search(r"\d", alt), f"{name}: alt text without a number: {alt}"
     assert '<th scope="col">' in text and '<th scope="row">' in text and "<th>" not in text
     assert 'id="glossary"' in text and "<dt>MSDE</dt>" in text and "<dt>cell</dt>" in text
-    assert 'class="bottomline">Bottom line.' in text
+    assert 'class="bottomline">Bottom line (primary metrics: correct ratio, final step;' in text
 
 
 def test_every_report_figure_at_the_default_dpi_is_legible(rendered_run_default_dpi):  # noqa: F811

@@ -85,30 +85,32 @@ def _stats(df: pd.DataFrame, n_boot: int, seed: int) -> dict:
     return out
 
 
-def verdict(paired: dict, n_targets: int, n_tracks: int, wide: pd.DataFrame) -> tuple[list[str], list[dict]]:
-    """One sentence and table row per (comparison, metric), in the same order (as pipeline/evaluation/statistics/popstats.py)."""
-    sentences, table = [], []
+PRIMARY = ("correct_final",)
+
+
+def records(paired: dict, n_targets: int, n_tracks: int, wide: pd.DataFrame) -> list[dict]:
+    """One verdict record per (comparison, metric), in the contract's order and schema
+    (pipeline/evaluation/statistics/records.py); every metric here pools by the mean."""
+    out = []
     for a, b in COMPARISONS:
         key = f"{a}-{b}"
-        for k in METRICS:
+        for k, higher in METRICS.items():
             d = paired[key][k]
-            higher = METRICS[k]
             if d["ci_low"] > 0 or d["ci_high"] < 0:
-                outcome = "better" if (d["value"] > 0) == higher else "worse"
+                outcome = "better" if (d["ci_low"] > 0) == higher else "worse"
             else:
                 outcome = "not distinguishable"
             both = wide[[(k, a), (k, b)]].to_numpy()
             ceiling = int((both == 1).all(axis=1).sum()) if k.startswith("correct") else 0
             floor = int((both == 0).all(axis=1).sum()) if k.startswith("correct") else 0
-            word = f"{outcome} than" if outcome != "not distinguishable" else "not distinguishable from"
-            sentences.append(f"{LABEL[a]} is {word} {LABEL[b]} on {k.replace('_', ' ')} (difference "
-                             f"{d['value']:+.3g}, 95 % CI [{d['ci_low']:+.3g}, {d['ci_high']:+.3g}], over "
-                             f"{n_targets} targets x {n_tracks} tracks; better in {d['wins']:.0%} of cells, "
-                             f"worse in {d['losses']:.0%}).")
-            table.append({"comparison": key, "metric": k, "outcome": outcome, "value": d["value"],
-                          "ci_low": d["ci_low"], "ci_high": d["ci_high"], "n_cells": d["n_cells"],
-                          "ceiling_cells": ceiling, "floor_cells": floor})
-    return sentences, table
+            out.append({"comparison": key, "method": a, "baseline": b, "metric": k, "pooling": "mean",
+                        "value": d["value"], "lo": d["ci_low"], "hi": d["ci_high"], "unbounded": False,
+                        "over": ["targets", "tracks"],
+                        "n": {"targets": n_targets, "tracks": n_tracks, "cells": d["n_cells"]},
+                        "better": "higher" if higher else "lower", "outcome": outcome, "primary": k in PRIMARY,
+                        "wins": d["wins"], "losses": d["losses"], "unit": "cells",
+                        "ceiling_cells": ceiling, "floor_cells": floor})
+    return out
 
 
 def population(df: pd.DataFrame, targets, candidates_of, families, *, n_boot: int, seed: int,
@@ -116,13 +118,13 @@ def population(df: pd.DataFrame, targets, candidates_of, families, *, n_boot: in
     rnd = df[(df["experiment"] == "randomized") & (df["variant"] == "default")]
     T, n = len(targets), int(rnd["track"].nunique())
     st = _stats(rnd, n_boot, seed)
-    sentences, vtable = verdict(st["paired"], T, T * n, st["cells"])
+    recs = records(st["paired"], T, T * n, st["cells"])
     settings = list(dict.fromkeys(rnd["setting"]))
     by_setting = {}
     for s in settings:
         ss = _stats(rnd[rnd["setting"] == s], n_boot, seed)
         by_setting[s] = {"pooled": ss["pooled"], "paired": ss["paired"],
-                         "verdict": verdict(ss["paired"], T, T * n, ss["cells"])[0]}
+                         "records": records(ss["paired"], T, T * n, ss["cells"])}
     rng = np.random.default_rng(seed + 1)
     tracks = [{"target": t, "track": k, "scan": f"Home_00{1 + k % 2}_1",
                "single_view_first": {m: float(rng.uniform(0.2, 1.0)) for m in METHODS}}
@@ -135,9 +137,8 @@ def population(df: pd.DataFrame, targets, candidates_of, families, *, n_boot: in
     if ablation:
         ad = df[(df["experiment"] == "randomized") & (df["variant"] == ablation)]
         sa = _stats(ad, n_boot, seed)
-        v, vt = verdict(sa["paired"], T, T * n, sa["cells"])
         abl[ablation] = {"override": {ablation.split("=")[0]: ablation.split("=")[1]}, "pooled": sa["pooled"],
-                         "paired": sa["paired"], "verdict": v, "verdict_table": vt}
+                         "paired": sa["paired"], "records": records(sa["paired"], T, T * n, sa["cells"])}
     cells = [{"target": r["target"].iloc[0] if hasattr(r["target"], "iloc") else r["target"],
               "track": int(r["track"].iloc[0] if hasattr(r["track"], "iloc") else r["track"]),
               "experiment": "randomized", "setting": str(r["setting"].iloc[0] if hasattr(r["setting"], "iloc") else r["setting"]),
@@ -156,8 +157,8 @@ def population(df: pd.DataFrame, targets, candidates_of, families, *, n_boot: in
                 "values average the cells within each target, then targets; 95 % CIs resample targets, then "
                 "tracks within targets (per-target CIs: tracks).",
         "pooled": st["pooled"], "per_target": st["per_target"], "paired": st["paired"],
-        "paired_per_target": st["paired_per_target"], "by_setting": by_setting, "verdict": sentences,
-        "verdict_table": vtable, "difficulty": {"tracks": tracks, "summary": diff_summary}, "cells": cells,
+        "paired_per_target": st["paired_per_target"], "by_setting": by_setting, "records": recs,
+        "primary_metrics": list(PRIMARY), "confident_threshold": 0.99, "ece_bins": 15, "difficulty": {"tracks": tracks, "summary": diff_summary}, "cells": cells,
         "tracks": [{"target": t["target"], "track": t["track"], "scan": t["scan"]} for t in tracks],
         "ablations": abl, "skipped_targets": [{"target": skipped, "reason": "no track of 5 views sees it (3 views)"}],
     }

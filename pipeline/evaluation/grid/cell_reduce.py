@@ -3,7 +3,7 @@
 ``population.run_cell`` returns every log posterior of a cell: (R, K, C) per setting and method,
 about 2 MB per cell at paper grade (configs/paper_grade.toml) and ten times that as result rows.
 ``reduce_cell`` turns it, as soon as the cell is done, into its cell-table rows (metrics over the
-realizations), its calibration bin sums (``pooled_calibration.cell_sums``), the single-track
+realizations, at the run's ``spec.Params``), its calibration bin sums (``pooled_calibration.cell_sums``), the single-track
 tables the showcase needs (``experiments.summarize``, default variant only), the difficulty and
 the Dirichlet extras, and its results-file blocks, which the stage writes at once. Each
 ``metrics.step_values`` is computed once and serves the rows, the metrics and the tables.
@@ -18,7 +18,7 @@ from pipeline.evaluation.statistics.pooled_calibration import cell_sums
 from pipeline.evaluation.metrics.results import cell_metrics, result_block
 
 
-def reduce_cell(cell, res: dict, threshold: float | None, *, tables: bool = False) -> tuple[dict, list[dict]]:
+def reduce_cell(cell, res: dict, params: M.Params, *, tables: bool = False) -> tuple[dict, list[dict]]:
     """(the kept summary of ``run_cell``'s result ``res``, its result blocks in setting order).
 
     The summary: ``rows`` (one dict per (setting, method): the cell's identity and
@@ -32,10 +32,10 @@ def reduce_cell(cell, res: dict, threshold: float | None, *, tables: bool = Fals
         experiment, label = key
         values = {m: M.step_values(lp, cell.truth, is_log=True) for m, lp in posts.items()}
         for method, lp in posts.items():
-            base = M.scalars(values[method])
+            base = M.scalars(values[method], params=params)
             rows.append({"variant": cell.variant, "target": cell.target, "track": cell.track, "scan": cell.scan,
                          "experiment": experiment, "setting": label, "method": method,
-                         **cell_metrics(lp, cell.truth, threshold, base=base)})
+                         **cell_metrics(lp, cell.truth, params, base=base)})
             if tables:
                 summaries.setdefault(key, {})[method] = {**M.with_mgr_ratios(base), "n_realizations": int(lp.shape[0])}
         s = by_label[key]
@@ -43,7 +43,7 @@ def reduce_cell(cell, res: dict, threshold: float | None, *, tables: bool = Fals
                                    setting=s.label, sigma_m=float(s.sigma), bias_x=float(s.bias[0]),
                                    bias_y=float(s.bias[1]), scan=cell.scan, target=cell.target, track=cell.track,
                                    candidates=",".join(cell.classes), truth=cell.truth))
-    kept = {"rows": rows, "calibration": cell_sums(res["posts"], cell.truth), "difficulty": res["difficulty"]}
+    kept = {"rows": rows, "calibration": cell_sums(res["posts"], cell.truth, params.ece_bins), "difficulty": res["difficulty"]}
     if tables:
         kept["tables"] = summaries
     if "dirichlet_std" in res:

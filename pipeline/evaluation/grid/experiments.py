@@ -232,10 +232,10 @@ def single_view_first(models, track: TrackData, truth: int, *, var_floor: float 
     return {m: float(np.mean(M.correct(p, truth, is_log=True))) for m, p in out.items()} | {"views": K}
 
 
-def summarize(posts: dict[str, np.ndarray], truth: int) -> dict[str, dict[str, float]]:
+def summarize(posts: dict[str, np.ndarray], truth: int, params: M.Params) -> dict[str, dict[str, float]]:
     """The single-track tables per method (the paper's Tables 1-2 and more): every metric of
     ``pipeline.evaluation.metrics.spec.METRICS`` over the realizations, each log10 MGR also as the
     ratio max_c P(c) / P(truth) (``metrics.with_mgr_ratios``). ``posts`` maps method -> log
-    posteriors (R, K, C)."""
-    return {method: {**M.with_mgr_ratios(M.posterior_metrics(p, truth, is_log=True)),
+    posteriors (R, K, C); ``params``: the run's metric parameters (the population's)."""
+    return {method: {**M.with_mgr_ratios(M.posterior_metrics(p, truth, params=params, is_log=True)),
                      "n_realizations": int(p.shape[0])} for method, p in posts.items()}

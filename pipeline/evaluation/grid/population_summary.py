@@ -3,7 +3,7 @@
 The evaluate stage keeps of each cell only its ``pipeline.evaluation.grid.cell_reduce.reduce_cell``
 summary (``kept``). ``cell_table``: one row per (variant, target, track, setting, method) with the
 cell's metrics (``pipeline.evaluation.metrics.spec``); ``population_summary``: the ``population`` object
-of ``evaluate/summary.json`` (statistics from ``pipeline.evaluation.statistics.popstats``).
+of ``evaluate/summary.json`` (statistics from ``pipeline.evaluation.statistics.engine``).
 """
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
 from pipeline.evaluation.metrics.spec import METRICS, percentile
-from pipeline.evaluation.metrics.calibration import N_BINS as ECE_BINS
-from pipeline.evaluation.statistics.verdicts import full_block
+from pipeline.evaluation.statistics.engine import population_block
+from pipeline.evaluation.statistics.resampler import LEVEL
 
 
 def cell_table(kept: list[dict]) -> pd.DataFrame:
@@ -24,13 +24,38 @@ def cell_table(kept: list[dict]) -> pd.DataFrame:
     return pd.DataFrame([row for k in kept for row in k["rows"]])
 
 
+STATISTICS = {
+    "resampler": "one hierarchical bootstrap (targets with replacement, then each drawn target's tracks with "
+                 "replacement), its draws shared by every metric, method and paired difference of the run",
+    "interval": "percentile (2.5th and 97.5th percentiles of the resampled statistic)",
+    "infinity": "infinite values are kept; an interval end that is infinite is unbounded (null in JSON); an "
+                "undefined resampled statistic (inf - inf) gives no interval",
+    "outcome": "better / worse when the 95 % interval of method - baseline excludes 0 on that side, else not "
+               "distinguishable",
+    "pooling": "per metric (spec): the mean over targets of the target means, or the median over targets for "
+               "unbounded metrics (log10 MGR percentiles, NLL); ECE from the pooled posteriors",
+}
+
+
+def check_primary(keys) -> None:
+    """``evaluate.primary_metrics`` must name metrics of the spec (or the pooled ECE)."""
+    from pipeline.evaluation.metrics.spec import POOLED_METRICS
+
+    bad = [k for k in keys if k not in METRICS and k not in POOLED_METRICS]
+    if bad or not keys:
+        from pipeline.infra.config.fields import ConfigError
+
+        raise ConfigError(f"config 'evaluate.primary_metrics' = {list(keys)!r}: {'unknown metric(s) ' + ', '.join(bad) if bad else 'empty'}"
+                         f" (known: {', '.join([*METRICS, *POOLED_METRICS])})")
+
+
 def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],
                        tracks: list[P.TrackInfo], skipped: list[dict], domain_fit: dict | None = None) -> dict:
     """``summary.json``'s ``population`` object from the ``evaluate`` config section ``ev``, the
     cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences
     and verdicts (whole population, per setting, per ablation), difficulty, per-cell values and
     the tracks."""
-    from pipeline.evaluation.grid.population_calibration import population_blocks
+    from pipeline.evaluation.grid import population_calibration as PC
 
     ev = cfg.evaluate
     metrics = list(METRICS)
@@ -40,15 +65,16 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     n_targets = default["target"].nunique()
     n_tracks = len(tracks)
     scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
-    blocks = population_blocks(cfg, table, cells, results, scope, DEFAULT)
+    check_primary(ev.primary_metrics)
+    blocks = PC.population_blocks(cfg, table, cells, results, scope, DEFAULT)
     block, ablations = blocks["main"], blocks["ablations"]
     main = default[default["method"].isin(methods)]
     by_setting = {}
     for s in settings:
         sub = main[main["setting"] == s.label]
-        b = full_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                       f"{n_targets} targets x {n_tracks} tracks, {s.experiment} {s.label}", per_target=False, loto=False)
-        by_setting[s.label] = {k: b[k] for k in ("pooled", "paired", "robust", "verdict", "verdict_table")}
+        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
+                             primary=tuple(ev.primary_metrics), per_target=False, loto=False)
+        by_setting[s.label] = {k: b[k] for k in PC.BLOCK_KEYS}
     difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
                   for c, r in zip(cells, results) if r["difficulty"] is not None]
     spread = {}
@@ -62,8 +88,9 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
                  for (t, tr, e, s), g in default.groupby(["target", "track", "experiment", "setting"], sort=True)]
     return {
         "n_targets": int(n_targets), "n_tracks": int(n_tracks), "tracks_per_target": ev.tracks_per_target,
-        "n_cells": int(len(main) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": 0.95,
-        "confident_threshold": ev.confident_threshold, "ece_bins": ECE_BINS,
+        "n_cells": int(len(main) // max(len(methods), 1)), "bootstrap": ev.bootstrap, "ci_level": LEVEL,
+        "confident_threshold": ev.confident_threshold, "ece_bins": ev.ece_bins,
+        "primary_metrics": list(ev.primary_metrics), "statistics": STATISTICS, "scope": scope,
         "likelihood": ev.test_domain_variance,
         "calibration_weighting": ("ECE and the reliability diagram pool every posterior of the population, "
                                   "weighted as the other pooled values: each target the same, each track of a "

@@ -1,18 +1,15 @@
-"""Calibration of a posterior: NLL, Brier score, confident errors and top-label ECE.
+"""Top-label ECE and the reliability diagram: the calibration statistics that are not cell means.
 
-Posteriors come as log probabilities (..., C) with an integer ``truth`` (scalar or broadcastable
-to the leading shape), as everywhere in ``pipeline.evaluation.metrics.spec``.
+NLL, the confident-error rate and MSDE (the Brier score / C) are metrics of the one specification
+(``pipeline.evaluation.metrics.spec``: step columns ``nll``, ``confidence``, ``correct``, ``msde``);
+this module only bins confidences. Posteriors come as log probabilities (..., C) with an integer
+``truth`` (scalar or broadcastable to the leading shape).
 
-- ``nll``: -ln P(truth), read off the log posterior (never from a rounded probability, so a
-  posterior that gives the truth 1e-3000 has NLL 6908, not infinity).
-- ``brier``: the multi-class Brier score Σ_c (P(c) - 1[c = truth])² (0 = perfect, 2 = worst); the
-  paper's MSDE is this divided by C.
-- ``confident_error``: max_c P(c) >= threshold on a class that is not the truth.
-- ECE: top-label expected calibration error with equal-width bins, the definition of
-  torchmetrics' ``multiclass_calibration_error(norm="l1")``: confidence = max_c P(c), accuracy =
-  argmax == truth, bin index = (number of boundaries linspace(0, 1, n_bins + 1) <= confidence) - 1,
-  so a confidence of exactly 1.0 sits in a bin of its own (index n_bins);
-  ECE = Σ_b (weight in b / total) |accuracy_b - confidence_b|.
+ECE: top-label expected calibration error with equal-width bins (``evaluate.ece_bins``), the
+definition of torchmetrics' ``multiclass_calibration_error(norm="l1")``: confidence = max_c P(c),
+accuracy = argmax == truth, bin index = (number of boundaries linspace(0, 1, n_bins + 1) <=
+confidence) - 1, so a confidence of exactly 1.0 sits in a bin of its own (index n_bins);
+ECE = Σ_b (weight in b / total) |accuracy_b - confidence_b|.
 
 ``bin_sums`` returns, per bin, the weight, the weighted confidence sum and the weighted accuracy
 sum: ECE is a function of sums, so a bootstrap can combine per-track sums (``ece_from_sums``)
@@ -22,56 +19,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.evaluation.metrics.spec import confidence, correct
+
 N_BINS = 15
 
 
-def _lp(log_post) -> np.ndarray:
-    lp = np.asarray(log_post, dtype=float)
-    if lp.ndim < 1 or lp.shape[-1] < 1:
-        raise ValueError(f"posteriors must have a class axis, got shape {lp.shape}")
-    if np.any(np.isnan(lp)):
-        raise ValueError("log posteriors contain NaN")
-    return lp
-
-
-def _truth(truth, lp: np.ndarray) -> np.ndarray:
-    t = np.asarray(truth)
-    if not np.issubdtype(t.dtype, np.integer):
-        raise ValueError(f"truth must be integer class indices, got {t.dtype}")
-    if np.any(t < 0) or np.any(t >= lp.shape[-1]):
-        raise ValueError(f"truth index out of range for {lp.shape[-1]} classes")
-    return np.broadcast_to(t, lp.shape[:-1])
-
-
-def nll(log_post, truth) -> np.ndarray:
-    """-ln P(truth) per posterior (..., C) -> (...)."""
-    lp = _lp(log_post)
-    t = _truth(truth, lp)
-    return -np.take_along_axis(lp, t[..., None], axis=-1)[..., 0]
-
-
-def brier(log_post, truth) -> np.ndarray:
-    """Σ_c (P(c) - 1[c = truth])² per posterior."""
-    lp = _lp(log_post)
-    t = _truth(truth, lp)
-    p = np.exp(lp)
-    onehot = np.arange(lp.shape[-1]) == t[..., None]
-    return np.sum((p - onehot) ** 2, axis=-1)
-
-
 def top_label(log_post, truth) -> tuple[np.ndarray, np.ndarray]:
-    """(confidence = max_c P(c), correct = argmax is the truth); ties go to the lowest index."""
-    lp = _lp(log_post)
-    t = _truth(truth, lp)
-    return np.exp(lp.max(axis=-1)), np.argmax(lp, axis=-1) == t
-
-
-def confident_error(log_post, truth, threshold: float) -> np.ndarray:
-    """True where the posterior puts at least ``threshold`` on one wrong class."""
-    if not 0.5 < threshold <= 1.0:
-        raise ValueError(f"confident-error threshold must be in (0.5, 1], got {threshold}")
-    conf, ok = top_label(log_post, truth)
-    return (conf >= threshold) & ~ok
+    """(confidence = max_c P(c), correct = argmax is the truth), the spec's step columns."""
+    return confidence(log_post, truth, is_log=True), correct(log_post, truth, is_log=True)
 
 
 def bin_index(conf: np.ndarray, n_bins: int = N_BINS) -> np.ndarray:
@@ -123,13 +78,3 @@ def reliability(sums: np.ndarray) -> dict[str, list]:
         out["confidence"].append(float(s[1, b] / w) if w > 0 else None)
         out["accuracy"].append(float(s[2, b] / w) if w > 0 else None)
     return out
-
-
-def cell_calibration(log_post, truth, threshold: float) -> dict[str, float]:
-    """A cell's calibration scalars over its realizations (R, K, C): means of NLL, Brier and the
-    confident-error indicator at the final step and over all steps."""
-    lp = _lp(log_post)
-    n, b, e = nll(lp, truth), brier(lp, truth), confident_error(lp, truth, threshold)
-    return {"nll_final": float(n[..., -1].mean()), "nll_overall": float(n.mean()),
-            "brier_final": float(b[..., -1].mean()), "brier_overall": float(b.mean()),
-            "confident_error_final": float(e[..., -1].mean()), "confident_error_overall": float(e.mean())}

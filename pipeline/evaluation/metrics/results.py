@@ -16,7 +16,6 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from pipeline.evaluation.metrics import spec as M
-from pipeline.evaluation.metrics.calibration import cell_calibration
 from pipeline.infra.cache import atomic_path
 
 
@@ -212,17 +211,12 @@ def frame(blocks: Sequence[Mapping[str, np.ndarray]], *, drop: Sequence[str] = (
     return pd.DataFrame({k: list(v) if v.ndim == 2 else v for k, v in cols.items()})
 
 
-def cell_metrics(lp: np.ndarray, truth: int, confident_threshold: float | None = None, *,
+def cell_metrics(lp: np.ndarray, truth: int, params: M.Params, *,
                  base: Mapping[str, float] | None = None) -> dict[str, float]:
     """A cell's metrics over its realizations (R, K, C) of log posteriors: every
-    ``pipeline.evaluation.metrics.spec.METRICS`` key; the confident-error rates at ``confident_threshold``
-    (``evaluate.confident_threshold``) when given. ``base``: ``metrics.posterior_metrics`` of
-    ``lp``, when the caller has it already."""
-    out = dict(M.posterior_metrics(lp, truth, is_log=True) if base is None else base)
-    if confident_threshold is not None:
-        cal = cell_calibration(lp, truth, confident_threshold)
-        out.update({k: cal[k] for k in ("confident_error_final", "confident_error_overall")})
-    return out
+    ``pipeline.evaluation.metrics.spec.METRICS`` key at the run's ``params``. ``base``: the same
+    metrics, when the caller has them already."""
+    return dict(M.posterior_metrics(lp, truth, params=params, is_log=True) if base is None else base)
 
 
 def metadata(**items: Any) -> dict[str, str]:

@@ -6,12 +6,15 @@ Two levels, each a registry where adding a metric is one entry:
   every results table (``pipeline.evaluation.metrics.results``):
   ``p_truth`` P(c_gt | H); ``log10_mgr`` log10(max_c P(c) / P(c_gt)) (0 when the truth is the
   most likely class; the only MGR base anywhere); ``msde`` (1/C) Σ_c (P(c|H) - 1[c = c_gt])²
-  (paper Eq. 44); ``correct`` argmax = truth (ties go to the lowest class index, as
-  ``numpy.argmax``).
+  (paper Eq. 44; the multi-class Brier score is C · MSDE, the same quantity, so it is not a metric
+  of its own); ``correct`` argmax = truth (ties go to the lowest class index, as ``numpy.argmax``).
 - ``METRICS``: what a cell, a track table or a simulation scenario reports: a ``Metric`` reduces
   per-step columns of realizations × steps (R, K) to one number, with its labels, direction,
-  bounds and how cells pool (``pipeline.evaluation.statistics.popstats``). ``compute`` applies every metric
-  at once, vectorized over leading axes (the reports' bootstrap resamples).
+  bounds and how cells pool (``pool``: the mean over targets, or the median over targets for the
+  unbounded log10 MGR and NLL; ``pipeline.evaluation.statistics.engine`` pools by it, so the number
+  shown, its CI and its verdict are one statistic). ``compute`` applies every metric at once,
+  vectorized over leading axes (bootstrap resamples), with its parameters (``Params``: the
+  confident-error threshold and the ECE bins) from the config, never a built-in value.
 
 Infinities: a truth probability of exactly 0 gives ``log10_mgr = +inf`` (from log posteriors it
 stays finite). ``percentile`` treats +inf as a value above every other: a percentile that
@@ -23,8 +26,8 @@ Posteriors are arrays (..., C), probabilities or, with ``is_log=True``, log prob
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -103,12 +106,6 @@ def nll(post, truth, *, is_log: bool = False) -> np.ndarray:
         return -np.log(prob_truth(post, truth))
 
 
-def brier(post, truth, *, is_log: bool = False) -> np.ndarray:
-    """Multi-class Brier score Σ_c (P(c) - 1[c = c_gt])² (= C · MSDE)."""
-    p = _post(post, is_log)
-    return msde(p, truth) * p.shape[-1]
-
-
 def confidence(post, truth, *, is_log: bool = False) -> np.ndarray:
     """Top-label confidence max_c P(c)."""
     return _post(post, is_log).max(axis=-1)
@@ -120,7 +117,6 @@ STEP_COLUMNS: dict[str, Callable[..., np.ndarray]] = {
     "msde": msde,
     "correct": correct,
     "nll": nll,
-    "brier": brier,
     "confidence": confidence,
 }
 
@@ -148,12 +144,35 @@ def percentile(x, q, axis: int | None = None) -> np.ndarray:
 
 
 # -- aggregate metrics -------------------------------------------------------------------------------
-def mean_of(x: np.ndarray) -> np.ndarray:
+@dataclass(frozen=True)
+class Params:
+    """What some metrics need beyond the posteriors, from the config (``evaluate.confident_threshold``
+    and ``evaluate.ece_bins``, or ``simulate.confident_threshold``); no metric has a built-in value."""
+    confident_threshold: float
+    ece_bins: int
+
+    def __post_init__(self):
+        if not 0.0 < float(self.confident_threshold) <= 1.0:
+            raise ValueError(f"confident-error threshold must be in (0, 1], got {self.confident_threshold!r}")
+        if int(self.ece_bins) < 2:
+            raise ValueError(f"ece_bins must be at least 2, got {self.ece_bins!r}")
+
+    @classmethod
+    def of(cls, section) -> Params:
+        """From a config section with ``confident_threshold`` (and ``ece_bins``: the evaluate
+        section; the simulate section has no ECE and takes the evaluate default's field)."""
+        from pipeline.infra.config.evaluation import EvaluateConfig
+
+        bins = getattr(section, "ece_bins", EvaluateConfig.__dataclass_fields__["ece_bins"].default)
+        return cls(float(section.confident_threshold), int(bins))
+
+
+def mean_of(x: np.ndarray, params: Params | None = None) -> np.ndarray:
     return x.mean(axis=-1)
 
 
-def percentile_of(q: float) -> Callable[[np.ndarray], np.ndarray]:
-    def reduce(x: np.ndarray) -> np.ndarray:
+def percentile_of(q: float) -> Callable[..., np.ndarray]:
+    def reduce(x: np.ndarray, params: Params | None = None) -> np.ndarray:
         return percentile(x, q, axis=-1)
     reduce.__name__ = f"percentile_{q:g}"
     return reduce
@@ -165,17 +184,19 @@ class Metric:
     step) or over realizations × steps (all steps), flattened on the last axis, to one number.
     A metric of several per-step columns (a calibration error needs confidence and correctness)
     names them as a tuple; ``reduce`` then gets one array per column, in that order.
-    ``best``/``worst`` are the attainable extremes (None: unbounded that way); cells where both
-    methods of a comparison sit at one cannot tell them apart. Cells pool by ``pool``."""
+    ``reduce`` also gets the run's ``Params``. ``best``/``worst`` are the attainable extremes
+    (None: unbounded that way); cells where both methods of a comparison sit at one cannot tell
+    them apart. Targets pool by ``pool``: "mean" or "median" (over targets of the target means;
+    for metrics one target can move without bound)."""
     label: str                       # for sentences and captions
     short: str                       # for table headers
     higher_is_better: bool
     column: str | tuple[str, ...]    # ``STEP_COLUMNS`` key(s)
     steps: str                       # "final" | "all"
-    reduce: Callable[[np.ndarray], np.ndarray]
+    reduce: Callable[..., np.ndarray]
     best: float | None = None
     worst: float | None = None
-    pool: str = "mean"               # over settings within a track, tracks within a target, targets
+    pool: str = "mean"               # over targets: "mean" | "median" (settings and tracks: always the mean)
 
     @property
     def bounded(self) -> bool:
@@ -190,37 +211,41 @@ METRICS: dict[str, Metric] = {
     "prob_truth_final": Metric("P(truth), final step", "P(truth), final", True, "p_truth", "final", mean_of,
                                best=1.0, worst=0.0),
     "msde_final": Metric("MSDE, final step", "MSDE, final", False, "msde", "final", mean_of, best=0.0),
+    "msde_overall": Metric("MSDE, all steps", "MSDE, all steps", False, "msde", "all", mean_of, best=0.0),
     "log10_mgr75_final": Metric("log10 MGR 75th percentile, final step", "log10 MGR 75%, final", False,
-                                "log10_mgr", "final", percentile_of(75), best=0.0),
+                                "log10_mgr", "final", percentile_of(75), best=0.0, pool="median"),
     "log10_mgr95_final": Metric("log10 MGR 95th percentile, final step", "log10 MGR 95%, final", False,
-                                "log10_mgr", "final", percentile_of(95), best=0.0),
+                                "log10_mgr", "final", percentile_of(95), best=0.0, pool="median"),
     "log10_mgr75_overall": Metric("log10 MGR 75th percentile, all steps", "log10 MGR 75%, all steps", False,
-                                  "log10_mgr", "all", percentile_of(75), best=0.0),
+                                  "log10_mgr", "all", percentile_of(75), best=0.0, pool="median"),
     "log10_mgr95_overall": Metric("log10 MGR 95th percentile, all steps", "log10 MGR 95%, all steps", False,
-                                  "log10_mgr", "all", percentile_of(95), best=0.0),
-    # Calibration (pipeline/evaluation/metrics/calibration.py; docs/design.md §8). The confident-error
-    # threshold here is the default of evaluate.confident_threshold; the evaluate stage recomputes
-    # these two keys with the configured threshold (pipeline.evaluation.metrics.results.cell_metrics).
-    "nll_final": Metric("NLL = -ln P(truth), final step", "NLL, final", False, "nll", "final", mean_of, best=0.0),
-    "nll_overall": Metric("NLL = -ln P(truth), all steps", "NLL, all steps", False, "nll", "all", mean_of, best=0.0),
-    "brier_final": Metric("Brier score, final step", "Brier, final", False, "brier", "final", mean_of,
-                          best=0.0, worst=2.0),
-    "brier_overall": Metric("Brier score, all steps", "Brier, all steps", False, "brier", "all", mean_of,
-                            best=0.0, worst=2.0),
+                                  "log10_mgr", "all", percentile_of(95), best=0.0, pool="median"),
+    # Calibration (docs/design.md §8): the confident-error rate at the run's threshold (``Params``).
+    "nll_final": Metric("NLL = -ln P(truth), final step", "NLL, final", False, "nll", "final", mean_of, best=0.0,
+                        pool="median"),
+    "nll_overall": Metric("NLL = -ln P(truth), all steps", "NLL, all steps", False, "nll", "all", mean_of, best=0.0,
+                          pool="median"),
     "confident_error_final": Metric("confident-error rate (max P >= threshold on a wrong class), final step",
                                     "confident errors, final", False, ("confidence", "correct"), "final",
-                                    lambda c, ok: confident_rate(c, ok), best=0.0, worst=1.0),
+                                    lambda c, ok, params: confident_rate(c, ok, params), best=0.0, worst=1.0),
     "confident_error_overall": Metric("confident-error rate (max P >= threshold on a wrong class), all steps",
                                       "confident errors, all steps", False, ("confidence", "correct"), "all",
-                                      lambda c, ok: confident_rate(c, ok), best=0.0, worst=1.0),
+                                      lambda c, ok, params: confident_rate(c, ok, params), best=0.0, worst=1.0),
 }
-CONFIDENT_THRESHOLD = 0.99
-POOLS = ("mean",)
+POOLS = ("mean", "median")
 
 
-def confident_rate(conf: np.ndarray, ok: np.ndarray, threshold: float = CONFIDENT_THRESHOLD) -> np.ndarray:
-    """Share (last axis) of posteriors with confidence >= ``threshold`` on a wrong class."""
-    return ((conf >= threshold) & (ok < 0.5)).mean(axis=-1)
+def confident_mask(conf: np.ndarray, ok: np.ndarray, threshold: float) -> np.ndarray:
+    """The one confident-error rule: top-label confidence >= ``threshold`` and the top label wrong."""
+    t = float(threshold)
+    if not 0.0 < t <= 1.0:
+        raise ValueError(f"confident-error threshold must be in (0, 1], got {threshold!r}")
+    return (np.asarray(conf) >= t) & (np.asarray(ok) < 0.5)
+
+
+def confident_rate(conf: np.ndarray, ok: np.ndarray, params: Params) -> np.ndarray:
+    """Share (last axis) of posteriors that are confident errors at ``params.confident_threshold``."""
+    return confident_mask(conf, ok, params.confident_threshold).mean(axis=-1)
 MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
 
 
@@ -228,8 +253,8 @@ MGR_AXIS_LABEL = "log10 MGR = log10(max_c P(c) / P(truth))"
 # ``pipeline.evaluation.metrics.calibration``: ECE is a function of bin sums, so it cannot be averaged over
 # cells): key -> (label, short label); lower is better for each.
 POOLED_METRICS = {
-    "ece_final": ("top-label ECE (15 bins), final step", "ECE, final"),
-    "ece_overall": ("top-label ECE (15 bins), all steps", "ECE, all steps"),
+    "ece_final": ("top-label ECE, final step", "ECE, final"),
+    "ece_overall": ("top-label ECE, all steps", "ECE, all steps"),
 }
 
 
@@ -249,30 +274,41 @@ def higher_is_better(key: str) -> bool:
     return True if m is None else m.higher_is_better
 
 
-def compute(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+def pool_of(key: str) -> str:
+    """How targets pool a metric: ``Metric.pool``; a pooled metric (ECE) is one statistic of the
+    pooled posteriors; an unknown key (a newer summary) by the mean."""
+    if key in POOLED_METRICS:
+        return "pooled posteriors"
+    m = METRICS.get(key)
+    return m.pool if m is not None else "mean"
+
+
+def compute(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None, *,
+            params: Params) -> dict[str, np.ndarray]:
     """Metrics of per-step values (..., R, K) per column (realizations × steps): arrays (...)."""
     out = {}
     for k in METRICS if keys is None else keys:
         m = METRICS[k]
         cols = (m.column,) if isinstance(m.column, str) else m.column
         if keys is None and not all(c in values for c in cols):
-            continue  # a table written before the column existed (e.g. nll, brier, confidence)
+            continue  # a table written before the column existed (e.g. nll, confidence)
         xs = []
         for c in cols:
             x = np.asarray(values[c])
             xs.append((x[..., -1] if m.steps == "final" else x.reshape(*x.shape[:-2], -1)).astype(float))
-        out[k] = m.reduce(*xs)
+        out[k] = m.reduce(*xs, params=params)
     return out
 
 
-def scalars(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None) -> dict[str, float]:
+def scalars(values: Mapping[str, np.ndarray], keys: Sequence[str] | None = None, *,
+            params: Params) -> dict[str, float]:
     """``compute`` for one set of (R, K) values: plain floats."""
-    return {k: float(v) for k, v in compute(values, keys).items()}
+    return {k: float(v) for k, v in compute(values, keys, params=params).items()}
 
 
-def posterior_metrics(post, truth, *, is_log: bool = False) -> dict[str, float]:
+def posterior_metrics(post, truth, *, params: Params, is_log: bool = False) -> dict[str, float]:
     """Every metric of posteriors over realizations × steps (R, K, C)."""
-    return scalars(step_values(post, truth, is_log=is_log))
+    return scalars(step_values(post, truth, is_log=is_log), params=params)
 
 
 def matrices(df, columns: Sequence[str] | None = None) -> dict[str, np.ndarray]:
@@ -312,21 +348,16 @@ def with_mgr_ratios(row: Mapping[str, float]) -> dict[str, float | None]:
 
 
 def confident_errors(log_post, truth, threshold: float) -> np.ndarray:
-    """Per posterior (..., C) of log probabilities: True where the most probable class is wrong
-    and holds P >= ``threshold`` ("max P >= 0.99 on a wrong class" at 0.99). The argmax is the
-    one ``correct`` uses (ties to the lowest index); log posteriors are renormalised first, so
-    unnormalised log weights give the same answer."""
-    t = float(threshold)
-    if not 0.0 < t <= 1.0:
-        raise ValueError(f"confident-error threshold must be in (0, 1], got {threshold!r}")
+    """Per posterior (..., C) of log probabilities: ``confident_mask`` of its top-label confidence
+    and correctness (the argmax ``correct`` uses, ties to the lowest index). Log posteriors are
+    renormalised first, so unnormalised log weights give the same answer."""
     lp = np.asarray(log_post, dtype=float)
     if np.any(np.isnan(lp)):
         raise ValueError("posteriors contain NaN")
     top = lp.max(axis=-1, keepdims=True)
     with np.errstate(divide="ignore", invalid="ignore"):
         lse = top[..., 0] + np.log(np.sum(np.exp(lp - top), axis=-1))
-    wrong = ~correct(lp, truth)
-    return wrong & (top[..., 0] - lse >= np.log(t))
+    return confident_mask(np.exp(top[..., 0] - lse), correct(lp, truth), threshold)
 
 
 def confident_error_rate(log_post, truth, threshold: float, axis=None) -> np.ndarray | float:

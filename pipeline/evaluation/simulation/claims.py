@@ -29,7 +29,8 @@ from scipy import stats
 
 from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
-from pipeline.evaluation.statistics.popstats import wilson_interval, within
+from pipeline.evaluation.statistics.engine import over_members as within
+from pipeline.evaluation.statistics.resampler import wilson_interval
 
 LEVEL = 0.95
 OPS = {">": np.greater, "<": np.less, ">=": np.greater_equal, "<=": np.less_equal}

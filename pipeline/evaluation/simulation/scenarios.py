@@ -296,12 +296,12 @@ def _rows_of(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def summarize(df: pd.DataFrame) -> pd.DataFrame:
+def summarize(df: pd.DataFrame, params: M.Params) -> pd.DataFrame:
     """Per (scenario, method): every metric of ``pipeline.evaluation.metrics.spec.METRICS`` over the
     realizations, each log10 MGR also as the ratio (``metrics.with_mgr_ratios``)."""
     rows = []
     for (scenario, method), g in df.groupby(["scenario", "method"], sort=False):
         rows.append({"scenario": scenario, "method": method,
-                     **M.with_mgr_ratios(M.scalars(M.matrices(g))),
+                     **M.with_mgr_ratios(M.scalars(M.matrices(g), params=params)),
                      "realizations": int(g["realization"].nunique())})
     return pd.DataFrame(rows)

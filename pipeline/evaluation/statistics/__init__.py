@@ -1,2 +1,3 @@
-"""The statistics: hierarchical bootstrap CIs over targets and tracks, paired differences, robust
-estimates, verdicts, pooled calibration and the pooling of classifier seeds."""
+"""The statistics engine: one hierarchical resampler (``resampler``), verdict records and the
+outcome rule (``records``), pooled values, paired differences and records of every population
+(``engine``), and the pooled ECE on the engine's draws (``pooled_calibration``)."""

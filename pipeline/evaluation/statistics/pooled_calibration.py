@@ -5,22 +5,23 @@ posteriors are weighted as every other pooled value is: within a track each sett
 same and, within a setting, each realization (final step) or each (realization, step) (all steps);
 every track of a target weighs the same, every target weighs the same. So a posterior of cell
 (target t, track j, setting s) with R realizations weighs 1 / (T · n_t · S · R) at the final step.
-The bootstrap resamples targets, then tracks within targets (``robust.Resample``); paired
-differences use the same draws for both methods.
+The interval comes from the engine's shared draws (``engine.Hierarchy``: the leaf weights of the
+same targets -> tracks resamples every other metric uses); paired differences use the same draws
+for both methods.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from pipeline.evaluation.metrics import calibration as K
-from pipeline.evaluation.statistics.robust import estimate, leave_one_out_values, resample
+from pipeline.evaluation.statistics.resampler import estimate
 
 WHERE = ("final", "overall")
 
 
-def cell_sums(posts: dict, truth: int) -> dict[str, np.ndarray]:
+def cell_sums(posts: dict, truth: int, n_bins: int) -> dict[str, np.ndarray]:
     """One cell's {method: (2, 3, n_bins + 1) bin sums (final, overall)} over its settings
     ``posts`` ({(experiment, label): {method: log posteriors (R, K, C)}}); each setting weighs
     1 / n_settings, each realization (final) or (realization, step) (overall) the same within it."""
@@ -30,13 +31,13 @@ def cell_sums(posts: dict, truth: int) -> dict[str, np.ndarray]:
         for method, lp in by_method.items():
             conf, ok = K.top_label(lp, truth)                  # (R, K)
             R, Kn = conf.shape
-            s = np.stack([K.bin_sums(conf[:, -1], ok[:, -1], 1.0 / (n_set * R)),
-                          K.bin_sums(conf, ok, 1.0 / (n_set * R * Kn))])
+            s = np.stack([K.bin_sums(conf[:, -1], ok[:, -1], 1.0 / (n_set * R), n_bins),
+                          K.bin_sums(conf, ok, 1.0 / (n_set * R * Kn), n_bins)])
             out[method] = out.get(method, 0.0) + s
     return out
 
 
-def track_sums(cells, results, variant: str) -> dict[tuple[str, str, int], np.ndarray]:
+def track_sums(cells, results, variant: str, n_bins: int) -> dict[tuple[str, str, int], np.ndarray]:
     """{(method, target, track): (2, 3, n_bins + 1) bin sums (final, overall)} for one variant;
     every track's weights sum to 1 for each of final and overall. A result holds its cell's
     ``cell_sums`` as ``calibration`` (the evaluate stage's streamed cells) or its ``posts``."""
@@ -44,30 +45,34 @@ def track_sums(cells, results, variant: str) -> dict[tuple[str, str, int], np.nd
     for cell, res in zip(cells, results):
         if cell.variant != variant:
             continue
-        sums = res["calibration"] if "calibration" in res else cell_sums(res["posts"], cell.truth)
+        sums = res["calibration"] if "calibration" in res else cell_sums(res["posts"], cell.truth, n_bins)
         for method, s in sums.items():
             key = (method, cell.target, cell.track)
             out[key] = out.get(key, 0.0) + s
     return out
 
 
-def _padded(sums: dict, method: str, targets: Sequence[str]) -> tuple[np.ndarray, list[int]]:
-    per = [[v for (m, t, _), v in sorted(sums.items(), key=lambda kv: kv[0][2]) if m == method and t == tt]
-           for tt in targets]
-    sizes = [len(p) for p in per]
+def hierarchy_of(sums: dict, n_boot: int, seed):
+    """The ``engine.Hierarchy`` of the (target, track) units in track sums (when no cell table
+    gives it: the evaluate stage's blocks take the one of their cells)."""
+    import pandas as pd
+
+    from pipeline.evaluation.statistics.engine import Hierarchy
+
+    units = sorted({(t, tr) for (_, t, tr) in sums})
+    return Hierarchy({"run": pd.DataFrame(units, columns=["target", "track"])}, n_boot, seed)
+
+
+def _padded(h, sums: dict, method: str) -> np.ndarray:
+    """(T, W, 2, 3, nb) track sums of ``method`` in the hierarchy's (target, track) positions."""
     shape = next(iter(sums.values())).shape
-    out = np.zeros((len(targets), max(sizes)) + shape)
-    for i, p in enumerate(per):
-        for j, v in enumerate(p):
-            out[i, j] = v
-    return out, sizes
-
-
-def _point_weights(sizes: Sequence[int]) -> np.ndarray:
-    w = np.zeros((len(sizes), max(sizes)))
-    for i, n in enumerate(sizes):
-        w[i, :n] = 1.0 / (len(sizes) * n)
-    return w
+    _, T, W = h.rs.shape
+    out = np.zeros((T, W) + shape)
+    for (m, t, tr), v in sums.items():
+        if m == method and (t, tr) in h.index[0]:
+            ti, j = h.index[0][(t, tr)]
+            out[ti, j] = v
+    return out
 
 
 def _ece(weights: np.ndarray, padded: np.ndarray) -> np.ndarray:
@@ -75,21 +80,17 @@ def _ece(weights: np.ndarray, padded: np.ndarray) -> np.ndarray:
     return K.ece_from_sums(np.einsum("...tj,tjwkb->...wkb", weights, padded))
 
 
-def pooled_ece(sums: dict, methods: Sequence[str], comparisons, n_boot: int, seed,
-               per_target: bool = True, loto: bool = True) -> dict:
+def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: bool = True,
+               loto: bool = True) -> dict:
     """{"pooled": {method: {ece_final, ece_overall}}, "per_target": {target: {method: ...}},
     "paired": {comparison key: {ece_<where>: est + wins/losses over targets}}, "reliability":
-    {method: {where: diagram}}}."""
-    targets = sorted({t for (_, t, _) in sums})
+    {method: {where: diagram}}} on the hierarchy ``h`` (``engine.Hierarchy``, one seed)."""
     present = [m for m in methods if any(k[0] == m for k in sums)]
-    if not targets or not present:
-        return {"pooled": {}, "per_target": {}, "paired": {}, "reliability": {}}
-    pads, sizes = {}, None
-    for m in present:
-        pads[m], sizes = _padded(sums, m, targets)
-    rs = resample(sizes, n_boot, [*np.atleast_1d(seed), 7])
-    bw = rs.member_weights()
-    w0 = _point_weights(sizes)
+    if not sums or not present:
+        return {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "reliability": {}}
+    targets = h.targets
+    pads = {m: _padded(h, sums, m) for m in present}
+    bw, w0 = h.rs.leaf_weights()[:, 0], h.rs.point_weights()[0]
     point = {m: _ece(w0, pads[m]) for m in present}
     boot = {m: _ece(bw, pads[m]) for m in present}
     out = {"pooled": {m: {f"ece_{w}": estimate(point[m][i], boot[m][:, i]) for i, w in enumerate(WHERE)}
@@ -99,14 +100,13 @@ def pooled_ece(sums: dict, methods: Sequence[str], comparisons, n_boot: int, see
                                for i, w in enumerate(WHERE)} for m in present}}
     tgt = {}
     for ti, t in enumerate(targets):
-        n = sizes[ti]
-        one = resample([n], n_boot, [*np.atleast_1d(seed), 8, ti]).member_weights()   # (B, 1, n)
-        wt = np.full((1, n), 1.0 / n)
+        rs = h.per_target(ti)
+        n = rs.shape[2]
+        one, wt = rs.leaf_weights()[:, 0, :, :n], rs.point_weights()[0, :, :n]
         for m in present:
             p = pads[m][ti: ti + 1, :n]
             val, bt = _ece(wt, p), _ece(one, p)
-            tgt.setdefault(t, {})[m] = {f"ece_{w}": estimate(val[i], bt[:, i]) if n > 1 else
-                                        {"value": float(val[i]), "ci_low": float("nan"), "ci_high": float("nan")}
+            tgt.setdefault(t, {})[m] = {f"ece_{w}": estimate(val[i], bt[:, i] if n > 1 else None)
                                         for i, w in enumerate(WHERE)}
     if per_target:
         out["per_target"] = tgt
@@ -121,21 +121,23 @@ def pooled_ece(sums: dict, methods: Sequence[str], comparisons, n_boot: int, see
             res[f"ece_{w}"] = {**est, "wins": float(np.mean(d_t < 0)), "losses": float(np.mean(d_t > 0)),
                                "n_cells": len(targets), "unit": "targets", "better": "lower"}
             if loto:
-                res[f"ece_{w}"].update(leave_one_out_values(
-                    targets, lambda keep, i=i: _loto_diff(keep, pads[a], pads[b], sizes, n_boot, seed, i), False))
-            for t in targets:
-                res_t.setdefault(t, {})[f"ece_{w}"] = {
-                    "value": tgt[t][a][f"ece_{w}"]["value"] - tgt[t][b][f"ece_{w}"]["value"],
-                    "ci_low": float("nan"), "ci_high": float("nan")}
+                res[f"ece_{w}"].update(_loto(h, pads[a], pads[b], i))
+            for t, d in zip(targets, d_t):
+                res_t.setdefault(t, {})[f"ece_{w}"] = {"value": float(d), "ci_low": float("nan"),
+                                                       "ci_high": float("nan")}
         out["paired"][key] = res
         out["paired_per_target"][key] = res_t
     return out
 
 
-def _loto_diff(keep: np.ndarray, pa: np.ndarray, pb: np.ndarray, sizes, n_boot: int, seed, i: int) -> dict:
-    """ECE difference (estimate with CI) on the targets ``keep`` (indices)."""
-    sz = [sizes[k] for k in keep]
-    pa, pb = pa[keep], pb[keep]
-    bw = resample(sz, n_boot, [*np.atleast_1d(seed), 9]).member_weights()
-    w0 = _point_weights(sz)
-    return estimate(_ece(w0, pa)[i] - _ece(w0, pb)[i], _ece(bw, pa)[:, i] - _ece(bw, pb)[:, i])
+def _loto(h, pa: np.ndarray, pb: np.ndarray, i: int) -> dict:
+    """The ECE difference with each target left out (``engine.leave_one_out``)."""
+    from pipeline.evaluation.statistics.engine import leave_one_out
+
+    def est(rs, keep):
+        W = rs.shape[2]
+        w0, bw = rs.point_weights()[0], rs.leaf_weights()[:, 0]
+        a, b = pa[keep][:, :W], pb[keep][:, :W]
+        return estimate(_ece(w0, a)[i] - _ece(w0, b)[i], _ece(bw, a)[:, i] - _ece(bw, b)[:, i])
+
+    return leave_one_out(h, est, False)

@@ -84,6 +84,11 @@ class EvaluateConfig:
                                        "other instances), never the evaluated cell's own")
     confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
                                     doc="a confident error: max P >= this on a wrong class")
+    ece_bins: int = _f(15, lo=2, hi=1000, doc="equal-width confidence bins of the top-label ECE and the reliability "
+                                              "diagram")
+    primary_metrics: tuple[str, ...] = _f(factory=lambda: ("correct_final", "confident_error_final"),
+                                          doc="the metrics the verdict's bottom line speaks of (keys of "
+                                              "pipeline/evaluation/metrics/spec.py); every other is exploratory")
     attribution: bool = _f(True, doc="also evaluate With Uncertainty with poses only (dropout samples -> their "
                                      "mean) and with dropout only (no pose sampling), on the same population")
     biased: BiasedConfig = _f(factory=BiasedConfig)

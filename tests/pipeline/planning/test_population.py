@@ -63,7 +63,8 @@ def test_population_block_pools_over_targets_with_cis_and_verdicts():
     assert block["pooled"]["random"]["correct_at_3"]["value"] == pytest.approx(want)
     d = block["paired"]["info_gain-random"]["steps_to_decision"]
     assert d["outcome"] in ("better", "worse", "not distinguishable")
-    assert len(block["verdict"]) == 3 * 3        # steps to decision, correct at steps 3 and 5 (budget 5)
+    assert sum(m == "steps_to_decision" or m.startswith("correct_at") for e in block["paired"].values() for m in e) == 3 * 3
+    assert all(e[m]["outcome"] in ("better", "worse", "not distinguishable") for e in block["paired"].values() for m in e)
     assert "correct_at_10" not in block["pooled"]["random"]
 
 

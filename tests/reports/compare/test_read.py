@@ -9,8 +9,8 @@ import signal
 
 import pytest
 
-from reports.compare.page import render_text
 from pipeline.infra.nesting import depth
+from reports.compare.page import render_text
 from reports.compare.read import MAX_DEPTH, MAX_SUMMARY_BYTES, printable
 from reports.compare.runs import CompareError, compare
 from stages.commands.cli import main
@@ -88,6 +88,8 @@ def test_depth_counts_levels_without_recursion():
     (lambda p: p["verdict_table"][1].pop("comparison"), r"population\.verdict_table\[1\]: the field 'comparison'", ""),
     (lambda p: p.__setitem__("verdict_table", [1, 2]), r"population\.verdict_table\[0\]: expected an object",
      "a number 1"),
+    (lambda p: p.__setitem__("records", [{"metric": "correct_final", "outcome": "better"}]),
+     r"population\.records\[0\]: the field 'comparison'", ""),
     (lambda p: p["pooled"].__setitem__("with_uncertainty", 5), r"population\.pooled\.with_uncertainty: expected an "
      r"object", "a number 5"),
     (lambda p: p["pooled"]["model_based"]["correct_final"].__setitem__("ci_low", "0.5"),

@@ -2,14 +2,13 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from reports.compare.runs import CompareError, compare, pool_over_seeds
+from pipeline.evaluation.statistics.engine import seed_block
 from reports.compare.page import build_page, render_text
+from reports.compare.runs import CompareError, compare
 from stages.commands.cli import main
 
 METHODS = ("with_uncertainty", "model_based", "simple_bayes")
@@ -21,8 +20,11 @@ def _est(v: float, w: float = 0.1) -> dict:
 
 
 def write_run(d: Path, *, correct: float = 0.6, mgr: float = 2.0, outcome: str = "better", sigmas=(0.1, 0.3),
-              seed: int = 0, table: bool = True, population: bool = True) -> Path:
-    """A finished run as compare reads it: evaluate/summary.json and stage manifests."""
+              seed: int = 0, table: bool = True, population: bool = True, cells: bool = True) -> Path:
+    """A finished run as compare reads it: evaluate/summary.json and stage manifests; its cells
+    (4 targets x 3 tracks) hold every method's values constant at the pooled ones, With
+    Uncertainty ahead of Model Based by 0.2 in correct ratio when ``outcome`` is better (behind
+    when worse)."""
     pop = {"pooled": {m: {"correct_final": _est(correct - 0.1 * i), "log10_mgr95_final": _est(mgr + i)}
                       for i, m in enumerate(METHODS)},
            "paired": {KEY: {"correct_final": {**_est(0.2 if outcome == "better" else 0.0), "better": "higher"},
@@ -32,6 +34,12 @@ def write_run(d: Path, *, correct: float = 0.6, mgr: float = 2.0, outcome: str =
                                  **pop["paired"][KEY]["correct_final"]},
                                 {"comparison": KEY, "metric": "log10_mgr95_final", "outcome": "better",
                                  **pop["paired"][KEY]["log10_mgr95_final"]}]
+    if cells:
+        gap = {"better": 0.2, "worse": -0.2}.get(outcome, 0.0)
+        vals = {m: {"correct_final": correct - 0.1 * i, "log10_mgr95_final": mgr + i} for i, m in enumerate(METHODS)}
+        vals["model_based"]["correct_final"] = correct - gap
+        pop["cells"] = [{"target": f"t{t}", "track": j, "setting": "s", "values": vals} for t in range(4) for j in range(3)]
+        pop["bootstrap"] = 300
     (d / "evaluate").mkdir(parents=True, exist_ok=True)
     summary = {"population": pop} if population else {"experiments": {}, "target": "x"}
     (d / "evaluate" / "summary.json").write_text(json.dumps(summary))
@@ -76,20 +84,30 @@ def test_three_runs_with_a_seed_group_pool_over_seeds(tmp_path):
     names = [col.name for col in c.columns]
     assert names == ["synthetic", "study/seed-0", "study/seed-1", "study/seed-2", "study: pooled over 3 seeds"]
     assert c.config == {"classifier.seed": [0, 0, 1, 2]}
+    # the seed group is pooled by the engine (seeds -> targets -> tracks), as `viewfuse study` does
     pooled = c.pooled[("with_uncertainty", "correct_final")][-1]
-    v = np.array([0.6, 0.5, 0.7])
-    half = 4.302652729911275 * v.std(ddof=1) / math.sqrt(3)          # t(0.975, 2)
-    assert pooled["value"] == pytest.approx(0.6) and pooled["ci_high"] - pooled["value"] == pytest.approx(half)
+    assert pooled["value"] == pytest.approx(0.6) and 0.5 <= pooled["ci_low"] < 0.6 < pooled["ci_high"] <= 0.7
+    assert pooled["over"] == ["seeds", "targets", "tracks"] and pooled["n"]["seeds"] == 3
+    runs = [json.loads((study / f"seed-{s}" / "evaluate" / "summary.json").read_text())["population"] for s in range(3)]
+    same = seed_block({f"study/seed-{s}": p["cells"] for s, p in enumerate(runs)}, list(METHODS),
+                      ["correct_final", "log10_mgr95_final"], [("with_uncertainty", "model_based"),
+                                                               ("with_uncertainty", "simple_bayes")], 300)
+    assert pooled == same["pooled"]["with_uncertainty"]["correct_final"]
     mgr = c.pooled[("with_uncertainty", "log10_mgr95_final")][-1]
-    assert (mgr["value"], mgr["ci_low"], mgr["ci_high"]) == (3.0, 2.0, 40.0)   # median, [min, max]: robust
+    assert mgr["pooling"] == "median" and mgr["value"] == pytest.approx((2.0 + 40.0 + 3.0) / 3)  # mean of seeds' medians
     v = c.verdicts[(KEY, "correct_final")][-1]
-    assert v["outcome"].startswith("mixed") and not v["held_for_every_seed"]
+    assert v["outcome"] == "not distinguishable" and not v["held_for_every_seed"]   # +0.2, -0.2, +0.2 over seeds
+    assert v["per_seed"] == "better ×2, worse ×1"
     assert c.changed[(KEY, "correct_final")] == [False, False, True, False, True]
 
 
-def test_pool_over_seeds_of_one_seed_is_its_value_without_an_interval():
-    assert pool_over_seeds([_est(0.4)], "correct_final") == {"value": 0.4, "ci_low": None, "ci_high": None, "n": 1,
-                                                             "how": "1 seed"}
+def test_a_seed_group_without_cells_has_no_pooled_value(tmp_path):
+    study = tmp_path / "study"
+    for s in range(2):
+        write_run(study / f"seed-{s}", seed=s, cells=False)
+    c = compare([study])
+    assert c.pooled[("with_uncertainty", "correct_final")][-1] is None
+    assert c.verdicts[(KEY, "correct_final")][-1]["outcome"].startswith("no pooled value")
 
 
 def test_a_missing_run_is_named(tmp_path, capsys):

@@ -10,13 +10,17 @@ from reports.study.page import render_html
 from stages.commands.study import outcomes, run_study, seed_config, summarize
 
 
+def _record(outcome: str, value: float, metric: str = "correct_final") -> dict:
+    return {"comparison": "with_uncertainty-model_based", "method": "with_uncertainty", "baseline": "model_based",
+            "metric": metric, "pooling": "mean", "value": value, "lo": value - 0.1, "hi": value + 0.1,
+            "over": ["targets", "tracks"], "n": {"targets": 12, "tracks": 96}, "better": "higher",
+            "outcome": outcome, "primary": True}
+
+
 def _population(outcome: str, value: float) -> dict:
     cell = {"value": value, "ci_low": value - 0.1, "ci_high": value + 0.1}
     return {"pooled": {"with_uncertainty": {"correct_final": cell}, "model_based": {"correct_final": cell}},
-            "verdict": [f"With Uncertainty is {outcome} than Model Based (difference {value:.2f}, 95 % CI "
-                        f"[{value - 0.1:.2f}, {value + 0.1:.2f}], over 12 targets x 96 tracks)"],
-            "verdict_table": [{"comparison": "with_uncertainty-model_based", "metric": "correct_final",
-                               "outcome": outcome, "value": value, "ci_low": value - 0.1, "ci_high": value + 0.1}]}
+            "records": [_record(outcome, value)]}
 
 
 def _fake_ensure(outcome_by_seed: dict, calls: list):
@@ -64,19 +68,18 @@ def test_summary_puts_seeds_side_by_side_and_says_whether_the_verdict_agrees():
     assert not flip["verdict_same"] and flip["differs_on"] == ["with_uncertainty-model_based / correct_final"]
     assert flip["held"] == {} and "Held for every seed" not in flip["sentence"]
     assert "differs" in flip["sentence"]
-    missing = summarize({0: _population("better", 0.2), 1: {"verdict": None, "verdict_table": None}})
+    missing = summarize({0: _population("better", 0.2), 1: {"records": None}})
     assert not missing["verdict_same"] and missing["missing"] == [1]
     json.dumps(flip, allow_nan=False)  # strict JSON
 
 
-def test_sentences_without_a_table_are_compared_without_their_numbers():
+def test_outcomes_come_from_the_records_or_an_older_summarys_verdict_table():
     a, b = _population("better", 0.2), _population("better", 0.35)
-    for r in (a, b):
-        r["verdict_table"] = None
-    assert outcomes(a) == outcomes(b)
-    c = _population("worse", 0.2)
-    c["verdict_table"] = None
-    assert outcomes(a) != outcomes(c)
+    assert outcomes(a) == outcomes(b) == {"with_uncertainty-model_based / correct_final": "better"}
+    old = {"verdict_table": [{"comparison": "with_uncertainty-model_based", "metric": "correct_final",
+                              "outcome": "worse", "value": -0.2, "ci_low": -0.3, "ci_high": -0.1}]}
+    assert outcomes(old) == {"with_uncertainty-model_based / correct_final": "worse"}
+    assert outcomes({"records": None}) is None
 
 
 def test_study_runs_each_seed_then_reuses_finished_ones(tmp_config):
@@ -114,5 +117,5 @@ def test_study_runs_each_seed_then_reuses_finished_ones(tmp_config):
 
 
 def test_page_escapes_text():
-    s = summarize({0: {**_population("better", 0.1), "verdict": ["<b>x</b>"]}})
+    s = summarize({0: {**_population("better", 0.1), "records": [_record("better", 0.1, metric="<b>x</b>")]}})
     assert "&lt;b&gt;x&lt;/b&gt;" in render_html(s, "r<1>") and "r&lt;1&gt;" in render_html(s, "r<1>")

@@ -2,17 +2,23 @@
 cell and writes of it equals what the stage computed from every cell's posteriors at once."""
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 
 from pipeline.evaluation.grid import experiments as E
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
+from pipeline.evaluation.metrics.results import (
+    ResultsWriter,
+    cell_metrics,
+    result_block,
+    write_results,
+)
 from pipeline.evaluation.statistics.pooled_calibration import cell_sums, track_sums
-from pipeline.evaluation.metrics.results import ResultsWriter, cell_metrics, result_block, write_results
 from pipeline.method.names import DIRICHLET
-from tests.pipeline.method.test_dirichlet_fusion import D, models as dirichlet_models
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
-
-import pytest
+from tests.pipeline.method.test_dirichlet_fusion import D
+from tests.pipeline.method.test_dirichlet_fusion import models as dirichlet_models
+from tests.support.params import PARAMS
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
 
@@ -57,7 +63,7 @@ def test_streamed_results_file_and_kept_values_equal_the_all_at_once_ones(tmp_pa
     kept = []
     with ResultsWriter(tmp_path / "new.parquet", rows_per_group=40) as w:   # metadata deferred, as the stage
         for cell, res in zip(cells, results):
-            k, blocks = reduce_cell(cell, res, 0.99, tables=cell.variant == "default")
+            k, blocks = reduce_cell(cell, res, PARAMS, tables=cell.variant == "default")
             for b in blocks:
                 w.write(b)
             kept.append(k)
@@ -70,12 +76,12 @@ def test_streamed_results_file_and_kept_values_equal_the_all_at_once_ones(tmp_pa
     # The cell table's rows, the calibration sums and the Dirichlet extras, as from the posteriors.
     rows = [r for k in kept for r in k["rows"]]
     want = [{"variant": c.variant, "target": c.target, "track": c.track, "scan": c.scan, "experiment": e,
-             "setting": s, "method": m, **cell_metrics(lp, c.truth, 0.99)}
+             "setting": s, "method": m, **cell_metrics(lp, c.truth, PARAMS)}
             for c, r in zip(cells, results) for (e, s), posts in r["posts"].items() for m, lp in posts.items()]
     assert rows == want
     assert {E.WU_POSES_ONLY, E.WU_DROPOUT_ONLY, DIRICHLET} <= {r["method"] for r in rows}
     for variant in ("default", "abl"):
-        a, b = track_sums(cells, kept, variant), track_sums(cells, results, variant)
+        a, b = track_sums(cells, kept, variant, PARAMS.ece_bins), track_sums(cells, results, variant, PARAMS.ece_bins)
         assert a.keys() == b.keys() and all(np.array_equal(a[key], b[key]) for key in a)
     for c, r, k in zip(cells, results, kept):
         assert k["difficulty"] == r["difficulty"]
@@ -91,9 +97,35 @@ def test_the_showcase_tables_kept_from_the_grid_equal_a_recomputed_cell():
     for cell, res in zip(cells, results):
         if cell.variant != "default":
             continue
-        kept, _ = reduce_cell(cell, res, 0.99, tables=True)
+        kept, _ = reduce_cell(cell, res, PARAMS, tables=True)
         again = P.run_cell(banks, cell)
         assert list(kept["tables"]) == list(again["posts"])
         for key, posts in again["posts"].items():
-            assert kept["tables"][key] == E.summarize(posts, cell.truth)
-        assert kept["calibration"].keys() == cell_sums(again["posts"], cell.truth).keys()
+            assert kept["tables"][key] == E.summarize(posts, cell.truth, PARAMS)
+        assert kept["calibration"].keys() == cell_sums(again["posts"], cell.truth, PARAMS.ece_bins).keys()
+
+
+def test_showcase_and_population_agree_at_a_non_default_confident_threshold():
+    # The showcase tables, the population's cell rows and the report's single-track bootstrap all
+    # compute the confident-error rate from the one spec at the configured threshold.
+    from pipeline.evaluation.metrics.results import frame
+    from pipeline.evaluation.metrics.spec import Params, matrices
+    from pipeline.evaluation.statistics.engine import over_realizations
+
+    low = Params(0.6, 10)
+    _, cells, results = population()
+    moved = 0
+    for cell, res in zip(cells, results):
+        if cell.variant != "default":
+            continue
+        kept, blocks = reduce_cell(cell, res, low, tables=True)
+        default, _ = reduce_cell(cell, res, PARAMS, tables=True)
+        df = frame(blocks, drop=("posterior",))
+        for row, other in zip(kept["rows"], default["rows"]):
+            key, m = (row["experiment"], row["setting"]), row["method"]
+            shown = kept["tables"][key][m]["confident_error_final"]
+            assert row["confident_error_final"] == shown
+            g = df[(df["setting"] == row["setting"]) & (df["method"] == m)]
+            assert over_realizations(matrices(g), low, 50)["confident_error_final"]["value"] == pytest.approx(shown)
+            moved += other["confident_error_final"] != shown
+    assert moved > 0   # the threshold is used: some cells change between 0.6 and the default

@@ -5,6 +5,7 @@ import pytest
 from pipeline.evaluation.grid import experiments as E
 from pipeline.method.fusion import fuse_model_based
 from pipeline.method.gp import GPClassModels
+from tests.support.params import PARAMS
 
 
 def ring_models(n=24, F=2, C=3):
@@ -113,7 +114,7 @@ def test_result_block_rows_and_summary():
     assert cols["p_truth"][i] == pytest.approx(p[2])
     assert cols["log10_mgr"][i] == pytest.approx(np.log10(p.max() / p[2]))
     assert cols["correct"][i] == (p.argmax() == 2)
-    s = E.summarize(logs, 2)
+    s = E.summarize(logs, 2, PARAMS)
     for meth, v in s.items():
         corr = posts[meth].argmax(-1) == 2
         assert v["correct_final"] == pytest.approx(corr[:, -1].mean())
@@ -122,7 +123,7 @@ def test_result_block_rows_and_summary():
         assert v["mgr95_final"] == pytest.approx(np.exp(np.percentile(lm[:, -1], 95)))
         assert v["mgr75_final"] >= 1.0
         assert v["log10_mgr95_final"] == pytest.approx(np.percentile(lm[:, -1], 95) / np.log(10))
-        cm = cell_metrics(logs[meth], 2)
+        cm = cell_metrics(logs[meth], 2, PARAMS)
         assert cm["log10_mgr95_final"] == pytest.approx(v["log10_mgr95_final"])
         assert cm["correct_final"] == v["correct_final"]
 
@@ -166,11 +167,11 @@ def test_summary_keeps_an_overflowing_mgr_as_log10_and_stays_strict_json():
     C = 3
     logp = np.full((4, 2, C), -1e-300)
     logp[..., 0] = -5000.0                      # truth probability e^-5000: MGR overflows float64
-    s = E.summarize({"model_based": logp}, 0)["model_based"]
+    s = E.summarize({"model_based": logp}, 0, PARAMS)["model_based"]
     assert s["mgr95_final"] is None
     assert s["log10_mgr95_final"] == pytest.approx(5000 / np.log(10), rel=1e-12)
     json.dumps(s, allow_nan=False)              # no Infinity/NaN tokens in summary.json
-    ok = E.summarize({"model_based": logp}, 1)["model_based"]   # truth among the likely ones
+    ok = E.summarize({"model_based": logp}, 1, PARAMS)["model_based"]   # truth among the likely ones
     assert ok["mgr95_final"] == pytest.approx(1.0) and ok["log10_mgr95_final"] == pytest.approx(0.0)
 
 

@@ -1,26 +1,31 @@
-"""Calibration metrics (NLL, Brier, confident errors, top-label ECE) on hand-computed cases."""
+"""Calibration metrics on hand-computed cases: NLL, MSDE (the Brier score / C) and confident errors
+from the one metric spec, top-label ECE from the binning module."""
 import math
 
 import numpy as np
 import pytest
 
 from pipeline.evaluation.metrics import calibration as K
+from pipeline.evaluation.metrics import spec as M
 
 
-def test_nll_brier_confident_error_hand_values():
+def test_nll_msde_confident_error_hand_values():
     p = np.array([[0.7, 0.2, 0.1], [0.1, 0.3, 0.6], [0.995, 0.004, 0.001]])
     lp = np.log(p)
     t = np.array([0, 1, 1])
-    assert np.allclose(K.nll(lp, t), [-math.log(0.7), -math.log(0.3), -math.log(0.004)])
-    assert np.allclose(K.brier(lp, t), [0.3**2 + 0.04 + 0.01, 0.01 + 0.49 + 0.36, 0.995**2 + 0.996**2 + 1e-6])
-    assert K.confident_error(lp, t, 0.99).tolist() == [False, False, True]
-    assert K.confident_error(lp, np.array([0, 1, 0]), 0.99).tolist() == [False, False, False]
+    assert np.allclose(M.nll(lp, t, is_log=True), [-math.log(0.7), -math.log(0.3), -math.log(0.004)])
+    brier = [0.3**2 + 0.04 + 0.01, 0.01 + 0.49 + 0.36, 0.995**2 + 0.996**2 + 1e-6]   # Σ_c (P(c) - 1[c = t])²
+    assert np.allclose(3 * M.msde(lp, t, is_log=True), brier)                          # MSDE = Brier / C
+    conf, ok = K.top_label(lp, t)
+    assert M.confident_mask(conf, ok, 0.99).tolist() == [False, False, True]
+    assert M.confident_errors(lp, t, 0.99).tolist() == [False, False, True]
+    assert M.confident_mask(conf, ok, 0.999).tolist() == [False, False, False]
 
 
 def test_nll_from_log_posteriors_stays_finite_where_probabilities_underflow():
     lp = np.array([0.0, -7000.0])  # P(truth) = e^-7000: 0.0 as a float64 probability
-    assert K.nll(lp, 1) == pytest.approx(7000.0)
-    assert np.isfinite(K.nll(lp, 1))
+    assert M.nll(lp, 1, is_log=True) == pytest.approx(7000.0)
+    assert np.isfinite(M.nll(lp, 1, is_log=True))
 
 
 def test_ece_hand_value_and_bins():
@@ -66,11 +71,13 @@ def test_ece_from_sums_of_parts_is_the_ece_of_the_union():
     assert len(rel["share"]) == 16 and sum(s for s in rel["share"] if s) == pytest.approx(1.0)
 
 
-def test_cell_calibration_final_and_overall():
+def test_cell_calibration_metrics_final_and_overall_at_the_given_threshold():
     lp = np.log(np.array([[[0.5, 0.5], [0.995, 0.005]]]))   # R=1, K=2, C=2, truth 1
-    out = K.cell_calibration(lp, 1, 0.99)
+    out = M.posterior_metrics(lp, 1, params=M.Params(0.99, 15), is_log=True)
     assert out["nll_final"] == pytest.approx(-math.log(0.005))
     assert out["nll_overall"] == pytest.approx((-math.log(0.5) - math.log(0.005)) / 2)
     assert out["confident_error_final"] == 1.0 and out["confident_error_overall"] == 0.5
+    # a threshold above the top confidence: no confident error (the threshold is a parameter, not 0.99)
+    assert M.posterior_metrics(lp, 1, params=M.Params(0.999, 15), is_log=True)["confident_error_final"] == 0.0
     with pytest.raises(ValueError, match="threshold"):
-        K.confident_error(lp, 1, 0.3)
+        M.Params(1.5, 15)

@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 
 from pipeline.evaluation.metrics import spec as M
+from tests.support.params import PARAMS
 
 
 def test_single_posterior_by_hand():
@@ -35,7 +36,7 @@ def test_every_metric_of_a_small_track():
     # 2 realizations x 3 steps x 2 classes; truth = class 0.
     post = np.array([[[0.4, 0.6], [0.7, 0.3], [0.9, 0.1]],
                      [[0.8, 0.2], [0.45, 0.55], [0.3, 0.7]]])
-    m = M.posterior_metrics(post, 0)
+    m = M.posterior_metrics(post, 0, params=PARAMS)
     assert list(m) == list(M.METRICS)
     assert m["correct_final"] == pytest.approx(0.5) and m["correct_overall"] == pytest.approx(3 / 6)
     assert m["prob_truth_final"] == pytest.approx(0.6)
@@ -45,21 +46,21 @@ def test_every_metric_of_a_small_track():
     every = np.log10(post.max(-1) / post[..., 0]).ravel()
     assert m["log10_mgr95_overall"] == pytest.approx(np.percentile(every, 95))
     # Log posteriors and probabilities agree, and so does the long-table route.
-    lm = M.posterior_metrics(np.log(post), 0, is_log=True)
+    lm = M.posterior_metrics(np.log(post), 0, params=PARAMS, is_log=True)
     assert lm == pytest.approx(m)
     sv = M.step_values(post, 0)
     rows = pd.DataFrame({"realization": np.repeat([0, 1], 3), "step": np.tile([0, 1, 2], 2),
                          **{k: v.ravel() for k, v in sv.items()}}).sample(frac=1.0, random_state=0)
-    assert M.scalars(M.matrices(rows)) == pytest.approx(m)
+    assert M.scalars(M.matrices(rows), params=PARAMS) == pytest.approx(m)
 
 
 def test_compute_vectorizes_over_leading_axes():
     rng = np.random.default_rng(0)
     post = rng.dirichlet(np.ones(3), size=(4, 5, 6))            # 4 groups x R=5 x K=6
     sv = M.step_values(post, 1)
-    batch = M.compute(sv)
+    batch = M.compute(sv, params=PARAMS)
     for g in range(4):
-        one = M.posterior_metrics(post[g], 1)
+        one = M.posterior_metrics(post[g], 1, params=PARAMS)
         assert {k: float(v[g]) for k, v in batch.items()} == pytest.approx(one)
 
 
@@ -87,13 +88,13 @@ def test_adding_a_metric_is_one_entry(monkeypatch):
     extra = dataclasses.replace(M.METRICS["prob_truth_final"], label="P(truth), all steps", steps="all")
     monkeypatch.setitem(M.METRICS, "prob_truth_overall", extra)
     post = np.array([[[0.4, 0.6], [0.7, 0.3]]])
-    assert M.posterior_metrics(post, 0)["prob_truth_overall"] == pytest.approx(0.55)
+    assert M.posterior_metrics(post, 0, params=PARAMS)["prob_truth_overall"] == pytest.approx(0.55)
     # A metric of two per-step columns: the share of steps that are wrong with P(truth) < 0.5.
     two = M.Metric("wrong and unsure", "wrong, unsure", False, ("correct", "p_truth"), "all",
-                   lambda ok, p: ((ok == 0) & (p < 0.5)).mean(axis=-1), best=0.0, worst=1.0)
+                   lambda ok, p, params: ((ok == 0) & (p < 0.5)).mean(axis=-1), best=0.0, worst=1.0)
     monkeypatch.setitem(M.METRICS, "wrong_unsure", two)
-    assert M.posterior_metrics(post, 0)["wrong_unsure"] == pytest.approx(0.5)
-    batch = M.compute(M.step_values(np.stack([post, post[..., ::-1]]), 0), ["wrong_unsure"])
+    assert M.posterior_metrics(post, 0, params=PARAMS)["wrong_unsure"] == pytest.approx(0.5)
+    batch = M.compute(M.step_values(np.stack([post, post[..., ::-1]]), 0), ["wrong_unsure"], params=PARAMS)
     np.testing.assert_allclose(batch["wrong_unsure"], [0.5, 0.5])
 
 

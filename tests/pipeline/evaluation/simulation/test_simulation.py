@@ -16,6 +16,7 @@ from pipeline.evaluation.simulation import claims as CL
 from pipeline.evaluation.simulation import scenarios as S
 from pipeline.infra.config import ConfigError, SimulateConfig
 from pipeline.method.gp import GPClassModels
+from tests.support.params import PARAMS
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
 
@@ -215,7 +216,7 @@ def test_scenarios_are_deterministic_and_posteriors_are_distributions():
         cols = S.result_columns(r1)
         assert len(cols["step"]) == 3 * sim.realizations * sim.track_steps
         np.testing.assert_allclose(cols["p_truth"], cols["posterior"][:, sim.truth_class - 1])
-        tab = S.summarize(pd.DataFrame({k: v for k, v in cols.items() if k != "posterior"}))
+        tab = S.summarize(pd.DataFrame({k: v for k, v in cols.items() if k != "posterior"}), PARAMS)
         assert set(tab["method"]) == set(S.METHODS) and (tab["mgr95_overall"] >= tab["mgr75_overall"]).all()
 
 

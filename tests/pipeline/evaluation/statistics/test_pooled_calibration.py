@@ -5,7 +5,12 @@ import numpy as np
 import pytest
 
 from pipeline.evaluation.metrics import calibration as K
-from pipeline.evaluation.statistics.pooled_calibration import pooled_ece, track_sums
+from pipeline.evaluation.statistics.pooled_calibration import (
+    hierarchy_of,
+    pooled_ece,
+    track_sums,
+)
+from tests.support.params import PARAMS
 
 
 def _population(rng, n_targets=4, tracks=(2, 3, 2, 4), R=5, Kn=3, C=3):
@@ -26,9 +31,9 @@ def _population(rng, n_targets=4, tracks=(2, 3, 2, 4), R=5, Kn=3, C=3):
 def test_equal_sizes_reduce_to_the_plain_ece_and_weights_follow_the_population():
     rng = np.random.default_rng(0)
     cells, results = _population(rng, tracks=(2, 2, 2, 2))
-    sums = track_sums(cells, results, "default")
+    sums = track_sums(cells, results, "default", PARAMS.ece_bins)
     assert all(np.allclose(v[:, 0].sum(axis=-1), 1.0) for v in sums.values())   # each track weighs 1
-    out = pooled_ece(sums, ["a", "b"], [("a", "b")], 300, 0)
+    out = pooled_ece(hierarchy_of(sums, 300, 0), sums, ["a", "b"], [("a", "b")])
     conf, ok = [], []
     for c, r in zip(cells, results):
         for lp in r["posts"].values():
@@ -47,9 +52,9 @@ def test_equal_sizes_reduce_to_the_plain_ece_and_weights_follow_the_population()
 def test_a_target_with_more_tracks_does_not_weigh_more():
     rng = np.random.default_rng(1)
     cells, results = _population(rng, tracks=(1, 1, 1, 6))
-    sums = track_sums(cells, results, "default")
+    sums = track_sums(cells, results, "default", PARAMS.ece_bins)
     # duplicate target t3's tracks: its weight stays 1/4, so the pooled ECE is unchanged
     extra = {(m, t, j + 10): v for (m, t, j), v in sums.items() if t == "t3"}
-    a = pooled_ece(sums, ["a"], [], 100, 0)["pooled"]["a"]["ece_final"]["value"]
-    b = pooled_ece({**sums, **extra}, ["a"], [], 100, 0)["pooled"]["a"]["ece_final"]["value"]
+    a = pooled_ece(hierarchy_of(sums, 100, 0), sums, ["a"], [])["pooled"]["a"]["ece_final"]["value"]
+    b = pooled_ece(hierarchy_of({**sums, **extra}, 100, 0), {**sums, **extra}, ["a"], [])["pooled"]["a"]["ece_final"]["value"]
     assert a == pytest.approx(b)

@@ -1,0 +1,265 @@
+"""The statistics engine: every pooled value, paired difference, interval and verdict record.
+
+The population (evaluate), its settings and ablations, the seed pooling (study) and the compare
+page call ``block``; the single-track tables call ``over_realizations``. All of them resample
+with ``resampler.draws`` (one hierarchy: seeds -> targets -> tracks), take the percentile
+interval with its infinity rule, pool targets as the metric spec says (``spec.pool_of``: the
+mean, or the median over targets for unbounded metrics) and label with ``records.outcome``, so
+the number shown, its CI and its verdict are one statistic wherever they appear.
+
+Units: a cell is one (target, track, setting); a track's value is the mean over its settings of
+the cell values, a target's the mean over its tracks, a seed's the ``pool`` over its targets, the
+pooled value the mean over seeds (one seed: that seed's).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from pipeline.evaluation.metrics import spec as M
+from pipeline.evaluation.metrics.labels import comparison_key
+from pipeline.evaluation.statistics import records as REC
+from pipeline.evaluation.statistics.resampler import Resampler, draws, interval
+
+KEYS = ["target", "track", "setting"]
+
+
+class Hierarchy:
+    """The units of one population: per seed, its sorted targets and each target's sorted tracks,
+    and the shared draws over them."""
+
+    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed):
+        self.seeds = list(frames)
+        self.units = []  # per seed: [(target, [tracks])]
+        for s in self.seeds:
+            f = frames[s]
+            self.units.append([(str(t), sorted(int(x) for x in g["track"].unique()))
+                               for t, g in f.groupby("target", sort=True)])
+        self.n_boot, self.seed = int(n_boot), seed
+        self.rs = draws([[len(tr) for _, tr in u] for u in self.units], n_boot, seed)
+        self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
+                      for u in self.units]
+
+    @property
+    def targets(self) -> list[str]:
+        return [t for t, _ in self.units[0]]
+
+    def n(self) -> dict[str, int]:
+        out = {"targets": sum(len(u) for u in self.units), "tracks": sum(len(tr) for u in self.units for _, tr in u)}
+        if len(self.seeds) > 1:
+            out["seeds"] = len(self.seeds)
+        return out
+
+    def over(self) -> list[str]:
+        return (["seeds"] if len(self.seeds) > 1 else []) + ["targets", "tracks"]
+
+    def pad(self, tvs: Sequence[pd.DataFrame], column: str) -> np.ndarray:
+        """(S, T, W) track values of ``column`` from each seed's track frame (target, track, ...)."""
+        out = np.zeros(self.rs.shape)
+        for s, tv in enumerate(tvs):
+            idx = self.index[s]
+            for t, tr, v in zip(tv["target"].astype(str), tv["track"].astype(int), tv[column].to_numpy(float)):
+                ti, j = idx[(t, tr)]
+                out[s, ti, j] = v
+        return out
+
+    def per_target(self, ti: int) -> Resampler:
+        return draws([[len(self.units[0][ti][1])]], self.n_boot, [*np.atleast_1d(self.seed), 1, ti])
+
+    def without(self, ti: int) -> tuple[Resampler, np.ndarray]:
+        keep = np.array([k for k in range(len(self.units[0])) if k != ti])
+        sizes = [len(self.units[0][k][1]) for k in keep]
+        return draws([sizes], self.n_boot, [*np.atleast_1d(self.seed), 2, ti]), keep
+
+
+def track_values(cells: pd.DataFrame, metrics: Sequence[str]) -> pd.DataFrame:
+    """Cell rows -> one row per (method, target, track): the mean over the track's settings."""
+    return cells.groupby(["method", "target", "track"], sort=True)[list(metrics)].mean().reset_index()
+
+
+def paired_cells(cells: pd.DataFrame, a: str, b: str, metrics: Sequence[str]) -> pd.DataFrame:
+    """``a - b`` on the same cells (method "diff")."""
+    x = cells[cells["method"] == a].set_index(KEYS).sort_index()
+    y = cells[cells["method"] == b].set_index(KEYS).sort_index()
+    if not x.index.equals(y.index):
+        raise ValueError(f"paired differences: {a} and {b} were not run on the same cells")
+    d = (x[list(metrics)] - y[list(metrics)]).reset_index()
+    d["method"] = "diff"
+    return d
+
+
+def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str) -> tuple[int, int]:
+    """(cells where both methods sit at the metric's best value, cells where both sit at its worst)."""
+    x = diff_src[diff_src["method"] == a].set_index(KEYS)[metric]
+    y = diff_src[diff_src["method"] == b].set_index(KEYS)[metric].reindex(x.index)
+    m = M.METRICS[metric]
+    at = (lambda v: ((np.abs(x - v) < 1e-12) & (np.abs(y - v) < 1e-12)).sum())
+    return (int(at(m.best)) if m.best is not None else 0), (int(at(m.worst)) if m.worst is not None else 0)
+
+
+def leave_one_out(h: Hierarchy, fn, higher: bool) -> dict:
+    """Leave each target out in turn (each subset with its own shared draws): ``fn(resampler,
+    kept target indices)`` gives the estimate. The range of its values and the targets whose
+    removal alone changes the outcome of the whole population."""
+    names = h.targets
+    if len(names) < 3:
+        return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "loto_flip_outcomes": {}}
+    full = REC.outcome(*_ends(fn(h.rs, np.arange(len(names)))), higher)
+    vals, flips, to = [], [], {}
+    for ti, name in enumerate(names):
+        est = fn(*h.without(ti))
+        vals.append(est["value"])
+        res = REC.outcome(*_ends(est), higher)
+        if res != full:
+            flips.append(name)
+            to[name] = res
+    v = np.asarray(vals, float)
+    v = v[np.isfinite(v)]
+    return {"loto_min": float(v.min()) if len(v) else float("nan"), "loto_max": float(v.max()) if len(v) else float("nan"),
+            "loto_flips": flips, "loto_flip_outcomes": to}
+
+
+def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
+    return leave_one_out(h, lambda rs, keep: rs.estimate(values[:, keep][:, :, : rs.shape[2]], pool), higher)
+
+
+def _ends(est: Mapping[str, float]) -> tuple[float, float]:
+    return est["ci_low"], est["ci_high"]
+
+
+def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,
+          n_boot: int, seed, *, primary: Sequence[str] = (), per_target: bool = True, loto: bool = True,
+          ece: Mapping | None = None) -> dict:
+    """{"pooled", "per_target", "paired", "paired_per_target", "records"} (+ "reliability" with
+    ``ece``) of cell frames per seed (one seed: an evaluate run). ``ece``: {"sums": track bin sums
+    (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric."""
+    h = Hierarchy(frames, n_boot, seed)
+    metrics = [k for k in metrics if all(k in f for f in frames.values())]
+    tvs = {m: [track_values(f[f["method"] == m], metrics) for f in frames.values()] for m in methods}
+    n, over = h.n(), h.over()
+    n_cells = int(sum(len(f[f["method"] == methods[0]]) for f in frames.values())) if methods else 0
+    out: dict = {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "records": []}
+    single = len(h.seeds) == 1
+    for m in methods:
+        for k in metrics:
+            v = h.pad(tvs[m], k)
+            out["pooled"].setdefault(m, {})[k] = {**h.rs.estimate(v, M.pool_of(k)), "pooling": M.pool_of(k),
+                                                  "over": over, "n": n}
+            if per_target and single:
+                for ti, t in enumerate(h.targets):
+                    out["per_target"].setdefault(t, {}).setdefault(m, {})[k] = h.per_target(ti).estimate(
+                        v[:, ti: ti + 1], "mean")
+    for a, b in comparisons:
+        if a not in methods or b not in methods:
+            continue
+        key = comparison_key(a, b)
+        dfs = [paired_cells(f, a, b, metrics) for f in frames.values()]
+        dtv = [track_values(d, metrics) for d in dfs]
+        for k in metrics:
+            higher = M.higher_is_better(k)
+            v = h.pad(dtv, k)
+            pool = M.pool_of(k)
+            d = np.concatenate([x[k].to_numpy(float) for x in dfs])
+            wins, losses = (d > 0, d < 0) if higher else (d < 0, d > 0)
+            est = {**h.rs.estimate(v, pool), "wins": float(wins.mean()), "losses": float(losses.mean()),
+                   "n_cells": len(d), "unit": "cells", "better": "higher" if higher else "lower",
+                   "pooling": pool, "over": over, "n": n}
+            out["paired"].setdefault(key, {})[k] = est
+            extra = {}
+            if per_target and single:
+                for ti, t in enumerate(h.targets):
+                    out["paired_per_target"].setdefault(key, {}).setdefault(t, {})[k] = h.per_target(ti).estimate(
+                        v[:, ti: ti + 1], "mean")
+            if loto and single:
+                extra = _loto(h, v, pool, higher)
+                est.update(extra)
+            top, bottom = (saturation(next(iter(frames.values())), a, b, k) if single and k in M.METRICS else (0, 0))
+            out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=over,
+                                             n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
+                                             losses=est["losses"], unit="cells", ceiling_cells=top,
+                                             floor_cells=bottom, **{x: extra[x] for x in ("loto_min", "loto_max",
+                                                                                           "loto_flips") if x in extra}))
+    if ece is not None and single:
+        from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
+
+        e = pooled_ece(h, ece["sums"], methods, comparisons, per_target=per_target, loto=loto)
+        for m, per in e["pooled"].items():
+            for k, est in per.items():
+                out["pooled"].setdefault(m, {})[k] = {**est, "pooling": M.pool_of(k), "over": over, "n": n}
+        for t, per in e["per_target"].items():
+            for m, vals in per.items():
+                out["per_target"].setdefault(t, {}).setdefault(m, {}).update(vals)
+        for key, per in e["paired"].items():
+            for k, est in per.items():
+                est.update({"pooling": M.pool_of(k), "over": over, "n": n})
+                out["paired"].setdefault(key, {})[k] = est
+                out["records"].append(REC.record(key, k, est, pooling=M.pool_of(k), better="lower", over=over,
+                                                 n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
+                                                 losses=est["losses"], unit="targets",
+                                                 **{x: est[x] for x in ("loto_min", "loto_max", "loto_flips")
+                                                    if x in est}))
+        for key, per in e["paired_per_target"].items():
+            for t, vals in per.items():
+                out["paired_per_target"].setdefault(key, {}).setdefault(t, {}).update(vals)
+        out["reliability"] = e["reliability"]
+    order = {k: i for i, k in enumerate(list(metrics) + list(M.POOLED_METRICS))}
+    comps = [comparison_key(a, b) for a, b in comparisons]
+    out["records"].sort(key=lambda r: (comps.index(r["comparison"]), order.get(r["metric"], len(order))))
+    return out
+
+
+def population_block(cells: pd.DataFrame, methods: Sequence[str], metrics: Sequence[str], comparisons,
+                     n_boot: int, seed, **kw) -> dict:
+    """``block`` of one run's cells (one seed)."""
+    return block({"run": cells}, methods, metrics, comparisons, n_boot, seed, **kw)
+
+
+def summary_cells(cells: Sequence[Mapping], methods: Sequence[str] | None = None) -> pd.DataFrame:
+    """``summary.json``'s ``population.cells`` (one entry per (target, track, setting) with every
+    method's cell metrics) as the long cell frame ``block`` takes."""
+    rows = []
+    for c in cells:
+        for m, vals in (c.get("values") or {}).items():
+            if methods is None or m in methods:
+                rows.append({"target": str(c["target"]), "track": int(c["track"]), "setting": str(c["setting"]),
+                             "method": m, **{k: (np.nan if v is None else float(v)) for k, v in vals.items()}})
+    return pd.DataFrame(rows)
+
+
+def seed_block(cells_by_seed: Mapping[str, Sequence[Mapping]], methods: Sequence[str], metrics: Sequence[str],
+               comparisons, n_boot: int, seed=0, primary: Sequence[str] = ()) -> dict:
+    """``block`` over several seeds' ``population.cells`` (seeds -> targets -> tracks)."""
+    frames = {str(s): summary_cells(c, methods) for s, c in sorted(cells_by_seed.items())}
+    out = block(frames, methods, metrics, comparisons, n_boot, seed, primary=primary, per_target=False, loto=False)
+    out["seeds"] = list(frames)
+    return out
+
+
+def over_realizations(mats: Mapping[str, np.ndarray], params: M.Params, n_boot: int, seed=0) -> dict[str, dict]:
+    """Each metric of one (R, K) set of per-step values (``spec.matrices``) with its interval over
+    realizations (the single-track tables: only the localization noise varies), from the shared
+    resampler with realizations as its one level."""
+    R = next(iter(mats.values())).shape[0]
+    point = M.compute(mats, params=params)
+    rs = draws([[R]], n_boot, seed)
+    counts = rs.counts[:, 0, 0, :R].astype(np.int64)                                 # (B, R), rows sum to R
+    idx = np.repeat(np.tile(np.arange(R), rs.n_boot), counts.ravel()).reshape(rs.n_boot, R)
+    boot = M.compute({k: v[idx] for k, v in mats.items()}, params=params)
+    out = {}
+    for k, v in point.items():
+        if R < 2:
+            out[k] = {"value": float(v), "ci_low": float("nan"), "ci_high": float("nan")}
+            continue
+        lo, hi = (float(x) for x in interval(boot[k]))
+        out[k] = {"value": float(v), "ci_low": min(lo, float(v)), "ci_high": max(hi, float(v))}
+    return out
+
+
+def over_members(values: np.ndarray, n_boot: int, seed) -> dict[str, float]:
+    """The mean of one group's values with its interval over them (one level)."""
+    v = np.asarray(values, float)
+    if len(v) == 0:
+        return {"value": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
+    return draws([[len(v)]], n_boot, seed).estimate(v[None, None, :], "mean")

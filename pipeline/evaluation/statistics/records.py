@@ -1,0 +1,69 @@
+"""Verdict records: one structured record per (comparison, metric), and the one outcome rule.
+
+A record is data, never prose: ``reports.shared.records`` renders the sentences. Fields
+(docs/design.md, "Statistics"):
+
+- ``comparison`` ("method-baseline"), ``method``, ``baseline``, ``metric``;
+- ``pooling``: how targets pool the metric (``spec.pool_of``: "mean", "median", "pooled
+  posteriors"); ``value`` is that statistic of the paired differences, ``lo``/``hi`` its 95 %
+  percentile interval (+-inf: unbounded on that side, written as null; NaN: no interval);
+- ``over``: the levels the interval resamples (["targets", "tracks"]; a study adds "seeds");
+  ``n``: the units of each level ({"targets": 6, "tracks": 48, "cells": 192, ...});
+- ``better``: "higher" | "lower"; ``outcome``: ``outcome(lo, hi, better)``; ``primary``: the
+  metric is one of ``evaluate.primary_metrics`` (the rest are exploratory);
+- optional: ``wins``/``losses`` (shares of ``unit``: cells or targets), the leave-one-target-out
+  range ``loto_min``/``loto_max`` and ``loto_flips``, ``ceiling_cells``/``floor_cells``.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+OUTCOMES = ("better", "worse", "not distinguishable")
+
+
+def _f(x: Any, missing: float) -> float:
+    """A record end as a float: None (JSON's infinity) is the unbounded side ``missing``."""
+    if x is None:
+        return missing
+    return float(x)
+
+
+def outcome(lo: float | None, hi: float | None, higher_is_better: bool) -> str:
+    """The one outcome rule: "better" when the 95 % interval of method - baseline lies wholly on
+    the good side of 0, "worse" on the bad side, else (or without an interval) "not distinguishable".
+    ``lo`` None is -inf, ``hi`` None is +inf (an unbounded end)."""
+    a, b = _f(lo, -math.inf), _f(hi, math.inf)
+    if math.isnan(a) or math.isnan(b) or (math.isinf(a) and math.isinf(b)):
+        return "not distinguishable"
+    if a > 0:
+        return "better" if higher_is_better else "worse"
+    if b < 0:
+        return "worse" if higher_is_better else "better"
+    return "not distinguishable"
+
+
+def record(comparison: str, metric: str, est: Mapping[str, float], *, pooling: str, better: str,
+           over: list[str], n: Mapping[str, int], primary: bool, **extra: Any) -> dict:
+    """One record from an estimate {"value", "ci_low", "ci_high"} of method - baseline."""
+    method, baseline = comparison.split("-", 1)
+    lo, hi = float(est["ci_low"]), float(est["ci_high"])
+    return {"comparison": comparison, "method": method, "baseline": baseline, "metric": metric,
+            "pooling": pooling, "value": float(est["value"]), "lo": lo, "hi": hi,
+            "unbounded": bool(math.isinf(lo) or math.isinf(hi)), "over": list(over),
+            "n": {k: int(v) for k, v in n.items()}, "better": better,
+            "outcome": outcome(lo, hi, better == "higher"), "primary": bool(primary), **extra}
+
+
+def consistent(rec: Mapping[str, Any]) -> bool:
+    """The record's label agrees with its interval (the outcome rule) and its value lies in it."""
+    if rec.get("outcome") not in OUTCOMES or rec.get("better") not in ("higher", "lower"):
+        return False
+    if rec["outcome"] != outcome(rec.get("lo"), rec.get("hi"), rec["better"] == "higher"):
+        return False
+    v, lo, hi = rec.get("value"), rec.get("lo"), rec.get("hi")
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return True
+    a, b = _f(lo, -math.inf), _f(hi, math.inf)
+    return math.isnan(a) or math.isnan(b) or a <= float(v) <= b

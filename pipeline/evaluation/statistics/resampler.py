@@ -1,0 +1,183 @@
+"""The one hierarchical resampler, the one interval rule and the one infinity rule.
+
+Levels: seeds (classifier training runs) -> targets -> tracks, as the data has them: one seed
+is a population of one evaluate run, one target is a per-target CI over its tracks, one
+(realization) group is the single-track CI over realizations. A draw picks the seeds with
+replacement, then for every drawn seed slot its targets with replacement, then for every drawn
+target slot its tracks with replacement (a unit drawn twice gets two independent inner draws).
+
+Draws are made once per (structure, n_boot, seed) and cached (``draws``): every metric, method
+and paired difference of one population reads the same draws, so a paired difference is the
+difference of the two methods' resampled statistics when that statistic is linear, and two
+metrics that are the same quantity up to a positive factor get the same interval up to that
+factor (common random numbers).
+
+Interval: the percentile interval (2.5th and 97.5th percentiles of the draws' statistic, linear
+interpolation), clamped to contain the point value (percentiles of identical values can miss it
+in the last bit).
+
+Infinity: +inf and -inf are values like any other (a mean with +inf is +inf; a median may stay
+finite). A percentile that interpolates toward an infinite draw is that infinity, so an interval
+end can be +-inf: the interval is unbounded on that side (JSON writes it as null; the records
+say so). A draw whose statistic is undefined (NaN, e.g. inf - inf) makes the interval undefined:
+no CI, and the outcome is "not distinguishable".
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from functools import lru_cache
+
+import numpy as np
+
+LEVEL = 0.95
+_BIG = np.finfo(float).max / 4   # +-inf's stand-in: finite, so numpy interpolates instead of NaN
+_INF_ABOVE = 1e300
+
+
+def interval(draws: np.ndarray, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+    """The percentile interval of ``draws`` along ``axis``, infinities kept (module docstring)."""
+    d = np.asarray(draws, float)
+    q = [50 * (1 - LEVEL), 50 * (1 + LEVEL)]
+    bad = np.isnan(d).any(axis=axis)
+    out = np.percentile(np.clip(np.nan_to_num(d, nan=0.0, posinf=_BIG, neginf=-_BIG), -_BIG, _BIG), q, axis=axis)
+    out = np.where(out > _INF_ABOVE, np.inf, np.where(out < -_INF_ABOVE, -np.inf, out))
+    return np.where(bad, np.nan, out[0]), np.where(bad, np.nan, out[1])
+
+
+def estimate(value: float, draws: np.ndarray | None) -> dict[str, float]:
+    """{"value", "ci_low", "ci_high"}: the point value and the percentile interval of its draws
+    (None or fewer than two resampled units: no interval)."""
+    v = float(value)
+    if draws is None:
+        return {"value": v, "ci_low": math.nan, "ci_high": math.nan}
+    lo, hi = (float(x) for x in interval(draws))
+    if not math.isnan(v) and not math.isnan(lo):
+        lo, hi = min(lo, v), max(hi, v)
+    return {"value": v, "ci_low": lo, "ci_high": hi}
+
+
+def _stat(x: np.ndarray, valid: np.ndarray, pool: str) -> np.ndarray:
+    """``pool`` ("mean" | "median") over the last axis of the entries where ``valid``; a NaN
+    among the valid entries makes the result NaN."""
+    if pool not in ("mean", "median"):
+        raise ValueError(f"unknown pooling {pool!r} (mean | median)")
+    real_nan = (np.isnan(x) & valid).any(axis=-1)
+    with np.errstate(invalid="ignore"):
+        if pool == "mean":
+            out = np.where(valid, x, 0.0).sum(axis=-1) / valid.sum(axis=-1)
+        else:
+            import warnings
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                out = np.nanmedian(np.where(valid, x, np.nan), axis=-1)
+    return np.where(real_nan, np.nan, out)
+
+
+class Resampler:
+    """Draws of the seeds -> targets -> tracks bootstrap over ``structure``: for each seed, the
+    track count of each of its targets (every count >= 1).
+
+    ``ps`` (B, S): the seed of each seed slot; ``pt`` (B, S, T): the target (within that seed)
+    of each target slot, ``valid`` where the slot exists (the drawn seed has that many targets);
+    ``counts`` (B, S, T, W): how often each track of the slot's target was drawn.
+    """
+
+    def __init__(self, structure: Sequence[Sequence[int]], n_boot: int, seed):
+        self.n_targets = np.array([len(s) for s in structure], dtype=np.int64)
+        if len(self.n_targets) == 0 or np.any(self.n_targets < 1):
+            raise ValueError(f"Resampler: every seed needs a target, structure {structure!r}")
+        S, T = len(self.n_targets), int(self.n_targets.max())
+        self.n_tracks = np.zeros((S, T), dtype=np.int64)
+        for s, sizes in enumerate(structure):
+            self.n_tracks[s, : len(sizes)] = sizes
+        if any(int(n) < 1 for sizes in structure for n in sizes):
+            raise ValueError(f"Resampler: every target needs a track, structure {structure!r}")
+        W, B = int(self.n_tracks.max()), int(n_boot)
+        self.shape, self.n_boot = (S, T, W), B
+        rng = np.random.default_rng(seed)
+        self.ps = rng.integers(0, S, size=(B, S)) if S > 1 else np.zeros((B, 1), dtype=np.int64)
+        nts = self.n_targets[self.ps]                                            # (B, S)
+        self.valid = np.arange(T)[None, None, :] < nts[..., None]                # (B, S, T)
+        self.pt = np.where(self.valid, (rng.random((B, S, T)) * nts[..., None]).astype(np.int64), 0)
+        n = np.where(self.valid, self.n_tracks[self.ps[..., None], self.pt], 0)  # (B, S, T)
+        members = (rng.random((B, S, T, W)) * n[..., None]).astype(np.int64)
+        used = np.arange(W)[None, None, None, :] < n[..., None]
+        slot = np.arange(B * S * T).reshape(B, S, T, 1) * W
+        self.counts = np.bincount((slot + members)[used], minlength=B * S * T * W).reshape(B, S, T, W).astype(float)
+        self.n = n
+
+    def leaves_valid(self) -> np.ndarray:
+        """(S, T, W): which padded (seed, target, track) entries hold data."""
+        _, T, W = self.shape
+        tv = np.arange(T)[None, :] < self.n_targets[:, None]
+        return tv[..., None] & (np.arange(W)[None, None, :] < self.n_tracks[..., None])
+
+    def point(self, values: np.ndarray, pool: str) -> float:
+        """The statistic on the data itself: per seed, ``pool`` over its targets of the target
+        means (mean over tracks); the mean over seeds. ``values`` (S, T, >= W), padded."""
+        v = np.asarray(values, float)[..., : self.shape[2]]
+        lv = self.leaves_valid()
+        with np.errstate(invalid="ignore"):
+            tm = np.where(lv, v, 0.0).sum(axis=-1) / np.maximum(self.n_tracks, 1)
+        tm = np.where((np.isnan(v) & lv).any(axis=-1), np.nan, tm)
+        return float(np.mean(_stat(tm, lv.any(axis=-1), pool)))
+
+    def slot_means(self, values: np.ndarray) -> np.ndarray:
+        """(B, S, T): each target slot's mean of its resampled tracks (NaN where no slot)."""
+        v = np.asarray(values, float)[..., : self.shape[2]][self.ps[..., None], self.pt]   # (B, S, T, W)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = np.where(self.counts > 0, self.counts * v, 0.0).sum(axis=-1) / self.n
+        return np.where(self.valid, s, np.nan)
+
+    def draws(self, values: np.ndarray, pool: str) -> np.ndarray:
+        """(B,): the statistic of ``point`` in every draw."""
+        return _stat(self.slot_means(values), self.valid, pool).mean(axis=-1)
+
+    def estimate(self, values: np.ndarray, pool: str) -> dict[str, float]:
+        """``point`` with its interval; no interval when no level has two units to resample."""
+        spread = len(self.n_targets) > 1 or self.n_targets[0] > 1 or self.n_tracks[0, 0] > 1
+        return estimate(self.point(values, pool), self.draws(values, pool) if spread else None)
+
+    def leaf_weights(self) -> np.ndarray:
+        """(B, S, T, W): weight of every (seed, target, track) in each draw of the mean statistic
+        (each seed slot 1/S, each of its target slots an equal share, shared among the drawn
+        tracks); each draw's weights sum to 1. For statistics of weighted sums (the ECE)."""
+        B, S = self.ps.shape
+        S0, T, W = self.shape
+        nts = self.valid.sum(axis=-1)                                            # (B, S)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per = np.where(self.valid[..., None], self.counts / (self.n[..., None] * nts[..., None, None] * S), 0.0)
+        out = np.zeros((B, S0, T, W))
+        b = np.broadcast_to(np.arange(B)[:, None, None], self.pt.shape)
+        s = np.broadcast_to(self.ps[..., None], self.pt.shape)
+        np.add.at(out, (b, s, self.pt), per)
+        return out
+
+    def point_weights(self) -> np.ndarray:
+        """(S, T, W): the leaf weights of the data itself."""
+        lv = self.leaves_valid()
+        S = len(self.n_targets)
+        w = lv / (np.maximum(self.n_tracks, 1)[..., None] * self.n_targets[:, None, None] * S)
+        return np.where(lv, w, 0.0)
+
+
+@lru_cache(maxsize=256)
+def _cached(structure: tuple[tuple[int, ...], ...], n_boot: int, seed: tuple[int, ...]) -> Resampler:
+    return Resampler(structure, n_boot, list(seed))
+
+
+def draws(structure: Sequence[Sequence[int]], n_boot: int, seed) -> Resampler:
+    """The ``Resampler`` of ``structure``, made once per (structure, n_boot, seed) and shared."""
+    key = tuple(tuple(int(n) for n in s) for s in structure)
+    return _cached(key, int(n_boot), tuple(int(x) for x in np.atleast_1d(seed)))
+
+
+def wilson_interval(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson 95 % interval of a proportion k/n of independent draws (a held-out accuracy over the
+    images drawn; a share of simulated realizations): no hierarchy to resample."""
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return max(0.0, c - h), min(1.0, c + h)

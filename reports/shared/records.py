@@ -1,0 +1,91 @@
+"""The one renderer of verdict sentences: prose from the structured records of ``summary.json``
+(``pipeline.evaluation.statistics.records``), never stored as text. Every page that states a
+verdict (main report, calibration, ablations, study, compare) renders it here, so the label, the
+number and its interval in a sentence are the record's own."""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from pipeline.evaluation.metrics.labels import METHOD_SHORT
+from pipeline.evaluation.metrics.spec import metric_label
+from reports.shared.numbers import fmt
+
+PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguishable": "is not distinguishable from"}
+STATISTIC = {"mean": "mean over targets of the differences",
+             "median": "median over targets of the target differences",
+             "pooled posteriors": "difference of the pooled-posterior values"}
+
+
+def records_of(block: Mapping | None) -> list[dict]:
+    """A block's records (``records``; an older summary's ``verdict_table`` rows, renamed)."""
+    b = block or {}
+    if b.get("records"):
+        return list(b["records"])
+    return [{**r, "lo": r.get("ci_low"), "hi": r.get("ci_high")} for r in b.get("verdict_table") or []]
+
+
+def _end(x: Any, side: int) -> str:
+    if x is None:  # JSON's infinity: the interval is unbounded on that side
+        return ("+" if side > 0 else "−") + "∞"
+    return fmt(x, signed=True)
+
+
+def interval_text(rec: Mapping) -> str:
+    lo, hi = rec.get("lo"), rec.get("hi")
+    nan = lambda x: isinstance(x, float) and math.isnan(x)
+    if (lo is None and hi is None and not rec.get("unbounded")) or nan(lo) or nan(hi):
+        return "no CI"
+    return f"95 % CI [{_end(lo, -1)}, {_end(hi, +1)}]"
+
+
+def over_text(rec: Mapping) -> str:
+    n = rec.get("n") or {}
+    parts = [f"{n[k]} {k if n[k] != 1 else k[:-1]}" for k in ("seeds", "targets", "tracks") if k in n]
+    return " × ".join(parts) if parts else " and ".join(rec.get("over") or [])
+
+
+def sentence(rec: Mapping) -> str:
+    """One record as a sentence: outcome, statistic, value, interval, what it varies over, the
+    wins/losses and the caveats the record carries."""
+    a = METHOD_SHORT.get(rec["method"], rec["method"]) if "method" in rec else rec["comparison"].split("-", 1)[0]
+    b = METHOD_SHORT.get(rec.get("baseline"), rec.get("baseline")) if "baseline" in rec else \
+        rec["comparison"].split("-", 1)[1]
+    stat = STATISTIC.get(rec.get("pooling"), "difference")
+    text = (f"{a} {PHRASE[rec['outcome']]} {b} on {metric_label(rec['metric'])} ({stat} "
+            f"{fmt(rec.get('value'), signed=True)}, {interval_text(rec)}, over {over_text(rec)}")
+    lmin, lmax = rec.get("loto_min"), rec.get("loto_max")
+    if isinstance(lmin, (int, float)) and isinstance(lmax, (int, float)) and math.isfinite(lmin) and math.isfinite(lmax):
+        text += f"; leaving one target out: {fmt(lmin, signed=True)} to {fmt(lmax, signed=True)}"
+    unit = rec.get("unit") or "cells"
+    if rec.get("wins") is not None and rec.get("losses") is not None:
+        text += f"; better in {100 * rec['wins']:.0f} % of {unit}, worse in {100 * rec['losses']:.0f} %"
+    text += ")"
+    notes = []
+    flips = rec.get("loto_flips") or []
+    if flips:
+        more = f" (or another of {len(flips)})" if len(flips) > 3 else ""
+        notes.append(f"leaving out {' or '.join(flips[:3])}{more} alone changes the outcome")
+    if rec["outcome"] == "better" and (rec.get("losses") or 0) > (rec.get("wins") or 0):
+        notes.append(f"it loses more {unit} than it wins")
+    if rec["outcome"] == "worse" and (rec.get("wins") or 0) > (rec.get("losses") or 0):
+        notes.append(f"it wins more {unit} than it loses")
+    cells = (rec.get("n") or {}).get("cells")
+    if rec.get("ceiling_cells"):
+        notes.append(f"{rec['ceiling_cells']} of {cells} cells had both methods at the best possible value")
+    if rec.get("floor_cells"):
+        notes.append(f"{rec['floor_cells']} of {cells} at the worst")
+    if rec.get("primary") is False:
+        notes.append("exploratory metric")
+    return text + ("; " + "; ".join(notes) if notes else "") + "."
+
+
+def select(records: Iterable[Mapping], metrics: Sequence[str] | None = None, *, primary: bool | None = None) -> list:
+    """The records of ``metrics`` (in record order; None: all), only primary ones with ``primary``."""
+    out = [r for r in records if metrics is None or r.get("metric") in metrics]
+    return [r for r in out if primary is None or bool(r.get("primary")) == primary]
+
+
+def sentences(records: Iterable[Mapping], metrics: Sequence[str] | None = None) -> list[str]:
+    return [sentence(r) for r in select(records, metrics)]
