@@ -217,9 +217,10 @@ def run(ctx) -> str:
                 from pipeline.planning.evaluation import run_planning
 
                 t1 = time.perf_counter()
-                planning = run_planning(cfg, cells, tracks, avd, scores, moves, banks, executor,
-                                        ctx.out / out_name("evaluate", "planning"))
+                planning, plan_times = run_planning(cfg, cells, tracks, avd, scores, moves, banks, executor,
+                                                    ctx.out / out_name("evaluate", "planning"))
                 timings["planning"] = time.perf_counter() - t1
+                timings.update(plan_times)
         finally:
             executor.close()
         timings["population"] = time.perf_counter() - t0 - t_reduce - t_write - timings.get("planning", 0.0)

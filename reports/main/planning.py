@@ -124,8 +124,9 @@ def planning_section(ctx: ReportContext) -> None:
     sentences = verdict_sentences(block)
     if sentences:
         ctx.page.bullets(sentences)
-    d = block.get("decision_ms") or {}
-    if d.get("median") is not None:
-        ctx.page.paragraph(f"One information-gain decision took {fmt(d['median'])} ms (median; 90th percentile "
-                           f"{fmt(d['p90'])} ms) over {d['n']} decisions.")
+    t = (ctx.ev.summary or {}).get("timings_s") or {}
+    if t.get("planning_decision_ms_median") is not None:
+        ctx.page.paragraph(f"One information-gain decision took {fmt(t['planning_decision_ms_median'])} ms (median; "
+                           f"90th percentile {fmt(t['planning_decision_ms_p90'])} ms) over "
+                           f"{int(t['planning_decisions'])} decisions.")
     ctx.figure("planning_map.png", "One planned path against the fixed track from the same start (true positions).")

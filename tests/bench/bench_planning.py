@@ -81,9 +81,9 @@ def main() -> None:
     if summary.is_file():
         s = json.loads(summary.read_text())
         t = s.get("timings_s", {}).get("planning")
-        d = (s.get("planning") or {}).get("decision_ms") or {}
+        ts = s.get("timings_s", {})
         print(f"default evaluate run: planning added {t} s (goal <= 120 s); its decisions: median "
-              f"{d.get('median')} ms over {d.get('n')}")
+              f"{ts.get('planning_decision_ms_median')} ms over {ts.get('planning_decisions')}")
     else:
         print(f"no default run at {summary}: run `make evaluate` for the stage's planning time")
 
