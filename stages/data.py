@@ -62,7 +62,23 @@ def run(ctx) -> str:
     cfg = ctx.cfg
     if cfg.data.source == "real":
         return _check_real(ctx)
+    if cfg.data.source == "real_imagery":
+        return _write_real_imagery(ctx)
     return _write_synthetic(ctx)
+
+
+def _write_real_imagery(ctx) -> str:
+    """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""
+    from loaders.real_imagery.write import write_real_imagery
+
+    cfg = ctx.cfg
+    t0 = time.perf_counter()
+    extra, summary = write_real_imagery(cfg, ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd"),
+                                        ctx.out / out_name("data", "truth"), ctx.skips)
+    write_json(ctx.out / out_name("data", "roots"), {"source": "real_imagery", "bigbird_root": "bigbird",
+                                                     "avd_root": "avd", "scans": list(cfg.data.scans)})
+    ctx.extra.update({**extra, "seconds": round(time.perf_counter() - t0, 2)})
+    return f"{summary} in {time.perf_counter() - t0:.0f} s"
 
 
 # ----------------------------------------------------------------------------------------------

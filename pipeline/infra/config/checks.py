@@ -80,10 +80,18 @@ def cross_checks(cfg: Config, where: str) -> None:
              f"the {len(s.instances)} 'data.synthetic.instances' in no scan")
     need(all(1 <= c <= 5 for c in cfg.features.bigbird_cameras) and cfg.features.bigbird_cameras,
          "'features.bigbird_cameras' must list cameras among 1..5")
+    if cfg.data.source == "real_imagery":
+        ri = cfg.data.real_imagery
+        need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
+        need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real_imagery'")
+        need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
+             f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
+        need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
+             "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
     if cfg.data.source == "real":
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
-    elif not isinstance(cfg.models.classes, str):
+    elif not isinstance(cfg.models.classes, str) and cfg.data.source == "synthetic":
         for c in cfg.models.classes:
             need(c in s.instances, f"'models.classes' names {c!r}, which is not in 'data.synthetic.instances'")
         need(cfg.models.camera in s.bigbird_cameras,
