@@ -274,6 +274,8 @@ def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Seque
         vectors[cls] = g
     models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter,
                                          accelerate=dcfg.accelerate)
+    if dcfg.entries:   # evaluate aggregates each candidate set's models to these many chosen components
+        models.meta["entries"] = int(dcfg.entries)
     extra = {"fit": {"method": "Minka fixed point from the moment estimate"
                                + (", SQUAREM-accelerated" if dcfg.accelerate else ""), "camera": mcfg.camera,
                      **to_dict(dcfg)},

@@ -9,6 +9,14 @@ Minka's fixed-point iteration ``θ_j ← ψ⁻¹(ψ(Σθ) + mean_n ln γ_nj)`` f
 settings, fit diagnostics, the npz's sha256 and a fingerprint of the parameters). Loading never
 unpickles.
 
+Many classes (docs/design.md §5, "Dirichlet"): on a 1000-way ImageNet vector the density is a sum
+of 1000 log terms, most of them entries a class never uses, and the likelihood ratios of two views
+reach thousands of nats. ``aggregate(entries)`` reduces each model to the chosen entries plus the
+rest mass, exactly, by the Dirichlet's aggregation property: if γ ~ Dir(θ), then
+(γ_S, Σ_{j∉S} γ_j) ~ Dir(θ_S, Σ_{j∉S} θ_j); the models stage fits the whole vector once and
+``models.dirichlet.entries`` (recorded in the index's meta) says how many of each candidate set's
+chosen components the evaluate stage keeps.
+
 Zeros: a float32 softmax underflows to exactly 0 for confident outputs, and ``ln 0`` would make a
 class impossible on one entry. Every vector is floored (each entry raised to at least ``floor``)
 and renormalised before the log, in the fit and in the likelihood alike.
@@ -157,7 +165,12 @@ def fit_dirichlet(gamma: np.ndarray, *, floor: float = 1e-6, tol: float = 1e-10,
 class DirichletModels:
     """C classes of Dir(γ; θ_c) over D probability entries; ``theta`` is (C, D)."""
 
-    def __init__(self, classes: Sequence[str], theta, *, floor: float, meta: dict | None = None):
+    def __init__(self, classes: Sequence[str], theta, *, floor: float, meta: dict | None = None,
+                 select: Sequence[int] | None = None, input_dim: int | None = None):
+        # select: the input entries kept (the last theta column is then the rest mass), input_dim
+        # the length of the vectors log_likelihood takes; None = the whole vector (theta's D).
+        self.select = None if select is None else np.asarray(select, dtype=np.int64)
+        self.input_dim = int(input_dim) if input_dim is not None else np.shape(theta)[-1]
         self.classes = [str(c) for c in classes]
         self.theta = np.ascontiguousarray(theta, dtype=float)
         self.floor = float(floor)
@@ -174,7 +187,31 @@ class DirichletModels:
 
     @property
     def dim(self) -> int:
-        return int(self.theta.shape[1])
+        """Entries of the probability vectors the models take."""
+        return int(self.input_dim)
+
+    def aggregate(self, entries: Sequence[int]) -> "DirichletModels":
+        """The exact models of (γ_entries, rest mass): θ_entries and the sum of the other θ_j."""
+        if self.select is not None:
+            raise ValueError("DirichletModels: already aggregated")
+        idx = np.asarray(entries, dtype=np.int64)
+        if idx.size < 1 or len(set(idx.tolist())) != idx.size or idx.min() < 0 or idx.max() >= self.dim:
+            raise ValueError(f"DirichletModels.aggregate: need distinct entries in [0, {self.dim}), got {idx.tolist()}")
+        if idx.size >= self.dim - 1:
+            return self
+        rest = np.ones(self.dim, bool)
+        rest[idx] = False
+        theta = np.concatenate([self.theta[:, idx], self.theta[:, rest].sum(axis=1, keepdims=True)], axis=1)
+        return DirichletModels(self.classes, theta, floor=min(self.floor, 0.5 / (idx.size + 1)), meta=self.meta,
+                               select=idx, input_dim=self.dim)
+
+    def reduce(self, gamma: np.ndarray) -> np.ndarray:
+        """Input vectors (..., dim) as the models' entries: the selected ones and the rest mass."""
+        g = np.asarray(gamma, float)
+        if self.select is None:
+            return g
+        kept = g[..., self.select]
+        return np.concatenate([kept, np.clip(1.0 - kept.sum(axis=-1, keepdims=True), 0.0, None)], axis=-1)
 
     def subset(self, classes: Sequence[str]) -> "DirichletModels":
         """The models of ``classes``, in that order (a candidate set)."""
@@ -182,14 +219,15 @@ class DirichletModels:
         if missing:
             raise KeyError(f"DirichletModels: no model for class(es) {missing} (modelled: {', '.join(self.classes)})")
         idx = [self.classes.index(c) for c in classes]
-        return DirichletModels(classes, self.theta[idx], floor=self.floor, meta=self.meta)
+        return DirichletModels(classes, self.theta[idx], floor=self.floor, meta=self.meta, select=self.select,
+                               input_dim=self.input_dim)
 
     def log_likelihood(self, gamma: np.ndarray) -> np.ndarray:
         """ln Dir(γ; θ_c) for vectors (..., D): (..., C)."""
         g = np.asarray(gamma, float)
         if g.shape[-1] != self.dim:
             raise ValueError(f"DirichletModels: vectors have {g.shape[-1]} entries, the models {self.dim}")
-        lg = np.log(prepare(g, self.floor))
+        lg = np.log(prepare(self.reduce(g), self.floor))
         norm = gammaln(self.theta.sum(axis=1)) - gammaln(self.theta).sum(axis=1)        # (C,)
         return lg @ (self.theta - 1.0).T + norm
 

@@ -331,9 +331,11 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
                                    dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
                                    probs=None if dm is None else full)
+                n_keep = 0 if dm is None else int(dm.meta.get("entries", 0))
+                dmv = dm.aggregate(list(comps)[:n_keep]) if n_keep else dm   # models.dirichlet.entries
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                   classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                  difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss,
+                                  difficulty=variant == DEFAULT, dirichlet=dmv, n_ss=ev.dirichlet.n_ss,
                                   attribution=ev.attribution and variant == DEFAULT))
             tracks.append(info)
     if not cells:

@@ -98,6 +98,9 @@ def cross_checks(cfg: Config, where: str) -> None:
              f"'models.camera' = {cfg.models.camera} is not among 'data.synthetic.bigbird_cameras'")
     need(cfg.models.camera in cfg.features.bigbird_cameras,
          f"'models.camera' = {cfg.models.camera} is not among 'features.bigbird_cameras'")
+    need(cfg.models.dirichlet.entries <= cfg.models.n_components,
+         f"'models.dirichlet.entries' = {cfg.models.dirichlet.entries} exceeds 'models.n_components' = "
+         f"{cfg.models.n_components}: it keeps that many of the chosen components")
     if cfg.classifier.weights == "path":
         need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
     need(len(cfg.classifier.mean) == 3 and len(cfg.classifier.std) == 3,
