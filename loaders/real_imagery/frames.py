@@ -55,12 +55,12 @@ def resampled_view(rgb: np.ndarray, mask: np.ndarray, box_w: int, box_h: int):
     (patch uint8, (dx, dy) of the object box inside the patch)."""
     x0, y0, x1, y1 = mask_bbox(mask)
     cw, ch = x1 - x0, y1 - y0
-    ex, ey = int(round(CONTEXT * cw)), int(round(CONTEXT * ch))
+    ex, ey = round(CONTEXT * cw), round(CONTEXT * ch)
     pad = max(ex, ey) + 1
     src = cv2.copyMakeBorder(np.ascontiguousarray(rgb), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
     region = src[y0 + pad - ey:y1 + pad + ey, x0 + pad - ex:x1 + pad + ex]
     sx, sy = box_w / cw, box_h / ch
-    dx, dy = int(round(ex * sx)), int(round(ey * sy))
+    dx, dy = round(ex * sx), round(ey * sy)
     size = (box_w + 2 * dx, box_h + 2 * dy)
     shrink = sx * sy < 1.0
     patch = cv2.resize(region, size, interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)

@@ -14,7 +14,11 @@ from pathlib import Path
 
 from loaders.coil import SIZE, CoilFolder, object_name
 from loaders.pbm import encode_pbm
-from loaders.synthetic.bigbird_writer import encode_jpeg, make_rig, write_object_metadata
+from loaders.synthetic.bigbird_writer import (
+    encode_jpeg,
+    make_rig,
+    write_object_metadata,
+)
 from pipeline.infra.cache import write_bytes
 
 

@@ -27,7 +27,12 @@ import numpy as np
 from loaders.avd import KINECT_SIZE, AVDScan
 from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
-from loaders.real_imagery.frames import heldout_angles, nearest_view, object_bearing_deg, render_frame
+from loaders.real_imagery.frames import (
+    heldout_angles,
+    nearest_view,
+    object_bearing_deg,
+    render_frame,
+)
 from loaders.real_imagery.pairing import box_rows, locate_instances, pair_scan
 from loaders.real_imagery.training import write_training_object
 from loaders.synthetic.bigbird_writer import encode_jpeg

@@ -3,13 +3,17 @@ the pasted view's box size, the sensor window; and on the real data, what the wr
 frames and annotations."""
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
-from loaders.real_imagery.frames import (heldout_angles, mask_bbox, nearest_view, object_bearing_deg,
-                                         render_frame, resampled_view)
+from loaders.real_imagery.frames import (
+    heldout_angles,
+    mask_bbox,
+    nearest_view,
+    object_bearing_deg,
+    render_frame,
+    resampled_view,
+)
 from loaders.real_imagery.pairing import pair_scan
 from pipeline.method.geometry import relative_inputs
 
