@@ -1,7 +1,8 @@
-"""MC-dropout scoring with torchvision's AlexNet (paper §4.3).
+"""MC-dropout scoring (paper §4.3) with the networks of ``pipeline.scoring.networks``.
 
-The network is ``features -> avgpool -> flatten -> classifier`` with ``classifier = (Dropout,
-Linear, ReLU, Dropout, Linear, ReLU, Linear)``. The dropout layers are all in the head, so ``N_s``
+AlexNet is ``features -> avgpool -> flatten -> classifier`` with ``classifier = (Dropout,
+Linear, ReLU, Dropout, Linear, ReLU, Linear)``; EfficientNet-Lite0 is its trunk (stem, blocks, head
+convolution, pooling) then ``(Dropout, Linear)``. The dropout layers are all in the head, so ``N_s``
 stochastic passes share one trunk output: the trunk runs once per crop, then the head on
 ``(B * N_s)`` rows with independent Bernoulli(1 - p) masks scaled by ``1/(1 - p)`` (exactly what
 ``nn.Dropout`` does in train mode). Masks come from a per-crop seeded generator, so a crop's
@@ -74,12 +75,12 @@ class MCDropoutScorer:
     """
 
     def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True):
-        for attr in ("features", "avgpool", "classifier"):
-            if not hasattr(model, attr):
-                raise TypeError(f"model has no '{attr}': not a torchvision AlexNet")
+        from pipeline.scoring.networks import split
+
+        self._trunk, head = split(model)
         self.model = model.eval().to(device)
         self.device = device
-        self.head = fast_head(model.classifier, device, onednn)
+        self.head = fast_head(head, device, onednn)
         self.dropout_dims: list[int] = []
         self.p: list[float] = []
         for i, m in enumerate(self.head):
@@ -93,8 +94,7 @@ class MCDropoutScorer:
     # The parts, separately (the benchmark times them one by one).
     @torch.no_grad()
     def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        m = self.model
-        return torch.flatten(m.avgpool(m.features(x.to(self.device))), 1)
+        return self._trunk(x.to(self.device))
 
     @torch.no_grad()
     def head_eval(self, f: torch.Tensor) -> torch.Tensor:
