@@ -6,6 +6,9 @@ Synthetic (``data.source = "synthetic"``) writes, under the stage folder,
 object poses, grid, camera; no reader needs it). Views are rendered by ``data.synthetic.workers`` processes; every view draws its randomness
 from (seed, its own name), so the files do not depend on the worker count or order.
 
+Real imagery (``data.source = "real_imagery"``) writes the same folders and ``truth.json`` from
+COIL-100 photographs and real AVD scan metadata (``loaders.real_imagery``, docs/real_data.md).
+
 Real (``data.source = "real"``) only checks that the configured roots hold what the readers need
 and writes ``roots.json``; nothing is copied. ``data_roots(cfg)`` tells later stages where the
 BigBIRD and AVD roots are in either case.
