@@ -323,7 +323,7 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
         for info in infos:
             yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
             full = track_samples(avd, scores, info, ev.max_difficulty)
-            dm = None if dirichlet is None else dirichlet.subset(classes)
+            dm = None if dirichlet is None else dirichlet.for_set(target, classes)  # models.dirichlet.entries
             if dm is not None and full.shape[-1] != dm.dim:
                 raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
             for variant, index in indexes.items():
@@ -331,11 +331,9 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
                                    dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
                                    probs=None if dm is None else full)
-                n_keep = 0 if dm is None else int(dm.meta.get("entries", 0))
-                dmv = dm.aggregate(list(comps)[:n_keep]) if n_keep else dm   # models.dirichlet.entries
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                   classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                  difficulty=variant == DEFAULT, dirichlet=dmv, n_ss=ev.dirichlet.n_ss,
+                                  difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss,
                                   attribution=ev.attribution and variant == DEFAULT))
             tracks.append(info)
     if not cells:

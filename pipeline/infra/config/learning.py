@@ -97,9 +97,9 @@ class DirichletFitConfig:
     accelerate: bool = _f(True, doc="SQUAREM extrapolation of the same fixed-point map (nearly alike vectors need "
                                     "tens of thousands of plain steps); false = the plain iteration")
     entries: int = _f(0, lo=0, hi=1000,
-                      doc="0 = the Dirichlet takes the whole score vector; n > 0 = each candidate set's first n chosen "
-                          "components plus the rest mass (the fitted whole-vector models aggregated exactly; for "
-                          "1000-way ImageNet outputs)")
+                      doc="0 = the Dirichlet models the whole score vector; n > 0 = per candidate set, each "
+                          "class's Dirichlet is fitted on (the set's first n chosen components, the rest mass) and "
+                          "the evaluate stage uses those (for 1000-way ImageNet outputs)")
 
 
 @dataclass(frozen=True)
