@@ -86,7 +86,7 @@ def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: st
             "dropout": float(c.head_dropout), "input_size": int(c.input_size),
             "mean": [float(v) for v in c.mean], "std": [float(v) for v in c.std]}
     if c.arch != "alexnet":  # AlexNet's cards (and their hashes) stay as before the key existed
-        card["arch"] = c.arch
+        card.update(arch=c.arch, drop_connect=float(c.efficientnet.drop_connect))
     return card
 
 
@@ -110,7 +110,8 @@ def _file_weights(ctx, device: str) -> str:
         log.warning("classifier.input_size = %d: EfficientNet-Lite0's ImageNet weights were trained at 224 px",
                     c.input_size)
     # validates the fit now, not later
-    model = load_into(build_network(c.arch, n, c.head_dropout), state, path, display_name(c.arch))
+    dc = c.efficientnet.drop_connect if c.arch != "alexnet" else 0.0
+    model = load_into(build_network(c.arch, n, c.head_dropout, dc), state, path, display_name(c.arch))
     # A quick forward pass at the configured input size catches an unusable size early.
     with torch.no_grad():
         model.eval()(torch.zeros(1, 3, c.input_size, c.input_size))

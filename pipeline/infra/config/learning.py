@@ -32,6 +32,10 @@ class EfficientNetConfig:
     dropout: float = _f(0.2, lo=0.0, hi=0.99,
                         doc="MC-dropout p of EfficientNet-Lite0's head Dropout (before the last linear layer); "
                             "0.2 = the rate the ImageNet weights were trained with")
+    drop_connect: float = _f(0.0, lo=0.0, hi=0.9,
+                             doc="MC drop-connect in the blocks: residual branch of block i dropped with rate "
+                                 "drop_connect * i / 16 in every MC sample (0.2 = training's); 0 = off. On, the "
+                                 "trunk runs once per sample (~N_s times the cost, docs/benchmarks.md)")
 
 
 @dataclass(frozen=True)

@@ -104,14 +104,7 @@ def full_passes(model: E.EfficientNetLite0, x: torch.Tensor, mask: torch.Tensor)
 
 @pytest.mark.parametrize("onednn", [False, True])
 def test_head_only_mc_equals_full_passes(onednn):
-    torch.manual_seed(0)
-    model = build_network("efficientnet_lite0", 7, 0.2).eval()
-    with torch.no_grad():   # trained-like BN statistics and a head that separates the classes
-        for m in model.modules():
-            if isinstance(m, nn.BatchNorm2d):
-                m.running_var.uniform_(0.5, 2.0)
-                m.running_mean.uniform_(-0.1, 0.1)
-        model._fc.weight.mul_(40.0)
+    model = small_model()
     x = torch.randn(3, 3, 64, 64, generator=torch.Generator().manual_seed(1))
     sc = MCDropoutScorer(model, onednn=onednn)
     assert sc.p == [0.2] and sc.dropout_dims == [1280]
@@ -124,6 +117,56 @@ def test_head_only_mc_equals_full_passes(onednn):
     assert (mc - det[:, None]).abs().amax() > 1e-3   # the samples really are stochastic
     # the trunk ran once: the scorer's trunk is the module's own
     assert split(model)[0] == model.trunk
+
+
+def small_model(drop_connect: float = 0.0) -> E.EfficientNetLite0:
+    torch.manual_seed(0)
+    model = build_network("efficientnet_lite0", 7, 0.2, drop_connect).eval()
+    with torch.no_grad():   # trained-like BN statistics and a head that separates the classes
+        for m in model.modules():
+            if isinstance(m, nn.BatchNorm2d):
+                m.running_var.uniform_(0.5, 2.0)
+                m.running_mean.uniform_(-0.1, 0.1)
+        model._fc.weight.mul_(40.0)
+    return model
+
+
+def test_drop_connect_mc_equals_literal_passes_and_adds_spread():
+    model = small_model(drop_connect=0.4)
+    # the skip blocks, rate 0.4 * i / 16
+    assert [i for i, _ in model.drop_blocks] == [2, 4, 6, 7, 9, 10, 12, 13, 14]
+    assert model.drop_blocks[-1][1] == pytest.approx(0.4 * 14 / 16)
+    x = torch.randn(3, 3, 48, 48, generator=torch.Generator().manual_seed(2))
+    sc = MCDropoutScorer(model, onednn=False)
+    seeds = [crop_seed(0, f"d{i}") for i in range(3)]
+    det, mc = sc.score(x, seeds, n_samples=4)
+    keeps, mask = sc.draw_block_keeps(seeds, 4), sc.draw_masks(seeds, 4)[0]
+    with torch.no_grad():   # literal: every (crop, sample) through the whole network on its own
+        ref = torch.stack([torch.stack([torch.softmax(model._fc(model.trunk(x[b:b + 1], keeps[b, s:s + 1])[0]
+                                                                * mask[b, s]), -1) for s in range(4)])
+                           for b in range(3)])
+    torch.testing.assert_close(mc, ref, rtol=0, atol=1e-6)
+    torch.testing.assert_close(det, torch.softmax(model(x), -1), rtol=0, atol=1e-6)  # eval: nothing dropped
+    # the head masks are those of plain MC dropout; drop-connect adds spread on top
+    plain = MCDropoutScorer(small_model(), onednn=False)
+    torch.testing.assert_close(plain.draw_masks(seeds, 4)[0], mask)
+    _, mc0 = plain.score(x, seeds, n_samples=4)
+    assert float(mc.std(1).mean()) > float(mc0.std(1).mean())
+    # a crop's samples do not depend on the batch it is scored in
+    torch.testing.assert_close(sc.score(x[2:], seeds[2:], 4)[1][0], mc[2], rtol=0, atol=1e-6)
+
+
+def test_drop_connect_keeps_are_scaled_bernoulli_at_each_blocks_rate():
+    sc = MCDropoutScorer(small_model(drop_connect=0.5), onednn=False)
+    k = sc.draw_block_keeps([crop_seed(1, "k")], 4000)[0]           # (4000, 9)
+    for j, r in enumerate(sc.block_rates):
+        col = k[:, j]
+        vals = torch.unique(col)
+        assert len(vals) == 2 and vals[0] == 0 and float(vals[1]) == pytest.approx(1 / (1 - r), rel=1e-6)
+        assert abs(float((col > 0).float().mean()) - (1 - r)) < 4 * np.sqrt(r * (1 - r) / 4000)
+    assert MCDropoutScorer(small_model(), onednn=False).block_rates == []   # off by default
+    with pytest.raises(ValueError, match="AlexNet has no residual blocks"):
+        build_network("alexnet", 3, 0.5, drop_connect=0.2)
 
 
 def realdata_shots():
@@ -192,9 +235,40 @@ def test_config_keys_are_checked(tmp_path):
         cfg('[classifier]\narch = "resnet"\n')
     with pytest.raises(ConfigError, match="dropout"):
         cfg('[classifier.efficientnet]\ndropout = 1.5\n')
+    with pytest.raises(ConfigError, match="drop_connect"):
+        cfg('[classifier.efficientnet]\ndrop_connect = 0.95\n')
 
 
 def test_config_check_constants_match_the_module():
     from pipeline.infra.config.checks import EFFICIENTNET_MEAN, EFFICIENTNET_STD
 
     assert np.allclose(E.MEAN, EFFICIENTNET_MEAN) and np.allclose(E.STD, EFFICIENTNET_STD)
+
+
+EFFNET = {"classifier": {"arch": "efficientnet_lite0", "weights": "imagenet", "input_size": 224,
+                         "mean": list(E.MEAN), "std": list(E.STD)}}
+
+
+@pytest.mark.slow
+def test_classifier_stage_writes_the_card_and_the_scorer_loads_it(tmp_config):
+    from pipeline.scoring.card import card_hash, load_classifier
+    from pipeline.scoring.crops import to_tensor
+    from stages.framework.runner import ensure
+
+    wheel_path()
+    cfg = tmp_config(EFFNET)
+    ensure(cfg, "classifier", device="cpu")
+    folder = cfg.stage_dir("classifier")
+    model, card = load_classifier(folder)
+    assert card["arch"] == "efficientnet_lite0" and card["weights_sha256"] == E.WHEEL_SHA256
+    assert card["num_classes"] == 1000 and card["output_names"][0] == "tench" and card["dropout"] == 0.2
+    assert card["drop_connect"] == 0.0 and card["hash"] == card_hash(card)
+    assert isinstance(model, E.EfficientNetLite0) and not list(folder.glob("*.npz"))   # nothing trained or copied
+    x = to_tensor(np.full((1, 224, 224, 3), 127, np.uint8), card["mean"], card["std"])
+    det, mc = MCDropoutScorer(model).score(x, [crop_seed(0, "grey")], 3)
+    assert det.shape == (1, 1000) and mc.shape == (1, 3, 1000)
+    # drop-connect changes the scorer's identity
+    other = tmp_config({"classifier": {**EFFNET["classifier"], "efficientnet": {"drop_connect": 0.2}}})
+    ensure(other, "classifier", device="cpu")
+    _, card2 = load_classifier(other.stage_dir("classifier"))
+    assert card2["drop_connect"] == 0.2 and card2["hash"] != card["hash"]
