@@ -36,7 +36,7 @@ def test_framed_boxes_show_the_nearest_heldout_view(written):
         resampled_view,
     )
 
-    cfg, out, real = written
+    _, out, real = written
     truth = json.loads((out / "truth.json").read_text())["scans"]["Home_005_1"]["instances"]
     assert sorted(truth) == ["coil_obj002", "coil_obj003"]
     ours = AVDScan(out / "avd", "Home_005_1")
