@@ -58,9 +58,11 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     return banks, indexes
 
 
-def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict]:
+def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips,
+                  moves: dict | None = None) -> tuple[dict, dict, dict]:
     """Per scan: (fx, cx) of the camera, the capture grid's spacing and {image: grid point id}
-    (the move graph's stops, ``AVDScan.grid_points``). The scan is read under the same skip policy
+    (the move graph's stops, ``AVDScan.grid_points``); with ``moves`` (a dict) also each scan's
+    move graph {image: {move: image}} into it (the view planning's). The scan is read under the same skip policy
     as the features stage, so an entry features skipped does not stop this stage; geometry needs
     no frames, so a metadata-only copy (no jpg_rgb/) is read as one."""
     from loaders.avd import AVDScan
@@ -73,6 +75,8 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
         K = scan.intrinsics()
         intr[s] = (float(K[0, 0]), float(K[0, 2]))
         grids[s] = scan.grid_points()
+        if moves is not None:
+            moves[s] = {n: dict(img.moves) for n, img in scan.images.items()}
         rows = avd.loc[avd["scan"] == s, ["image", "cam_x", "cam_y"]]
         steps[s] = grid_step(rows[["cam_x", "cam_y"]].to_numpy(float),
                              P.view_grid_ids(rows["image"], grids[s], s))
@@ -158,7 +162,8 @@ def run(ctx) -> str:
     if avd.empty:
         raise TrackError(f"{avd_path} holds no AVD box: nothing to evaluate")
     scans = sorted(avd["scan"].unique())
-    intr, steps, grids = scan_geometry(cfg, scans, avd, ctx.skips)
+    moves: dict = {}
+    intr, steps, grids = scan_geometry(cfg, scans, avd, ctx.skips, moves)
     truth_path = ctx.input("data") / out_name("data", "truth")
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
     cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
@@ -205,9 +210,17 @@ def run(ctx) -> str:
                 kept.append(k)
                 t_reduce += t2 - t1
                 t_write += time.perf_counter() - t2
+            planning = None
+            if cfg.plan.enabled:
+                from pipeline.planning.evaluation import run_planning
+
+                t1 = time.perf_counter()
+                planning = run_planning(cfg, cells, tracks, avd, scores, moves, banks, executor,
+                                        ctx.out / out_name("evaluate", "planning"))
+                timings["planning"] = time.perf_counter() - t1
         finally:
             executor.close()
-        timings["population"] = time.perf_counter() - t0 - t_reduce - t_write
+        timings["population"] = time.perf_counter() - t0 - t_reduce - t_write - timings.get("planning", 0.0)
         timings.update({f"population_{m}": sec for m, sec in fusion.items()})
         timings["cell_reduce"] = t_reduce
         log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
@@ -254,6 +267,7 @@ def run(ctx) -> str:
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "features_meta": {k: v for k, v in meta.items() if k != "viewfuse.output_names"},
         "population": population,
+        **({"planning": planning} if planning is not None else {}),
     })
     ctx.extra.update(timings_s={k: round(v, 3) for k, v in timings.items()}, n_cells=len(cells),
                      skipped_targets=len(skipped))

@@ -18,6 +18,7 @@ SUBPACKAGES = {
     "scoring": {"infra"},
     "evaluation": {"method", "scoring", "infra"},
     "banks": {"evaluation", "method", "scoring", "infra"},
+    "planning": {"evaluation", "method", "infra"},
 }
 # pipeline/evaluation sub-room -> the sub-rooms it may import (besides itself).
 EVALUATION_ROOMS = {

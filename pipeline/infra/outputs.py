@@ -77,6 +77,9 @@ CATALOG: dict[str, dict[str, Artifact]] = {
                               "GP rasters of the detailed track's candidates"),
         "bias_maps": Artifact("bias_maps.npz", "npz", "stages.evaluate:single_track", "reports.shared.artifacts:read_npz",
                               "single-view posteriors under a grid of biases"),
+        "planning": Artifact("planning.parquet", "parquet", "pipeline.planning.evaluation:write_table",
+                             "pipeline.planning.evaluation:read_table",
+                             "view planning: one row per (target, start, setting, planner, step)"),
     },
     "report": {
         "html": Artifact("index.html", "html", "reports.main.page:build_main_report", None),

@@ -78,6 +78,12 @@ def render_text(c: Comparison) -> str:
     marks = [[False] + c.changed[k] for k in c.verdicts]
     out += ["Paired verdicts (* = outcome differs from the first column):",
             _grid(["comparison: metric"] + names, vrows, marks, width=56)]
+    if c.planning:
+        out += ["", "View planning, pooled [95 % CI]:",
+                _grid(["metric · planner"] + names, [[f"{m} · {p}"] + [_est(v) for v in vals] for p, m, vals in c.planning]),
+                "", "View-planning verdicts:",
+                _grid(["comparison: metric"] + names, [[f"{k}: {m}"] + [_verdict_text(v) for v in vals]
+                                                       for k, m, vals in c.planning_paired], width=56)]
     out += [f"note: {printable(n)}" for n in c.notes]
     return "\n".join(out) + "\n"
 
@@ -120,6 +126,16 @@ def build_page(c: Comparison, title: str = "viewfuse compare", intro: list[str] 
                caption="Outcome of each paired difference (better / worse / not distinguishable: its 95 % CI above, "
                        "below or across 0) with the difference [95 % CI]; shaded: the outcome differs from the first "
                        "column. A seed group says 'mixed' when its seeds disagree.")
+    if c.planning:
+        page.section("View planning", anchor="planning")
+        page.table(["metric", "planner"] + names,
+                   [[m, p] + [Estimate.of(v) if v else None for v in vals] for p, m, vals in c.planning],
+                   cls="planning-compare", caption="Each run's pooled planning metric [95 % CI over targets and "
+                                                   "starts] (evaluate/summary.json, planning block).")
+        page.table(["comparison", "metric"] + names,
+                   [[k, m] + [_verdict_text(v) for v in vals] for k, m, vals in c.planning_paired],
+                   cls="planning-verdicts", caption="Paired planning verdicts (the difference's 95 % CI above, below "
+                                                    "or across 0).")
     return page
 
 

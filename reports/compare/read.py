@@ -78,7 +78,8 @@ SUMMARY_SCHEMA = ("object", {"population": ("object", {
     "pooled": ("map", ("map", ESTIMATE)),
     "paired": ("map", ("map", "any")),
     "verdict_table": ("list", VERDICT_ROW),
-})})
+}), "planning": ("object", {"pooled": ("map", ("map", ESTIMATE)), "paired": ("map", ("map", ESTIMATE)),
+                            "planners": ("list", "string")})})
 MANIFEST_SCHEMA = ("object", {"parts": ("object", {"sections": ("map", "any")})})
 
 _NAMES = {dict: "an object", list: "a list", str: "a string", bool: "a boolean", int: "a number",

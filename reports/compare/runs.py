@@ -29,6 +29,8 @@ from pipeline.evaluation.metrics.labels import ordered_methods
 from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import name as out_name
+from reports.compare.planning import block_of as planning_block
+from reports.compare.planning import rows as planning_rows
 from reports.compare.read import RunFileError, manifest_sections, read_summary
 
 STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
@@ -46,6 +48,7 @@ class Run:
     population: dict
     config: dict[str, Any]                 # dotted key -> value, from the stage manifests
     notes: list[str] = field(default_factory=list)
+    planning: dict | None = None           # summary.json's view-planning block, where it has one
 
 
 @dataclass
@@ -115,7 +118,7 @@ def load_run(path: str | Path, name: str | None = None) -> Run:
     cfg, notes = run_config(p)
     if "verdict_table" not in pop:
         notes.append("older summary format (no verdict_table): outcomes derived from the paired CIs")
-    return Run(label, p, pop, cfg, notes)
+    return Run(label, p, pop, cfg, notes, planning=planning_block(summary))
 
 
 def _is_run(p: Path) -> bool:
@@ -303,6 +306,8 @@ class Comparison:
     verdicts: dict[tuple[str, str], list[dict | None]]        # (comparison, metric) -> per column
     changed: dict[tuple[str, str], list[bool]]                # outcome differs from the first column
     notes: list[str]
+    planning: list = field(default_factory=list)              # [(planner, metric, per column)]
+    planning_paired: list = field(default_factory=list)       # [(comparison, metric, per column)]
 
 
 def compare(args: list[str | Path]) -> Comparison:
@@ -314,4 +319,7 @@ def compare(args: list[str | Path]) -> Comparison:
     ver = {k: [column_verdict(c, k) for c in cols] for k in vkeys}
     changed = {k: [bool(v and row[0] and v["outcome"] != row[0]["outcome"]) for v in row] for k, row in ver.items()}
     notes = [f"{r.name}: {n}" for r in runs for n in r.notes]
-    return Comparison(cols, config_diff(runs), runs, methods, metrics, pooled, ver, changed, notes)
+    plan_pooled, plan_paired = planning_rows([c.runs[0].planning if len(c.runs) == 1 and not c.pooled_over_seeds
+                                              else None for c in cols])
+    return Comparison(cols, config_diff(runs), runs, methods, metrics, pooled, ver, changed, notes,
+                      plan_pooled, plan_paired)

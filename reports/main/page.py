@@ -18,6 +18,7 @@ from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL
 from pipeline.infra.outputs import path as out_path
 from reports.main import calibration as calibration_sections
 from reports.main import findings
+from reports.main import planning as planning_sections
 from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
 from reports.shared.artifacts import load_run
@@ -38,7 +39,8 @@ log = logging.getLogger("viewfuse.report")
 
 SECTIONS = (verdict_sections.verdict_section, calibration_sections.calibration_section,
             verdict_sections.population_section, verdict_sections.diagnostics_section,
-            calibration_sections.domain_section, calibration_sections.attribution_section, track_sections.track_section,
+            calibration_sections.domain_section, calibration_sections.attribution_section, planning_sections.planning_section,
+            track_sections.track_section,
             track_sections.randomized_section, track_sections.sensitivity_section,
             track_sections.bias_maps_section, track_sections.gp_section, glossary_section,
             track_sections.details_section)
@@ -154,7 +156,8 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     ctx = ReportContext(HtmlReport(title), run, run_name, config or {}, timings or {}, n_boot=n_boot)
     ctx.comp_names = component_labels(run.index, run.evaluate.gp, run.evaluate.target)
     _summaries(ctx, seed)
-    plan = _population_plan(ctx) + _track_plan(ctx, ctx.clipped) + _models_plan(ctx)
+    plan = (_population_plan(ctx) + planning_sections.planning_plan(ctx) + _track_plan(ctx, ctx.clipped)
+            + _models_plan(ctx))
     written = []
     for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
         ctx.checks[name] = chk = save(build(), out / name, dpi)

@@ -41,7 +41,7 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
               ("models", "evaluate.targets", "evaluate.n_candidates", "evaluate.candidates",
                "evaluate.candidate_seed", "evaluate.ablations"),
               help="choose feature components and fit one GP per (class, component)"),
-    StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate",),
+    StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate", "plan"),
               help="the population evaluation (targets x tracks x localization settings x methods, CIs, "
                    "verdict) and the detailed track's experiments", after=("report",)),
     StageSpec("report", "stages.report", ("models", "evaluate"), ("report",),

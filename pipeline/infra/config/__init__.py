@@ -9,7 +9,7 @@ that read it.
 The modules, by meaning: ``fields`` (the error and the field every section is made of), the sections
 of what a run reads (``inputs``: run, data), of the scorer and the class models (``learning``:
 classifier, features, models), of the evaluation (``evaluation``: evaluate, report), of the
-simulation (``simulate``), the root ``Config`` (``root``, with study), loading (``load``) and the
+simulation (``simulate``), view planning (``plan``), the root ``Config`` (``root``, with study), loading (``load``) and the
 cross-key checks (``checks``).
 """
 from __future__ import annotations
@@ -22,13 +22,14 @@ from pipeline.infra.config.evaluation import (ABLATION_KEYS, BiasedConfig, BiasM
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.inputs import DEFAULT_INSTANCES, DataConfig, RunConfig, SyntheticDataConfig
 from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, ModelsConfig, TrainingConfig
+from pipeline.infra.config.plan import PlanConfig
 from pipeline.infra.config.root import Config, StudyConfig, canonical_json, to_dict
 from pipeline.infra.config.simulate import SimulateConfig
 
 
 __all__ = [
     "ABLATION_KEYS", "DEFAULT_INSTANCES", "BiasedConfig", "BiasMapsConfig", "ClassifierConfig", "Config",
-    "ConfigError", "DataConfig", "EvaluateConfig", "FeaturesConfig", "ModelsConfig", "RandomizedConfig",
+    "ConfigError", "DataConfig", "EvaluateConfig", "FeaturesConfig", "ModelsConfig", "PlanConfig", "RandomizedConfig",
     "ReportConfig", "RunConfig", "SensitivityConfig", "SimulateConfig", "StudyConfig", "SyntheticDataConfig",
     "TrainingConfig", "ablation_config", "bounds_problem", "canonical_json", "check_simulate", "cross_checks",
     "is_model_ablation", "load_config", "merge", "parse_override", "test_domain_mode", "to_dict",

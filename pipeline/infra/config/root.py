@@ -14,6 +14,7 @@ from pipeline.infra.config.fields import SEED_MAX, setting as _f
 from pipeline.infra.config.evaluation import EvaluateConfig, ReportConfig
 from pipeline.infra.config.inputs import DataConfig, RunConfig
 from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, ModelsConfig
+from pipeline.infra.config.plan import PlanConfig
 from pipeline.infra.config.simulate import SimulateConfig
 
 
@@ -44,6 +45,7 @@ class Config:
     features: FeaturesConfig = _f(factory=FeaturesConfig)
     models: ModelsConfig = _f(factory=ModelsConfig)
     evaluate: EvaluateConfig = _f(factory=EvaluateConfig)
+    plan: PlanConfig = _f(factory=PlanConfig)
     report: ReportConfig = _f(factory=ReportConfig)
     simulate: SimulateConfig = _f(factory=SimulateConfig)
     study: StudyConfig = _f(factory=StudyConfig)

@@ -1,0 +1,131 @@
+"""The planning metrics per step and per episode, pooled with CIs, and the paired verdicts.
+
+Per step k of an episode: ``correct`` (argmax = truth), ``confident_error`` (max P >= the
+confidence on a wrong class), ``nll`` (-ln P(truth)); per episode ``steps_to_decision``: the first
+step with a confident correct decision (P(truth) >= the confidence), budget + 1 when there is
+none (a missed or wrong decision costs more than the whole budget). The unit is a (target, start):
+its value is the mean over the localization settings; the pooled value is the mean over targets
+of their starts' mean, with the hierarchical bootstrap CI over targets, then starts. A paired
+difference is computed the same way on the per-episode differences (same target, start, setting).
+
+All statistics go through ``_estimate`` (one call site for the statistics room).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+STEP_METRICS = {"correct": ("correct ratio", True), "confident_error": ("confident-error rate", False),
+                "nll": ("NLL of the truth", False)}
+EPISODE_METRICS = {"steps_to_decision": ("steps to a confident correct decision", False)}
+AT_STEPS = (3, 5, 10)
+COMPARISONS = (("info_gain", "random"), ("info_gain", "fixed"), ("info_gain", "known_pose"))
+UNIT = ["target", "start"]
+
+
+def _estimate(groups, n_boot: int, seed, higher: bool | None = None) -> dict:
+    """Mean over groups (targets) of their members' mean (starts), its hierarchical bootstrap
+    95 % CI and, with ``higher``, the verdict (better / worse / not distinguishable, from the CI)."""
+    from pipeline.evaluation.statistics.popstats import hierarchical
+    from pipeline.evaluation.statistics.robust import outcome
+
+    est = hierarchical(groups, n_boot, seed)
+    if higher is not None:
+        est["outcome"] = outcome(est, higher)
+    return est
+
+
+def step_rows(key: dict, log_post: np.ndarray, measured: np.ndarray, nodes: list[str], truth: int,
+              confidence: float) -> pd.DataFrame:
+    """One row per step of one episode (``key``: target, scan, start, setting, planner)."""
+    K = len(log_post)
+    p = np.exp(log_post)
+    node = [""] * K
+    for i, k in enumerate(np.flatnonzero(measured)):
+        node[k] = nodes[i]
+    wrong = np.argmax(log_post, axis=1) != truth
+    return pd.DataFrame({**{k: [v] * K for k, v in key.items()}, "step": np.arange(1, K + 1), "node": node,
+                         "measured": measured, "p_truth": p[:, truth], "correct": (~wrong).astype(float),
+                         "confident_error": (wrong & (p.max(axis=1) >= confidence)).astype(float),
+                         "nll": -log_post[:, truth]})
+
+
+def episode_values(table: pd.DataFrame, budget: int, confidence: float) -> pd.DataFrame:
+    """Per episode: steps_to_decision and each step metric at the steps of ``AT_STEPS``."""
+    keys = UNIT + ["setting", "planner"]
+    hit = table[(table["correct"] > 0) & (table["p_truth"] >= confidence)]
+    first = hit.groupby(keys)["step"].min()
+    ep = table.groupby(keys).size().rename("n").reset_index()[keys]
+    ep["steps_to_decision"] = ep.set_index(keys).index.map(first).to_numpy(float)
+    ep["steps_to_decision"] = ep["steps_to_decision"].fillna(budget + 1.0)
+    for k in at_steps(budget):
+        at = table[table["step"] == k].set_index(keys)
+        for m in STEP_METRICS:
+            ep[f"{m}_at_{k}"] = ep.set_index(keys).index.map(at[m]).to_numpy(float)
+    return ep
+
+
+def _groups(units: pd.DataFrame, col: str) -> list[np.ndarray]:
+    return [g[col].to_numpy(float) for _, g in units.groupby("target", sort=True)]
+
+
+def _units(df: pd.DataFrame, cols) -> pd.DataFrame:
+    return df.groupby(UNIT, sort=True)[list(cols)].mean().reset_index()
+
+
+def at_steps(budget: int) -> list[int]:
+    """The steps of ``AT_STEPS`` the budget reaches."""
+    return [k for k in AT_STEPS if k <= budget]
+
+
+def pooled_metrics(budget: int) -> dict[str, tuple[str, bool]]:
+    """The episode-level keys of the pooled table: {key: (label, higher_is_better)}."""
+    out = dict(EPISODE_METRICS)
+    for k in at_steps(budget):
+        for m, (label, hi) in STEP_METRICS.items():
+            out[f"{m}_at_{k}"] = (f"{label} at step {k}", hi)
+    return out
+
+
+def _num(x: float) -> str:
+    return "n/a" if not np.isfinite(x) else f"{x:+.3g}" if x else "0"
+
+
+_PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguishable": "is not distinguishable from"}
+
+
+def planning_block(table: pd.DataFrame, planners, budget: int, confidence: float, n_boot: int, seed: int) -> dict:
+    """The summary.json ``planning`` block: curves per step, pooled table, paired verdicts."""
+    ep = episode_values(table, budget, confidence)
+    metrics = pooled_metrics(budget)
+    n_t, n_u = ep["target"].nunique(), len(ep.drop_duplicates(UNIT))
+    settings = sorted(ep["setting"].unique())
+    scope = f"{n_t} targets x {n_u} starts x {len(settings)} localization settings"
+    curves, pooled = {}, {}
+    for pi, p in enumerate(planners):
+        sub = table[table["planner"] == p]
+        curves[p] = {m: [] for m in STEP_METRICS}
+        for k in range(1, budget + 1):
+            u = _units(sub[sub["step"] == k], STEP_METRICS)
+            for mi, m in enumerate(STEP_METRICS):
+                curves[p][m].append(_estimate(_groups(u, m), n_boot, [seed, 10, pi, mi, k]))
+        u = _units(ep[ep["planner"] == p], metrics)
+        pooled[p] = {m: _estimate(_groups(u, m), n_boot, [seed, 11, pi, mi]) for mi, m in enumerate(metrics)}
+    paired, sentences = {}, []
+    keys = UNIT + ["setting"]
+    for ci, (a, b) in enumerate(COMPARISONS):
+        if a not in planners or b not in planners:
+            continue
+        da = ep[ep["planner"] == a].set_index(keys).sort_index()
+        db = ep[ep["planner"] == b].set_index(keys).sort_index()
+        diff = _units((da[list(metrics)] - db[list(metrics)]).reset_index(), metrics)
+        block = paired[f"{a}-{b}"] = {}
+        for mi, (m, (label, higher)) in enumerate(metrics.items()):
+            est = block[m] = _estimate(_groups(diff, m), n_boot, [seed, 12, ci, mi], higher)
+            if m == "steps_to_decision" or m.startswith("correct_at"):
+                sentences.append(f"{a} {_PHRASE[est['outcome']]} {b} on {label} (difference {_num(est['value'])}, "
+                                 f"95 % CI [{_num(est['ci_low'])}, {_num(est['ci_high'])}], over {scope}).")
+    return {"planners": list(planners), "settings": settings, "budget": budget, "confidence": confidence,
+            "at_steps": at_steps(budget), "n_targets": int(n_t), "n_starts": int(n_u), "scope": scope,
+            "curves": curves, "pooled": pooled, "paired": paired, "verdict": sentences,
+            "labels": {m: lab for m, (lab, _) in {**STEP_METRICS, **metrics}.items()}}

@@ -1,0 +1,115 @@
+"""The view-planning section: where to look next (docs/planning.md). Everything shown is the
+evaluate stage's ``planning`` block of summary.json: the per-step curves with their CIs, the
+pooled table, the verdict sentences (computed there from the paired CIs) and one example path.
+Nothing is recomputed here."""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from reports.main.context import ReportContext
+from reports.shared.figures import new_subplots, step_ticks
+from reports.shared.numbers import fmt
+
+COLOURS = {"info_gain": "#0072B2", "known_pose": "#56B4E9", "random": "#999999", "fixed": "#000000",
+           "orbit": "#E69F00", "hindsight": "#009E73"}
+CURVES = (("correct", "correct ratio"), ("confident_error", "confident-error rate"), ("nll", "NLL of the truth"))
+
+
+def _block(ctx: ReportContext) -> dict | None:
+    b = (ctx.ev.summary or {}).get("planning")
+    return b if isinstance(b, dict) and b.get("curves") else None
+
+
+def fig_curves(block: dict) -> Any:
+    fig, axes = new_subplots(1, len(CURVES), w=10.0, h=3.4)
+    steps = np.arange(1, int(block["budget"]) + 1)
+    for ax, (key, label) in zip(axes[0], CURVES):
+        for p in block["planners"]:
+            est = block["curves"][p][key]
+            v = np.array([e["value"] for e in est], float)
+            lo = np.array([e["ci_low"] for e in est], float)
+            hi = np.array([e["ci_high"] for e in est], float)
+            ax.plot(steps, v, "-o", ms=3, color=COLOURS.get(p, "#CC79A7"), label=p, lw=1.4)
+            ax.fill_between(steps, lo, hi, color=COLOURS.get(p, "#CC79A7"), alpha=0.12, lw=0)
+        ax.set_title(label)
+        ax.set_xlabel("step (measurements)")
+        step_ticks(ax, steps)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=6, fontsize=8,
+               frameon=False)
+    return fig
+
+
+def fig_map(example: dict) -> Any:
+    fig, axes = new_subplots(1, 1, w=5.0, h=4.6)
+    ax = axes[0, 0]
+    views = np.asarray(example["views_xy"], float).reshape(-1, 2)
+    ax.scatter(views[:, 0], views[:, 1], s=10, color="#CCCCCC", label="views that see the target", zorder=1)
+    for name, style in (("fixed", "--"), ("info_gain", "-")):
+        path = (example.get("paths") or {}).get(name)
+        if not path:
+            continue
+        xy = np.asarray(path["xy"], float).reshape(-1, 2)
+        jitter = 0.01 if name == "fixed" else 0.0     # the two paths share their start
+        ax.plot(xy[:, 0] + jitter, xy[:, 1] + jitter, style, marker="o", ms=4, color=COLOURS[name],
+                label=f"{name} ({len(xy)} measurements)", zorder=3)
+    o = example["object_xy"]
+    ax.scatter([o[0]], [o[1]], marker="X", s=90, color="#D55E00", label="object (estimate)", zorder=4)
+    start = np.asarray(example["paths"]["info_gain"]["xy"][0] if "info_gain" in example["paths"] else views[0])
+    ax.scatter([start[0]], [start[1]], marker="s", s=50, facecolors="none", edgecolors="black", label="start", zorder=5)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m, ground frame)")
+    ax.set_ylabel("y (m, ground frame)")
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    return fig
+
+
+def planning_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
+    block = _block(ctx)
+    if block is None:
+        return []
+    plan = [("planning_curves.png", lambda: fig_curves(block))]
+    best = max(block["planners"], key=lambda p: block["curves"][p]["correct"][-1]["value"])
+    ctx.alts["planning_curves.png"] = (f"Correct ratio, confident-error rate and NLL per step for each planner; "
+                                       f"highest correct ratio at the last step: {best}.")
+    if (block.get("example") or {}).get("paths"):
+        ex = block["example"]
+        plan.append(("planning_map.png", lambda: fig_map(ex)))
+        ctx.alts["planning_map.png"] = (f"Floor plan of {ex['scan']}: the information-gain path and the fixed track "
+                                        f"from the same start, target {ex['target']}.")
+    return plan
+
+
+def _ci(e: dict) -> str:
+    return f"{fmt(e['value'])} [{fmt(e['ci_low'])}, {fmt(e['ci_high'])}]"
+
+
+def planning_section(ctx: ReportContext) -> None:
+    block = _block(ctx)
+    if block is None:
+        return
+    ctx.section("View planning: where to look next", "planning")
+    ctx.page.paragraph(
+        f"Each planner drives the robot on the scan's move graph from the same start nodes "
+        f"({block['scope']}), for at most {block['budget']} measurements, stopping when max P ≥ "
+        f"{fmt(block['confidence'])}; every planner's views are fused by With Uncertainty, so the "
+        f"differences are the choice of views alone. info_gain maximises the expected information gain "
+        f"under the belief's localization samples, known_pose the same with the pose taken as known, "
+        f"hindsight chooses with the true class (an upper bound). Values are means over targets with "
+        f"95 % CIs (hierarchical bootstrap over targets, then starts).")
+    ctx.figure("planning_curves.png", "Metrics per step, mean over targets with 95 % CIs.")
+    at = [k for k in block.get("at_steps", []) if f"correct_at_{k}" in block["pooled"][block["planners"][0]]]
+    rows = [[p, _ci(block["pooled"][p]["steps_to_decision"])] + [_ci(block["pooled"][p][f"correct_at_{k}"]) for k in at]
+            for p in block["planners"]]
+    ctx.page.table(["planner", "steps to a confident correct decision"] + [f"correct ratio at step {k}" for k in at],
+                   rows, cls="planning", caption=f"Pooled over {block['scope']}; no confident correct decision within the budget "
+                                 f"counts as {block['budget'] + 1} steps.")
+    if block.get("verdict"):
+        ctx.page.bullets(list(block["verdict"]))
+    d = block.get("decision_ms") or {}
+    if d.get("median") is not None:
+        ctx.page.paragraph(f"One information-gain decision took {fmt(d['median'])} ms (median; 90th percentile "
+                           f"{fmt(d['p90'])} ms) over {d['n']} decisions.")
+    ctx.figure("planning_map.png", "One planned path against the fixed track from the same start (true positions).")

@@ -1,0 +1,103 @@
+"""The planning population on hand-built worlds: tasks, the per-step table, the pooled block with
+its CIs and verdicts, and the same results through Ray (skipped where Ray is not installed)."""
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.planning.evaluation import episode_table
+from pipeline.planning.population import LocSetting, Task, run_task
+from pipeline.planning.summary import episode_values, planning_block, step_rows
+from tests.pipeline.planning.ring import models, ring_world
+
+HAVE_RAY = importlib.util.find_spec("ray") is not None
+SETTINGS = (LocSetting("biased", (-0.2, 0.1), 0.0, 0.2, 6), LocSetting("randomized", (0.0, 0.0), 0.2, 0.2, 6))
+
+
+def tasks(n_targets=3, starts=2):
+    out = []
+    for t in range(n_targets):
+        for s in range(starts):
+            w = ring_world(truth=t % 2, seed=10 * t + s, chords=True)
+            w = type(w)(**{**w.__dict__, "target": f"obj{t}"})
+            out.append(Task(w, s, SETTINGS, ("info_gain", "known_pose", "random", "fixed", "orbit", "hindsight"),
+                            5, 2, 0.9, 32, 0, 1e-6))
+    return out
+
+
+def banks():
+    return {"default": models()}
+
+
+def test_steps_to_decision_and_step_metrics():
+    lp = np.log(np.array([[0.6, 0.4], [0.3, 0.7], [0.95, 0.05], [0.95, 0.05]]))
+    key = {"target": "t", "scan": "s", "start": 0, "setting": "biased", "planner": "p"}
+    rows = step_rows(key, lp, np.array([1, 1, 1, 0], bool), ["a", "b", "c"], 0, 0.9)
+    assert list(rows["correct"]) == [1, 0, 1, 1] and list(rows["node"]) == ["a", "b", "c", ""]
+    np.testing.assert_allclose(rows["nll"], -lp[:, 0])
+    ep = episode_values(rows, budget=4, confidence=0.9)
+    assert ep["steps_to_decision"].iloc[0] == 3
+    wrong = step_rows(key, lp[:, ::-1], np.ones(4, bool), list("abcd"), 0, 0.9)
+    assert episode_values(wrong, 4, 0.9)["steps_to_decision"].iloc[0] == 5      # none: budget + 1
+    assert wrong["confident_error"].tolist() == [0, 0, 1, 1]
+
+
+def test_population_block_pools_over_targets_with_cis_and_verdicts():
+    ts = tasks()
+    results = [run_task(banks(), t) for t in ts]
+    table, times = episode_table(ts, results)
+    assert len(table) == len(ts) * 2 * 6 * 5 and len(times) > 0
+    block = planning_block(table, ts[0].planners, 5, 0.9, 200, 0)
+    assert block["n_targets"] == 3 and block["n_starts"] == 6
+    for p in ts[0].planners:
+        e = block["pooled"][p]["steps_to_decision"]
+        assert e["ci_low"] <= e["value"] <= e["ci_high"]
+        assert len(block["curves"][p]["correct"]) == 5
+    # the pooled value is the mean over targets of the mean over their starts (and settings)
+    ep = episode_values(table, 5, 0.9)
+    sub = ep[ep["planner"] == "random"]
+    want = sub.groupby(["target", "start"])["correct_at_3"].mean().groupby("target").mean().mean()
+    assert block["pooled"]["random"]["correct_at_3"]["value"] == pytest.approx(want)
+    d = block["paired"]["info_gain-random"]["steps_to_decision"]
+    assert d["outcome"] in ("better", "worse", "not distinguishable")
+    assert len(block["verdict"]) == 3 * 3        # steps to decision, correct at steps 3 and 5 (budget 5)
+    assert "correct_at_10" not in block["pooled"]["random"]
+
+
+def test_hindsight_and_info_gain_beat_random_on_the_separating_world():
+    ts = tasks(n_targets=4, starts=2)
+    block = planning_block(episode_table(ts, [run_task(banks(), t) for t in ts])[0], ts[0].planners, 5, 0.9, 200, 0)
+    p = block["pooled"]
+    assert p["info_gain"]["steps_to_decision"]["value"] < p["random"]["steps_to_decision"]["value"]
+    assert p["hindsight"]["steps_to_decision"]["value"] <= p["info_gain"]["steps_to_decision"]["value"]
+
+
+def _same(a, b):
+    for (sa, pa, ea), (sb, pb, eb) in zip(a, b):
+        assert (sa, pa, ea.nodes) == (sb, pb, eb.nodes)
+        np.testing.assert_array_equal(ea.log_post, eb.log_post)
+
+
+def test_run_task_is_deterministic():
+    t = tasks(1, 1)[0]
+    _same(run_task(banks(), t), run_task(banks(), t))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAVE_RAY, reason="Ray not installed (pip install -e '.[ray]')")
+def test_same_on_ray():
+    from pipeline.infra.executor import make_executor
+
+    ts = tasks(2, 1)
+    local = [run_task(banks(), t) for t in ts]
+    ex = make_executor("ray", workers=2)
+    try:
+        remote = list(ex.imap(run_task, ts, shared=banks(), desc="planning", total=len(ts)))
+    finally:
+        ex.close()
+    for a, b in zip(local, remote):
+        _same(a, b)
+    pd.testing.assert_frame_equal(episode_table(ts, local)[0], episode_table(ts, remote)[0])

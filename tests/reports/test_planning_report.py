@@ -1,0 +1,74 @@
+"""The report's view-planning section and ``viewfuse compare``'s planning rows show the numbers
+of the summary's planning block (one statistic per number), from a hand-built planning run."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from pipeline.planning.evaluation import episode_table, example_path
+from pipeline.planning.population import run_task
+from pipeline.planning.summary import planning_block
+from tests.pipeline.planning.test_population import banks, tasks
+from tests.reports.test_report import estimate, parse
+from tests.support.report_fixtures import write_fake_run
+
+
+@pytest.fixture(scope="module")
+def block():
+    ts = tasks(2, 2)
+    results = [run_task(banks(), t) for t in ts]
+    b = planning_block(episode_table(ts, results)[0], ts[0].planners, 5, 0.9, 100, 0)
+    b["example"] = example_path(ts, results)
+    b["decision_ms"] = {"median": 3.0, "p90": 5.0, "n": 10}
+    return b
+
+
+def with_planning(run, block):
+    p = run / "evaluate" / "summary.json"
+    s = json.loads(p.read_text())
+    s["planning"] = block
+    p.write_text(json.dumps(s))
+
+
+def test_the_section_shows_the_block(tmp_path, block):
+    from reports.main.page import build_main_report
+
+    facts = write_fake_run(tmp_path / "run", K=3, R=3, n_boot=50)
+    with_planning(facts["run"], block)
+    res = build_main_report(facts["run"], tmp_path / "out", dpi=40, progress=False, n_boot=50)
+    page = parse(res.index)
+    assert "planning" in page.sections
+    assert {"planning_curves.png", "planning_map.png"} <= set(res.figures)
+    rows = page.table("planning")["rows"][1:]
+    assert [r[0] for r in rows] == block["planners"]
+    for r in rows:
+        want = block["pooled"][r[0]]["steps_to_decision"]
+        v, lo, hi = estimate(r[1])
+        assert v == pytest.approx(want["value"], rel=2e-3) and lo == pytest.approx(want["ci_low"], rel=2e-3)
+        assert hi == pytest.approx(want["ci_high"], rel=2e-3)
+    html = res.index.read_text()
+    assert all(s.split(" (")[0] in html for s in block["verdict"])
+
+
+def test_a_run_without_planning_has_no_section(tmp_path):
+    from reports.main.page import build_main_report
+
+    facts = write_fake_run(tmp_path / "run", K=3, R=3, n_boot=50)
+    res = build_main_report(facts["run"], tmp_path / "out", dpi=40, progress=False, n_boot=50)
+    assert "planning" not in parse(res.index).sections
+    assert not any(f.startswith("planning") for f in res.figures)
+
+
+def test_compare_shows_the_planning_rows(tmp_path, block):
+    from reports.compare.page import render_text
+    from reports.compare.runs import compare
+
+    facts = write_fake_run(tmp_path / "run", K=3, R=3, n_boot=50)
+    with_planning(facts["run"], block)
+    c = compare([facts["run"]])
+    got = {(p, m): v[0] for p, m, v in c.planning}
+    assert got[("info_gain", "steps_to_decision")] == block["pooled"]["info_gain"]["steps_to_decision"]
+    keys = {(k, m) for k, m, _ in c.planning_paired}
+    assert ("info_gain-random", "correct_at_3") in keys
+    assert "View planning" in render_text(c)
