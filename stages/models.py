@@ -30,7 +30,7 @@ def run(ctx) -> str:
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
     save_bank(models, ctx.out, extra=extra)
-    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes)
+    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes, extra["candidate_sets"])
     dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)

@@ -22,7 +22,7 @@ import numpy as np
 from pipeline.evaluation.grid.candidates import candidate_sets, own_components, plan_components
 from pipeline.infra.config import ModelsConfig, to_dict
 from pipeline.infra.outputs import name as out_name
-from pipeline.method.dirichlet import DirichletModels, fit_class_dirichlets
+from pipeline.method.dirichlet import DirichletModels, fit_class_dirichlets, reduce_vectors
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 
@@ -245,10 +245,13 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     return models, extra
 
 
-def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Sequence[str]
-                            ) -> tuple[DirichletModels, dict[str, Any]]:
+def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Sequence[str],
+                            plan: dict | None = None) -> tuple[DirichletModels, dict[str, Any]]:
     """The Dirichlet method's class models: per class, Dir(γ; θ_c) fitted to the whole score
-    vectors of its training ring (``models.dirichlet.passes``), and the index extras."""
+    vectors of its training ring (``models.dirichlet.passes``), and the index extras. With
+    ``models.dirichlet.entries = n`` and the candidate ``plan`` ({target: {"classes", "components"}}),
+    also per candidate set each class's Dirichlet on its vectors reduced to the set's first n
+    components plus the rest mass (``DirichletModels.sets``)."""
     path = Path(path)
     dcfg = mcfg.dirichlet
     cols, scores, _, dropout = read_training_views(path, mcfg.camera)
@@ -274,11 +277,28 @@ def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Seque
         vectors[cls] = g
     models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter,
                                          accelerate=dcfg.accelerate)
+    if dcfg.entries and plan:
+        models.sets, set_diags = reduced_sets(vectors, plan, dcfg, scores.shape[1])
+        diags = diags + set_diags
     extra = {"fit": {"method": "Minka fixed point from the moment estimate"
                                + (", SQUAREM-accelerated" if dcfg.accelerate else ""), "camera": mcfg.camera,
                      **to_dict(dcfg)},
              "diagnostics": diags, "fits_not_converged": sum(1 for d in diags if not d["converged"])}
     return models, extra
+
+
+def reduced_sets(vectors: dict[str, np.ndarray], plan: dict, dcfg, dim: int
+                 ) -> tuple[dict[str, DirichletModels], list[dict[str, Any]]]:
+    """Per candidate set: its classes' Dirichlets on (first ``dcfg.entries`` chosen components, rest mass)."""
+    sets, diags = {}, []
+    for target in sorted(plan):
+        p = plan[target]
+        select = [int(i) for i in p["components"][:dcfg.entries]]
+        red, d = fit_class_dirichlets({c: reduce_vectors(vectors[c], select) for c in p["classes"]}, floor=dcfg.floor,
+                                      tol=dcfg.tol, max_iter=dcfg.max_iter, accelerate=dcfg.accelerate)
+        sets[target] = DirichletModels(red.classes, red.theta, floor=dcfg.floor, select=select, input_dim=dim)
+        diags.extend({**x, "candidate_set": target, "entries": select} for x in d)
+    return sets, diags
 
 
 def ablation_dir(ablation: str) -> str:

@@ -9,6 +9,14 @@ Minka's fixed-point iteration ``θ_j ← ψ⁻¹(ψ(Σθ) + mean_n ln γ_nj)`` f
 settings, fit diagnostics, the npz's sha256 and a fingerprint of the parameters). Loading never
 unpickles.
 
+Many classes (docs/design.md §5, "Dirichlet"): on a 1000-way ImageNet vector the density is a sum
+of 1000 log terms, most of them entries no candidate uses, and the likelihood ratios of two views
+reach thousands of nats. With ``models.dirichlet.entries = n`` the models stage also fits, per
+candidate set, each candidate's Dirichlet on its vectors reduced to the set's first n chosen
+components plus the rest mass (``reduce``); ``DirichletModels.sets`` holds these reduced models
+(``select`` = the kept entries, ``input_dim`` = the whole vector's length) and the evaluate stage
+uses a target's set where there is one.
+
 Zeros: a float32 softmax underflows to exactly 0 for confident outputs, and ``ln 0`` would make a
 class impossible on one entry. Every vector is floored (each entry raised to at least ``floor``)
 and renormalised before the log, in the fit and in the likelihood alike.
@@ -75,6 +83,13 @@ def prepare(gamma: np.ndarray, floor: float) -> np.ndarray:
         raise ValueError("Dirichlet: probability vectors must be finite and non-negative")
     g = np.maximum(g, floor)
     return g / g.sum(axis=-1, keepdims=True)
+
+
+def reduce_vectors(gamma: np.ndarray, select) -> np.ndarray:
+    """Probability vectors (..., D) reduced to the entries ``select`` plus the rest mass (..., n + 1)."""
+    g = np.asarray(gamma, float)
+    kept = g[..., np.asarray(select, dtype=np.int64)]
+    return np.concatenate([kept, np.clip(1.0 - kept.sum(axis=-1, keepdims=True), 0.0, None)], axis=-1)
 
 
 def log_likelihood(theta: np.ndarray, mean_log: np.ndarray, n: int = 1) -> float:
@@ -157,7 +172,14 @@ def fit_dirichlet(gamma: np.ndarray, *, floor: float = 1e-6, tol: float = 1e-10,
 class DirichletModels:
     """C classes of Dir(γ; θ_c) over D probability entries; ``theta`` is (C, D)."""
 
-    def __init__(self, classes: Sequence[str], theta, *, floor: float, meta: dict | None = None):
+    def __init__(self, classes: Sequence[str], theta, *, floor: float, meta: dict | None = None,
+                 select: Sequence[int] | None = None, input_dim: int | None = None,
+                 sets: dict[str, "DirichletModels"] | None = None):
+        # select: the input entries kept (the last theta column is then the rest mass), input_dim
+        # the length of the vectors log_likelihood takes; None = the whole vector (theta's D).
+        self.select = None if select is None else np.asarray(select, dtype=np.int64)
+        self.input_dim = int(input_dim) if input_dim is not None else np.shape(theta)[-1]
+        self.sets = dict(sets or {})   # candidate-set key (its target) -> reduced models of its classes
         self.classes = [str(c) for c in classes]
         self.theta = np.ascontiguousarray(theta, dtype=float)
         self.floor = float(floor)
@@ -174,7 +196,12 @@ class DirichletModels:
 
     @property
     def dim(self) -> int:
-        return int(self.theta.shape[1])
+        """Entries of the probability vectors the models take."""
+        return int(self.input_dim)
+
+    def reduce(self, gamma: np.ndarray) -> np.ndarray:
+        """Input vectors (..., dim) as the models' entries (``reduce_vectors`` with ``select``)."""
+        return np.asarray(gamma, float) if self.select is None else reduce_vectors(gamma, self.select)
 
     def subset(self, classes: Sequence[str]) -> "DirichletModels":
         """The models of ``classes``, in that order (a candidate set)."""
@@ -182,21 +209,32 @@ class DirichletModels:
         if missing:
             raise KeyError(f"DirichletModels: no model for class(es) {missing} (modelled: {', '.join(self.classes)})")
         idx = [self.classes.index(c) for c in classes]
-        return DirichletModels(classes, self.theta[idx], floor=self.floor, meta=self.meta)
+        return DirichletModels(classes, self.theta[idx], floor=self.floor, meta=self.meta, select=self.select,
+                               input_dim=self.input_dim)
 
     def log_likelihood(self, gamma: np.ndarray) -> np.ndarray:
         """ln Dir(γ; θ_c) for vectors (..., D): (..., C)."""
         g = np.asarray(gamma, float)
         if g.shape[-1] != self.dim:
             raise ValueError(f"DirichletModels: vectors have {g.shape[-1]} entries, the models {self.dim}")
-        lg = np.log(prepare(g, self.floor))
+        lg = np.log(prepare(self.reduce(g), self.floor))
         norm = gammaln(self.theta.sum(axis=1)) - gammaln(self.theta).sum(axis=1)        # (C,)
         return lg @ (self.theta - 1.0).T + norm
 
+    def for_set(self, key: str, classes: Sequence[str]) -> "DirichletModels":
+        """The reduced models of candidate set ``key`` in the order ``classes``, else ``subset(classes)``."""
+        if key not in self.sets:
+            return self.subset(classes)
+        return self.sets[key].subset(classes)
+
     def fingerprint(self) -> str:
-        """sha256 of the parameters, classes and floor: changes whenever the models do."""
+        """sha256 of the parameters, classes and floor (and every reduced set): changes whenever the models do."""
         h = hashlib.sha256(json.dumps({"classes": self.classes, "floor": self.floor}, sort_keys=True).encode())
         h.update(np.ascontiguousarray(self.theta, "<f8").tobytes())
+        for key in sorted(self.sets):
+            m = self.sets[key]
+            h.update(json.dumps({"set": key, "classes": m.classes, "select": m.select.tolist()}).encode())
+            h.update(np.ascontiguousarray(m.theta, "<f8").tobytes())
         return h.hexdigest()
 
     def save(self, folder: str | Path, extra: dict | None = None) -> Path:
@@ -204,12 +242,17 @@ class DirichletModels:
         folder.mkdir(parents=True, exist_ok=True)
         with atomic_path(folder / PARAMS_FILE) as tmp:
             with open(tmp, "wb") as fh:  # a file object: np.savez must not append ".npz"
-                np.savez(fh, theta=self.theta, floor=np.float64(self.floor))
+                keys = sorted(self.sets)
+                arrays = {f"set{i}_{part}": getattr(self.sets[k], part) for i, k in enumerate(keys)
+                          for part in ("theta", "select")}
+                np.savez(fh, theta=self.theta, floor=np.float64(self.floor), **arrays)
             digest = sha256_file(tmp)
         index = {"format": FORMAT, "version": VERSION, "density": "Dir(gamma; theta_c), gamma floored then renormalised",
                  "classes": self.classes, "dim": self.dim, "floor": self.floor, "file": PARAMS_FILE,
                  "sha256": digest, "fingerprint": self.fingerprint(), "meta": self.meta,
-                 "theta": {c: self.theta[i].tolist() for i, c in enumerate(self.classes)}}
+                 "theta": {c: self.theta[i].tolist() for i, c in enumerate(self.classes)},
+                 "sets": {k: {"array": f"set{i}", "classes": self.sets[k].classes,
+                              "entries": self.sets[k].select.tolist()} for i, k in enumerate(sorted(self.sets))}}
         return write_index(folder / INDEX_FILE, index, extra)
 
     @classmethod
@@ -230,8 +273,11 @@ class DirichletModels:
         if "theta" not in data or "floor" not in data:
             raise DirichletFileError(path, "missing array 'theta' or 'floor'")
         try:
-            out = cls(index["classes"], data["theta"], floor=float(data["floor"]), meta=index.get("meta"))
-        except ValueError as e:
+            sets = {k: cls(v["classes"], data[f"{v['array']}_theta"], floor=float(data["floor"]),
+                           select=data[f"{v['array']}_select"], input_dim=data["theta"].shape[1])
+                    for k, v in (index.get("sets") or {}).items()}
+            out = cls(index["classes"], data["theta"], floor=float(data["floor"]), meta=index.get("meta"), sets=sets)
+        except (ValueError, KeyError) as e:
             raise DirichletFileError(path, str(e)) from None
         if out.fingerprint() != index["fingerprint"]:
             raise DirichletFileError(ipath, "fingerprint does not match the parameters; rerun the 'models' stage")

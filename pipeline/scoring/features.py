@@ -225,13 +225,18 @@ class ScoringModel:
     std: tuple[float, ...]
     device: str = "cpu"
     weights: dict[str, np.ndarray] | None = None
+    arch: str = "alexnet"
+    drop_connect: float = 0.0
 
     @classmethod
     def from_model(cls, model, card: dict, policy, device: str, *, with_weights: bool) -> "ScoringModel":
+        from pipeline.scoring.card import card_arch
+
         w = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()} if with_weights else None
         return cls(key=f"{card['hash']}@{device}", num_classes=int(card["num_classes"]),
                    dropout=float(card["dropout"]), mean=tuple(policy.mean), std=tuple(policy.std),
-                   device=device, weights=w)
+                   device=device, weights=w, arch=card_arch(card),
+                   drop_connect=float(card.get("drop_connect", 0.0)))
 
 
 _SCORERS: dict[str, Any] = {}  # per process: the scorer built for a ScoringModel key
@@ -253,14 +258,15 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.scoring.alexnet import build_alexnet
+        from pipeline.scoring.networks import build_network, display_name
         from pipeline.scoring.weight_files import load_into
         from pipeline.scoring.mc_dropout import MCDropoutScorer
 
         if model.weights is None:
             raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
-        net = build_alexnet(model.num_classes, model.dropout)
-        load_into(net, {k: torch.from_numpy(np.array(v)) for k, v in model.weights.items()}, "object store")
+        net = build_network(model.arch, model.num_classes, model.dropout, model.drop_connect)
+        load_into(net, {k: torch.from_numpy(np.array(v)) for k, v in model.weights.items()}, "object store",
+                  display_name(model.arch))
         sc = MCDropoutScorer(net.eval().to(model.device), model.device)
         register_scorer(model.key, sc)  # one classifier per worker process at a time
     return sc

@@ -1,11 +1,17 @@
-"""MC-dropout scoring with torchvision's AlexNet (paper §4.3).
+"""MC-dropout scoring (paper §4.3) with the networks of ``pipeline.scoring.networks``.
 
-The network is ``features -> avgpool -> flatten -> classifier`` with ``classifier = (Dropout,
-Linear, ReLU, Dropout, Linear, ReLU, Linear)``. The dropout layers are all in the head, so ``N_s``
+AlexNet is ``features -> avgpool -> flatten -> classifier`` with ``classifier = (Dropout,
+Linear, ReLU, Dropout, Linear, ReLU, Linear)``; EfficientNet-Lite0 is its trunk (stem, blocks, head
+convolution, pooling) then ``(Dropout, Linear)``. The dropout layers are all in the head, so ``N_s``
 stochastic passes share one trunk output: the trunk runs once per crop, then the head on
 ``(B * N_s)`` rows with independent Bernoulli(1 - p) masks scaled by ``1/(1 - p)`` (exactly what
 ``nn.Dropout`` does in train mode). Masks come from a per-crop seeded generator, so a crop's
 samples depend only on (seed, crop key), not on batch size, order or device.
+
+A network with MC drop-connect in its trunk (EfficientNet-Lite0 with ``drop_connect`` > 0) cannot
+share the trunk: each sample then runs the trunk with its own per-block keep factors (drawn from a
+second stream of the crop's seed, so the head masks are the same as without drop-connect), in
+groups of ``TRUNK_ROWS`` images.
 """
 from __future__ import annotations
 
@@ -63,6 +69,9 @@ def fast_head(classifier: nn.Module, device: str, onednn: bool = True) -> list[n
 # (crop, sample) rows per head pass: about 150 kB each (masks, masked activations), so a pass holds
 # at most ~0.3 GB however large N_s grows; the default batch (64 crops x 10 samples) is one pass.
 HEAD_ROWS = 2048
+# images per trunk call when drop-connect makes every sample run the trunk (224 px EfficientNet-Lite0
+# activations are ~5 MB an image at their largest)
+TRUNK_ROWS = 32
 
 
 class MCDropoutScorer:
@@ -74,12 +83,12 @@ class MCDropoutScorer:
     """
 
     def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True):
-        for attr in ("features", "avgpool", "classifier"):
-            if not hasattr(model, attr):
-                raise TypeError(f"model has no '{attr}': not a torchvision AlexNet")
+        from pipeline.scoring.networks import split
+
+        self._trunk, head = split(model)
         self.model = model.eval().to(device)
         self.device = device
-        self.head = fast_head(model.classifier, device, onednn)
+        self.head = fast_head(head, device, onednn)
         self.dropout_dims: list[int] = []
         self.p: list[float] = []
         for i, m in enumerate(self.head):
@@ -89,12 +98,13 @@ class MCDropoutScorer:
                     raise TypeError("a Dropout layer without a following Linear layer in the head")
                 self.dropout_dims.append(nxt.in_features)
                 self.p.append(float(m.p))
+        # MC drop-connect in the trunk: the rates of the blocks it samples (none for AlexNet)
+        self.block_rates = [r for _, r in getattr(model, "drop_blocks", [])]
 
     # The parts, separately (the benchmark times them one by one).
     @torch.no_grad()
     def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        m = self.model
-        return torch.flatten(m.avgpool(m.features(x.to(self.device))), 1)
+        return self._trunk(x.to(self.device))
 
     @torch.no_grad()
     def head_eval(self, f: torch.Tensor) -> torch.Tensor:
@@ -125,12 +135,32 @@ class MCDropoutScorer:
             start += d
         return masks
 
+    def draw_block_keeps(self, seeds: Sequence[int], n_samples: int) -> torch.Tensor:
+        """Drop-connect factors (B, N_s, K), 0 or 1/(1-rate) per sampled block, from a second
+        stream of each crop's seed (the head masks' stream is left as it is)."""
+        keep = np.asarray([1.0 - r for r in self.block_rates], np.float32)
+        out = np.empty((len(seeds), n_samples, len(keep)), np.float32)
+        for b, s in enumerate(seeds):
+            u = np.random.default_rng([int(s), 1]).random((n_samples, len(keep)), dtype=np.float32)
+            out[b] = (u < keep) / keep
+        return torch.from_numpy(out).to(self.device)
+
+    @torch.no_grad()
+    def trunk_samples(self, x: torch.Tensor, keeps: torch.Tensor) -> torch.Tensor:
+        """Features (B, N_s, F): the trunk once per (crop, sample) with its drop-connect factors."""
+        B, n, K = keeps.shape
+        step = max(1, TRUNK_ROWS // n)  # crops per trunk call: their N_s copies, ~TRUNK_ROWS images
+        f = [self._trunk(x[a:a + step].to(self.device).repeat_interleave(n, dim=0), keeps[a:a + step].reshape(-1, K))
+             for a in range(0, B, step)]
+        return torch.cat(f).reshape(B, n, -1)
+
     @torch.no_grad()
     def head_samples(self, f: torch.Tensor, masks: Sequence[torch.Tensor]) -> torch.Tensor:
-        """Logits (B, N_s, D): the head on B*N_s rows, one mask row each, one matmul chain."""
+        """Logits (B, N_s, D): the head on B*N_s rows, one mask row each, one matmul chain. ``f``:
+        trunk features (B, F), shared by the samples, or (B, N_s, F), one per sample."""
         B = f.shape[0]
         n = masks[0].shape[1]
-        h = f.unsqueeze(1)  # (B, 1, F): broadcast over samples at the first mask
+        h = f.unsqueeze(1) if f.dim() == 2 else f  # (B, 1, F): broadcast over samples at the first mask
         k = 0
         for m in self.head:
             if isinstance(m, nn.Dropout):
@@ -154,6 +184,13 @@ class MCDropoutScorer:
         # Crops in groups of HEAD_ROWS // N_s: each crop's masks come from its own generator and its
         # rows are its own, so the grouping changes memory only.
         per = max(1, HEAD_ROWS // int(n_samples))
-        parts = [F.softmax(self.head_samples(f[a:a + per], self.draw_masks(seeds[a:a + per], n_samples)), dim=-1)
+
+        def features(a: int) -> torch.Tensor:
+            if not self.block_rates:
+                return f[a:a + per]  # shared by the samples
+            # drop-connect: the trunk once per sample
+            return self.trunk_samples(x[a:a + per], self.draw_block_keeps(seeds[a:a + per], n_samples))
+
+        parts = [F.softmax(self.head_samples(features(a), self.draw_masks(seeds[a:a + per], n_samples)), dim=-1)
                  for a in range(0, f.shape[0], per)]
         return det, parts[0] if len(parts) == 1 else torch.cat(parts)

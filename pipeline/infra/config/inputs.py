@@ -95,8 +95,34 @@ class SyntheticDataConfig:
 
 
 @dataclass(frozen=True)
+class RealImageryConfig:
+    """data.source = "real_imagery": COIL-100 photographs on real AVD geometry (loaders/real_imagery/,
+    docs/real_data.md). The COIL folder is ``data.coil_root``, the AVD root ``data.avd_root``."""
+    objects: tuple[int, ...] = _f(factory=lambda: tuple(range(2, 22)), lo=1, hi=100,
+                                  doc="COIL-100 object numbers used as classes (coil_obj<k>); each located AVD "
+                                      "instance stands for one of them (seeded pairing)")
+    train_step_deg: int = _f(10, lo=10, hi=180, doc="training views every this many degrees (a multiple of 5 "
+                                                    "dividing 360); the other 5-degree views are held out for the frames")
+    pairing_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="which COIL object each located AVD instance stands for")
+    yaws_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="each paired object's yaw, uniform on [0, 360) degrees")
+    max_difficulty: int = _f(4, lo=1, hi=5, doc="AVD boxes up to this difficulty locate instances and get frames")
+    max_ray_residual_m: float = _f(0.25, lo=0.0, hi=100.0,
+                                   doc="an instance whose rays miss their point by more (RMS, m) is not paired")
+    frames: str = _f("viewpoints", choices=("viewpoints", "all"),
+                     doc="which AVD views of a paired instance get a frame: 'viewpoints' = per grid point the view "
+                         "facing it best (the only views a track can take); 'all' = every box")
+    noise_std: float = _f(2.0, lo=0.0, hi=50.0, doc="sensor model: Gaussian read noise std, grey levels")
+    blur_sigma_px: float = _f(0.7, lo=0.0, hi=10.0, doc="sensor model: Gaussian optical blur sigma, pixels (0 = none)")
+    jpeg_quality: int = _f(85, lo=30, hi=100, doc="sensor model: JPEG quality of the written AVD frames")
+    train_jpeg_quality: int = _f(95, lo=30, hi=100, doc="JPEG quality of the training views (BigBIRD stores JPEG)")
+
+
+@dataclass(frozen=True)
 class DataConfig:
-    source: str = _f("synthetic", choices=("synthetic", "real"))
+    source: str = _f("synthetic", choices=("synthetic", "real", "real_imagery"),
+                     doc="synthetic stand-ins | real BigBIRD + AVD roots | real_imagery: COIL-100 photographs "
+                         "on real AVD scans' geometry (docs/real_data.md)")
+    coil_root: str = _f("", doc="real_imagery: folder of COIL-100 obj<k>__<deg>.png files")
     bigbird_root: str = _f("", doc="real data: folder holding BigBIRD object folders")
     avd_root: str = _f("", doc="real data: AVD root holding instance_id_map.txt and scan folders")
     scans: tuple[str, ...] = _f(factory=lambda: ("Home_001_1", "Home_002_1"),
@@ -108,3 +134,4 @@ class DataConfig:
                                      doc="images whose header declares more pixels are bad entries, not decoded "
                                          "(real BigBIRD views are 1.3 MP, AVD images 2.1 MP)")
     synthetic: SyntheticDataConfig = _f(factory=SyntheticDataConfig)
+    real_imagery: RealImageryConfig = _f(factory=RealImageryConfig)

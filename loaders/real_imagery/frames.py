@@ -1,0 +1,110 @@
+"""From a real AVD camera pose to the COIL photograph it sees (pure functions, no I/O).
+
+The object frame is the GP models' (``pipeline.method.geometry``): a camera at ``p`` sees an object
+at ``o`` with yaw ``psi`` from the bearing of ``Rot(-psi)(p - o)``. A COIL view at turntable angle
+``a`` is the object seen from bearing ``a`` (the training side writes its NP1 camera there,
+``loaders.real_imagery.training``), so the frame of a camera shows the HELD-OUT view (an angle not
+in training) nearest that bearing: at most half the held-out spacing away (2.5 degrees with 10-degree
+training and 5-degree COIL steps, 5 where a held-out view is missing).
+
+The view is resampled so that its object mask's bounding box becomes the real box in that frame
+(width and height scaled separately: the real box decides the pixel size), with half a box of the
+photograph's own black surround on each side, and pasted onto a black frame. The sensor model acts
+on a window around each pasted box (the crop the features stage takes lies inside it): Gaussian
+optical blur (``blur_sigma_px``), Gaussian read noise (``noise_std`` grey levels), then the whole
+frame is JPEG-encoded (``jpeg_quality``) by the writer.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pipeline.method.geometry import bearing, relative_inputs
+
+CONTEXT = 0.5   # surround kept around the object's box, as a fraction of the box side
+
+
+def object_bearing_deg(cam_xy, obj_xy, yaw_deg) -> np.ndarray:
+    """Bearing (degrees in [0, 360)) of each camera in the object frame: the GP input's angle."""
+    u = relative_inputs(np.asarray(cam_xy, float), np.asarray(obj_xy, float), np.radians(yaw_deg))
+    return np.degrees(bearing(u)) % 360.0
+
+
+def heldout_angles(angles, train_step_deg: int) -> list[int]:
+    """The angles of ``angles`` that are not training views (not multiples of ``train_step_deg``)."""
+    return sorted(int(a) for a in angles if int(a) % int(train_step_deg))
+
+
+def nearest_view(bearing_deg: float, angles) -> int:
+    """The angle of ``angles`` circularly nearest ``bearing_deg`` (ties: the smaller angle)."""
+    a = np.asarray(sorted(angles), float)
+    if a.size == 0:
+        raise ValueError("no held-out view to choose from")
+    d = np.abs((a - float(bearing_deg) + 180.0) % 360.0 - 180.0)
+    return int(a[int(np.argmin(d))])
+
+
+def mask_bbox(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1), exclusive ends, of the mask's pixels."""
+    ys, xs = np.nonzero(mask)
+    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+
+
+def resampled_view(rgb: np.ndarray, mask: np.ndarray, box_w: int, box_h: int):
+    """The view scaled so its mask box is ``box_w`` x ``box_h`` pixels, with CONTEXT of surround:
+    (patch uint8, (dx, dy) of the object box inside the patch)."""
+    x0, y0, x1, y1 = mask_bbox(mask)
+    cw, ch = x1 - x0, y1 - y0
+    ex, ey = round(CONTEXT * cw), round(CONTEXT * ch)
+    pad = max(ex, ey) + 1
+    src = cv2.copyMakeBorder(np.ascontiguousarray(rgb), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+    region = src[y0 + pad - ey:y1 + pad + ey, x0 + pad - ex:x1 + pad + ex]
+    sx, sy = box_w / cw, box_h / ch
+    dx, dy = round(ex * sx), round(ey * sy)
+    size = (box_w + 2 * dx, box_h + 2 * dy)
+    shrink = sx * sy < 1.0
+    patch = cv2.resize(region, size, interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    return patch, (dx, dy)
+
+
+def paste(frame: np.ndarray, patch: np.ndarray, offset: tuple[int, int], box) -> None:
+    """Put ``patch`` into ``frame`` so its object box lands on ``box`` (x0, y0, x1, y1); clipped."""
+    H, W = frame.shape[:2]
+    px, py = int(box[0]) - offset[0], int(box[1]) - offset[1]
+    fx0, fy0 = max(px, 0), max(py, 0)
+    fx1, fy1 = min(px + patch.shape[1], W), min(py + patch.shape[0], H)
+    if fx1 > fx0 and fy1 > fy0:
+        frame[fy0:fy1, fx0:fx1] = patch[fy0 - py:fy1 - py, fx0 - px:fx1 - px]
+
+
+def sensor_window(box, shape) -> tuple[slice, slice]:
+    """Rows and columns around a box that the sensor model acts on: one box side beyond each edge."""
+    x0, y0, x1, y1 = (int(v) for v in box)
+    m = max(x1 - x0, y1 - y0)
+    H, W = shape[:2]
+    return slice(max(y0 - m, 0), min(y1 + m, H)), slice(max(x0 - m, 0), min(x1 + m, W))
+
+
+def apply_sensor(frame: np.ndarray, box, noise_std: float, blur_sigma_px: float, rng: np.random.Generator) -> None:
+    """Blur, then read noise, on the box's window of ``frame`` (in place, uint8)."""
+    rows, cols = sensor_window(box, frame.shape)
+    win = frame[rows, cols].astype(np.float32)
+    if blur_sigma_px > 0:
+        win = cv2.GaussianBlur(win, (0, 0), blur_sigma_px)
+    if noise_std > 0:
+        win = win + rng.normal(0.0, noise_std, win.shape).astype(np.float32)
+    frame[rows, cols] = np.clip(np.round(win), 0, 255).astype(np.uint8)
+
+
+def render_frame(size: tuple[int, int], items, noise_std: float, blur_sigma_px: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """A black (H, W, 3) frame of ``size`` = (W, H) with each (rgb, mask, box) pasted, larger boxes
+    first, then the sensor model on each box's window."""
+    frame = np.zeros((size[1], size[0], 3), np.uint8)
+    items = sorted(items, key=lambda it: -(it[2][2] - it[2][0]) * (it[2][3] - it[2][1]))
+    for rgb, mask, box in items:
+        patch, off = resampled_view(rgb, mask, int(box[2]) - int(box[0]), int(box[3]) - int(box[1]))
+        paste(frame, patch, off, box)
+    for _, _, box in items:
+        apply_sensor(frame, box, noise_std, blur_sigma_px, rng)
+    return frame

@@ -1,0 +1,158 @@
+"""The data stage's writer for ``data.source = "real_imagery"`` (docs/real_data.md).
+
+Writes, under the stage folder, in the formats the other stages already read:
+
+- ``bigbird/coil_obj<k>/``: the COIL training views of every object of ``data.real_imagery.objects``
+  (``loaders.real_imagery.training``);
+- ``avd/instance_id_map.txt`` (``coil_obj<k> k``) and ``avd/<scan>/`` per scan: the real
+  ``image_structs.mat`` (copied: real camera poses), an ``annotations.json`` with the real move graph
+  of every image and, as boxes, the real boxes of the paired instances in the views that get a frame
+  (relabelled with the COIL object's id), ``present_instance_names.txt`` (the paired objects) and
+  ``jpg_rgb/``: a frame per such view (``loaders.real_imagery.frames``); every other image of the
+  scan is one shared black placeholder frame of the real size (hard links: the reader needs a file
+  per image, nothing reads its pixels);
+- ``truth.json``: per scan, each paired object's located position, its seeded yaw, the real
+  instance it stands for and the ray residual; the refused and unpaired instances.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from loaders.avd import KINECT_SIZE, AVDScan
+from loaders.coil import CoilFolder, object_name
+from loaders.errors import BadInputError
+from loaders.real_imagery.frames import (
+    heldout_angles,
+    nearest_view,
+    object_bearing_deg,
+    render_frame,
+)
+from loaders.real_imagery.pairing import box_rows, locate_instances, pair_scan
+from loaders.real_imagery.training import write_training_object
+from loaders.synthetic.bigbird_writer import encode_jpeg
+from pipeline.evaluation.grid.track import facing_error
+from pipeline.infra.cache import write_bytes, write_json
+
+
+def frame_views(rows, xy, grid: dict[str, int], mode: str):
+    """The rows (one instance) that get a frame: per grid point the view facing it best (the only
+    views ``select_tracks`` can pick), or every row for ``mode = 'all'``."""
+    d = rows.drop_duplicates("image").reset_index(drop=True)
+    if mode == "all" or d.empty:
+        return d
+    err = facing_error(d[["cam_x", "cam_y"]].to_numpy(float), d["heading"].to_numpy(float), xy)
+    gid = np.array([grid.get(n, -1 - i) for i, n in enumerate(d["image"])])
+    best: dict[int, int] = {}
+    for i, g in enumerate(gid):
+        if g not in best or err[i] < err[best[g]]:
+            best[int(g)] = i
+    return d.iloc[sorted(best.values())].reset_index(drop=True)
+
+
+def _heldout(coil: CoilFolder, k: int, step: int, skips) -> dict[int, tuple]:
+    out = {}
+    for a in heldout_angles([v.angle for v in coil.views(k)], step):
+        try:
+            out[a] = coil.read(coil.view(k, a))
+        except BadInputError as err:
+            skips.handle(err, "coil", "COIL view")
+    return out
+
+
+def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips) -> tuple[dict, str]:
+    """Write both sides (BigBIRD root ``bb_out``, AVD root ``avd_out``, the sidecar ``truth_path``);
+    returns (manifest extras, summary)."""
+    ri = cfg.data.real_imagery
+    coil_root, avd_root = cfg.path("data.coil_root"), cfg.path("data.avd_root")
+    coil = CoilFolder(coil_root, skip=skips.log("coil", "COIL view"))
+    trained, missing = {}, {}
+    for k in ri.objects:
+        if k not in coil.objects:
+            raise BadInputError(coil_root / f"obj{k}__0.png",
+                                f"COIL object {k} of 'data.real_imagery.objects' has no view in the folder")
+        info = write_training_object(bb_out, coil, k, ri.train_step_deg, ri.train_jpeg_quality)
+        if not info["angles"]:
+            skips.handle(BadInputError(coil_root / f"obj{k}__0.png", "no readable training view; object left out"),
+                         "coil", "COIL view")
+            continue
+        trained[k] = info["angles"]
+        if info["missing"]:
+            missing[object_name(k)] = info["missing"]
+    heldout = {k: _heldout(coil, k, ri.train_step_deg, skips) for k in trained}
+    heldout = {k: v for k, v in heldout.items() if v}
+    if len(heldout) < 2:
+        raise BadInputError(coil_root, "fewer than two COIL objects with readable training and held-out views")
+    avd_out.mkdir(parents=True, exist_ok=True)
+    write_bytes(avd_out / "instance_id_map.txt",
+                "".join(f"{object_name(k)} {k}\n" for k in sorted(heldout)).encode())
+    placeholder = avd_out / ".placeholder.jpg"
+    write_bytes(placeholder, encode_jpeg(np.zeros((KINECT_SIZE[1], KINECT_SIZE[0], 3), np.uint8), 50))
+    truth, counts = {}, {}
+    for scan in cfg.data.scans:
+        truth[scan], counts[scan] = _write_scan(cfg, avd_root, avd_out, scan, heldout, placeholder, skips)
+    placeholder.unlink()
+    write_json(truth_path, {"source": "real_imagery", "pairing": "synthetic: seeded "
+                                    "(data.real_imagery.pairing_seed, yaws_seed)", "scans": truth,
+                                    "train_step_deg": ri.train_step_deg,
+                                    "objects": {object_name(k): {"training_angles": trained[k],
+                                                                 "heldout_angles": sorted(heldout[k])}
+                                                for k in sorted(heldout)}})
+    extra = {"coil_objects": len(heldout), "training_views": sum(len(trained[k]) for k in heldout),
+             "missing_training_views": missing, "scans": counts}
+    per_scan = "; ".join(f"{s}: {c['paired']} paired instances, {c['frames']} frames" for s, c in counts.items())
+    return extra, (f"real imagery: {len(heldout)} COIL objects x {ri.train_step_deg}-degree training views "
+                   f"({extra['training_views']} views); {per_scan} (pairing synthetic, seeded)")
+
+
+def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, placeholder: Path, skips):
+    ri = cfg.data.real_imagery
+    s = AVDScan(avd_root, scan, skip=skips.log("avd", "AVD entry"), frames=False)
+    K = s.intrinsics()
+    rows = box_rows(s, ri.max_difficulty)
+    loc, refused = locate_instances(rows, float(K[0, 0]), float(K[0, 2]), ri.max_ray_residual_m)
+    pairs, left = pair_scan(scan, loc, sorted(heldout), ri.pairing_seed, ri.yaws_seed)
+    grid = s.grid_points()
+    items: dict[str, list] = {}
+    boxes: dict[str, list] = {}
+    record = {}
+    for p in pairs:
+        d = frame_views(rows[rows["instance"] == p.instance], np.asarray(p.xy), grid, ri.frames)
+        bear = object_bearing_deg(d[["cam_x", "cam_y"]].to_numpy(float), np.asarray(p.xy), p.yaw_deg)
+        views = heldout[p.object_id]
+        used = []
+        for r, b in zip(d.itertuples(index=False), bear):
+            a = nearest_view(float(b), views)
+            rgb, mask = views[a]
+            box = (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1))
+            items.setdefault(r.image, []).append((rgb, mask, box))
+            boxes.setdefault(r.image, []).append([*box, p.object_id, int(r.difficulty)])
+            used.append(a)
+        record[object_name(p.object_id)] = {"position": list(p.xy), "yaw_deg": p.yaw_deg, "avd_instance": p.instance,
+                                            "coil_object": p.object_id, "residual_m": round(p.residual_m, 4),
+                                            "frames": len(d), "heldout_views_used": sorted(set(used))}
+    folder = avd_out / scan
+    jpg = folder / "jpg_rgb"
+    jpg.mkdir(parents=True, exist_ok=True)
+    for name in sorted(items):
+        rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
+        frame = render_frame(KINECT_SIZE, items[name], ri.noise_std, ri.blur_sigma_px, rng)
+        write_bytes(jpg / name, encode_jpeg(frame, ri.jpeg_quality))
+    real = json.loads((avd_root / scan / "annotations.json").read_text())
+    ann = {}
+    for name, entry in real.items():
+        ann[name] = {**{k: v for k, v in entry.items() if k != "bounding_boxes"},
+                     "bounding_boxes": boxes.get(name, [])}
+        if name not in items:
+            os.link(placeholder, jpg / name)
+    write_json(folder / "annotations.json", ann)
+    shutil.copyfile(avd_root / scan / "image_structs.mat", folder / "image_structs.mat")
+    write_bytes(folder / "present_instance_names.txt",
+                "".join(f"{object_name(p.object_id)}\n" for p in sorted(pairs, key=lambda p: p.object_id)).encode())
+    info = {"instances": record, "refused": refused, "unpaired": left}
+    return info, {"paired": len(pairs), "refused": len(refused), "unpaired": len(left), "frames": len(items)}

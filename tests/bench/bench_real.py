@@ -1,0 +1,61 @@
+"""Speed goal of the real-imagery chain: ``make features models evaluate CONFIG=configs/real.toml``
+(data and classifier included, from an empty run folder) in <= 600 s with peak RSS <= 4 GB on
+this machine.
+
+Runs the CLI once under ``/usr/bin/time -v`` into a temporary artifacts folder and prints each
+stage's seconds (its "done in" line), the total wall time, the peak RSS of the largest process and
+the ratios to the goals (ratio < 1 = goal met), with the load average before and after (the
+machine may be shared: a loaded machine's seconds say so). Skips where ../shared/realdata is absent.
+"""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+GOAL_S, GOAL_GB = 600.0, 4.0
+STAGE_RE = re.compile(r"^\[(\w+)\] done in ([0-9.]+) s")
+
+
+def run_chain(config: Path, artifacts: Path, extra: list[str] = ()) -> dict:
+    """Run data .. evaluate on ``config`` into ``artifacts``: stage seconds, wall, peak RSS (GB)."""
+    cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "stages.commands.cli", "evaluate", "--config", str(config),
+           "--set", f"run.artifacts={artifacts}", *extra]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, check=False, cwd=ROOT, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if p.returncode:
+        raise RuntimeError(f"chain failed ({p.returncode}):\n{p.stderr[-3000:]}")
+    text = p.stdout + p.stderr
+    stages = {m.group(1): float(m.group(2)) for m in map(STAGE_RE.match, text.splitlines()) if m}
+    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", text)
+    return {"stages": stages, "wall_s": wall, "peak_gb": int(rss.group(1)) / 2**20 if rss else float("nan")}
+
+
+def main() -> None:
+    real = Path(os.environ.get("VIEWFUSE_REALDATA") or ROOT.parent / "shared" / "realdata")
+    if not (real / "coil100").is_dir() or not (real / "avd").is_dir():
+        print(f"skipped: real data {real} is absent (README, Real data)")
+        return
+    if not Path("/usr/bin/time").is_file():
+        print("skipped: /usr/bin/time (GNU time) is not installed")
+        return
+    load0 = os.getloadavg()
+    with tempfile.TemporaryDirectory() as tmp:
+        r = run_chain(ROOT / "configs" / "real.toml", Path(tmp))
+    load1 = os.getloadavg()
+    for st, sec in r["stages"].items():
+        print(f"  {st:<11} {sec:7.1f} s")
+    print(f"  chain wall  {r['wall_s']:7.1f} s (goal {GOAL_S:.0f} s: ratio {r['wall_s'] / GOAL_S:.2f}); peak RSS "
+          f"{r['peak_gb']:.2f} GB (goal {GOAL_GB:.0f} GB: ratio {r['peak_gb'] / GOAL_GB:.2f}); {os.cpu_count()} cores, "
+          f"load average {load0[0]:.1f} before, {load1[0]:.1f} after")
+
+
+if __name__ == "__main__":
+    main()
