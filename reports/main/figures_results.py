@@ -8,6 +8,8 @@ on the panel instead of showing a bare flat line.
 """
 from __future__ import annotations
 
+import math
+
 from typing import Any
 
 import numpy as np
@@ -15,7 +17,7 @@ import pandas as pd
 
 from pipeline.evaluation.metrics.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
-from reports.shared.figures import (MGR_SCALE_NOTE, mgr_axis, new_figure, new_subplots, percentile_bands, step_ticks,
+from reports.shared.figures import (MGR_SCALE_NOTE, mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
 
 FOREST_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
@@ -67,7 +69,7 @@ def fig_forest(pop: dict) -> Any:
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
         side = "right" if higher_is_better(metric) else "left"
         ax.set_title(f"{metric_label(metric)}\n(With Uncertainty better to the {side})", fontsize=9.5)
-        ax.set_xlabel("difference" + (f" of log10 MGR\n({MGR_SCALE_NOTE})" if "mgr" in metric else ""))
+        ax.set_xlabel(mgr_scale_label("difference of log10 MGR") if "mgr" in metric else "difference")
     axes[0, 0].set_yticks(range(len(rows)))
     axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
@@ -111,7 +113,7 @@ def fig_per_target(pop: dict) -> Any:
             mgr_axis(ax, drawn, axis="x")
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
         ax.set_title(metric_label(metric), fontsize=9.5)
-        ax.set_xlabel(f"{MGR_AXIS_LABEL}\n({MGR_SCALE_NOTE})" if "mgr" in metric else metric_label(metric))
+        ax.set_xlabel(mgr_scale_label(MGR_AXIS_LABEL) if "mgr" in metric else metric_label(metric))
     axes[0, 0].set_yticks(range(len(rows)))
     axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
@@ -168,10 +170,19 @@ def fig_biased(df: pd.DataFrame, n_classes: int, images: list[str] | None = None
     return fig
 
 
+BAND_COLUMNS = 3   # panels per row: four side by side printed their titles over each other
+
+
 def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[Any, int]:
-    """One panel per method, shared linear y; returns (fig, number of +inf values drawn at the top)."""
+    """One panel per method (at most ``BAND_COLUMNS`` per row, so panel titles keep apart), shared
+    y; returns (fig, number of +inf values drawn at the top)."""
     methods = ordered_methods(df["method"].unique())
-    fig, axes = new_subplots(1, len(methods), w=0.8 + 3.5 * len(methods), h=3.6, sharey=True)
+    ncol = min(len(methods), BAND_COLUMNS)
+    nrow = math.ceil(len(methods) / ncol)
+    fig, axes = new_subplots(nrow, ncol, w=0.8 + 3.5 * ncol, h=0.6 + 3.0 * nrow, sharey=True)
+    for ax in axes.flat[len(methods):]:
+        ax.set_visible(False)
+    axes = axes.reshape(1, -1)
     mats = {m: matrices(df[df["method"] == m])[column] for m in methods}
     steps = np.sort(df["step"].unique())
     finite = np.concatenate([v[np.isfinite(v)] for v in mats.values()] + [np.zeros(1)])
@@ -188,7 +199,8 @@ def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[A
                      fontsize=9.5 if not note else 8.5)
         ax.set_xlabel("track step k")
         step_ticks(ax, steps)
-    axes[0, 0].set_ylabel(ylabel if column == "p_truth" else f"{ylabel}\n({MGR_SCALE_NOTE})")
+    for r in range(nrow):
+        axes[0, r * ncol].set_ylabel(ylabel if column == "p_truth" else mgr_scale_label(ylabel))
     if column == "p_truth":
         axes[0, 0].set_ylim(-0.02, 1.02)
     else:
@@ -289,5 +301,5 @@ def fig_track(track: dict, biases: list[tuple[float, float]]) -> Any:
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m, ground frame)")
     ax.set_ylabel("y (m, ground frame)")
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1, fontsize=8, frameon=False)
     return fig

@@ -56,13 +56,19 @@ def biased(df, key: dict | None) -> str:
 
 def bands(df, column: str) -> str:
     fin = df[df["step"] == df["step"].max()]
-    parts = []
+    parts, meds = [], []
     for m in ordered_methods(fin["method"].unique()):
         v = fin[fin["method"] == m][column].to_numpy(float)
         lo, med, hi = (np.percentile(np.where(np.isposinf(v), np.inf, v), q) for q in (10, 50, 90))
         parts.append(f"{method_label(m, True)} median {fmt(med)} (10–90 %: {fmt(lo)} to {fmt(hi)})")
+        meds.append((float(med), method_label(m, True)))
     what = "P(truth)" if column == "p_truth" else "log10 MGR"
-    return f"{what} at the final step over realizations: " + "; ".join(parts) + "."
+    # the finding: which method ends best (highest P(truth), lowest log10 MGR)
+    best = (max(meds) if column == "p_truth" else min(meds)) if meds else None
+    lead = (f"; the {'highest' if column == 'p_truth' else 'lowest'} median is {best[1]}'s"
+            if best is not None and len({v for v, _ in meds}) > 1 else "; every method ends at the same median"
+            if meds else "")
+    return f"{what} at the final step over realizations: " + "; ".join(parts) + lead + "."
 
 
 def sensitivity(summ: dict) -> str:

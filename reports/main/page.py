@@ -22,6 +22,7 @@ from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
 from reports.shared.artifacts import load_run
 from reports.main.context import ReportContext
+from reports.shared.checks import ReportCheckError, figure_text_problems
 from reports.shared.figures import save
 from reports.main.figures_calibration import calibration_plan
 from reports.main.figures_models import fig_bias_maps, fig_gp_rasters, fig_gp_ring
@@ -157,7 +158,9 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     plan = _population_plan(ctx) + _track_plan(ctx, ctx.clipped) + _models_plan(ctx)
     written = []
     for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
-        ctx.checks[name] = chk = save(build(), out / name, dpi)
+        fig = build()
+        ctx.checks[name] = chk = save(fig, out / name, dpi)
+        ctx.problems.extend(figure_text_problems(fig, name))
         written.append(name)
         if chk.overlaps:
             ctx.notes.append(f"{name}: tick labels overlap ({'; '.join(chk.overlaps[:3])})")
@@ -169,5 +172,9 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
         section(ctx)
     for n in ctx.notes:
         log.warning("report: %s", n)
+    problems = ctx.problems + ctx.ledger.problems()
+    if problems:
+        # Nothing is published that contradicts itself: index.html is not written.
+        raise ReportCheckError(problems)
     ctx.page.write(out_path(out, "report", "html"))
     return ReportResult(out_path(out, "report", "html"), written, ctx.sections, ctx.notes)

@@ -26,6 +26,12 @@ MIN_FONT_PT = 8.0
 MGR_LINTHRESH = 1.0
 MGR_SCALE_NOTE = "symlog axis: linear in [−1, 1], logarithmic beyond"
 
+
+def mgr_scale_label(head: str) -> str:
+    """An axis label for a symlog log10 MGR axis: the quantity, then the scale note on two short
+    lines (one long line ran past the canvas on narrow panels)."""
+    return f"{head}\n(symlog axis: linear in [−1, 1],\nlogarithmic beyond)"
+
 # Smallest text: 8 pt = 12.2 px at the default 110 dpi, so every label stays >= 11 px at 100 %
 # (the report page shows figures at their own size up to MAX_WIDTH_IN; tests check both).
 _RC = {
