@@ -27,7 +27,9 @@ class ReportContext:
     alts: dict[str, str] = field(default_factory=dict)      # figure -> alt text stating its finding
     bias_findings: dict | None = None                       # reports.main.figures_models.bias_map_findings
     ledger: Ledger = field(default_factory=Ledger)          # every printed statistic (reports/shared/checks.py)
-    problems: list[str] = field(default_factory=list)       # self-check failures: the build stops on any
+    problems: list[str] = field(default_factory=list)
+    commit: str = ""                                        # the code's git commit (the report stage passes it)
+    config_file: str = ""                                   # the --config file of the run       # self-check failures: the build stops on any
 
     @property
     def ev(self):

@@ -20,6 +20,8 @@ from reports.main import calibration as calibration_sections
 from reports.main import findings
 from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
+from reports.main.reviewer import limitations_section, methods_section, reproduce_section, seeds_section
+from reports.main.scorecard import scorecard_section
 from reports.shared.artifacts import load_run
 from reports.main.context import ReportContext
 from reports.shared.checks import ReportCheckError, figure_text_problems
@@ -37,12 +39,12 @@ from reports.shared.tables import component_labels
 
 log = logging.getLogger("viewfuse.report")
 
-SECTIONS = (verdict_sections.verdict_section, calibration_sections.calibration_section,
-            verdict_sections.population_section, verdict_sections.diagnostics_section,
-            calibration_sections.domain_section, calibration_sections.attribution_section, track_sections.track_section,
-            track_sections.randomized_section, track_sections.sensitivity_section,
-            track_sections.bias_maps_section, track_sections.gp_section, glossary_section,
-            track_sections.details_section)
+SECTIONS = (verdict_sections.verdict_section, scorecard_section, methods_section, limitations_section, seeds_section,
+            calibration_sections.calibration_section, verdict_sections.population_section,
+            verdict_sections.diagnostics_section, calibration_sections.domain_section,
+            calibration_sections.attribution_section, track_sections.track_section, track_sections.randomized_section,
+            track_sections.sensitivity_section, track_sections.bias_maps_section, track_sections.gp_section,
+            glossary_section, reproduce_section, track_sections.details_section)
 
 
 @dataclass
@@ -147,12 +149,14 @@ def _subtitle(ctx: ReportContext) -> str:
 
 def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = "viewfuse report", dpi: int = 110,
                       run_name: str = "", config: dict | None = None, timings: dict[str, float] | None = None,
-                      progress: bool = True, n_boot: int = BOOTSTRAP, seed: int = 0) -> ReportResult:
+                      progress: bool = True, n_boot: int = BOOTSTRAP, seed: int = 0, commit: str = "",
+                      config_file: str = "") -> ReportResult:
     """Render ``out_dir/index.html`` and its PNGs from ``run_dir``'s evaluate, models and classifier outputs."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     run = load_run(run_dir)
-    ctx = ReportContext(HtmlReport(title), run, run_name, config or {}, timings or {}, n_boot=n_boot)
+    ctx = ReportContext(HtmlReport(title), run, run_name, config or {}, timings or {}, n_boot=n_boot, commit=commit,
+                        config_file=config_file)
     ctx.comp_names = component_labels(run.index, run.evaluate.gp, run.evaluate.target)
     _summaries(ctx, seed)
     plan = _population_plan(ctx) + _track_plan(ctx, ctx.clipped) + _models_plan(ctx)

@@ -86,6 +86,9 @@ def verdict_section(ctx: ReportContext) -> None:
     pooled = pop.get("pooled") or {}
     shown = [k for k in VERDICT_METRICS if any(k in (pooled.get(m) or {}) for m in methods)]
     rows = [[method_label(m)] + [Estimate.of(pooled_value(pop, m, k)) for k in shown] for m in methods]
+    for m in methods:
+        for k in shown:
+            ctx.ledger.register_estimate(("pooled", m, k), pooled_value(pop, m, k), where="pooled table")
     unit = str(pop.get("unit") or "")
     page.table(["method"] + [metric_label(k, short=True) for k in shown], rows, cls="summary pooled",
                caption=f"Pooled over the population: value [95 % CI]; NLL and log10 MGR (unbounded) as the median "
@@ -95,7 +98,8 @@ def verdict_section(ctx: ReportContext) -> None:
     every = list(dict.fromkeys(k for m in methods for k in (pooled.get(m) or {})))
     if len(every) > len(shown):
         page.table(["metric"] + [method_label(m, short=True) for m in methods],
-                   [[metric_label(k)] + [Estimate.of((pooled.get(m) or {}).get(k)) for m in methods] for k in every],
+                   # the statistic the verdict uses (pooled_value), as in the table above: one number per statistic
+                   [[metric_label(k)] + [Estimate.of(pooled_value(pop, m, k)) for m in methods] for k in every],
                    cls="summary pooled-all", caption="Every pooled metric in summary.json, value [95 % CI].",
                    collapsed=f"All {len(every)} pooled metrics")
     if len(head) < len(sentences):
@@ -148,8 +152,12 @@ def population_section(ctx: ReportContext) -> None:
     ctx.figure("forest.png", "Paired differences With Uncertainty − baseline on the same (target, track, "
                              "realization), per target and pooled, with 95 % bootstrap CIs over tracks. "
                              "A bar that crosses 0 is not distinguishable from no difference.")
+    rows = _paired_rows(pop)
+    for r in rows:
+        ctx.ledger.register(("paired", r[-1][0], r[-1][1]), r[3].value, r[3].low, r[3].high, label=r[2],
+                            where="paired table", higher_is_better=higher_is_better(r[-1][1]))
     page.table(["comparison", "metric", "outcome", "difference [95 % CI]", "cells won", "cells lost", "cells"],
-               _paired_rows(pop), cls="paired",
+               [r[:-1] for r in rows], cls="paired",
                caption="Paired differences, pooled. Won/lost: share of (target, track, setting) cells where "
                        "With Uncertainty is strictly better / worse.")
     note = dirichlet_note(pop)
@@ -190,7 +198,7 @@ def _paired_rows(pop: dict) -> list[list]:
                 continue
             rows.append([comparison_label(key), metric_label(metric, short=True),
                          outcome.get((key, metric)) or _outcome(d, metric), Estimate.of(d, signed=True),
-                         _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells")])
+                         _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells"), (key, metric)])
     return rows
 
 
