@@ -119,6 +119,6 @@ def attribution_section(ctx: ReportContext) -> None:
                                                             .get(comp) or per.get(k), signed=True) for k in keys])
     page.table(["comparison"] + [metric_label(k, short=True) for k in keys], rows, cls="attribution",
                caption="With Uncertainty with one ingredient each, on the same cells and realizations: poses only "
-                       "(dropout samples replaced by their mean) and dropout only (no pose sampling: σ = 0, N_x = 1). "
+                       "(dropout samples replaced by their mean) and dropout only (no pose sampling: σ = 0, one pose sample). "
                        "Paired differences [95 % CI]; NLL and log10 MGR as the median over targets.")
     page.bullets(_sentences(att, keys), cls="verdict attribution")

@@ -110,7 +110,7 @@ def bias_caption(found: dict) -> str:
         r = min(v["flip_radius_m"] for v in flips)
         s += f"; there a bias of {fmt(r)} m or more can flip the decision (paper Fig. 18)"
     if lost:
-        s += f"; in {len(lost)} view(s) another class wins even at zero bias, so no localization error is needed"
+        s += f"; in {len(lost)} view{'s' if len(lost) != 1 else ''} another class wins even at zero bias, so no localization error is needed"
     return s + "."
 
 

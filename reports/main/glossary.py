@@ -38,11 +38,11 @@ def terms(ctx: ReportContext) -> list[tuple[str, str]]:
         ("ceiling / floor", "cells where both methods sit at the best (e.g. correct ratio 1) or worst possible value: "
                             "they cannot tell the methods apart."),
         ("score component", comps + "; each class gets a GP per chosen component."),
-        ("component rule", "how a target's N_f components are chosen (models.component_rule: top_mean = the "
-                           "components with the highest mean score over the candidates' training views, top_min, "
-                           "target_informative, explicit)."),
-        ("showcase track", "the one track shown in detail (paper figures), chosen by the rule in summary.json "
-                           "(population.showcase)."),
+        ("component rule", "how a target's few score components are chosen (by default the "
+                           "components with the highest mean score over the candidates' training views; other "
+                           "rules: the highest minimum score, the most informative about the target, or a fixed list)."),
+        ("showcase track", "the one track shown in detail (paper figures), chosen by a rule the results record "
+                           "(the track where the methods disagree most)."),
     ]
 
 

@@ -105,7 +105,7 @@ def seeds_section(ctx: ReportContext) -> None:
         ctx.page.paragraph("No seed study in this run folder: every interval on this page varies over targets and "
                            "tracks only, with one classifier training run. The seed study retrains the classifier "
                            "with other seeds and says whether each verdict stays the same "
-                           "(`viewfuse study --config ...`; its page is study/index.html).", cls="warn")
+                           "(the command viewfuse study; its page is study/index.html).", cls="warn")
         return
     seeds = st.get("seeds") or []
     same = st.get("same_verdict")

@@ -40,7 +40,7 @@ def classifier_text(card: dict | None) -> str:
         run = f"classifier.seed = {seed}" if seed is not None else "one seed"
         return (f"classifier: AlexNet trained here on {card.get('num_classes', '?')} synthetic texture "
                 f"families (the source domain), held-out top-1 {acc_t}; one training run ({run}): the CIs "
-                f"cover targets and tracks, not training runs, which `viewfuse study` repeats with other seeds")
+                f"cover targets and tracks, not training runs, which the seed study (viewfuse study) repeats with other seeds")
     if w == "imagenet":
         return "classifier: torchvision's ImageNet AlexNet (IMAGENET1K_V1), no held-out accuracy on these objects"
     return f"classifier: AlexNet weights from {card.get('weights_file', 'a file')}"
@@ -55,7 +55,8 @@ def context_sentence(ctx: ReportContext) -> str:
         c = counts(pop)
         size = f"{scope_text(c)}; {len(pop.get('methods') or [])} methods"
         if c["single_track_targets"]:
-            size += (f"; {len(c['single_track_targets'])} target(s) with a single track "
+            n1 = len(c['single_track_targets'])
+            size += (f"; {n1} target{'s' if n1 != 1 else ''} with a single track "
                      f"({', '.join(c['single_track_targets'])}: no CI of their own)")
     else:
         size = f"one target ({ctx.ev.target or '?'}) on one track"
@@ -74,7 +75,7 @@ def verdict_section(ctx: ReportContext) -> None:
         msg = ("This run has no population evaluation: summary.json has no 'population' key (an evaluate "
                "stage from before the population evaluation wrote it), so there is no verdict. The numbers "
                "below come from one target on one track; their CIs cover only the localization noise, "
-               "not other tracks, objects or classifiers. Rerun `viewfuse evaluate` for a verdict.")
+               "not other tracks, objects or classifiers. Rerun the evaluate stage for a verdict.")
         ctx.notes.append(msg)
         page.paragraph(msg, cls="warn")
         return
@@ -170,7 +171,7 @@ def population_section(ctx: ReportContext) -> None:
                    caption="Per target: value [95 % CI] over that target's tracks; a target with one track has "
                            "no CI of its own (the bootstrap resamples tracks), only its value.")
     else:
-        note = "summary.json's population.per_target is empty: no per-method values per target to show."
+        note = "The results hold no per-target values (their per-target block is empty): nothing to show per target."
         ctx.notes.append(note)
         page.paragraph(note, cls="warn")
     _by_setting(ctx, pop)
@@ -208,11 +209,11 @@ def dirichlet_note(pop: dict) -> str:
         return ""
     d = pop.get("dirichlet") or {}
     spread = d.get("truth_std_final") or {}
-    cloud = (f" Its posterior cloud (N_ss = {d.get('n_ss')} points) has a median std of P(truth) at the final "
+    cloud = (f" Its posterior cloud ({d.get('n_ss')} points) has a median std of P(truth) at the final "
              f"step of {fmt(spread.get('median'))} (quartiles {fmt(spread.get('q25'))}–{fmt(spread.get('q75'))}, "
              f"max {fmt(spread.get('max'))}) over {spread.get('n_cells')} tracks." if spread else "")
     return (f"{method_label(DIRICHLET, short=True)} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the "
-            "classifier's whole probability vector (every output, where the GP methods model their N_f chosen score "
+            "classifier's whole probability vector (every output, where the GP methods model their few chosen score "
             "components) and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple "
             "Bayes it ignores the poses: its posterior is the same for every localization realization and setting "
             "of a track, so With Uncertainty − Dirichlet measures what the viewpoint-dependent models (with the "
@@ -341,4 +342,4 @@ def _ablations(ctx: ReportContext) -> None:
     ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],
                    rows, cls="ablations", caption=f"Ablations on the same population: "
                    f"{comparison_label(key)}, 95 % CIs; each row's verdict is computed as the main one (headline "
-                   "metrics here; every metric in summary.json, population.ablations).")
+                   "metrics here; every metric in the results file evaluate/summary.json).")

@@ -264,3 +264,64 @@ def caption_problem(name: str, caption: str) -> str:
         return ""
     missing = " and ".join(x for x, ok in (("a number", has_number), ("a comparison word", has_word)) if not ok)
     return f"{name}: caption states no finding (it lacks {missing}): {_short(caption)}"
+
+
+# ---------------------------------------------------------------- plain words
+
+# Internal names a reader should never meet on a page (config keys and code names are shown only
+# in the run details' configuration dump and the reproduce box, which the walk skips).
+INTERNAL_NAMES = (r"\bWU\b", r"\bN_x\b", r"\bN_ss\b", r"\bN_f\b", r"cross_fit", r"top_mean", r"top_min",
+                  r"population\.\w+", r"\bissue \d+", "`", r"\w\(s\)", r"summary\.json's", r"_final\b",
+                  r"_overall\b", r"\bverdict_table\b", r"\bpaired_per_target\b")
+_ASCII_MINUS = re.compile(r"(?<![\w.\[/-])-(?=\d)")   # '-0.3' (a hyphen used as a minus sign)
+_TIGHT_PERCENT = re.compile(r"\d%")                 # '8%' (the page writes '8 %')
+
+
+def page_text(html_text: str, skip_classes: tuple[str, ...] = ("config", "facts", "config-diff", "json-paths",
+                                                                 "hyperparameters", "reproduce")) -> list[str]:
+    """The visible text of a page, chunk by chunk, outside <pre>, <style>, <code> and the tables
+    whose class names a place that shows code names on purpose (``skip_classes``)."""
+    from html.parser import HTMLParser
+
+    class Walk(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.skip, self.stack, self.out = 0, [], []
+
+        def handle_starttag(self, tag, attrs):
+            if tag in ("br", "img", "meta", "link", "hr", "input"):
+                return
+            cls = (dict(attrs).get("class") or "").split()
+            sect = dict(attrs).get("id") or ""
+            hide = tag in ("pre", "style", "code", "script") or any(c in skip_classes for c in cls) \
+                or sect in skip_classes
+            self.stack.append(hide)
+            self.skip += hide
+
+        def handle_endtag(self, tag):
+            if tag in ("br", "img", "meta", "link", "hr", "input") or not self.stack:
+                return
+            self.skip -= self.stack.pop()
+
+        def handle_data(self, data):
+            if not self.skip and data.strip():
+                self.out.append(data)
+
+    w = Walk()
+    w.feed(html_text)
+    return w.out
+
+
+def plain_words_problems(html_text: str) -> list[str]:
+    """Internal names, hyphen-minus signs and '8%' in a page's visible text."""
+    out = []
+    for chunk in page_text(html_text):
+        for pat in INTERNAL_NAMES:
+            m = re.search(pat, chunk)
+            if m:
+                out.append(f"internal name {m.group(0)!r} in: {_short(chunk[max(0, m.start() - 30):m.end() + 30])}")
+        for rx, what in ((_ASCII_MINUS, "a hyphen as minus sign"), (_TIGHT_PERCENT, "'%' without a space")):
+            m = rx.search(chunk)
+            if m:
+                out.append(f"{what} in: {_short(chunk[max(0, m.start() - 30):m.end() + 30])}")
+    return out

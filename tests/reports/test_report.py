@@ -107,8 +107,11 @@ def test_one_number_format_with_significant_digits():
     assert Estimate(7.62e-19, 4.09e-20, 2.14e-18).text() == "< 1e-6 [< 1e-6, < 1e-6]"
     assert Estimate(0.5, float("nan"), float("nan")).text() == "0.500"  # no interval: the value alone
     assert fmt(None) == fmt(float("nan")) == "n/a" and fmt(float("inf")) == "∞"
-    assert Estimate(0.46, 0.31, 0.6).text() == "0.460 [0.310, 0.600]"
-    assert Estimate(0.181, 0.0139, 0.319, signed=True).text() == "+0.181 [+0.0139, +0.319]"
+    # digits follow the CI's width (two significant digits of it); an end that would round to 0 keeps its own
+    assert Estimate(0.46, 0.31, 0.6).text() == "0.46 [0.31, 0.60]"
+    assert Estimate(0.181, 0.0139, 0.319, signed=True).text() == "+0.18 [+0.01, +0.32]"
+    assert Estimate(0.003, 0.001, 0.9).text() == "0.0030 [0.0010, 0.90]"
+    assert Estimate(0.46, 0.31, 0.6).text(sig=3) == "0.460 [0.310, 0.600]"
     assert Estimate(0.5).text() == "0.500"
     assert Estimate.of({"value": 1, "ci_low": -1, "ci_high": 2}).excludes_zero() is False
     assert Estimate.of({"value": 1, "ci_low": 0.5, "ci_high": 2}).excludes_zero() is True
