@@ -98,7 +98,7 @@ def fig_gp_ring(gp: dict, classes: list[str], comp_names: list[str], test_inputs
         ax.set_title(comp_names[f] if f < len(comp_names) else f"component {f}")
     fig.legend(*axes.flat[0].get_legend_handles_labels(), loc="outside lower center",
                ncol=min(C, 2), fontsize=8, frameon=False)
-    fig.suptitle("GP mean ± 2σ on the training ring, with training points (dots), AVD crop scores of the "
+    fig.suptitle("GP mean ± 2σ on the training ring, with training points (dots),\nAVD crop scores of the "
                  "scan (crosses; dotted: track views)" if "obs_theta" in gp else
                  "GP mean ± 2σ on the training ring, with training points (dotted: track views)")
     return fig

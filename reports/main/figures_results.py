@@ -17,7 +17,7 @@ import pandas as pd
 
 from pipeline.evaluation.metrics.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
-from reports.shared.figures import (MGR_SCALE_NOTE, mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
+from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
 
 FOREST_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
@@ -166,7 +166,10 @@ def fig_biased(df: pd.DataFrame, n_classes: int, images: list[str] | None = None
     ax.set_ylabel("P(ground-truth class | history)")
     step_ticks(ax, steps)
     # Outside the axes: a legend inside covered the curves (a drop at the last steps).
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, frameon=False)
+    handles, labels = ax.get_legend_handles_labels()
+    # one column per ~320 px of width, so long method names never run past the canvas
+    fig.legend(handles, [wrap_label(t, 40) for t in labels], loc="outside lower center",
+               ncol=max(1, min(2, int(fig.get_figwidth() // 3.2))), frameon=False)
     return fig
 
 
@@ -195,7 +198,7 @@ def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[A
         percentile_bands(ax, steps, np.where(bad, cap, v), method_color(m))
         note = constant_note(v)
         # In the title, not on the data: a flat band is a finding, and a box would hide the line.
-        ax.set_title(f"{method_label(m)}\nR = {v.shape[0]} realizations" + (f"\n{note}" if note else ""),
+        ax.set_title(f"{wrap_label(method_label(m), 34)}\nR = {v.shape[0]} realizations" + (f"\n{note}" if note else ""),
                      fontsize=9.5 if not note else 8.5)
         ax.set_xlabel("track step k")
         step_ticks(ax, steps)
@@ -238,7 +241,7 @@ def _ci_line(ax, x, ests, color: str, label: str, ls: str = "-") -> int:
 
 def fig_sensitivity(summ: dict) -> Any:
     """Correct ratio and log10 MGR95 (final step) vs σ, each with its 95 % CI over realizations."""
-    fig, axes = new_subplots(1, 2, w=10.0, h=3.8)
+    fig, axes = new_subplots(1, 2, w=10.0, h=4.4)
     settings = sorted(summ, key=lambda s: summ[s]["sigma_m"])
     sig = np.array([summ[s]["sigma_m"] for s in settings])
     methods = ordered_methods({m for s in settings for m in summ[s]["methods"]})
@@ -262,7 +265,7 @@ def fig_sensitivity(summ: dict) -> Any:
                     transform=ax.transAxes, ha="center", va="center", fontsize=8.5,
                     bbox={"boxstyle": "round", "fc": "white", "ec": "#999999", "alpha": 0.92})
     axes[0, 1].axhline(0.0, color="#777777", ls="--", lw=1)
-    axes[0, 1].set_ylabel(f"95th percentile, final step:\n{MGR_AXIS_LABEL}\n({MGR_SCALE_NOTE})", fontsize=8.5)
+    axes[0, 1].set_ylabel(mgr_scale_label("log10 MGR, 95th percentile,\nfinal step"), fontsize=8.5)
     axes[0, 1].set_title("Confident misclassification vs σ (lower is better)")
     for ax in axes[0]:
         ax.set_xlabel("localization noise σ (m)")

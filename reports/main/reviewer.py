@@ -12,6 +12,7 @@ from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.infra.outputs import path as out_path
 from reports.main.bottom_line import counts
 from reports.main.context import ReportContext
+from reports.shared.figures import MGR_SATURATION
 
 # One line per method: what it models, what it ignores (paper §§3-4; docs/design.md §5).
 METHOD_NOTES = {
@@ -75,10 +76,28 @@ def limitations(ctx: ReportContext) -> list[str]:
     elif seeds:
         out.append(f"Classifier training varies over {len(seeds) + 1} seeds in the seed study only; every other "
                    "number on this page comes from one of them.")
+    sat = saturated(pop)
+    if sat:
+        out.append(f"{len(sat)} (target, method) pairs reach a log10 MGR above {MGR_SATURATION:g} "
+                   f"({', '.join(sat[:6])}{', …' if len(sat) > 6 else ''}): numerical saturation (see the "
+                   "glossary), so means of log10 MGR are dominated by them; the pooled log10 MGR is a median over "
+                   "targets for that reason.")
     if ctx.data_source == "synthetic":
         out.append("The images are synthetic stand-ins rendered in the datasets' formats, not the real BigBIRD "
                    "and AVD photographs, so the paper's numbers are not expected to be reproduced.")
     return out
+
+
+def saturated(pop: dict) -> list[str]:
+    """'target / method' of every per-target or pooled log10 MGR value above the saturation cap."""
+    out = []
+    for t, per in (pop.get("per_target") or {}).items():
+        for m, d in (per or {}).items():
+            for k, e in (d or {}).items():
+                v = (e or {}).get("value") if isinstance(e, dict) else None
+                if k.startswith("log10_mgr") and v is not None and float(v) > MGR_SATURATION:
+                    out.append(f"{t} / {method_label(m, short=True)}")
+    return sorted(set(out))
 
 
 def limitations_section(ctx: ReportContext) -> None:

@@ -99,11 +99,11 @@ def simulate_claims(run_dir: Path | None) -> list[dict]:
     return [c for c in claims if isinstance(c, dict)]
 
 
-def scorecard_section(ctx: ReportContext) -> None:
+def scorecard(ctx: ReportContext) -> None:
+    """The claims table, the §5.3 line and the note on the paper's tables (inside the verdict section)."""
     pop = ctx.population
     if not pop:
         return
-    ctx.section("The paper's claims, checked", "claims")
     rows = []
     for c in CLAIMS:
         key = comparison_key(c.method, c.baseline)
@@ -116,7 +116,8 @@ def scorecard_section(ctx: ReportContext) -> None:
         rows.append([c.text, c.reading, c.paper or "not transcribed", est, status])
     ctx.page.table(["claim of the paper (§5.5, in our words)", "our reading", "paper's number",
                     "ours: difference [95 % CI]", "verdict"], rows, cls="scorecard",
-                   caption=f"{comparison_label(comparison_key(CLAIMS[0].method, CLAIMS[0].baseline))} and the other "
+                   caption="The paper's claims, checked. "
+                           f"{comparison_label(comparison_key(CLAIMS[0].method, CLAIMS[0].baseline))} and the other "
                            "comparisons as paired differences on the same (target, track, setting) cells. Holds: the "
                            "95 % CI lies on the claimed side of 0; fails: on the other side; inconclusive: it "
                            "contains 0. The CIs vary over targets and tracks, not over classifier training runs.")

@@ -11,6 +11,7 @@ from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_te
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt, reformat_numbers
 from reports.main.calibration import pooled_value
+from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
 
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
@@ -68,6 +69,7 @@ def verdict_section(ctx: ReportContext) -> None:
     page, pop = ctx.page, ctx.population
     for line in bottom_line(pop or {}, ctx.run.card)[:1]:
         page.paragraph(line, cls="bottomline")
+    scorecard(ctx)  # the paper's claims, checked: on the first screen, right under the bottom line
     for line in bottom_line(pop or {}, ctx.run.card)[1:]:
         page.paragraph(line, cls="context")
     page.paragraph(context_sentence(ctx), cls="context")
