@@ -105,7 +105,8 @@ def limitations_section(ctx: ReportContext) -> None:
     if not items:
         return
     ctx.section("Limitations of this run", "limitations")
-    ctx.page.bullets(items, cls="limitations")
+    for item in items:  # paragraphs, not a list: the page's lists are its verdict sentences
+        ctx.page.paragraph(item, cls="limitation")
 
 
 def _study(ctx: ReportContext) -> dict | None:

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from reports.main import findings, page as page_module, scorecard
+from reports.main import findings, scorecard
+from reports.main import page as page_module
 from reports.main.page import build_main_report
 from reports.shared.checks import ReportCheckError, page_text, plain_words_problems
 from reports.shared.figures import new_figure
