@@ -22,6 +22,16 @@ def pooled_value(block: dict, method: str, metric: str) -> dict | None:
     return ((block.get("pooled") or {}).get(method) or {}).get(metric)
 
 
+def paired_value(block: dict, comparison: str, metric: str) -> dict | None:
+    """A paired difference as the verdict computes it (the robust statistic for unbounded metrics,
+    else the mean), with the paired entry's win shares and cell counts."""
+    d = ((block.get("paired") or {}).get(comparison) or {}).get(metric)
+    rob = (((block.get("robust") or {}).get(metric) or {}).get("paired") or {}).get(comparison)
+    if rob:
+        return {**(d or {}), **{k: rob[k] for k in ("value", "ci_low", "ci_high") if k in rob}}
+    return d
+
+
 def _header() -> list[str]:
     return ["likelihood", "method"] + [metric_label(k, short=True) + (" (median of targets)" if
                                                                      k.startswith(("nll", "log10")) else "")

@@ -6,7 +6,7 @@ import numpy as np
 
 from pipeline.evaluation.metrics.labels import comparison_label, method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
-from reports.main.calibration import pooled_value
+from reports.main.calibration import paired_value, pooled_value
 from reports.shared.checks import Ledger, outcome_of
 from reports.shared.numbers import Estimate, fmt
 
@@ -25,7 +25,7 @@ def forest(pop: dict, ledger: Ledger | None = None) -> str:
             if metric not in per:
                 continue
             higher = higher_is_better(metric)
-            e = Estimate.of(per[metric], signed=True)
+            e = Estimate.of(paired_value(pop, key, metric), signed=True)
             if ledger is not None:
                 ledger.register(("paired", key, metric), e.value, e.low, e.high, label=_outcome(e, higher),
                                 where="forest plot caption", higher_is_better=higher)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
 from pipeline.evaluation.metrics.spec import higher_is_better
+from reports.main.calibration import paired_value
 from reports.main.context import ReportContext
 from reports.shared.checks import outcome_of
 from reports.shared.numbers import Estimate
@@ -73,7 +74,7 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
             hi = _end(r.get("hi"), math.inf if unb else None)
             return {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
                     "over": r.get("over") or ["targets", "tracks"]}
-    d = ((pop.get("paired") or {}).get(comparison) or {}).get(metric)
+    d = paired_value(pop, comparison, metric)
     if not d:
         return None
     return {"value": d.get("value"), "lo": d.get("ci_low"), "hi": d.get("ci_high"), "n": d.get("n") or {},

@@ -10,7 +10,7 @@ from pipeline.evaluation.statistics.popstats import wilson_interval
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt, reformat_numbers
-from reports.main.calibration import pooled_value
+from reports.main.calibration import paired_value, pooled_value
 from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
 
@@ -196,7 +196,7 @@ def _paired_rows(pop: dict) -> list[list]:
         metrics = list(PAIRED_METRICS) + [k for k in (pop["paired"].get(key) or {}) if k not in PAIRED_METRICS
                                           and "overall" not in k]
         for metric in metrics:
-            d = ((pop.get("paired") or {}).get(key) or {}).get(metric)
+            d = paired_value(pop, key, metric)   # the statistic the outcome is read from
             if not d:
                 continue
             rows.append([comparison_label(key), metric_label(metric, short=True),
