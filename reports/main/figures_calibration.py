@@ -22,7 +22,7 @@ def bin_counts(results, variant: str = "default", where: str = "final", n_bins: 
     step; binned as the reliability diagram is (the last bin holds confidence 1 alone). Unweighted
     counts: how many posteriors each plotted point rests on."""
     import pandas as pd
-    if results is None or "posterior" not in results or n_bins is None:
+    if results is None or "confidence" not in results or "variant" not in results or n_bins is None:
         return {}
     df = results[(results["variant"] == variant) & results["experiment"].isin(("biased", "randomized"))]
     if df.empty:
@@ -30,7 +30,7 @@ def bin_counts(results, variant: str = "default", where: str = "final", n_bins: 
     if where == "final":
         last = df.groupby(["target", "track", "experiment", "setting"])["step"].transform("max")
         df = df[df["step"] == last]
-    conf = df["posterior"].map(lambda p: float(np.max(p)) if len(p) else np.nan).to_numpy(float)
+    conf = df["confidence"].to_numpy(float)       # max P of each posterior (results.parquet)
     edges = np.linspace(0.0, 1.0, n_bins + 1)
     b = np.clip(np.searchsorted(edges, conf, side="right") - 1, 0, n_bins)
     out = {}

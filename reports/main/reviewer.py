@@ -63,8 +63,11 @@ def limitations(ctx: ReportContext) -> list[str]:
         c = counts(pop)
         single = c["single_track_targets"]
         if single:
-            out.append(f"{len(single)} of {c['n_targets']} targets have a single track ({', '.join(single)}): "
-                       "they have no interval of their own and weigh on the pooled value like the others.")
+            one = len(single) == 1
+            out.append(f"{len(single)} of {c['n_targets']} targets {'has' if one else 'have'} a single track "
+                       f"({', '.join(single)}): {'it has' if one else 'they have'} no interval of "
+                       f"{'its' if one else 'their'} own and {'weighs' if one else 'weigh'} on the pooled value like "
+                       "the others.")
         out.append(f"The evidence covers {c['n_targets']} targets in {len(scans) or '?'} "
                    f"scan{'s' if len(scans) != 1 else ''}: the intervals vary over targets and tracks of these "
                    "scans, not over other homes or other objects.")

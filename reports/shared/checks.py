@@ -273,7 +273,7 @@ def caption_problem(name: str, caption: str) -> str:
 INTERNAL_NAMES = (r"\bWU\b", r"\bN_x\b", r"\bN_ss\b", r"\bN_f\b", r"cross_fit", r"top_mean", r"top_min",
                   r"population\.\w+", r"\bissue \d+", "`", r"\w\(s\)", r"summary\.json's", r"_final\b",
                   r"_overall\b", r"\bverdict_table\b", r"\bpaired_per_target\b")
-_ASCII_MINUS = re.compile(r"(?<![\w.\[/-])-(?=\d)")   # '-0.3' (a hyphen used as a minus sign)
+_ASCII_MINUS = re.compile(r"(?<![\w./-])-(?=\d)")   # '-0.3' (a hyphen used as a minus sign)
 _TIGHT_PERCENT = re.compile(r"\d%")                 # '8%' (the page writes '8 %')
 
 

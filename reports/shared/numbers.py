@@ -140,7 +140,7 @@ def reformat_numbers(text: str, sig: int = SIG) -> str:
 
 
 _TIGHT_PERCENT = re.compile(r"(\d)%")
-_HYPHEN_MINUS = re.compile(r"(?<![\w.\[/-])-(?=\d)")
+_HYPHEN_MINUS = re.compile(r"(?<![\w./-])-(?=\d)")
 
 
 def typeset(text: str) -> str:
