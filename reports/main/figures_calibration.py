@@ -87,6 +87,12 @@ def fig_reliability(pop: dict, where: str = "final", counts: dict | None = None)
                     edgecolor="white")
             cax.set_yscale("log")
             cax.set_ylim(0.8, max(float(c.max()), 1.0) * 3)
+            # plain decade labels: figure text is literal (no mathtext), so the default '10^k' would
+            # print its markup
+            from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+            cax.yaxis.set_major_locator(LogLocator(base=10, numticks=4))
+            cax.yaxis.set_major_formatter(FuncFormatter(lambda x, _p: f"{x:g}" if x < 1e4 else f"1e{round(np.log10(x))}"))
+            cax.yaxis.set_minor_formatter(NullFormatter())
         cax.set_xlim(0, 1.02)
         cax.set_xlabel("confidence (max P)")
         if j % ncol == 0:

@@ -17,6 +17,7 @@ import pandas as pd
 
 from pipeline.evaluation.metrics.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
+from reports.main.calibration import paired_value
 from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
 
@@ -58,7 +59,7 @@ def fig_forest(pop: dict) -> Any:
         for i, key in enumerate(keys):
             m, _, base = key.partition("-")
             entries = [(ppt.get(key, {}).get(t, {}) or {}).get(metric, {}) for t in targets]
-            entries.append((paired.get(key) or {}).get(metric, {}))
+            entries.append(paired_value(pop, key, metric) or {})   # the statistic the verdict reads
             ys = np.arange(len(rows)) + (i - (len(keys) - 1) / 2) * 0.22
             _ci_rows(ax, ys, entries, method_color(base), marks[i % len(marks)],
                      f"{method_label(m, True)} − {method_label(base, True)}")

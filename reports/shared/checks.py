@@ -120,6 +120,9 @@ def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0) -> list
         if b.x0 < -tol_px or b.y0 < -tol_px or b.x1 > W + tol_px or b.y1 > H + tol_px:
             out.append(f"{name}: text {_short(s)} is clipped (its box x {b.x0:.0f}–{b.x1:.0f}, y {b.y0:.0f}–{b.y1:.0f} "
                        f"px leaves the {W:.0f}×{H:.0f} px canvas)")
+    for _, s, _b in boxes:
+        if "\\mathdefault" in s or "\\times" in s:   # a formatter's mathtext, printed literally (no mathtext)
+            out.append(f"{name}: text {_short(s)} prints mathtext markup literally")
     for i, (g1, s1, b1) in enumerate(boxes):
         for g2, s2, b2 in boxes[i + 1:]:
             if g1 and g1 == g2 and not _neighbours(boxes, g1, b1, b2):

@@ -114,3 +114,10 @@ def test_a_caption_without_a_finding_fails(caption):
 def test_a_caption_with_a_number_and_a_comparison_passes():
     assert caption_problem("fig.png", "With Uncertainty wins 7 of 12 targets; pooled +0.18 [+0.01, +0.32], "
                                       "better than Simple Bayes.") == ""
+
+
+def test_a_log_axis_with_the_default_formatter_prints_markup_and_is_caught():
+    fig, ax = new_figure(4.0, 3.0)
+    ax.bar([0, 1], [1, 1000])
+    ax.set_yscale("log")              # '$\\mathdefault{10^{3}}$' with mathtext off
+    assert any("mathtext markup" in p for p in figure_text_problems(fig, "planted"))
