@@ -96,9 +96,9 @@ def domain_section(ctx: ReportContext) -> None:
             rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
                          fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
     page.table(["variance", "(crop, component)", "|z| > 2", "|z| > 3", "95 % coverage", "|z| p90", "|z| p99"], rows,
-               cls="domain-fit", caption="Standardized residuals z = (score - GP mean) / sd, pooled over classes "
-                                         "and components (per class and component in summary.json, "
-                                         "population.domain_fit).")
+               cls="domain-fit", caption="Standardized residuals z = (score − GP mean) / sd, pooled over classes "
+                                         "and components (per class and component in the results file "
+                                         "evaluate/summary.json).")
     per = (dom.get("gp") or {}).get("per_class") or {}
     crow = []
     for c, comps in per.items():
@@ -112,7 +112,7 @@ def domain_section(ctx: ReportContext) -> None:
     tdv = dom.get("test_domain_variance") or {}
     if tdv:
         page.paragraph(f"Test-domain variance: {tdv.get('unit')}; {tdv.get('rule')}. Estimates per fold in "
-                       "summary.json (population.domain_fit.test_domain_variance).", cls="note")
+                       "the results file evaluate/summary.json.", cls="note")
     ctx.figure("pit.png", "PIT histograms (flat = calibrated; a U shape = residuals wider than the model says).")
 
 

@@ -17,7 +17,7 @@ import pandas as pd
 
 from pipeline.evaluation.metrics.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
-from reports.main.calibration import paired_value
+from reports.main.calibration import paired_value, pooled_value
 from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
 
@@ -105,7 +105,7 @@ def fig_per_target(pop: dict) -> Any:
         drawn: list[float] = []
         for i, m in enumerate(methods):
             entries = [((per.get(t) or {}).get(m) or {}).get(metric, {}) for t in targets]
-            entries.append((pooled.get(m) or {}).get(metric, {}))
+            entries.append(pooled_value(pop, m, metric) or {})   # the pooled table's statistic
             ys = np.arange(len(rows)) + (i - (len(methods) - 1) / 2) * 0.2
             _ci_rows(ax, ys, entries, method_color(m), "o", method_label(m))
             if "mgr" in metric:
