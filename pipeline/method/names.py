@@ -17,4 +17,4 @@ ATTRIBUTION = (WU_POSES_ONLY, WU_DROPOUT_ONLY)
 
 # Short names for progress bars and table headers.
 METHOD_SHORT = {WITH_UNCERTAINTY: "With Uncertainty", MODEL_BASED: "Model Based", SIMPLE_BAYES: "Simple Bayes",
-                DIRICHLET: "Dirichlet", WU_POSES_ONLY: "WU poses only", WU_DROPOUT_ONLY: "WU dropout only"}
+                DIRICHLET: "Dirichlet", WU_POSES_ONLY: "Poses-only variant", WU_DROPOUT_ONLY: "Dropout-only variant"}

@@ -120,7 +120,7 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
                               else "") + ". " + " ".join(cl + "." for cl in clauses))
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
     second = (f"Each outcome is read off the 95 % CI of a paired difference over {c['n_targets']} targets and "
-              f"{tracks_text(c)}; it varies over targets and tracks only, with {seeds} (`viewfuse study` repeats "
+              f"{tracks_text(c)}; it varies over targets and tracks only, with {seeds} (the seed study, viewfuse study, repeats "
               "it over training seeds).")
     return [first, second]
 

@@ -20,6 +20,13 @@ def pooled_value(block: dict, method: str, metric: str) -> dict | None:
     return ((block.get("pooled") or {}).get(method) or {}).get(metric)
 
 
+def paired_value(block: dict, comparison: str, metric: str) -> dict | None:
+    """A paired difference as the verdict computes it (summary.json holds only the metric spec's
+    statistic: the median over targets for unbounded metrics, else the mean), with the entry's
+    win shares and cell counts."""
+    return ((block.get("paired") or {}).get(comparison) or {}).get(metric)
+
+
 def _header() -> list[str]:
     return ["likelihood", "method"] + [metric_label(k, short=True) + (" (median of targets)" if
                                                                      k.startswith(("nll", "log10")) else "")
@@ -81,9 +88,9 @@ def domain_section(ctx: ReportContext) -> None:
             rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
                          fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
     page.table(["variance", "(crop, component)", "|z| > 2", "|z| > 3", "95 % coverage", "|z| p90", "|z| p99"], rows,
-               cls="domain-fit", caption="Standardized residuals z = (score - GP mean) / sd, pooled over classes "
-                                         "and components (per class and component in summary.json, "
-                                         "population.domain_fit).")
+               cls="domain-fit", caption="Standardized residuals z = (score − GP mean) / sd, pooled over classes "
+                                         "and components (per class and component in the results file "
+                                         "evaluate/summary.json).")
     per = (dom.get("gp") or {}).get("per_class") or {}
     crow = []
     for c, comps in per.items():
@@ -97,7 +104,7 @@ def domain_section(ctx: ReportContext) -> None:
     tdv = dom.get("test_domain_variance") or {}
     if tdv:
         page.paragraph(f"Test-domain variance: {tdv.get('unit')}; {tdv.get('rule')}. Estimates per fold in "
-                       "summary.json (population.domain_fit.test_domain_variance).", cls="note")
+                       "the results file evaluate/summary.json.", cls="note")
     ctx.figure("pit.png", "PIT histograms (flat = calibrated; a U shape = residuals wider than the model says).")
 
 
@@ -113,6 +120,6 @@ def attribution_section(ctx: ReportContext) -> None:
         rows.append([comparison_label(comp)] + [Estimate.of(per.get(k), signed=True) for k in keys])
     page.table(["comparison"] + [metric_label(k, short=True) for k in keys], rows, cls="attribution",
                caption="With Uncertainty with one ingredient each, on the same cells and realizations: poses only "
-                       "(dropout samples replaced by their mean) and dropout only (no pose sampling: σ = 0, N_x = 1). "
+                       "(dropout samples replaced by their mean) and dropout only (no pose sampling: σ = 0, one pose sample). "
                        "Paired differences [95 % CI]; NLL and log10 MGR as the median over targets.")
     page.bullets(_sentences(att, keys), cls="verdict attribution")

@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from reports.shared.artifacts import RunArtifacts
+from reports.shared.checks import Ledger, caption_problem
 from reports.shared.html import HtmlReport
 
 
@@ -25,6 +26,10 @@ class ReportContext:
     checks: dict[str, Any] = field(default_factory=dict)    # figure -> reports.shared.figures.FigureCheck
     alts: dict[str, str] = field(default_factory=dict)      # figure -> alt text stating its finding
     bias_findings: dict | None = None                       # reports.main.figures_models.bias_map_findings
+    ledger: Ledger = field(default_factory=Ledger)          # every printed statistic (reports/shared/checks.py)
+    problems: list[str] = field(default_factory=list)
+    commit: str = ""                                        # the code's git commit (the report stage passes it)
+    config_file: str = ""                                   # the --config file of the run       # self-check failures: the build stops on any
 
     @property
     def ev(self):
@@ -52,7 +57,13 @@ class ReportContext:
         text of its finding and its smallest text size."""
         if name in self.figures:
             chk = self.checks.get(name)
-            self.page.figure(name, caption, alt=self.alts.get(name, ""),
+            alt = self.alts.get(name, "")
+            # The caption says what the figure shows, then what it finds (the alt text's finding).
+            caption = f"{caption} {alt}".strip() if alt and alt not in caption else caption
+            problem = caption_problem(name, caption)
+            if problem:
+                self.problems.append(problem)
+            self.page.figure(name, caption, alt=alt,
                              min_font_px=getattr(chk, "min_font_px", None),
                              tick_overlaps=len(chk.overlaps) if chk is not None else None)
 

@@ -8,6 +8,8 @@ on the panel instead of showing a bare flat line.
 """
 from __future__ import annotations
 
+import math
+
 from typing import Any
 
 import numpy as np
@@ -15,7 +17,8 @@ import pandas as pd
 
 from pipeline.evaluation.metrics.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
-from reports.shared.figures import (MGR_SCALE_NOTE, mgr_axis, new_figure, new_subplots, percentile_bands, step_ticks,
+from reports.main.calibration import paired_value, pooled_value
+from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
 
 FOREST_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
@@ -56,7 +59,7 @@ def fig_forest(pop: dict) -> Any:
         for i, key in enumerate(keys):
             m, _, base = key.partition("-")
             entries = [(ppt.get(key, {}).get(t, {}) or {}).get(metric, {}) for t in targets]
-            entries.append((paired.get(key) or {}).get(metric, {}))
+            entries.append(paired_value(pop, key, metric) or {})   # the statistic the verdict reads
             ys = np.arange(len(rows)) + (i - (len(keys) - 1) / 2) * 0.22
             _ci_rows(ax, ys, entries, method_color(base), marks[i % len(marks)],
                      f"{method_label(m, True)} − {method_label(base, True)}")
@@ -67,7 +70,7 @@ def fig_forest(pop: dict) -> Any:
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
         side = "right" if higher_is_better(metric) else "left"
         ax.set_title(f"{metric_label(metric)}\n(With Uncertainty better to the {side})", fontsize=9.5)
-        ax.set_xlabel("difference" + (f" of log10 MGR\n({MGR_SCALE_NOTE})" if "mgr" in metric else ""))
+        ax.set_xlabel(mgr_scale_label("difference of log10 MGR") if "mgr" in metric else "difference")
     axes[0, 0].set_yticks(range(len(rows)))
     axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
@@ -102,7 +105,7 @@ def fig_per_target(pop: dict) -> Any:
         drawn: list[float] = []
         for i, m in enumerate(methods):
             entries = [((per.get(t) or {}).get(m) or {}).get(metric, {}) for t in targets]
-            entries.append((pooled.get(m) or {}).get(metric, {}))
+            entries.append(pooled_value(pop, m, metric) or {})   # the pooled table's statistic
             ys = np.arange(len(rows)) + (i - (len(methods) - 1) / 2) * 0.2
             _ci_rows(ax, ys, entries, method_color(m), "o", method_label(m))
             if "mgr" in metric:
@@ -111,7 +114,7 @@ def fig_per_target(pop: dict) -> Any:
             mgr_axis(ax, drawn, axis="x")
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
         ax.set_title(metric_label(metric), fontsize=9.5)
-        ax.set_xlabel(f"{MGR_AXIS_LABEL}\n({MGR_SCALE_NOTE})" if "mgr" in metric else metric_label(metric))
+        ax.set_xlabel(mgr_scale_label(MGR_AXIS_LABEL) if "mgr" in metric else metric_label(metric))
     axes[0, 0].set_yticks(range(len(rows)))
     axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
@@ -164,14 +167,26 @@ def fig_biased(df: pd.DataFrame, n_classes: int, images: list[str] | None = None
     ax.set_ylabel("P(ground-truth class | history)")
     step_ticks(ax, steps)
     # Outside the axes: a legend inside covered the curves (a drop at the last steps).
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, frameon=False)
+    handles, labels = ax.get_legend_handles_labels()
+    # one column per ~320 px of width, so long method names never run past the canvas
+    fig.legend(handles, [wrap_label(t, 40) for t in labels], loc="outside lower center",
+               ncol=max(1, min(2, int(fig.get_figwidth() // 3.2))), frameon=False)
     return fig
 
 
+BAND_COLUMNS = 3   # panels per row: four side by side printed their titles over each other
+
+
 def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[Any, int]:
-    """One panel per method, shared linear y; returns (fig, number of +inf values drawn at the top)."""
+    """One panel per method (at most ``BAND_COLUMNS`` per row, so panel titles keep apart), shared
+    y; returns (fig, number of +inf values drawn at the top)."""
     methods = ordered_methods(df["method"].unique())
-    fig, axes = new_subplots(1, len(methods), w=0.8 + 3.5 * len(methods), h=3.6, sharey=True)
+    ncol = min(len(methods), BAND_COLUMNS)
+    nrow = math.ceil(len(methods) / ncol)
+    fig, axes = new_subplots(nrow, ncol, w=0.8 + 3.5 * ncol, h=0.6 + 3.0 * nrow, sharey=True)
+    for ax in axes.flat[len(methods):]:
+        ax.set_visible(False)
+    axes = axes.reshape(1, -1)
     mats = {m: matrices(df[df["method"] == m])[column] for m in methods}
     steps = np.sort(df["step"].unique())
     finite = np.concatenate([v[np.isfinite(v)] for v in mats.values()] + [np.zeros(1)])
@@ -184,11 +199,12 @@ def fig_bands(df: pd.DataFrame, column: str, ylabel: str, title: str) -> tuple[A
         percentile_bands(ax, steps, np.where(bad, cap, v), method_color(m))
         note = constant_note(v)
         # In the title, not on the data: a flat band is a finding, and a box would hide the line.
-        ax.set_title(f"{method_label(m)}\nR = {v.shape[0]} realizations" + (f"\n{note}" if note else ""),
+        ax.set_title(f"{wrap_label(method_label(m), 34)}\nR = {v.shape[0]} realizations" + (f"\n{note}" if note else ""),
                      fontsize=9.5 if not note else 8.5)
         ax.set_xlabel("track step k")
         step_ticks(ax, steps)
-    axes[0, 0].set_ylabel(ylabel if column == "p_truth" else f"{ylabel}\n({MGR_SCALE_NOTE})")
+    for r in range(nrow):
+        axes[0, r * ncol].set_ylabel(ylabel if column == "p_truth" else mgr_scale_label(ylabel))
     if column == "p_truth":
         axes[0, 0].set_ylim(-0.02, 1.02)
     else:
@@ -226,7 +242,7 @@ def _ci_line(ax, x, ests, color: str, label: str, ls: str = "-") -> int:
 
 def fig_sensitivity(summ: dict) -> Any:
     """Correct ratio and log10 MGR95 (final step) vs σ, each with its 95 % CI over realizations."""
-    fig, axes = new_subplots(1, 2, w=10.0, h=3.8)
+    fig, axes = new_subplots(1, 2, w=10.0, h=4.4)
     settings = sorted(summ, key=lambda s: summ[s]["sigma_m"])
     sig = np.array([summ[s]["sigma_m"] for s in settings])
     methods = ordered_methods({m for s in settings for m in summ[s]["methods"]})
@@ -250,7 +266,7 @@ def fig_sensitivity(summ: dict) -> Any:
                     transform=ax.transAxes, ha="center", va="center", fontsize=8.5,
                     bbox={"boxstyle": "round", "fc": "white", "ec": "#999999", "alpha": 0.92})
     axes[0, 1].axhline(0.0, color="#777777", ls="--", lw=1)
-    axes[0, 1].set_ylabel(f"95th percentile, final step:\n{MGR_AXIS_LABEL}\n({MGR_SCALE_NOTE})", fontsize=8.5)
+    axes[0, 1].set_ylabel(mgr_scale_label("log10 MGR, 95th percentile,\nfinal step"), fontsize=8.5)
     axes[0, 1].set_title("Confident misclassification vs σ (lower is better)")
     for ax in axes[0]:
         ax.set_xlabel("localization noise σ (m)")
@@ -289,5 +305,5 @@ def fig_track(track: dict, biases: list[tuple[float, float]]) -> Any:
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m, ground frame)")
     ax.set_ylabel("y (m, ground frame)")
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1, fontsize=8, frameon=False)
     return fig

@@ -6,17 +6,18 @@ import numpy as np
 
 from pipeline.evaluation.metrics.labels import comparison_label, method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
-from pipeline.evaluation.statistics.records import outcome
+from reports.main.calibration import paired_value, pooled_value
+from reports.shared.checks import Ledger, outcome_of
 from reports.shared.numbers import Estimate, fmt
 
 
 def _outcome(e: Estimate, higher: bool) -> str:
-    """The one outcome rule (``records.outcome``) on the estimate's interval."""
-    res = outcome(e.low, e.high, higher)
-    return "not distinguishable from 0" if res == "not distinguishable" else res
+    """The one outcome rule (reports.shared.checks.outcome_of) in the alt text's words."""
+    out = outcome_of(e.low, e.high, higher)
+    return "not distinguishable from 0" if out == "not distinguishable" else out
 
 
-def forest(pop: dict) -> str:
+def forest(pop: dict, ledger: Ledger | None = None) -> str:
     paired, ppt = pop.get("paired") or {}, pop.get("paired_per_target") or {}
     parts = []
     for key, per in paired.items():
@@ -24,20 +25,27 @@ def forest(pop: dict) -> str:
             if metric not in per:
                 continue
             higher = higher_is_better(metric)
-            e = Estimate.of(per[metric], signed=True)
+            e = Estimate.of(paired_value(pop, key, metric), signed=True)
+            if ledger is not None:
+                ledger.register(("paired", key, metric), e.value, e.low, e.high, label=_outcome(e, higher),
+                                where="forest plot caption", higher_is_better=higher)
             excl = sum(1 for t in (ppt.get(key) or {}).values() if Estimate.of((t or {}).get(metric)).excludes_zero())
             parts.append(f"{comparison_label(key)}, {metric_label(metric)}: pooled {e.text()} "
                          f"({_outcome(e, higher)}); {excl} of {len(ppt.get(key) or {})} targets have a CI excluding 0")
     return "Forest plot of paired differences. " + "; ".join(parts) + "." if parts else "Forest plot of paired differences."
 
 
-def per_target(pop: dict) -> str:
+def per_target(pop: dict, ledger: Ledger | None = None) -> str:
     pooled, per = pop.get("pooled") or {}, pop.get("per_target") or {}
     methods = ordered_methods(pooled)
     out = []
     for metric in ("correct_final", "log10_mgr95_final"):
-        vals = ", ".join(f"{method_label(m, True)} {Estimate.of((pooled.get(m) or {}).get(metric)).text()}"
-                         for m in methods)
+        # the statistic the verdict and the pooled table use (median over targets for unbounded metrics)
+        ests = {m: pooled_value(pop, m, metric) for m in methods}
+        if ledger is not None:
+            for m, d in ests.items():
+                ledger.register_estimate(("pooled", m, metric), d, where="per-target figure caption")
+        vals = ", ".join(f"{method_label(m, True)} {Estimate.of(ests[m]).text()}" for m in methods)
         out.append(f"pooled {metric_label(metric)}: {vals}")
     worst = [(float(((per[t].get(m) or {}).get("log10_mgr95_final") or {}).get("value") or 0), t, m)
              for t in per for m in per[t]]
@@ -57,13 +65,19 @@ def biased(df, key: dict | None) -> str:
 
 def bands(df, column: str) -> str:
     fin = df[df["step"] == df["step"].max()]
-    parts = []
+    parts, meds = [], []
     for m in ordered_methods(fin["method"].unique()):
         v = fin[fin["method"] == m][column].to_numpy(float)
         lo, med, hi = (np.percentile(np.where(np.isposinf(v), np.inf, v), q) for q in (10, 50, 90))
         parts.append(f"{method_label(m, True)} median {fmt(med)} (10–90 %: {fmt(lo)} to {fmt(hi)})")
+        meds.append((float(med), method_label(m, True)))
     what = "P(truth)" if column == "p_truth" else "log10 MGR"
-    return f"{what} at the final step over realizations: " + "; ".join(parts) + "."
+    # the finding: which method ends best (highest P(truth), lowest log10 MGR)
+    best = (max(meds) if column == "p_truth" else min(meds)) if meds else None
+    lead = (f"; the {'highest' if column == 'p_truth' else 'lowest'} median is {best[1]}'s"
+            if best is not None and len({v for v, _ in meds}) > 1 else "; every method ends at the same median"
+            if meds else "")
+    return f"{what} at the final step over realizations: " + "; ".join(parts) + lead + "."
 
 
 def sensitivity(summ: dict) -> str:
@@ -105,7 +119,7 @@ def bias_caption(found: dict) -> str:
         r = min(v["flip_radius_m"] for v in flips)
         s += f"; there a bias of {fmt(r)} m or more can flip the decision (paper Fig. 18)"
     if lost:
-        s += f"; in {len(lost)} view(s) another class wins even at zero bias, so no localization error is needed"
+        s += f"; in {len(lost)} view{'s' if len(lost) != 1 else ''} another class wins even at zero bias, so no localization error is needed"
     return s + "."
 
 
@@ -132,3 +146,28 @@ def track(track: dict, biases: list) -> str:
     if biases:
         out.append("biased estimates shifted by " + ", ".join(f"({fmt(b[0])}, {fmt(b[1])}) m" for b in biases[:3]))
     return "; ".join(out) + "."
+
+
+def reliability(block: dict, where: str = "final") -> str:
+    """Each method's ECE (pooled posteriors) and which is best calibrated."""
+    pooled = block.get("pooled") or {}
+    eces = [(float(e["value"]), m) for m in ordered_methods((block.get("reliability") or {}).keys())
+            for e in [((pooled.get(m) or {}).get(f"ece_{where}") or {})] if e.get("value") is not None]
+    if not eces:
+        return "Reliability diagram (no ECE recorded)."
+    parts = ", ".join(f"{method_label(m, True)} {fmt(v)}" for v, m in eces)
+    best = min(eces)
+    return (f"ECE ({where} step): {parts}; the lowest (best calibrated) is {method_label(best[1], True)}'s; "
+            "points below the diagonal are overconfident bins.")
+
+
+def pit(domain: dict) -> str:
+    """Per variance model: share of |z| > 3 (3e-3 when the model fits) and which is closest to flat."""
+    from reports.main.figures_calibration import KIND_TITLES
+    rows = [(float(o.get("share_gt3") or 0), k) for k in ("gp", "gp_plus_dropout", "gp_calibrated")
+            for o in [((domain.get(k) or {}).get("overall") or {})] if o]
+    if not rows:
+        return "PIT histograms (no residuals recorded)."
+    parts = "; ".join(f"{KIND_TITLES.get(k, k)}: {100 * v:.1f} % of |z| above 3" for v, k in rows)
+    best = min(rows)
+    return (f"{parts} (0.3 % if the model fitted); the fewest outliers with {KIND_TITLES.get(best[1], best[1])}.")

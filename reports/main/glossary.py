@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from reports.main.context import ReportContext
+from reports.shared.figures import MGR_SATURATION as SATURATION
 from reports.shared.figures import MGR_SCALE_NOTE
 
 
@@ -38,12 +39,38 @@ def terms(ctx: ReportContext) -> list[tuple[str, str]]:
         ("ceiling / floor", "cells where both methods sit at the best (e.g. correct ratio 1) or worst possible value: "
                             "they cannot tell the methods apart."),
         ("score component", comps + "; each class gets a GP per chosen component."),
-        ("component rule", "how a target's N_f components are chosen (models.component_rule: top_mean = the "
-                           "components with the highest mean score over the candidates' training views, top_min, "
-                           "target_informative, explicit)."),
-        ("showcase track", "the one track shown in detail (paper figures), chosen by the rule in summary.json "
-                           "(population.showcase)."),
+        ("component rule", "how a target's few score components are chosen (by default the "
+                           "components with the highest mean score over the candidates' training views; other "
+                           "rules: the highest minimum score, the most informative about the target, or a fixed list)."),
+        ("NLL", "negative log-likelihood of the truth, −ln P(truth): 0 for a certain correct answer, unbounded "
+                "when a method is confidently wrong."),
+        ("confident-error rate", "share of posteriors whose most probable class is wrong with a probability of at "
+                                 f"least {_threshold(ctx)}."),
+        ("ECE", "expected calibration error: the posteriors are binned by their largest probability (the "
+                "confidence); ECE is the weighted mean gap between confidence and accuracy over the bins (0 = "
+                "calibrated). The reliability diagram draws the bins."),
+        ("PIT", "probability integral transform: each test score's place in its model's predictive distribution; "
+                "flat when the model's spread is right, U-shaped when the residuals are wider than it says."),
+        ("calibrated likelihood", "the GP likelihood with one extra variance per score component, estimated on "
+                                  "labelled room crops by cross-fitting: each part of the data uses the estimate "
+                                  "from the other parts only."),
+        ("paired difference", "method minus baseline on the same (target, track, setting) cell, pooled like the "
+                              "values; pairing removes what the cells share."),
+        ("ablation", "the whole evaluation rerun with one setting changed, to measure what that setting does to the "
+                     "verdict."),
+        ("holds / fails / inconclusive", "a claim of the paper, read as a paired difference: its 95 % CI lies on "
+                                         "the claimed side of 0 / on the other side / contains 0."),
+        ("numerical saturation", f"a log10 MGR above {SATURATION:g}: the truth's probability is below 1e−{SATURATION:g} "
+                                 "of the winner's, far past what the fusion's floating point resolves; read it as "
+                                 "'confidently wrong', not as a measured size."),
+        ("showcase track", "the one track shown in detail (paper figures), chosen by a rule the results record "
+                           "(the track where the methods disagree most)."),
     ]
+
+
+def _threshold(ctx: ReportContext) -> str:
+    t = (ctx.population or {}).get("confident_threshold") or (ctx.config.get("evaluate") or {}).get("confident_threshold")
+    return f"{float(t):g}" if t is not None else "the configured threshold"
 
 
 def glossary_section(ctx: ReportContext) -> None:

@@ -19,10 +19,14 @@ from pipeline.infra.outputs import path as out_path
 from reports.main import calibration as calibration_sections
 from reports.main import findings
 from reports.main import planning as planning_sections
+from reports.main.calibration import CALIBRATED
 from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
+from reports.main.showcase import showcase_section
+from reports.main.reviewer import limitations_section, methods_section, reproduce_section, seeds_section
 from reports.shared.artifacts import load_run
 from reports.main.context import ReportContext
+from reports.shared.checks import ReportCheckError, figure_text_problems
 from reports.shared.figures import save
 from reports.main.figures_calibration import calibration_plan
 from reports.main.figures_models import fig_bias_maps, fig_gp_rasters, fig_gp_ring
@@ -37,13 +41,13 @@ from reports.shared.tables import component_labels
 
 log = logging.getLogger("viewfuse.report")
 
-SECTIONS = (verdict_sections.verdict_section, calibration_sections.calibration_section,
-            verdict_sections.population_section, verdict_sections.diagnostics_section,
-            calibration_sections.domain_section, calibration_sections.attribution_section, planning_sections.planning_section,
-            track_sections.track_section,
-            track_sections.randomized_section, track_sections.sensitivity_section,
-            track_sections.bias_maps_section, track_sections.gp_section, glossary_section,
-            track_sections.details_section)
+SECTIONS = (verdict_sections.verdict_section, methods_section, limitations_section, seeds_section,
+            calibration_sections.calibration_section, verdict_sections.population_section,
+            verdict_sections.diagnostics_section, calibration_sections.domain_section,
+            calibration_sections.attribution_section, planning_sections.planning_section, showcase_section,
+            track_sections.track_section, track_sections.randomized_section,
+            track_sections.sensitivity_section, track_sections.bias_maps_section, track_sections.gp_section,
+            glossary_section, reproduce_section, track_sections.details_section)
 
 
 @dataclass
@@ -61,11 +65,20 @@ def _population_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
     plan = []
     if pop.get("paired_per_target") or pop.get("paired"):
         plan.append(("forest.png", lambda: fig_forest(pop)))
-        ctx.alts["forest.png"] = findings.forest(pop)
+        ctx.alts["forest.png"] = findings.forest(pop, ctx.ledger)
     if pop.get("per_target"):
         plan.append(("per_target.png", lambda: fig_per_target(pop)))
-        ctx.alts["per_target.png"] = findings.per_target(pop)
-    return plan + calibration_plan(pop)
+        ctx.alts["per_target.png"] = findings.per_target(pop, ctx.ledger)
+    cal = calibration_plan(pop, ctx.ev.results)
+    names = {n for n, _ in cal}
+    if "reliability.png" in names:
+        ctx.alts["reliability.png"] = findings.reliability(pop)
+    if "reliability_calibrated.png" in names:
+        ctx.alts["reliability_calibrated.png"] = findings.reliability(
+            (pop.get("ablations") or {}).get(CALIBRATED) or {})
+    if "pit.png" in names:
+        ctx.alts["pit.png"] = findings.pit(pop.get("domain_fit") or {})
+    return plan + cal
 
 
 def _track_plan(ctx: ReportContext, clipped: dict[str, int]) -> list[tuple[str, Callable[[], Any]]]:
@@ -149,19 +162,23 @@ def _subtitle(ctx: ReportContext) -> str:
 
 def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = "viewfuse report", dpi: int = 110,
                       run_name: str = "", config: dict | None = None, timings: dict[str, float] | None = None,
-                      progress: bool = True, n_boot: int = BOOTSTRAP, seed: int = 0) -> ReportResult:
+                      progress: bool = True, n_boot: int = BOOTSTRAP, seed: int = 0, commit: str = "",
+                      config_file: str = "", strict: bool = True) -> ReportResult:
     """Render ``out_dir/index.html`` and its PNGs from ``run_dir``'s evaluate, models and classifier outputs."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     run = load_run(run_dir)
-    ctx = ReportContext(HtmlReport(title), run, run_name, config or {}, timings or {}, n_boot=n_boot)
+    ctx = ReportContext(HtmlReport(title), run, run_name, config or {}, timings or {}, n_boot=n_boot, commit=commit,
+                        config_file=config_file)
     ctx.comp_names = component_labels(run.index, run.evaluate.gp, run.evaluate.target)
     _summaries(ctx, seed)
     plan = (_population_plan(ctx) + planning_sections.planning_plan(ctx) + _track_plan(ctx, ctx.clipped)
             + _models_plan(ctx))
     written = []
     for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
-        ctx.checks[name] = chk = save(build(), out / name, dpi)
+        fig = build()
+        ctx.checks[name] = chk = save(fig, out / name, dpi)
+        ctx.problems.extend(figure_text_problems(fig, name))
         written.append(name)
         if chk.overlaps:
             ctx.notes.append(f"{name}: tick labels overlap ({'; '.join(chk.overlaps[:3])})")
@@ -175,5 +192,12 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
         section(ctx)
     for n in ctx.notes:
         log.warning("report: %s", n)
+    problems = ctx.problems + ctx.ledger.problems()
+    if problems and strict:
+        # Nothing is published that contradicts itself: index.html is not written.
+        raise ReportCheckError(problems)
+    for p in problems:  # strict=False (a look at a broken page): every problem stays visible on it
+        log.warning("report self-check: %s", p)
+        ctx.page.paragraph(f"Self-check failed: {p}", cls="warn")
     ctx.page.write(out_path(out, "report", "html"))
     return ReportResult(out_path(out, "report", "html"), written, ctx.sections, ctx.notes)

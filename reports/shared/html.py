@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.infra.cache import atomic_path
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate, fmt, typeset
 
 _CSS = """
 :root { --ink:#1d2330; --muted:#5b6475; --line:#d9dde5; --bg:#ffffff; --panel:#f6f7f9;
@@ -160,7 +160,7 @@ class HtmlReport:
         if tick_overlaps is not None:
             font += f' data-tick-overlaps="{int(tick_overlaps)}"'
         self._target().append(
-            f'<figure><img src="{_esc(name)}" alt="{_esc(alt or caption)}"{font}>'
+            f'<figure><img src="{html.escape(name, quote=True)}" alt="{_esc(alt or caption)}"{font}>'
             f"<figcaption>{_esc(caption)}</figcaption></figure>")
 
     def definitions(self, items: list[tuple[str, str]], cls: str = "glossary") -> None:
@@ -213,7 +213,7 @@ class HtmlReport:
 
     def preformatted(self, text: str, caption: str = "") -> None:
         cap = f'<div class="precap">{_esc(caption)}</div>' if caption else ""
-        self._target().append(f"{cap}<pre>{_esc(text)}</pre>")
+        self._target().append(f"{cap}<pre>{html.escape(str(text), quote=True)}</pre>")  # verbatim
 
     # -- output -----------------------------------------------------------------------------
     def render(self) -> str:
@@ -256,4 +256,5 @@ def _cell_html(text: str, numeric: bool) -> str:
 
 
 def _esc(text: str) -> str:
-    return html.escape(str(text), quote=True)
+    """Escaped text in the page's one style (``numbers.typeset``: '8 %', the minus sign −)."""
+    return html.escape(typeset(str(text)), quote=True)

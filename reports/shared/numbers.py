@@ -1,6 +1,7 @@
 """One number format for every report table, caption, sentence and the compare page.
 
-``fmt`` gives ``sig`` significant digits and keeps trailing zeros so a column reads ``1.00`` next
+``Estimate.text`` rounds a value and its 95 % interval to the place the interval's width allows
+(``ci_digits``); ``fmt`` gives ``sig`` significant digits and keeps trailing zeros so a column reads ``1.00`` next
 to ``0.886`` (not ``1`` next to ``0.8856``). Plain decimals from 1e-4 up to 1e5 (``-0.000793``
 next to ``-0.00657``, not ``-7.93e-04``); a short exponent outside (``9.50e-6``, ``3.30e5``); below
 1e-6 in size a value is shown as ``< 1e-6`` (``> −1e-6`` when negative): such digits are
@@ -65,16 +66,57 @@ class Estimate:
         d = d or {}
         return cls(d.get("value"), d.get("ci_low"), d.get("ci_high"), signed)
 
-    def text(self, sig: int = SIG, signed: bool | None = None) -> str:
+    def text(self, sig: int | None = None, signed: bool | None = None) -> str:
+        """'value [lo, hi]'. By default the digits follow the interval's width (``ci_digits``): a
+        value is shown to the place its uncertainty allows; ``sig`` forces that many significant
+        digits instead."""
         signed = self.signed if signed is None else signed
-        v = fmt(self.value, sig, signed=signed)
         if _missing(self.low) and _missing(self.high):  # no interval (e.g. one track): the value alone
-            return v
-        return f"{v} [{fmt(self.low, sig, signed=signed)}, {fmt(self.high, sig, signed=signed)}]"
+            return fmt(self.value, sig or SIG, signed=signed)
+        texts = None if sig is not None else ci_digits(self.value, self.low, self.high, signed)
+        if texts is None:
+            s = sig or SIG
+            texts = tuple(fmt(x, s, signed=signed) for x in (self.value, self.low, self.high))
+        return f"{texts[0]} [{texts[1]}, {texts[2]}]"
 
     def excludes_zero(self) -> bool:
         return (self.low is not None and self.high is not None
                 and (float(self.low) > 0 or float(self.high) < 0))
+
+
+def ci_digits(value, low, high, signed: bool = False) -> tuple[str, str, str] | None:
+    """Value and interval ends rounded to one decimal place: the one that keeps two significant
+    digits of the interval's width (0.181 [0.0139, 0.319] -> 0.18 [0.01, 0.32]). An end that this
+    rounding would turn into 0 (or whose sign it would hide) keeps two significant digits of its own,
+    so an interval that excludes 0 never reads as touching it. None where the rule does not apply
+    (an infinite or missing end, no width, or values that ``fmt`` writes with an exponent)."""
+    try:
+        v, lo, hi = float(value), float(low), float(high)
+    except (TypeError, ValueError):
+        return None
+    xs = (v, lo, hi)
+    if not all(math.isfinite(x) for x in xs) or hi - lo <= 0:
+        return None
+    if any(abs(x) >= HUGE or 0 < abs(x) < SMALL for x in xs):
+        return None
+    place = math.floor(math.log10(hi - lo)) - 1          # two significant digits of the width
+    out = []
+    for x in xs:
+        r = round(x, -place)
+        if x != 0 and (r == 0 or (r > 0) != (x > 0)):
+            out.append(fmt(x, 2, signed=signed))
+            continue
+        text = f"{abs(r):.{max(-place, 0)}f}"
+        sign = MINUS if r < 0 else ("+" if signed and r > 0 else "")
+        out.append(sign + text if float(text) != 0 else text)
+    return tuple(out)
+
+
+def percent(share: Any, decimals: int = 0) -> str:
+    """A share in the page's one percent style: '8 %' (a space before the sign), 'n/a' when missing."""
+    if _missing(share):
+        return "n/a"
+    return f"{100 * float(share):.{decimals}f} %".replace("-", MINUS)
 
 
 def _missing(x: Any) -> bool:
@@ -94,4 +136,15 @@ def reformat_numbers(text: str, sig: int = SIG) -> str:
         sign, body = m.group(1), m.group(2)
         v = float(body) * (-1 if sign in ("-", "−") else 1)
         return fmt(v, sig, signed=sign == "+")
-    return _DECIMAL.sub(sub, text)
+    return typeset(_DECIMAL.sub(sub, text))
+
+
+_TIGHT_PERCENT = re.compile(r"(\d)%")
+_HYPHEN_MINUS = re.compile(r"(?<![\w./-])-(?=\d)")
+
+
+def typeset(text: str) -> str:
+    """The page's one style for text written anywhere (labels from the results, the config):
+    '8%' -> '8 %', a hyphen used as a minus sign ('(-0.30, ...') -> '−'. Every text the HTML
+    builder writes goes through here; file names and preformatted text do not."""
+    return _HYPHEN_MINUS.sub(MINUS, _TIGHT_PERCENT.sub(r"\1 %", text))

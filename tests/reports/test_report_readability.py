@@ -143,4 +143,4 @@ def test_sentences_from_summary_json_use_the_one_number_format():
     s = ("better (difference -1.41, 95 % CI [-2.34, -0.7], over 12 targets x 83 tracks; better in 92% of cells); "
          "7.62e-19 [4.09e-20, 2.14e-18], +0.217")
     assert reformat_numbers(s) == ("better (difference −1.41, 95 % CI [−2.34, −0.700], over 12 targets x 83 tracks; "
-                                   "better in 92% of cells); < 1e-6 [< 1e-6, < 1e-6], +0.217")
+                                   "better in 92 % of cells); < 1e-6 [< 1e-6, < 1e-6], +0.217")

@@ -56,7 +56,7 @@ def test_one_run_has_no_config_diff_and_says_there_is_nothing_to_compare(tmp_pat
     c = compare([write_run(tmp_path / "a")])
     assert c.config == {} and len(c.columns) == 1
     text = render_text(c)
-    assert "nothing to compare against" in text and "0.600 [0.500, 0.700]" in text
+    assert "nothing to compare against" in text and "0.60 [0.50, 0.70]" in text
 
 
 def test_two_runs_show_only_the_changed_key_and_mark_changed_outcomes(tmp_path):

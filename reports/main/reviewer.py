@@ -1,0 +1,181 @@
+"""What a reviewer asks after the verdict, each answered from the run itself: what every method
+does, the limits of this evaluation (computed from the config and summary.json, never a fixed
+list), how much the verdict moves with the classifier's training seed, and how to reproduce the
+page (command, commit, the config's differences from the defaults, the JSON files behind it)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from pipeline.evaluation.metrics.labels import method_label, ordered_methods
+from pipeline.infra.outputs import path as out_path
+from reports.main.bottom_line import counts
+from reports.main.context import ReportContext
+from reports.shared.figures import MGR_SATURATION
+
+# One line per method: what it models, what it ignores (paper §§3-4; docs/design.md §5).
+METHOD_NOTES = {
+    "with_uncertainty": ("the paper's method: one GP per class and score component over the viewing direction; "
+                         "it averages over sampled camera poses (the localization noise) and over the classifier's "
+                         "dropout samples (model uncertainty)"),
+    "model_based": ("the same GP class models, evaluated at the estimated pose as if it were exact, on the mean "
+                    "of the dropout samples: no localization or model uncertainty"),
+    "simple_bayes": ("multiplies the classifier's own class probabilities view after view; ignores the viewpoint "
+                     "and the poses"),
+    "dirichlet": ("one Dirichlet distribution per class over the classifier's whole probability vector, fused over "
+                  "the dropout samples; ignores the viewpoint and the poses"),
+    "with_uncertainty_poses_only": "With Uncertainty with the dropout samples replaced by their mean",
+    "with_uncertainty_dropout_only": "With Uncertainty without pose sampling (it trusts the pose estimate)",
+}
+
+
+def methods_section(ctx: ReportContext) -> None:
+    pop = ctx.population or {}
+    methods = ordered_methods(pop.get("methods") or [])
+    if not methods:
+        return
+    ctx.section("The methods compared", "methods")
+    ctx.page.table(["method", "what it does"], [[method_label(m), METHOD_NOTES.get(m, "(no description)")]
+                                                for m in methods], cls="methods")
+
+
+def limitations(ctx: ReportContext) -> list[str]:
+    """The limits of this run's evidence, each read off the config or summary.json."""
+    pop, ev_cfg = ctx.population or {}, (ctx.config.get("evaluate") or {})
+    out = []
+    src = ev_cfg.get("yaw_source")
+    if src == "truth":
+        out.append("The object's yaw (which way it faces) comes from the ground truth of the synthetic data, not "
+                   "from an estimate: the viewpoint each GP is read at is exact up to the camera pose.")
+    elif src == "config":
+        out.append("The object's yaw comes from the configuration (one fixed value per target), not from an "
+                   "estimate.")
+    scans = sorted({str(t.get("scan")) for t in pop.get("tracks") or [] if isinstance(t, dict) and t.get("scan")})
+    tdv = ((pop.get("domain_fit") or {}).get("test_domain_variance") or {})
+    if tdv:
+        n_folds = len(tdv.get("per_fold") or {})
+        by = "scans" if tdv.get("folds_by") == "scan" else "objects"
+        out.append(f"The calibrated likelihood's extra variance is estimated with cross-fitting over {n_folds} "
+                   f"{by}" + (f" ({', '.join(scans)})" if by == "scans" and scans else "")
+                   + ": each fold's estimate rests on the others alone, so with few folds it is coarse.")
+    if pop:
+        c = counts(pop)
+        single = c["single_track_targets"]
+        if single:
+            one = len(single) == 1
+            out.append(f"{len(single)} of {c['n_targets']} targets {'has' if one else 'have'} a single track "
+                       f"({', '.join(single)}): {'it has' if one else 'they have'} no interval of "
+                       f"{'its' if one else 'their'} own and {'weighs' if one else 'weigh'} on the pooled value like "
+                       "the others.")
+        out.append(f"The evidence covers {c['n_targets']} targets in {len(scans) or '?'} "
+                   f"scan{'s' if len(scans) != 1 else ''}: the intervals vary over targets and tracks of these "
+                   "scans, not over other homes or other objects.")
+    seeds = (ctx.config.get("study") or {}).get("seeds") or []
+    train = ((ctx.run.card or {}).get("training") or {}).get("seed")
+    if not _study(ctx):
+        out.append(f"One classifier training run (seed {train if train is not None else 'unknown'}): the intervals "
+                   "do not cover what another training run would change (see the seed section below).")
+    elif seeds:
+        out.append(f"Classifier training varies over {len(seeds) + 1} seeds in the seed study only; every other "
+                   "number on this page comes from one of them.")
+    sat = saturated(pop)
+    if sat:
+        out.append(f"{len(sat)} (target, method) pairs reach a log10 MGR above {MGR_SATURATION:g} "
+                   f"({', '.join(sat[:6])}{', …' if len(sat) > 6 else ''}): numerical saturation (see the "
+                   "glossary), so means of log10 MGR are dominated by them; the pooled log10 MGR is a median over "
+                   "targets for that reason.")
+    if ctx.data_source == "synthetic":
+        out.append("The images are synthetic stand-ins rendered in the datasets' formats, not the real BigBIRD "
+                   "and AVD photographs, so the paper's numbers are not expected to be reproduced.")
+    return out
+
+
+def saturated(pop: dict) -> list[str]:
+    """'target / method' of every per-target or pooled log10 MGR value above the saturation cap."""
+    out = []
+    for t, per in (pop.get("per_target") or {}).items():
+        for m, d in (per or {}).items():
+            for k, e in (d or {}).items():
+                v = (e or {}).get("value") if isinstance(e, dict) else None
+                if k.startswith("log10_mgr") and v is not None and float(v) > MGR_SATURATION:
+                    out.append(f"{t} / {method_label(m, short=True)}")
+    return sorted(set(out))
+
+
+def limitations_section(ctx: ReportContext) -> None:
+    items = limitations(ctx)
+    if not items:
+        return
+    ctx.section("Limitations of this run", "limitations")
+    for item in items:  # paragraphs, not a list: the page's lists are its verdict sentences
+        ctx.page.paragraph(item, cls="limitation")
+
+
+def _study(ctx: ReportContext) -> dict | None:
+    p = out_path(Path(ctx.run.run_dir) / "study", "study", "summary")
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def seeds_section(ctx: ReportContext) -> None:
+    """Seed variability where a seed study ran in this run folder; a visible note where not."""
+    ctx.section("Classifier seed variability", "seeds")
+    st = _study(ctx)
+    if st is None:
+        ctx.page.paragraph("No seed study in this run folder: every interval on this page varies over targets and "
+                           "tracks only, with one classifier training run. The seed study retrains the classifier "
+                           "with other seeds and says whether each verdict stays the same "
+                           "(the command viewfuse study; its page is study/index.html).", cls="warn")
+        return
+    seeds = st.get("seeds") or []
+    same = st.get("same_verdict")
+    ctx.page.paragraph(f'A seed study ran over {len(seeds)} classifier seeds; '
+                       + ("every verdict is the same for every seed. " if same is True else
+                          "some verdicts change with the seed. " if same is False else "")
+                       + 'Its page: <a href="../study/index.html">seed study</a>.', html=True)
+
+
+def config_diff(config: dict) -> list[list[str]]:
+    """(key, default, this run) for every key this run sets differently from the defaults."""
+    from pipeline.infra.config import Config, to_dict
+    default = to_dict(Config())
+    rows: list[list[str]] = []
+    _diff(default, config, "", rows)
+    return rows
+
+
+def _diff(a: Any, b: Any, prefix: str, rows: list[list[str]]) -> None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            if k in ("source_path", "path_roots"):
+                continue
+            _diff(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else k, rows)
+    elif a != b and b is not None:
+        rows.append([prefix, _show(a), _show(b)])
+
+
+def _show(v: Any) -> str:
+    return json.dumps(v, ensure_ascii=False) if not isinstance(v, str) else v
+
+
+def reproduce_section(ctx: ReportContext) -> None:
+    ctx.section("Reproduce this page", "reproduce")
+    cfg_file = ctx.config_file or "<your config>.toml"
+    commit = ctx.commit or "unknown"
+    ctx.page.preformatted(f"git checkout {commit}\npython -m stages.commands.cli report --config {cfg_file}\n"
+                          "# or the whole chain: make features models evaluate report",
+                          caption="Commands (the stages rerun only what is out of date).")
+    rows = config_diff(ctx.config) if ctx.config else []
+    ctx.page.table(["setting", "default", "this run"], rows or [["—", "—", "every setting at its default"]],
+                   cls="config-diff", caption="This run's configuration where it differs from the defaults.")
+    run = Path(ctx.run.run_dir)
+    files = [("verdicts, pooled values and intervals", out_path(run / "evaluate", "evaluate", "summary")),
+             ("every cell's metrics", out_path(run / "evaluate", "evaluate", "results")),
+             ("the GP fits", out_path(run / "models", "models", "index")),
+             ("the classifier", out_path(run / "classifier", "classifier", "card"))]
+    ctx.page.table(["what", "file (relative to the run folder)"],
+                   [[w, str(p.relative_to(run))] for w, p in files if p.exists()], cls="json-paths",
+                   caption="The files every number on this page is read from.")
