@@ -11,7 +11,7 @@ import numpy as np
 
 from reports.main.context import ReportContext
 from reports.shared.figures import new_subplots, step_ticks
-from reports.shared.numbers import fmt
+from reports.shared.numbers import Estimate, fmt
 from reports.shared.records import PHRASE, interval_text
 
 COLOURS = {"info_gain": "#0072B2", "known_pose": "#56B4E9", "random": "#999999", "fixed": "#000000",
@@ -31,6 +31,26 @@ def verdict_sentences(block: dict) -> list[str]:
             out.append(f"{a} {PHRASE[est['outcome']]} {b} on {block['labels'].get(m, m)} (mean over targets of "
                        f"the differences {fmt(est['value'], signed=True)}, {interval_text(rec)}, over {block['scope']}).")
     return out
+
+
+def curves_caption(block: dict) -> str:
+    """The curves' finding: each planner's correct ratio at the last step, highest first."""
+    last = int(block["budget"])
+    final = {p: block["curves"][p]["correct"][-1] for p in block["planners"]}
+    order = sorted(final, key=lambda p: -(final[p].get("value") or 0.0))
+    vals = "; ".join(f"{p} {Estimate.of(final[p]).text()}" for p in order)
+    return (f"Metrics per step, mean over targets with 95 % CIs. Correct ratio at step {last}, highest first: "
+            f"{vals}.")
+
+
+def map_caption(block: dict) -> str:
+    """The map's finding: how many views each path took and how many views both share."""
+    ex = block.get("example") or {}
+    paths = ex.get("paths") or {}
+    ig, fx = (paths.get(p, {}).get("nodes") or [] for p in ("info_gain", "fixed"))
+    return (f"One planned path against the fixed track from the same start (true positions; target "
+            f"{ex.get('target', '?')}, biased setting): info_gain took {len(ig)} views, the fixed track "
+            f"{len(fx)}; {len(set(ig) & set(fx))} views are the same on both.")
 
 
 def _block(ctx: ReportContext) -> dict | None:
@@ -114,7 +134,7 @@ def planning_section(ctx: ReportContext) -> None:
         f"under the belief's localization samples, known_pose the same with the pose taken as known, "
         f"hindsight chooses with the true class (an upper bound). Values are means over targets with "
         f"95 % CIs (hierarchical bootstrap over targets, then starts).")
-    ctx.figure("planning_curves.png", "Metrics per step, mean over targets with 95 % CIs.")
+    ctx.figure("planning_curves.png", curves_caption(block))
     at = [k for k in block.get("at_steps", []) if f"correct_at_{k}" in block["pooled"][block["planners"][0]]]
     rows = [[p, _ci(block["pooled"][p]["steps_to_decision"])] + [_ci(block["pooled"][p][f"correct_at_{k}"]) for k in at]
             for p in block["planners"]]
@@ -129,4 +149,4 @@ def planning_section(ctx: ReportContext) -> None:
         ctx.page.paragraph(f"One information-gain decision took {fmt(t['planning_decision_ms_median'])} ms (median; "
                            f"90th percentile {fmt(t['planning_decision_ms_p90'])} ms) over "
                            f"{int(t['planning_decisions'])} decisions.")
-    ctx.figure("planning_map.png", "One planned path against the fixed track from the same start (true positions).")
+    ctx.figure("planning_map.png", map_caption(block))
