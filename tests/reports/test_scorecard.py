@@ -1,5 +1,5 @@
-"""The claims scorecard reads one statistic per claim (the verdict records, else the robust paired
-difference, else the paired mean) and labels it by its interval; the §5.3 count comes from the
+"""The claims scorecard reads one statistic per claim (the verdict records, else the paired entry:
+both hold the metric spec's statistic) and labels it by its interval; the §5.3 count comes from the
 simulate stage's summary in the same run folder."""
 from __future__ import annotations
 
@@ -21,9 +21,8 @@ def test_records_come_first_and_a_null_end_is_unbounded():
     assert claim_status(e, "log10_mgr95_final") == "holds"          # lower is better, CI below 0
 
 
-def test_without_records_the_robust_statistic_wins_over_the_mean():
-    pop = {"paired": {KEY: {"nll_final": {"value": -300.0, "ci_low": -900.0, "ci_high": -30.0}}},
-           "robust": {"nll_final": {"paired": {KEY: {"value": -2.0, "ci_low": -5.0, "ci_high": 0.5}}}}}
+def test_without_records_the_paired_entry_is_read():
+    pop = {"paired": {KEY: {"nll_final": {"value": -2.0, "ci_low": -5.0, "ci_high": 0.5}}}}
     e = verdict_entry(pop, KEY, "nll_final")
     assert (e["value"], e["lo"], e["hi"]) == (-2.0, -5.0, 0.5)
     assert claim_status(e, "nll_final") == "inconclusive"
