@@ -38,8 +38,16 @@ def _rows(name: str, block: dict) -> list[list]:
             for m in ordered_methods((block.get("pooled") or {}).keys())]
 
 
-def _sentences(block: dict, keys: tuple[str, ...]) -> list[str]:
-    return sentences(records_of(block), keys)
+def _sentences(block: dict, keys: tuple[str, ...], main: bool | None = None) -> list[str]:
+    """The records' sentences for ``keys``; ``main`` True / False: only / all but With Uncertainty
+    against Model Based (the comparison the calibration section is about)."""
+    recs = records_of(block)
+    if main is not None:
+        recs = [r for r in recs if (r.get("comparison") == MAIN) == main]
+    return sentences(recs, keys)
+
+
+MAIN = "with_uncertainty-model_based"
 
 
 def calibration_section(ctx: ReportContext) -> None:
@@ -53,15 +61,23 @@ def calibration_section(ctx: ReportContext) -> None:
     rows = _rows("paper (GP predictive)", pop) + (_rows("calibrated (+ test-domain variance)", cal) if cal else [])
     page.table(_header(), rows, cls="calibration pooled",
                caption=f"Pooled over the population, value [95 % CI] (targets, then tracks). Confident errors: share "
-                       f"of posteriors with max P >= {thr:g} on a wrong class. ECE: top-label, {bins} equal-width bins "
+                       f"of posteriors with max P ≥ {thr:g} on a wrong class. ECE: top-label, {bins} equal-width bins "
                        "(torchmetrics' definition), over the pooled posteriors weighted as every pooled value. NLL = "
-                       "-ln P(truth) and log10 MGR are unbounded: shown (and judged) as the median over targets of "
+                       "−ln P(truth) and log10 MGR are unbounded: shown (and judged) as the median over targets of "
                        "the target means, so that no single target carries them.")
-    page.bullets(_sentences(pop, ("confident_error_final", "nll_final", "ece_final")), cls="verdict calibration")
+    keys = ("confident_error_final", "nll_final", "ece_final")
+    page.bullets(_sentences(pop, keys, main=True), cls="verdict calibration")
+    rest = _sentences(pop, keys, main=False)
+    if rest:
+        page.bullets(rest, cls="verdict calibration-rest", collapsed=f"The other comparisons ({len(rest)} sentences)")
     if cal:
-        page.bullets(["With the calibrated likelihood: " + s for s in
-                      _sentences(cal, ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final"))],
+        keys = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
+        page.bullets(["With the calibrated likelihood: " + s for s in _sentences(cal, keys, main=True)],
                      cls="verdict calibrated")
+        rest = _sentences(cal, keys, main=False)
+        if rest:
+            page.bullets(["With the calibrated likelihood: " + s for s in rest], cls="verdict calibrated-rest",
+                         collapsed=f"The other comparisons with the calibrated likelihood ({len(rest)} sentences)")
     ctx.figure("reliability.png", "Reliability diagram of the final posteriors: accuracy against confidence per "
                                   "bin (the diagonal is perfect calibration).")
     if cal:

@@ -10,12 +10,25 @@ from typing import Any
 import numpy as np
 
 from reports.main.context import ReportContext
-from reports.shared.figures import new_subplots, step_ticks
+from reports.shared.figures import mgr_axis, new_subplots, step_ticks
 from reports.shared.numbers import Estimate, fmt
 from reports.shared.records import PHRASE, interval_text
 
 COLOURS = {"info_gain": "#0072B2", "known_pose": "#56B4E9", "random": "#999999", "fixed": "#000000",
            "orbit": "#E69F00", "hindsight": "#009E73"}
+# Plain names for the planners (the summary's keys stay stable).
+NAMES = {"info_gain": "information gain", "known_pose": "information gain, known pose", "random": "random walk",
+         "fixed": "fixed track", "orbit": "orbit", "hindsight": "hindsight (true class)"}
+
+
+def name(p: str) -> str:
+    return NAMES.get(p, p.replace("_", " "))
+
+
+def scope(block: dict) -> str:
+    return str(block.get("scope", "")).replace(" x ", " × ")
+
+
 CURVES = (("correct", "correct ratio"), ("confident_error", "confident-error rate"), ("nll", "NLL of the truth"))
 
 
@@ -28,8 +41,9 @@ def verdict_sentences(block: dict) -> list[str]:
             if m != "steps_to_decision" and not m.startswith("correct_at"):
                 continue
             rec = {"lo": est.get("ci_low"), "hi": est.get("ci_high")}
-            out.append(f"{a} {PHRASE[est['outcome']]} {b} on {block['labels'].get(m, m)} (mean over targets of "
-                       f"the differences {fmt(est['value'], signed=True)}, {interval_text(rec)}, over {block['scope']}).")
+            out.append(f"{name(a)} {PHRASE[est['outcome']]} {name(b)} on {block['labels'].get(m, m)} (mean over "
+                       f"targets of the differences {fmt(est['value'], signed=True)}, {interval_text(rec)}, over "
+                       f"{scope(block)}).")
     return out
 
 
@@ -38,7 +52,7 @@ def curves_caption(block: dict) -> str:
     last = int(block["budget"])
     final = {p: block["curves"][p]["correct"][-1] for p in block["planners"]}
     order = sorted(final, key=lambda p: -(final[p].get("value") or 0.0))
-    vals = "; ".join(f"{p} {Estimate.of(final[p]).text()}" for p in order)
+    vals = "; ".join(f"{name(p)} {Estimate.of(final[p]).text()}" for p in order)
     return (f"Metrics per step, mean over targets with 95 % CIs. Correct ratio at step {last}, highest first: "
             f"{vals}.")
 
@@ -49,7 +63,7 @@ def map_caption(block: dict) -> str:
     paths = ex.get("paths") or {}
     ig, fx = (paths.get(p, {}).get("nodes") or [] for p in ("info_gain", "fixed"))
     return (f"One planned path against the fixed track from the same start (true positions; target "
-            f"{ex.get('target', '?')}, biased setting): info_gain took {len(ig)} views, the fixed track "
+            f"{ex.get('target', '?')}, biased setting): information gain took {len(ig)} views, the fixed track "
             f"{len(fx)}; {len(set(ig) & set(fx))} views are the same on both.")
 
 
@@ -62,14 +76,19 @@ def fig_curves(block: dict) -> Any:
     fig, axes = new_subplots(1, len(CURVES), w=10.0, h=3.4)
     steps = np.arange(1, int(block["budget"]) + 1)
     for ax, (key, label) in zip(axes[0], CURVES):
+        seen = []
         for p in block["planners"]:
             est = block["curves"][p][key]
             v = np.array([e["value"] for e in est], float)
             lo = np.array([e["ci_low"] for e in est], float)
             hi = np.array([e["ci_high"] for e in est], float)
-            ax.plot(steps, v, "-o", ms=3, color=COLOURS.get(p, "#CC79A7"), label=p, lw=1.4)
+            ax.plot(steps, v, "-o", ms=3, color=COLOURS.get(p, "#CC79A7"), label=name(p), lw=1.4)
             ax.fill_between(steps, lo, hi, color=COLOURS.get(p, "#CC79A7"), alpha=0.12, lw=0)
+            seen.extend([*v, *lo, *hi])
         ax.set_title(label)
+        if key == "nll":   # unbounded: a few confidently wrong targets would flatten a linear axis
+            mgr_axis(ax, seen)
+            ax.set_ylabel("symlog axis: linear in [0, 1]", fontsize=7)
         ax.set_xlabel("step (measurements)")
         step_ticks(ax, steps)
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=6, fontsize=8,
@@ -82,14 +101,14 @@ def fig_map(example: dict) -> Any:
     ax = axes[0, 0]
     views = np.asarray(example["views_xy"], float).reshape(-1, 2)
     ax.scatter(views[:, 0], views[:, 1], s=10, color="#CCCCCC", label="views that see the target", zorder=1)
-    for name, style in (("fixed", "--"), ("info_gain", "-")):
-        path = (example.get("paths") or {}).get(name)
+    for key, style in (("fixed", "--"), ("info_gain", "-")):
+        path = (example.get("paths") or {}).get(key)
         if not path:
             continue
         xy = np.asarray(path["xy"], float).reshape(-1, 2)
-        jitter = 0.01 if name == "fixed" else 0.0     # the two paths share their start
-        ax.plot(xy[:, 0] + jitter, xy[:, 1] + jitter, style, marker="o", ms=4, color=COLOURS[name],
-                label=f"{name} ({len(xy)} measurements)", zorder=3)
+        jitter = 0.01 if key == "fixed" else 0.0     # the two paths share their start
+        ax.plot(xy[:, 0] + jitter, xy[:, 1] + jitter, style, marker="o", ms=4, color=COLOURS[key],
+                label=f"{NAMES[key]} ({len(xy)} measurements)", zorder=3)
     o = example["object_xy"]
     ax.scatter([o[0]], [o[1]], marker="X", s=90, color="#D55E00", label="object (estimate)", zorder=4)
     start = np.asarray(example["paths"]["info_gain"]["xy"][0] if "info_gain" in example["paths"] else views[0])
@@ -108,7 +127,7 @@ def planning_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
     plan = [("planning_curves.png", lambda: fig_curves(block))]
     best = max(block["planners"], key=lambda p: block["curves"][p]["correct"][-1]["value"])
     ctx.alts["planning_curves.png"] = (f"Correct ratio, confident-error rate and NLL per step for each planner; "
-                                       f"highest correct ratio at the last step: {best}.")
+                                       f"highest correct ratio at the last step: {name(best)}.")
     if (block.get("example") or {}).get("paths"):
         ex = block["example"]
         plan.append(("planning_map.png", lambda: fig_map(ex)))
@@ -118,7 +137,7 @@ def planning_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
 
 
 def _ci(e: dict) -> str:
-    return f"{fmt(e['value'])} [{fmt(e['ci_low'])}, {fmt(e['ci_high'])}]"
+    return Estimate.of(e).text()
 
 
 def planning_section(ctx: ReportContext) -> None:
@@ -128,18 +147,18 @@ def planning_section(ctx: ReportContext) -> None:
     ctx.section("View planning: where to look next", "planning")
     ctx.page.paragraph(
         f"Each planner drives the robot on the scan's move graph from the same start nodes "
-        f"({block['scope']}), for at most {block['budget']} measurements, stopping when max P ≥ "
+        f"({scope(block)}), for at most {block['budget']} measurements, stopping when max P ≥ "
         f"{fmt(block['confidence'])}; every planner's views are fused by With Uncertainty, so the "
-        f"differences are the choice of views alone. info_gain maximises the expected information gain "
-        f"under the belief's localization samples, known_pose the same with the pose taken as known, "
-        f"hindsight chooses with the true class (an upper bound). Values are means over targets with "
+        f"differences are the choice of views alone. Information gain maximises the expected information "
+        f"gain under the belief's localization samples, its known-pose variant the same with the pose taken as "
+        f"known, hindsight chooses with the true class (an upper bound). Values are means over targets with "
         f"95 % CIs (hierarchical bootstrap over targets, then starts).")
     ctx.figure("planning_curves.png", curves_caption(block))
     at = [k for k in block.get("at_steps", []) if f"correct_at_{k}" in block["pooled"][block["planners"][0]]]
-    rows = [[p, _ci(block["pooled"][p]["steps_to_decision"])] + [_ci(block["pooled"][p][f"correct_at_{k}"]) for k in at]
+    rows = [[name(p), _ci(block["pooled"][p]["steps_to_decision"])] + [_ci(block["pooled"][p][f"correct_at_{k}"]) for k in at]
             for p in block["planners"]]
     ctx.page.table(["planner", "steps to a confident correct decision"] + [f"correct ratio at step {k}" for k in at],
-                   rows, cls="planning", caption=f"Pooled over {block['scope']}; no confident correct decision within the budget "
+                   rows, cls="planning", caption=f"Pooled over {scope(block)}; no confident correct decision within the budget "
                                  f"counts as {block['budget'] + 1} steps.")
     sentences = verdict_sentences(block)
     if sentences:

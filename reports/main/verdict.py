@@ -11,7 +11,7 @@ from pipeline.evaluation.statistics.resampler import wilson_interval
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt, reformat_numbers
-from reports.shared.records import records_of, sentences as render
+from reports.shared.records import records_of, select, sentence, sentences as render
 from reports.main.calibration import paired_value, pooled_value
 from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
@@ -92,7 +92,8 @@ def verdict_section(ctx: ReportContext) -> None:
     # the sentences rendered from summary.json's records (reports/shared/records.py)
     recs = records_of(pop)
     sentences = render(recs)
-    head = render(recs, HEADLINE) or sentences
+    # the primary metrics' sentences up front (the bottom line speaks of them); the rest collapsed
+    head = [sentence(r) for r in select(recs, primary=True)] or render(recs, HEADLINE) or sentences
     page.bullets(head or ["(the verdict list is empty)"], cls="verdict")
     methods = ordered_methods(pop.get("methods") or (pop.get("pooled") or {}).keys())
     pooled = pop.get("pooled") or {}

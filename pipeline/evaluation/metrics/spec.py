@@ -221,14 +221,14 @@ METRICS: dict[str, Metric] = {
     "log10_mgr95_overall": Metric("log10 MGR 95th percentile, all steps", "log10 MGR 95%, all steps", False,
                                   "log10_mgr", "all", percentile_of(95), best=0.0, pool="median"),
     # Calibration (docs/design.md §8): the confident-error rate at the run's threshold (``Params``).
-    "nll_final": Metric("NLL = -ln P(truth), final step", "NLL, final", False, "nll", "final", mean_of, best=0.0,
+    "nll_final": Metric("NLL of the truth, final step", "NLL, final", False, "nll", "final", mean_of, best=0.0,
                         pool="median"),
-    "nll_overall": Metric("NLL = -ln P(truth), all steps", "NLL, all steps", False, "nll", "all", mean_of, best=0.0,
+    "nll_overall": Metric("NLL of the truth, all steps", "NLL, all steps", False, "nll", "all", mean_of, best=0.0,
                           pool="median"),
-    "confident_error_final": Metric("confident-error rate (max P >= threshold on a wrong class), final step",
+    "confident_error_final": Metric("confident-error rate, final step",
                                     "confident errors, final", False, ("confidence", "correct"), "final",
                                     lambda c, ok, params: confident_rate(c, ok, params), best=0.0, worst=1.0),
-    "confident_error_overall": Metric("confident-error rate (max P >= threshold on a wrong class), all steps",
+    "confident_error_overall": Metric("confident-error rate, all steps",
                                       "confident errors, all steps", False, ("confidence", "correct"), "all",
                                       lambda c, ok, params: confident_rate(c, ok, params), best=0.0, worst=1.0),
 }
