@@ -302,7 +302,9 @@ def fig_track(track: dict, biases: list[tuple[float, float]]) -> Any:
     if tru is not None:
         ax.scatter([tru[0]], [tru[1]], marker="*", s=140, facecolors="none", edgecolors="black",
                    zorder=5, label="object (truth)")
-    ax.set_aspect("equal", adjustable="datalim")
+    # "box", not "datalim": datalim moves the limits at draw time, after the layout placed the tick
+    # labels, so a new end tick can fall off the canvas (the self-check caught it on a real track)
+    ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x (m, ground frame)")
     ax.set_ylabel("y (m, ground frame)")
     fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1, fontsize=8, frameon=False)

@@ -10,7 +10,7 @@ from pipeline.evaluation.statistics.records import outcome
 from pipeline.evaluation.statistics.resampler import wilson_interval
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt, reformat_numbers
+from reports.shared.numbers import Estimate, fmt
 from reports.shared.records import records_of, select, sentence, sentences as render
 from reports.main.calibration import paired_value, pooled_value
 from reports.main.scorecard import scorecard

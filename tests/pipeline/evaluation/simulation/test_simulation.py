@@ -290,7 +290,7 @@ def test_stage_writes_results_example_and_report(tmp_config):
     for p in pngs:
         assert f'src="{p}"' in html
     # The report's conventions: log10 MGR, the shared method names, every table value with its CI.
-    assert "log10 MGR 95%, all steps" in html and "With Uncertainty (Feldman &amp; Indelman)" in html
+    assert "log10 MGR 95 %, all steps" in html and "With Uncertainty (Feldman &amp; Indelman)" in html
     assert "(ours)" not in html and "log MGR =" not in html
     import re
     # cell text without its no-wrap spans; the page writes a typographic minus
