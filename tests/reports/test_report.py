@@ -251,11 +251,12 @@ def test_the_verdict_is_the_first_section_with_context_sentences_and_pooled_cis(
     assert "3 targets, 6 tracks, 2 per target, 2 localization settings: 12 (target, track, setting) cells" in first
     assert "5 realizations per cell" in first and "held-out top-1 0.940 [" in first
     assert "one training run (classifier.seed = 3)" in first and "viewfuse study" in first
-    # The headline sentences, rendered from summary.json's records, on the first screen; all of them
-    # collapsed below.
+    # The primary metrics' sentences, rendered from summary.json's records, on the first screen; all
+    # of them collapsed below.
     recs = pop["records"]
-    head = [sentence(r) for r in recs if r["metric"] in ("correct_final", "log10_mgr95_final")]
-    assert len(head) == 4 and len(recs) == 16
+    head = [sentence(r) for r in recs if r["primary"]]
+    assert head and {r["metric"] for r in recs if r["primary"]} <= {"correct_final", "confident_error_final"}
+    assert len(recs) == 16
     assert page.verdict == head + [sentence(r) for r in recs]
     assert first.index(head[-1]) < first.index('class="summary pooled"') < first.index("All 16 verdict sentences")
     pooled = page.table("pooled")
