@@ -145,3 +145,24 @@ def test_rerun_is_skipped_and_deterministic(run_all, capsys):
     import io
     b = pq.read_table(io.BytesIO(res_before)).to_pandas()
     np.testing.assert_array_equal(np.stack(a["posterior"]), np.stack(b["posterior"]))
+
+
+def test_compare_and_the_main_report_show_the_runs_own_pooled_values(run_all):
+    """One statistic per number across pages: compare reads the run's pooled values and outcomes
+    unchanged, and the main report prints each pooled value as the one formatter writes it."""
+    from reports.compare.runs import compare
+    from reports.shared.numbers import Estimate
+
+    ev = run_all.stage_dir("evaluate")
+    pop = json.loads((ev / "summary.json").read_text())["population"]
+    c = compare([ev.parent])
+    assert c.pooled
+    for (m, k), vals in c.pooled.items():
+        want, got = pop["pooled"][m][k], vals[0]
+        assert [got[x] for x in ("value", "ci_low", "ci_high")] == [want[x] for x in ("value", "ci_low", "ci_high")]
+    recs = {(r["comparison"], r["metric"]): r["outcome"] for r in pop["records"]}
+    checked = [key for key in c.verdicts if key in recs]
+    assert checked and all(c.verdicts[key][0]["outcome"] == recs[key] for key in checked)
+    report = (run_all.stage_dir("report") / "index.html").read_text()
+    for m in pop["pooled"]:
+        assert Estimate.of(pop["pooled"][m]["correct_final"]).text() in report, m
