@@ -147,14 +147,15 @@ def dropout_noise_floor(path: Path, passes: dict[str, dict[int, np.ndarray]], po
 
 def _training_sets(path: Path, mcfg: ModelsConfig):
     """Per modelled class: GP inputs (N, 2), training scores (N, D) (``models.targets``), angles;
-    plus output names, Parquet metadata and the dropout passes read (for the noise floor)."""
+    plus output names, Parquet metadata, the dropout passes read (for the noise floor) and each
+    class's mean deterministic-pass score vector (its position for ``evaluate.candidates = "hard"``)."""
     cols, scores, meta, dropout = read_training_views(path, mcfg.camera)
     objects = cols["object"].astype(str)
     present = sorted(set(objects))
     pool = present if isinstance(mcfg.classes, str) else list(mcfg.classes)
     if len(pool) < 2:
         raise FeaturesError(path, f"models need at least two classes; the features hold {len(pool)}")
-    X_by, S_by, angles = {}, {}, {}
+    X_by, S_by, angles, means = {}, {}, {}, {}
     for cls in pool:
         rows = np.nonzero(objects == cls)[0]
         if len(rows) == 0:
@@ -171,6 +172,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
         if not np.all(np.isfinite(X)):
             raise FeaturesError(path, f"class {cls!r}: non-finite GP inputs (u_x, u_y)")
         X_by[cls], S_by[cls], angles[cls] = X, scores[rows], [int(a) for a in ang]
+        means[cls] = scores[rows].astype(np.float64).mean(axis=0)   # deterministic pass: the hard sets' positions
     passes = dropout_passes(dropout, path) if (mcfg.targets == "dropout_mean" or mcfg.noise_floor == "dropout") else {}
     if mcfg.targets == "dropout_mean":
         S_by = {cls: dropout_means(path, passes, cls, angles[cls]) for cls in pool}
@@ -185,7 +187,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
                                       f"names for {scores.shape[1]} score components")
     else:
         log.warning("%s: no 'viewfuse.output_names' metadata; component names left empty", path)
-    return pool, X_by, S_by, angles, names, meta, passes
+    return pool, X_by, S_by, angles, names, meta, passes, means
 
 
 def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
@@ -199,13 +201,13 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
     """
     path = Path(path)
-    pool, X_by, S_by, angles, names, meta, passes = _training_sets(path, mcfg)
+    pool, X_by, S_by, angles, names, meta, passes, means = _training_sets(path, mcfg)
     unknown = [] if isinstance(targets, str) else [t for t in targets if t not in pool]
     if unknown:
         raise ValueError(f"'evaluate.targets' names {unknown[0]!r}, which is not a modelled instance "
                          f"(modelled, from {path}: {', '.join(pool)})")
     tlist = pool if isinstance(targets, str) else list(targets)
-    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed)
+    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed, class_means=means)
     plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
                            mcfg.informative_min)
     comps = sorted({i for p in plan.values() for i in p["components"]})

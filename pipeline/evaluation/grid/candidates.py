@@ -3,7 +3,15 @@
 The paper evaluated one target against three other instances. The population evaluation repeats
 that for every target with its own candidate set: the target plus ``n_candidates - 1`` others
 drawn from the modelled classes with a seed per target (so adding a target does not change the
-others' draws), every modelled class, or an explicit list. Candidates are kept in name order, so
+others' draws), every modelled class, an explicit list, or the ``n_candidates - 1`` classes
+hardest to tell from the target (``"hard"``).
+
+Hard sets: a class's position in score space is the mean, over its training views, of the
+deterministic-pass score vector (the classifier's probability vector); the distance between two
+classes is the Euclidean distance between their positions, and a target's hard set is the target
+plus the ``n_candidates - 1`` other classes nearest to it, ties broken by class name. Distances
+are taken from the target, so the relation need not be symmetric (B may be among A's nearest and
+not A among B's). Candidates are kept in name order, so
 the truth's position in the posterior varies between targets: ``argmax`` breaks ties towards the
 lower index, and a fixed truth position would bias ties.
 """
@@ -17,14 +25,34 @@ import numpy as np
 from pipeline.method.components import choose_components
 
 
+def nearest_classes(target: str, others: Sequence[str], class_means: Mapping[str, np.ndarray],
+                    k: int) -> list[str]:
+    """The ``k`` classes of ``others`` nearest to ``target`` (Euclidean distance between the class
+    mean score vectors), nearest first; equal distances in name order."""
+    centre = np.asarray(class_means[target], float)
+    dist = {c: float(np.linalg.norm(np.asarray(class_means[c], float) - centre)) for c in others}
+    return sorted(others, key=lambda c: (dist[c], c))[:k]
+
+
 def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: int,
-                   candidates: str | Sequence[str], seed: int) -> dict[str, list[str]]:
+                   candidates: str | Sequence[str], seed: int,
+                   class_means: Mapping[str, np.ndarray] | None = None) -> dict[str, list[str]]:
     """{target: sorted candidate classes (the target among them)}.
 
-    ``candidates``: ``"sampled"``, ``"all"`` or a list of the other candidates (used as given for
-    every target; ``n_candidates`` is then ignored).
+    ``candidates``: ``"sampled"``, ``"all"``, ``"hard"`` or a list of the other candidates (used as
+    given for every target; ``n_candidates`` is then ignored). ``"hard"`` needs ``class_means``:
+    each modelled class's mean deterministic-pass score vector over its training views.
     """
     pool = sorted(set(pool))
+    if candidates == "hard":
+        lack = [c for c in pool if class_means is None or c not in class_means]
+        if lack:
+            raise ValueError(f"'evaluate.candidates' = 'hard' needs the mean score vector of every modelled class; "
+                             f"{lack[0]!r} has none")
+        dims = {np.asarray(class_means[c]).shape for c in pool}
+        if len(dims) != 1 or len(next(iter(dims))) != 1:
+            raise ValueError(f"'evaluate.candidates' = 'hard': class mean score vectors must be 1-D of one length "
+                             f"(got shapes {sorted(dims)})")
     out: dict[str, list[str]] = {}
     for t in targets:
         if t not in pool:
@@ -32,9 +60,12 @@ def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: in
         others = [c for c in pool if c != t]
         if candidates == "all":
             picked = others
-        elif candidates == "sampled":
+        elif candidates in ("sampled", "hard"):
             if n_candidates - 1 > len(others):
                 raise ValueError(f"'evaluate.n_candidates' = {n_candidates} but only {len(pool)} classes are modelled")
+            if candidates == "hard":
+                out[t] = sorted([t, *nearest_classes(t, others, class_means, n_candidates - 1)])
+                continue
             rng = np.random.default_rng([seed, zlib.crc32(t.encode())])
             picked = [others[i] for i in rng.choice(len(others), n_candidates - 1, replace=False)]
         else:

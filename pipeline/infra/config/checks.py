@@ -157,7 +157,12 @@ def cross_checks(cfg: Config, where: str) -> None:
              "'evaluate.track_images' gives one track of one target: set 'evaluate.targets' to that one instance")
     if not isinstance(ev.candidates, str):
         need(len(set(ev.candidates)) == len(ev.candidates) and len(ev.candidates) >= 1,
-             "'evaluate.candidates' must be 'sampled', 'all' or a list of distinct class names")
+             "'evaluate.candidates' must be 'sampled', 'all', 'hard' or a list of distinct class names")
+    elif ev.candidates in ("sampled", "hard"):
+        modelled = _modelled_classes(cfg)
+        need(modelled is None or ev.n_candidates <= len(set(modelled)),
+             f"'evaluate.n_candidates' = {ev.n_candidates} exceeds the {len(set(modelled or ()))} modelled classes "
+             f"({_modelled_words(cfg)}) that evaluate.candidates = {ev.candidates!r} draws from")
     for a in ev.ablations:
         key = a.split("=", 1)[0].strip()
         need("=" in a and key in ABLATION_KEYS,

@@ -51,9 +51,12 @@ class EvaluateConfig:
                                   doc="'all' = every modelled instance present in the scanned AVD features, "
                                       "or a list of instance names")
     n_candidates: int = _f(4, lo=2, hi=1000, doc="candidate classes per target, the target included")
-    candidates: tuple[str, ...] = _f("sampled", words=("sampled", "all"),
+    candidates: tuple[str, ...] = _f("sampled", words=("sampled", "all", "hard"),
                                      doc="'sampled' = the target + n_candidates - 1 others drawn per target; "
-                                         "'all' = every modelled class; or a list of the other candidates")
+                                         "'hard' = the target + the n_candidates - 1 classes nearest it in score "
+                                         "space (Euclidean between class mean deterministic score vectors over "
+                                         "the training views; ties by name); 'all' = every modelled class; or a "
+                                         "list of the other candidates")
     candidate_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="seeds the per-target candidate draw")
     tracks_per_target: int = _f(8, lo=1, hi=1000, doc="distinct tracks per target")
     track_images: tuple[str, ...] = _f(factory=tuple, doc="explicit track (one target only); empty = build tracks")

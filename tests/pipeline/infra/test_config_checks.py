@@ -70,6 +70,34 @@ def test_the_models_stage_names_an_unknown_target_when_the_data_decides(tmp_path
         fit_from_features(p, ModelsConfig(restarts=0), targets=["nope"], n_candidates=2, progress=False)
 
 
+def test_more_candidates_than_modelled_classes_is_a_config_error(tmp_config):
+    classes = ["mahatma_rice", "red_bull", "pepto_bismol"]
+    for mode in ("sampled", "hard"):
+        with pytest.raises(ConfigError, match=f"'evaluate.n_candidates' = 4 exceeds the 3 modelled classes.*{mode}"):
+            tmp_config({"models": {"classes": classes}, "evaluate": {"n_candidates": 4, "candidates": mode}})
+        tmp_config({"models": {"classes": classes}, "evaluate": {"n_candidates": 3, "candidates": mode}})
+    tmp_config({"models": {"classes": classes}, "evaluate": {"n_candidates": 4, "candidates": "all"}})  # ignored
+
+
+def test_the_models_stage_plans_hard_sets_from_the_deterministic_means(tmp_path):
+    # The plan the evaluate stage reads (models/index.json's candidate_sets) holds the hard sets
+    # computed from each class's mean deterministic-pass score vector over its training views
+    # (here they differ from the seeded draw for two of the five targets).
+    from pipeline.evaluation.grid.candidates import candidate_sets
+    from stages.models import fit_from_features
+    from tests.stages.test_models_stage import write_features
+
+    classes = [f"obj_{i}" for i in range(5)]
+    p = tmp_path / "bigbird.parquet"
+    truth = write_features(p, classes=classes, n_angles=12, shift=0.3)
+    means = {c: s.mean(axis=0) for c, (_, s) in truth.items()}
+    _, extra = fit_from_features(p, ModelsConfig(classes=tuple(classes), n_components=2, restarts=0, min_views=8),
+                                 n_candidates=3, candidates="hard", progress=False)
+    expected = candidate_sets(classes, classes, 3, "hard", 0, class_means=means)
+    assert {t: v["classes"] for t, v in extra["candidate_sets"].items()} == expected
+    assert expected != candidate_sets(classes, classes, 3, "sampled", 0)
+
+
 def test_the_simulate_section_is_cross_checked_at_load(tmp_config):
     with pytest.raises(ConfigError, match="'simulate.example_realization' = 400 must be below"):
         tmp_config({"simulate": {"example_realization": 400}})

@@ -57,3 +57,55 @@ def test_plan_and_own_components():
         assert p["components"] == [int(i) for i in np.argsort(-pooled, kind="stable")[:2]]
     own = own_components(scores)
     assert all(own[c] == int(np.argmax(scores[c].mean(0))) for c in scores)
+
+
+def _line_means():
+    # Six classes on a line of 3-D score vectors (positions 0, 1, 2, 4, 8, 13 along it, no two
+    # distances equal from c0, c3 or c5), plus "tie_a"/"tie_b" off the line, equally far from "c2".
+    means = {f"c{i}": np.array([0.1 + 0.05 * x, 0.9 - 0.05 * x, 0.0]) for i, x in enumerate([0, 1, 2, 4, 8, 13])}
+    means["tie_b"] = means["c2"] + np.array([0.0, -0.2, 0.2])
+    means["tie_a"] = means["c2"] + np.array([0.0, 0.2, -0.2])
+    return means
+
+
+def test_hard_sets_are_the_nearest_classes_in_score_space():
+    means = _line_means()
+    pool = sorted(means)
+    got = candidate_sets(pool, ["c0", "c5", "c3"], 3, "hard", seed=0, class_means=means)
+    assert got == {"c0": ["c0", "c1", "c2"],      # positions 1 and 2 are nearest 0
+                   "c5": ["c3", "c4", "c5"],      # 8 and 4 are nearest 13
+                   "c3": ["c1", "c2", "c3"]}      # from 4: 2 (2 away) and 1 (3 away) before 8 (4 away)
+    # Brute force over every target and size: the set is exactly the k nearest by distance.
+    for t in pool:
+        for n in range(2, len(pool) + 1):
+            s = candidate_sets(pool, [t], n, "hard", 0, class_means=means)[t]
+            assert t in s and len(s) == n == len(set(s)) and s == sorted(s)
+            inside = max(np.linalg.norm(means[c] - means[t]) for c in s if c != t)
+            outside = [np.linalg.norm(means[c] - means[t]) for c in pool if c not in s]
+            assert all(inside <= d + 1e-12 for d in outside)
+    # The seed plays no part; the sets are the same on every call.
+    assert candidate_sets(pool, pool, 4, "hard", 7, class_means=means) == candidate_sets(pool, pool, 4, "hard", 0,
+                                                                                         class_means=means)
+
+
+def test_hard_sets_break_distance_ties_by_name():
+    means = _line_means()
+    pool = sorted(means)
+    # From c2, tie_a and tie_b are both sqrt(0.08) away: exactly equal distances.
+    d = {c: np.linalg.norm(means[c] - means["c2"]) for c in pool}
+    assert d["tie_a"] == d["tie_b"]
+    ranked = sorted((c for c in pool if c != "c2"), key=lambda c: (d[c], c))
+    k = ranked.index("tie_a") + 1          # a set that has room for exactly one of the tied pair
+    got = candidate_sets(pool, ["c2"], k + 1, "hard", 0, class_means=means)["c2"]
+    assert "tie_a" in got and "tie_b" not in got
+
+
+def test_hard_sets_need_means_and_a_pool_large_enough():
+    means = _line_means()
+    pool = sorted(means)
+    with pytest.raises(ValueError, match="n_candidates' = 9 but only 8 classes"):
+        candidate_sets(pool, ["c0"], 9, "hard", 0, class_means=means)
+    with pytest.raises(ValueError, match="'hard' needs the mean score vector.*'tie_b'"):
+        candidate_sets(pool, ["c0"], 3, "hard", 0, class_means={c: m for c, m in means.items() if c != "tie_b"})
+    with pytest.raises(ValueError, match="'hard' needs"):
+        candidate_sets(pool, ["c0"], 3, "hard", 0)
