@@ -136,7 +136,10 @@ def test_cache_key_reruns_on_relevant_settings_only(chain, capsys):
     from tests.conftest import DEFAULT_CONFIG
 
     def cfg_with(over):
-        return load_config(DEFAULT_CONFIG, merge(merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
+        # one BigBIRD object models one class: "all" candidates, so the config's own check (a sampled
+        # set needs n_candidates modelled classes) does not refuse a features-only selection
+        base = merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}, "evaluate": {"candidates": "all"}})
+        return load_config(DEFAULT_CONFIG, merge(base, over))
 
     def key(cfg):
         # Upstream digests planned, not run: the key the runner would compute now.
@@ -253,7 +256,10 @@ def test_object_and_instance_selection_keys_are_checked(chain):
         def update(self, n): pass
 
     def cfg_with(over):
-        return load_config(DEFAULT_CONFIG, merge(merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}}), over))
+        # one BigBIRD object models one class: "all" candidates, so the config's own check (a sampled
+        # set needs n_candidates modelled classes) does not refuse a features-only selection
+        base = merge(TINY, {"run": {"artifacts": str(chain.run_dir.parent)}, "evaluate": {"candidates": "all"}})
+        return load_config(DEFAULT_CONFIG, merge(base, over))
 
     bb, avd = data_roots(chain)
     one = sorted(chain.data.synthetic.instances)[1]
