@@ -29,18 +29,11 @@ def _estimate(groups, n_boot: int, seed, higher: bool | None = None) -> dict:
     hierarchical interval (targets, then starts) and, with ``higher``, the one outcome rule's
     verdict. Every call of one block passes the same seed: the engine's draws are shared, so a
     paired difference and its two planners' values are resampled alike."""
+    from pipeline.evaluation.statistics.engine import over_groups
     from pipeline.evaluation.statistics.records import outcome
-    from pipeline.evaluation.statistics.resampler import draws
 
-    groups = [np.asarray(g, float) for g in groups if len(g)]
-    if not groups:
-        est = {"value": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
-    else:
-        sizes = [len(g) for g in groups]
-        values = np.zeros((1, len(groups), max(sizes)))
-        for t, g in enumerate(groups):
-            values[0, t, : len(g)] = g
-        est = draws([sizes], n_boot, seed).estimate(values, "mean")
+    groups = [g for g in groups if len(g)]
+    est = over_groups(groups, n_boot, seed)
     est.update(pooling="mean", over=["targets", "starts"],
                n={"targets": len(groups), "starts": int(sum(len(g) for g in groups))})
     if higher is not None:

@@ -257,9 +257,19 @@ def over_realizations(mats: Mapping[str, np.ndarray], params: M.Params, n_boot: 
     return out
 
 
+def over_groups(groups: Sequence[np.ndarray], n_boot: int, seed) -> dict[str, float]:
+    """The mean over groups of their members' mean, with its interval over groups, then members
+    (two levels; empty groups are left out). The draws are the shared ones of that structure."""
+    groups = [np.asarray(g, float) for g in groups if len(g)]
+    if not groups:
+        return {"value": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
+    sizes = [len(g) for g in groups]
+    values = np.zeros((1, len(groups), max(sizes)))
+    for t, g in enumerate(groups):
+        values[0, t, : len(g)] = g
+    return draws([sizes], n_boot, seed).estimate(values, "mean")
+
+
 def over_members(values: np.ndarray, n_boot: int, seed) -> dict[str, float]:
     """The mean of one group's values with its interval over them (one level)."""
-    v = np.asarray(values, float)
-    if len(v) == 0:
-        return {"value": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
-    return draws([[len(v)]], n_boot, seed).estimate(v[None, None, :], "mean")
+    return over_groups([values], n_boot, seed)
