@@ -252,8 +252,9 @@ def label_problems(e: Entry) -> list[str]:
 def outcome_of(low, high, higher_is_better: bool, words=("better", "worse", "not distinguishable")) -> str:
     """The one outcome rule (``records.outcome``: the side of 0 the interval lies on; a JSON null
     end is unbounded) in ``words``."""
-    def end(x):
-        return None if x is None else (math.nan if _num(x) is None else _num(x))
+    def end(x):   # None stays None (unbounded); a non-number is NaN (no interval)
+        v = _num(x)
+        return None if x is None else math.nan if v is None else v
     res = outcome(end(low), end(high), higher_is_better)
     return words[("better", "worse", "not distinguishable").index(res)]
 
