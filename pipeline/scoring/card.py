@@ -9,7 +9,7 @@ from torch import nn
 
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.cache import hash_json, sha256_file
-from pipeline.scoring.networks import build_network, display_name
+from pipeline.scoring.classifiers import card_arch, classifier
 from pipeline.scoring.weight_files import WeightsError, WeightsNotFoundError, load_into, load_state_dict_file
 
 
@@ -22,11 +22,6 @@ def card_hash(card: dict) -> str:
     keys = ("architecture", "weights_sha256", "num_classes", "output_names", "dropout", "input_size", "mean", "std")
     extra = ("drop_connect",)  # only EfficientNet-Lite0's cards have it: AlexNet's hashes stay as they were
     return hash_json({k: card.get(k) for k in keys} | {k: card[k] for k in extra if k in card})
-
-
-def card_arch(card: dict) -> str:
-    """The card's ``classifier.arch`` (cards written before the key existed are AlexNet's)."""
-    return str(card.get("arch", "alexnet"))
 
 
 def read_card(folder: str | Path) -> dict:
@@ -57,7 +52,7 @@ def load_classifier(folder: str | Path, device: str = "cpu", verify: bool = True
     if verify and sha256_file(wp) != card["weights_sha256"]:
         raise WeightsError(wp, f"sha256 differs from the one recorded in {Path(folder) / CARD}: the file "
                                f"changed since the classifier stage ran (rerun it)")
-    arch = card_arch(card)
-    model = build_network(arch, int(card["num_classes"]), float(card["dropout"]), float(card.get("drop_connect", 0.0)))
-    load_into(model, load_state_dict_file(wp), wp, display_name(arch))
+    entry = classifier(card_arch(card))
+    model = entry.build(int(card["num_classes"]), float(card["dropout"]), float(card.get("drop_connect", 0.0)))
+    load_into(model, load_state_dict_file(wp), wp, entry.display)
     return model.eval().to(device), card

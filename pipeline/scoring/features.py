@@ -230,7 +230,7 @@ class ScoringModel:
 
     @classmethod
     def from_model(cls, model, card: dict, policy, device: str, *, with_weights: bool) -> "ScoringModel":
-        from pipeline.scoring.card import card_arch
+        from pipeline.scoring.classifiers import card_arch
 
         w = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()} if with_weights else None
         return cls(key=f"{card['hash']}@{device}", num_classes=int(card["num_classes"]),
@@ -258,15 +258,16 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.scoring.networks import build_network, display_name
+        from pipeline.scoring.classifiers import classifier
         from pipeline.scoring.weight_files import load_into
         from pipeline.scoring.mc_dropout import MCDropoutScorer
 
         if model.weights is None:
             raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
-        net = build_network(model.arch, model.num_classes, model.dropout, model.drop_connect)
+        entry = classifier(model.arch)
+        net = entry.build(model.num_classes, model.dropout, model.drop_connect)
         load_into(net, {k: torch.from_numpy(np.array(v)) for k, v in model.weights.items()}, "object store",
-                  display_name(model.arch))
+                  entry.display)
         sc = MCDropoutScorer(net.eval().to(model.device), model.device)
         register_scorer(model.key, sc)  # one classifier per worker process at a time
     return sc

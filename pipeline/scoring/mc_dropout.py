@@ -1,4 +1,4 @@
-"""MC-dropout scoring (paper §4.3) with the networks of ``pipeline.scoring.networks``.
+"""MC-dropout scoring (paper §4.3) with the networks of ``pipeline.scoring.classifiers``.
 
 AlexNet is ``features -> avgpool -> flatten -> classifier`` with ``classifier = (Dropout,
 Linear, ReLU, Dropout, Linear, ReLU, Linear)``; EfficientNet-Lite0 is its trunk (stem, blocks, head
@@ -16,12 +16,28 @@ groups of ``TRUNK_ROWS`` images.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from typing import Sequence
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+
+def mc_site(model: nn.Module) -> tuple[Callable[[torch.Tensor], torch.Tensor], list[nn.Module]]:
+    """(trunk: input -> flat features, head layers in order): the site a network declares with
+    ``trunk`` and ``head_layers``, else torchvision's ``features -> avgpool -> flatten | classifier``."""
+    if hasattr(model, "trunk") and hasattr(model, "head_layers"):
+        return model.trunk, list(model.head_layers())
+    for attr in ("features", "avgpool", "classifier"):
+        if not hasattr(model, attr):
+            raise TypeError(f"model has no '{attr}' and declares no trunk/head_layers: no MC-dropout site")
+
+    def trunk(x: torch.Tensor) -> torch.Tensor:
+        return torch.flatten(model.avgpool(model.features(x)), 1)
+
+    return trunk, list(model.classifier)
 
 
 def crop_seed(seed: int, key: str) -> int:
@@ -83,9 +99,7 @@ class MCDropoutScorer:
     """
 
     def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True):
-        from pipeline.scoring.networks import split
-
-        self._trunk, head = split(model)
+        self._trunk, head = mc_site(model)
         self.model = model.eval().to(device)
         self.device = device
         self.head = fast_head(head, device, onednn)

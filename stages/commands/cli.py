@@ -139,7 +139,11 @@ def _load(args) -> Config:
         overrides = merge(overrides, {"run": {"threads": args.threads}})
     if getattr(args, "executor", None) is not None:
         overrides = merge(overrides, {"run": {"executor": args.executor}})
-    return load_config(args.config, overrides or None)
+    cfg = load_config(args.config, overrides or None)
+    from pipeline.scoring.classifiers import check_config
+
+    check_config(cfg.classifier, str(args.config))  # the arch's own checks, before any stage runs
+    return cfg
 
 
 def status(cfg: Config) -> int:

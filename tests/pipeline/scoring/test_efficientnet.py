@@ -10,8 +10,8 @@ import torch
 from torch import nn
 
 from pipeline.scoring import efficientnet_lite as E
-from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed
-from pipeline.scoring.networks import build_network, split
+from pipeline.scoring.classifiers import classifier
+from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed, mc_site
 from pipeline.scoring.weight_files import WeightsError, WeightsNotFoundError
 from tests.pipeline.scoring.test_mc_dropout import FixedMaskDropout
 
@@ -116,12 +116,12 @@ def test_head_only_mc_equals_full_passes(onednn):
     torch.testing.assert_close(det, torch.softmax(model(x), -1), rtol=0, atol=1e-6)
     assert (mc - det[:, None]).abs().amax() > 1e-3   # the samples really are stochastic
     # the trunk ran once: the scorer's trunk is the module's own
-    assert split(model)[0] == model.trunk
+    assert mc_site(model)[0] == model.trunk
 
 
 def small_model(drop_connect: float = 0.0) -> E.EfficientNetLite0:
     torch.manual_seed(0)
-    model = build_network("efficientnet_lite0", 7, 0.2, drop_connect).eval()
+    model = classifier("efficientnet_lite0").build(7, 0.2, drop_connect).eval()
     with torch.no_grad():   # trained-like BN statistics and a head that separates the classes
         for m in model.modules():
             if isinstance(m, nn.BatchNorm2d):
@@ -166,7 +166,7 @@ def test_drop_connect_keeps_are_scaled_bernoulli_at_each_blocks_rate():
         assert abs(float((col > 0).float().mean()) - (1 - r)) < 4 * np.sqrt(r * (1 - r) / 4000)
     assert MCDropoutScorer(small_model(), onednn=False).block_rates == []   # off by default
     with pytest.raises(ValueError, match="AlexNet has no residual blocks"):
-        build_network("alexnet", 3, 0.5, drop_connect=0.2)
+        classifier("alexnet").build(3, 0.5, drop_connect=0.2)
 
 
 def realdata_shots():
@@ -217,22 +217,32 @@ def test_first_batch_norm_sees_the_statistics_it_was_trained_on(wheel_model):
 
 def test_config_keys_are_checked(tmp_path):
     from pipeline.infra.config import ConfigError, load_config
+    from pipeline.scoring.classifiers import check_config
 
     def cfg(text: str):
         p = tmp_path / "c.toml"
         p.write_text(text)
-        return load_config(p)
+        out = load_config(p)
+        check_config(out.classifier, str(p))  # the registry's checks of the arch (the CLI runs them at load)
+        return out
 
     good = cfg('[classifier]\narch = "efficientnet_lite0"\nweights = "imagenet"\ninput_size = 224\n'
                'mean = [0.498039, 0.498039, 0.498039]\nstd = [0.501961, 0.501961, 0.501961]\n')
-    assert good.classifier.head_dropout == 0.2 and cfg("").classifier.head_dropout == 0.5
+    head_dropout = classifier(good.classifier.arch).head_dropout
+    assert head_dropout(good.classifier) == 0.2 and classifier("alexnet").head_dropout(cfg("").classifier) == 0.5
     assert cfg("").classifier.arch == "alexnet"
     with pytest.raises(ConfigError, match="trains nothing"):
         cfg('[classifier]\narch = "efficientnet_lite0"\n')
     with pytest.raises(ConfigError, match=r"expect \(x - 127\) / 128"):
         cfg('[classifier]\narch = "efficientnet_lite0"\nweights = "imagenet"\n')
-    with pytest.raises(ConfigError, match="arch"):
+    with pytest.raises(ConfigError, match="unknown classifier architecture 'resnet'"):
         cfg('[classifier]\narch = "resnet"\n')
+    with pytest.raises(ConfigError, match="has no classification model 'resnet'"):
+        cfg('[classifier]\narch = "torchvision:resnet"\nweights = "path"\npath = "w.npz"\n')
+    with pytest.raises(ConfigError, match="'torchvision:resnet18' trains nothing"):
+        cfg('[classifier]\narch = "torchvision:resnet18"\n')
+    with pytest.raises(ConfigError, match="not a classifier name"):
+        cfg('[classifier]\narch = "../x"\n')
     with pytest.raises(ConfigError, match="dropout"):
         cfg('[classifier.efficientnet]\ndropout = 1.5\n')
     with pytest.raises(ConfigError, match="drop_connect"):
@@ -240,9 +250,9 @@ def test_config_keys_are_checked(tmp_path):
 
 
 def test_config_check_constants_match_the_module():
-    from pipeline.infra.config.checks import EFFICIENTNET_MEAN, EFFICIENTNET_STD
+    from pipeline.scoring.classifiers import efficientnet_lite0
 
-    assert np.allclose(E.MEAN, EFFICIENTNET_MEAN) and np.allclose(E.STD, EFFICIENTNET_STD)
+    assert np.allclose(E.MEAN, efficientnet_lite0.MEAN) and np.allclose(E.STD, efficientnet_lite0.STD)
 
 
 EFFNET = {"classifier": {"arch": "efficientnet_lite0", "weights": "imagenet", "input_size": 224,

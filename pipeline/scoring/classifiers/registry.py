@@ -1,0 +1,177 @@
+"""The classifier registry: ``classifier.arch`` names an entry here, and every place that builds,
+loads, describes or checks a classifier asks its entry instead of testing the name.
+
+An entry is one ``Classifier`` subclass, registered with ``@register_classifier`` (a plain name,
+e.g. ``alexnet``) or through a family factory (``register_family("torchvision", ...)`` serves
+``torchvision:<model>``). Entry modules stay light (torch is imported inside their methods), so
+checking a config does not load the networks.
+
+The MC-dropout site is declared by what ``build`` returns: a network with ``trunk(x)`` and
+``head_layers()`` (the trunk runs once per crop, the head's Dropout layers are resampled), or
+torchvision's ``features -> avgpool -> flatten | classifier`` layout (``pipeline.scoring.mc_dropout``).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from pipeline.infra.config.checks import ARCH_NAME
+from pipeline.infra.config.fields import ConfigError
+
+
+class UnknownClassifier(ValueError):
+    """``classifier.arch`` names no registered entry."""
+
+
+class Classifier:
+    """One classifier architecture. Subclasses set the names and override what differs."""
+
+    name = ""           # the classifier.arch value
+    display = ""        # in messages and on the report
+    architecture = ""   # the card's "architecture" string (part of the card hash)
+    trains = False      # weights = 'synthetic' trains it on the synthetic source domain
+    imagenet = False    # weights = 'imagenet' has a local file (never downloaded)
+    mc_dropout_site = ""  # where the MC-dropout masks act, in words
+
+    def build(self, num_classes: int, dropout: float, drop_connect: float = 0.0):
+        """A fresh (untrained) network with ``num_classes`` outputs and head dropout p."""
+        raise NotImplementedError
+
+    def head_dropout(self, c) -> float:
+        """The MC-dropout p this entry reads from the ``[classifier]`` section ``c``."""
+        return float(c.dropout)
+
+    def drop_connect(self, c) -> float:
+        return 0.0
+
+    def last_linear_key(self) -> str:
+        """State-dict key of the last Linear layer's weight (its rows are the classes)."""
+        raise NotImplementedError
+
+    def num_classes_of(self, state: dict, path) -> int:
+        from pipeline.scoring.weight_files import num_classes_of
+
+        return num_classes_of(state, path, key=self.last_linear_key(), what=f"a {self.display}")
+
+    def for_training(self, num_classes: int, dropout: float, seed: int):
+        """The network initialised for training on the source domain (entries with ``trains``)."""
+        raise NotImplementedError(f"{self.display} is not trained here")
+
+    def imagenet_location(self) -> Path:
+        """Where the ImageNet weights file is (it may be missing; raises when not even that is known)."""
+        raise NotImplementedError(f"{self.display} has no ImageNet weights file here")
+
+    def imagenet_file(self) -> Path:
+        """The ImageNet weights file, checked (missing: WeightsNotFoundError naming what to do)."""
+        return self.imagenet_location()
+
+    def output_names(self, n: int) -> list[str]:
+        """Names of the ``n`` outputs of the ImageNet weights."""
+        return [f"imagenet_{i}" for i in range(n)]
+
+    def config_problems(self, c) -> list[str]:
+        """What is wrong with the ``[classifier]`` section ``c`` for this entry (empty: nothing)."""
+        return []
+
+    def notes(self, c) -> list[str]:
+        """Warnings worth logging for a usable but unusual setting."""
+        return []
+
+    def card_extra(self, c) -> dict:
+        """Keys the card holds besides the common ones (the arch, so a card rebuilds its network)."""
+        out = {"arch": self.name}
+        if self.mc_dropout_site:
+            out["mc_dropout_site"] = self.mc_dropout_site
+        return out
+
+    def describe(self, card: dict) -> str:
+        """The report's sentence for weights not trained here."""
+        return f"classifier: {self.display} weights from {card.get('weights_file', 'a file')}"
+
+
+_ENTRIES: dict[str, Classifier] = {}
+_FAMILIES: dict[str, Callable[[str], Classifier]] = {}
+_BUILTINS_LOADED = False
+
+
+def register_classifier(entry):
+    """Register a ``Classifier`` subclass (usable as a class decorator) or instance under its name."""
+    inst = entry() if isinstance(entry, type) else entry
+    if not isinstance(inst, Classifier):
+        raise TypeError(f"{entry!r} is not a Classifier")
+    if not ARCH_NAME.fullmatch(inst.name or "") or ":" in inst.name:
+        raise ValueError(f"classifier name {inst.name!r}: letters, digits and '_.-', no ':' (families use it)")
+    old = _ENTRIES.get(inst.name)
+    if old is not None and type(old) is not type(inst):
+        raise ValueError(f"classifier {inst.name!r} is already registered ({type(old).__name__})")
+    _ENTRIES[inst.name] = inst
+    return entry
+
+
+def register_family(prefix: str, factory: Callable[[str], Classifier]) -> None:
+    """Serve ``<prefix>:<model>`` names with ``factory(model)`` (raises UnknownClassifier for a bad model)."""
+    _FAMILIES[prefix] = factory
+
+
+def _load_builtins() -> None:
+    global _BUILTINS_LOADED
+    if not _BUILTINS_LOADED:
+        _BUILTINS_LOADED = True
+        from pipeline.scoring.classifiers import alexnet, efficientnet_lite0, torchvision_models  # noqa: F401  (they register)
+
+
+def names() -> list[str]:
+    """Registered names, the families as ``<prefix>:<model>``."""
+    _load_builtins()
+    return sorted(_ENTRIES) + [f"{p}:<model>" for p in sorted(_FAMILIES)]
+
+
+def classifier(arch: str) -> Classifier:
+    """The entry ``arch`` names, or UnknownClassifier listing the registered ones."""
+    _load_builtins()
+    if arch in _ENTRIES:
+        return _ENTRIES[arch]
+    prefix, sep, model = str(arch).partition(":")
+    if sep and prefix in _FAMILIES:
+        entry = _FAMILIES[prefix](model)
+        _ENTRIES[arch] = entry
+        return entry
+    raise UnknownClassifier(f"unknown classifier architecture {arch!r} (one of {', '.join(names())})")
+
+
+def check_config(c, where: str) -> None:
+    """The registry's checks of the ``[classifier]`` section ``c``: ConfigError naming the file and key."""
+    try:
+        entry = classifier(c.arch)
+    except UnknownClassifier as e:
+        raise ConfigError(f"{where}: 'classifier.arch': {e}") from None
+    problems = list(entry.config_problems(c))
+    if c.weights == "synthetic" and not entry.trains:
+        problems.append(f"'classifier.arch' = {c.arch!r} trains nothing: set 'classifier.weights' = "
+                        + ("'imagenet' or 'path'" if entry.imagenet else "'path' (a state-dict file)"))
+    if c.weights == "imagenet" and not entry.imagenet:
+        problems.append(f"'classifier.arch' = {c.arch!r} has no local ImageNet weights: set 'classifier.weights' "
+                        "= 'path' and 'classifier.path' to a state-dict file")
+    if problems:
+        raise ConfigError(f"{where}: " + "; ".join(problems))
+
+
+def card_arch(card: dict) -> str:
+    """The card's ``classifier.arch`` (cards written before the key existed are AlexNet's)."""
+    return str(card.get("arch", "alexnet"))
+
+
+def describe_card(card: dict) -> str | None:
+    """The card's entry's sentence for weights not trained here, or None when its arch is not registered."""
+    try:
+        return classifier(card_arch(card)).describe(card)
+    except UnknownClassifier:
+        return None
+
+
+def display_of(card: dict) -> str:
+    """The card's network in words (its architecture string when the arch is not registered here)."""
+    try:
+        return classifier(card_arch(card)).display
+    except UnknownClassifier:
+        return str(card.get("architecture", "a network"))
