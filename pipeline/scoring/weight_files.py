@@ -115,7 +115,9 @@ def save_state_dict_npz(model_or_state, path: str | Path) -> str:
     with atomic_path(path) as tmp:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
             for k in sorted(state):
-                arr = np.ascontiguousarray(state[k].detach().cpu().numpy())
+                arr = state[k].detach().cpu().numpy()
+                # ascontiguousarray makes a 0-d entry (batch norm's num_batches_tracked) 1-d
+                arr = np.ascontiguousarray(arr) if arr.ndim else arr
                 buf = io.BytesIO()
                 np.lib.format.write_array(buf, arr, allow_pickle=False)
                 info = zipfile.ZipInfo(k + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
