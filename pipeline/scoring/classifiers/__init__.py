@@ -4,5 +4,8 @@ from pipeline.scoring.classifiers.registry import (Classifier, UnknownClassifier
                                                    classifier, describe_card, display_of, names,
                                                    register_classifier, register_family)
 
+# the built-in entries register themselves on import
+from pipeline.scoring.classifiers import alexnet, efficientnet_lite0, torchvision_models  # noqa: E402,F401
+
 __all__ = ["Classifier", "UnknownClassifier", "card_arch", "check_config", "classifier", "describe_card",
            "display_of", "names", "register_classifier", "register_family"]

@@ -89,9 +89,10 @@ class Classifier:
         return f"classifier: {self.display} weights from {card.get('weights_file', 'a file')}"
 
 
+# Filled as entry modules are imported: the package's __init__ imports the built-in ones (the
+# package is imported before this module is, so they are always there).
 _ENTRIES: dict[str, Classifier] = {}
 _FAMILIES: dict[str, Callable[[str], Classifier]] = {}
-_BUILTINS_LOADED = False
 
 
 def register_classifier(entry):
@@ -113,22 +114,13 @@ def register_family(prefix: str, factory: Callable[[str], Classifier]) -> None:
     _FAMILIES[prefix] = factory
 
 
-def _load_builtins() -> None:
-    global _BUILTINS_LOADED
-    if not _BUILTINS_LOADED:
-        _BUILTINS_LOADED = True
-        from pipeline.scoring.classifiers import alexnet, efficientnet_lite0, torchvision_models  # noqa: F401  (they register)
-
-
 def names() -> list[str]:
     """Registered names, the families as ``<prefix>:<model>``."""
-    _load_builtins()
     return sorted(_ENTRIES) + [f"{p}:<model>" for p in sorted(_FAMILIES)]
 
 
 def classifier(arch: str) -> Classifier:
     """The entry ``arch`` names, or UnknownClassifier listing the registered ones."""
-    _load_builtins()
     if arch in _ENTRIES:
         return _ENTRIES[arch]
     prefix, sep, model = str(arch).partition(":")
