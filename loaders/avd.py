@@ -25,7 +25,7 @@ from loaders.avd_boxes import AVDBox, BoxNotes, difficulty, parse_box  # noqa: F
 from loaders.jpeg import jpeg_size, read_rgb
 from loaders.errors import BadInputError, SkipLog
 from loaders.files import checked_file, read_checked
-from pipeline.evaluation.grid.viewpoints import scan_grid_points
+from pipeline.scene.viewpoints import scan_grid_points
 from pipeline.infra.cache import note_read
 from pipeline.infra.progress import bar
 
@@ -379,7 +379,7 @@ class AVDScan:
 
     def grid_points(self) -> dict[str, int]:
         """{image: grid point id}: images the robot took from one stop, turning on the spot
-        (``pipeline.evaluation.grid.viewpoints``: the move graph's rotate edges, else chained centres)."""
+        (``pipeline.scene.viewpoints``: the move graph's rotate edges, else chained centres)."""
         return scan_grid_points({n: img.moves for n, img in self.images.items()},
                                 {n: img.position for n, img in self.images.items()})
 

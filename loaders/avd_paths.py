@@ -3,7 +3,7 @@ position, heading, grid point, moves) and every instance located from its boxes.
 
 ``scan_paths(root, scan)`` is the one entry point (the real-imagery benchmark builds its tracks on
 it): it reads the scan (metadata only where ``jpg_rgb/`` is absent), locates each instance with
-the evaluate stage's own ``pipeline.evaluation.grid.location.locate_rays`` and names the instances it
+the evaluate stage's own ``pipeline.scene.location.locate_rays`` and names the instances it
 cannot locate (too few views, parallel rays, rays that do not meet) instead of guessing.
 """
 from __future__ import annotations
@@ -17,8 +17,8 @@ import numpy as np
 from loaders.avd import MOVES, AVDBox, AVDScan
 from loaders.avd_boxes import BoxNotes
 from loaders.errors import SkipLog
-from pipeline.evaluation.grid.location import InconsistentRays, locate_rays
-from pipeline.evaluation.grid.track import TrackError
+from pipeline.scene.location import InconsistentRays, locate_rays
+from pipeline.scene.rays import TrackError
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_resi
     ``instance_id_map.txt``). ``frames=None`` reads frames where ``jpg_rgb/`` exists, metadata
     only otherwise. Boxes up to ``max_difficulty`` locate an instance; ``max_residual_m`` is
     ``evaluate.max_ray_residual_m``."""
-    from pipeline.evaluation.grid.track import grid_step
+    from pipeline.scene.rays import grid_step
 
     root = Path(root)
     if frames is None:
@@ -94,7 +94,7 @@ def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_resi
 def summary_rows(root: str | Path, max_difficulty: int = 4, max_residual_m: float = 0.25) -> tuple[list[dict], list[float]]:
     """Per scan under ``root``: what the reader read, refused and repaired, the grid, the located
     and excluded instances; and the residuals of every located instance (no limit applied)."""
-    from pipeline.evaluation.grid.track import grid_step
+    from pipeline.scene.rays import grid_step
 
     rows, residuals = [], []
     root = Path(root)

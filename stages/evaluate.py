@@ -35,7 +35,7 @@ from pipeline.evaluation.grid.population_summary import cell_table, check_primar
 from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
 from pipeline.evaluation.metrics.spec import Params
 from pipeline.evaluation.domain.test_domain import TestDomain, test_variances
-from pipeline.evaluation.grid.track import TrackError, grid_step
+from pipeline.scene.rays import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
 # The avd.parquet columns evaluate uses (checked present and typed on read).

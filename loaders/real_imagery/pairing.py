@@ -2,7 +2,7 @@
 
 Every box of a scan (difficulty up to ``max_difficulty``) becomes a row with the real camera
 position and heading; each real instance is located from the rays through its box centres
-(``pipeline.evaluation.grid.location.locate_rays``, what the track builder's locate calls) and an instance
+(``pipeline.scene.location.locate_rays``, what the track builder's locate calls) and an instance
 whose rays miss their point by more than ``max_ray_residual_m`` (a duplicated or moved object) is
 refused with its residual, never averaged. The pairing is the synthetic part of this source: each
 located instance of a scan stands for one COIL object (distinct within a scan, drawn by
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.grid.location import InconsistentRays, locate_rays
-from pipeline.evaluation.grid.track import TrackError
+from pipeline.scene.location import InconsistentRays, locate_rays
+from pipeline.scene.rays import TrackError
 
 ROW_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_y0", "box_x1", "box_y1",
                "cam_x", "cam_y", "heading", "pass")

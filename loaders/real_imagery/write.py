@@ -36,7 +36,7 @@ from loaders.real_imagery.frames import (
 from loaders.real_imagery.pairing import box_rows, locate_instances, pair_scan
 from loaders.real_imagery.training import write_training_object
 from loaders.synthetic.bigbird_writer import encode_jpeg
-from pipeline.evaluation.grid.track import facing_error
+from pipeline.scene.rays import facing_error
 from pipeline.infra.cache import write_bytes, write_json
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.evaluation.grid.track import TrackError, bearing_rays, intersect_rays
+from pipeline.scene.rays import TrackError, bearing_rays, intersect_rays
 
 
 class InconsistentRays(TrackError):

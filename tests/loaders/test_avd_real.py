@@ -84,7 +84,7 @@ def test_every_real_scan_parses(real, scan):
 @pytest.mark.parametrize("scan", ["Home_001_1", "Home_002_1"])
 def test_real_grid_step_is_the_capture_grid(real, scan):
     """Rounded positions read the ~2 cm spread of one stop as the grid step; grid points give ~29 cm."""
-    from pipeline.evaluation.grid.track import grid_step
+    from pipeline.scene.rays import grid_step
 
     every = real[scan][0]
     xy = np.array([n.position for n in every.nodes.values()])
@@ -93,7 +93,8 @@ def test_real_grid_step_is_the_capture_grid(real, scan):
 
 
 def test_real_tracks_visit_distinct_grid_points(real):
-    from pipeline.evaluation.grid.track import facing_error, grid_step, select_tracks
+    from pipeline.evaluation.grid.track import select_tracks
+    from pipeline.scene.rays import facing_error, grid_step
 
     every = real["Home_001_1"][1]
     repeats_old = repeats_new = n = 0

@@ -21,8 +21,9 @@ from pipeline.evaluation.metrics import spec as M
 from pipeline.method import dirichlet_fusion as DF
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.names import DIRICHLET
-from pipeline.evaluation.grid.location import InconsistentRays, Location, locate_rays
-from pipeline.evaluation.grid.track import TrackError, TrackPlan, facing_error, select_tracks
+from pipeline.scene.location import InconsistentRays, Location, locate_rays
+from pipeline.evaluation.grid.track import TrackPlan, select_tracks
+from pipeline.scene.rays import TrackError, facing_error
 
 
 DEFAULT = "default"   # the model-bank variant without an ablation override
@@ -122,7 +123,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
 
     ``grid_points`` ({scan: {image: grid point id}}, ``AVDScan.grid_points``) say which views share
     a stop; without them views of one stop must share a position. A scan whose rays do not meet
-    (``max_residual_m``, ``pipeline.evaluation.grid.location``) gives no track; with ``refused`` (a
+    (``max_residual_m``, ``pipeline.scene.location``) gives no track; with ``refused`` (a
     list) each such scan is appended to it as {"target", "scan", "reason", "residual_m"}."""
     scans = sorted(det["scan"].unique())
     if not scans:

@@ -1,13 +1,11 @@
 """The evaluation track: which AVD views of the target, in which order, and where the object is.
 
-Pure functions over arrays (the evaluate stage does the I/O):
-- ``bearing_rays`` turns box centres into 2D rays in the ground frame;
-- ``intersect_rays`` estimates the object's 2D position by least squares;
+Pure functions over arrays (the evaluate stage does the I/O; where the object stands and the
+scan's grid are ``pipeline.scene``):
 - ``select_tracks`` picks several paths per target for the population evaluation, each K views
   at distinct grid points, roughly facing the object, spread over an arc around it and ordered by
   bearing (a path a robot could drive): different start bearings, both directions of travel, near
-  and far where the scan offers both;
-- ``grid_step`` reads the capture grid's spacing off the camera positions (or grid points).
+  and far where the scan offers both.
 """
 from __future__ import annotations
 
@@ -15,34 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-class TrackError(ValueError):
-    """The scan cannot give a usable track (too few views, degenerate geometry)."""
-
-
-def bearing_rays(cam_xy: np.ndarray, heading: np.ndarray, box_cx: np.ndarray, fx: float, cx: float):
-    """Ray origins and unit directions through the box centres (ground frame).
-
-    The image x axis points right, which seen from above is clockwise from the optical axis, so a box
-    centre at column u lies at angle ``heading - atan((u - cx) / fx)``.
-    """
-    ang = np.asarray(heading, float) - np.arctan2(np.asarray(box_cx, float) - cx, fx)
-    d = np.stack([np.cos(ang), np.sin(ang)], axis=-1)
-    return np.asarray(cam_xy, float), d
-
-
-def intersect_rays(origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Least-squares point closest to all rays: sum_i (I - d_i d_iᵀ)(o - p_i) = 0."""
-    origins = np.asarray(origins, float)
-    dirs = np.asarray(dirs, float)
-    if len(origins) < 2:
-        raise TrackError(f"need at least 2 views of the object to locate it, got {len(origins)}")
-    P = np.eye(2)[None] - dirs[:, :, None] * dirs[:, None, :]
-    A = P.sum(0)
-    b = np.einsum("nij,nj->i", P, origins)
-    if np.linalg.cond(A) > 1e8:
-        raise TrackError("the views' rays are (nearly) parallel: cannot locate the object")
-    return np.linalg.solve(A, b)
+from pipeline.scene.rays import TrackError
 
 
 @dataclass(frozen=True)
@@ -50,27 +21,6 @@ class TrackChoice:
     index: np.ndarray        # indices into the candidate arrays, in path order
     bearing_deg: np.ndarray  # bearing of each chosen camera seen from the object
     arc_deg: float           # bearing span of the track
-
-
-def grid_step(cam_xy: np.ndarray, grid_id: np.ndarray | None = None) -> float:
-    """The capture grid's spacing (m): the median distance from each grid point to its nearest
-    neighbour. Without ``grid_id`` a grid point is a distinct camera position (to the mm), as in
-    the synthetic scans, where the headings of a stop share one centre; with ``grid_id`` (one id
-    per camera, ``pipeline.evaluation.grid.viewpoints``) it is the mean centre of the cameras sharing an
-    id, as real reconstructions need (a stop's centres lie ~2 cm apart)."""
-    xy = np.asarray(cam_xy, float)
-    if grid_id is not None:
-        gid = np.asarray(grid_id)
-        if gid.shape != (len(xy),):
-            raise ValueError(f"grid_id has shape {gid.shape}, expected ({len(xy)},): one id per camera")
-        keys, inv = np.unique(gid, return_inverse=True)
-        xy = np.stack([np.bincount(inv, xy[:, a], len(keys)) / np.bincount(inv, None, len(keys)) for a in (0, 1)], axis=1)
-    pts = np.unique(np.round(xy, 3), axis=0)
-    if len(pts) < 2:
-        raise TrackError(f"cannot read a grid step off {len(pts)} distinct camera position(s)")
-    d = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))
-    np.fill_diagonal(d, np.inf)
-    return float(np.median(d.min(axis=1)))
 
 
 def _viewpoints(cam_xy: np.ndarray, facing_err: np.ndarray, grid_step: float, k: int,
@@ -152,10 +102,3 @@ def select_tracks(cam_xy: np.ndarray, obj_xy: np.ndarray, facing_err: np.ndarray
                                      start_deg=start, direction=direction, distance=band))
                 break
     return out
-
-
-def facing_error(cam_xy: np.ndarray, heading: np.ndarray, obj_xy: np.ndarray) -> np.ndarray:
-    """Angle (rad, in [0, pi]) between each optical axis and the direction to the object."""
-    rel = np.asarray(obj_xy, float) - np.asarray(cam_xy, float)
-    ang = np.arctan2(rel[:, 1], rel[:, 0]) - np.asarray(heading, float)
-    return np.abs((ang + np.pi) % (2 * np.pi) - np.pi)

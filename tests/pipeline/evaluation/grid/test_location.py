@@ -1,12 +1,12 @@
-"""Locating an instance from its rays (pipeline/evaluation/grid/location.py): the residual, the refusal of
+"""Locating an instance from its rays (pipeline/scene/location.py): the residual, the refusal of
 rays that do not meet (a duplicated or moved object), and how the track planner reports it."""
 
 import numpy as np
 import pytest
 
 from pipeline.evaluation.grid import population as P
-from pipeline.evaluation.grid.location import InconsistentRays, locate_rays, ray_distances
-from pipeline.evaluation.grid.track import TrackError
+from pipeline.scene.location import InconsistentRays, locate_rays, ray_distances
+from pipeline.scene.rays import TrackError
 from tests.pipeline.evaluation.grid.test_population import CX, FX, scene
 
 

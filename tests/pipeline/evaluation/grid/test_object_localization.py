@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.evaluation.grid.track import bearing_rays, intersect_rays
+from pipeline.scene.rays import bearing_rays, intersect_rays
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
 

@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.evaluation.grid import experiments as E
 from pipeline.evaluation.grid import population as P
-from pipeline.evaluation.grid.track import TrackError
+from pipeline.scene.rays import TrackError
 from pipeline.infra.config import EvaluateConfig, RandomizedConfig
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
 

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from pipeline.evaluation.grid.track import TrackError, bearing_rays, facing_error, intersect_rays, select_tracks
+from pipeline.evaluation.grid.track import select_tracks
+from pipeline.scene.rays import TrackError, bearing_rays, facing_error, intersect_rays
 
 
 def project_cx(cam_xy, heading, obj_xy, fx, cx):
@@ -63,7 +64,7 @@ def grid_world(step=0.3, extent=1.5, headings=4, obj=(0.1, -0.2)):
 
 
 def test_grid_step_is_read_off_the_positions():
-    from pipeline.evaluation.grid.track import grid_step
+    from pipeline.scene.rays import grid_step
     for step in (0.3, 0.5):
         cam, _, _ = grid_world(step=step)
         assert grid_step(cam) == pytest.approx(step)

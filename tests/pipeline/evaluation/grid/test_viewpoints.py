@@ -1,4 +1,4 @@
-"""Grid points (pipeline/evaluation/grid/viewpoints.py) and their use by the track builder: stops from
+"""Grid points (pipeline/scene/viewpoints.py) and their use by the track builder: stops from
 the move graph's rotate edges, the grid step off them, one view per stop; and on the synthetic
 scans they change nothing (the same partition, grid step and tracks as the position cells)."""
 import dataclasses
@@ -6,8 +6,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.evaluation.grid.track import facing_error, grid_step, select_tracks
-from pipeline.evaluation.grid.viewpoints import cluster_positions, grid_points, has_rotate_edges, scan_grid_points
+from pipeline.evaluation.grid.track import select_tracks
+from pipeline.scene.rays import facing_error, grid_step
+from pipeline.scene.viewpoints import cluster_positions, grid_points, has_rotate_edges, scan_grid_points
 from tests.pipeline.evaluation.grid.test_track import grid_world
 
 
