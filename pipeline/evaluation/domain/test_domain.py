@@ -14,7 +14,7 @@ import pandas as pd
 from pipeline.evaluation.domain import fit as D
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.domain import variance as V
-from pipeline.infra.config import test_domain_mode
+from pipeline.infra.config import domain_variance_mode
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -104,7 +104,7 @@ def test_variances(cells: list[P.Cell], domain: TestDomain, cfg) -> list[P.Cell]
 
     out = []
     for c in cells:
-        mode = test_domain_mode(cfg, None if c.variant == "default" else c.variant)
+        mode = domain_variance_mode(cfg, None if c.variant == "default" else c.variant)
         if mode == "cross_fit":
             c = dataclasses.replace(c, test_variance=domain.cell_variance(c.scan, c.target, c.components))
         out.append(c)

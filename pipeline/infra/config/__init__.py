@@ -17,13 +17,12 @@ from __future__ import annotations
 from pipeline.infra.config.checks import bounds_problem, check_simulate, cross_checks
 from pipeline.infra.config.load import ablation_config, load_config, merge, parse_override
 from pipeline.infra.config.evaluation import (ABLATION_KEYS, BiasedConfig, BiasMapsConfig, EvaluateConfig,
-                                             RandomizedConfig, ReportConfig, SensitivityConfig, is_model_ablation,
-                                             test_domain_mode)
+                                             RandomizedConfig, ReportConfig, SensitivityConfig, is_model_ablation)
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.inputs import DEFAULT_INSTANCES, DataConfig, RunConfig, SyntheticDataConfig
 from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, ModelsConfig, TrainingConfig
 from pipeline.infra.config.plan import PlanConfig
-from pipeline.infra.config.root import Config, StudyConfig, canonical_json, to_dict
+from pipeline.infra.config.root import Config, StudyConfig, canonical_json, domain_variance_mode, to_dict
 from pipeline.infra.config.simulate import SimulateConfig
 
 
@@ -32,5 +31,5 @@ __all__ = [
     "ConfigError", "DataConfig", "EvaluateConfig", "FeaturesConfig", "ModelsConfig", "PlanConfig", "RandomizedConfig",
     "ReportConfig", "RunConfig", "SensitivityConfig", "SimulateConfig", "StudyConfig", "SyntheticDataConfig",
     "TrainingConfig", "ablation_config", "bounds_problem", "canonical_json", "check_simulate", "cross_checks",
-    "is_model_ablation", "load_config", "merge", "parse_override", "test_domain_mode", "to_dict",
+    "is_model_ablation", "load_config", "merge", "parse_override", "domain_variance_mode", "to_dict",
 ]

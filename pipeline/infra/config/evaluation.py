@@ -3,12 +3,8 @@ localization settings, statistics, ablations, the test domain) and ``[report]``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
-from pipeline.infra.config.fields import SEED_MAX, ConfigError, setting as _f
-
-if TYPE_CHECKING:  # the root config imports this module
-    from pipeline.infra.config.root import Config
+from pipeline.infra.config.fields import SEED_MAX, setting as _f
 
 
 @dataclass(frozen=True)
@@ -118,14 +114,3 @@ def is_model_ablation(ablation: str) -> bool:
     """An ablation that needs its own model bank (a ``models.*`` override)."""
     return ablation.split("=", 1)[0].strip().startswith("models.")
 
-
-def test_domain_mode(cfg: "Config", ablation: str | None) -> str:
-    """``evaluate.test_domain_variance`` of the default run (None) or of one ablation variant."""
-    if ablation is not None and "=" in ablation:
-        key, raw = (t.strip() for t in ablation.split("=", 1))
-        if key == "evaluate.test_domain_variance":
-            value = raw.strip("'\"")
-            if value not in TEST_DOMAIN_MODES:
-                raise ConfigError(f"evaluate.ablations: {ablation!r}: the value must be none or cross_fit")
-            return value
-    return cfg.evaluate.test_domain_variance

@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
-from pipeline.infra.config.evaluation import EvaluateConfig, ReportConfig
+from pipeline.infra.config.evaluation import TEST_DOMAIN_MODES, EvaluateConfig, ReportConfig
+from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.inputs import DataConfig, RunConfig
 from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, ModelsConfig
 from pipeline.infra.config.plan import PlanConfig
@@ -94,6 +95,18 @@ class Config:
 
     def section_hash(self, name: str) -> str:
         return hashlib.sha256(canonical_json(to_dict(self.section(name))).encode()).hexdigest()
+
+
+def domain_variance_mode(cfg: Config, ablation: str | None) -> str:
+    """``evaluate.test_domain_variance`` of the default run (None) or of one ablation variant."""
+    if ablation is not None and "=" in ablation:
+        key, raw = (t.strip() for t in ablation.split("=", 1))
+        if key == "evaluate.test_domain_variance":
+            value = raw.strip("'\"")
+            if value not in TEST_DOMAIN_MODES:
+                raise ConfigError(f"evaluate.ablations: {ablation!r}: the value must be none or cross_fit")
+            return value
+    return cfg.evaluate.test_domain_variance
 
 
 # ----------------------------------------------------------------------------------------------
