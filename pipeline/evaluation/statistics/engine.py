@@ -21,57 +21,10 @@ import pandas as pd
 from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.metrics.labels import comparison_key
 from pipeline.evaluation.statistics import records as REC
-from pipeline.evaluation.statistics.resampler import Resampler, draws, interval
+from pipeline.evaluation.statistics.hierarchy import Hierarchy, leave_one_out
+from pipeline.evaluation.statistics.resampler import draws, interval
 
 KEYS = ["target", "track", "setting"]
-
-
-class Hierarchy:
-    """The units of one population: per seed, its sorted targets and each target's sorted tracks,
-    and the shared draws over them."""
-
-    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed):
-        self.seeds = list(frames)
-        self.units = []  # per seed: [(target, [tracks])]
-        for s in self.seeds:
-            f = frames[s]
-            self.units.append([(str(t), sorted(int(x) for x in g["track"].unique()))
-                               for t, g in f.groupby("target", sort=True)])
-        self.n_boot, self.seed = int(n_boot), seed
-        self.rs = draws([[len(tr) for _, tr in u] for u in self.units], n_boot, seed)
-        self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
-                      for u in self.units]
-
-    @property
-    def targets(self) -> list[str]:
-        return [t for t, _ in self.units[0]]
-
-    def n(self) -> dict[str, int]:
-        out = {"targets": sum(len(u) for u in self.units), "tracks": sum(len(tr) for u in self.units for _, tr in u)}
-        if len(self.seeds) > 1:
-            out["seeds"] = len(self.seeds)
-        return out
-
-    def over(self) -> list[str]:
-        return (["seeds"] if len(self.seeds) > 1 else []) + ["targets", "tracks"]
-
-    def pad(self, tvs: Sequence[pd.DataFrame], column: str) -> np.ndarray:
-        """(S, T, W) track values of ``column`` from each seed's track frame (target, track, ...)."""
-        out = np.zeros(self.rs.shape)
-        for s, tv in enumerate(tvs):
-            idx = self.index[s]
-            for t, tr, v in zip(tv["target"].astype(str), tv["track"].astype(int), tv[column].to_numpy(float)):
-                ti, j = idx[(t, tr)]
-                out[s, ti, j] = v
-        return out
-
-    def per_target(self, ti: int) -> Resampler:
-        return draws([[len(self.units[0][ti][1])]], self.n_boot, [*np.atleast_1d(self.seed), 1, ti])
-
-    def without(self, ti: int) -> tuple[Resampler, np.ndarray]:
-        keep = np.array([k for k in range(len(self.units[0])) if k != ti])
-        sizes = [len(self.units[0][k][1]) for k in keep]
-        return draws([sizes], self.n_boot, [*np.atleast_1d(self.seed), 2, ti]), keep
 
 
 def track_values(cells: pd.DataFrame, metrics: Sequence[str]) -> pd.DataFrame:
@@ -99,34 +52,8 @@ def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str) -> tuple[int
     return (int(at(m.best)) if m.best is not None else 0), (int(at(m.worst)) if m.worst is not None else 0)
 
 
-def leave_one_out(h: Hierarchy, fn, higher: bool) -> dict:
-    """Leave each target out in turn (each subset with its own shared draws): ``fn(resampler,
-    kept target indices)`` gives the estimate. The range of its values and the targets whose
-    removal alone changes the outcome of the whole population."""
-    names = h.targets
-    if len(names) < 3:
-        return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "loto_flip_outcomes": {}}
-    full = REC.outcome(*_ends(fn(h.rs, np.arange(len(names)))), higher)
-    vals, flips, to = [], [], {}
-    for ti, name in enumerate(names):
-        est = fn(*h.without(ti))
-        vals.append(est["value"])
-        res = REC.outcome(*_ends(est), higher)
-        if res != full:
-            flips.append(name)
-            to[name] = res
-    v = np.asarray(vals, float)
-    v = v[np.isfinite(v)]
-    return {"loto_min": float(v.min()) if len(v) else float("nan"), "loto_max": float(v.max()) if len(v) else float("nan"),
-            "loto_flips": flips, "loto_flip_outcomes": to}
-
-
 def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
     return leave_one_out(h, lambda rs, keep: rs.estimate(values[:, keep][:, :, : rs.shape[2]], pool), higher)
-
-
-def _ends(est: Mapping[str, float]) -> tuple[float, float]:
-    return est["ci_low"], est["ci_high"]
 
 
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,

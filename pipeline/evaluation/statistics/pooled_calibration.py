@@ -5,7 +5,7 @@ posteriors are weighted as every other pooled value is: within a track each sett
 same and, within a setting, each realization (final step) or each (realization, step) (all steps);
 every track of a target weighs the same, every target weighs the same. So a posterior of cell
 (target t, track j, setting s) with R realizations weighs 1 / (T · n_t · S · R) at the final step.
-The interval comes from the engine's shared draws (``engine.Hierarchy``: the leaf weights of the
+The interval comes from the engine's shared draws (``hierarchy.Hierarchy``: the leaf weights of the
 same targets -> tracks resamples every other metric uses); paired differences use the same draws
 for both methods.
 """
@@ -53,11 +53,11 @@ def track_sums(cells, results, variant: str, n_bins: int) -> dict[tuple[str, str
 
 
 def hierarchy_of(sums: dict, n_boot: int, seed):
-    """The ``engine.Hierarchy`` of the (target, track) units in track sums (when no cell table
+    """The ``hierarchy.Hierarchy`` of the (target, track) units in track sums (when no cell table
     gives it: the evaluate stage's blocks take the one of their cells)."""
     import pandas as pd
 
-    from pipeline.evaluation.statistics.engine import Hierarchy
+    from pipeline.evaluation.statistics.hierarchy import Hierarchy
 
     units = sorted({(t, tr) for (_, t, tr) in sums})
     return Hierarchy({"run": pd.DataFrame(units, columns=["target", "track"])}, n_boot, seed)
@@ -84,7 +84,7 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
                loto: bool = True) -> dict:
     """{"pooled": {method: {ece_final, ece_overall}}, "per_target": {target: {method: ...}},
     "paired": {comparison key: {ece_<where>: est + wins/losses over targets}}, "reliability":
-    {method: {where: diagram}}} on the hierarchy ``h`` (``engine.Hierarchy``, one seed)."""
+    {method: {where: diagram}}} on the hierarchy ``h`` (``hierarchy.Hierarchy``, one seed)."""
     present = [m for m in methods if any(k[0] == m for k in sums)]
     if not sums or not present:
         return {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "reliability": {}}
@@ -131,8 +131,8 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
 
 
 def _loto(h, pa: np.ndarray, pb: np.ndarray, i: int) -> dict:
-    """The ECE difference with each target left out (``engine.leave_one_out``)."""
-    from pipeline.evaluation.statistics.engine import leave_one_out
+    """The ECE difference with each target left out (``hierarchy.leave_one_out``)."""
+    from pipeline.evaluation.statistics.hierarchy import leave_one_out
 
     def est(rs, keep):
         W = rs.shape[2]
