@@ -38,10 +38,10 @@ def kind_of(path: str | Path, names: list[str]) -> str:
 def check_table(table, kind: str, path: str | Path, error: Callable[[str, str], Exception],
                 required: Iterable[str] = ()) -> None:
     """Raise ``error(path, problem)`` for the first column of ``table`` that breaks the ``kind``
-    feature-table contract (``pipeline.scoring.features.schema``): one of ``required`` (the
+    feature-table contract (``pipeline.scoring.feature_schema``): one of ``required`` (the
     columns the reader uses) missing, or a contract column present but of another type, null,
     or (a pose) not finite."""
-    from pipeline.scoring.features import columns
+    from pipeline.scoring.feature_schema import columns
 
     contract = dict(columns(kind))
     for name in required:

@@ -9,7 +9,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.banks.model_bank import FeaturesError, read_training_views
-from pipeline.scoring.features import build_table, columns, read_features, write_table
+from pipeline.scoring.feature_schema import columns
+from pipeline.scoring.features import build_table, read_features, write_table
 
 N, D, NS = 4, 3, 2
 
