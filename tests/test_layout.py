@@ -14,12 +14,15 @@ FLOORS = {"pipeline": 0, "loaders": 1, "reports": 2, "stages": 3}
 # pipeline subpackage -> the pipeline subpackages it may import (besides itself).
 SUBPACKAGES = {
     "infra": set(),
+    "scene": {"infra"},
     "method": {"infra"},
     "scoring": {"infra"},
-    "evaluation": {"method", "scoring", "infra"},
+    "evaluation": {"method", "scoring", "scene", "infra"},
     "banks": {"evaluation", "method", "scoring", "infra"},
     "planning": {"evaluation", "method", "infra"},
 }
+# What the dataset floor may use of pipeline/: the plumbing and the geometry, never the protocol.
+LOADER_SUBPACKAGES = {"infra", "scene", "method"}
 # pipeline/evaluation sub-room -> the sub-rooms it may import (besides itself).
 EVALUATION_ROOMS = {
     "metrics": set(),
@@ -217,3 +220,108 @@ def test_the_room_checks_catch_planted_violations(tmp_path):
     ]
     (root / "stages/report.py").write_text("def f():\n    from stages.framework.runner import _manifest\n")
     assert private_name_violations(root) == ["stages/report.py:2 imports stages.framework.runner._manifest"]
+
+
+def loader_violations(root: Path) -> list[str]:
+    """loaders/ importing a part of pipeline/ other than the plumbing and the scene geometry (the
+    evaluation protocol sits above the dataset floor in meaning, if not in the package order)."""
+    bad = []
+    for path, imports in _imports_by_module(root, "loaders"):
+        for line, mod in imports:
+            parts = mod.split(".")
+            if parts[0] == "pipeline" and (len(parts) < 2 or parts[1] not in LOADER_SUBPACKAGES):
+                bad.append(f"{path.relative_to(root)}:{line} imports {mod} "
+                           f"(loaders may import pipeline.{{{', '.join(sorted(LOADER_SUBPACKAGES))}}} only)")
+    return bad
+
+
+def _module_name(root: Path, path: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(root: Path) -> dict[str, set[str]]:
+    """{module: project modules it imports}, also inside functions; ``from a.b import c`` is an
+    arrow to ``a.b.c`` when that is a module, else to ``a.b``."""
+    paths = {_module_name(root, p): p for floor in FLOORS for p in sorted((root / floor).rglob("*.py"))}
+    graph: dict[str, set[str]] = {m: set() for m in paths}
+    for mod, path in paths.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                targets = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in paths else node.module
+                           for a in node.names]
+            else:
+                continue
+            graph[mod].update(t for t in targets if t in paths and t != mod)
+    return graph
+
+
+def import_circles(root: Path) -> list[list[str]]:
+    """Groups of modules that import each other, directly or around a circle (strongly connected
+    components of the import graph with more than one module), each sorted."""
+    graph = import_graph(root)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    for start in sorted(graph):  # iterative Tarjan: no recursion limit on long chains
+        if start in index:
+            continue
+        work = [(start, iter(sorted(graph[start])))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on.add(start)
+        while work:
+            node, it = work[-1]
+            nxt = next(it, None)
+            if nxt is not None:
+                if nxt not in index:
+                    index[nxt] = low[nxt] = len(index)
+                    stack.append(nxt)
+                    on.add(nxt)
+                    work.append((nxt, iter(sorted(graph[nxt]))))
+                elif nxt in on:
+                    low[node] = min(low[node], index[nxt])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                group = []
+                while True:
+                    m = stack.pop()
+                    on.discard(m)
+                    group.append(m)
+                    if m == node:
+                        break
+                if len(group) > 1:
+                    out.append(sorted(group))
+    return sorted(out)
+
+
+def test_loaders_do_not_import_the_evaluation_protocol():
+    bad = loader_violations(ROOT)
+    assert not bad, "loaders importing above the scene geometry:\n" + "\n".join(bad)
+
+
+def test_no_import_circles():
+    circles = import_circles(ROOT)
+    assert not circles, "modules importing each other:\n" + "\n".join(" <-> ".join(c) for c in circles)
+
+
+def test_the_loader_and_circle_checks_catch_planted_violations(tmp_path):
+    root = _plant(tmp_path, "scene", "")
+    (root / "loaders" / "reader.py").write_text(
+        "from pipeline.scene import planted\nfrom pipeline.evaluation.grid.location import locate\n")
+    assert loader_violations(root) == [
+        "loaders/reader.py:2 imports pipeline.evaluation.grid.location "
+        "(loaders may import pipeline.{infra, method, scene} only)"]
+    (root / "pipeline" / "infra" / "a.py").write_text("from pipeline.infra import b\n")
+    (root / "pipeline" / "infra" / "b.py").write_text("def f():\n    import pipeline.infra.c\n")
+    (root / "pipeline" / "infra" / "c.py").write_text("from pipeline.infra.a import x\n")
+    assert import_circles(root) == [["pipeline.infra.a", "pipeline.infra.b", "pipeline.infra.c"]]
+    (root / "pipeline" / "infra" / "c.py").write_text("x = 1\n")
+    assert import_circles(root) == []
