@@ -34,7 +34,7 @@ from pipeline.evaluation.grid.cell_reduce import reduce_cell
 from pipeline.evaluation.grid.population_summary import cell_table, check_primary, dirichlet_summary, population_summary
 from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
 from pipeline.evaluation.metrics.spec import Params
-from pipeline.evaluation.domain.test_domain import TestDomain, test_variances
+from pipeline.evaluation.domain.target_domain import TargetDomain, target_variances
 from pipeline.scene.rays import TrackError, grid_step
 
 log = logging.getLogger("viewfuse.evaluate")
@@ -85,7 +85,7 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips,
 
 
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict,
-                 domain: TestDomain | None = None) -> None:
+                 domain: TargetDomain | None = None) -> None:
     """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures); the
     sensitivity rows go to ``blocks`` (a list or a ``ResultsWriter``: ``append``)."""
     ev = cfg.evaluate
@@ -178,8 +178,8 @@ def run(ctx) -> str:
         log.info("target %s: %d track(s) in %s; candidates %s", t, len(mine), ", ".join(sorted({i.scan for i in mine})),
                  ", ".join(next(c.classes for c in cells if c.target == t)))
     t0 = time.perf_counter()
-    domain = TestDomain(cfg, avd, scores, banks[DEFAULT], truth, intr, sorted({c.target for c in cells}), scans)
-    cells = test_variances(cells, domain, cfg)
+    domain = TargetDomain(cfg, avd, scores, banks[DEFAULT], truth, intr, sorted({c.target for c in cells}), scans)
+    cells = target_variances(cells, domain, cfg)
     domain_fit = domain.summary()
     domain_s = time.perf_counter() - t0
 

@@ -40,7 +40,7 @@ def instance_poses(cfg, avd: pd.DataFrame, truth: dict | None, intr: dict, class
     return out, ("synthetic sidecar (truth.json)" if ev.yaw_source == "truth" else "located object, configured yaw")
 
 
-class TestDomain:
+class TargetDomain:
     """Residuals of the labelled crops, the cross-fitted δ² per fold and the domain-fit summary."""
 
     def __init__(self, cfg, avd, scores, bank, truth, intr, targets, scans):
@@ -98,7 +98,7 @@ class TestDomain:
         return {"obs_theta": th, "obs_y": y}
 
 
-def test_variances(cells: list[P.Cell], domain: TestDomain, cfg) -> list[P.Cell]:
+def target_variances(cells: list[P.Cell], domain: TargetDomain, cfg) -> list[P.Cell]:
     """Cells with their δ² where their variant's likelihood is the calibrated one."""
     import dataclasses
 
