@@ -67,7 +67,7 @@ def claims_section(page, summary: Mapping[str, Any]) -> None:
                    "(Wilson for shares, the order-statistic interval for percentiles, a seeded bootstrap "
                    "for the paired difference).")
     page.table(CLAIMS_HEADER, claims_rows(claims), cls="claims",
-               caption="The paper's wording as quoted in the project's issue 20; 'step' is the 0-based "
+               caption="The paper's wording, quoted from its §5.3; 'step' is the 0-based "
                        f"track step {cp.get('step', '?')}; confident error: max P ≥ "
                        f"{cp.get('confident_threshold', float('nan')):g} on a wrong class.")
     sw = summary.get("sweep")

@@ -1,6 +1,6 @@
 """The fusion engine against the reference engine (tests/support/reference_fusion.py), side by side.
 
-Workload (issue 24): 4 classes x 4 components, 120 training views per class (a full turntable
+Workload: 4 classes x 4 components, 120 training views per class (a full turntable
 ring, as BigBIRD's: the basis route's diagonal form applies), K = 9, N_s = 10, 40 realizations x
 N_x = 50 trajectories per call. Both engines run interleaved, several rounds,
 in one process: the ratio is the number to read, since other processes on the machine slow both

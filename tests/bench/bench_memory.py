@@ -1,4 +1,4 @@
-"""Memory budget (issue 31): peak summed RSS (process tree, ``tools/peak_rss.py``) or refusal time
+"""Memory budget: peak summed RSS (process tree, ``tools/peak_rss.py``) or refusal time
 of the settings whose memory grows, after the budget; docs/benchmarks.md "Memory budget" quotes it.
 
 Cases that refuse run under ``run.memory_gb = 6`` (the audit's watchdog); the MC-dropout case

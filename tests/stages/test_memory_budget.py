@@ -1,4 +1,4 @@
-"""Settings whose memory grows are refused or bounded before the work starts (issue 31): every
+"""Settings whose memory grows are refused or bounded before the work starts: every
 check here runs under a tiny run.memory_gb, so a refusal costs nothing and nothing large is made."""
 from __future__ import annotations
 

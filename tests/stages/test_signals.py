@@ -1,5 +1,5 @@
 """SIGTERM ends a stage as cleanly as SIGINT, and a SIGKILLed run leaves no process writing
-(issue 31): real ``viewfuse data`` subprocesses with two render workers."""
+behind: real ``viewfuse data`` subprocesses with two render workers."""
 from __future__ import annotations
 
 import json

@@ -1,6 +1,6 @@
 """The paper's §5.3 statements about its Figs. 3 and 5, checked on simulated realizations.
 
-Each claim is the paper's wording (as quoted in the project's issue 20), one statistic computed
+Each claim is the paper's wording (quoted from its §5.3), one statistic computed
 from the realizations, its 95 % CI over realizations, a threshold and a direction. The verdict is
 computed from the statistic (``holds``); ``ci_side`` says whether the whole interval agrees
 ("holds" / "fails") or straddles the threshold ("spans"), so a verdict that one more realization
@@ -57,7 +57,7 @@ class Estimate:
 class ClaimSpec:
     key: str
     scenario: str
-    statement: str              # the paper's wording, as quoted in issue 20
+    statement: str              # the paper's wording, quoted from its §5.3
     statistic: str              # what is computed, in words ("{step}" filled in)
     op: str                     # value <op> threshold = holds
     threshold: float
