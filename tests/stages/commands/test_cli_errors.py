@@ -83,6 +83,16 @@ def test_a_nul_byte_in_the_run_name_is_a_config_error_naming_the_key(tmp_path, c
         assert "'run.name'" in line and str(cfg) in line
 
 
+def test_an_unknown_or_unfit_classifier_is_a_config_error_before_any_stage(tmp_path, capsys):
+    cfg = tmp_path / "arch.toml"
+    for text, words in (('[classifier]\narch = "resnet"\n', "'classifier.arch': unknown classifier architecture 'resnet'"),
+                        ('[classifier]\narch = "torchvision:resnet18"\n', "'torchvision:resnet18' trains nothing")):
+        cfg.write_text(text)
+        assert main(["status", "--config", str(cfg)]) == 2
+        line = one_line(capsys.readouterr().err)
+        assert words in line and str(cfg) in line
+
+
 def test_status_exits_1_when_a_stage_state_is_unknown(tmp_path, monkeypatch, capsys):
     def broken(cfg, name, memo=None):
         raise OSError(errno.EACCES, "Permission denied", "/x/manifest.json")
