@@ -363,3 +363,29 @@ def sweeps(draw):
 def test_simulate_sweep(sweep, step):
     from reports.simulate.claims import fig_sweep
     _clean(fig_sweep(sweep, step), "claims_sweep.png")
+
+
+class _Bank:
+    """A stand-in for the simulation's GP bank: model points per class and a smooth mean."""
+
+    def __init__(self, C: int, scale: float, seed: int):
+        rng = np.random.default_rng(seed)
+        self.X = [rng.uniform(-2, 2, (5, 2)) for _ in range(C)]
+        self.Y = [rng.uniform(0, 1, (C, 5)) for _ in range(C)]
+        self.C, self.scale = C, scale
+
+    def marginal(self, pts):
+        ang = np.arctan2(pts[:, 1], pts[:, 0])
+        mean = self.scale * np.cos(ang[:, None, None] + np.arange(self.C)[None, :, None]
+                                   + np.arange(self.C)[None, None, :])
+        return mean, np.ones_like(mean)
+
+
+@settings(SETTINGS, max_examples=10)
+@given(st.integers(2, 6), st.sampled_from((1e-300, 1.0, 1e300)), st.integers(0, 99), st.booleans(),
+       st.lists(names, min_size=6, max_size=6))
+def test_simulate_class_maps(C, scale, seed, biased, classes):
+    from reports.simulate.page import fig_class_maps
+    true_xy = np.c_[np.linspace(-1.5, 1.5, 5), np.ones(5)]
+    est = true_xy + 0.2 if biased else None
+    _clean(fig_class_maps(_Bank(C, scale, seed), true_xy, est, classes[:C], 0), "class_maps.png")
