@@ -243,7 +243,7 @@ def test_gp_ring(block):
 
 @st.composite
 def bias_map_blocks(draw):
-    K, C, B = draw(st.integers(1, 6)), draw(st.integers(1, 8)), 5
+    K, C, B = draw(st.integers(1, 6)), draw(st.integers(2, 8)), 5   # a posterior over 2+ candidates
     rng = np.random.default_rng(draw(st.integers(0, 2 ** 16)))
     post = rng.dirichlet(np.ones(C), (K, B, B)).transpose(0, 3, 1, 2) if not draw(st.booleans()) \
         else np.full((K, C, B, B), 1.0 / C)
