@@ -20,11 +20,12 @@ def run(ctx) -> str:
         cfg.run_dir, ctx.out,
         title=cfg.report.title, dpi=cfg.report.dpi, run_name=cfg.run.name,
         config=to_dict(cfg), timings=stage_timings(cfg), commit=_commit(cfg.root),
-        config_file=_relative(cfg.source_path, cfg.root),
+        config_file=_relative(cfg.source_path, cfg.root), strict=cfg.report.strict,
     )
     ctx.extra["figures"] = res.figures
     ctx.extra["sections"] = res.sections
     ctx.extra["notes"] = res.notes
+    ctx.extra["layout_problems"] = res.layout_problems   # figures shown with a warning box
     final = cfg.stage_dir(ctx.stage) / res.index.name
     return f"{res.index.name} + {len(res.figures)} figures; open {final}"
 

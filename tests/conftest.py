@@ -19,7 +19,9 @@ def tmp_config(tmp_path):
     from pipeline.infra.config import merge, load_config
 
     def make(overrides: dict | None = None):
-        over = merge({"run": {"artifacts": str(tmp_path / "artifacts")}}, overrides or {})
+        # tests hold the report to every self-check (a layout slip fails too)
+        over = merge({"run": {"artifacts": str(tmp_path / "artifacts")}, "report": {"strict": "all"}},
+                     overrides or {})
         return load_config(DEFAULT_CONFIG, over)
 
     return make

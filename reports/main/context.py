@@ -27,7 +27,8 @@ class ReportContext:
     alts: dict[str, str] = field(default_factory=dict)      # figure -> alt text stating its finding
     bias_findings: dict | None = None                       # reports.main.figures_models.bias_map_findings
     ledger: Ledger = field(default_factory=Ledger)          # every printed statistic (reports/shared/checks.py)
-    problems: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)       # contradictions and captions: always fatal
+    layout_problems: dict[str, list[str]] = field(default_factory=dict)  # figure -> text slips after layout
     commit: str = ""                                        # the code's git commit (the report stage passes it)
     config_file: str = ""                                   # the --config file of the run       # self-check failures: the build stops on any
 
@@ -65,7 +66,17 @@ class ReportContext:
                 self.problems.append(problem)
             self.page.figure(name, caption, alt=alt,
                              min_font_px=getattr(chk, "min_font_px", None),
-                             tick_overlaps=len(chk.overlaps) if chk is not None else None)
+                             tick_overlaps=len(chk.overlaps) if chk is not None else None,
+                             warning=_layout_warning(self.layout_problems.get(name)))
+
+
+def _layout_warning(slips: list[str] | None) -> str:
+    """The box a figure with a layout slip carries on the page ('' when it has none)."""
+    if not slips:
+        return ""
+    what = "; ".join(s.split(": ", 1)[-1] for s in slips[:3]) + (f"; and {len(slips) - 3} more" if len(slips) > 3 else "")
+    return (f"Layout check: some text of this figure overlaps or is cut off ({what}). The numbers are "
+            "unaffected; the tables and the caption state them.")
 
 
 def _find(d: Any, key: str) -> Any:

@@ -8,7 +8,7 @@ Nothing is recomputed but plotting percentiles and the single track's CIs over r
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -56,6 +56,20 @@ class ReportResult:
     figures: list[str]
     sections: list[str]
     notes: list[str]
+    layout_problems: dict[str, list[str]] = field(default_factory=dict)   # figure -> slips kept on the page
+
+
+STRICT_MODES = ("contradictions", "all")
+
+
+def strict_mode(strict: str | bool) -> str:
+    """``report.strict`` as a mode: 'all' (every self-check stops the build), 'contradictions'
+    (a layout slip is shown on the page, not fatal) or 'none' (``False``: a look at a broken page)."""
+    if strict is True or strict is False:
+        return "all" if strict else "none"
+    if strict not in STRICT_MODES:
+        raise ValueError(f"report.strict: {strict!r} is not one of {', '.join(STRICT_MODES)}")
+    return str(strict)
 
 
 def _population_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
@@ -163,8 +177,15 @@ def _subtitle(ctx: ReportContext) -> str:
 def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = "viewfuse report", dpi: int = 110,
                       run_name: str = "", config: dict | None = None, timings: dict[str, float] | None = None,
                       progress: bool = True, n_boot: int = BOOTSTRAP, seed: int = 0, commit: str = "",
-                      config_file: str = "", strict: bool = True) -> ReportResult:
-    """Render ``out_dir/index.html`` and its PNGs from ``run_dir``'s evaluate, models and classifier outputs."""
+                      config_file: str = "", strict: str | bool = "all") -> ReportResult:
+    """Render ``out_dir/index.html`` and its PNGs from ``run_dir``'s evaluate, models and classifier outputs.
+
+    Self-checks come in two classes (``strict``, the config's ``report.strict``): contradictions (a
+    label its CI contradicts, two numbers for one statistic, a value outside its CI, a caption
+    without a finding) always stop the build; layout slips (figure text that overlaps or leaves
+    the canvas after ``reports.shared.layout.finish_figure``) stop it under 'all' only, and under
+    'contradictions' the page is written with a warning box on the figure and a logged warning."""
+    mode = strict_mode(strict)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     run = load_run(run_dir)
@@ -178,7 +199,9 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
         fig = build()
         ctx.checks[name] = chk = save(fig, out / name, dpi)
-        ctx.problems.extend(figure_text_problems(fig, name))
+        slips = figure_text_problems(fig, name)
+        if slips:
+            ctx.layout_problems[name] = slips
         written.append(name)
         if chk.overlaps:
             ctx.notes.append(f"{name}: tick labels overlap ({'; '.join(chk.overlaps[:3])})")
@@ -192,12 +215,19 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
         section(ctx)
     for n in ctx.notes:
         log.warning("report: %s", n)
-    problems = ctx.problems + ctx.ledger.problems()
-    if problems and strict:
+    layout = [p for slips in ctx.layout_problems.values() for p in slips]
+    contradictions = ctx.problems + ctx.ledger.problems()
+    fatal = contradictions + (layout if mode == "all" else [])
+    if fatal and mode != "none":
         # Nothing is published that contradicts itself: index.html is not written.
-        raise ReportCheckError(problems)
-    for p in problems:  # strict=False (a look at a broken page): every problem stays visible on it
+        raise ReportCheckError(fatal)
+    for name, slips in ctx.layout_problems.items():
+        # a layout slip is not a contradiction: the figure carries a warning box (ctx.figure)
+        log.warning("report: %s: figure text still overlaps or leaves the canvas after layout (%d problem%s; "
+                    "shown on the page): %s", name, len(slips), "s" if len(slips) != 1 else "", "; ".join(slips[:3]))
+    for p in contradictions if mode == "none" else []:  # a look at a broken page: every problem on it
         log.warning("report self-check: %s", p)
         ctx.page.paragraph(f"Self-check failed: {p}", cls="warn")
     ctx.page.write(out_path(out, "report", "html"))
-    return ReportResult(out_path(out, "report", "html"), written, ctx.sections, ctx.notes)
+    return ReportResult(out_path(out, "report", "html"), written, ctx.sections, ctx.notes,
+                        dict(ctx.layout_problems))

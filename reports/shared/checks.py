@@ -57,18 +57,20 @@ class ReportCheckError(RuntimeError):
 
 # ---------------------------------------------------------------- figure text
 
-def _text_boxes(fig) -> list[tuple[str, str, Any]]:
-    """(group, text, window box) of every visible, non-empty text after layout. ``group`` names the
-    axis a tick label belongs to ('' for every other text)."""
-    fig.canvas.draw()
+def text_artists(fig) -> list[tuple[str, Any, Any]]:
+    """(group, text artist, its axes or None) of every visible, non-empty text after layout, in the
+    checker's order. ``group`` names the axis a tick label belongs to ('' for every other text);
+    only tick labels matplotlib draws (inside the axes' span) are listed."""
+    # layout and text placement without rasterizing (the boxes are the same; it is several times faster)
+    fig.draw_without_rendering()
     r = fig.canvas.get_renderer()
-    out: list[tuple[str, str, Any]] = []
+    out: list[tuple[str, Any, Any]] = []
     seen: set[int] = set()
 
-    def add(t, group: str = "") -> None:
+    def add(t, ax=None, group: str = "") -> None:
         if t is not None and id(t) not in seen and t.get_visible() and t.get_text().strip():
             seen.add(id(t))
-            out.append((group, t.get_text(), t.get_window_extent(r)))
+            out.append((group, t, ax))
 
     add(getattr(fig, "_suptitle", None))
     add(getattr(fig, "_supxlabel", None))
@@ -81,9 +83,9 @@ def _text_boxes(fig) -> list[tuple[str, str, Any]]:
         if not ax.get_visible() or not ax.axison and not ax.get_title():
             continue
         for t in (ax.title, getattr(ax, "_left_title", None), getattr(ax, "_right_title", None)):
-            add(t)
-        add(ax.xaxis.label)
-        add(ax.yaxis.label)
+            add(t, ax)
+        add(ax.xaxis.label, ax)
+        add(ax.yaxis.label, ax)
         for name, labels, (lo, hi) in (("x", ax.get_xticklabels(), (ax.bbox.x0, ax.bbox.x1)),
                                        ("y", ax.get_yticklabels(), (ax.bbox.y0, ax.bbox.y1))):
             for t in labels:
@@ -92,12 +94,19 @@ def _text_boxes(fig) -> list[tuple[str, str, Any]]:
                 b = t.get_window_extent(r)
                 mid = (b.x0 + b.x1) / 2 if name == "x" else (b.y0 + b.y1) / 2
                 if lo - 2 <= mid <= hi + 2:            # matplotlib draws only these
-                    out.append((f"{i}{name}", t.get_text(), b))
+                    out.append((f"{i}{name}", t, ax))
         for t in ax.texts:
-            add(t)
+            add(t, ax)
         if ax.get_legend() is not None:
-            _legend(ax.get_legend(), add)
+            _legend(ax.get_legend(), lambda t, ax=ax: add(t, ax))
     return out
+
+
+def _text_boxes(fig) -> list[tuple[str, str, Any]]:
+    """(group, text, window box) of every text ``text_artists`` lists."""
+    arts = text_artists(fig)
+    r = fig.canvas.get_renderer()
+    return [(g, t.get_text(), t.get_window_extent(r)) for g, t, _ in arts]
 
 
 def _legend(leg, add) -> None:

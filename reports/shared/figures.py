@@ -140,6 +140,8 @@ def save(fig: Figure, path, dpi: int = 110) -> FigureCheck:
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"{path}: figures are written as .png")
+    from reports.shared.layout import finish_figure
+    finish_figure(fig)   # no text overlaps or leaves the canvas, whatever the data (see layout.py)
     with atomic_path(path) as tmp:
         # No creation timestamp in the metadata: the same results give the same bytes.
         # bbox "tight" keeps outside legends and edge labels from being clipped.

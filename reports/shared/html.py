@@ -147,7 +147,7 @@ class HtmlReport:
         self._target().append(f"<p{c}>{body}</p>")
 
     def figure(self, png_name: str, caption: str, alt: str = "", min_font_px: float | None = None,
-               tick_overlaps: int | None = None) -> None:
+               tick_overlaps: int | None = None, warning: str = "") -> None:
         """A PNG with its caption; ``alt`` states the figure's finding (what a reader who cannot see
         it should learn), ``min_font_px`` the smallest text in the PNG at 100 % (the browser test
         checks that it stays legible at the page's width)."""
@@ -159,8 +159,10 @@ class HtmlReport:
         font = f' data-min-font-px="{min_font_px:.1f}"' if min_font_px else ""
         if tick_overlaps is not None:
             font += f' data-tick-overlaps="{int(tick_overlaps)}"'
+        # a figure whose text still collides after layout says so, in a box above it
+        box = f'<p class="warn figure-warning" role="note">{_esc(warning)}</p>' if warning else ""
         self._target().append(
-            f'<figure><img src="{html.escape(name, quote=True)}" alt="{_esc(alt or caption)}"{font}>'
+            f'<figure>{box}<img src="{html.escape(name, quote=True)}" alt="{_esc(alt or caption)}"{font}>'
             f"<figcaption>{_esc(caption)}</figcaption></figure>")
 
     def definitions(self, items: list[tuple[str, str]], cls: str = "glossary") -> None:

@@ -64,11 +64,53 @@ def _clipped_ylabel(pop):
     return fig
 
 
-@pytest.mark.parametrize("planted, message", [(_overlapping_titles, "overlaps"), (_clipped_ylabel, "is clipped")])
-def test_planted_figure_text_problems_fail_the_build(fake_run, tmp_path, monkeypatch, planted, message):
+def _slip_past_layout(monkeypatch, planted):
+    """A figure whose text problem the finishing step does not fix (it is switched off)."""
+    from reports.shared import layout
     monkeypatch.setattr(page_module, "fig_forest", planted)
+    monkeypatch.setattr(layout, "finish_figure", lambda fig: [])
+
+
+@pytest.mark.parametrize("planted, message", [(_overlapping_titles, "overlaps"), (_clipped_ylabel, "is clipped")])
+def test_planted_figure_text_problems_fail_the_build_under_strict_all(fake_run, tmp_path, monkeypatch, planted,
+                                                                      message):
+    _slip_past_layout(monkeypatch, planted)
     with pytest.raises(ReportCheckError, match=f"forest.png: text .* {message}"):
         _build(fake_run, tmp_path / "out")
+
+
+def test_the_finishing_step_fixes_a_clipped_label_before_the_check(fake_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(page_module, "fig_forest", _clipped_ylabel)
+    res = _build(fake_run, tmp_path / "out")
+    assert res.layout_problems == {}
+
+
+def test_a_layout_slip_under_strict_contradictions_is_written_with_a_warning_box(fake_run, tmp_path, monkeypatch,
+                                                                                caplog):
+    _slip_past_layout(monkeypatch, _overlapping_titles)
+    with caplog.at_level("WARNING", logger="viewfuse.report"):
+        res = build_main_report(fake_run, tmp_path / "out", dpi=60, progress=False, n_boot=100,
+                                strict="contradictions")
+    html = res.index.read_text()
+    assert list(res.layout_problems) == ["forest.png"]
+    box = html.index("figure-warning")
+    figure = html[html.rindex("<figure>", 0, box):html.index("</figure>", box)]
+    assert 'src="forest.png"' in figure and "Layout check" in figure and "overlaps" in figure
+    assert html.count("figure-warning") == 1
+    assert any("forest.png" in r.getMessage() for r in caplog.records if r.levelname == "WARNING")
+
+
+def test_a_contradiction_under_strict_contradictions_still_fails(fake_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(scorecard, "claim_status", lambda entry, metric: "fails")
+    with pytest.raises(ReportCheckError, match="labelled 'fails'"):
+        build_main_report(fake_run, tmp_path / "out", dpi=60, progress=False, n_boot=100, strict="contradictions")
+    assert not (tmp_path / "out" / "index.html").exists()
+
+
+def test_a_caption_without_a_finding_is_fatal_under_strict_contradictions(fake_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(findings, "per_target", lambda pop, ledger=None: "")
+    with pytest.raises(ReportCheckError, match="caption states no finding"):
+        build_main_report(fake_run, tmp_path / "out", dpi=60, progress=False, n_boot=100, strict="contradictions")
 
 
 def test_a_caption_without_a_finding_fails_the_build(fake_run, tmp_path, monkeypatch):

@@ -14,6 +14,7 @@ from tests.loaders.realdata import need
 pytestmark = pytest.mark.slow  # real stages on real data (make test-fast skips it)
 
 SMALL = {
+    "report": {"strict": "all"},   # tests and CI: a figure-text slip fails the build too
     "data": {"scans": ["Home_005_1"],
              "real_imagery": {"objects": [2, 3, 4, 5, 6]}},
     "features": {"n_samples": 3, "bigbird_samples": 3},

@@ -17,4 +17,5 @@ TINY = {
                  "randomized": {"sigmas_m": [0.1, 0.3], "realizations": 6, "n_loc_samples": 5},
                  "sensitivity": {"sigmas_m": [0.1, 0.4], "realizations": 3, "n_loc_samples": 4},
                  "bias_maps": {"steps": 5}},
+    "report": {"strict": "all"},   # tests and CI: a figure-text slip fails the build too
 }

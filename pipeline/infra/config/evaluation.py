@@ -101,6 +101,11 @@ class EvaluateConfig:
 class ReportConfig:
     title: str = _f("viewfuse report")
     dpi: int = _f(110, lo=30, hi=600)
+    strict: str = _f("contradictions", choices=("contradictions", "all"),
+                     doc="which self-check failures stop the build: contradictions = a label its CI "
+                         "contradicts, two numbers for one statistic, a value outside its CI, a caption "
+                         "without a finding (layout slips: the page is written, the figure carries a "
+                         "warning box); all = layout slips too (tests and CI)")
 
 
 
