@@ -105,6 +105,9 @@ class EvaluateConfig:
 class ReportConfig:
     title: str = _f("viewfuse report")
     dpi: int = _f(110, lo=30, hi=600)
+    equivalence_margin_correct: float = _f(0.05, lo=0.0, hi=1.0, doc="the paper's 'similar' correct ratios: the "
+                                           "scorecard's claim holds when the 95 % CI of the paired difference "
+                                           "lies within ± this")
 
 
 
