@@ -1,6 +1,6 @@
 """The claims scorecard at the top of the report: each claim of the paper (declared once, with the
-paper's own numbers and their sections, in ``pipeline.evaluation.paper``), our reading of it as one
-paired comparison on one metric (directional, or equivalence within ±
+paper's own numbers and their sections, in ``pipeline.evaluation.metrics.paper``), our reading of
+it as one paired comparison on one metric (directional, or equivalence within ±
 ``report.equivalence_margin_correct`` for the paper's "similar" correct ratios), our value with its
 95 % CI and holds / fails / inconclusive, computed from that CI by the one outcome rule
 (``reports.shared.checks.outcome_of``) or the equivalence rule (``records.equivalence``); plus the §5.3 simulation claims,
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
 from pipeline.evaluation.metrics.spec import higher_is_better
-from pipeline.evaluation.paper import CLAIMS, TABLES_NOTE, Claim
+from pipeline.evaluation.metrics.paper import CLAIMS, TABLES_NOTE, Claim
 from pipeline.evaluation.statistics.records import equivalence
 from reports.main.calibration import paired_value
 from reports.main.context import ReportContext

@@ -63,7 +63,7 @@ def test_the_similar_claim_is_read_as_equivalence_within_the_margin():
 def test_the_paper_column_names_sections_and_converts_mgr_to_log10():
     import re
 
-    from pipeline.evaluation.paper import CLAIMS, NUMBERS, log10_of_ln
+    from pipeline.evaluation.metrics.paper import CLAIMS, NUMBERS, log10_of_ln
     from reports.main.scorecard import paper_cell
 
     numbers = (Path(__file__).resolve().parents[3] / "shared" / "paper" / "numbers.md")
