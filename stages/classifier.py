@@ -16,8 +16,9 @@ registered in the process.
 ``card.json`` records the weights file and its sha256, output names, input size, normalisation,
 dropout p, accuracy with its Wilson 95 % CI over the held-out images and confusion (synthetic), training settings, wall and CPU timings (with
 ``train_split_s``: the training loop's wall seconds in augment, forward, backward and optimizer), and (synthetic)
-``determinism``: the CPU flags that select kernels, thread count, library versions and what can
-differ on another machine; its ``hash`` is the
+``determinism`` (every weights source): the processor model, torch's CPU capability and the CPU
+flags that select kernels, thread count, BLAS/LAPACK and library versions and what can differ on
+another machine (the report's run details show it); its ``hash`` is the
 identity of the scorer that the features stage records in its Parquet metadata.
 """
 from __future__ import annotations
@@ -129,8 +130,10 @@ def _file_weights(ctx, device: str) -> str:
             except (ValueError, FileNotFoundError):
                 pass
     card = _base_card(c, n, names, str(Path(path).resolve()), sha)
+    from pipeline.infra.fingerprint import machine_fingerprint
+
     card.update({"accuracy": None, "seconds": round(time.perf_counter() - t0, 2), "device": device,
-                 "torch": torch.__version__})
+                 "torch": torch.__version__, "determinism": machine_fingerprint()})
     card["hash"] = card_hash(card)
     write_json(ctx.out / out_name("classifier", "card"), card)
     ctx.extra.update({"weights": c.weights, "hash": card["hash"], "num_classes": n})

@@ -1,7 +1,9 @@
-"""The claims scorecard at the top of the report: each claim of the paper about the AVD experiment
-(§5.5), our reading of it as one paired comparison on one metric, the paper's own number where
-we have it, our value with its 95 % CI and holds / fails / inconclusive, computed from that CI by
-the one outcome rule (``reports.shared.checks.outcome_of``); plus the §5.3 simulation claims,
+"""The claims scorecard at the top of the report: each claim of the paper (declared once, with the
+paper's own numbers and their sections, in ``pipeline.evaluation.metrics.paper``), our reading of
+it as one paired comparison on one metric (directional, or equivalence within ±
+``report.equivalence_margin_correct`` for the paper's "similar" correct ratios), our value with its
+95 % CI and holds / fails / inconclusive, computed from that CI by the one outcome rule
+(``reports.shared.checks.outcome_of``) or the equivalence rule (``records.equivalence``); plus the §5.3 simulation claims,
 counted from the simulate stage's summary and linked to its page.
 
 Reads the verdict records of ``summary.json`` (``population.records``: one per comparison and
@@ -13,44 +15,20 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
 from pipeline.evaluation.metrics.spec import higher_is_better
+from pipeline.evaluation.metrics.paper import CLAIMS, TABLES_NOTE, Claim
+from pipeline.evaluation.statistics.records import equivalence
 from reports.main.calibration import paired_value
 from reports.main.context import ReportContext
 from reports.shared.checks import outcome_of
 from reports.shared.numbers import Estimate
 
 CLAIM_WORDS = ("holds", "fails", "inconclusive")
-
-
-@dataclass(frozen=True)
-class Claim:
-    """One claim of the paper (paraphrased, §5.5) and the comparison that tests it."""
-    text: str          # the paper's claim, in our words (the paper's own text is not copied)
-    method: str
-    baseline: str
-    metric: str
-    reading: str       # how we test it
-    paper: str = ""    # the paper's own number, where it gives one and we have it (else '')
-
-
-CLAIMS = (
-    Claim("Under localization error, the method that models both model and localization uncertainty "
-          "classifies correctly more often than Model Based.", "with_uncertainty", "model_based", "correct_final",
-          "paired difference of the correct ratio at the final step, With Uncertainty − Model Based, > 0"),
-    Claim("It is less often confidently wrong than Model Based, which trusts the pose estimate.",
-          "with_uncertainty", "model_based", "confident_error_final",
-          "paired difference of the confident-error rate at the final step, < 0"),
-    Claim("Its worst cases are milder: a lower MGR (how far a wrong class beats the truth) than Model Based.",
-          "with_uncertainty", "model_based", "log10_mgr95_final",
-          "paired difference of the 95th percentile of log10 MGR at the final step, < 0"),
-    Claim("Modelling the viewpoint dependence beats the view-independent Simple Bayes baseline.",
-          "with_uncertainty", "simple_bayes", "correct_final",
-          "paired difference of the correct ratio at the final step, With Uncertainty − Simple Bayes, > 0"),
-)
+EQUIVALENCE_WORDS = {"equivalent": "holds", "different": "fails", "not distinguishable": "inconclusive"}
+DEFAULT_MARGIN = 0.05   # report.equivalence_margin_correct's default (pipeline/infra/config/evaluation.py)
 
 
 def _end(x, default: float) -> float | None:
@@ -82,9 +60,31 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
 
 
 def claim_status(entry: dict | None, metric: str) -> str:
+    """A directional claim: the side of 0 its interval lies on (the one outcome rule)."""
     if entry is None:
         return "not measured"
     return outcome_of(entry["lo"], entry["hi"], higher_is_better(metric), words=CLAIM_WORDS)
+
+
+def equivalence_status(entry: dict | None, margin: float) -> str:
+    """A "similar" claim: holds when the whole interval lies within ±margin, fails when it lies
+    wholly outside, else inconclusive (``records.equivalence``)."""
+    if entry is None:
+        return "not measured"
+    return EQUIVALENCE_WORDS[equivalence(entry["lo"], entry["hi"], margin)]
+
+
+def equivalence_margin(config: dict | None) -> float:
+    """``report.equivalence_margin_correct`` of the run's resolved config (its default without one)."""
+    v = ((config or {}).get("report") or {}).get("equivalence_margin_correct")
+    return DEFAULT_MARGIN if v is None else float(v)
+
+
+def paper_cell(c: Claim) -> str:
+    """The paper's numbers for a claim, each with its section ('' -> says none is given)."""
+    if not c.paper:
+        return "none given for this comparison (Simple Bayes appears only in the §5.3 simulation, in words)"
+    return "; ".join(n.cell() for n in c.paper)
 
 
 def simulate_claims(run_dir: Path | None) -> list[dict]:
@@ -105,23 +105,31 @@ def scorecard(ctx: ReportContext) -> None:
     pop = ctx.population
     if not pop:
         return
+    margin = equivalence_margin(ctx.config)
     rows = []
     for c in CLAIMS:
         key = comparison_key(c.method, c.baseline)
         e = verdict_entry(pop, key, c.metric)
-        status = claim_status(e, c.metric)
+        equiv = c.reading == "equivalence"
+        status = equivalence_status(e, margin) if equiv else claim_status(e, c.metric)
         est = Estimate(e["value"], e["lo"], e["hi"], signed=True) if e else Estimate(None)
         if e:
-            ctx.ledger.register(("paired", key, c.metric), e["value"], e["lo"], e["hi"], label=status,
-                                where="claims scorecard", higher_is_better=higher_is_better(c.metric))
-        rows.append([c.text, c.reading, c.paper or "not transcribed", est, status])
-    ctx.page.table(["claim of the paper (§5.5, in our words)", "our reading", "paper's number",
+            # An equivalence verdict is about ±margin, not the side of 0: the number is registered
+            # (one statistic across the page) without the directional label the ledger checks.
+            ctx.ledger.register(("paired", key, c.metric), e["value"], e["lo"], e["hi"],
+                                label="" if equiv else status, where="claims scorecard",
+                                higher_is_better=higher_is_better(c.metric))
+        rows.append([c.text, c.how.format(margin=margin), paper_cell(c), est, status])
+    ctx.page.table(["claim of the paper (in our words)", "our reading", "paper's number (section; not our scene)",
                     "ours: difference [95 % CI]", "verdict"], rows, cls="scorecard",
                    caption="The paper's claims, checked. "
                            f"{comparison_label(comparison_key(CLAIMS[0].method, CLAIMS[0].baseline))} and the other "
-                           "comparisons as paired differences on the same (target, track, setting) cells. Holds: the "
-                           "95 % CI lies on the claimed side of 0; fails: on the other side; inconclusive: it "
-                           "contains 0. The CIs vary over targets and tracks, not over classifier training runs.")
+                           "comparisons as paired differences on the same (target, track, setting) cells. A directional "
+                           "claim holds when the 95 % CI lies on the claimed side of 0, fails on the other side, and is "
+                           "inconclusive when it contains 0; the 'similar' claim holds when the whole 95 % CI lies "
+                           f"within ±{margin:g} (report.equivalence_margin_correct), fails when it lies wholly "
+                           "outside, else is inconclusive. The CIs vary over targets and tracks, not over classifier "
+                           "training runs.")
     sim = simulate_claims(getattr(ctx.run, "run_dir", None))
     if sim:
         held = sum(1 for c in sim if c.get("holds") is True)
@@ -134,6 +142,4 @@ def scorecard(ctx: ReportContext) -> None:
         ctx.page.paragraph("Simulation (§5.3): the simulate stage has not run in this run folder, so its six "
                            "statements are not checked here (run the simulate stage; its page lists them).",
                            cls="note")
-    ctx.page.paragraph("The paper's Tables 1 and 2 report the AVD experiments on a handful of real tracks; their "
-                       "numbers are not transcribed here (no copy of the paper's tables ships with this "
-                       "repository), so the 'paper's number' column says so instead of guessing.", cls="note")
+    ctx.page.paragraph(TABLES_NOTE, cls="note")

@@ -171,7 +171,24 @@ def _facts(ctx: ReportContext) -> list[list]:
         facts.append(["object position error", f"{100 * float(track['localization_error_m']):.1f} cm"])
     if track.get("yaw_deg") is not None:
         facts.append(["object yaw", f"{float(track['yaw_deg']):.1f}°"])
+    if ctx.run.card:  # numbers move with the processor as with the seed: say which one trained and ran
+        facts.append(["classifier's machine", machine_text(ctx.run.card.get("determinism"))])
+        if ctx.run.card.get("weights_sha256"):
+            facts.append(["classifier weights sha256", str(ctx.run.card["weights_sha256"])])
     rule = index.get("rule") or (index.get("component_choice") or {}).get("rule")
     if ctx.comp_names:
         facts.append(["GP components", ", ".join(ctx.comp_names) + (f" (rule: {rule})" if rule else "")])
     return facts
+
+
+def machine_text(fp: dict | None) -> str:
+    """The classifier card's machine (its ``determinism`` block) in one line for people:
+    'AMD EPYC (torch CPU capability AVX2, 2 threads, torch 2.x, torch BLAS mkl)'."""
+    if not fp:
+        return "not recorded (a card written before the classifier stage recorded its machine)"
+    blas = (fp.get("blas") or {}).get("torch_blas_info")
+    ver = (fp.get("versions") or {}).get("torch")
+    parts = [f"torch CPU capability {fp['cpu_capability']}" if fp.get("cpu_capability") else None,
+             f"{fp['torch_threads']} threads" if fp.get("torch_threads") is not None else None,
+             f"torch {ver}" if ver else None, f"torch BLAS {blas}" if blas else None]
+    return f"{fp.get('cpu_model') or 'unknown processor'} ({', '.join(p for p in parts if p)})"

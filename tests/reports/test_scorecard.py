@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 from pipeline.infra.outputs import path as out_path
 from reports.main.scorecard import claim_status, simulate_claims, verdict_entry
@@ -38,3 +39,45 @@ def test_simulate_claims_are_read_from_the_run_folder(tmp_path):
     p.write_text(json.dumps({"claims": [{"key": "a", "holds": True, "ci_side": "holds"},
                                         {"key": "b", "holds": False, "ci_side": "spans"}]}))
     assert [c["key"] for c in simulate_claims(tmp_path)] == ["a", "b"]
+
+
+def test_the_similar_claim_is_read_as_equivalence_within_the_margin():
+    from pipeline.evaluation.statistics.records import equivalence
+    from reports.main.scorecard import equivalence_margin, equivalence_status
+
+    assert equivalence(-0.03, 0.04, 0.05) == "equivalent"           # whole CI inside ±margin
+    assert equivalence(-0.03, 0.06, 0.05) == "not distinguishable"  # crosses +margin
+    assert equivalence(0.07, 0.20, 0.05) == "different"            # wholly beyond +margin
+    assert equivalence(-0.30, -0.06, 0.05) == "different"          # wholly below -margin
+    assert equivalence(None, 0.01, 0.05) == "not distinguishable"  # unbounded end
+    assert equivalence(float("nan"), 0.01, 0.05) == "not distinguishable"
+    entry = {"value": 0.01, "lo": -0.02, "hi": 0.04}
+    assert equivalence_status(entry, 0.05) == "holds"
+    assert equivalence_status(entry, 0.03) == "inconclusive"       # the margin in the config decides
+    assert equivalence_status({"value": 0.2, "lo": 0.1, "hi": 0.3}, 0.05) == "fails"
+    assert equivalence_status(None, 0.05) == "not measured"
+    assert equivalence_margin({"report": {"equivalence_margin_correct": 0.1}}) == 0.1
+    assert equivalence_margin({}) == 0.05
+
+
+def test_the_paper_column_names_sections_and_converts_mgr_to_log10():
+    import re
+
+    from pipeline.evaluation.metrics.paper import CLAIMS, NUMBERS, log10_of_ln
+    from reports.main.scorecard import paper_cell
+
+    numbers = (Path(__file__).resolve().parents[3] / "shared" / "paper" / "numbers.md")
+    assert {c.key for c in CLAIMS} == set(NUMBERS)
+    for c in CLAIMS:
+        cell = paper_cell(c)
+        assert cell and all(n.section in cell for n in c.paper)
+        assert all(re.match(r"§\d", n.section) for n in c.paper)
+    assert next(c for c in CLAIMS if c.metric == "correct_final" and c.baseline == "model_based").reading == "equivalence"
+    mgr = NUMBERS["milder_worst_cases"][0]     # Table 1: 629.2 and 2.46 on the paper's natural-log scale
+    assert abs(mgr.difference - (2.46 - 629.2) / math.log(10)) < 1e-9
+    assert abs(log10_of_ln(math.log(1000.0)) - 3.0) < 1e-12
+    assert "273" in mgr.text and "1.07" in mgr.text                 # log10 values, with the paper's own beside
+    if numbers.is_file():   # the transcription the values come from (beside the clone, when present)
+        text = numbers.read_text()
+        for raw in ("629.2", "2.46", "48.6", "0.74", "0.76", "0.66", "0.72", "0.958", "10 %"):
+            assert raw in text, raw

@@ -67,3 +67,22 @@ def consistent(rec: Mapping[str, Any]) -> bool:
         return True
     a, b = _f(lo, -math.inf), _f(hi, math.inf)
     return math.isnan(a) or math.isnan(b) or a <= float(v) <= b
+
+
+EQUIVALENCE_OUTCOMES = ("equivalent", "different", "not distinguishable")
+
+
+def equivalence(lo: float | None, hi: float | None, margin: float) -> str:
+    """The equivalence reading of an interval of method - baseline ("similar", within ±``margin``):
+    "equivalent" when the whole 95 % interval lies inside [-margin, margin], "different" when it
+    lies wholly outside it (beyond +margin or below -margin), else (or without an interval, or with
+    an unbounded end) "not distinguishable". ``lo``/``hi`` None are unbounded ends."""
+    a, b = _f(lo, -math.inf), _f(hi, math.inf)
+    m = float(margin)
+    if math.isnan(a) or math.isnan(b) or math.isnan(m) or m < 0:
+        return "not distinguishable"
+    if -m <= a and b <= m:
+        return "equivalent"
+    if a > m or b < -m:
+        return "different"
+    return "not distinguishable"

@@ -106,6 +106,9 @@ class ReportConfig:
                          "contradicts, two numbers for one statistic, a value outside its CI, a caption "
                          "without a finding (layout slips: the page is written, the figure carries a "
                          "warning box); all = layout slips too (tests and CI)")
+    equivalence_margin_correct: float = _f(0.05, lo=0.0, hi=1.0, doc="the paper's 'similar' correct ratios: the "
+                                           "scorecard's claim holds when the 95 % CI of the paired difference "
+                                           "lies within ± this")
 
 
 

@@ -1,0 +1,67 @@
+"""The main job end to end as a new user runs it: ``viewfuse evaluate`` and ``viewfuse simulate`` on
+configs/smoke.toml (the default config shrunk: every stage, every method, planning, the strict
+report) through the CLI into a temporary artifacts folder. The run must exit 0 and write the page
+whatever the one-epoch classifier's weights came out as on this machine."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import ROOT
+
+pytestmark = pytest.mark.slow  # the whole chain: make test runs it, make test-fast skips it
+
+SMOKE = ROOT / "configs" / "smoke.toml"
+METHODS = {"with_uncertainty", "model_based", "simple_bayes", "dirichlet"}
+
+
+def _viewfuse(*args: str, artifacts) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "stages.commands.cli", *args, "--config", str(SMOKE),
+           "--set", f"run.artifacts={artifacts}", "--progress", "off"]
+    env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    art = tmp_path_factory.mktemp("smoke") / "artifacts"
+    runs = {stage: _viewfuse(stage, artifacts=art) for stage in ("evaluate", "simulate")}
+    return art / "smoke", runs
+
+
+def test_the_smoke_chain_exits_0_and_writes_the_report(smoke):
+    run, runs = smoke
+    for stage, p in runs.items():
+        assert p.returncode == 0, f"viewfuse {stage} exited {p.returncode}:\n{p.stderr[-4000:]}"
+    for page in ("report/index.html", "simulate/index.html"):
+        assert (run / page).is_file(), page
+    html = (run / "report" / "index.html").read_text()
+    assert 'class="scorecard' in html and "§5.4.1" in html     # the paper's numbers, with their section
+    for stage in ("data", "classifier", "features", "models", "evaluate", "report", "simulate"):
+        assert json.loads((run / stage / "manifest.json").read_text())["key"], stage
+
+
+def test_the_summary_has_every_method_and_planning(smoke):
+    run, _ = smoke
+    ev = run / "evaluate"
+    pop = json.loads((ev / "summary.json").read_text())["population"]
+    assert set(pop["methods"]) == METHODS
+    assert set(pop["pooled"]) >= METHODS
+    assert {r["method"] for r in pop["records"]} == {"with_uncertainty"}
+    assert {r["baseline"] for r in pop["records"]} == METHODS - {"with_uncertainty"}
+    assert "attribution" in pop["ablations"] and pop["n_targets"] >= 3
+    assert (ev / "planning.parquet").is_file()
+
+
+def test_the_card_names_the_machine_the_numbers_came_from(smoke):
+    run, _ = smoke
+    card = json.loads((run / "classifier" / "card.json").read_text())
+    fp = card["determinism"]
+    assert fp["cpu_model"] and fp["torch_threads"] >= 1 and fp["versions"]["torch"]
+    assert "cpu_capability" in fp and ("torch_blas_info" in fp["blas"] or "torch_error" in fp["blas"])
+    html = (run / "report" / "index.html").read_text()
+    assert fp["cpu_model"] in html and card["weights_sha256"] in html
