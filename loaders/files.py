@@ -36,6 +36,19 @@ def max_megapixels() -> float:
     return _limit["megapixels"]
 
 
+def plain_name(name, source: str | Path, what: str = "name") -> str:
+    """``name`` if it is one plain file name (a dataset file's image key, instance name or scan
+    folder): a non-empty string without '/', '\\', NUL, and not '.' or '..'; a name that could
+    lead a reader or a writer out of its folder is a BadInputError naming ``source``."""
+    if not isinstance(name, str) or not name:
+        raise BadInputError(source, f"{what} {name!r} is not a non-empty string; refused")
+    bad = next((c for c in ("/", "\\", "\0") if c in name), None)
+    if bad is not None or name in (".", "..") or os.path.isabs(name):
+        why = f"contains {bad!r}" if bad else "is a path, not a file name"
+        raise BadInputError(source, f"{what} {name!r} {why} (a plain file name is required); refused")
+    return name
+
+
 def checked_file(path: str | Path, root: str | Path | None = None, what: str = "file") -> Path:
     """``path`` if it is a regular file (symlinks followed) inside ``root``; BadInputError naming it
     otherwise. Only ``stat`` is called, never ``open``, so a FIFO cannot block here."""
@@ -103,13 +116,35 @@ def declared_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
-def check_image_size(data: bytes, path: str | Path) -> None:
-    """BadInputError when the image's header declares more than ``data.max_image_megapixels``."""
-    size = declared_size(data)
-    if size is None:
-        return
-    w, h = size
+def check_declared(w: int, h: int, path: str | Path) -> None:
+    """BadInputError when a header's ``w`` x ``h`` is empty or above ``data.max_image_megapixels``."""
+    if w <= 0 or h <= 0:
+        raise BadInputError(path, f"image declares {w}x{h} pixels; corrupt header, not decoded")
     mp = w * h / 1e6
     if mp > max_megapixels():
         raise BadInputError(path, f"image declares {w}x{h} pixels ({mp:.0f} MP), above the limit "
                                   f"data.max_image_megapixels = {max_megapixels():g}; not decoded")
+
+
+def check_image_size(data: bytes, path: str | Path) -> None:
+    """BadInputError when the image's header declares more than ``data.max_image_megapixels``."""
+    size = declared_size(data)
+    if size is not None:
+        check_declared(*size, path)
+
+
+def checked_header(data: bytes, path: str | Path, kind: str) -> tuple[int, int]:
+    """(width, height) of a ``kind`` ('PNG' or 'JPEG') file's header, checked against the size
+    limit; BadInputError for an empty file, another format or a missing header: a decoder is only
+    handed bytes whose size it has been told to expect."""
+    if not data:
+        raise BadInputError(path, f"empty file (0 bytes), not a {kind}")
+    magic = {"PNG": b"\x89PNG\r\n\x1a\n", "JPEG": b"\xff\xd8"}[kind]
+    if data[:len(magic)] != magic:
+        raise BadInputError(path, f"not a {kind} (no {kind} signature); file is corrupt")
+    size = declared_size(data)
+    if size is None:
+        raise BadInputError(path, f"corrupt {kind}: no header declaring the image size "
+                                  f"({'IHDR' if kind == 'PNG' else 'SOF marker'}) found")
+    check_declared(*size, path)
+    return size

@@ -17,8 +17,6 @@ Writes, under the stage folder, in the formats the other stages already read:
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import zlib
 from pathlib import Path
 
@@ -27,6 +25,7 @@ import numpy as np
 from loaders.avd import KINECT_SIZE, AVDScan
 from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
+from loaders.files import plain_name
 from loaders.real_imagery.frames import (
     heldout_angles,
     nearest_view,
@@ -37,7 +36,7 @@ from loaders.real_imagery.pairing import box_rows, locate_instances, pair_scan
 from loaders.real_imagery.training import write_training_object
 from loaders.synthetic.bigbird_writer import encode_jpeg
 from pipeline.evaluation.grid.track import facing_error
-from pipeline.infra.cache import write_bytes, write_json
+from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
 
 
 def frame_views(rows, xy, grid: dict[str, int], mode: str):
@@ -137,21 +136,25 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
                                             "coil_object": p.object_id, "residual_m": round(p.residual_m, 4),
                                             "frames": len(d), "heldout_views_used": sorted(set(used))}
     folder = avd_out / scan
-    jpg = folder / "jpg_rgb"
-    jpg.mkdir(parents=True, exist_ok=True)
+    jpg = confined_dir(folder / "jpg_rgb")
     for name in sorted(items):
         rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
         frame = render_frame(KINECT_SIZE, items[name], ri.noise_std, ri.blur_sigma_px, rng)
         write_bytes(jpg / name, encode_jpeg(frame, ri.jpeg_quality))
-    real = json.loads((avd_root / scan / "annotations.json").read_text())
+    ann_path = avd_root / scan / "annotations.json"
+    real = json.loads(ann_path.read_text())
     ann = {}
     for name, entry in real.items():
+        try:  # the reader has counted (or refused) a key that is not a plain file name
+            plain_name(name, ann_path, "image key")
+        except BadInputError:
+            continue
         ann[name] = {**{k: v for k, v in entry.items() if k != "bounding_boxes"},
                      "bounding_boxes": boxes.get(name, [])}
         if name not in items:
-            os.link(placeholder, jpg / name)
+            link_file(placeholder, jpg / name)
     write_json(folder / "annotations.json", ann)
-    shutil.copyfile(avd_root / scan / "image_structs.mat", folder / "image_structs.mat")
+    copy_file(avd_root / scan / "image_structs.mat", folder / "image_structs.mat")
     write_bytes(folder / "present_instance_names.txt",
                 "".join(f"{object_name(p.object_id)}\n" for p in sorted(pairs, key=lambda p: p.object_id)).encode())
     info = {"instances": record, "refused": refused, "unpaired": left}

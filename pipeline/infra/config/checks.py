@@ -93,6 +93,9 @@ def cross_checks(cfg: Config, where: str) -> None:
          "'data.synthetic.instances' must list at least two distinct instance names")
     scans = cfg.data.scans
     need(len(scans) >= 1 and len(set(scans)) == len(scans), "'data.scans' must list at least one scan, each once")
+    for sc in scans:  # each becomes a folder name under the data stage's output
+        need(bool(RUN_NAME.fullmatch(sc)) and sc.strip(".") != "",
+             f"'data.scans' names {sc!r}: a scan is one plain folder name (no '/', '\\', '..' or NUL)")
     if cfg.data.source == "synthetic" and 0 < s.instances_per_scan < len(s.instances):
         need(s.instances_per_scan * len(scans) >= len(s.instances),
              f"'data.synthetic.instances_per_scan' = {s.instances_per_scan} x {len(scans)} scan(s) leaves some of "
