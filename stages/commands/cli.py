@@ -139,7 +139,18 @@ def _load(args) -> Config:
         overrides = merge(overrides, {"run": {"threads": args.threads}})
     if getattr(args, "executor", None) is not None:
         overrides = merge(overrides, {"run": {"executor": args.executor}})
-    return load_config(args.config, overrides or None)
+    cfg = load_config(args.config, overrides or None)
+    # Metric names live with the metrics (pipeline/evaluation), above the config's floor: checked
+    # here, at load, so `status` refuses an unknown one as the stages would.
+    from pipeline.evaluation.metrics.spec import check_primary
+
+    try:
+        check_primary(cfg.evaluate.primary_metrics)
+    except ConfigError as e:
+        src = "--set on the command line" if any(o.startswith("evaluate.primary_metrics") for o in args.overrides) \
+            else args.config
+        raise ConfigError(f"{src}: {e}") from None
+    return cfg
 
 
 def status(cfg: Config) -> int:

@@ -67,6 +67,8 @@ def _modelled_classes(cfg: Config) -> tuple[str, ...] | None:
         return tuple(cfg.models.classes)
     if cfg.data.source == "synthetic":
         return tuple(cfg.features.bigbird_objects or cfg.data.synthetic.instances)
+    if cfg.data.source == "real_imagery":  # at most these (the data stage may leave some out)
+        return tuple(f"coil_obj{int(k):03d}" for k in cfg.data.real_imagery.objects)
     return None
 
 
@@ -166,6 +168,8 @@ def cross_checks(cfg: Config, where: str) -> None:
         need(modelled is None or ev.n_candidates <= len(set(modelled)),
              f"'evaluate.n_candidates' = {ev.n_candidates} exceeds the {len(set(modelled or ()))} modelled classes "
              f"({_modelled_words(cfg)}) that evaluate.candidates = {ev.candidates!r} draws from")
+    dup = sorted({m for m in ev.primary_metrics if ev.primary_metrics.count(m) > 1})
+    need(not dup, f"'evaluate.primary_metrics' lists {', '.join(map(repr, dup))} more than once")
     for a in ev.ablations:
         key = a.split("=", 1)[0].strip()
         need("=" in a and key in ABLATION_KEYS,
