@@ -71,6 +71,11 @@ def limitations(ctx: ReportContext) -> list[str]:
         out.append(f"The evidence covers {c['n_targets']} targets in {len(scans) or '?'} "
                    f"scan{'s' if len(scans) != 1 else ''}: the intervals vary over targets and tracks of these "
                    "scans, not over other homes or other objects.")
+    gone = [s for s in pop.get("skipped_targets") or [] if isinstance(s, dict) and not s.get("scan")]
+    if gone:
+        out.append(f"{len(gone)} target{'s were' if len(gone) != 1 else ' was'} skipped for want of a usable track "
+                   f"and {'are' if len(gone) != 1 else 'is'} not in the population: "
+                   + "; ".join(f"{s.get('target')} ({s.get('reason')})" for s in gone))
     seeds = (ctx.config.get("study") or {}).get("seeds") or []
     train = ((ctx.run.card or {}).get("training") or {}).get("seed")
     if not _study(ctx):
