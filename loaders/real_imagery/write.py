@@ -76,8 +76,12 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
             raise BadInputError(coil_root / f"obj{k}__0.png",
                                 f"COIL object {k} of 'data.real_imagery.objects' has no view in the folder")
         info = write_training_object(bb_out, coil, k, ri.train_step_deg, ri.train_jpeg_quality)
-        if not info["angles"]:
-            skips.handle(BadInputError(coil_root / f"obj{k}__0.png", "no readable training view; object left out"),
+        if len(info["angles"]) < cfg.models.min_views:  # the models stage could not fit its GPs
+            n = len(info["angles"])
+            skips.handle(BadInputError(coil_root / f"obj{k}__0.png",
+                                       f"{object_name(k)}: {n} readable training view{'s' if n != 1 else ''} at "
+                                       f"data.real_imagery.train_step_deg = {ri.train_step_deg}, fewer than "
+                                       f"models.min_views = {cfg.models.min_views}; object left out"),
                          "coil", "COIL view")
             continue
         trained[k] = info["angles"]

@@ -126,7 +126,7 @@ def planted(tmp_path_factory):
     cfg = load_config(ROOT / "configs" / "real.toml", {
         "run": {"artifacts": str(base / "artifacts")},
         "data": {"coil_root": str(coil), "avd_root": str(avd), "scans": ["Home_005_1"],
-                 "real_imagery": {"objects": [2, 3]}}})
+                 "real_imagery": {"objects": [2, 3]}}, "evaluate": {"n_candidates": 2}})
     skips = SkipPolicy(True)
     with confined_writes(stage):
         write_real_imagery(cfg, stage / "bigbird", stage / "avd", stage / "truth.json", skips)

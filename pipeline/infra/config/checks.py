@@ -73,6 +73,8 @@ def _modelled_classes(cfg: Config) -> tuple[str, ...] | None:
 
 
 def _modelled_words(cfg: Config) -> str:
+    if isinstance(cfg.models.classes, str) and cfg.data.source == "real_imagery":
+        return "'models.classes' = 'all': at most the objects of 'data.real_imagery.objects'"
     return ("'models.classes'" if not isinstance(cfg.models.classes, str)
             else "'models.classes' = 'all': the objects of 'features.bigbird_objects' or, when empty, "
                  "'data.synthetic.instances'")
@@ -112,6 +114,11 @@ def cross_checks(cfg: Config, where: str) -> None:
              f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
         need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
              "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
+        n_views = 360 // ri.train_step_deg if ri.train_step_deg and 360 % ri.train_step_deg == 0 else 0
+        need(n_views >= cfg.models.min_views,
+             f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} gives each object {n_views} training views, "
+             f"fewer than 'models.min_views' = {cfg.models.min_views}: no class could be modelled (a step of at "
+             f"most {360 // cfg.models.min_views} degrees reaches it)")
     if cfg.data.source == "real":
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
