@@ -14,17 +14,14 @@ gigabytes to decode only to be skipped).
 from __future__ import annotations
 
 import os
-import stat
 import struct
 from pathlib import Path
 
 from loaders.errors import BadInputError
+from pipeline.infra.filekind import not_regular
 
 DEFAULT_MAX_MEGAPIXELS = 64.0  # real BigBIRD views are 1.3 MP (1280x1024), AVD images 2.1 MP
 _limit = {"megapixels": DEFAULT_MAX_MEGAPIXELS}
-
-_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
 
 
 def set_max_megapixels(mp: float) -> None:
@@ -53,17 +50,9 @@ def checked_file(path: str | Path, root: str | Path | None = None, what: str = "
     """``path`` if it is a regular file (symlinks followed) inside ``root``; BadInputError naming it
     otherwise. Only ``stat`` is called, never ``open``, so a FIFO cannot block here."""
     path = Path(path)
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        dangling = os.path.islink(path)
-        raise BadInputError(path, f"{what} is missing" + (" (dangling symlink)" if dangling else "")) from None
-    except OSError as e:
-        raise BadInputError(path, f"cannot read {what} ({e.strerror or e})") from None
-    if not stat.S_ISREG(st.st_mode):
-        kind = next((k for test, k in _KINDS if test(st.st_mode)), "not a regular file")
-        via = f" (symlink to {os.path.realpath(path)})" if os.path.islink(path) else ""
-        raise BadInputError(path, f"{what} is {kind}{via}, not a regular file; refused")
+    problem = not_regular(path, what)
+    if problem is not None:
+        raise BadInputError(path, problem[1])
     if root is not None:
         real, real_root = os.path.realpath(path), os.path.realpath(root)
         if os.path.commonpath([real, real_root]) != real_root:

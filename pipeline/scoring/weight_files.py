@@ -4,8 +4,6 @@ which refuses to run code. Loading checks the keys and shapes against the model.
 from __future__ import annotations
 
 import io
-import os
-import stat
 import zipfile
 from pathlib import Path
 
@@ -14,6 +12,7 @@ import torch
 from torch import nn
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
+from pipeline.infra.filekind import not_regular
 
 
 class WeightsError(ValueError):
@@ -28,26 +27,17 @@ class WeightsNotFoundError(FileNotFoundError):
     """The requested weights file is not on disk (and will not be downloaded)."""
 
 
-_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
-
 
 def regular_weights_file(path: str | Path, what: str = "weights file") -> Path:
     """``path`` if it is a regular file (symlinks followed); WeightsNotFoundError when it is not
     there, WeightsError naming what it is otherwise (a FIFO would block the reader, /dev/zero
     would be read until memory runs out). Only ``stat`` is called, never ``open``."""
     path = Path(path)
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        dangling = " (a dangling symlink)" if os.path.islink(path) else ""
-        raise WeightsNotFoundError(f"{path}: {what} not found{dangling}") from None
-    except OSError as e:
-        raise WeightsError(path, f"cannot read the {what} ({e.strerror or e})") from None
-    if not stat.S_ISREG(st.st_mode):
-        kind = next((k for test, k in _KINDS if test(st.st_mode)), "not a regular file")
-        via = f" (a symlink to {os.path.realpath(path)})" if os.path.islink(path) else ""
-        raise WeightsError(path, f"the {what} is {kind}{via}, not a regular file; refused")
+    problem = not_regular(path, f"the {what}")
+    if problem is not None and problem[0] == "missing":
+        raise WeightsNotFoundError(f"{path}: {problem[1]}")
+    if problem is not None:
+        raise WeightsError(path, problem[1])
     return path
 
 

@@ -93,7 +93,7 @@ def test_weights_file_is_named_as_what_it_is(tmp_path, kind):
             load_state_dict_file(p)
     elif kind == "dev_zero":
         p.symlink_to("/dev/zero")
-        with pytest.raises(WeightsError, match=r"is a character device \(a symlink to /dev/zero\)"):
+        with pytest.raises(WeightsError, match=r"weights file is a character device \(symlink to /dev/zero\)"):
             load_state_dict_file(p)
     elif kind == "folder":
         p.mkdir()
@@ -101,7 +101,7 @@ def test_weights_file_is_named_as_what_it_is(tmp_path, kind):
             load_state_dict_file(p)
     else:
         p.symlink_to(tmp_path / "gone.npz")
-        with pytest.raises(WeightsNotFoundError, match="not found .a dangling symlink"):
+        with pytest.raises(WeightsNotFoundError, match="weights file is missing .dangling symlink"):
             load_state_dict_file(p)
 
 
