@@ -30,6 +30,16 @@ define install
 	else echo "uv not available: installing $(1) with pip"; $(PIP) -e '$(1)'; fi
 endef
 
+# A venv that no longer runs (moved: its entry points name the old interpreter path; or its base
+# Python gone) is removed here, so the rule below builds it again.
+VENV_RUNS = $(shell $(BIN)/python -c 1 >/dev/null 2>&1 && test -x "$$(sed -n '1s/^\#!//p' $(BIN)/viewfuse)" && echo yes)
+ifneq ($(wildcard $(BIN)/viewfuse),)
+ifneq ($(VENV_RUNS),yes)
+$(info $(VENV) no longer runs (moved, or its Python is gone): rebuilding it)
+$(shell rm -rf $(VENV))
+endif
+endif
+
 $(VENV)/.installed: pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(call install,.[test])

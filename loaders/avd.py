@@ -24,7 +24,7 @@ import scipy.io
 from loaders.avd_boxes import AVDBox, BoxNotes, difficulty, parse_box  # noqa: F401 - AVDBox, difficulty: public here
 from loaders.jpeg import jpeg_size, read_rgb
 from loaders.errors import BadInputError, SkipLog
-from loaders.files import checked_file, read_checked
+from loaders.files import checked_file, plain_name, read_checked
 from pipeline.scene.viewpoints import scan_grid_points
 from pipeline.infra.cache import note_read
 from pipeline.infra.progress import bar
@@ -73,6 +73,7 @@ def read_instance_map(path: str | Path, root: str | Path | None = None) -> dict[
         if len(toks) != 2:
             raise BadInputError(path, f"line {no}: expected 'name id', got {line!r}")
         name, sid = toks
+        plain_name(name, path, f"line {no}: instance name")
         try:
             iid = int(sid)
         except ValueError:
@@ -204,7 +205,7 @@ class AVDScan:
     def __init__(self, root: str | Path, scan: str, skip: SkipLog | None = None, *, frames: bool = True,
                  image_size: tuple[int, int] = KINECT_SIZE):
         self.root = Path(root)
-        self.scan = scan
+        self.scan = plain_name(scan, self.root, "AVD scan folder")
         self.folder = self.root / scan
         self.skip = skip
         self.frames = bool(frames)
@@ -294,6 +295,13 @@ class AVDScan:
             raise BadInputError(path, f"not valid JSON ({e})") from None
         if not isinstance(data, dict):
             raise BadInputError(path, f"expected a JSON object keyed by image name, got {type(data).__name__}")
+        # Image keys become file paths (frames=False) and are written by the real-imagery writer.
+        for name in list(data):
+            try:
+                plain_name(name, path, "image key")
+            except BadInputError as err:
+                self._bad(err)
+                del data[name]
         for name, entry in data.items():
             if not isinstance(entry, dict) or "bounding_boxes" not in entry:
                 raise BadInputError(path, f"entry {name!r} has no 'bounding_boxes' list")

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from loaders.errors import BadInputError, SkipLog
-from loaders.files import read_checked
+from loaders.files import checked_header, read_checked
 from pipeline.infra.cache import note_read
 
 NAME_RE = re.compile(r"^obj([1-9][0-9]*)__(0|[1-9][0-9]*)\.png$")
@@ -101,7 +101,11 @@ class CoilFolder:
         or an empty mask (the caller applies the skip policy)."""
         data = read_checked(view.path, self.folder, "COIL-100 image")
         note_read(view.path)
-        bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        checked_header(data, view.path, "PNG")  # the declared size, before anything is decoded
+        try:
+            bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error as e:  # OpenCV asserts on some inputs instead of returning None
+            raise BadInputError(view.path, f"corrupt PNG: OpenCV failed to decode it ({e.err or e})") from None
         if bgr is None:
             raise BadInputError(view.path, "cannot decode the PNG")
         if bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.dtype != np.uint8 or bgr.shape[1::-1] != SIZE:

@@ -14,17 +14,14 @@ gigabytes to decode only to be skipped).
 from __future__ import annotations
 
 import os
-import stat
 import struct
 from pathlib import Path
 
 from loaders.errors import BadInputError
+from pipeline.infra.filekind import not_regular
 
 DEFAULT_MAX_MEGAPIXELS = 64.0  # real BigBIRD views are 1.3 MP (1280x1024), AVD images 2.1 MP
 _limit = {"megapixels": DEFAULT_MAX_MEGAPIXELS}
-
-_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
 
 
 def set_max_megapixels(mp: float) -> None:
@@ -36,21 +33,26 @@ def max_megapixels() -> float:
     return _limit["megapixels"]
 
 
+def plain_name(name, source: str | Path, what: str = "name") -> str:
+    """``name`` if it is one plain file name (a dataset file's image key, instance name or scan
+    folder): a non-empty string without '/', '\\', NUL, and not '.' or '..'; a name that could
+    lead a reader or a writer out of its folder is a BadInputError naming ``source``."""
+    if not isinstance(name, str) or not name:
+        raise BadInputError(source, f"{what} {name!r} is not a non-empty string; refused")
+    bad = next((c for c in ("/", "\\", "\0") if c in name), None)
+    if bad is not None or name in (".", "..") or os.path.isabs(name):
+        why = f"contains {bad!r}" if bad else "is a path, not a file name"
+        raise BadInputError(source, f"{what} {name!r} {why} (a plain file name is required); refused")
+    return name
+
+
 def checked_file(path: str | Path, root: str | Path | None = None, what: str = "file") -> Path:
     """``path`` if it is a regular file (symlinks followed) inside ``root``; BadInputError naming it
     otherwise. Only ``stat`` is called, never ``open``, so a FIFO cannot block here."""
     path = Path(path)
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        dangling = os.path.islink(path)
-        raise BadInputError(path, f"{what} is missing" + (" (dangling symlink)" if dangling else "")) from None
-    except OSError as e:
-        raise BadInputError(path, f"cannot read {what} ({e.strerror or e})") from None
-    if not stat.S_ISREG(st.st_mode):
-        kind = next((k for test, k in _KINDS if test(st.st_mode)), "not a regular file")
-        via = f" (symlink to {os.path.realpath(path)})" if os.path.islink(path) else ""
-        raise BadInputError(path, f"{what} is {kind}{via}, not a regular file; refused")
+    problem = not_regular(path, what)
+    if problem is not None:
+        raise BadInputError(path, problem[1])
     if root is not None:
         real, real_root = os.path.realpath(path), os.path.realpath(root)
         if os.path.commonpath([real, real_root]) != real_root:
@@ -103,13 +105,35 @@ def declared_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
-def check_image_size(data: bytes, path: str | Path) -> None:
-    """BadInputError when the image's header declares more than ``data.max_image_megapixels``."""
-    size = declared_size(data)
-    if size is None:
-        return
-    w, h = size
+def check_declared(w: int, h: int, path: str | Path) -> None:
+    """BadInputError when a header's ``w`` x ``h`` is empty or above ``data.max_image_megapixels``."""
+    if w <= 0 or h <= 0:
+        raise BadInputError(path, f"image declares {w}x{h} pixels; corrupt header, not decoded")
     mp = w * h / 1e6
     if mp > max_megapixels():
         raise BadInputError(path, f"image declares {w}x{h} pixels ({mp:.0f} MP), above the limit "
                                   f"data.max_image_megapixels = {max_megapixels():g}; not decoded")
+
+
+def check_image_size(data: bytes, path: str | Path) -> None:
+    """BadInputError when the image's header declares more than ``data.max_image_megapixels``."""
+    size = declared_size(data)
+    if size is not None:
+        check_declared(*size, path)
+
+
+def checked_header(data: bytes, path: str | Path, kind: str) -> tuple[int, int]:
+    """(width, height) of a ``kind`` ('PNG' or 'JPEG') file's header, checked against the size
+    limit; BadInputError for an empty file, another format or a missing header: a decoder is only
+    handed bytes whose size it has been told to expect."""
+    if not data:
+        raise BadInputError(path, f"empty file (0 bytes), not a {kind}")
+    magic = {"PNG": b"\x89PNG\r\n\x1a\n", "JPEG": b"\xff\xd8"}[kind]
+    if data[:len(magic)] != magic:
+        raise BadInputError(path, f"not a {kind} (no {kind} signature); file is corrupt")
+    size = declared_size(data)
+    if size is None:
+        raise BadInputError(path, f"corrupt {kind}: no header declaring the image size "
+                                  f"({'IHDR' if kind == 'PNG' else 'SOF marker'}) found")
+    check_declared(*size, path)
+    return size

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from loaders.errors import BadInputError
-from loaders.files import SOF_MARKERS, check_image_size, checked_file, read_checked
+from loaders.files import SOF_MARKERS, check_image_size, checked_file, checked_header, read_checked
 from pipeline.infra.cache import note_read
 
 
@@ -93,6 +93,7 @@ def decode_jpeg(data: bytes, path: str | Path) -> np.ndarray:
     """Decode JPEG bytes into RGB uint8 (H, W, 3); BadInputError naming ``path`` when the file is
     truncated or libjpeg reports corrupt data."""
     path = Path(path)
+    checked_header(data, path, "JPEG")  # the declared size, before anything is decoded
     check_jpeg_complete(data, path)
     with c_stderr_captured() as lines:
         try:

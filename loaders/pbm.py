@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from loaders.errors import BadInputError
-from loaders.files import read_checked
+from loaders.files import check_declared, read_checked
 from pipeline.infra.cache import note_read
 
 
@@ -53,6 +53,7 @@ def read_pbm(path: str | Path, root: str | Path | None = None) -> np.ndarray:
         raise BadInputError(path, f"bad PBM size {toks[1]!r} x {toks[2]!r}") from None
     if w <= 0 or h <= 0:
         raise BadInputError(path, f"bad PBM size {w} x {h}")
+    check_declared(w, h, path)  # before the raster is unpacked (8 bytes per stored byte)
     row = (w + 7) // 8
     raster = np.frombuffer(data, dtype=np.uint8, count=len(data) - off, offset=off)
     if raster.size < row * h:

@@ -24,7 +24,9 @@ identity of the scorer that the features stage records in its Parquet metadata.
 from __future__ import annotations
 
 import logging
+import os
 import time
+from stat import S_ISREG
 from pathlib import Path
 
 import numpy as np
@@ -36,8 +38,13 @@ from pipeline.infra.outputs import name as out_name
 log = logging.getLogger("viewfuse.classifier")
 
 
+_digests: dict[tuple, str] = {}  # (real path, inode, size, mtime) -> sha256, for this process
+
+
 def extra_key(cfg) -> str:
-    """For file-based weights: the file's identity (path, size, mtime), so a replaced file reruns."""
+    """For file-based weights: the file's sha256, so a replaced file reruns and a moved project or
+    reinstalled venv (same bytes elsewhere) does not. The path and mtime only short-cut rehashing
+    within one process; neither enters the key."""
     c = cfg.classifier
     if c.weights == "synthetic":
         return ""
@@ -51,11 +58,18 @@ def extra_key(cfg) -> str:
             p = classifier(c.arch).imagenet_location()
         except WeightsNotFoundError:
             return f"{c.arch}|missing"
+        except ValueError:  # not a regular file: the stage reruns and names it
+            return f"{c.arch}|not a regular file"
     try:
         st = p.stat()
-        return f"{p}|{st.st_size}|{st.st_mtime_ns}"
     except FileNotFoundError:
-        return f"{p}|missing"
+        return f"{p.name}|missing"
+    if not S_ISREG(st.st_mode):
+        return f"{p.name}|not a regular file"
+    memo = (os.path.realpath(p), st.st_ino, st.st_size, st.st_mtime_ns)
+    if memo not in _digests:
+        _digests[memo] = sha256_file(p)
+    return f"sha256:{_digests[memo]}"
 
 
 def run(ctx) -> str:

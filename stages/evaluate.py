@@ -14,6 +14,7 @@ import json
 import logging
 import time
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -123,15 +124,29 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
         timings["bias_maps"] = time.perf_counter() - t0
 
 
-def check_budget(cfg: Config, n_targets: int, width: int) -> None:
+def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] = ()) -> float:
     """Refuse, before the grid runs, settings whose memory does not stream: the bootstrap's
-    (B, targets, tracks) draws and one cell's kept results, which grow with the realizations."""
+    (B, targets, tracks) draws and one cell's kept results, which grow with the realizations.
+    Returns (and says) how long the bootstrap's intervals will take, from a timed small draw."""
+    from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
+    from pipeline.evaluation.metrics.spec import METRICS
+    from pipeline.evaluation.statistics.resampler import draw_seconds
     from pipeline.infra import footprints
     from pipeline.infra.budget import budget, require
+    from pipeline.infra.progress import echo
 
     ev, limit = cfg.evaluate, budget(cfg)
     require("evaluate.bootstrap", ev.bootstrap, footprints.bootstrap(ev.bootstrap, n_targets, width), limit,
             f"the two-level bootstrap over {n_targets} targets x up to {width} tracks")
+    # Intervals drawn: each metric for every method and paired comparison, pooled and per setting,
+    # and per target for every method (a lower bound: ablations and the ECE come on top).
+    settings = len(P.population_settings(ev))
+    n_stats = len(METRICS) * ((len(METHODS) + len(COMPARISONS)) * (1 + settings) + n_targets * len(METHODS))
+    seconds = n_stats * draw_seconds([list(tracks) or [width] * n_targets], ev.bootstrap)
+    if seconds > 60:
+        echo(f"[evaluate] evaluate.bootstrap = {ev.bootstrap}: the {n_stats}+ bootstrap intervals will take about "
+             f"{seconds / 60:.0f} min (scaled from a timed run of 20000 draws; lower evaluate.bootstrap to shorten)")
+    return seconds
     require("evaluate.randomized.realizations", ev.randomized.realizations,
             footprints.randomized_cell(ev, ev.track_length, ev.n_candidates), limit,
             f"one cell's results ({len(ev.randomized.sigmas_m)} sigmas x {ev.track_length} steps per realization)")
@@ -170,7 +185,7 @@ def run(ctx) -> str:
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
     cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
     per_target = Counter(i.target for i in tracks)
-    check_budget(cfg, len(per_target), max(per_target.values(), default=1))
+    check_budget(cfg, len(per_target), max(per_target.values(), default=1), list(per_target.values()))
     for sk in skipped:
         log.warning("target %s skipped%s: %s", sk["target"], f" in {sk['scan']}" if "scan" in sk else "", sk["reason"])
     for t in sorted({c.target for c in cells}):

@@ -4,8 +4,10 @@ The object frame is the GP models' (``pipeline.method.geometry``): a camera at `
 at ``o`` with yaw ``psi`` from the bearing of ``Rot(-psi)(p - o)``. A COIL view at turntable angle
 ``a`` is the object seen from bearing ``a`` (the training side writes its NP1 camera there,
 ``loaders.real_imagery.training``), so the frame of a camera shows the HELD-OUT view (an angle not
-in training) nearest that bearing: at most half the held-out spacing away (2.5 degrees with 10-degree
-training and 5-degree COIL steps, 5 where a held-out view is missing).
+in training) nearest that bearing: at most half the spacing of the held-out views away. With
+10-degree training the held-out views are 5, 15, 25, ... (10 degrees apart), so up to 5 degrees;
+where a held-out view is missing the gap doubles (up to 10 degrees). ``view_error_deg`` measures it;
+the writer refuses frames beyond ``data.real_imagery.max_view_error_deg`` and records the distribution.
 
 The view is resampled so that its object mask's bounding box becomes the real box in that frame
 (width and height scaled separately: the real box decides the pixel size), with half a box of the
@@ -42,6 +44,11 @@ def nearest_view(bearing_deg: float, angles) -> int:
         raise ValueError("no held-out view to choose from")
     d = np.abs((a - float(bearing_deg) + 180.0) % 360.0 - 180.0)
     return int(a[int(np.argmin(d))])
+
+
+def view_error_deg(bearing_deg, angle_deg):
+    """Circular distance (degrees, in [0, 180]) between a bearing and the view shown for it."""
+    return np.abs((np.asarray(angle_deg, float) - np.asarray(bearing_deg, float) + 180.0) % 360.0 - 180.0)
 
 
 def mask_bbox(mask: np.ndarray) -> tuple[int, int, int, int]:

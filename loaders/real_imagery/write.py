@@ -17,8 +17,7 @@ Writes, under the stage folder, in the formats the other stages already read:
 from __future__ import annotations
 
 import json
-import os
-import shutil
+import logging
 import zlib
 from pathlib import Path
 
@@ -27,17 +26,21 @@ import numpy as np
 from loaders.avd import KINECT_SIZE, AVDScan
 from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
+from loaders.files import plain_name
 from loaders.real_imagery.frames import (
     heldout_angles,
     nearest_view,
     object_bearing_deg,
     render_frame,
+    view_error_deg,
 )
 from loaders.real_imagery.pairing import box_rows, locate_instances, pair_scan
 from loaders.real_imagery.training import write_training_object
 from loaders.synthetic.bigbird_writer import encode_jpeg
 from pipeline.scene.rays import facing_error
-from pipeline.infra.cache import write_bytes, write_json
+from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
+
+log = logging.getLogger("viewfuse.loaders")
 
 
 def frame_views(rows, xy, grid: dict[str, int], mode: str):
@@ -53,6 +56,19 @@ def frame_views(rows, xy, grid: dict[str, int], mode: str):
         if g not in best or err[i] < err[best[g]]:
             best[int(g)] = i
     return d.iloc[sorted(best.values())].reset_index(drop=True)
+
+
+def view_error_summary(errors, bound: float) -> dict:
+    """The viewpoint error of every candidate frame (degrees between its bearing and the held-out view
+    nearest it): quantiles, the share beyond 2.5 and 5 degrees, and how many the bound refused."""
+    e = np.asarray(errors, float)
+    if e.size == 0:
+        return {"frames": 0, "refused": 0, "bound": bound}
+    q = np.percentile(e, [50, 90, 99])
+    return {"frames": int(e.size), "refused": int((e > bound).sum()), "bound": float(bound),
+            "median": round(float(q[0]), 3), "p90": round(float(q[1]), 3), "p99": round(float(q[2]), 3),
+            "max": round(float(e.max()), 3), "share_over_2_5": round(float((e > 2.5).mean()), 4),
+            "share_over_5": round(float((e > 5.0).mean()), 4)}
 
 
 def _heldout(coil: CoilFolder, k: int, step: int, skips) -> dict[int, tuple]:
@@ -77,8 +93,12 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
             raise BadInputError(coil_root / f"obj{k}__0.png",
                                 f"COIL object {k} of 'data.real_imagery.objects' has no view in the folder")
         info = write_training_object(bb_out, coil, k, ri.train_step_deg, ri.train_jpeg_quality)
-        if not info["angles"]:
-            skips.handle(BadInputError(coil_root / f"obj{k}__0.png", "no readable training view; object left out"),
+        if len(info["angles"]) < cfg.models.min_views:  # the models stage could not fit its GPs
+            n = len(info["angles"])
+            skips.handle(BadInputError(coil_root / f"obj{k}__0.png",
+                                       f"{object_name(k)}: {n} readable training view{'s' if n != 1 else ''} at "
+                                       f"data.real_imagery.train_step_deg = {ri.train_step_deg}, fewer than "
+                                       f"models.min_views = {cfg.models.min_views}; object left out"),
                          "coil", "COIL view")
             continue
         trained[k] = info["angles"]
@@ -97,14 +117,21 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
     for scan in cfg.data.scans:
         truth[scan], counts[scan] = _write_scan(cfg, avd_root, avd_out, scan, heldout, placeholder, skips)
     placeholder.unlink()
+    errors = [e for s in truth.values() for r in s["instances"].values() for e in r.pop("_errors")]
+    view_error = view_error_summary(errors, ri.max_view_error_deg)
+    if view_error["refused"]:
+        log.warning("real imagery: %d of %d frames refused: the nearest held-out view is more than "
+                    "data.real_imagery.max_view_error_deg = %g degrees from the bearing", view_error["refused"],
+                    view_error["frames"], ri.max_view_error_deg)
     write_json(truth_path, {"source": "real_imagery", "pairing": "synthetic: seeded "
                                     "(data.real_imagery.pairing_seed, yaws_seed)", "scans": truth,
+                                    "view_error_deg": view_error,
                                     "train_step_deg": ri.train_step_deg,
                                     "objects": {object_name(k): {"training_angles": trained[k],
                                                                  "heldout_angles": sorted(heldout[k])}
                                                 for k in sorted(heldout)}})
     extra = {"coil_objects": len(heldout), "training_views": sum(len(trained[k]) for k in heldout),
-             "missing_training_views": missing, "scans": counts}
+             "missing_training_views": missing, "scans": counts, "view_error_deg": view_error}
     per_scan = "; ".join(f"{s}: {c['paired']} paired instances, {c['frames']} frames" for s, c in counts.items())
     return extra, (f"real imagery: {len(heldout)} COIL objects x {ri.train_step_deg}-degree training views "
                    f"({extra['training_views']} views); {per_scan} (pairing synthetic, seeded)")
@@ -125,9 +152,13 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
         d = frame_views(rows[rows["instance"] == p.instance], np.asarray(p.xy), grid, ri.frames)
         bear = object_bearing_deg(d[["cam_x", "cam_y"]].to_numpy(float), np.asarray(p.xy), p.yaw_deg)
         views = heldout[p.object_id]
-        used = []
+        used, errs = [], []
         for r, b in zip(d.itertuples(index=False), bear):
             a = nearest_view(float(b), views)
+            err = float(view_error_deg(b, a))
+            errs.append(err)
+            if err > ri.max_view_error_deg:  # no frame: the view shown would not be this viewpoint's
+                continue
             rgb, mask = views[a]
             box = (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1))
             items.setdefault(r.image, []).append((rgb, mask, box))
@@ -135,23 +166,30 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
             used.append(a)
         record[object_name(p.object_id)] = {"position": list(p.xy), "yaw_deg": p.yaw_deg, "avd_instance": p.instance,
                                             "coil_object": p.object_id, "residual_m": round(p.residual_m, 4),
-                                            "frames": len(d), "heldout_views_used": sorted(set(used))}
+                                            "frames": len(used), "heldout_views_used": sorted(set(used)),
+                                            "frames_refused_view_error": len(errs) - len(used),
+                                            "view_error_deg_max": round(max(errs), 3) if errs else None,
+                                            "_errors": errs}
     folder = avd_out / scan
-    jpg = folder / "jpg_rgb"
-    jpg.mkdir(parents=True, exist_ok=True)
+    jpg = confined_dir(folder / "jpg_rgb")
     for name in sorted(items):
         rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
         frame = render_frame(KINECT_SIZE, items[name], ri.noise_std, ri.blur_sigma_px, rng)
         write_bytes(jpg / name, encode_jpeg(frame, ri.jpeg_quality))
-    real = json.loads((avd_root / scan / "annotations.json").read_text())
+    ann_path = avd_root / scan / "annotations.json"
+    real = json.loads(ann_path.read_text())
     ann = {}
     for name, entry in real.items():
+        try:  # the reader has counted (or refused) a key that is not a plain file name
+            plain_name(name, ann_path, "image key")
+        except BadInputError:
+            continue
         ann[name] = {**{k: v for k, v in entry.items() if k != "bounding_boxes"},
                      "bounding_boxes": boxes.get(name, [])}
         if name not in items:
-            os.link(placeholder, jpg / name)
+            link_file(placeholder, jpg / name)
     write_json(folder / "annotations.json", ann)
-    shutil.copyfile(avd_root / scan / "image_structs.mat", folder / "image_structs.mat")
+    copy_file(avd_root / scan / "image_structs.mat", folder / "image_structs.mat")
     write_bytes(folder / "present_instance_names.txt",
                 "".join(f"{object_name(p.object_id)}\n" for p in sorted(pairs, key=lambda p: p.object_id)).encode())
     info = {"instances": record, "refused": refused, "unpaired": left}

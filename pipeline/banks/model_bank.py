@@ -151,7 +151,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
     class's mean deterministic-pass score vector (its position for ``evaluate.candidates = "hard"``)."""
     cols, scores, meta, dropout = read_training_views(path, mcfg.camera)
     objects = cols["object"].astype(str)
-    present = sorted(set(objects))
+    present = sorted(set(objects.tolist()))  # plain str: names in messages read 'coil_obj006', not np.str_(...)
     pool = present if isinstance(mcfg.classes, str) else list(mcfg.classes)
     if len(pool) < 2:
         raise FeaturesError(path, f"models need at least two classes; the features hold {len(pool)}")

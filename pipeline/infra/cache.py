@@ -5,6 +5,7 @@ import contextlib
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 import threading
 import zipfile
@@ -197,11 +198,76 @@ def tree_fingerprint(root: str | Path, pattern: str = "*") -> str:
     return h.hexdigest()
 
 
+# ------------------------------------------------------------------------------------------------
+# Confinement: while a stage runs, every file it writes must land inside its temporary folder.
+
+class OutsideFolderError(PermissionError):
+    """A write aimed outside the running stage's temporary folder (a name from a dataset file
+    with '..' or an absolute path, a symlinked folder leading elsewhere); nothing was written."""
+
+
+_write_roots: list[str] = []
+
+
+@contextlib.contextmanager
+def confined_writes(root: str | Path) -> Iterator[None]:
+    """Within the block, ``confined`` (and so every writer here) refuses targets outside ``root``."""
+    _write_roots.append(os.path.realpath(root))
+    try:
+        yield
+    finally:
+        _write_roots.pop()
+
+
+def confined(path: str | Path) -> Path:
+    """``path`` if it resolves (symlinked folders followed) inside the innermost ``confined_writes``
+    root, or when none is active; OutsideFolderError naming both otherwise."""
+    path = Path(path)
+    if not _write_roots:
+        return path
+    root = _write_roots[-1]
+    # The target itself may not exist yet (or be a link we replace): resolve its folder.
+    real = os.path.join(os.path.realpath(path.parent), path.name)
+    if path.name in ("", ".", "..") or os.path.commonpath([real, root]) != root or real == root:
+        raise OutsideFolderError(f"{path}: resolves to {real}, outside the stage's temporary folder {root}; "
+                                 f"refused (nothing written)")
+    return path
+
+
+def confined_dir(path: str | Path) -> Path:
+    """Create folder ``path`` (and parents) after checking it stays inside the confinement root."""
+    path = Path(path)
+    if _write_roots:
+        root = _write_roots[-1]
+        real = os.path.realpath(path)
+        if os.path.commonpath([real, root]) != root:
+            raise OutsideFolderError(f"{path}: resolves to {real}, outside the stage's temporary folder {root}; "
+                                     f"refused (nothing written)")
+    path.mkdir(parents=True, exist_ok=True)
+    confined(path / "x")  # a symlink created in between would show here
+    return path
+
+
+def link_file(src: str | Path, dst: str | Path) -> None:
+    """Hard-link ``src`` at ``dst`` (a confined target; its folder is created)."""
+    dst = Path(dst)
+    confined_dir(dst.parent)
+    os.link(src, confined(dst))
+
+
+def copy_file(src: str | Path, dst: str | Path) -> None:
+    """Copy ``src`` to ``dst`` atomically (a confined target)."""
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it over ``path`` only on success."""
+    """Yield a temporary path beside ``path``; rename it over ``path`` only on success. The target
+    must be ``confined`` (inside the running stage's folder)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    confined_dir(path.parent)
+    confined(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)

@@ -81,11 +81,23 @@ class RingTable:
         return ((1 - w) * self.mu[i] + w * self.mu[i + 1], (1 - w) * self.var[i] + w * self.var[i + 1])
 
 
-def expected_entropies(mu: np.ndarray, var: np.ndarray, log_prior: np.ndarray, eps: np.ndarray) -> np.ndarray:
-    """Posterior entropy after each Monte-Carlo draw: (V, C, M) for draws of class c (rows)."""
+# Bytes one chunk of draws may take: the (V, C*m, N, C) log-likelihoods and their temporaries grow
+# with plan.eig_samples, so the draws are processed in chunks and memory stays flat.
+CHUNK_BYTES = 64 * 2 ** 20
+
+
+def draws_per_chunk(V: int, N: int, C: int, chunk_bytes: float = CHUNK_BYTES) -> int:
+    """Draws per chunk so that ~5 float64 (V, C, N, C) arrays per draw fit in ``chunk_bytes``."""
+    return max(1, int(chunk_bytes // (5 * 8 * V * C * N * C)))
+
+
+def expected_entropies(mu: np.ndarray, var: np.ndarray, log_prior: np.ndarray, eps: np.ndarray,
+                       offset: int = 0) -> np.ndarray:
+    """Posterior entropy after each Monte-Carlo draw: (V, C, M) for draws of class c (rows).
+    ``offset``: the index of ``eps[0]`` among all draws (it picks the localization sample)."""
     V, N, C, F = mu.shape
     M = len(eps)
-    j = np.arange(M) % N
+    j = (offset + np.arange(M)) % N
     sd = np.sqrt(var)
     z = mu[:, j] + sd[:, j] * eps[None, :, None, :]             # (V, M, C, F): draw m of class c
     z = np.moveaxis(z, 2, 1).reshape(V, C * M, F)               # rows (c, m)
@@ -109,7 +121,10 @@ def expected_information_gain(models, inputs: np.ndarray, log_prior: np.ndarray,
     lp0 = np.asarray(log_prior, float)
     x = np.asarray(inputs, float)
     mu, var = predictive(models, x) if table is None else table(x)
-    h = expected_entropies(mu, var, lp0, np.asarray(eps, float))       # (V, C, M)
+    eps = np.asarray(eps, float)
+    step = draws_per_chunk(*mu.shape[:3])
+    h = np.concatenate([expected_entropies(mu, var, lp0, eps[a:a + step], offset=a)
+                        for a in range(0, len(eps), step)], axis=-1)     # (V, C, M)
     w = np.exp(lp0)
     gain = entropy(lp0) - np.einsum("c,vc->v", w, h.mean(axis=-1))
     if not return_se:

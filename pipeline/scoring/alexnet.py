@@ -4,11 +4,12 @@ downloaded)."""
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import torch
 from torch import nn
-from pipeline.scoring.weight_files import WeightsNotFoundError
+from pipeline.scoring.weight_files import WeightsNotFoundError, regular_weights_file
 
 
 IMAGENET_FILE = "alexnet-owt-7be5be79.pth"   # torchvision AlexNet_Weights.IMAGENET1K_V1
@@ -49,6 +50,8 @@ def imagenet_checkpoint() -> Path:
     """The local IMAGENET1K_V1 file, or a clear error: viewfuse never downloads weights."""
     folder = imagenet_dir()
     path = folder / IMAGENET_FILE
+    if os.path.lexists(path):  # there, but perhaps a FIFO or a device: named as what it is
+        return regular_weights_file(path, "ImageNet weights file")
     if not path.is_file():
         raise WeightsNotFoundError(
             f"classifier.weights = 'imagenet' needs torchvision's AlexNet IMAGENET1K_V1 file "

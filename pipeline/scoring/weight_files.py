@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
+from pipeline.infra.filekind import not_regular
 
 
 class WeightsError(ValueError):
@@ -26,11 +27,23 @@ class WeightsNotFoundError(FileNotFoundError):
     """The requested weights file is not on disk (and will not be downloaded)."""
 
 
+
+def regular_weights_file(path: str | Path, what: str = "weights file") -> Path:
+    """``path`` if it is a regular file (symlinks followed); WeightsNotFoundError when it is not
+    there, WeightsError naming what it is otherwise (a FIFO would block the reader, /dev/zero
+    would be read until memory runs out). Only ``stat`` is called, never ``open``."""
+    path = Path(path)
+    problem = not_regular(path, f"the {what}")
+    if problem is not None and problem[0] == "missing":
+        raise WeightsNotFoundError(f"{path}: {problem[1]}")
+    if problem is not None:
+        raise WeightsError(path, problem[1])
+    return path
+
+
 def load_state_dict_file(path: str | Path) -> dict[str, torch.Tensor]:
     """A state dict from ``.npz`` (ours) or a torch file read with the safe loader."""
-    path = Path(path)
-    if not path.is_file():
-        raise WeightsNotFoundError(f"{path}: weights file not found")
+    path = regular_weights_file(path)
     if path.suffix == ".npz":
         try:
             arrays = load_npz(path)

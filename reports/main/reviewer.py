@@ -71,6 +71,18 @@ def limitations(ctx: ReportContext) -> list[str]:
         out.append(f"The evidence covers {c['n_targets']} targets in {len(scans) or '?'} "
                    f"scan{'s' if len(scans) != 1 else ''}: the intervals vary over targets and tracks of these "
                    "scans, not over other homes or other objects.")
+    gone = [s for s in pop.get("skipped_targets") or [] if isinstance(s, dict) and not s.get("scan")]
+    if gone:
+        out.append(f"{len(gone)} target{'s were' if len(gone) != 1 else ' was'} skipped for want of a usable track "
+                   f"and {'are' if len(gone) != 1 else 'is'} not in the population: "
+                   + "; ".join(f"{s.get('target')} ({s.get('reason')})" for s in gone))
+    ve = (((ctx.run.manifests or {}).get("data") or {}).get("extra") or {}).get("view_error_deg") \
+        if getattr(ctx.run, "manifests", None) else None
+    if isinstance(ve, dict) and ve.get("frames"):
+        out.append(f"Each frame shows the held-out COIL view nearest the camera's bearing, not the bearing itself: "
+                   f"over {ve['frames']} candidate frames the viewpoint error has median {ve.get('median')}°, "
+                   f"90th percentile {ve.get('p90')}°, maximum {ve.get('max')}°; {ve.get('refused', 0)} beyond "
+                   f"data.real_imagery.max_view_error_deg = {ve.get('bound')}° got no frame.")
     seeds = (ctx.config.get("study") or {}).get("seeds") or []
     train = ((ctx.run.card or {}).get("training") or {}).get("seed")
     if not _study(ctx):

@@ -143,6 +143,16 @@ def _load(args) -> Config:
     from pipeline.scoring.classifiers import check_config
 
     check_config(cfg.classifier, str(args.config))  # the arch's own checks, before any stage runs
+    # Metric names live with the metrics (pipeline/evaluation), above the config's floor: checked
+    # here, at load, so `status` refuses an unknown one as the stages would.
+    from pipeline.evaluation.metrics.spec import check_primary
+
+    try:
+        check_primary(cfg.evaluate.primary_metrics)
+    except ConfigError as e:
+        src = "--set on the command line" if any(o.startswith("evaluate.primary_metrics") for o in args.overrides) \
+            else args.config
+        raise ConfigError(f"{src}: {e}") from None
     return cfg
 
 

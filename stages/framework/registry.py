@@ -31,7 +31,7 @@ class StageSpec:
 
 
 STAGES: dict[str, StageSpec] = {s.name: s for s in (
-    StageSpec("data", "stages.data", (), ("data",),
+    StageSpec("data", "stages.data", (), ("data", "models.min_views"),
               help="render the synthetic BigBIRD/AVD stand-ins, or validate the real dataset paths"),
     StageSpec("classifier", "stages.classifier", (), ("classifier",),
               help="resolve the network's weights (train the synthetic source-domain AlexNet, or load ImageNet weights)"),

@@ -24,7 +24,8 @@ from typing import Any
 
 from loaders.errors import SkipPolicy
 from loaders.files import set_max_megapixels
-from pipeline.infra.cache import folder_records, hash_json, record_changed, recording_inputs, write_json
+from pipeline.infra.cache import (confined_writes, folder_records, hash_json, record_changed, recording_inputs,
+                                   write_json)
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.progress import echo
@@ -218,7 +219,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     echo(f"[{spec.name}] running: {spec.help}")
     t0 = time.perf_counter()
     try:
-        with recording_inputs() as rec, pid_file(paths.workers):
+        with recording_inputs() as rec, pid_file(paths.workers), confined_writes(tmp):
             summary = mod.run(ctx)
         # Files in the run folder are upstream outputs, already covered by the upstream digests;
         # leaving them out also keeps a moved artifacts folder valid.

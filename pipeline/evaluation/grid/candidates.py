@@ -62,7 +62,10 @@ def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: in
             picked = others
         elif candidates in ("sampled", "hard"):
             if n_candidates - 1 > len(others):
-                raise ValueError(f"'evaluate.n_candidates' = {n_candidates} but only {len(pool)} classes are modelled")
+                from pipeline.infra.config.fields import ConfigError  # a config problem: exit 2
+
+                raise ConfigError(f"'evaluate.n_candidates' = {n_candidates} but only {len(pool)} classes are "
+                                  f"modelled ({', '.join(pool)})")
             if candidates == "hard":
                 out[t] = sorted([t, *nearest_classes(t, others, class_means, n_candidates - 1)])
                 continue

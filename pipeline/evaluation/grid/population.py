@@ -140,8 +140,13 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
         raise TrackError(f"evaluate.track_images: not every image has a scored box of {target!r} in one scan")
     per_scan = {s: len(range(i, n_tracks, len(scans))) for i, s in enumerate(scans)}
     errors = []
+    short = 0  # tracks the scans before could not give: the next scan is asked for them too
     for scan in scans:
+        want = per_scan[scan] + short
+        if want == 0:
+            continue
         d = det[det["scan"] == scan].reset_index(drop=True)
+        short = want
         if len(d) < 2:
             errors.append(f"{scan}: {len(d)} view(s)")
             continue
@@ -150,7 +155,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
             cam = d[["cam_x", "cam_y"]].to_numpy(float)
             err = facing_error(cam, d["heading"].to_numpy(float), obj)
             gid = None if grid_points is None else view_grid_ids(d["image"], grid_points[scan], scan)
-            plans = select_tracks(cam, obj, err, k, per_scan[scan], seed=[seed, zlib.crc32(f"{scan}/{target}".encode())],
+            plans = select_tracks(cam, obj, err, k, want, seed=[seed, zlib.crc32(f"{scan}/{target}".encode())],
                                   grid_step=grid_steps[scan], grid_id=gid)
         except TrackError as e:
             errors.append(f"{scan}: {e}")
@@ -158,6 +163,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
                 refused.append({"target": target, "scan": scan, "reason": f"{scan}: {e}",
                                 "residual_m": round(e.residual_m, 4)})
             continue
+        short = want - len(plans)
         for p in plans:
             sel = d.iloc[p.index]
             out.append(TrackInfo(target, scan, len(out), tuple(sel["image"]), sel[["cam_x", "cam_y"]].to_numpy(float),

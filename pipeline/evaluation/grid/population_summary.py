@@ -13,7 +13,7 @@ import pandas as pd
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
-from pipeline.evaluation.metrics.spec import METRICS, percentile
+from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile  # noqa: F401 - check_primary: public here
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.resampler import LEVEL
 
@@ -35,18 +35,6 @@ STATISTICS = {
     "pooling": "per metric (spec): the mean over targets of the target means, or the median over targets for "
                "unbounded metrics (log10 MGR percentiles, NLL); ECE from the pooled posteriors",
 }
-
-
-def check_primary(keys) -> None:
-    """``evaluate.primary_metrics`` must name metrics of the spec (or the pooled ECE)."""
-    from pipeline.evaluation.metrics.spec import POOLED_METRICS
-
-    bad = [k for k in keys if k not in METRICS and k not in POOLED_METRICS]
-    if bad or not keys:
-        from pipeline.infra.config.fields import ConfigError
-
-        raise ConfigError(f"config 'evaluate.primary_metrics' = {list(keys)!r}: {'unknown metric(s) ' + ', '.join(bad) if bad else 'empty'}"
-                         f" (known: {', '.join([*METRICS, *POOLED_METRICS])})")
 
 
 def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: list[dict],

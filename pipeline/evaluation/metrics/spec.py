@@ -365,3 +365,17 @@ def confident_error_rate(log_post, truth, threshold: float, axis=None) -> np.nda
     ``axis`` (None: all posteriors). The evaluate and simulate stages both use this definition."""
     e = confident_errors(log_post, truth, threshold)
     return float(e.mean()) if axis is None else e.mean(axis=axis)
+
+
+def check_primary(keys) -> None:
+    """``evaluate.primary_metrics`` must name metrics of the spec (or the pooled ECE), each once."""
+    from pipeline.infra.config.fields import ConfigError
+
+    bad = [k for k in keys if k not in METRICS and k not in POOLED_METRICS]
+    dup = sorted({k for k in keys if list(keys).count(k) > 1})
+    if bad or dup or not keys:
+        what = ("unknown metric(s) " + ", ".join(bad) if bad else
+                "lists " + ", ".join(dup) + " more than once" if dup else "empty")
+        raise ConfigError(f"config 'evaluate.primary_metrics' = {list(keys)!r}: {what}"
+                          f" (known: {', '.join([*METRICS, *POOLED_METRICS])})")
+

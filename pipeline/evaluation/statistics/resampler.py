@@ -181,3 +181,17 @@ def wilson_interval(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
     c = (p + z * z / (2 * n)) / d
     h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
     return max(0.0, c - h), min(1.0, c + h)
+
+
+def draw_seconds(structure: Sequence[Sequence[int]], n_boot: int, trial: int = 20_000) -> float:
+    """Seconds the ``n_boot`` draws of one statistic take on ``structure``: a run of up to ``trial``
+    draws timed here and scaled linearly (every array of the resampler grows linearly with the
+    draws; a trial much smaller than that stays in cache and underestimates several-fold)."""
+    import time
+
+    n = min(int(n_boot), int(trial))
+    t0 = time.perf_counter()
+    r = Resampler(structure, n, [0])
+    r.draws(np.random.default_rng(0).random(r.shape), "mean")
+    return (time.perf_counter() - t0) * n_boot / n
+

@@ -54,10 +54,14 @@ def _modelled_classes(cfg: Config) -> tuple[str, ...] | None:
         return tuple(cfg.models.classes)
     if cfg.data.source == "synthetic":
         return tuple(cfg.features.bigbird_objects or cfg.data.synthetic.instances)
+    if cfg.data.source == "real_imagery":  # at most these (the data stage may leave some out)
+        return tuple(f"coil_obj{int(k):03d}" for k in cfg.data.real_imagery.objects)
     return None
 
 
 def _modelled_words(cfg: Config) -> str:
+    if isinstance(cfg.models.classes, str) and cfg.data.source == "real_imagery":
+        return "'models.classes' = 'all': at most the objects of 'data.real_imagery.objects'"
     return ("'models.classes'" if not isinstance(cfg.models.classes, str)
             else "'models.classes' = 'all': the objects of 'features.bigbird_objects' or, when empty, "
                  "'data.synthetic.instances'")
@@ -80,6 +84,9 @@ def cross_checks(cfg: Config, where: str) -> None:
          "'data.synthetic.instances' must list at least two distinct instance names")
     scans = cfg.data.scans
     need(len(scans) >= 1 and len(set(scans)) == len(scans), "'data.scans' must list at least one scan, each once")
+    for sc in scans:  # each becomes a folder name under the data stage's output
+        need(bool(RUN_NAME.fullmatch(sc)) and sc.strip(".") != "",
+             f"'data.scans' names {sc!r}: a scan is one plain folder name (no '/', '\\', '..' or NUL)")
     if cfg.data.source == "synthetic" and 0 < s.instances_per_scan < len(s.instances):
         need(s.instances_per_scan * len(scans) >= len(s.instances),
              f"'data.synthetic.instances_per_scan' = {s.instances_per_scan} x {len(scans)} scan(s) leaves some of "
@@ -94,6 +101,11 @@ def cross_checks(cfg: Config, where: str) -> None:
              f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
         need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
              "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
+        n_views = 360 // ri.train_step_deg if ri.train_step_deg and 360 % ri.train_step_deg == 0 else 0
+        need(n_views >= cfg.models.min_views,
+             f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} gives each object {n_views} training views, "
+             f"fewer than 'models.min_views' = {cfg.models.min_views}: no class could be modelled (a step of at "
+             f"most {360 // cfg.models.min_views} degrees reaches it)")
     if cfg.data.source == "real":
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
@@ -152,6 +164,8 @@ def cross_checks(cfg: Config, where: str) -> None:
         need(modelled is None or ev.n_candidates <= len(set(modelled)),
              f"'evaluate.n_candidates' = {ev.n_candidates} exceeds the {len(set(modelled or ()))} modelled classes "
              f"({_modelled_words(cfg)}) that evaluate.candidates = {ev.candidates!r} draws from")
+    dup = sorted({m for m in ev.primary_metrics if ev.primary_metrics.count(m) > 1})
+    need(not dup, f"'evaluate.primary_metrics' lists {', '.join(map(repr, dup))} more than once")
     for a in ev.ablations:
         key = a.split("=", 1)[0].strip()
         need("=" in a and key in ABLATION_KEYS,

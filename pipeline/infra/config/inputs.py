@@ -111,6 +111,9 @@ class RealImageryConfig:
     frames: str = _f("viewpoints", choices=("viewpoints", "all"),
                      doc="which AVD views of a paired instance get a frame: 'viewpoints' = per grid point the view "
                          "facing it best (the only views a track can take); 'all' = every box")
+    max_view_error_deg: float = _f(10.0, lo=0.0, hi=180.0,
+                                   doc="a frame shows the held-out COIL view nearest its bearing; a view further "
+                                       "than this from the bearing gives no frame (counted in truth.json)")
     noise_std: float = _f(2.0, lo=0.0, hi=50.0, doc="sensor model: Gaussian read noise std, grey levels")
     blur_sigma_px: float = _f(0.7, lo=0.0, hi=10.0, doc="sensor model: Gaussian optical blur sigma, pixels (0 = none)")
     jpeg_quality: int = _f(85, lo=30, hi=100, doc="sensor model: JPEG quality of the written AVD frames")

@@ -134,11 +134,24 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
         table = merge(table, overrides)
         # a --set path counts as written in the file --config names
         set_in.update({k: path for k in PATH_KEYS if k.split(".")[1] in (overrides.get(k.split(".")[0]) or {})})
-    cfg = _build(Config, table, where, "")
-    roots = tuple((k, str(project_root(set_in[k]))) for k in PATH_KEYS if k in set_in)
-    cfg = dataclasses.replace(cfg, source_path=str(path.resolve()), path_roots=roots)
-    cross_checks(cfg, where)
+    try:
+        cfg = _build(Config, table, where, "")
+        roots = tuple((k, str(project_root(set_in[k]))) for k in PATH_KEYS if k in set_in)
+        cfg = dataclasses.replace(cfg, source_path=str(path.resolve()), path_roots=roots)
+        cross_checks(cfg, where)
+    except ConfigError as e:
+        if overrides and _file_alone_loads(path):  # the file is fine: the problem came from --set
+            raise ConfigError(f"--set on the command line (over {where}){str(e)[len(where):]}") from None
+        raise
     return cfg
+
+
+def _file_alone_loads(path: Path) -> bool:
+    try:
+        load_config(path)
+    except ConfigError:
+        return False
+    return True
 
 
 def _read_toml(path: Path) -> dict:

@@ -22,7 +22,8 @@ def written(tmp_path_factory):
     cfg = load_config(ROOT / "configs" / "real.toml", {
         "run": {"artifacts": str(out / "artifacts")},
         "data": {"coil_root": str(real / "coil100"), "avd_root": str(need("avd")), "scans": ["Home_005_1"],
-                 "real_imagery": {"objects": [2, 3], "noise_std": 0.0, "blur_sigma_px": 0.0, "jpeg_quality": 100}}})
+                 "real_imagery": {"objects": [2, 3], "noise_std": 0.0, "blur_sigma_px": 0.0, "jpeg_quality": 100}},
+        "evaluate": {"n_candidates": 2}})
     write_real_imagery(cfg, out / "bigbird", out / "avd", out / "truth.json", SkipPolicy(True))
     return cfg, out, real
 
