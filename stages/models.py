@@ -25,7 +25,7 @@ def run(ctx) -> str:
     ev = cfg.evaluate
     feats = ctx.input("features") / out_name("features", "bigbird")
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
-                     candidate_seed=ev.candidate_seed)
+                     candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds)
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}

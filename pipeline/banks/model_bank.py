@@ -192,7 +192,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
 
 def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
                       n_candidates: int = 4, candidates: str | Sequence[str] = "all", candidate_seed: int = 0,
-                      progress: bool = True) -> tuple[GPClassModels, dict[str, Any]]:
+                      progress: bool = True, candidate_folds: bool = False) -> tuple[GPClassModels, dict[str, Any]]:
     """The models stage's pure function: features Parquet + [models] config + the candidate plan -> one
     model bank (every modelled class x every component any candidate set uses) and index extras.
 
@@ -207,7 +207,8 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         raise ValueError(f"'evaluate.targets' names {unknown[0]!r}, which is not a modelled instance "
                          f"(modelled, from {path}: {', '.join(pool)})")
     tlist = pool if isinstance(targets, str) else list(targets)
-    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed, class_means=means)
+    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed, class_means=means,
+                          folds=candidate_folds)
     plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
                            mcfg.informative_min)
     comps = sorted({i for p in plan.values() for i in p["components"]})

@@ -40,6 +40,22 @@ def _check_efficientnet(c, need) -> None:
              f"std = [{EFFICIENTNET_STD:.6f}] * 3")
 
 
+def _check_eth80(cfg: Config, need) -> None:
+    """data.real_imagery.dataset = 'eth80': category classes, folds by instance."""
+    ri = cfg.data.real_imagery
+    need(bool(cfg.data.eth80_root), "'data.eth80_root' must be set when data.real_imagery.dataset = 'eth80'")
+    need(len(set(ri.categories)) == len(ri.categories) and len(ri.categories) >= 2,
+         "'data.real_imagery.categories' must list at least two distinct categories")
+    need(len(set(ri.instances)) == len(ri.instances) and len(ri.instances) >= 2,
+         "'data.real_imagery.instances' must list at least two distinct instances (one fold each)")
+    need(ri.background != "avd_frames" or bool(cfg.data.avd_frames_root),
+         "'data.real_imagery.background' = 'avd_frames' needs 'data.avd_frames_root'")
+    need(cfg.evaluate.candidate_folds, "data.real_imagery.dataset = 'eth80' needs 'evaluate.candidate_folds' = true "
+                                       "(a target's candidates are its own fold's classes)")
+    need(cfg.evaluate.candidates not in ("sampled", "hard") or cfg.evaluate.n_candidates <= len(ri.categories),
+         f"'evaluate.n_candidates' = {cfg.evaluate.n_candidates} exceeds the {len(ri.categories)} categories of a fold")
+
+
 def bounds_problem(b) -> str | None:
     """Why ``b`` is not a ``[low, high]`` range with 0 < low < high (finite), or None."""
     if len(b) != 2:
@@ -101,12 +117,15 @@ def cross_checks(cfg: Config, where: str) -> None:
          "'features.bigbird_cameras' must list cameras among 1..5")
     if cfg.data.source == "real_imagery":
         ri = cfg.data.real_imagery
-        need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real_imagery'")
-        need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
-             f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
-        need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
-             "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
+        if ri.dataset == "eth80":
+            _check_eth80(cfg, need)
+        else:
+            need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
+            need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
+                 f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
+            need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
+                 "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
     if cfg.data.source == "real":
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
