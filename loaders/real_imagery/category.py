@@ -2,14 +2,16 @@
 every test object unseen (docs/real_data.md, "Category-level classes").
 
 Folds by instance: fold ``f`` holds out instance ``f`` of every category. Its classes are
-``<category>__f<f>`` (``fold_class``), one BigBIRD object folder each, holding the views of the
-category's OTHER instances (several photographs per azimuth: the intra-class variation enters the
-fit). The held-out instance ``f`` of category ``c`` is the scene object of class ``c__f<f>``: its
-photographs appear only in AVD frames, and the evaluate stage, with ``evaluate.candidate_folds``,
-draws its candidates (and so its component choice) from fold ``f``'s classes only.
+``<category>__f<f>`` (``fold_class``), each fitted on the views of the category's OTHER instances
+(several photographs per azimuth: the intra-class variation enters the fit; ``class_members``
+tells the models stage which object folders make each class). The held-out instance ``f`` of
+category ``c`` is the scene object of class ``c__f<f>``: its photographs appear only in AVD frames,
+and the evaluate stage, with ``evaluate.candidate_folds``, draws its candidates (and so its
+component choice) from fold ``f``'s classes only.
 
-Training folders (BigBIRD format, camera NP1): the view of instance ``i`` at azimuth ``a`` is
-``NP1_<360 i + round(a)>.jpg`` (the "angle" is a view code, unique in the folder: its remainder
+Training folders (BigBIRD format, camera NP1), one per instance, ``eth80_<category><n>`` (each
+photograph is scored once however many folds use it): the view at azimuth ``a`` is
+``NP1_<360 n + round(a)>.jpg`` (the "angle" is a view code, unique within any class: its remainder
 mod 360 is the name's azimuth, its quotient the instance) with a pose file of that code that puts
 NP1 at exactly ``a`` (22.5-degree multiples, not the rounded name), its mask (map >= 128) and the
 photograph as it is, on the dataset's blue cloth.
@@ -31,7 +33,7 @@ import numpy as np
 
 from loaders.avd import KINECT_SIZE, AVDScan
 from loaders.errors import BadInputError
-from loaders.eth80 import Eth80Folder
+from loaders.eth80 import Eth80Folder, class_object
 from loaders.pbm import encode_pbm
 from loaders.real_imagery.clutter import read_backgrounds, render_category_frame
 from loaders.real_imagery.frames import object_bearing_deg
@@ -56,8 +58,18 @@ def rng_for(seed: int, *parts: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), *(zlib.crc32(p.encode()) for p in parts)])
 
 
+def class_members(cfg) -> dict[str, list[str]] | None:
+    """{class: its training object folders} of an ETH-80 category run (None otherwise): class
+    ``c__f<f>`` is every configured instance of ``c`` but ``f``."""
+    ri = cfg.data.real_imagery
+    if cfg.data.source != "real_imagery" or ri.dataset != "eth80":
+        return None
+    return {fold_class(c, f): [class_object(c, i) for i in ri.instances if i != f]
+            for c in ri.categories for f in ri.instances}
+
+
 def write_training_class(root: Path, cls: str, members: dict[int, dict], quality: int) -> int:
-    """One class folder from ``members`` = {instance: {azimuth: (rgb, mask, map)}}; views of
+    """One object folder from ``members`` = {instance: {azimuth: (rgb, mask, map)}}; views of
     another size than the first are resized to it. Returns the number of views written."""
     folder = Path(root) / cls
     first = next(iter(next(iter(members.values())).values()))[0]
@@ -131,13 +143,16 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
             if not views[(c, i)]:
                 skips.handle(BadInputError(root / f"{c}{i}", "no readable view on data.real_imagery.elevations; "
                                                              "instance left out"), "eth80", "ETH-80 view")
-    trained, n_views = {}, 0
+    n_views = 0
+    for (c, i), v in sorted(views.items()):
+        if v:
+            n_views += write_training_class(bb_out, class_object(c, i), {i: v}, ri.train_jpeg_quality)
+    trained = {}
     for f in ri.instances:
         for c in ri.categories:
             members = fold_members(views, c, f)
             if not members:
                 raise BadInputError(root / f"{c}{f}", f"fold {f}: category {c!r} has no training instance with views")
-            n_views += write_training_class(bb_out, fold_class(c, f), members, ri.train_jpeg_quality)
             trained[fold_class(c, f)] = sorted(members)
     targets = {fold_class(c, i): (c, i) for (c, i), v in views.items() if v}
     ids = {t: k + 1 for k, t in enumerate(sorted(targets))}

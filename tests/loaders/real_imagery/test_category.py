@@ -76,3 +76,28 @@ def test_cutout_over_clutter_uses_the_frame_below_its_label():
     patch, (dx, dy) = cutout_patch(rgb, mask, alpha, 80, 60, bg)
     assert (patch[:dy - 1] == [10, 120, 90]).all()                    # clutter, not black, not cloth
     assert np.abs(patch[dy + 10, dx + 10].astype(int) - [200, 180, 20]).max() <= 2
+
+
+def test_classes_assembled_from_member_objects_only(tmp_path):
+    import pyarrow as pa
+
+    from loaders.real_imagery.category import class_members
+    from pipeline.banks.model_bank import FeaturesError, assemble_classes
+    from pipeline.infra.config import load_config
+    from tests.conftest import ROOT
+
+    cfg = load_config(ROOT / "configs" / "real_category.toml",
+                      {"run": {"artifacts": str(tmp_path)},
+                       "data": {"real_imagery": {"categories": ["cup", "dog", "cow", "pear"], "instances": [1, 2, 3]}}})
+    members = class_members(cfg)
+    assert members["cup__f2"] == ["eth80_cup1", "eth80_cup3"] and len(members) == 12
+    members = {k: v for k, v in members.items() if k[:3] in ("cup", "dog")}
+    objs = [f"eth80_{c}{i}" for c in ("cup", "dog") for i in (1, 2, 3) for _ in range(2)]
+    table = pa.table({"object": objs, "angle_deg": [360 * int(o[-1]) + k for o in objs[::2] for k in (0, 22)]})
+    out = assemble_classes(table, members, tmp_path)
+    got = out.to_pandas()
+    for cls, d in got.groupby("object"):
+        fold = int(cls[-1])
+        assert set(d["angle_deg"] // 360) == {1, 2, 3} - {fold} and len(d) == 4
+    with pytest.raises(FeaturesError, match="eth80_cup9"):
+        assemble_classes(table, {"cup__f1": ["eth80_cup9"]}, tmp_path)
