@@ -7,7 +7,8 @@ object poses, grid, camera; no reader needs it). Views are rendered by ``data.sy
 from (seed, its own name), so the files do not depend on the worker count or order.
 
 Real imagery (``data.source = "real_imagery"``) writes the same folders and ``truth.json`` from
-COIL-100 photographs and real AVD scan metadata (``loaders.real_imagery``, docs/real_data.md).
+COIL-100 photographs and real AVD scan metadata (``loaders.real_imagery``, docs/real_data.md), or,
+with ``data.real_imagery.dataset = "eth80"``, from ETH-80 category folds (``loaders.real_imagery.category``).
 
 Real (``data.source = "real"``) only checks that the configured roots hold what the readers need
 and writes ``roots.json``; nothing is copied. ``data_roots(cfg)`` tells later stages where the
@@ -72,11 +73,13 @@ def run(ctx) -> str:
 
 def _write_real_imagery(ctx) -> str:
     """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""
+    from loaders.real_imagery.category import write_real_category
     from loaders.real_imagery.write import write_real_imagery
 
     cfg = ctx.cfg
     t0 = time.perf_counter()
-    extra, summary = write_real_imagery(cfg, ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd"),
+    writer = write_real_category if cfg.data.real_imagery.dataset == "eth80" else write_real_imagery
+    extra, summary = writer(cfg, ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd"),
                                         ctx.out / out_name("data", "truth"), ctx.skips)
     write_json(ctx.out / out_name("data", "roots"), {"source": "real_imagery", "bigbird_root": "bigbird",
                                                      "avd_root": "avd", "scans": list(cfg.data.scans)})

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 
+from loaders.real_imagery.category import class_members
 from pipeline.banks.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
 from pipeline.method.gp_files import save_bank
 from pipeline.infra.config import ablation_config, is_model_ablation
@@ -24,13 +25,15 @@ def run(ctx) -> str:
     cfg = ctx.cfg
     ev = cfg.evaluate
     feats = ctx.input("features") / out_name("features", "bigbird")
+    members = class_members(cfg)   # category classes: several objects' views per class
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
-                     candidate_seed=ev.candidate_seed)
+                     candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds, class_members=members)
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
     save_bank(models, ctx.out, extra=extra)
-    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes, extra["candidate_sets"])
+    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes, extra["candidate_sets"],
+                                              class_members=members)
     dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)

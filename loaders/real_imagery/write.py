@@ -176,6 +176,17 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
         rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
         frame = render_frame(KINECT_SIZE, items[name], ri.noise_std, ri.blur_sigma_px, rng)
         write_bytes(jpg / name, encode_jpeg(frame, ri.jpeg_quality))
+    write_scan_files(avd_root, folder, scan, boxes, placeholder,
+                     [object_name(p.object_id) for p in sorted(pairs, key=lambda p: p.object_id)])
+    info = {"instances": record, "refused": refused, "unpaired": left}
+    return info, {"paired": len(pairs), "refused": len(refused), "unpaired": len(left), "frames": len(items)}
+
+
+def write_scan_files(avd_root: Path, folder: Path, scan: str, boxes: dict, placeholder: Path, present) -> None:
+    """The scan folder beside its frames (``jpg_rgb/`` already holds one per key of ``boxes``): the
+    real move graph with ``boxes`` as the only boxes, the placeholder linked for every other
+    image, the real ``image_structs.mat`` and ``present_instance_names.txt`` (``present``)."""
+    jpg = folder / "jpg_rgb"
     ann_path = avd_root / scan / "annotations.json"
     real = json.loads(ann_path.read_text())
     ann = {}
@@ -186,11 +197,8 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
             continue
         ann[name] = {**{k: v for k, v in entry.items() if k != "bounding_boxes"},
                      "bounding_boxes": boxes.get(name, [])}
-        if name not in items:
+        if not (jpg / name).exists():
             link_file(placeholder, jpg / name)
     write_json(folder / "annotations.json", ann)
     copy_file(avd_root / scan / "image_structs.mat", folder / "image_structs.mat")
-    write_bytes(folder / "present_instance_names.txt",
-                "".join(f"{object_name(p.object_id)}\n" for p in sorted(pairs, key=lambda p: p.object_id)).encode())
-    info = {"instances": record, "refused": refused, "unpaired": left}
-    return info, {"paired": len(pairs), "refused": len(refused), "unpaired": len(left), "frames": len(items)}
+    write_bytes(folder / "present_instance_names.txt", "".join(f"{n}\n" for n in present).encode())

@@ -42,10 +42,29 @@ class FeaturesError(ValueError):
         super().__init__(f"{path}: {problem}")
 
 
-def read_training_views(path: str | Path, camera: int):
+def assemble_classes(table, members, path: Path):
+    """The rows of each class's member objects under the class's name (``members`` = {class:
+    [object folders]}): a category class is the views of several objects; an object may serve
+    several classes (its rows repeat), and objects of no class are left out."""
+    import pyarrow as pa
+
+    objects = table.column("object").to_numpy(zero_copy_only=False).astype(str)
+    idx, labels = [], []
+    for cls in sorted(members):
+        for obj in members[cls]:
+            rows = np.nonzero(objects == obj)[0]
+            if len(rows) == 0:
+                raise FeaturesError(path, f"class {cls!r}: member object {obj!r} has no training views")
+            idx.extend(rows.tolist())
+            labels.extend([cls] * len(rows))
+    out = table.take(pa.array(np.asarray(idx, dtype=np.int64)))
+    return out.set_column(out.schema.get_field_index("object"), "object", pa.array(labels, pa.string()))
+
+
+def read_training_views(path: str | Path, camera: int, members=None):
     """One camera ring, from one read of the file: its deterministic-pass rows (table columns as
     numpy dict, scores (n, D)), the Parquet metadata, and its MC-dropout rows (pass >= 0) as a
-    table for ``dropout_passes``."""
+    table for ``dropout_passes``; with ``members``, the rows as classes (``assemble_classes``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -70,11 +89,15 @@ def read_training_views(path: str | Path, camera: int):
     keep = np.nonzero((cam == camera) & (pas == -1))[0]
     dropout = table.take(pa.array(np.nonzero((cam == camera) & (pas >= 0))[0]))
     table = table.take(pa.array(keep))
+    if members:
+        dropout = assemble_classes(dropout, members, path) if dropout.num_rows else dropout
+        table = assemble_classes(table, members, path)
     cols = {c: table.column(c).to_numpy(zero_copy_only=False) for c in ("object", "angle_deg", "u_x", "u_y")}
     scores = _scores_matrix(table.column("scores"), path)
     try:
-        check_scores(scores, path, keep)
-        check_scores(_scores_matrix(dropout.column("scores"), path), path, np.nonzero((cam == camera) & (pas >= 0))[0])
+        check_scores(scores, path, np.arange(len(scores)) if members else keep)
+        check_scores(_scores_matrix(dropout.column("scores"), path), path,
+                     None if members else np.nonzero((cam == camera) & (pas >= 0))[0])
     except ValueError as e:
         raise FeaturesError(path, str(e).removeprefix(f"{path}: ")) from None
     return cols, scores, meta, dropout
@@ -145,11 +168,11 @@ def dropout_noise_floor(path: Path, passes: dict[str, dict[int, np.ndarray]], po
     return np.minimum(floor, 0.5 * noise_bounds[1])
 
 
-def _training_sets(path: Path, mcfg: ModelsConfig):
+def _training_sets(path: Path, mcfg: ModelsConfig, members=None):
     """Per modelled class: GP inputs (N, 2), training scores (N, D) (``models.targets``), angles;
     plus output names, Parquet metadata, the dropout passes read (for the noise floor) and each
     class's mean deterministic-pass score vector (its position for ``evaluate.candidates = "hard"``)."""
-    cols, scores, meta, dropout = read_training_views(path, mcfg.camera)
+    cols, scores, meta, dropout = read_training_views(path, mcfg.camera, members)
     objects = cols["object"].astype(str)
     present = sorted(set(objects.tolist()))  # plain str: names in messages read 'coil_obj006', not np.str_(...)
     pool = present if isinstance(mcfg.classes, str) else list(mcfg.classes)
@@ -192,7 +215,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig):
 
 def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
                       n_candidates: int = 4, candidates: str | Sequence[str] = "all", candidate_seed: int = 0,
-                      progress: bool = True) -> tuple[GPClassModels, dict[str, Any]]:
+                      progress: bool = True, candidate_folds: bool = False, class_members=None) -> tuple[GPClassModels, dict[str, Any]]:
     """The models stage's pure function: features Parquet + [models] config + the candidate plan -> one
     model bank (every modelled class x every component any candidate set uses) and index extras.
 
@@ -201,13 +224,14 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
     """
     path = Path(path)
-    pool, X_by, S_by, angles, names, meta, passes, means = _training_sets(path, mcfg)
+    pool, X_by, S_by, angles, names, meta, passes, means = _training_sets(path, mcfg, class_members)
     unknown = [] if isinstance(targets, str) else [t for t in targets if t not in pool]
     if unknown:
         raise ValueError(f"'evaluate.targets' names {unknown[0]!r}, which is not a modelled instance "
                          f"(modelled, from {path}: {', '.join(pool)})")
     tlist = pool if isinstance(targets, str) else list(targets)
-    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed, class_means=means)
+    sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed, class_means=means,
+                          folds=candidate_folds)
     plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
                            mcfg.informative_min)
     comps = sorted({i for p in plan.values() for i in p["components"]})
@@ -248,7 +272,7 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
 
 
 def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Sequence[str],
-                            plan: dict | None = None) -> tuple[DirichletModels, dict[str, Any]]:
+                            plan: dict | None = None, class_members=None) -> tuple[DirichletModels, dict[str, Any]]:
     """The Dirichlet method's class models: per class, Dir(γ; θ_c) fitted to the whole score
     vectors of its training ring (``models.dirichlet.passes``), and the index extras. With
     ``models.dirichlet.entries = n`` and the candidate ``plan`` ({target: {"classes", "components"}}),
@@ -256,7 +280,7 @@ def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Seque
     components plus the rest mass (``DirichletModels.sets``)."""
     path = Path(path)
     dcfg = mcfg.dirichlet
-    cols, scores, _, dropout = read_training_views(path, mcfg.camera)
+    cols, scores, _, dropout = read_training_views(path, mcfg.camera, class_members)
     objects = cols["object"].astype(str)
     passes = dropout_passes(dropout, path) if dcfg.passes != "deterministic" else {}
     vectors = {}

@@ -56,6 +56,12 @@ def context_sentence(ctx: ReportContext) -> str:
             else ("real imagery: COIL-100 photographs along real AVD robot paths (real poses, boxes and move graph); "
                   "which COIL object stands at each AVD instance, and its yaw, is a synthetic seeded pairing "
                   "(docs/real_data.md)") if src == "real_imagery" else f"data source '{src}'")
+    if src == "real_imagery" and ((ctx.config.get("data") or {}).get("real_imagery") or {}).get("dataset") == "eth80":
+        what = ("real imagery, category-level classes: ETH-80 photographs along real AVD robot paths; each class is "
+                "a category fitted on the other instances of its fold, so every scored frame shows an object no class "
+                "model has seen; a frame shows the held-out photograph whose azimuth is nearest the real bearing, up "
+                "to 11.25° away (16 azimuths); which instance stands at each AVD instance, and its yaw, is a "
+                "synthetic seeded pairing (docs/real_data.md)")
     pop = ctx.population
     if pop:
         c = counts(pop)

@@ -39,7 +39,7 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
               help="crop every needed view and score it (deterministic pass + MC dropout) -> Parquet"),
     StageSpec("models", "stages.models", ("features",),
               ("models", "evaluate.targets", "evaluate.n_candidates", "evaluate.candidates",
-               "evaluate.candidate_seed", "evaluate.ablations"),
+               "evaluate.candidate_seed", "evaluate.candidate_folds", "evaluate.ablations"),
               help="choose feature components and fit one GP per (class, component)"),
     StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate", "plan"),
               help="the population evaluation (targets x tracks x localization settings x methods, CIs, "

@@ -34,16 +34,37 @@ def nearest_classes(target: str, others: Sequence[str], class_means: Mapping[str
     return sorted(others, key=lambda c: (dist[c], c))[:k]
 
 
+FOLD_SEP = "__f"   # a category class of fold k is named '<category>__f<k>' (candidate_folds)
+
+
+def fold_of(name: str) -> str:
+    """The fold of a category class ``<category>__f<k>`` (``k``); ValueError for another name."""
+    head, sep, k = str(name).rpartition(FOLD_SEP)
+    if not sep or not head or not k.isdigit():
+        raise ValueError(f"class {name!r} has no fold suffix '{FOLD_SEP}<k>' (evaluate.candidate_folds = true)")
+    return k
+
+
 def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: int,
                    candidates: str | Sequence[str], seed: int,
-                   class_means: Mapping[str, np.ndarray] | None = None) -> dict[str, list[str]]:
+                   class_means: Mapping[str, np.ndarray] | None = None,
+                   folds: bool = False) -> dict[str, list[str]]:
     """{target: sorted candidate classes (the target among them)}.
 
     ``candidates``: ``"sampled"``, ``"all"``, ``"hard"`` or a list of the other candidates (used as
     given for every target; ``n_candidates`` is then ignored). ``"hard"`` needs ``class_means``:
-    each modelled class's mean deterministic-pass score vector over its training views.
+    each modelled class's mean deterministic-pass score vector over its training views. With
+    ``folds``, every choice is made among the classes of the target's own fold (``fold_of``): the
+    other folds' classes were fitted on the target's own photographs.
     """
     pool = sorted(set(pool))
+    if folds:
+        out: dict[str, list[str]] = {}
+        for t in targets:
+            same = [c for c in pool if fold_of(c) == fold_of(t)]
+            given = candidates if isinstance(candidates, str) else [c for c in candidates if fold_of(c) == fold_of(t)]
+            out.update(candidate_sets(same, [t], n_candidates, given, seed, class_means))
+        return out
     if candidates == "hard":
         lack = [c for c in pool if class_means is None or c not in class_means]
         if lack:

@@ -27,6 +27,22 @@ SIM_CLASSES = 3  # the simulation scenarios' three classes (pipeline/evaluation/
 ARCH_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_.-]*(:[A-Za-z][A-Za-z0-9_.-]*)?")
 
 
+def _check_eth80(cfg: Config, need) -> None:
+    """data.real_imagery.dataset = 'eth80': category classes, folds by instance."""
+    ri = cfg.data.real_imagery
+    need(bool(cfg.data.eth80_root), "'data.eth80_root' must be set when data.real_imagery.dataset = 'eth80'")
+    need(len(set(ri.categories)) == len(ri.categories) and len(ri.categories) >= 2,
+         "'data.real_imagery.categories' must list at least two distinct categories")
+    need(len(set(ri.instances)) == len(ri.instances) and len(ri.instances) >= 2,
+         "'data.real_imagery.instances' must list at least two distinct instances (one fold each)")
+    need(ri.background != "avd_frames" or bool(cfg.data.avd_frames_root),
+         "'data.real_imagery.background' = 'avd_frames' needs 'data.avd_frames_root'")
+    need(cfg.evaluate.candidate_folds, "data.real_imagery.dataset = 'eth80' needs 'evaluate.candidate_folds' = true "
+                                       "(a target's candidates are its own fold's classes)")
+    need(cfg.evaluate.candidates not in ("sampled", "hard") or cfg.evaluate.n_candidates <= len(ri.categories),
+         f"'evaluate.n_candidates' = {cfg.evaluate.n_candidates} exceeds the {len(ri.categories)} categories of a fold")
+
+
 def bounds_problem(b) -> str | None:
     """Why ``b`` is not a ``[low, high]`` range with 0 < low < high (finite), or None."""
     if len(b) != 2:
@@ -95,17 +111,20 @@ def cross_checks(cfg: Config, where: str) -> None:
          "'features.bigbird_cameras' must list cameras among 1..5")
     if cfg.data.source == "real_imagery":
         ri = cfg.data.real_imagery
-        need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real_imagery'")
-        need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
-             f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
-        need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
-             "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
-        n_views = 360 // ri.train_step_deg if ri.train_step_deg and 360 % ri.train_step_deg == 0 else 0
-        need(n_views >= cfg.models.min_views,
-             f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} gives each object {n_views} training views, "
-             f"fewer than 'models.min_views' = {cfg.models.min_views}: no class could be modelled (a step of at "
-             f"most {360 // cfg.models.min_views} degrees reaches it)")
+        if ri.dataset == "eth80":
+            _check_eth80(cfg, need)
+        else:
+            need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
+            need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
+                 f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
+            need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
+                 "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
+            n_views = 360 // ri.train_step_deg if ri.train_step_deg and 360 % ri.train_step_deg == 0 else 0
+            need(n_views >= cfg.models.min_views,
+                 f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} gives each object {n_views} training "
+                 f"views, fewer than 'models.min_views' = {cfg.models.min_views}: no class could be modelled (a "
+                 f"step of at most {360 // cfg.models.min_views} degrees reaches it)")
     if cfg.data.source == "real":
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")

@@ -54,6 +54,9 @@ class EvaluateConfig:
                                          "the training views; ties by name); 'all' = every modelled class; or a "
                                          "list of the other candidates")
     candidate_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="seeds the per-target candidate draw")
+    candidate_folds: bool = _f(False, doc="candidates come from the target's own fold only: a class named "
+                                          "'<name>__f<k>' is in fold k (category classes, data.real_imagery.dataset "
+                                          "= 'eth80')")
     tracks_per_target: int = _f(8, lo=1, hi=1000, doc="distinct tracks per target")
     track_images: tuple[str, ...] = _f(factory=tuple, doc="explicit track (one target only); empty = build tracks")
     track_length: int = _f(9, lo=2, hi=200)

@@ -118,6 +118,20 @@ class RealImageryConfig:
     blur_sigma_px: float = _f(0.7, lo=0.0, hi=10.0, doc="sensor model: Gaussian optical blur sigma, pixels (0 = none)")
     jpeg_quality: int = _f(85, lo=30, hi=100, doc="sensor model: JPEG quality of the written AVD frames")
     train_jpeg_quality: int = _f(95, lo=30, hi=100, doc="JPEG quality of the training views (BigBIRD stores JPEG)")
+    # Category-level classes (dataset = "eth80", loaders/real_imagery/category.py, docs/real_data.md).
+    dataset: str = _f("coil", choices=("coil", "eth80"),
+                      doc="coil = one COIL-100 object per class (data.coil_root); eth80 = one ETH-80 category per "
+                          "class, folds by instance, every scored photograph of an unseen instance (data.eth80_root)")
+    categories: tuple[str, ...] = _f(factory=lambda: ("apple", "car", "cow", "cup", "dog", "horse", "pear", "tomato"),
+                                     doc="eth80: the categories (classes)")
+    instances: tuple[int, ...] = _f(factory=lambda: tuple(range(1, 10)), lo=1, hi=1000,
+                                    doc="eth80: the instance numbers; fold f holds out instance f of every category")
+    elevations: tuple[int, ...] = _f(factory=lambda: (90,), lo=0, hi=999,
+                                     doc="eth80: the rings read (the name's elevation field; 090 = equatorial)")
+    background: str = _f("black", choices=("black", "avd_frames"),
+                         doc="eth80 frames: the object (by its map) on black, or over a region of a real AVD frame "
+                             "(data.avd_frames_root) resampled to the box surroundings; training views keep their own")
+    background_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="eth80, background = avd_frames: which frame and region")
 
 
 @dataclass(frozen=True)
@@ -126,6 +140,8 @@ class DataConfig:
                      doc="synthetic stand-ins | real BigBIRD + AVD roots | real_imagery: COIL-100 photographs "
                          "on real AVD scans' geometry (docs/real_data.md)")
     coil_root: str = _f("", doc="real_imagery: folder of COIL-100 obj<k>__<deg>.png files")
+    eth80_root: str = _f("", doc="real_imagery, dataset eth80: ETH-80 root (<category><n>/ instance folders)")
+    avd_frames_root: str = _f("", doc="real_imagery, background avd_frames: folder of real AVD frames (*.png, *.jpg)")
     bigbird_root: str = _f("", doc="real data: folder holding BigBIRD object folders")
     avd_root: str = _f("", doc="real data: AVD root holding instance_id_map.txt and scan folders")
     scans: tuple[str, ...] = _f(factory=lambda: ("Home_001_1", "Home_002_1"),

@@ -1,0 +1,105 @@
+"""The object of a category frame, cut out by its map, over black or over real clutter (pure
+functions but ``read_backgrounds``).
+
+A test photograph is resampled as COIL views are (``frames.resampled_view``: its object box
+becomes the real AVD box, half a box of surround on each side) and so is its segmentation map; the
+map is the alpha that blends the object over the background of that patch. The background is black
+(the COIL frames' look), or, with ``background = "avd_frames"``, a region of a real AVD frame
+resampled to the patch: a seeded frame, a seeded region with the patch's aspect ratio whose height
+is 30-100 % of the largest that fits, below the frames' burned-in step label (the top
+``LABEL_ROWS`` rows are never used). The photograph's own blue cloth never reaches a frame; the
+training views keep it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from loaders.errors import BadInputError
+from loaders.files import check_image_size, read_checked
+from loaders.real_imagery.frames import apply_sensor, paste, resampled_view
+
+LABEL_ROWS = 24            # the "Step #N" label of the avd_frames copy: about 50 x 20 px, top left
+MIN_REGION_FRACTION = 0.3  # smallest region height, as a fraction of the largest that fits
+
+
+def read_backgrounds(folder: Path, skips) -> list[np.ndarray]:
+    """Every readable RGB frame (*.png, *.jpg) of ``folder``, sorted by name; bad files follow the
+    skip policy (``skips.handle``); no readable frame is an error naming the folder."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise BadInputError(folder, "'data.avd_frames_root' is not an existing folder")
+    out = []
+    for p in sorted(folder.iterdir()):
+        if p.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+            continue
+        try:
+            data = read_checked(p, folder, "background frame")
+            check_image_size(data, p)
+            bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise BadInputError(p, "cannot decode the background frame")
+            if bgr.shape[0] <= LABEL_ROWS + 8 or bgr.shape[1] < 8:
+                raise BadInputError(p, f"background frame is {bgr.shape[1]}x{bgr.shape[0]}, too small")
+            out.append(np.ascontiguousarray(bgr[:, :, ::-1]))
+        except BadInputError as err:
+            skips.handle(err, "avd_frames", "background frame")
+    if not out:
+        raise BadInputError(folder, "holds no readable background frame (*.png, *.jpg)")
+    return out
+
+
+def clutter_patch(backgrounds: list[np.ndarray], shape, rng: np.random.Generator) -> np.ndarray:
+    """A (H, W, 3) uint8 region of a seeded background frame, resampled to ``shape``."""
+    H, W = int(shape[0]), int(shape[1])
+    frame = backgrounds[int(rng.integers(len(backgrounds)))][LABEL_ROWS:]
+    fh, fw = frame.shape[:2]
+    aspect = W / H
+    h_max = min(fh, fw / aspect)
+    h = max(rng.uniform(MIN_REGION_FRACTION, 1.0) * h_max, 1.0)
+    w = max(min(h * aspect, fw), 1.0)
+    y0 = int(rng.uniform(0.0, fh - h + 1e-9))
+    x0 = int(rng.uniform(0.0, fw - w + 1e-9))
+    region = frame[y0:y0 + max(int(round(h)), 1), x0:x0 + max(int(round(w)), 1)]
+    shrink = region.shape[0] * region.shape[1] > H * W
+    return cv2.resize(region, (W, H), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+def cutout_patch(rgb: np.ndarray, mask: np.ndarray, alpha: np.ndarray, box_w: int, box_h: int,
+                 background: np.ndarray | None):
+    """The photograph resampled to the box, blended by its map over ``background`` (a patch of the
+    same size, or None = black): (patch uint8, (dx, dy) of the object box inside it)."""
+    patch, off = resampled_view(rgb, mask, box_w, box_h)
+    a, _ = resampled_view(np.round(np.clip(alpha, 0.0, 1.0) * 255).astype(np.uint8), mask, box_w, box_h)
+    a = (a.astype(np.float32) / 255.0)[:, :, None]
+    bg = np.zeros_like(patch) if background is None else background
+    if bg.shape != patch.shape:
+        raise ValueError(f"background patch {bg.shape} does not match the object patch {patch.shape}")
+    out = a * patch.astype(np.float32) + (1.0 - a) * bg.astype(np.float32)
+    return np.clip(np.round(out), 0, 255).astype(np.uint8), off
+
+
+def patch_shape(mask: np.ndarray, box_w: int, box_h: int) -> tuple[int, int]:
+    """(H, W) of the patch ``resampled_view`` makes for this mask and box (the background's size)."""
+    probe, _ = resampled_view(mask.astype(np.uint8), mask, box_w, box_h)
+    return probe.shape[:2]
+
+
+def render_category_frame(size: tuple[int, int], items, backgrounds, noise_std: float, blur_sigma_px: float,
+                          rng: np.random.Generator, bg_rngs) -> np.ndarray:
+    """A black (H, W, 3) frame of ``size`` = (W, H) with each (rgb, mask, alpha, box) cut out and
+    pasted, larger boxes first, over black (``backgrounds`` None) or clutter drawn with the item's
+    own generator of ``bg_rngs`` (same order as ``items``); then the sensor model on each box."""
+    frame = np.zeros((size[1], size[0], 3), np.uint8)
+    order = sorted(range(len(items)), key=lambda i: -(items[i][3][2] - items[i][3][0]) * (items[i][3][3] - items[i][3][1]))
+    for i in order:
+        rgb, mask, alpha, box = items[i]
+        bw, bh = int(box[2]) - int(box[0]), int(box[3]) - int(box[1])
+        bg = None if backgrounds is None else clutter_patch(backgrounds, patch_shape(mask, bw, bh), bg_rngs[i])
+        patch, off = cutout_patch(rgb, mask, alpha, bw, bh, bg)
+        paste(frame, patch, off, box)
+    for *_, box in items:
+        apply_sensor(frame, box, noise_std, blur_sigma_px, rng)
+    return frame
