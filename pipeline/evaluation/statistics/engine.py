@@ -28,9 +28,14 @@ KEYS = ["target", "track", "setting"]
 
 class Hierarchy:
     """The units of one population: per seed, its sorted targets and each target's sorted tracks,
-    and the shared draws over them."""
+    and the shared draws over them.
 
-    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed):
+    ``by_scan`` (one seed whose cells carry a ``scan`` column): the pooled values and paired
+    differences resample scans, then the targets seen in each scan, then their tracks in that
+    scan (``rs``, the resampler's top level holding scans instead of seeds); per-target values,
+    leave-one-target-out and the pooled ECE keep targets, then tracks (``target_rs``)."""
+
+    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed, by_scan: bool = False):
         self.seeds = list(frames)
         self.units = []  # per seed: [(target, [tracks])]
         for s in self.seeds:
@@ -38,9 +43,23 @@ class Hierarchy:
             self.units.append([(str(t), sorted(int(x) for x in g["track"].unique()))
                                for t, g in f.groupby("target", sort=True)])
         self.n_boot, self.seed = int(n_boot), seed
-        self.rs = draws([[len(tr) for _, tr in u] for u in self.units], n_boot, seed)
+        self.target_rs = draws([[len(tr) for _, tr in u] for u in self.units], n_boot, seed)
         self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
                       for u in self.units]
+        first = frames[self.seeds[0]] if self.seeds else None
+        self.scans: list[str] = []
+        self.by_scan = bool(by_scan and len(self.seeds) == 1 and first is not None and "scan" in first)
+        self.rs = self.target_rs
+        if self.by_scan:
+            self.scans = sorted(str(x) for x in first["scan"].unique())
+            self.scan_units = [[(str(t), sorted(int(x) for x in g["track"].unique()))
+                                for t, g in first[first["scan"].astype(str) == sc].groupby("target", sort=True)]
+                               for sc in self.scans]
+            self.scan_index = {(t, tr): (si, ti, j) for si, u in enumerate(self.scan_units)
+                               for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
+            if sum(len(tr) for u in self.scan_units for _, tr in u) != len(self.index[0]):
+                raise ValueError("resampling scans: a (target, track) lies in more than one scan")
+            self.rs = draws([[len(tr) for _, tr in u] for u in self.scan_units], n_boot, [*np.atleast_1d(seed), 3])
 
     @property
     def targets(self) -> list[str]:
@@ -50,19 +69,27 @@ class Hierarchy:
         out = {"targets": sum(len(u) for u in self.units), "tracks": sum(len(tr) for u in self.units for _, tr in u)}
         if len(self.seeds) > 1:
             out["seeds"] = len(self.seeds)
+        if self.by_scan:
+            out["scans"] = len(self.scans)
+            out["scan_targets"] = sum(len(u) for u in self.scan_units)
         return out
 
     def over(self) -> list[str]:
-        return (["seeds"] if len(self.seeds) > 1 else []) + ["targets", "tracks"]
+        return (["seeds"] if len(self.seeds) > 1 else []) + (["scans"] if self.by_scan else []) + ["targets", "tracks"]
 
-    def pad(self, tvs: Sequence[pd.DataFrame], column: str) -> np.ndarray:
-        """(S, T, W) track values of ``column`` from each seed's track frame (target, track, ...)."""
-        out = np.zeros(self.rs.shape)
+    def pad(self, tvs: Sequence[pd.DataFrame], column: str, flat: bool = False) -> np.ndarray:
+        """Track values of ``column`` from each seed's track frame (target, track, ...), padded to
+        ``rs``'s (S, T, W) (``flat`` or no scan level: ``target_rs``'s, seeds -> targets -> tracks)."""
+        scan = self.by_scan and not flat
+        out = np.zeros(self.rs.shape if scan else self.target_rs.shape)
         for s, tv in enumerate(tvs):
             idx = self.index[s]
             for t, tr, v in zip(tv["target"].astype(str), tv["track"].astype(int), tv[column].to_numpy(float)):
-                ti, j = idx[(t, tr)]
-                out[s, ti, j] = v
+                if scan:
+                    out[self.scan_index[(t, tr)]] = v
+                else:
+                    ti, j = idx[(t, tr)]
+                    out[s, ti, j] = v
         return out
 
     def per_target(self, ti: int) -> Resampler:
@@ -106,7 +133,7 @@ def leave_one_out(h: Hierarchy, fn, higher: bool) -> dict:
     names = h.targets
     if len(names) < 3:
         return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "loto_flip_outcomes": {}}
-    full = REC.outcome(*_ends(fn(h.rs, np.arange(len(names)))), higher)
+    full = REC.outcome(*_ends(fn(h.target_rs, np.arange(len(names)))), higher)
     vals, flips, to = [], [], {}
     for ti, name in enumerate(names):
         est = fn(*h.without(ti))
@@ -131,11 +158,12 @@ def _ends(est: Mapping[str, float]) -> tuple[float, float]:
 
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,
           n_boot: int, seed, *, primary: Sequence[str] = (), per_target: bool = True, loto: bool = True,
-          ece: Mapping | None = None) -> dict:
+          ece: Mapping | None = None, by_scan: bool = False) -> dict:
     """{"pooled", "per_target", "paired", "paired_per_target", "records"} (+ "reliability" with
     ``ece``) of cell frames per seed (one seed: an evaluate run). ``ece``: {"sums": track bin sums
-    (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric."""
-    h = Hierarchy(frames, n_boot, seed)
+    (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric. ``by_scan``:
+    scans -> targets -> tracks (``Hierarchy``)."""
+    h = Hierarchy(frames, n_boot, seed, by_scan=by_scan)
     metrics = [k for k in metrics if all(k in f for f in frames.values())]
     tvs = {m: [track_values(f[f["method"] == m], metrics) for f in frames.values()] for m in methods}
     n, over = h.n(), h.over()
@@ -148,9 +176,10 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             out["pooled"].setdefault(m, {})[k] = {**h.rs.estimate(v, M.pool_of(k)), "pooling": M.pool_of(k),
                                                   "over": over, "n": n}
             if per_target and single:
+                vt = h.pad(tvs[m], k, flat=True) if h.by_scan else v
                 for ti, t in enumerate(h.targets):
                     out["per_target"].setdefault(t, {}).setdefault(m, {})[k] = h.per_target(ti).estimate(
-                        v[:, ti: ti + 1], "mean")
+                        vt[:, ti: ti + 1], "mean")
     for a, b in comparisons:
         if a not in methods or b not in methods:
             continue
@@ -160,6 +189,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         for k in metrics:
             higher = M.higher_is_better(k)
             v = h.pad(dtv, k)
+            vt = h.pad(dtv, k, flat=True) if h.by_scan else v
             pool = M.pool_of(k)
             d = np.concatenate([x[k].to_numpy(float) for x in dfs])
             wins, losses = (d > 0, d < 0) if higher else (d < 0, d > 0)
@@ -171,9 +201,9 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             if per_target and single:
                 for ti, t in enumerate(h.targets):
                     out["paired_per_target"].setdefault(key, {}).setdefault(t, {})[k] = h.per_target(ti).estimate(
-                        v[:, ti: ti + 1], "mean")
+                        vt[:, ti: ti + 1], "mean")
             if loto and single:
-                extra = _loto(h, v, pool, higher)
+                extra = _loto(h, vt, pool, higher)
                 est.update(extra)
             top, bottom = (saturation(next(iter(frames.values())), a, b, k) if single and k in M.METRICS else (0, 0))
             out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=over,
@@ -185,6 +215,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
 
         e = pooled_ece(h, ece["sums"], methods, comparisons, per_target=per_target, loto=loto)
+        over = [x for x in over if x != "scans"]   # the pooled ECE resamples targets, then tracks
         for m, per in e["pooled"].items():
             for k, est in per.items():
                 out["pooled"].setdefault(m, {})[k] = {**est, "pooling": M.pool_of(k), "over": over, "n": n}
