@@ -51,7 +51,7 @@ def power_sentence(power: dict) -> str:
     tail = (f"about {need} {worst['unit']} ({worst.get('needed_targets')} targets, {_cost(worst.get('cost_s'))} at "
             f"this run's measured cost) would bring it to {fmt(goal)}" if need is not None else
             "its interval is unbounded, so no population size follows from it")
-    beyond = f" ({worst['beyond']})" if worst.get("beyond") else ""
+    beyond = "".join(f" ({worst[k]})" for k in ("beyond", "caution") if worst.get(k))
     return (f"{len(open_)} of {len(entries)} primary comparisons have a 95 % CI half-width above {fmt(goal)}; the "
             f"widest, {comparison_label(worst['comparison'])} on {metric_label(worst['metric'], short=True)} "
             f"(half-width {fmt(worst['half_width'])} over {worst['n_units']} {worst['unit']}): {tail}{beyond}.")

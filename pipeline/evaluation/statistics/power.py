@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+MIN_UNITS = 5  # fewer top-level units than this: the bootstrap's spread is too coarse to project from
 GOAL = 0.05   # the half-width a primary comparison's interval should reach to decide a 0.05 difference
 
 ASSUMPTION = ("half-width proportional to 1/sqrt(n) over the top level's units (each unit's composition kept: "
@@ -63,6 +64,9 @@ def power_block(records: Sequence[Mapping], seconds: float | None = None, goal: 
                  "needed_targets": None if scale is None else int(math.ceil(scale * int(n.get("targets", 0)))),
                  "needed_tracks": None if scale is None else int(math.ceil(scale * int(n.get("tracks", 0)))),
                  "cost_s": None if scale is None or seconds is None else float(seconds) * scale}
+        if n_top < MIN_UNITS:
+            entry["caution"] = (f"{n_top} {top}: a bootstrap over so few units understates their spread; the "
+                                "projection is a lower bound")
         if available and top in available and need is not None and need > available[top]:
             entry["beyond"] = f"{need} {top} needed, {available[top]} exist"
         out.append(entry)

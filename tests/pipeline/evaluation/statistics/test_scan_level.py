@@ -135,3 +135,12 @@ def test_only_primary_records_get_a_power_entry_and_unbounded_ends_get_none():
     assert [e["metric"] for e in p] == ["x", "y"]
     assert p[0]["half_width"] == pytest.approx(0.15) and p[0]["needed_units"] == 108 and p[0]["cost_s"] is None
     assert p[1]["needed_units"] is None and p[1]["half_width"] == math.inf
+
+
+def test_too_few_units_carry_a_caution():
+    rec = {"comparison": "a-b", "metric": "x", "lo": -0.2, "hi": 0.1, "primary": True,
+           "over": ["scans", "targets", "tracks"], "n": {"scans": 2, "targets": 6, "tracks": 8}}
+    (e,) = power_block([rec])["comparisons"]
+    assert e["unit"] == "scans" and "caution" in e
+    (e,) = power_block([dict(rec, n={"scans": 15, "targets": 60, "tracks": 200})])["comparisons"]
+    assert "caution" not in e
