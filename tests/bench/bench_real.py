@@ -58,9 +58,9 @@ def split(run_dir: Path) -> list[str]:
         out.append(f"  {st:<11} {float(man.get('seconds', float('nan'))):7.1f} s")
         inner = extra.get("timings") or extra.get("timings_s") or {}
         for k, v in sorted(inner.items(), key=lambda kv: -float(kv[1] or 0)):
-            out.append(f"      {k:<38} {float(v):8.1f} s")
+            out.append(f"      {k:<44} {float(v):8.1f} s")
         if st == "evaluate" and extra.get("n_cells"):
-            out.append(f"      {'cells':<38} {extra['n_cells']:8d}")
+            out.append(f"      {'cells':<44} {extra['n_cells']:8d}")
     return out
 
 
