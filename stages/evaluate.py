@@ -37,6 +37,7 @@ from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_
 from pipeline.evaluation.metrics.spec import Params
 from pipeline.evaluation.domain.target_domain import TargetDomain, target_variances
 from pipeline.scene.rays import TrackError, grid_step
+from pipeline.evaluation.statistics.power import power_block
 
 log = logging.getLogger("viewfuse.evaluate")
 # The avd.parquet columns evaluate uses (checked present and typed on read).
@@ -83,6 +84,14 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips,
         steps[s] = grid_step(rows[["cam_x", "cam_y"]].to_numpy(float),
                              P.view_grid_ids(rows["image"], grids[s], s))
     return intr, steps, grids
+
+
+def _chain_seconds(cfg: Config) -> float:
+    """Seconds the upstream stages whose work grows with the population took (their manifests):
+    with this stage's own so far, the measured cost that the power block scales."""
+    from stages.framework.runner import stage_timings
+
+    return float(sum(v for k, v in stage_timings(cfg).items() if k in ("data", "features", "models") and v == v))
 
 
 def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict,
@@ -248,6 +257,8 @@ def run(ctx) -> str:
         table = cell_table(kept)
         population = population_summary(cfg, table, cells, kept, tracks, skipped, domain_fit)
         population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, kept)
+        population["power"] = power_block(population["records"], seconds=_chain_seconds(cfg) + time.perf_counter()
+                                          - t_start)
         timings["statistics"] = time.perf_counter() - t0
 
         # The showcase track (pipeline/evaluation/grid/showcase.py: where the methods disagree most): its

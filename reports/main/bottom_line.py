@@ -119,8 +119,11 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     first = ("Bottom line" + (f" (primary metrics: {_join(prim)}; every other metric is exploratory)" if prim
                               else "") + ". " + " ".join(cl + "." for cl in clauses))
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
-    second = (f"Each outcome is read off the 95 % CI of a paired difference over {c['n_targets']} targets and "
-              f"{tracks_text(c)}; it varies over targets and tracks only, with {seeds} (the seed study, viewfuse study, repeats "
+    n_scans = next((r.get("n", {}).get("scans") for r in table if "scans" in (r.get("over") or [])), None)
+    scans = f"{n_scans} scans, " if n_scans else ""
+    levels = "scans, targets and tracks" if n_scans else "targets and tracks"
+    second = (f"Each outcome is read off the 95 % CI of a paired difference over {scans}{c['n_targets']} targets and "
+              f"{tracks_text(c)}; it varies over {levels} only, with {seeds} (the seed study, viewfuse study, repeats "
               "it over training seeds).")
     return [first, second]
 

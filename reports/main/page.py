@@ -19,6 +19,7 @@ from pipeline.infra.outputs import path as out_path
 from reports.main import calibration as calibration_sections
 from reports.main import findings
 from reports.main import planning as planning_sections
+from reports.main import power as power_sections
 from reports.main.calibration import CALIBRATED
 from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
@@ -43,6 +44,7 @@ log = logging.getLogger("viewfuse.report")
 
 SECTIONS = (verdict_sections.verdict_section, methods_section, limitations_section, seeds_section,
             calibration_sections.calibration_section, verdict_sections.population_section,
+            power_sections.power_section,
             verdict_sections.diagnostics_section, calibration_sections.domain_section,
             calibration_sections.attribution_section, planning_sections.planning_section, showcase_section,
             track_sections.track_section, track_sections.randomized_section,

@@ -266,7 +266,7 @@ def _by_setting(ctx: ReportContext, pop: dict) -> None:
         ctx.page.table(["setting", "realizations", "comparison", "Δ correct, final", "Δ MSDE, final",
                         "Δ log10 MGR 95%, final"], rows, cls="by-setting",
                        caption="Paired differences per localization setting (each setting on its own), 95 % CIs "
-                               "over targets and tracks. With 1 realization the log10 MGR percentile is that "
+                               f"over {'scans, ' if 'scans' in str(pop.get('scope', '')) else ''}targets and tracks. With 1 realization the log10 MGR percentile is that "
                                "realization's value.")
 
 

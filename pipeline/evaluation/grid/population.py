@@ -31,7 +31,7 @@ DEFAULT = "default"   # the model-bank variant without an ablation override
 
 @dataclass(frozen=True)
 class Setting:
-    experiment: str          # "biased" | "randomized" | "sensitivity"
+    experiment: str          # "biased" | "randomized" | "biased_randomized" | "sensitivity"
     label: str
     sigma: float
     bias: tuple[float, float]
@@ -57,6 +57,12 @@ def population_settings(ev) -> list[Setting]:
         for s in r.sigmas_m:
             out.append(Setting("randomized", setting_label(s, r.bias_m), s, tuple(r.bias_m), r.realizations,
                                r.n_loc_samples))
+    if "biased_randomized" in ev.experiments:
+        # The paper's §5.5 setting: a bias on every pose, then noise around the biased estimate
+        # (``experiments.randomized`` draws truth + bias + N(0, sigma^2 I) per axis).
+        p = ev.biased_randomized
+        out.append(Setting("biased_randomized", setting_label(p.sigma_m, p.bias_m), p.sigma_m, tuple(p.bias_m),
+                           p.realizations, p.n_loc_samples))
     labels = [(s.experiment, s.label) for s in out]
     if len(set(labels)) != len(labels):
         raise ValueError("evaluate.randomized.sigmas_m lists the same sigma twice")

@@ -22,16 +22,17 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
     metrics = list(METRICS)
     main = [m for m in METHODS if m in set(table["method"])]
     prim = tuple(ev.primary_metrics)
+    scans = bool(getattr(ev, "resample_scans", False))
     out = {}
     sums = track_sums(cells, results, default, ev.ece_bins)
     dtab = table[table["variant"] == default]
     out["main"] = population_block(dtab[dtab["method"].isin(main)], main, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                                   primary=prim, ece={"sums": sums})
+                                   primary=prim, ece={"sums": sums}, by_scan=scans)
     abl = {}
     att = [m for m in (WITH_UNCERTAINTY, MODEL_BASED, *ATTRIBUTION) if m in set(dtab["method"])]
     if all(m in att for m in ATTRIBUTION):
         b = population_block(dtab[dtab["method"].isin(att)], att, metrics, ATTRIBUTION_COMPARISONS, ev.bootstrap,
-                             ev.seed, primary=prim, ece={"sums": sums}, per_target=False)
+                             ev.seed, primary=prim, ece={"sums": sums}, per_target=False, by_scan=scans)
         abl[ATTRIBUTION_KEY] = {"kind": "attribution", "methods": att,
                                 "override": {"with_uncertainty_poses_only": "dropout samples replaced by their mean",
                                              "with_uncertainty_dropout_only": "no pose sampling (sigma = 0, N_x = 1)"},
@@ -41,7 +42,7 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
         if sub.empty:
             continue
         b = population_block(sub, main, metrics, COMPARISONS, ev.bootstrap, ev.seed, primary=prim,
-                             ece={"sums": track_sums(cells, results, a, ev.ece_bins)}, per_target=False)
+                             ece={"sums": track_sums(cells, results, a, ev.ece_bins)}, per_target=False, by_scan=scans)
         key, value = (t.strip() for t in a.split("=", 1))
         abl[a] = {"override": {key: value}, **{k: b[k] for k in (*BLOCK_KEYS, "reliability") if k in b}}
     out["ablations"] = abl

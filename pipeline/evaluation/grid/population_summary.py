@@ -53,6 +53,8 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     n_targets = default["target"].nunique()
     n_tracks = len(tracks)
     scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
+    if ev.resample_scans:
+        scope = f"{default['scan'].nunique()} scans, " + scope
     check_primary(ev.primary_metrics)
     blocks = PC.population_blocks(cfg, table, cells, results, scope, DEFAULT)
     block, ablations = blocks["main"], blocks["ablations"]
@@ -61,7 +63,8 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     for s in settings:
         sub = main[main["setting"] == s.label]
         b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
-                             primary=tuple(ev.primary_metrics), per_target=False, loto=False)
+                             primary=tuple(ev.primary_metrics), per_target=False, loto=False,
+                             by_scan=ev.resample_scans)
         by_setting[s.label] = {k: b[k] for k in PC.BLOCK_KEYS}
     difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
                   for c, r in zip(cells, results) if r["difficulty"] is not None]
@@ -91,8 +94,12 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         "targets": sorted(first), "candidates": {t: list(c.classes) for t, c in sorted(first.items())},
         "components": {t: list(c.components) for t, c in sorted(first.items())},
         "unit": ("a cell is one (target, track, setting); its metric is computed over its realizations. "
-                 "Pooled values average tracks' means (over settings) within each target, then targets; "
-                 "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks)."),
+                 + ("Pooled values average tracks' means (over settings) within each (scan, target), then pool the "
+                    "targets of each scan, then average scans; 95 % CIs resample scans, then the targets of each "
+                    "drawn scan, then their tracks in it (per-target CIs: tracks; the pooled ECE and "
+                    "leave-one-target-out: targets, then tracks)." if ev.resample_scans else
+                    "Pooled values average tracks' means (over settings) within each target, then targets; "
+                    "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks).")),
         **block,
         "by_setting": by_setting,
         "difficulty": {"tracks": difficulty, "summary": spread,

@@ -58,11 +58,12 @@ def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
 
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,
           n_boot: int, seed, *, primary: Sequence[str] = (), per_target: bool = True, loto: bool = True,
-          ece: Mapping | None = None) -> dict:
+          ece: Mapping | None = None, by_scan: bool = False) -> dict:
     """{"pooled", "per_target", "paired", "paired_per_target", "records"} (+ "reliability" with
     ``ece``) of cell frames per seed (one seed: an evaluate run). ``ece``: {"sums": track bin sums
-    (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric."""
-    h = Hierarchy(frames, n_boot, seed)
+    (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric. ``by_scan``:
+    scans -> targets -> tracks (``Hierarchy``)."""
+    h = Hierarchy(frames, n_boot, seed, by_scan=by_scan)
     metrics = [k for k in metrics if all(k in f for f in frames.values())]
     tvs = {m: [track_values(f[f["method"] == m], metrics) for f in frames.values()] for m in methods}
     n, over = h.n(), h.over()
@@ -75,9 +76,10 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             out["pooled"].setdefault(m, {})[k] = {**h.rs.estimate(v, M.pool_of(k)), "pooling": M.pool_of(k),
                                                   "over": over, "n": n}
             if per_target and single:
+                vt = h.pad(tvs[m], k, flat=True) if h.by_scan else v
                 for ti, t in enumerate(h.targets):
                     out["per_target"].setdefault(t, {}).setdefault(m, {})[k] = h.per_target(ti).estimate(
-                        v[:, ti: ti + 1], "mean")
+                        vt[:, ti: ti + 1], "mean")
     for a, b in comparisons:
         if a not in methods or b not in methods:
             continue
@@ -87,6 +89,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         for k in metrics:
             higher = M.higher_is_better(k)
             v = h.pad(dtv, k)
+            vt = h.pad(dtv, k, flat=True) if h.by_scan else v
             pool = M.pool_of(k)
             d = np.concatenate([x[k].to_numpy(float) for x in dfs])
             wins, losses = (d > 0, d < 0) if higher else (d < 0, d > 0)
@@ -98,9 +101,9 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             if per_target and single:
                 for ti, t in enumerate(h.targets):
                     out["paired_per_target"].setdefault(key, {}).setdefault(t, {})[k] = h.per_target(ti).estimate(
-                        v[:, ti: ti + 1], "mean")
+                        vt[:, ti: ti + 1], "mean")
             if loto and single:
-                extra = _loto(h, v, pool, higher)
+                extra = _loto(h, vt, pool, higher)
                 est.update(extra)
             top, bottom = (saturation(next(iter(frames.values())), a, b, k) if single and k in M.METRICS else (0, 0))
             out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=over,
@@ -112,6 +115,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
 
         e = pooled_ece(h, ece["sums"], methods, comparisons, per_target=per_target, loto=loto)
+        over = [x for x in over if x != "scans"]   # the pooled ECE resamples targets, then tracks
         for m, per in e["pooled"].items():
             for k, est in per.items():
                 out["pooled"].setdefault(m, {})[k] = {**est, "pooling": M.pool_of(k), "over": over, "n": n}

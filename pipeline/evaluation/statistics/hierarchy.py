@@ -14,9 +14,14 @@ from pipeline.evaluation.statistics.resampler import Resampler, draws
 
 class Hierarchy:
     """The units of one population: per seed, its sorted targets and each target's sorted tracks,
-    and the shared draws over them."""
+    and the shared draws over them.
 
-    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed):
+    ``by_scan`` (one seed whose cells carry a ``scan`` column): the pooled values and paired
+    differences resample scans, then the targets seen in each scan, then their tracks in that
+    scan (``rs``, the resampler's top level holding scans instead of seeds); per-target values,
+    leave-one-target-out and the pooled ECE keep targets, then tracks (``target_rs``)."""
+
+    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed, by_scan: bool = False):
         self.seeds = list(frames)
         self.units = []  # per seed: [(target, [tracks])]
         for s in self.seeds:
@@ -24,9 +29,23 @@ class Hierarchy:
             self.units.append([(str(t), sorted(int(x) for x in g["track"].unique()))
                                for t, g in f.groupby("target", sort=True)])
         self.n_boot, self.seed = int(n_boot), seed
-        self.rs = draws([[len(tr) for _, tr in u] for u in self.units], n_boot, seed)
+        self.target_rs = draws([[len(tr) for _, tr in u] for u in self.units], n_boot, seed)
         self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
                       for u in self.units]
+        first = frames[self.seeds[0]] if self.seeds else None
+        self.scans: list[str] = []
+        self.by_scan = bool(by_scan and len(self.seeds) == 1 and first is not None and "scan" in first)
+        self.rs = self.target_rs
+        if self.by_scan:
+            self.scans = sorted(str(x) for x in first["scan"].unique())
+            self.scan_units = [[(str(t), sorted(int(x) for x in g["track"].unique()))
+                                for t, g in first[first["scan"].astype(str) == sc].groupby("target", sort=True)]
+                               for sc in self.scans]
+            self.scan_index = {(t, tr): (si, ti, j) for si, u in enumerate(self.scan_units)
+                               for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
+            if sum(len(tr) for u in self.scan_units for _, tr in u) != len(self.index[0]):
+                raise ValueError("resampling scans: a (target, track) lies in more than one scan")
+            self.rs = draws([[len(tr) for _, tr in u] for u in self.scan_units], n_boot, [*np.atleast_1d(seed), 3])
 
     @property
     def targets(self) -> list[str]:
@@ -36,19 +55,27 @@ class Hierarchy:
         out = {"targets": sum(len(u) for u in self.units), "tracks": sum(len(tr) for u in self.units for _, tr in u)}
         if len(self.seeds) > 1:
             out["seeds"] = len(self.seeds)
+        if self.by_scan:
+            out["scans"] = len(self.scans)
+            out["scan_targets"] = sum(len(u) for u in self.scan_units)
         return out
 
     def over(self) -> list[str]:
-        return (["seeds"] if len(self.seeds) > 1 else []) + ["targets", "tracks"]
+        return (["seeds"] if len(self.seeds) > 1 else []) + (["scans"] if self.by_scan else []) + ["targets", "tracks"]
 
-    def pad(self, tvs: Sequence[pd.DataFrame], column: str) -> np.ndarray:
-        """(S, T, W) track values of ``column`` from each seed's track frame (target, track, ...)."""
-        out = np.zeros(self.rs.shape)
+    def pad(self, tvs: Sequence[pd.DataFrame], column: str, flat: bool = False) -> np.ndarray:
+        """Track values of ``column`` from each seed's track frame (target, track, ...), padded to
+        ``rs``'s (S, T, W) (``flat`` or no scan level: ``target_rs``'s, seeds -> targets -> tracks)."""
+        scan = self.by_scan and not flat
+        out = np.zeros(self.rs.shape if scan else self.target_rs.shape)
         for s, tv in enumerate(tvs):
             idx = self.index[s]
             for t, tr, v in zip(tv["target"].astype(str), tv["track"].astype(int), tv[column].to_numpy(float)):
-                ti, j = idx[(t, tr)]
-                out[s, ti, j] = v
+                if scan:
+                    out[self.scan_index[(t, tr)]] = v
+                else:
+                    ti, j = idx[(t, tr)]
+                    out[s, ti, j] = v
         return out
 
     def per_target(self, ti: int) -> Resampler:
@@ -67,7 +94,7 @@ def leave_one_out(h: Hierarchy, fn, higher: bool) -> dict:
     names = h.targets
     if len(names) < 3:
         return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "loto_flip_outcomes": {}}
-    full = REC.outcome(*_ends(fn(h.rs, np.arange(len(names)))), higher)
+    full = REC.outcome(*_ends(fn(h.target_rs, np.arange(len(names)))), higher)
     vals, flips, to = [], [], {}
     for ti, name in enumerate(names):
         est = fn(*h.without(ti))

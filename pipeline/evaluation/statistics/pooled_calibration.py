@@ -66,7 +66,7 @@ def hierarchy_of(sums: dict, n_boot: int, seed):
 def _padded(h, sums: dict, method: str) -> np.ndarray:
     """(T, W, 2, 3, nb) track sums of ``method`` in the hierarchy's (target, track) positions."""
     shape = next(iter(sums.values())).shape
-    _, T, W = h.rs.shape
+    _, T, W = h.target_rs.shape
     out = np.zeros((T, W) + shape)
     for (m, t, tr), v in sums.items():
         if m == method and (t, tr) in h.index[0]:
@@ -90,7 +90,7 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
         return {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "reliability": {}}
     targets = h.targets
     pads = {m: _padded(h, sums, m) for m in present}
-    bw, w0 = h.rs.leaf_weights()[:, 0], h.rs.point_weights()[0]
+    bw, w0 = h.target_rs.leaf_weights()[:, 0], h.target_rs.point_weights()[0]
     point = {m: _ece(w0, pads[m]) for m in present}
     boot = {m: _ece(bw, pads[m]) for m in present}
     out = {"pooled": {m: {f"ece_{w}": estimate(point[m][i], boot[m][:, i]) for i, w in enumerate(WHERE)}

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from pipeline.infra.config.checks import bounds_problem, check_simulate, cross_checks
 from pipeline.infra.config.load import ablation_config, load_config, merge, parse_override
-from pipeline.infra.config.evaluation import (ABLATION_KEYS, BiasedConfig, BiasMapsConfig, EvaluateConfig,
+from pipeline.infra.config.evaluation import (ABLATION_KEYS, BiasedConfig, BiasedRandomizedConfig, BiasMapsConfig, EvaluateConfig,
                                              RandomizedConfig, ReportConfig, SensitivityConfig, is_model_ablation)
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.inputs import DEFAULT_INSTANCES, DataConfig, RunConfig, SyntheticDataConfig
@@ -27,7 +27,7 @@ from pipeline.infra.config.simulate import SimulateConfig
 
 
 __all__ = [
-    "ABLATION_KEYS", "DEFAULT_INSTANCES", "BiasedConfig", "BiasMapsConfig", "ClassifierConfig", "Config",
+    "ABLATION_KEYS", "DEFAULT_INSTANCES", "BiasedConfig", "BiasedRandomizedConfig", "BiasMapsConfig", "ClassifierConfig", "Config",
     "ConfigError", "DataConfig", "EvaluateConfig", "FeaturesConfig", "ModelsConfig", "PlanConfig", "RandomizedConfig",
     "ReportConfig", "RunConfig", "SensitivityConfig", "SimulateConfig", "StudyConfig", "SyntheticDataConfig",
     "TrainingConfig", "ablation_config", "bounds_problem", "canonical_json", "check_simulate", "cross_checks",

@@ -192,10 +192,10 @@ def cross_checks(cfg: Config, where: str) -> None:
         if key == "evaluate.test_domain_variance":
             need(a.split("=", 1)[1].strip().strip("'\"") in ("none", "cross_fit"),
                  f"'evaluate.ablations' entry {a!r}: the value must be none or cross_fit")
-    known = ("gp_models", "biased", "randomized", "sensitivity", "bias_maps")
+    known = ("gp_models", "biased", "randomized", "biased_randomized", "sensitivity", "bias_maps")
     for e in cfg.evaluate.experiments:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")
-    for key in ("biased", "randomized"):
+    for key in ("biased", "randomized", "biased_randomized"):
         need(len(getattr(cfg.evaluate, key).bias_m) == 2, f"'evaluate.{key}.bias_m' must be [x, y]")
     need(len(cfg.study.seeds) >= 1 and len(set(cfg.study.seeds)) == len(cfg.study.seeds),
          "'study.seeds' must list at least one seed, each once")
