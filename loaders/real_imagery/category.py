@@ -40,13 +40,8 @@ from loaders.real_imagery.frames import object_bearing_deg
 from loaders.real_imagery.pairing import box_rows, locate_instances
 from loaders.real_imagery.write import frame_views, write_scan_files
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
-from pipeline.evaluation.grid.candidates import FOLD_SEP
+from pipeline.scene.folds import fold_class
 from pipeline.infra.cache import write_bytes, write_json
-
-
-def fold_class(category: str, fold: int) -> str:
-    """The class of ``category`` in fold ``fold`` (fitted without instance ``fold``)."""
-    return f"{category}{FOLD_SEP}{int(fold)}"
 
 
 def view_code(instance: int, azimuth: float) -> int:

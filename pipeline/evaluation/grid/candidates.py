@@ -23,6 +23,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from pipeline.method.components import choose_components
+from pipeline.scene.folds import FOLD_SEP, fold_of  # noqa: F401 - public here
 
 
 def nearest_classes(target: str, others: Sequence[str], class_means: Mapping[str, np.ndarray],
@@ -32,17 +33,6 @@ def nearest_classes(target: str, others: Sequence[str], class_means: Mapping[str
     centre = np.asarray(class_means[target], float)
     dist = {c: float(np.linalg.norm(np.asarray(class_means[c], float) - centre)) for c in others}
     return sorted(others, key=lambda c: (dist[c], c))[:k]
-
-
-FOLD_SEP = "__f"   # a category class of fold k is named '<category>__f<k>' (candidate_folds)
-
-
-def fold_of(name: str) -> str:
-    """The fold of a category class ``<category>__f<k>`` (``k``); ValueError for another name."""
-    head, sep, k = str(name).rpartition(FOLD_SEP)
-    if not sep or not head or not k.isdigit():
-        raise ValueError(f"class {name!r} has no fold suffix '{FOLD_SEP}<k>' (evaluate.candidate_folds = true)")
-    return k
 
 
 def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: int,
