@@ -147,6 +147,9 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     ev, limit = cfg.evaluate, budget(cfg)
     require("evaluate.bootstrap", ev.bootstrap, footprints.bootstrap(ev.bootstrap, n_targets, width), limit,
             f"the two-level bootstrap over {n_targets} targets x up to {width} tracks")
+    require("evaluate.randomized.realizations", ev.randomized.realizations,
+            footprints.randomized_cell(ev, ev.track_length, ev.n_candidates), limit,
+            f"one cell's results ({len(ev.randomized.sigmas_m)} sigmas x {ev.track_length} steps per realization)")
     # Intervals drawn: each metric for every method and paired comparison, pooled and per setting,
     # and per target for every method (a lower bound: ablations and the ECE come on top).
     settings = len(P.population_settings(ev))
@@ -156,9 +159,6 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
         echo(f"[evaluate] evaluate.bootstrap = {ev.bootstrap}: the {n_stats}+ bootstrap intervals will take about "
              f"{seconds / 60:.0f} min (scaled from a timed run of 20000 draws; lower evaluate.bootstrap to shorten)")
     return seconds
-    require("evaluate.randomized.realizations", ev.randomized.realizations,
-            footprints.randomized_cell(ev, ev.track_length, ev.n_candidates), limit,
-            f"one cell's results ({len(ev.randomized.sigmas_m)} sigmas x {ev.track_length} steps per realization)")
 
 
 def fusion_device(ctx, executor) -> tuple[str, bool]:
