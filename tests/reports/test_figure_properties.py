@@ -207,6 +207,7 @@ coords = st.floats(-1e4, 1e4, allow_nan=False)
 @SETTINGS
 @given(st.lists(st.tuples(coords, coords), min_size=1, max_size=12), st.booleans(),
        st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1)), max_size=4), st.booleans())
+@example([(0.0, 0.015625)], False, [], False)   # found: one camera, an equal-aspect axis squeezed to two touching labels
 def test_track(cams, headings, biases, objects):
     from reports.main.figures_results import fig_track
     track = {"camera_xy": [list(c) for c in cams]}
