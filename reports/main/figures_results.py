@@ -229,10 +229,11 @@ def constant_note(v: np.ndarray) -> str:
 def _ci_line(ax, x, ests, color: str, label: str, ls: str = "-") -> int:
     """Line with CI error bars through Estimates; an infinite upper bound is drawn to the axis top
     (returned count) so the bar still says 'unbounded'."""
-    v = np.array([_num(e.value) for e in ests])
-    lo = np.array([_num(e.low, v[i]) for i, e in enumerate(ests)])
-    hi_raw = np.array([np.inf if e.high is not None and np.isposinf(float(e.high)) else _num(e.high, v[i])
-                       for i, e in enumerate(ests)])
+    # a method missing from a setting has no estimate there: a gap, not a crash
+    v = np.array([_num(getattr(e, "value", None)) for e in ests])
+    lo = np.array([_num(getattr(e, "low", None), v[i]) for i, e in enumerate(ests)])
+    hi_raw = np.array([np.inf if getattr(e, "high", None) is not None and np.isposinf(float(e.high))
+                       else _num(getattr(e, "high", None), v[i]) for i, e in enumerate(ests)])
     top = np.nanmax(np.concatenate([v, lo, hi_raw[np.isfinite(hi_raw)], [0.0]]))
     hi = np.where(np.isinf(hi_raw), top * 1.05 + 0.05, hi_raw)
     err = np.vstack([np.clip(v - lo, 0, None), np.clip(hi - v, 0, None)])

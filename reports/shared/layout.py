@@ -80,7 +80,7 @@ def _thin(ax, name: str) -> bool:
     if isinstance(fmt, ThinnedFormatter):
         n_shown = sum(1 for t in (ax.get_xticklabels() if name == "x" else ax.get_yticklabels())
                       if t.get_text().strip())
-        if n_shown <= 2:
+        if n_shown <= 1:     # a squeezed axis (equal aspect) may keep one label only
             return False
         fmt.stride += 1
         a.stale = True

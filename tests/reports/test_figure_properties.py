@@ -183,8 +183,19 @@ def sensitivity_summaries(draw):
                                          for m in methods}} for s in sigmas}
 
 
+# found: a method present in one setting only crashed the figure (no estimate to draw there)
+SENSITIVITY_GAP = {
+    "a": {"sigma_m": 0.1, "n_realizations": 3,
+          "methods": {WITH_UNCERTAINTY: {"correct_final": Estimate(0.5, 0.0, 1.0),
+                                         "log10_mgr95_final": Estimate(1e300, -1e300, math.inf)}}},
+    "b": {"sigma_m": 0.3, "n_realizations": 3,
+          "methods": {MODEL_BASED: {"correct_final": Estimate(0.5, None, None),
+                                    "log10_mgr95_final": Estimate(-1e-300, None, 1e4)}}}}
+
+
 @SETTINGS
 @given(sensitivity_summaries())
+@example(SENSITIVITY_GAP)
 def test_sensitivity(summ):
     from reports.main.figures_results import fig_sensitivity
     _clean(fig_sensitivity(summ), "sensitivity.png")
@@ -196,6 +207,7 @@ coords = st.floats(-1e4, 1e4, allow_nan=False)
 @SETTINGS
 @given(st.lists(st.tuples(coords, coords), min_size=1, max_size=12), st.booleans(),
        st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1)), max_size=4), st.booleans())
+@example([(0.0, 0.015625)], False, [], False)   # found: one camera, an equal-aspect axis squeezed to two touching labels
 def test_track(cams, headings, biases, objects):
     from reports.main.figures_results import fig_track
     track = {"camera_xy": [list(c) for c in cams]}
