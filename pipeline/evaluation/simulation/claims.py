@@ -30,6 +30,7 @@ from scipy import stats
 from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 from pipeline.evaluation.statistics.engine import over_members as within
+from pipeline.evaluation.statistics.records import outcome
 from pipeline.evaluation.statistics.resampler import wilson_interval
 
 LEVEL = 0.95
@@ -161,11 +162,13 @@ def holds(value: float, op: str, threshold: float) -> bool:
 
 
 def ci_side(lo: float, hi: float, op: str, threshold: float) -> str:
-    """"holds" / "fails" when the whole 95 % interval is on one side of the threshold, else "spans"."""
-    a, b = holds(lo, op, threshold), holds(hi, op, threshold)
+    """"holds" / "fails" when the whole 95 % interval is on one side of the threshold, else "spans":
+    the one outcome rule (``records.outcome``) applied to the interval minus the threshold, with the
+    claimed side (``op``) as the good one. A non-finite end spans."""
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return "spans"
-    return "holds" if a and b else "fails" if not (a or b) else "spans"
+    res = outcome(float(lo) - threshold, float(hi) - threshold, op in (">", ">="))
+    return {"better": "holds", "worse": "fails"}.get(res, "spans")
 
 
 def evaluate_claim(spec: ClaimSpec, posts: Mapping[str, np.ndarray], truth: int, p: ClaimParams) -> dict:

@@ -116,6 +116,9 @@ def test_verdict_and_ci_side():
     assert CL.ci_side(0.05, 0.15, ">", 0.2) == "fails"
     assert CL.ci_side(0.15, 0.25, ">", 0.2) == "spans"
     assert CL.ci_side(float("nan"), 0.25, ">", 0.2) == "spans"
+    # the one outcome rule (records.outcome) on interval - threshold: an end on the threshold spans
+    assert CL.ci_side(0.9, 0.95, ">=", 0.9) == "spans" and CL.ci_side(0.0, 0.05, "<=", 0.05) == "spans"
+    assert CL.ci_side(0.01, 0.04, "<=", 0.05) == "holds" and CL.ci_side(0.06, 0.2, "<=", 0.05) == "fails"
 
 
 def test_claims_need_the_step_on_the_track():
