@@ -48,8 +48,9 @@ def power_sentence(power: dict) -> str:
         return f"Every primary comparison's 95 % CI half-width is at most {fmt(goal)}."
     worst = max(open_, key=lambda e: (e.get("needed_units") or math.inf))
     need = worst.get("needed_units")
-    tail = (f"about {need} {worst['unit']} ({worst.get('needed_targets')} targets, {_cost(worst.get('cost_s'))} at "
-            f"this run's measured cost) would bring it to {fmt(goal)}" if need is not None else
+    targets = "" if worst["unit"] == "targets" else f"{worst.get('needed_targets')} targets, "
+    tail = (f"about {need} {worst['unit']} ({targets}{_cost(worst.get('cost_s'))} at this run's measured cost) "
+            f"would bring it to {fmt(goal)}" if need is not None else
             "its interval is unbounded, so no population size follows from it")
     beyond = "".join(f" ({worst[k]})" for k in ("beyond", "caution") if worst.get(k))
     return (f"{len(open_)} of {len(entries)} primary comparisons have a 95 % CI half-width above {fmt(goal)}; the "

@@ -73,3 +73,9 @@ def test_the_paper_setting_table_sits_beside_the_papers_figure_and_only_when_run
     ctx, sections = _ctx(pop)
     paper_setting(ctx, pop)
     assert sections == [] and ctx.page.items == []
+
+
+def test_targets_as_the_unit_are_named_once():
+    recs = [dict(r, over=["targets", "tracks"], n={"targets": 12, "tracks": 35}) for r in _records()]
+    text = power_sentence(power_block(recs, seconds=600.0))
+    assert "about 24 targets (20 min" in text and "24 targets, " not in text   # 12 x (0.07 / 0.05)^2 = 23.5
