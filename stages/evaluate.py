@@ -102,12 +102,11 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
-        dirichlet = P.dirichlet_track(first)
+        fixed, _ = P.pose_free_track(first, models)
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
-                                 P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor)
-            if dirichlet is not None:
-                posts = P.with_dirichlet(posts, dirichlet[0])
+                                 P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor,
+                                 fixed=fixed)
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
