@@ -44,9 +44,9 @@ for truth, target in enumerate(CLASSES):
         bearing = rng.uniform(0, 2 * np.pi) + np.linspace(0.0, 1.0, K)
         cameras = 2.0 * np.stack([np.cos(bearing), np.sin(bearing)], axis=1)
         mean, _ = models.marginal(np.stack([np.cos(bearing), np.sin(bearing)], axis=1))
-        dropout = mean[:, truth, None, :] + rng.normal(0, 0.05, (K, 6, 2))
+        dropout = mean[:, truth, None, :] + rng.normal(0, 0.15, (K, 6, 2))
         alpha = np.full(3, 2.0)
-        alpha[truth] = 3.0
+        alpha[truth] = 2.5
         own = rng.dirichlet(alpha, size=(K, 6))
         estimates = cameras[None] + rng.normal(0, 0.2, (10, K, 2))      # 10 realizations of pose error
         for key in ("with_uncertainty", "model_based", "simple_bayes", "majority_vote"):

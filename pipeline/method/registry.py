@@ -146,3 +146,24 @@ def get(key: str) -> FusionMethod | None:
 def comparisons() -> tuple[tuple[str, str], ...]:
     """The population's paired comparisons: the reference method against every other method."""
     return tuple((REFERENCE, k) for k in keys() if k != REFERENCE)
+
+
+def outside_fingerprint() -> str:
+    """The methods registered from outside this package's built-ins, each as ``key=sha256 of its
+    module's source``: the evaluate and simulate stages add it to their cache key, so registering,
+    removing or editing such a method reruns them (the built-ins are in their code key already)."""
+    import hashlib
+    import inspect
+
+    parts = []
+    for m in methods():
+        cls = type(m)
+        if cls.__module__.startswith("pipeline.method.methods."):
+            continue
+        try:
+            src = inspect.getsource(inspect.getmodule(cls))
+        except (OSError, TypeError):   # defined interactively: the class's own attributes stand in
+            src = repr(sorted((k, repr(v)) for k, v in vars(cls).items()))
+        parts.append(f"{m.key}={hashlib.sha256(src.encode()).hexdigest()[:16]}")
+    return ";".join(parts)
+
