@@ -97,3 +97,26 @@ def test_without_what_it_needs_a_method_is_skipped():
     models, track, est, smp = _case()
     bare = E.TrackData(track.images, track.cam_xy, track.obj_xy, track.yaw, track.dropout)
     assert "simple_bayes" not in E.fuse_track(models, bare, est, smp, var_floor=1e-6)
+
+
+def test_entry_points_of_the_group_are_loaded_on_first_use(monkeypatch):
+    """A package of one's own registers through the entry-point group (loaded once, in every
+    process that asks the registry)."""
+    import importlib.metadata
+
+    loaded = []
+
+    class EP:
+        def load(self):
+            loaded.append(True)
+            return registry.register(ToyTempered)
+
+    monkeypatch.setattr(importlib.metadata, "entry_points",
+                        lambda group=None: [EP()] if group == registry.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(registry, "_LOADED", False)
+    try:
+        assert KEY in registry.keys() and loaded == [True]
+        registry.keys()
+        assert loaded == [True]
+    finally:
+        registry.unregister(KEY)
