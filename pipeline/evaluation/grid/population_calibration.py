@@ -30,7 +30,7 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
     abl = {}
     att = [m for m in (WITH_UNCERTAINTY, MODEL_BASED, *ATTRIBUTION) if m in set(dtab["method"])]
     if all(m in att for m in ATTRIBUTION):
-        b = population_block(dtab[dtab["method"].isin(att)], att, metrics, ATTRIBUTION_comparisons(), ev.bootstrap,
+        b = population_block(dtab[dtab["method"].isin(att)], att, metrics, ATTRIBUTION_COMPARISONS, ev.bootstrap,
                              ev.seed, primary=prim, ece={"sums": sums}, per_target=False)
         abl[ATTRIBUTION_KEY] = {"kind": "attribution", "methods": att,
                                 "override": {"with_uncertainty_poses_only": "dropout samples replaced by their mean",
