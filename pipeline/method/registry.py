@@ -148,9 +148,14 @@ def comparisons() -> tuple[tuple[str, str], ...]:
     return tuple((REFERENCE, k) for k in keys() if k != REFERENCE)
 
 
+def _listed() -> tuple[str, ...]:
+    from pipeline.method.methods import LISTED
+    return LISTED
+
+
 def outside_fingerprint() -> str:
-    """The methods registered from outside this package's built-ins, each as ``key=sha256 of its
-    module's source``: the evaluate and simulate stages add it to their cache key, so registering,
+    """The methods registered from outside the listed built-ins (a discovered built-in file, an
+    entry point, a test), each as ``key=sha256 of its module's source``: the evaluate and simulate stages add it to their cache key, so registering,
     removing or editing such a method reruns them (the built-ins are in their code key already)."""
     import hashlib
     import inspect
@@ -158,7 +163,7 @@ def outside_fingerprint() -> str:
     parts = []
     for m in methods():
         cls = type(m)
-        if cls.__module__.startswith("pipeline.method.methods."):
+        if cls.__module__.rpartition(".")[::2] in (("pipeline.method.methods", n) for n in _listed()):
             continue
         try:
             src = inspect.getsource(inspect.getmodule(cls))
