@@ -112,12 +112,11 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
-        dirichlet = P.dirichlet_track(first)
+        fixed, _ = P.pose_free_track(first, models)
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
-                                 P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor)
-            if dirichlet is not None:
-                posts = P.with_dirichlet(posts, dirichlet[0])
+                                 P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor,
+                                 fixed=fixed)
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
@@ -159,6 +158,14 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
         echo(f"[evaluate] evaluate.bootstrap = {ev.bootstrap}: the {n_stats}+ bootstrap intervals will take about "
              f"{seconds / 60:.0f} min (scaled from a timed run of 20000 draws; lower evaluate.bootstrap to shorten)")
     return seconds
+
+
+
+def extra_key(cfg) -> str:
+    """Fusion methods registered from outside the project (their keys and code): a new or edited
+    one reruns the stage."""
+    from pipeline.method.registry import outside_fingerprint
+    return outside_fingerprint()
 
 
 def fusion_device(ctx, executor) -> tuple[str, bool]:

@@ -32,11 +32,20 @@ from pipeline.infra.progress import bar as progress_bar
 log = logging.getLogger("viewfuse.simulate")
 
 
+
+def extra_key(cfg) -> str:
+    """Fusion methods registered from outside the project (their keys and code): a new or edited
+    one reruns the stage."""
+    from pipeline.method.registry import outside_fingerprint
+    return outside_fingerprint()
+
+
 def _fit_budget(sim, limit: int):
     """The results of every realization are kept (refused when they cannot fit); a fused batch
     holds ``simulate.chunk`` realizations (capped to a quarter of the budget; the results do not
     depend on it: every realization draws from its own generator)."""
-    rows = sim.realizations * len(sim.scenarios) * 3 * sim.track_steps  # (method, realization, step)
+    from pipeline.evaluation.simulation.scenarios import methods
+    rows = sim.realizations * len(sim.scenarios) * len(methods()) * sim.track_steps  # (method, realization, step)
     require("simulate.realizations", sim.realizations, rows * 800, limit,  # ~100 float64 per row in its copies
             f"the results table ({rows} rows, kept in memory until written)")
     chunk = cap_batch("simulate.chunk", sim.chunk, footprints.simulate_realization(sim), limit / 4)

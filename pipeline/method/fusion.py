@@ -37,7 +37,6 @@ import numpy as np
 
 from pipeline.method import engine
 from pipeline.method.gp import GPClassModels
-from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
 # Elements per working array in one block (a few such arrays live at once): ~2 MB each, about 180
 # trajectories at 4 x 4 GPs, K = 9, N_s = 10. Blocks this size keep the basis GEMMs and Grams in
@@ -187,7 +186,7 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
                                           v_z[r0:r1], Z[r0:r1], logp0)
         return _mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0)
 
-    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY]):
+    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, "With Uncertainty"):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
     acc -= math.log(Nx)
     acc = acc - logsumexp(acc, axis=-1, keepdims=True)  # exact already; removes rounding drift
@@ -241,7 +240,7 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         return kernels.recursion_mean(ll, vprod, logp0, 1, np.empty((b, K, C)))
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
-    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED]):
+    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, "Model Based"):
         out[r0:r1] = lp
     out = out - logsumexp(out, axis=-1, keepdims=True)
     out = out if return_log else np.exp(out)

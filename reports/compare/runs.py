@@ -202,7 +202,7 @@ def seed_pool(col: Column) -> dict | None:
     when a run's summary holds no cells. Computed once per column."""
     if id(col) in _POOLS:
         return _POOLS[id(col)]
-    from pipeline.evaluation.metrics.labels import COMPARISONS
+    from pipeline.evaluation.metrics.labels import comparisons
     from pipeline.evaluation.statistics.engine import seed_block
 
     pops = [r.population for r in col.runs]
@@ -211,7 +211,7 @@ def seed_pool(col: Column) -> dict | None:
         methods = ordered_methods({m for p in pops for m in p["pooled"]})
         metrics = [k for k in METRICS if all(k in (p["cells"][0].get("values") or {}).get(methods[0], {})
                                              for p in pops)]
-        out = seed_block({r.name: r.population["cells"] for r in col.runs}, methods, metrics, COMPARISONS,
+        out = seed_block({r.name: r.population["cells"] for r in col.runs}, methods, metrics, comparisons(),
                          int(pops[0].get("bootstrap") or 1000), primary=tuple(pops[0].get("primary_metrics") or ()))
     _POOLS[id(col)] = out
     return out

@@ -8,27 +8,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pipeline.evaluation.metrics.labels import method_label, ordered_methods
+from pipeline.evaluation.metrics.labels import method_label, method_note, ordered_methods
 from pipeline.infra.outputs import path as out_path
 from reports.main.bottom_line import counts
 from reports.main.context import ReportContext
 from reports.shared.figures import MGR_SATURATION
-
-# One line per method: what it models, what it ignores (paper §§3-4; docs/design.md §5).
-METHOD_NOTES = {
-    "with_uncertainty": ("the paper's method: one GP per class and score component over the viewing direction; "
-                         "it averages over sampled camera poses (the localization noise) and over the classifier's "
-                         "dropout samples (model uncertainty)"),
-    "model_based": ("the same GP class models, evaluated at the estimated pose as if it were exact, on the mean "
-                    "of the dropout samples: no localization or model uncertainty"),
-    "simple_bayes": ("multiplies the classifier's own class probabilities view after view; ignores the viewpoint "
-                     "and the poses"),
-    "dirichlet": ("one Dirichlet distribution per class over the classifier's whole probability vector, fused over "
-                  "the dropout samples; ignores the viewpoint and the poses"),
-    "with_uncertainty_poses_only": "With Uncertainty with the dropout samples replaced by their mean",
-    "with_uncertainty_dropout_only": "With Uncertainty without pose sampling (it trusts the pose estimate)",
-}
-
 
 def methods_section(ctx: ReportContext) -> None:
     pop = ctx.population or {}
@@ -36,7 +20,7 @@ def methods_section(ctx: ReportContext) -> None:
     if not methods:
         return
     ctx.section("The methods compared", "methods")
-    ctx.page.table(["method", "what it does"], [[method_label(m), METHOD_NOTES.get(m, "(no description)")]
+    ctx.page.table(["method", "what it does"], [[method_label(m), method_note(m)]
                                                 for m in methods], cls="methods")
 
 

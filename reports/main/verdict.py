@@ -3,7 +3,7 @@ then the diagnostics that drive it (GP fits at a bound, ablations). All numbers 
 ``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
 from __future__ import annotations
 
-from pipeline.evaluation.metrics.labels import (COMPARISONS, DIRICHLET, comparison_key, comparison_label, method_label,
+from pipeline.evaluation.metrics.labels import (DIRICHLET, comparisons, comparison_key, comparison_label, method_label,
                                        ordered_methods)
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
 from pipeline.evaluation.statistics.records import outcome
@@ -189,7 +189,7 @@ def population_section(ctx: ReportContext) -> None:
 def comparison_keys(pop: dict) -> list[str]:
     """The paired comparisons in summary.json: the known ones in their order, then any others."""
     have = list((pop.get("paired") or {}).keys())
-    known = [comparison_key(m, b) for m, b in COMPARISONS]
+    known = [comparison_key(m, b) for m, b in comparisons()]
     return [k for k in known if k in have] + [k for k in have if k not in known]
 
 
@@ -332,7 +332,7 @@ def _ablations(ctx: ReportContext) -> None:
                            "models.noise_floor=dropout measures how much of the verdict the fits at the "
                            "noise bound carry.", cls="note")
         return
-    key = comparison_key(*COMPARISONS[0])
+    key = comparison_key(*comparisons()[0])
     rows = []
     for name, a in abl.items():
         if a.get("kind") == "attribution":  # its own section (sections_calibration)

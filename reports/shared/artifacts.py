@@ -20,7 +20,7 @@ from pipeline.infra.cache import NpzFileError, load_npz
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import path as out_path
-from pipeline.evaluation.metrics.labels import ATTRIBUTION, METHODS
+from pipeline.evaluation.metrics.labels import ATTRIBUTION, methods
 from pipeline.evaluation.metrics.spec import STEP_COLUMNS
 
 log = logging.getLogger("viewfuse.report")
@@ -153,7 +153,7 @@ class EvaluateOutputs:
 
 def read_results(path: Path) -> tuple[pd.DataFrame, dict]:
     df, meta = read_result_table(path, RESULT_COLUMNS, optional=POPULATION_COLUMNS)
-    unknown = sorted(set(df["method"].unique()) - set(METHODS) - set(ATTRIBUTION)) if len(df) else []
+    unknown = sorted(set(df["method"].unique()) - set(methods()) - set(ATTRIBUTION)) if len(df) else []
     if unknown:
         log.warning("%s: unknown method(s) %s are shown in grey", path, unknown)
     return df, meta

@@ -8,7 +8,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from pipeline.evaluation.metrics.labels import METHOD_SHORT
+from pipeline.evaluation.metrics.labels import method_label
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.shared.numbers import fmt
 
@@ -49,8 +49,8 @@ def over_text(rec: Mapping) -> str:
 def sentence(rec: Mapping) -> str:
     """One record as a sentence: outcome, statistic, value, interval, what it varies over, the
     wins/losses and the caveats the record carries."""
-    a = METHOD_SHORT.get(rec["method"], rec["method"]) if "method" in rec else rec["comparison"].split("-", 1)[0]
-    b = METHOD_SHORT.get(rec.get("baseline"), rec.get("baseline")) if "baseline" in rec else \
+    a = method_label(rec["method"], short=True) if "method" in rec else rec["comparison"].split("-", 1)[0]
+    b = method_label(rec.get("baseline"), short=True) if "baseline" in rec else \
         rec["comparison"].split("-", 1)[1]
     stat = STATISTIC.get(rec.get("pooling"), "difference")
     text = (f"{a} {PHRASE[rec['outcome']]} {b} on {metric_label(rec['metric'])} ({stat} "

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.metrics.labels import DIRICHLET, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color, method_label
+from pipeline.evaluation.metrics.labels import (DIRICHLET, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color,
+                                                method_label, ordered_methods)
 from pipeline.method.gp_files import load_bank
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, metric_label
 from pipeline.infra.outputs import name as out_name
@@ -31,7 +32,7 @@ from reports.shared.artifacts import load_simulate
 from reports.shared.figures import new_subplots, percentile_bands, save
 from reports.shared.html import HtmlReport
 from reports.simulate.claims import claims_section, fig_confident_errors, fig_sweep
-from reports.simulate.findings import OTHERS, OURS, findings_text, matrix
+from reports.simulate.findings import OURS, findings_text, matrix
 from reports.shared.stats import BOOTSTRAP, metric_params, track_summary
 
 log = logging.getLogger("viewfuse.simulate")
@@ -64,7 +65,7 @@ def _finite_cap(v: np.ndarray) -> np.ndarray:
 
 def fig_bands_vs(df: pd.DataFrame, column: str, ylabel: str, title: str):
     """One panel per other method, each overlaid with Model with Uncertainty (paper Figs. 3, 5)."""
-    others = [m for m in OTHERS if m in set(df["method"])]
+    others = [m for m in ordered_methods(df["method"].unique()) if m != OURS]
     fig, axes = new_subplots(1, len(others), w=0.8 + 4.2 * len(others), h=3.6, sharey=True)
     mats = {m: matrix(df[df["method"] == m], column) for m in (OURS,) + tuple(others)}
     for ax, m in zip(axes[0], others):

@@ -109,7 +109,7 @@ def outcomes(result: dict) -> dict[str, str] | None:
 def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
     """Every seed's cells in one bootstrap (seeds, then targets, then tracks): pooled values, paired
     differences and records that cover training runs (``pipeline.evaluation.statistics.engine.seed_block``)."""
-    from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
+    from pipeline.evaluation.metrics.labels import comparisons, methods as method_keys
     from pipeline.evaluation.metrics.spec import METRICS
     from pipeline.evaluation.statistics.engine import seed_block
 
@@ -117,11 +117,11 @@ def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
     if not cells:
         return None
     present = {m for cs in cells.values() for c in cs for m in (c.get("values") or {})}
-    methods = [m for m in METHODS if m in present]
+    methods = [m for m in method_keys() if m in present]
     metrics = [k for k in METRICS if any(k in (c.get("values") or {}).get(methods[0], {})
                                          for cs in cells.values() for c in cs[:1])]
     primary = next((r.get("primary_metrics") for r in results.values() if r.get("primary_metrics")), ())
-    return seed_block(cells, methods, metrics, COMPARISONS, n_boot, primary=tuple(primary or ()))
+    return seed_block(cells, methods, metrics, comparisons(), n_boot, primary=tuple(primary or ()))
 
 
 def summarize(results: dict[int, dict], n_boot: int = 2000) -> dict:

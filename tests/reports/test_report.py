@@ -131,7 +131,7 @@ def test_labels_are_the_one_place_and_class_colours_never_use_a_method_hue():
     assert not hasattr(F, "METHOD_STYLE")
     assert labels.method_label("with_uncertainty") == "With Uncertainty (Feldman & Indelman)"
     assert labels.method_label("model_based") == "Model Based (Teacy et al.)"
-    assert not set(labels.class_colors(12)) & set(labels.METHOD_COLORS.values())
+    assert not set(labels.class_colors(12)) & {labels.method_color(m) for m in labels.methods()}
     assert labels.ordered_methods({"simple_bayes", "zzz", "with_uncertainty"}) == ["with_uncertainty", "simple_bayes", "zzz"]
     assert labels.comparison_label("with_uncertainty-model_based") == "With Uncertainty − Model Based"
 
@@ -333,7 +333,7 @@ def test_single_track_cis_over_realizations_agree_with_an_independent_computatio
     want = facts["summary"]["experiments"]["sensitivity"]
     header, *rows = page.table("sensitivity")["rows"]
     assert header[-1] == "realizations" and len(rows) == 3 * 3
-    short = {labels.method_label(m, short=True): m for m in labels.METHODS}
+    short = {labels.method_label(m, short=True): m for m in labels.methods()}
     for r in rows:
         m = want[r[0]][short[r[1]]]
         for cell, key in zip(r[2:6], ("correct_final", "correct_overall", "log10_mgr95_final", "log10_mgr95_overall")):

@@ -36,7 +36,6 @@ from pipeline.method.engine import named_cholesky as _cholesky
 from pipeline.method.fusion import (_blocks, _dropout_stats, _per_sample_cost, _run_blocks,  # noqa: F401
                                     log_prior, logsumexp, simple_bayes)
 from pipeline.method.gp import GPClassModels
-from pipeline.method.names import METHOD_SHORT, MODEL_BASED, WITH_UNCERTAINTY
 
 # Elements per working array in one block (a few such arrays live at once): ~8 MB each. Blocks
 # this size keep the train-test kernel passes near the caches; more blocks cost little.
@@ -160,7 +159,7 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
         r0, r1, x0, x1 = span
         return logsumexp(_mwu_block(models, X[r0:r1, x0:x1], Z[r0:r1], logp0, var_floor), axis=1)
 
-    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[WITH_UNCERTAINTY],
+    for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, "With Uncertainty",
                                                    prepare=GPClassModels.factors):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
     acc -= math.log(Nx)
@@ -206,7 +205,7 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         return _recursion(ll[..., None], logp0)
 
     spans = _blocks(R, 1, _per_sample_cost(models, K, 1), block)
-    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, METHOD_SHORT[MODEL_BASED],
+    for (r0, r1, _, _), lp in _run_blocks(models, work, spans, threads, progress, "Model Based",
                                                   prepare=GPClassModels.factors):
         out[r0:r1] = lp
     out = out - logsumexp(out, axis=-1, keepdims=True)

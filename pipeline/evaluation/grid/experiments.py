@@ -8,19 +8,19 @@ rows by ``pipeline.evaluation.metrics.results`` and into the single-track tables
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterable
 
 import numpy as np
 
 from pipeline.evaluation.metrics import spec as M
-from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
+from pipeline.method import registry
+from pipeline.method.fusion import fuse_model_based
 from pipeline.method.geometry import relative_inputs, sample_localization
-from pipeline.evaluation.metrics.labels import (METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY,
-                                        WU_POSES_ONLY)
+from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 
-__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "fuse_track",
-           "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
+__all__ = ["MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "track_input", "pose_free", "run_track",
+           "fuse_track", "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -52,13 +52,38 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
         yield a, min(n, a + size)
 
 
+def track_input(models, track: TrackData, *, var_floor: float, estimates: np.ndarray | None = None,
+                samples: np.ndarray | None = None, dirichlet=None, n_ss: int = 100,
+                rng: np.random.Generator | None = None) -> registry.TrackInput:
+    """What the registered methods read of one track (``pipeline.method.registry.TrackInput``)."""
+    return registry.TrackInput(dropout=track.dropout, gp=models, dirichlet=dirichlet, own=track.own, probs=track.probs,
+                               estimates=estimates, samples=samples, inputs=track.inputs, var_floor=var_floor,
+                               n_ss=n_ss, rng=rng)
+
+
+def pose_free(t: registry.TrackInput, clock: dict[str, float] | None = None,
+              rng: Callable[[str], np.random.Generator] | None = None) -> tuple[dict[str, np.ndarray], dict]:
+    """The pose-free methods that apply to the track, fused once: ({method: log posteriors (K, C)},
+    their extras, e.g. the Dirichlet cloud's spread ``dirichlet_std``). ``rng(key)``: each
+    method's own random stream."""
+    posts, extras = {}, {}
+    for m in registry.methods(attribution=False):
+        if not m.uses_poses and m.applies(t):
+            tm = t if rng is None else replace(t, rng=rng(m.key))
+            posts[m.key], more = _timed(clock, m.key, m.fuse_with_extras, tm)
+            extras.update(more)
+    return posts, extras
+
+
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
-              clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+              clock: dict[str, float] | None = None, fixed: dict[str, np.ndarray] | None = None
+              ) -> dict[str, np.ndarray]:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
     draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
-    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, clock=clock)
+    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, clock=clock,
+                      fixed=fixed)
 
 
 def _timed(clock: dict[str, float] | None, key: str, fn, *args, **kw):
@@ -72,53 +97,50 @@ def _timed(clock: dict[str, float] | None, key: str, fn, *args, **kw):
 
 
 def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
-               attribution: bool = False, clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
-    """The methods on realizations of pose estimates (R, K, 2) and their localization samples
-    (R, N_x, K, 2) -> log posteriors (R, K, C) each.
+               attribution: bool = False, clock: dict[str, float] | None = None,
+               fixed: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """Every registered method that applies on realizations of pose estimates (R, K, 2) and their
+    localization samples (R, N_x, K, 2) -> log posteriors (R, K, C) each, in registry order.
 
     Log space all the way to the metrics: a confident posterior's smallest entries underflow as
     probabilities, and log MGR must stay finite.
 
     Model Based trusts the estimates; Model with Uncertainty fuses the N_x trajectories sampled
     around them with the stated σ (the same σ the estimate error was drawn with, as in the paper).
-    Simple Bayes (when the track carries ``own`` scores) ignores the poses: the same posterior for
-    every realization, repeated so that the methods pair up realization by realization.
+    A pose-free method (Simple Bayes when the track carries ``own`` scores) ignores the poses: its
+    posterior, from ``fixed`` ({method: (K, C)}, fused once per track by ``pose_free``) or fused
+    here, is repeated so that the methods pair up realization by realization.
 
-    ``attribution`` adds With Uncertainty with one ingredient each, on the same estimates (and
-    no extra random draws, so the other methods' results do not change): *poses only* (the same
-    localization samples, each step's dropout samples replaced by their mean: no model-uncertainty
-    term beyond ``var_floor``) and *dropout only* (no pose sampling: σ = 0, N_x = 1, the estimates
-    themselves).
+    ``attribution`` adds the attribution variants (``FusionMethod.attribution``): With Uncertainty
+    with one ingredient each, on the same estimates and no extra random draws, so the other
+    methods' results do not change.
 
     ``clock``: wall seconds per method are added to it (the bench's time split).
     """
     r = len(estimates)
-    mb = _timed(clock, MODEL_BASED, fuse_model_based, models, track.inputs(estimates),
-                np.broadcast_to(track.measurement, (r,) + track.measurement.shape), return_log=True, progress=False)
-    wu = _timed(clock, WITH_UNCERTAINTY, fuse_with_uncertainty, models, track.inputs(samples),
-                np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
-                var_floor=var_floor, return_log=True, progress=False)
-    out = {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
-    if track.own is not None:
-        out[SIMPLE_BAYES] = np.broadcast_to(simple_bayes(track.own.mean(axis=1), return_log=True), wu.shape).copy()
-    if attribution:
-        mean_only = track.dropout.mean(axis=1, keepdims=True)          # (K, 1, F)
-        out[WU_POSES_ONLY] = _timed(clock, WU_POSES_ONLY, fuse_with_uncertainty, models, track.inputs(samples),
-                                    np.broadcast_to(mean_only, (r,) + mean_only.shape),
-                                    var_floor=var_floor, return_log=True, progress=False)
-        out[WU_DROPOUT_ONLY] = _timed(clock, WU_DROPOUT_ONLY, fuse_with_uncertainty, models,
-                                      track.inputs(estimates[:, None]),
-                                      np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
-                                      var_floor=var_floor, return_log=True, progress=False)
+    t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples)
+    out = {}
+    for m in registry.methods(attribution=attribution):
+        if m.uses_poses:
+            if m.applies(t):
+                out[m.key] = _timed(clock, m.key, m.fuse, t)
+            continue
+        if fixed is not None:
+            one = fixed.get(m.key)
+        else:
+            one = _timed(clock, m.key, m.fuse, t) if m.applies(t) else None
+        if one is not None:
+            out[m.key] = np.broadcast_to(one, (r,) + one.shape).copy()
     return out
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
-           *, var_floor: float, attribution: bool = False, clock: dict[str, float] | None = None
-           ) -> dict[str, np.ndarray]:
+           *, var_floor: float, attribution: bool = False, clock: dict[str, float] | None = None,
+           fixed: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
-    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, clock=clock)
+    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, clock=clock,
+                     fixed=fixed)
 
 
 # With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
@@ -130,14 +152,15 @@ BATCH_TRAJECTORIES = 100_000
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
                progress: Callable[[int], None] | None = None, attribution: bool = False,
-               clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+               clock: dict[str, float] | None = None, fixed: dict[str, np.ndarray] | None = None
+               ) -> dict[str, np.ndarray]:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
 
     The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
     localization samples, which fixes the random stream; ``batch`` realizations (default: as many
     as make ``BATCH_TRAJECTORIES`` trajectories) are fused per call, which changes speed and
     memory only. ``progress`` is told the realizations of each fused batch; ``clock`` as in
-    ``fuse_track``."""
+    ``fuse_track``, and so is ``fixed``."""
     per_call = int(batch) if batch else max(1, BATCH_TRAJECTORIES // max(int(n_x), 1))
     out: dict[str, list[np.ndarray]] = {}
     est_parts: list[np.ndarray] = []
@@ -148,7 +171,7 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
         est_parts.clear()
         smp_parts.clear()
         for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution,
-                               clock=clock).items():
+                               clock=clock, fixed=fixed).items():
             out.setdefault(m, []).append(v)
         if progress:
             progress(len(est))
@@ -217,19 +240,17 @@ def gp_rasters(models, *, grid_n: int = 61, extent: float = 1.5, ring_n: int = 1
     }
 
 
-def single_view_first(models, track: TrackData, truth: int, *, var_floor: float = 1e-6) -> dict[str, float]:
+def single_view_first(models, track: TrackData, truth: int, *, var_floor: float = 1e-6,
+                      dirichlet=None) -> dict[str, float]:
     """How hard a track is: per method, the share of its views whose posterior from that view
     alone, at the true pose, ranks the truth first (1 = every view alone is enough)."""
-    K = track.k
-    pos = track.cam_xy[:, None, None, :]                                  # (K, N_x=1, 1, 2)
-    wu = fuse_with_uncertainty(models, track.inputs(pos), track.dropout[:, None], var_floor=var_floor,
-                               return_log=True, progress=False)[:, 0]     # (K, C)
-    mb = fuse_model_based(models, track.inputs(track.cam_xy[:, None, :]), track.measurement[:, None, :],
-                          return_log=True, progress=False)[:, 0]
-    out = {WITH_UNCERTAINTY: wu, MODEL_BASED: mb}
-    if track.own is not None:
-        out[SIMPLE_BAYES] = simple_bayes(track.own.mean(axis=1)[:, None, :], return_log=True)[:, 0]
-    return {m: float(np.mean(M.correct(p, truth, is_log=True))) for m, p in out.items()} | {"views": K}
+    t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], dirichlet=dirichlet)
+    out = {}
+    for m in registry.methods(attribution=False):
+        one = m.single_view(t) if m.applies(t) else None
+        if one is not None:
+            out[m.key] = float(np.mean(M.correct(one, truth, is_log=True)))
+    return out | {"views": track.k}
 
 
 def summarize(posts: dict[str, np.ndarray], truth: int, params: M.Params) -> dict[str, dict[str, float]]:

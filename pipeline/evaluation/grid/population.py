@@ -17,10 +17,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.grid import experiments as E
-from pipeline.evaluation.metrics import spec as M
-from pipeline.method import dirichlet_fusion as DF
 from pipeline.method.dirichlet import DirichletModels
-from pipeline.method.names import DIRICHLET
 from pipeline.scene.location import InconsistentRays, Location, locate_rays
 from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
@@ -225,26 +222,18 @@ class Cell:
     device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
 
 
-def dirichlet_rng(seed: int, target: str, track: int) -> np.random.Generator:
-    """The Dirichlet cloud's subsampling stream: from the cell's identity only (not the variant or
-    the setting: the method ignores both), so Ray and local runs draw the same points."""
-    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, zlib.crc32(b"dirichlet")])
+def method_rng(seed: int, target: str, track: int, method: str) -> np.random.Generator:
+    """A pose-free method's own stream (the Dirichlet cloud's subsampling): from the cell's
+    identity and the method's key only (not the variant or the setting: such a method ignores
+    both), so Ray and local runs draw the same points and one method's draws never move another's."""
+    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, zlib.crc32(method.encode())])
 
 
-def dirichlet_track(cell: Cell) -> tuple[np.ndarray, np.ndarray] | None:
-    """The Dirichlet method on the cell's track: log E[λ] and std λ per step, (K, C) each, or None
-    when the cell has no Dirichlet models or no probability vectors."""
-    if cell.dirichlet is None or cell.data.probs is None:
-        return None
-    return DF.fuse_dirichlet(cell.dirichlet, cell.data.probs, n_ss=cell.n_ss,
-                             rng=dirichlet_rng(cell.seed, cell.target, cell.track))
-
-
-def with_dirichlet(posts: dict[str, np.ndarray], log_mean: np.ndarray) -> dict[str, np.ndarray]:
-    """``posts`` plus the Dirichlet's (K, C) log posterior repeated over the realizations (it
-    ignores the poses: the same posterior for every realization, paired with the others')."""
-    r = next(iter(posts.values())).shape[0]
-    return {**posts, DIRICHLET: np.broadcast_to(log_mean, (r,) + log_mean.shape).copy()}
+def pose_free_track(cell: Cell, models, clock: dict[str, float] | None = None) -> tuple[dict, dict]:
+    """The pose-free methods on the cell's track, fused once (``experiments.pose_free``): their
+    (K, C) log posteriors, repeated over every setting's realizations, and their extras."""
+    t = E.track_input(models, cell.data, var_floor=cell.var_floor, dirichlet=cell.dirichlet, n_ss=cell.n_ss)
+    return E.pose_free(t, clock, rng=lambda key: method_rng(cell.seed, cell.target, cell.track, key))
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
@@ -255,7 +244,7 @@ def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.
 def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None, "seconds":
-    {method: wall seconds in its fusion calls}}."""
+    {method: wall seconds in its fusion calls}, and the pose-free methods' extras}."""
     from pipeline.method.fusion import engine_device
 
     with engine_device(cell.device):
@@ -267,31 +256,21 @@ def _run_cell(banks, cell: Cell) -> dict:
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
     clock: dict[str, float] = {}
-    t0 = time.perf_counter()
-    dirichlet = dirichlet_track(cell)
-    if dirichlet is not None:
-        clock[DIRICHLET] = time.perf_counter() - t0
+    fixed, extras = pose_free_track(cell, models, clock)
     posts: dict = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
                                                       var_floor=cell.var_floor, attribution=cell.attribution,
-                                                      clock=clock)
+                                                      clock=clock, fixed=fixed)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
                                                           rng, var_floor=cell.var_floor, attribution=cell.attribution,
-                                                          clock=clock)
-        if dirichlet is not None:
-            posts[(s.experiment, s.label)] = with_dirichlet(posts[(s.experiment, s.label)], dirichlet[0])
-    diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None
-    if diff is not None and dirichlet is not None:
-        one = DF.single_view(cell.dirichlet, cell.data.probs)
-        diff[DIRICHLET] = float(np.mean(M.correct(one, cell.truth, is_log=True)))
-    out = {"posts": posts, "difficulty": diff, "seconds": clock}
-    if dirichlet is not None:
-        out["dirichlet_std"] = dirichlet[1]
-    return out
+                                                          clock=clock, fixed=fixed)
+    diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, dirichlet=cell.dirichlet)
+            if cell.difficulty else None)
+    return {"posts": posts, "difficulty": diff, "seconds": clock, **extras}
 
 
 def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:

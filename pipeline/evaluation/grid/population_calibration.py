@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pandas as pd
 
-from pipeline.evaluation.metrics.labels import (ATTRIBUTION, ATTRIBUTION_COMPARISONS, COMPARISONS, METHODS, MODEL_BASED,
-                                        WITH_UNCERTAINTY)
+from pipeline.evaluation.metrics.labels import (ATTRIBUTION, ATTRIBUTION_COMPARISONS, MODEL_BASED, WITH_UNCERTAINTY,
+                                                comparisons, methods)
 from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.pooled_calibration import track_sums
@@ -20,13 +20,13 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
     block on the same shared draws (same targets and tracks, same seed)."""
     ev = cfg.evaluate
     metrics = list(METRICS)
-    main = [m for m in METHODS if m in set(table["method"])]
+    main = [m for m in methods() if m in set(table["method"])]
     prim = tuple(ev.primary_metrics)
     scans = bool(getattr(ev, "resample_scans", False))
     out = {}
     sums = track_sums(cells, results, default, ev.ece_bins)
     dtab = table[table["variant"] == default]
-    out["main"] = population_block(dtab[dtab["method"].isin(main)], main, metrics, COMPARISONS, ev.bootstrap, ev.seed,
+    out["main"] = population_block(dtab[dtab["method"].isin(main)], main, metrics, comparisons(), ev.bootstrap, ev.seed,
                                    primary=prim, ece={"sums": sums}, by_scan=scans)
     abl = {}
     att = [m for m in (WITH_UNCERTAINTY, MODEL_BASED, *ATTRIBUTION) if m in set(dtab["method"])]
@@ -41,7 +41,7 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
         sub = table[(table["variant"] == a) & table["method"].isin(main)]
         if sub.empty:
             continue
-        b = population_block(sub, main, metrics, COMPARISONS, ev.bootstrap, ev.seed, primary=prim,
+        b = population_block(sub, main, metrics, comparisons(), ev.bootstrap, ev.seed, primary=prim,
                              ece={"sums": track_sums(cells, results, a, ev.ece_bins)}, per_target=False, by_scan=scans)
         key, value = (t.strip() for t in a.split("=", 1))
         abl[a] = {"override": {key: value}, **{k: b[k] for k in (*BLOCK_KEYS, "reliability") if k in b}}

@@ -12,7 +12,7 @@ import pandas as pd
 
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid.population import DEFAULT
-from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
+from pipeline.evaluation.metrics.labels import comparisons, methods as method_keys
 from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile  # noqa: F401 - check_primary: public here
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.resampler import LEVEL
@@ -47,7 +47,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
 
     ev = cfg.evaluate
     metrics = list(METRICS)
-    methods = [m for m in METHODS if m in set(table["method"])]
+    methods = [m for m in method_keys() if m in set(table["method"])]
     settings = P.population_settings(ev)
     default = table[table["variant"] == DEFAULT]
     n_targets = default["target"].nunique()
@@ -62,7 +62,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     by_setting = {}
     for s in settings:
         sub = main[main["setting"] == s.label]
-        b = population_block(sub, methods, metrics, COMPARISONS, ev.bootstrap, ev.seed,
+        b = population_block(sub, methods, metrics, comparisons(), ev.bootstrap, ev.seed,
                              primary=tuple(ev.primary_metrics), per_target=False, loto=False,
                              by_scan=ev.resample_scans)
         by_setting[s.label] = {k: b[k] for k in PC.BLOCK_KEYS}

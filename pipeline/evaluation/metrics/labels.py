@@ -1,27 +1,27 @@
-"""Method keys, display names and colours: the one place every stage, table and figure reads them.
-(Metric keys and labels live in ``pipeline.evaluation.metrics.spec``.)
+"""Method display names, colours and the paired comparisons, read off the method registry
+(``pipeline.method.registry``: each method's class holds its own); every stage, table and figure
+asks here. (Metric keys and labels live in ``pipeline.evaluation.metrics.spec``.)
 
 Colours are from the Okabe-Ito colour-blind-safe palette; class colours (``CLASS_COLORS``) use
 hues that no method uses, so a method and a class never share a colour on one page.
 """
 from __future__ import annotations
 
-from pipeline.method.names import (ATTRIBUTION, DIRICHLET, METHOD_SHORT, METHODS, MODEL_BASED,  # noqa: F401
-                                   SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY, WU_POSES_ONLY)
+from pipeline.method import registry
+from pipeline.method.names import (ATTRIBUTION, DIRICHLET, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY,  # noqa: F401
+                                   WU_DROPOUT_ONLY, WU_POSES_ONLY)
 
-METHOD_LABELS = {
-    WITH_UNCERTAINTY: "With Uncertainty (Feldman & Indelman)",
-    MODEL_BASED: "Model Based (Teacy et al.)",
-    SIMPLE_BAYES: "Simple Bayes",
-    DIRICHLET: "Dirichlet (Tchuiev & Indelman)",
-    WU_POSES_ONLY: "With Uncertainty, poses only (dropout samples -> their mean)",
-    WU_DROPOUT_ONLY: "With Uncertainty, dropout only (no pose sampling)",
-}
-METHOD_COLORS = {WITH_UNCERTAINTY: "#0072B2", MODEL_BASED: "#D55E00", SIMPLE_BAYES: "#009E73",
-                 DIRICHLET: "#CC79A7", WU_POSES_ONLY: "#6699CC", WU_DROPOUT_ONLY: "#994F00"}
 
-# Paired comparisons reported by the population evaluation: (method, baseline).
-COMPARISONS = ((WITH_UNCERTAINTY, MODEL_BASED), (WITH_UNCERTAINTY, SIMPLE_BAYES), (WITH_UNCERTAINTY, DIRICHLET))
+def methods() -> tuple[str, ...]:
+    """The registered methods' keys in their order (the attribution variants apart)."""
+    return registry.keys()
+
+
+def comparisons() -> tuple[tuple[str, str], ...]:
+    """Paired comparisons reported by the population evaluation: (method, baseline)."""
+    return registry.comparisons()
+
+
 # Attribution: each ingredient alone against Model Based, and what the full method adds to each.
 ATTRIBUTION_COMPARISONS = ((WU_POSES_ONLY, MODEL_BASED), (WU_DROPOUT_ONLY, MODEL_BASED),
                            (WITH_UNCERTAINTY, WU_POSES_ONLY), (WITH_UNCERTAINTY, WU_DROPOUT_ONLY))
@@ -35,8 +35,8 @@ def present_comparisons(keys) -> list[tuple[str, str]]:
     """(method, baseline) of the comparison keys a results file holds: the known ones in their
     fixed order, then any others sorted (so a report shows what was computed, not a fixed list)."""
     keys = set(keys or ())
-    known = [c for c in COMPARISONS if comparison_key(*c) in keys]
-    rest = sorted(keys - {comparison_key(*c) for c in COMPARISONS})
+    known = [c for c in comparisons() if comparison_key(*c) in keys]
+    rest = sorted(keys - {comparison_key(*c) for c in comparisons()})
     return known + [tuple(k.partition("-")[::2]) for k in rest]
 
 
@@ -49,17 +49,26 @@ UNKNOWN_COLOR = "#555555"
 
 def method_label(method: str, short: bool = False) -> str:
     """Display name of a method key; an unknown key is shown as itself."""
-    return (METHOD_SHORT if short else METHOD_LABELS).get(method, method)
+    m = registry.get(method)
+    return method if m is None else (m.short if short else m.label)
 
 
 def method_color(method: str) -> str:
-    return METHOD_COLORS.get(method, UNKNOWN_COLOR)
+    m = registry.get(method)
+    return UNKNOWN_COLOR if m is None else m.color
+
+
+def method_note(method: str) -> str:
+    """The method's one-line description (the report's method table)."""
+    m = registry.get(method)
+    return (m.note if m is not None else "") or "(no description)"
 
 
 def ordered_methods(present) -> list[str]:
-    """The known methods in their fixed order, then any unknown ones sorted."""
+    """The registered methods in their order, then any others (the attribution variants) sorted."""
     present = set(present)
-    return [m for m in METHODS if m in present] + sorted(present - set(METHODS))
+    order = registry.keys()
+    return [m for m in order if m in present] + sorted(present - set(order))
 
 
 def class_colors(n: int) -> list[str]:

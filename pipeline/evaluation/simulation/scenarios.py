@@ -35,16 +35,21 @@ import pandas as pd
 from pipeline.evaluation.metrics import spec as M
 from pipeline.infra.config import SimulateConfig, check_simulate
 from pipeline.infra.config.checks import SIM_CLASSES
-from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty, simple_bayes
+from pipeline.method import registry
 from pipeline.method.geometry import sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
+from pipeline.method.methods.simple_bayes import to_simplex  # noqa: F401 (re-exported)
 from pipeline.evaluation.metrics.results import result_block
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
 
-# The scenarios' measurements are synthetic GP scores, not classifier probability vectors, so the
-# Dirichlet method (which models the whole softmax vector) does not apply here.
-METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES)
+
+
+def methods() -> tuple[str, ...]:
+    """The registered methods that apply to the simulation (``FusionMethod.simulation``): its
+    measurements are synthetic GP scores, so e.g. the Dirichlet method (which models the whole
+    softmax vector) does not."""
+    return tuple(m.key for m in registry.methods(attribution=False) if m.simulation)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")
 N_CLASSES = SIM_CLASSES  # the scenarios' three classes; F = 3 (one score per class, so Simple Bayes applies)
@@ -158,13 +163,6 @@ def perturb(nominal: np.ndarray, sigma_u2: np.ndarray, n_samples: int,
     return noised, samples
 
 
-def to_simplex(scores: np.ndarray, floor: float) -> np.ndarray:
-    """Simple Bayes needs probability vectors: clip each score to >= ``floor`` (a Gaussian
-    measurement can go negative, and a zero would rule a class out for good), then normalise."""
-    s = np.maximum(np.asarray(scores, float), float(floor))
-    return s / s.sum(axis=-1, keepdims=True)
-
-
 # -- realizations ---------------------------------------------------------------------------------------
 @dataclass
 class Draws:
@@ -212,13 +210,8 @@ def draw_batch(scenario: str, sim: SimulateConfig, mu, cov, true_xy, realization
 
 
 def fuse_batch(models: GPClassModels, d: Draws, sim: SimulateConfig) -> dict[str, np.ndarray]:
-    """The three methods on one batch: posteriors (R, K, C) per method (prior uniform)."""
-    return {
-        WITH_UNCERTAINTY: fuse_with_uncertainty(models, d.loc_samples, d.samples,
-                                                var_floor=sim.variance_floor, progress=False),
-        MODEL_BASED: fuse_model_based(models, d.estimates, d.noised, progress=False),
-        SIMPLE_BAYES: simple_bayes(to_simplex(d.noised, sim.simple_bayes_floor)),
-    }
+    """The simulation's methods on one batch: posteriors (R, K, C) per method (prior uniform)."""
+    return {key: registry.get(key).simulate(models, d, sim) for key in methods()}
 
 
 @dataclass
@@ -240,14 +233,15 @@ def run_scenario(models: GPClassModels, scenario: str, sim: SimulateConfig, *,
     true_xy = track_positions(sim.track_start, sim.track_length, sim.track_steps)
     mu, cov = models.predict(true_xy)                       # (C, F, K), (C, F, K, K)
     mu_t, cov_t = mu[truth], cov[truth]
-    out: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
+    keys = methods()
+    out: dict[str, list[np.ndarray]] = {m: [] for m in keys}
     example: dict[str, np.ndarray] = {}
     ex = min(sim.example_realization, R - 1)
     for a in range(0, R, sim.chunk):
         idx = range(a, min(R, a + sim.chunk))
         d = draw_batch(scenario, sim, mu_t, cov_t, true_xy, idx)
         post = fuse_batch(models, d, sim)
-        for m in METHODS:
+        for m in keys:
             out[m].append(post[m])
         if a <= ex < idx.stop:
             example = {k: getattr(d, k)[ex - a] for k in Draws.__dataclass_fields__}
@@ -264,7 +258,7 @@ def run_scenario(models: GPClassModels, scenario: str, sim: SimulateConfig, *,
 def result_columns(res: ScenarioResult) -> dict[str, np.ndarray]:
     """One row per (method, realization, step): posterior and its per-step metric columns, the
     evaluate stage's layout (``pipeline.evaluation.metrics.results.result_block``) plus ``scenario``."""
-    return result_block({m: res.posteriors[m] for m in METHODS}, res.truth, is_log=False, scenario=res.scenario)
+    return result_block(dict(res.posteriors), res.truth, is_log=False, scenario=res.scenario)
 
 
 def example_columns(res: ScenarioResult, models: GPClassModels) -> dict[str, np.ndarray]:

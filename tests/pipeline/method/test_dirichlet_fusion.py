@@ -3,6 +3,7 @@ its place in a population cell (pipeline/evaluation/grid/population.py)."""
 from __future__ import annotations
 
 import itertools
+import zlib
 
 import numpy as np
 import pytest
@@ -104,7 +105,7 @@ def test_cell_adds_the_dirichlet_same_for_every_realization_setting_and_variant(
     dm = models(C=3)
     banks = {"default": gp, "abl": gp}
     res = P.run_cell(banks, _cell(track, dm))
-    want, std = DF.fuse_dirichlet(dm, probs, n_ss=7, rng=P.dirichlet_rng(0, "c1", 2))
+    want, std = DF.fuse_dirichlet(dm, probs, n_ss=7, rng=np.random.default_rng([0, zlib.crc32(b"c1"), 2, zlib.crc32(b"dirichlet")]))
     for posts in res["posts"].values():
         lp = posts[DIRICHLET]
         assert lp.shape == posts[E.WITH_UNCERTAINTY].shape

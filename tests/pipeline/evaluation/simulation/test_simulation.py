@@ -204,7 +204,7 @@ def test_scenarios_are_deterministic_and_posteriors_are_distributions():
         r1b = S.run_scenario(models, sc, sim)
         r2 = S.run_scenario(models, sc, dataclasses.replace(sim, chunk=1))   # batch size: same draws
         r3 = S.run_scenario(models, sc, dataclasses.replace(sim, seed=1))
-        for m in S.METHODS:
+        for m in S.methods():
             p = r1.posteriors[m]
             assert p.shape == (sim.realizations, sim.track_steps, 3)
             np.testing.assert_allclose(p.sum(-1), 1.0, atol=1e-9)
@@ -217,7 +217,7 @@ def test_scenarios_are_deterministic_and_posteriors_are_distributions():
         assert len(cols["step"]) == 3 * sim.realizations * sim.track_steps
         np.testing.assert_allclose(cols["p_truth"], cols["posterior"][:, sim.truth_class - 1])
         tab = S.summarize(pd.DataFrame({k: v for k, v in cols.items() if k != "posterior"}), PARAMS)
-        assert set(tab["method"]) == set(S.METHODS) and (tab["mgr95_overall"] >= tab["mgr75_overall"]).all()
+        assert set(tab["method"]) == set(S.methods()) and (tab["mgr95_overall"] >= tab["mgr75_overall"]).all()
 
 
 def test_model_based_ignores_measurement_noise_that_ours_is_told_about():
@@ -269,7 +269,7 @@ def test_stage_writes_results_example_and_report(tmp_config):
     meta = {k.decode(): v.decode() for k, v in t.schema.metadata.items() if k.startswith(b"viewfuse.")}
     assert meta["viewfuse.config_hash"] == cfg.section_hash("simulate") and meta["viewfuse.seed"] == "0"
     df = t.to_pandas()
-    assert set(df["scenario"]) == set(S.SCENARIOS) and set(df["method"]) == set(S.METHODS)
+    assert set(df["scenario"]) == set(S.SCENARIOS) and set(df["method"]) == set(S.methods())
     assert len(df) == 2 * 3 * 4 * 6
     ex = pq.read_table(out / "example.parquet").to_pandas()
     assert len(ex) == 2 * 6 * 3

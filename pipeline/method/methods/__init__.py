@@ -1,0 +1,14 @@
+"""The built-in fusion methods, one file each; importing this package registers them in the order
+tables and figures show them (``pipeline.method.registry``): the listed ones first, then any other
+module of this folder in name order, so a new built-in method is its file alone."""
+import importlib
+import pkgutil
+
+from pipeline.method.methods import with_uncertainty, model_based, simple_bayes  # noqa: F401
+from pipeline.method.methods import attribution, dirichlet  # noqa: F401
+
+LISTED = ("with_uncertainty", "model_based", "simple_bayes", "attribution", "dirichlet")
+# Discovered modules are not in the stages' static code key: registry.outside_fingerprint covers them.
+DISCOVERED = tuple(sorted(m.name for m in pkgutil.iter_modules(__path__) if m.name not in LISTED))
+for _name in DISCOVERED:
+    importlib.import_module(f"{__name__}.{_name}")

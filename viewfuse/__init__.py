@@ -1,0 +1,22 @@
+"""viewfuse's public Python API: the names a researcher uses to fit class models on their own
+data, fuse their own track with any registered method, add a method of their own, and evaluate a
+population. Everything else in the project (the top-level ``pipeline``, ``loaders``, ``reports``
+and ``stages`` packages) is internal and may change; import from here (docs/api.md).
+
+    import viewfuse as vf
+    models = vf.fit_models({"mug": (angles, scores), ...})
+    log_post = vf.fuse("with_uncertainty", models, cameras=xy, object_xy=o, dropout=z, sigma=0.3, n_x=50)
+"""
+from __future__ import annotations
+
+from viewfuse._check import check_install
+
+check_install()
+
+from pipeline.method.dirichlet import DirichletModels  # noqa: E402
+from pipeline.method.gp import GPClassModels  # noqa: E402
+from pipeline.method.registry import FusionMethod, TrackInput, comparisons, register, unregister  # noqa: E402
+from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
+
+__all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "method", "comparisons",
+           "GPClassModels", "DirichletModels", "fit_models", "fuse", "track_metrics", "evaluate_population"]
