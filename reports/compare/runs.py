@@ -19,13 +19,13 @@ Generic over methods, metrics and comparisons: whatever the summaries hold, in
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pipeline.evaluation.metrics.labels import ordered_methods
 from pipeline.evaluation.metrics.spec import METRICS
+from pipeline.evaluation.statistics.records import outcome
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import name as out_name
 from reports.compare.planning import block_of as planning_block
@@ -185,14 +185,6 @@ def unique_runs(cols: list[Column]) -> list[Run]:
 
 
 # -- values ----------------------------------------------------------------------------------------
-def _num(x: Any) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return math.nan
-    return v
-
-
 _POOLS: dict[int, dict | None] = {}
 
 
@@ -237,15 +229,6 @@ def pooled_value(col: Column, method: str, metric: str) -> dict | None:
     return ((pool or {}).get("pooled", {}).get(method) or {}).get(metric)
 
 
-def outcome_from_ci(est: dict, metric: str) -> str:
-    """The one outcome rule (``records.outcome``) on an older summary's paired CI."""
-    from pipeline.evaluation.statistics.records import outcome
-
-    lo, hi = _num(est.get("ci_low")), _num(est.get("ci_high"))
-    higher = METRICS[metric].higher_is_better if metric in METRICS else est.get("better", "higher") == "higher"
-    return outcome(lo, hi, higher) if math.isfinite(lo) and math.isfinite(hi) else "not distinguishable"
-
-
 def verdicts(run: Run) -> dict[tuple[str, str], dict]:
     """(comparison, metric) -> {"outcome", "value", "ci_low", "ci_high"}; from the records (older
     summaries: the verdict table, else the paired CIs)."""
@@ -268,8 +251,10 @@ def _verdicts(pop: dict) -> dict[tuple[str, str], dict]:
     for key, per in (pop.get("paired") or {}).items():
         for metric, est in (per or {}).items():
             if isinstance(est, dict):
-                out[(key, metric)] = {"outcome": outcome_from_ci(est, metric), **{k: est.get(k) for k in
-                                                                                  ("value", "ci_low", "ci_high")}}
+                higher = (METRICS[metric].higher_is_better if metric in METRICS
+                          else est.get("better", "higher") == "higher")
+                out[(key, metric)] = {"outcome": outcome(est.get("ci_low"), est.get("ci_high"), higher),
+                                      **{k: est.get(k) for k in ("value", "ci_low", "ci_high")}}
     return out
 
 
