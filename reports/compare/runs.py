@@ -56,6 +56,7 @@ class Column:
     name: str
     runs: list[Run]
     pooled_over_seeds: bool = False
+    pool: dict | None = None               # a seed group's pool (``seed_pool``), computed once
 
 
 # -- reading ---------------------------------------------------------------------------------------
@@ -151,7 +152,8 @@ def resolve(args: list[str | Path]) -> list[Column]:
         diff = config_diff(runs)
         if len(runs) > 1 and diff and all(k.split(".")[-1] == "seed" for k in diff):
             cols += [Column(r.name, [r]) for r in runs]
-            cols.append(Column(f"{p.name}: pooled over {len(runs)} seeds", runs, pooled_over_seeds=True))
+            cols.append(Column(f"{p.name}: pooled over {len(runs)} seeds", runs, pooled_over_seeds=True,
+                               pool=seed_pool(runs)))
         else:
             cols += [Column(r.name, [r]) for r in runs]
     return cols
@@ -185,28 +187,13 @@ def unique_runs(cols: list[Column]) -> list[Run]:
 
 
 # -- values ----------------------------------------------------------------------------------------
-_POOLS: dict[int, dict | None] = {}
+def seed_pool(runs: list[Run]) -> dict | None:
+    """The engine's seed pool (``pipeline.evaluation.statistics.engine.seed_pool``) over a seed
+    group's runs: pooled values and records over seeds, then targets, then tracks; None when a
+    run's summary holds no cells."""
+    from pipeline.evaluation.statistics.engine import seed_pool as pool
 
-
-def seed_pool(col: Column) -> dict | None:
-    """The engine's seed block (``pipeline.evaluation.statistics.engine.seed_block``) over the
-    column's runs' cells: pooled values and records over seeds, then targets, then tracks; None
-    when a run's summary holds no cells. Computed once per column."""
-    if id(col) in _POOLS:
-        return _POOLS[id(col)]
-    from pipeline.evaluation.metrics.labels import COMPARISONS
-    from pipeline.evaluation.statistics.engine import seed_block
-
-    pops = [r.population for r in col.runs]
-    out = None
-    if all(p.get("cells") for p in pops):
-        methods = ordered_methods({m for p in pops for m in p["pooled"]})
-        metrics = [k for k in METRICS if all(k in (p["cells"][0].get("values") or {}).get(methods[0], {})
-                                             for p in pops)]
-        out = seed_block({r.name: r.population["cells"] for r in col.runs}, methods, metrics, COMPARISONS,
-                         int(pops[0].get("bootstrap") or 1000), primary=tuple(pops[0].get("primary_metrics") or ()))
-    _POOLS[id(col)] = out
-    return out
+    return pool({r.name: r.population for r in runs})
 
 
 def metric_order(keys) -> list[str]:
@@ -225,8 +212,7 @@ def metrics_of(cols: list[Column]) -> list[str]:
 def pooled_value(col: Column, method: str, metric: str) -> dict | None:
     if not col.pooled_over_seeds:
         return (col.runs[0].population["pooled"].get(method) or {}).get(metric)
-    pool = seed_pool(col)
-    return ((pool or {}).get("pooled", {}).get(method) or {}).get(metric)
+    return ((col.pool or {}).get("pooled", {}).get(method) or {}).get(metric)
 
 
 def verdicts(run: Run) -> dict[tuple[str, str], dict]:
@@ -267,7 +253,7 @@ def column_verdict(col: Column, key: tuple[str, str]) -> dict | None:
         return None
     kinds = [v["outcome"] for v in got]
     same = len(set(kinds)) == 1 and len(got) == len(vs)
-    pooled = _verdicts(seed_pool(col) or {}).get(key)
+    pooled = _verdicts(col.pool or {}).get(key)
     if pooled is None:
         return {"outcome": "no pooled value (a run's summary has no cells)", "value": None, "ci_low": None,
                 "ci_high": None, "held_for_every_seed": same}

@@ -81,6 +81,7 @@ def seed_result(scfg, reused: bool) -> dict:
         for k in ("pooled", "records"):
             out[k] = pop.get(k)
         out["primary_metrics"] = pop.get("primary_metrics")
+        out["bootstrap"] = pop.get("bootstrap")
         out["cells"] = pop.get("cells")  # for the seed-pooled bootstrap; not written per seed
     return out
 
@@ -106,29 +107,13 @@ def outcomes(result: dict) -> dict[str, str] | None:
     return None
 
 
-def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
-    """Every seed's cells in one bootstrap (seeds, then targets, then tracks): pooled values, paired
-    differences and records that cover training runs (``pipeline.evaluation.statistics.engine.seed_block``)."""
-    from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
-    from pipeline.evaluation.metrics.spec import METRICS
-    from pipeline.evaluation.statistics.engine import seed_block
-
-    cells = {str(s): r["cells"] for s, r in results.items() if r.get("cells")}
-    if not cells:
-        return None
-    present = {m for cs in cells.values() for c in cs for m in (c.get("values") or {})}
-    methods = [m for m in METHODS if m in present]
-    metrics = [k for k in METRICS if any(k in (c.get("values") or {}).get(methods[0], {})
-                                         for cs in cells.values() for c in cs[:1])]
-    primary = next((r.get("primary_metrics") for r in results.values() if r.get("primary_metrics")), ())
-    return seed_block(cells, methods, metrics, COMPARISONS, n_boot, primary=tuple(primary or ()))
-
-
-def summarize(results: dict[int, dict], n_boot: int = 2000) -> dict:
+def summarize(results: dict[int, dict]) -> dict:
     """Side by side: per seed the pooled values and the verdict; whether the verdict agrees; and
-    the verdict pooled over the seeds."""
+    the verdict pooled over the seeds (the engine's one seed pool, at the seeds' own resample count)."""
+    from pipeline.evaluation.statistics.engine import seed_pool
+
     seeds = sorted(results)
-    pooled = pool_seeds(results, n_boot)
+    pooled = seed_pool({str(s): results[s] for s in seeds})
     per_seed = {str(s): {k: v for k, v in results[s].items() if k != "cells"} for s in seeds}
     outs = {s: outcomes(results[s]) for s in seeds}
     missing = [s for s in seeds if outs[s] is None]
@@ -170,7 +155,7 @@ def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = Fals
         timings[str(seed)] = round(time.perf_counter() - t, 2)
         reused = before is not None and before == _finished(scfg)
         results[seed] = seed_result(scfg, reused)
-    summary = summarize(results, cfg.evaluate.bootstrap)
+    summary = summarize(results)
     summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2),
                             "chain_per_seed": {str(sd): chain_seconds(seed_config(cfg, sd)) for sd in cfg.study.seeds}}
     out = study_dir(cfg)

@@ -99,6 +99,12 @@ def test_three_runs_with_a_seed_group_pool_over_seeds(tmp_path):
     assert v["outcome"] == "not distinguishable" and not v["held_for_every_seed"]   # +0.2, -0.2, +0.2 over seeds
     assert v["per_seed"] == "better ×2, worse ×1"
     assert c.changed[(KEY, "correct_final")] == [False, False, True, False, True]
+    # `viewfuse study` pools the same seeds with the same function: the same numbers
+    from stages.commands.study import summarize
+
+    study_pool = summarize({s: {**p, "records": None} for s, p in enumerate(runs)})["pooled_over_seeds"]
+    assert study_pool["pooled"] == c.columns[-1].pool["pooled"]
+    assert study_pool["records"] == c.columns[-1].pool["records"]
 
 
 def test_a_seed_group_without_cells_has_no_pooled_value(tmp_path):
