@@ -13,8 +13,10 @@ infrastructure room and imports nothing of the project, so every floor can use i
 from __future__ import annotations
 
 import fnmatch
+import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -151,3 +153,19 @@ def declared(stage: str, relpath: str) -> bool:
 def undeclared(stage: str, relpaths) -> list[str]:
     """The paths among ``relpaths`` that no catalog entry of ``stage`` declares."""
     return sorted(p for p in relpaths if not declared(stage, p))
+
+
+def number(x: Any, null: float | None = math.nan, bad: float | None = math.nan, *,
+           finite: bool = False) -> float | None:
+    """The one reader of a number in a JSON artifact. JSON has no infinity or NaN (the writer,
+    ``pipeline.infra.cache.write_json``, stores them as null), so a null reads as ``null`` (the
+    caller knows what it stands for: an unbounded interval end is +-inf, a missing value NaN or
+    None); anything that is no number, NaN included (and with ``finite`` an infinity: a figure
+    cannot draw it), reads as ``bad``."""
+    if x is None:
+        return null
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return bad
+    return bad if math.isnan(v) or (finite and math.isinf(v)) else v

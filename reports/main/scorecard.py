@@ -18,6 +18,7 @@ from pathlib import Path
 
 from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
 from pipeline.evaluation.metrics.spec import higher_is_better
+from pipeline.infra.outputs import number
 from reports.main.calibration import paired_value
 from reports.main.context import ReportContext
 from reports.shared.checks import outcome_of
@@ -53,25 +54,14 @@ CLAIMS = (
 )
 
 
-def _end(x, default: float) -> float | None:
-    """An interval end; null in a record means an unbounded (infinite) end."""
-    if x is None:
-        return default
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return None if math.isnan(v) else v
-
-
 def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
     """{value, lo, hi, n, over} of one paired comparison on one metric: from the verdict records
     where the run has them, else from the paired block (older runs)."""
     for r in pop.get("records") or []:
         if r.get("comparison") == comparison and r.get("metric") == metric:
             unb = bool(r.get("unbounded"))
-            lo = _end(r.get("lo"), -math.inf if unb else None)
-            hi = _end(r.get("hi"), math.inf if unb else None)
+            lo = number(r.get("lo"), -math.inf if unb else None, None)   # null: an unbounded end
+            hi = number(r.get("hi"), math.inf if unb else None, None)
             return {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
                     "over": r.get("over") or ["targets", "tracks"]}
     d = paired_value(pop, comparison, metric)

@@ -75,3 +75,16 @@ def test_the_literal_name_check_catches_a_planted_name(tmp_path):
     (tmp_path / "pipeline" / "infra").mkdir()
     (tmp_path / "pipeline" / "infra" / "outputs.py").write_text('n = "results.parquet"\n')
     assert _literal_hits({"results.parquet"}, tmp_path) == ['stages/x.py:1: p = d / "results.parquet"']
+
+
+def test_the_one_json_number_reader():
+    """null stands for what the caller says (an unbounded end, a missing value); a non-number and
+    NaN are 'bad'; with ``finite`` an infinity is too."""
+    import math
+
+    from pipeline.infra.outputs import number
+
+    assert number(None, -math.inf) == -math.inf and number(None, None) is None and math.isnan(number(None))
+    assert number("0.25") == 0.25 and number(3) == 3.0 and number(math.inf) == math.inf
+    assert number("x", bad=None) is None and number([1], bad=7.0) == 7.0 and number(math.nan, bad=None) is None
+    assert number(math.inf, bad=0.0, finite=True) == 0.0 and number(-1.5, finite=True) == -1.5
