@@ -10,7 +10,6 @@ and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import time
 from collections import Counter
@@ -29,6 +28,7 @@ from pipeline.scoring.features import read_features
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
+from pipeline.infra.outputs import read as read_artifact
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
 from pipeline.evaluation.grid.population_summary import cell_table, check_primary, dirichlet_summary, population_summary
@@ -166,8 +166,7 @@ def run(ctx) -> str:
     scans = sorted(avd["scan"].unique())
     moves: dict = {}
     intr, steps, grids = scan_geometry(cfg, scans, avd, ctx.skips, moves)
-    truth_path = ctx.input("data") / out_name("data", "truth")
-    truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
+    truth = read_artifact(ctx.input("data"), "data", "truth", missing=None)
     cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
     per_target = Counter(i.target for i in tracks)
     check_budget(cfg, len(per_target), max(per_target.values(), default=1))

@@ -11,7 +11,6 @@ down that labels the same statistic otherwise fails the build.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -81,11 +80,10 @@ def simulate_claims(run_dir: Path | None) -> list[dict]:
     """The §5.3 claims the simulate stage checked ([] where it did not run in this run folder)."""
     if run_dir is None:
         return []
-    from pipeline.infra.outputs import path as out_path
-    p = out_path(Path(run_dir) / "simulate", "simulate", "summary")
+    from pipeline.infra.outputs import read
     try:
-        claims = json.loads(p.read_text()).get("claims") or []
-    except (OSError, ValueError):
+        claims = read(Path(run_dir) / "simulate", "simulate", "summary").get("claims") or []
+    except (OSError, ValueError, AttributeError):
         return []
     return [c for c in claims if isinstance(c, dict)]
 
