@@ -59,35 +59,37 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     return banks, indexes
 
 
-def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips,
-                  moves: dict | None = None) -> tuple[dict, dict, dict]:
-    """Per scan: (fx, cx) of the camera, the capture grid's spacing and {image: grid point id}
-    (the move graph's stops, ``AVDScan.grid_points``); with ``moves`` (a dict) also each scan's
-    move graph {image: {move: image}} into it (the view planning's). The scan is read under the same skip policy
+def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict, dict]:
+    """Per scan: (fx, cx) of the camera, the capture grid's spacing, {image: grid point id} (the
+    move graph's stops, ``AVDScan.grid_points``) and the move graph {image: {move: image}} (the
+    view planning's). The scan is read under the same skip policy
     as the features stage, so an entry features skipped does not stop this stage; geometry needs
     no frames, so a metadata-only copy (no jpg_rgb/) is read as one."""
     from loaders.avd import AVDScan
     from stages.framework.roots import data_roots
 
     _, avd_root = data_roots(cfg)
-    intr, steps, grids = {}, {}, {}
+    intr, steps, grids, moves = {}, {}, {}, {}
     for s in scans:
         scan = AVDScan(avd_root, s, skip=skips.log("avd", "AVD entry"), frames=(Path(avd_root) / s / "jpg_rgb").is_dir())
         K = scan.intrinsics()
         intr[s] = (float(K[0, 0]), float(K[0, 2]))
         grids[s] = scan.grid_points()
-        if moves is not None:
-            moves[s] = {n: dict(img.moves) for n, img in scan.images.items()}
+        moves[s] = {n: dict(img.moves) for n, img in scan.images.items()}
         rows = avd.loc[avd["scan"] == s, ["image", "cam_x", "cam_y"]]
         steps[s] = grid_step(rows[["cam_x", "cam_y"]].to_numpy(float),
                              P.view_grid_ids(rows["image"], grids[s], s))
-    return intr, steps, grids
+    return intr, steps, grids, moves
 
 
-def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict,
-                 domain: TestDomain | None = None) -> None:
-    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures); the
-    sensitivity rows go to ``blocks`` (a list or a ``ResultsWriter``: ``append``)."""
+def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TestDomain | None = None
+                 ) -> tuple[list[dict], dict, dict[str, float]]:
+    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures; the arrays are
+    written here). Returns the sensitivity rows (result blocks), the summary's entries
+    ({"sensitivity": {setting: tables}}; {} without the sweep) and each part's seconds."""
+    blocks: list[dict] = []
+    summary: dict = {}
+    timings: dict[str, float] = {}
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
     if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
@@ -121,6 +123,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
             np.savez(f, bias_x=axis, bias_y=axis, posterior=post, classes=np.array(first.classes),
                      images=np.array(first.data.images))
         timings["bias_maps"] = time.perf_counter() - t0
+    return blocks, summary, timings
 
 
 def check_budget(cfg: Config, n_targets: int, width: int) -> None:
@@ -164,8 +167,7 @@ def run(ctx) -> str:
     if avd.empty:
         raise TrackError(f"{avd_path} holds no AVD box: nothing to evaluate")
     scans = sorted(avd["scan"].unique())
-    moves: dict = {}
-    intr, steps, grids = scan_geometry(cfg, scans, avd, ctx.skips, moves)
+    intr, steps, grids, moves = scan_geometry(cfg, scans, avd, ctx.skips)
     truth = read_artifact(ctx.input("data"), "data", "truth", missing=None)
     cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
     per_target = Counter(i.target for i in tracks)
@@ -247,7 +249,11 @@ def run(ctx) -> str:
         from pipeline.method.fusion import engine_device
 
         with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
-            single_track(cfg, ctx, banks, first, writer, summary, timings, domain)
+            blocks, entries, times = single_track(cfg, ctx, banks, first, domain)
+        for b in blocks:
+            writer.write(b)
+        summary.update(entries)
+        timings.update(times)
         writer.metadata = metadata(config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed),
                                    classes=list(first.classes), target=first.target, track=str(first.track))
         t0 = time.perf_counter()
