@@ -43,9 +43,9 @@ def record(comparison: str, metric: str, est: Mapping[str, float], *, pooling: s
            over: list[str], n: Mapping[str, int], primary: bool, **extra: Any) -> dict:
     """One record from an estimate {"value", "ci_low", "ci_high"} of method - baseline."""
     method, baseline = comparison.split("-", 1)
-    lo, hi = float(est["ci_low"]), float(est["ci_high"])
+    lo, hi = number(est["ci_low"], -math.inf), number(est["ci_high"], math.inf)   # null: unbounded (JSON)
     return {"comparison": comparison, "method": method, "baseline": baseline, "metric": metric,
-            "pooling": pooling, "value": float(est["value"]), "lo": lo, "hi": hi,
+            "pooling": pooling, "value": number(est["value"]), "lo": lo, "hi": hi,
             "unbounded": bool(math.isinf(lo) or math.isinf(hi)), "over": list(over),
             "n": {k: int(v) for k, v in n.items()}, "better": better,
             "outcome": outcome(lo, hi, better == "higher"), "primary": bool(primary), **extra}
