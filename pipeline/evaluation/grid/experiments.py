@@ -19,8 +19,8 @@ from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.evaluation.metrics.labels import (METHODS, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY,
                                         WU_POSES_ONLY)
 
-__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "run_track", "fuse_track",
-           "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
+__all__ = ["METHODS", "MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "Posteriors", "run_track",
+           "fuse_track", "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -52,19 +52,25 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
         yield a, min(n, a + size)
 
 
+class Posteriors(dict):
+    """{method: log posteriors (R, K, C)}, and ``seconds``: {method: wall seconds of its fusion
+    calls} (the evaluate stage's and the bench's time split), returned with them."""
+
+    def __init__(self, posts, seconds: dict[str, float] | None = None):
+        super().__init__(posts)
+        self.seconds = dict(seconds or {})
+
+
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
-              rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
-              clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+              rng: np.random.Generator, *, var_floor: float, attribution: bool = False) -> Posteriors:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
     draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
-    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, clock=clock)
+    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution)
 
 
-def _timed(clock: dict[str, float] | None, key: str, fn, *args, **kw):
-    """``fn(*args, **kw)``, its wall time added to ``clock[key]`` when a clock is given."""
-    if clock is None:
-        return fn(*args, **kw)
+def _timed(clock: dict[str, float], key: str, fn, *args, **kw):
+    """``fn(*args, **kw)``, its wall time added to ``clock[key]`` (the caller's own tally)."""
     t0 = time.perf_counter()
     out = fn(*args, **kw)
     clock[key] = clock.get(key, 0.0) + time.perf_counter() - t0
@@ -72,7 +78,7 @@ def _timed(clock: dict[str, float] | None, key: str, fn, *args, **kw):
 
 
 def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
-               attribution: bool = False, clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+               attribution: bool = False) -> Posteriors:
     """The methods on realizations of pose estimates (R, K, 2) and their localization samples
     (R, N_x, K, 2) -> log posteriors (R, K, C) each.
 
@@ -90,9 +96,9 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
     term beyond ``var_floor``) and *dropout only* (no pose sampling: σ = 0, N_x = 1, the estimates
     themselves).
 
-    ``clock``: wall seconds per method are added to it (the bench's time split).
+    The result's ``seconds``: wall seconds per method.
     """
-    r = len(estimates)
+    r, clock = len(estimates), {}
     mb = _timed(clock, MODEL_BASED, fuse_model_based, models, track.inputs(estimates),
                 np.broadcast_to(track.measurement, (r,) + track.measurement.shape), return_log=True, progress=False)
     wu = _timed(clock, WITH_UNCERTAINTY, fuse_with_uncertainty, models, track.inputs(samples),
@@ -110,15 +116,14 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
                                       track.inputs(estimates[:, None]),
                                       np.broadcast_to(track.dropout, (r,) + track.dropout.shape),
                                       var_floor=var_floor, return_log=True, progress=False)
-    return out
+    return Posteriors(out, clock)
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
-           *, var_floor: float, attribution: bool = False, clock: dict[str, float] | None = None
-           ) -> dict[str, np.ndarray]:
+           *, var_floor: float, attribution: bool = False) -> Posteriors:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
-    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, clock=clock)
+    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution)
 
 
 # With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
@@ -129,27 +134,29 @@ BATCH_TRAJECTORIES = 100_000
 
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
-               progress: Callable[[int], None] | None = None, attribution: bool = False,
-               clock: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+               progress: Callable[[int], None] | None = None, attribution: bool = False) -> Posteriors:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
 
     The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
     localization samples, which fixes the random stream; ``batch`` realizations (default: as many
     as make ``BATCH_TRAJECTORIES`` trajectories) are fused per call, which changes speed and
-    memory only. ``progress`` is told the realizations of each fused batch; ``clock`` as in
-    ``fuse_track``."""
+    memory only. ``progress`` is told the realizations of each fused batch; the result's
+    ``seconds`` sum its batches' (``fuse_track``)."""
     per_call = int(batch) if batch else max(1, BATCH_TRAJECTORIES // max(int(n_x), 1))
     out: dict[str, list[np.ndarray]] = {}
     est_parts: list[np.ndarray] = []
     smp_parts: list[np.ndarray] = []
+    seconds: dict[str, float] = {}
 
     def fuse() -> None:
         est, smp = np.concatenate(est_parts), np.concatenate(smp_parts)
         est_parts.clear()
         smp_parts.clear()
-        for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution,
-                               clock=clock).items():
+        fused = fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution)
+        for m, v in fused.items():
             out.setdefault(m, []).append(v)
+        for m, sec in fused.seconds.items():
+            seconds[m] = seconds.get(m, 0.0) + sec
         if progress:
             progress(len(est))
 
@@ -165,7 +172,7 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
             pending = 0
     if pending:
         fuse()
-    return {m: np.concatenate(v, axis=0) for m, v in out.items()}
+    return Posteriors({m: np.concatenate(v, axis=0) for m, v in out.items()}, seconds)
 
 
 def bias_maps(models, track: TrackData, extent: float, steps: int) -> tuple[np.ndarray, np.ndarray]:

@@ -250,12 +250,12 @@ def _run_cell(banks, cell: Cell) -> dict:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
-                                                      var_floor=cell.var_floor, attribution=cell.attribution,
-                                                      clock=clock)
+                                                      var_floor=cell.var_floor, attribution=cell.attribution)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
-                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution,
-                                                          clock=clock)
+                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution)
+        for m, sec in posts[(s.experiment, s.label)].seconds.items():
+            clock[m] = clock.get(m, 0.0) + sec
         if dirichlet is not None:
             posts[(s.experiment, s.label)] = with_dirichlet(posts[(s.experiment, s.label)], dirichlet[0])
     diff = E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor) if cell.difficulty else None

@@ -199,3 +199,20 @@ def test_gp_rasters_match_marginal_predictions():
     np.testing.assert_allclose(r["raster_mean"][:, :, 1, 3], mu[0])
     np.testing.assert_allclose(r["raster_std"][:, :, 1, 3], np.sqrt(var[0]))
     assert r["train_y"].shape == (3, 2, 24)
+
+
+def test_fusion_seconds_come_back_with_the_posteriors(monkeypatch):
+    """Each fused method's wall time is returned with its posteriors (no clock to fill in): per
+    engine call for one track, summed over the batches of a randomized setting."""
+    m = ring_models()
+    tr = make_track(m)
+    from itertools import count
+    from types import SimpleNamespace
+
+    ticks = count()
+    monkeypatch.setattr(E, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))   # a call: 1 s
+    one = E.biased(m, tr, (0.1, 0.0), 0.2, 4, np.random.default_rng(3), var_floor=1e-6, attribution=True)
+    assert one.seconds == {E.MODEL_BASED: 1.0, E.WITH_UNCERTAINTY: 1.0, E.WU_POSES_ONLY: 1.0, E.WU_DROPOUT_ONLY: 1.0}
+    many = E.randomized(m, tr, (0.1, 0.0), 0.2, 11, 4, np.random.default_rng(3), var_floor=1e-6, chunk=3, batch=5)
+    assert many.seconds == {E.MODEL_BASED: 2.0, E.WITH_UNCERTAINTY: 2.0}         # two engine calls: 6 + 5
+    assert set(many) >= set(many.seconds) and many[E.MODEL_BASED].shape[0] == 11
