@@ -63,7 +63,9 @@ def locate(views, fx: float, cx: float, max_residual_m: float = math.inf) -> Loc
     AVD rows, the real-imagery box rows, a scan's boxes): ``locate_rays`` through the centres of its
     boxes."""
     col = lambda k: np.asarray(views[k], float).reshape(-1)   # noqa: E731
-    cam = np.stack([col("cam_x"), col("cam_y")], axis=-1)
+    # a table keeps its own memory layout: it fixes the least-squares sums' order, so the last bits
+    cam = (views[["cam_x", "cam_y"]].to_numpy(float) if hasattr(views, "to_numpy")
+           else np.stack([col("cam_x"), col("cam_y")], axis=-1))
     return locate_rays(cam, col("heading"), 0.5 * (col("box_x0") + col("box_x1")), fx, cx, max_residual_m)
 
 
