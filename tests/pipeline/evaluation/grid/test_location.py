@@ -73,7 +73,8 @@ def test_the_planner_excludes_the_inconsistent_scan_and_names_it():
     assert list(found) == ["t"] and found["t"].xy == pytest.approx([0.1, -0.2])
     by = {r["instance"]: r for r in refused}
     assert by["copies"]["residual_m"] > 0.25 and by["copies"]["scan"] == "scan" and by["one"]["residual_m"] is None
-    # a mapping of arrays (a scan's boxes) is located exactly as the table it holds
+    # a mapping of arrays (a scan's boxes) is located as the table it holds (to the last bits,
+    # which follow the memory layout)
     d = det[det["scan"] == "s1"]
     cols = {k: d[k].to_numpy(float) for k in ("cam_x", "cam_y", "heading", "box_x0", "box_x1")}
-    assert np.array_equal(locate(cols, FX, CX).xy, found["t"].xy)
+    np.testing.assert_allclose(locate(cols, FX, CX).xy, found["t"].xy, rtol=0, atol=1e-12)
