@@ -3,7 +3,7 @@ position, heading, grid point, moves) and every instance located from its boxes.
 
 ``scan_paths(root, scan)`` is the one entry point (the real-imagery benchmark builds its tracks on
 it): it reads the scan (metadata only where ``jpg_rgb/`` is absent), locates each instance with
-the evaluate stage's own ``pipeline.scene.location.locate_rays`` and names the instances it
+the evaluate stage's own ``pipeline.scene.location.locate_all`` and names the instances it
 cannot locate (too few views, parallel rays, rays that do not meet) instead of guessing.
 """
 from __future__ import annotations
@@ -17,8 +17,7 @@ import numpy as np
 from loaders.avd import MOVES, AVDBox, AVDScan
 from loaders.avd_boxes import BoxNotes
 from loaders.errors import SkipLog
-from pipeline.scene.location import InconsistentRays, locate_rays
-from pipeline.scene.rays import TrackError
+from pipeline.scene.location import locate_all
 
 
 @dataclass(frozen=True)
@@ -54,6 +53,13 @@ class ScanPaths:
     n_boxes: int = 0                                    # boxes read, every difficulty
 
 
+def _table(views) -> dict[str, np.ndarray]:
+    """(image, box) views as the columns ``pipeline.evaluation.grid.location.locate`` reads."""
+    xy = np.array([img.position for img, _ in views], float).reshape(-1, 2)
+    return {"cam_x": xy[:, 0], "cam_y": xy[:, 1], "heading": np.array([img.heading for img, _ in views], float),
+            "box_x0": np.array([b.x0 for _, b in views], float), "box_x1": np.array([b.x1 for _, b in views], float)}
+
+
 def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_residual_m: float = 0.25,
                skip: SkipLog | None = None, frames: bool | None = None) -> ScanPaths:
     """The move graph and the located instances of one scan under ``root`` (an AVD root holding
@@ -73,19 +79,11 @@ def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_resi
                           img.registered) for n, img in s.images.items()}
     names = sorted(nodes)
     step = grid_step(np.array([nodes[n].position for n in names]), np.array([grid[n] for n in names]))
-    located: dict[str, LocatedInstance] = {}
-    excluded: list[dict] = []
-    for inst in sorted({s.instance_names[b.instance_id] for img in s.images.values() for b in img.boxes}):
-        views = s.boxes_of(inst, max_difficulty)
-        try:
-            loc = locate_rays(np.array([img.position for img, _ in views]).reshape(-1, 2),
-                              np.array([img.heading for img, _ in views]),
-                              np.array([0.5 * (b.x0 + b.x1) for _, b in views]), fx, cx, max_residual_m)
-        except TrackError as e:
-            excluded.append({"instance": inst, "scan": scan, "reason": str(e),
-                             "residual_m": e.residual_m if isinstance(e, InconsistentRays) else None})
-            continue
-        located[inst] = LocatedInstance(inst, loc.xy, loc.residual_m, {img.name: b for img, b in views})
+    views = {inst: s.boxes_of(inst, max_difficulty)
+             for inst in sorted({s.instance_names[b.instance_id] for img in s.images.values() for b in img.boxes})}
+    found, excluded = locate_all(((inst, _table(v)) for inst, v in views.items()), fx, cx, max_residual_m, scan)
+    located = {inst: LocatedInstance(inst, loc.xy, loc.residual_m, {img.name: b for img, b in views[inst]})
+               for inst, loc in found.items()}
     return ScanPaths(scan, fx, cx, s.image_size, step, nodes, located, excluded, skip, s.box_notes,
                      sum(len(img.boxes) for img in s.images.values()))
 

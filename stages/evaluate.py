@@ -10,7 +10,6 @@ and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import time
 from collections import Counter
@@ -30,6 +29,7 @@ from pipeline.scoring.features import read_features
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
+from pipeline.infra.outputs import read as read_artifact
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
 from pipeline.evaluation.grid.population_summary import cell_table, check_primary, dirichlet_summary, population_summary
@@ -61,29 +61,27 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     return banks, indexes
 
 
-def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips,
-                  moves: dict | None = None) -> tuple[dict, dict, dict]:
-    """Per scan: (fx, cx) of the camera, the capture grid's spacing and {image: grid point id}
-    (the move graph's stops, ``AVDScan.grid_points``); with ``moves`` (a dict) also each scan's
-    move graph {image: {move: image}} into it (the view planning's). The scan is read under the same skip policy
+def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict, dict]:
+    """Per scan: (fx, cx) of the camera, the capture grid's spacing, {image: grid point id} (the
+    move graph's stops, ``AVDScan.grid_points``) and the move graph {image: {move: image}} (the
+    view planning's). The scan is read under the same skip policy
     as the features stage, so an entry features skipped does not stop this stage; geometry needs
     no frames, so a metadata-only copy (no jpg_rgb/) is read as one."""
     from loaders.avd import AVDScan
     from stages.framework.roots import data_roots
 
     _, avd_root = data_roots(cfg)
-    intr, steps, grids = {}, {}, {}
+    intr, steps, grids, moves = {}, {}, {}, {}
     for s in scans:
         scan = AVDScan(avd_root, s, skip=skips.log("avd", "AVD entry"), frames=(Path(avd_root) / s / "jpg_rgb").is_dir())
         K = scan.intrinsics()
         intr[s] = (float(K[0, 0]), float(K[0, 2]))
         grids[s] = scan.grid_points()
-        if moves is not None:
-            moves[s] = {n: dict(img.moves) for n, img in scan.images.items()}
+        moves[s] = {n: dict(img.moves) for n, img in scan.images.items()}
         rows = avd.loc[avd["scan"] == s, ["image", "cam_x", "cam_y"]]
         steps[s] = grid_step(rows[["cam_x", "cam_y"]].to_numpy(float),
                              P.view_grid_ids(rows["image"], grids[s], s))
-    return intr, steps, grids
+    return intr, steps, grids, moves
 
 
 def _chain_seconds(cfg: Config) -> float:
@@ -94,10 +92,14 @@ def _chain_seconds(cfg: Config) -> float:
     return float(sum(v for k, v in stage_timings(cfg).items() if k in ("data", "features", "models") and v == v))
 
 
-def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, timings: dict,
-                 domain: TargetDomain | None = None) -> None:
-    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures); the
-    sensitivity rows go to ``blocks`` (a list or a ``ResultsWriter``: ``append``)."""
+def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TargetDomain | None = None
+                 ) -> tuple[list[dict], dict, dict[str, float]]:
+    """The showcase track: sensitivity sweep, bias maps, GP rasters (paper figures; the arrays are
+    written here). Returns the sensitivity rows (result blocks), the summary's entries
+    ({"sensitivity": {setting: tables}}; {} without the sweep) and each part's seconds."""
+    blocks: list[dict] = []
+    summary: dict = {}
+    timings: dict[str, float] = {}
     ev = cfg.evaluate
     models = banks[DEFAULT].subset(first.classes, first.components)
     if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
@@ -130,13 +132,14 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, blocks, summary: dict, 
             np.savez(f, bias_x=axis, bias_y=axis, posterior=post, classes=np.array(first.classes),
                      images=np.array(first.data.images))
         timings["bias_maps"] = time.perf_counter() - t0
+    return blocks, summary, timings
 
 
 def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] = ()) -> float:
     """Refuse, before the grid runs, settings whose memory does not stream: the bootstrap's
     (B, targets, tracks) draws and one cell's kept results, which grow with the realizations.
     Returns (and says) how long the bootstrap's intervals will take, from a timed small draw."""
-    from pipeline.evaluation.metrics.labels import COMPARISONS, METHODS
+    from pipeline.evaluation.metrics.labels import comparisons, methods
     from pipeline.evaluation.metrics.spec import METRICS
     from pipeline.evaluation.statistics.resampler import draw_seconds
     from pipeline.infra import footprints
@@ -152,7 +155,7 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     # Intervals drawn: each metric for every method and paired comparison, pooled and per setting,
     # and per target for every method (a lower bound: ablations and the ECE come on top).
     settings = len(P.population_settings(ev))
-    n_stats = len(METRICS) * ((len(METHODS) + len(COMPARISONS)) * (1 + settings) + n_targets * len(METHODS))
+    n_stats = len(METRICS) * ((len(methods()) + len(comparisons())) * (1 + settings) + n_targets * len(methods()))
     seconds = n_stats * draw_seconds([list(tracks) or [width] * n_targets], ev.bootstrap)
     if seconds > 60:
         echo(f"[evaluate] evaluate.bootstrap = {ev.bootstrap}: the {n_stats}+ bootstrap intervals will take about "
@@ -195,10 +198,8 @@ def run(ctx) -> str:
     if avd.empty:
         raise TrackError(f"{avd_path} holds no AVD box: nothing to evaluate")
     scans = sorted(avd["scan"].unique())
-    moves: dict = {}
-    intr, steps, grids = scan_geometry(cfg, scans, avd, ctx.skips, moves)
-    truth_path = ctx.input("data") / out_name("data", "truth")
-    truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
+    intr, steps, grids, moves = scan_geometry(cfg, scans, avd, ctx.skips)
+    truth = read_artifact(ctx.input("data"), "data", "truth", missing=None)
     cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
     per_target = Counter(i.target for i in tracks)
     check_budget(cfg, len(per_target), max(per_target.values(), default=1), list(per_target.values()))
@@ -281,7 +282,11 @@ def run(ctx) -> str:
         from pipeline.method.fusion import engine_device
 
         with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
-            single_track(cfg, ctx, banks, first, writer, summary, timings, domain)
+            blocks, entries, times = single_track(cfg, ctx, banks, first, domain)
+        for b in blocks:
+            writer.write(b)
+        summary.update(entries)
+        timings.update(times)
         writer.metadata = metadata(config_hash=cfg.section_hash("evaluate"), seed=str(ev.seed),
                                    classes=list(first.classes), target=first.target, track=str(first.track))
         t0 = time.perf_counter()

@@ -18,7 +18,6 @@ normalisation, training) + the classifier card hash (the weights themselves), vi
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from contextlib import contextmanager
@@ -34,12 +33,10 @@ log = logging.getLogger("viewfuse.features")
 def extra_key(cfg) -> str:
     """The weights' identity: the classifier card hash. The runner brings the classifier stage up
     to date before it computes this stage's key, so the card read here is the one used."""
-    from pipeline.infra.outputs import name as out_name
-    card = cfg.stage_dir("classifier") / out_name("classifier", "card")
-    try:
-        return "classifier=" + str(json.loads(card.read_text()).get("hash"))
-    except (FileNotFoundError, json.JSONDecodeError):
-        return "classifier=missing"
+    from pipeline.infra.outputs import read
+
+    card = read(cfg.stage_dir("classifier"), "classifier", "card", missing=None, invalid=None)
+    return "classifier=" + str(card.get("hash")) if isinstance(card, dict) else "classifier=missing"
 
 
 def bigbird_objects(cfg, root, skips) -> list:

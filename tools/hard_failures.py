@@ -30,7 +30,7 @@ def cells(results: pd.DataFrame, experiment: str, ratio: float) -> pd.DataFrame:
 
 
 def main(argv: list[str]) -> int:
-    from pipeline.evaluation.metrics.labels import COMPARISONS
+    from pipeline.evaluation.metrics.labels import comparisons
     from pipeline.evaluation.statistics.engine import population_block
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -42,7 +42,7 @@ def main(argv: list[str]) -> int:
     by_scan = "scans" in (pop["records"][0].get("over") or [])
     table = cells(pd.read_parquet(a.run / "evaluate" / "results.parquet"), a.experiment, a.ratio)
     methods = [m for m in pop["methods"] if m in set(table["method"])]
-    b = population_block(table.rename(columns={"hard": "hard_failure"}), methods, ["hard_failure"], COMPARISONS,
+    b = population_block(table.rename(columns={"hard": "hard_failure"}), methods, ["hard_failure"], comparisons(),
                          pop["bootstrap"], 0, per_target=False, loto=False, by_scan=by_scan)
     over = ", ".join(b["pooled"][methods[0]]["hard_failure"]["over"])
     print(f"share of runs with a wrong class >= {a.ratio:g} x the truth at the final step, {a.experiment} "

@@ -2,7 +2,7 @@
 
 Every box of a scan (difficulty up to ``max_difficulty``) becomes a row with the real camera
 position and heading; each real instance is located from the rays through its box centres
-(``pipeline.scene.location.locate_rays``, what the track builder's locate calls) and an instance
+(``pipeline.scene.location.locate_all``, the track builder's own locate) and an instance
 whose rays miss their point by more than ``max_ray_residual_m`` (a duplicated or moved object) is
 refused with its residual, never averaged. The pairing is the synthetic part of this source: each
 located instance of a scan stands for one COIL object (distinct within a scan, drawn by
@@ -18,8 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pipeline.scene.location import InconsistentRays, locate_rays
-from pipeline.scene.rays import TrackError
 
 ROW_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_y0", "box_x1", "box_y1",
                "cam_x", "cam_y", "heading", "pass")
@@ -48,26 +46,10 @@ def box_rows(scan, max_difficulty: int) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(ROW_COLUMNS)).sort_values(["instance", "image"], ignore_index=True)
 
 
-def locate_instances(rows: pd.DataFrame, fx: float, cx: float, max_residual_m: float
-                     ) -> tuple[dict[str, tuple[np.ndarray, float]], list[dict]]:
-    """{instance: (xy, RMS residual)} of the instances whose rays meet, and the refused ones
-    ({"scan", "instance", "reason", "residual_m"})."""
-    out, refused = {}, []
+def instance_views(rows: pd.DataFrame):
+    """(instance, its rows, one per image) in instance order: what ``locate_all`` locates."""
     for inst, d in rows.groupby("instance", sort=True):
-        d = d.drop_duplicates("image")
-        try:
-            box_cx = 0.5 * (d["box_x0"].to_numpy(float) + d["box_x1"].to_numpy(float))
-            loc = locate_rays(d[["cam_x", "cam_y"]].to_numpy(float), d["heading"].to_numpy(float), box_cx, fx, cx,
-                              max_residual_m)
-        except InconsistentRays as e:
-            refused.append({"scan": str(d["scan"].iloc[0]), "instance": inst, "reason": str(e),
-                            "residual_m": round(e.residual_m, 4)})
-            continue
-        except TrackError as e:
-            refused.append({"scan": str(d["scan"].iloc[0]), "instance": inst, "reason": str(e)})
-            continue
-        out[inst] = (np.asarray(loc.xy, float), float(loc.residual_m))
-    return out, refused
+        yield inst, d.drop_duplicates("image")
 
 
 def _rng(seed: int, *parts: str) -> np.random.Generator:

@@ -13,8 +13,11 @@ infrastructure room and imports nothing of the project, so every floor can use i
 from __future__ import annotations
 
 import fnmatch
+import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -31,7 +34,7 @@ class Artifact:
 
 
 _JSON_W = "pipeline.infra.cache:write_json"
-_JSON_R = "reports.shared.artifacts:read_json"
+_JSON_R = "pipeline.infra.outputs:read"
 _RESULTS_W = "pipeline.evaluation.metrics.results:write_results"
 _STREAM_W = "pipeline.evaluation.metrics.results:ResultsWriter"   # streamed one cell at a time
 _RESULTS_R = "reports.shared.artifacts:read_result_table"
@@ -151,3 +154,68 @@ def declared(stage: str, relpath: str) -> bool:
 def undeclared(stage: str, relpaths) -> list[str]:
     """The paths among ``relpaths`` that no catalog entry of ``stage`` declares."""
     return sorted(p for p in relpaths if not declared(stage, p))
+
+
+class ArtifactError(ValueError):
+    """An artifact that cannot be read as its entry says (not UTF-8, not valid JSON); the message
+    starts with the file's path."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")
+
+
+_RAISE = object()
+
+
+def read_json(p: str | Path, *, missing: Any = _RAISE, invalid: Any = _RAISE) -> Any:
+    """The one reader of a JSON artifact or manifest: its parsed content. An absent file raises
+    ``FileNotFoundError`` (or gives ``missing``), one that is not UTF-8 JSON ``ArtifactError``
+    naming it (or gives ``invalid``: a caller for which such a file counts as not written)."""
+    p = Path(p)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        if missing is _RAISE:
+            raise
+        return missing
+    except UnicodeDecodeError:
+        if invalid is _RAISE:
+            raise ArtifactError(p, "not valid JSON: not UTF-8 text") from None
+        return invalid
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        if invalid is _RAISE:
+            raise ArtifactError(p, f"not valid JSON: {e}") from None
+        return invalid
+
+
+def read(folder: str | Path, stage: str, key: str, **kw) -> Any:
+    """JSON output ``key`` of ``stage`` from its stage ``folder``, by ``read_json`` (same keywords)."""
+    a = artifact(stage, key)
+    if a.format != "json":
+        raise KeyError(f"output {key!r} of stage {stage!r} is {a.format}, not JSON: read it with {a.reader}")
+    return read_json(path(folder, stage, key), **kw)
+
+
+def read_manifest(folder: str | Path, **kw) -> Any:
+    """The manifest the stage runner wrote in a stage ``folder``, by ``read_json`` (same keywords)."""
+    return read_json(Path(folder) / MANIFEST, **kw)
+
+
+def number(x: Any, null: float | None = math.nan, bad: float | None = math.nan, *,
+           finite: bool = False) -> float | None:
+    """The one reader of a number in a JSON artifact. JSON has no infinity or NaN (the writer,
+    ``pipeline.infra.cache.write_json``, stores them as null), so a null reads as ``null`` (the
+    caller knows what it stands for: an unbounded interval end is +-inf, a missing value NaN or
+    None); anything that is no number, NaN included (and with ``finite`` an infinity: a figure
+    cannot draw it), reads as ``bad``."""
+    if x is None:
+        return null
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return bad
+    return bad if math.isnan(v) or (finite and math.isinf(v)) else v

@@ -3,11 +3,11 @@
 caller's extra keys without letting them overwrite the bank's own."""
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 from pipeline.infra.cache import write_json
+from pipeline.infra.outputs import ArtifactError, read_json
 
 
 def read_index(ipath: Path, fmt: str, version: int, keys: tuple[str, ...], error, what: str) -> dict:
@@ -16,9 +16,9 @@ def read_index(ipath: Path, fmt: str, version: int, keys: tuple[str, ...], error
     if not ipath.is_file():
         raise error(ipath, f"{what} not found (run the 'models' stage)")
     try:
-        index = json.loads(ipath.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise error(ipath, f"not valid JSON: {e}") from None
+        index = read_json(ipath)
+    except ArtifactError as e:
+        raise error(ipath, e.problem) from None
     if not isinstance(index, dict) or index.get("format") != fmt:
         got = index.get("format") if isinstance(index, dict) else None
         raise error(ipath, f"not a viewfuse {what} (format {got!r}, expected {fmt!r})")

@@ -29,15 +29,9 @@ _BASIS_MAX = 8192
 
 
 def _basis_gp(models: GPClassModels, c: int, f: int) -> cb.BasisGP | None:
-    """``circle_basis.build`` for GP (c, f), cached by its content (inputs, targets, hyperparameters)."""
-    import hashlib
-
+    """``circle_basis.build`` for GP (c, f), cached by its content (``GPClassModels.digest``)."""
     x, y = models.X[c], np.ascontiguousarray(models.Y[c][f])
-    h = hashlib.blake2b(digest_size=16)
-    for part in (x.tobytes(), y.tobytes(), np.array([models.mean[c, f], models.amplitude[c, f],
-                                                     models.length_scale[c, f], models.noise[c, f]]).tobytes()):
-        h.update(part)
-    key = h.digest()
+    key = models.digest(c, f, trained_only=True)
     with _LOCK:
         if key in _BASIS:
             return _BASIS[key]

@@ -8,7 +8,6 @@ start, setting, node or planner), never by its place in the population or the wo
 """
 from __future__ import annotations
 
-import hashlib
 import zlib
 from dataclasses import dataclass
 
@@ -104,10 +103,7 @@ def ring_table(models, world: World) -> RingTable | None:
     vectors (the planner then predicts with the GPs)."""
     if not all(np.allclose(np.linalg.norm(x, axis=1), 1.0, atol=1e-9) for x in models.X):
         return None
-    h = hashlib.sha1()
-    for a in [*models.X, *models.Y, models.mean, models.amplitude, models.length_scale, models.test_noise]:
-        h.update(np.ascontiguousarray(a, float).tobytes())
-    key = h.hexdigest()     # the models' content: another bank with the same names is another table
+    key = models.digest()     # the models' content: another bank with the same names is another table
     if key not in _TABLES:
         if len(_TABLES) >= 8:
             _TABLES.pop(next(iter(_TABLES)))

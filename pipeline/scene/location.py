@@ -55,3 +55,31 @@ def locate_rays(cam_xy, heading, box_cx, fx: float, cx: float, max_residual_m: f
     if not residual <= max_residual_m:
         raise InconsistentRays(residual, len(o), max_residual_m)
     return Location(xy, residual, len(o))
+
+
+def locate(views, fx: float, cx: float, max_residual_m: float = math.inf) -> Location:
+    """The one locate: an object's location from a table of its views (a DataFrame, or a mapping
+    of arrays, with columns ``cam_x``, ``cam_y``, ``heading``, ``box_x0``, ``box_x1``: the features'
+    AVD rows, the real-imagery box rows, a scan's boxes): ``locate_rays`` through the centres of its
+    boxes."""
+    col = lambda k: np.asarray(views[k], float).reshape(-1)   # noqa: E731
+    # a table keeps its own memory layout: it fixes the least-squares sums' order, so the last bits
+    cam = (views[["cam_x", "cam_y"]].to_numpy(float) if hasattr(views, "to_numpy")
+           else np.stack([col("cam_x"), col("cam_y")], axis=-1))
+    return locate_rays(cam, col("heading"), 0.5 * (col("box_x0") + col("box_x1")), fx, cx, max_residual_m)
+
+
+def locate_all(instances, fx: float, cx: float, max_residual_m: float, scan: str
+               ) -> tuple[dict[str, Location], list[dict]]:
+    """Every instance of one scan, from (instance, its views) pairs: {instance: ``Location``} of
+    those ``locate`` places, and for each it refuses (too few views, parallel rays, rays that do
+    not meet) {"instance", "scan", "reason", "residual_m"} (None where no point was fitted)."""
+    located: dict[str, Location] = {}
+    refused: list[dict] = []
+    for inst, views in instances:
+        try:
+            located[inst] = locate(views, fx, cx, max_residual_m)
+        except TrackError as e:
+            refused.append({"instance": inst, "scan": scan, "reason": str(e),
+                            "residual_m": e.residual_m if isinstance(e, InconsistentRays) else None})
+    return located, refused

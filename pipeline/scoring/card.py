@@ -2,12 +2,12 @@
 settings) and loading the classifier it describes, digest checked."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from torch import nn
 
 from pipeline.infra.outputs import name as out_name
+from pipeline.infra.outputs import read_json
 from pipeline.infra.cache import hash_json, sha256_file
 from pipeline.scoring.classifiers import card_arch, classifier
 from pipeline.scoring.weight_files import WeightsError, WeightsNotFoundError, load_into, load_state_dict_file
@@ -28,10 +28,7 @@ def read_card(folder: str | Path) -> dict:
     p = Path(folder) / CARD
     if not p.is_file():
         raise FileNotFoundError(f"{p}: classifier card not found (run `viewfuse classifier` first)")
-    try:
-        card = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{p}: not valid JSON ({e})") from None
+    card = read_json(p)     # ArtifactError (a ValueError) names the file
     for k in ("weights_file", "weights_sha256", "num_classes", "output_names", "dropout", "hash"):
         if k not in card:
             raise ValueError(f"{p}: classifier card lacks key {k!r}")

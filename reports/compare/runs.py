@@ -19,13 +19,13 @@ Generic over methods, metrics and comparisons: whatever the summaries hold, in
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pipeline.evaluation.metrics.labels import ordered_methods
 from pipeline.evaluation.metrics.spec import METRICS
+from pipeline.evaluation.statistics.records import outcome
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import name as out_name
 from reports.compare.planning import block_of as planning_block
@@ -56,6 +56,7 @@ class Column:
     name: str
     runs: list[Run]
     pooled_over_seeds: bool = False
+    pool: dict | None = None               # a seed group's pool (``seed_pool``), computed once
 
 
 # -- reading ---------------------------------------------------------------------------------------
@@ -151,7 +152,8 @@ def resolve(args: list[str | Path]) -> list[Column]:
         diff = config_diff(runs)
         if len(runs) > 1 and diff and all(k.split(".")[-1] == "seed" for k in diff):
             cols += [Column(r.name, [r]) for r in runs]
-            cols.append(Column(f"{p.name}: pooled over {len(runs)} seeds", runs, pooled_over_seeds=True))
+            cols.append(Column(f"{p.name}: pooled over {len(runs)} seeds", runs, pooled_over_seeds=True,
+                               pool=seed_pool(runs)))
         else:
             cols += [Column(r.name, [r]) for r in runs]
     return cols
@@ -185,36 +187,13 @@ def unique_runs(cols: list[Column]) -> list[Run]:
 
 
 # -- values ----------------------------------------------------------------------------------------
-def _num(x: Any) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return math.nan
-    return v
+def seed_pool(runs: list[Run]) -> dict | None:
+    """The engine's seed pool (``pipeline.evaluation.statistics.engine.seed_pool``) over a seed
+    group's runs: pooled values and records over seeds, then targets, then tracks; None when a
+    run's summary holds no cells."""
+    from pipeline.evaluation.statistics.engine import seed_pool as pool
 
-
-_POOLS: dict[int, dict | None] = {}
-
-
-def seed_pool(col: Column) -> dict | None:
-    """The engine's seed block (``pipeline.evaluation.statistics.engine.seed_block``) over the
-    column's runs' cells: pooled values and records over seeds, then targets, then tracks; None
-    when a run's summary holds no cells. Computed once per column."""
-    if id(col) in _POOLS:
-        return _POOLS[id(col)]
-    from pipeline.evaluation.metrics.labels import comparisons
-    from pipeline.evaluation.statistics.engine import seed_block
-
-    pops = [r.population for r in col.runs]
-    out = None
-    if all(p.get("cells") for p in pops):
-        methods = ordered_methods({m for p in pops for m in p["pooled"]})
-        metrics = [k for k in METRICS if all(k in (p["cells"][0].get("values") or {}).get(methods[0], {})
-                                             for p in pops)]
-        out = seed_block({r.name: r.population["cells"] for r in col.runs}, methods, metrics, comparisons(),
-                         int(pops[0].get("bootstrap") or 1000), primary=tuple(pops[0].get("primary_metrics") or ()))
-    _POOLS[id(col)] = out
-    return out
+    return pool({r.name: r.population for r in runs})
 
 
 def metric_order(keys) -> list[str]:
@@ -233,17 +212,7 @@ def metrics_of(cols: list[Column]) -> list[str]:
 def pooled_value(col: Column, method: str, metric: str) -> dict | None:
     if not col.pooled_over_seeds:
         return (col.runs[0].population["pooled"].get(method) or {}).get(metric)
-    pool = seed_pool(col)
-    return ((pool or {}).get("pooled", {}).get(method) or {}).get(metric)
-
-
-def outcome_from_ci(est: dict, metric: str) -> str:
-    """The one outcome rule (``records.outcome``) on an older summary's paired CI."""
-    from pipeline.evaluation.statistics.records import outcome
-
-    lo, hi = _num(est.get("ci_low")), _num(est.get("ci_high"))
-    higher = METRICS[metric].higher_is_better if metric in METRICS else est.get("better", "higher") == "higher"
-    return outcome(lo, hi, higher) if math.isfinite(lo) and math.isfinite(hi) else "not distinguishable"
+    return ((col.pool or {}).get("pooled", {}).get(method) or {}).get(metric)
 
 
 def verdicts(run: Run) -> dict[tuple[str, str], dict]:
@@ -268,8 +237,10 @@ def _verdicts(pop: dict) -> dict[tuple[str, str], dict]:
     for key, per in (pop.get("paired") or {}).items():
         for metric, est in (per or {}).items():
             if isinstance(est, dict):
-                out[(key, metric)] = {"outcome": outcome_from_ci(est, metric), **{k: est.get(k) for k in
-                                                                                  ("value", "ci_low", "ci_high")}}
+                higher = (METRICS[metric].higher_is_better if metric in METRICS
+                          else est.get("better", "higher") == "higher")
+                out[(key, metric)] = {"outcome": outcome(est.get("ci_low"), est.get("ci_high"), higher),
+                                      **{k: est.get(k) for k in ("value", "ci_low", "ci_high")}}
     return out
 
 
@@ -282,7 +253,7 @@ def column_verdict(col: Column, key: tuple[str, str]) -> dict | None:
         return None
     kinds = [v["outcome"] for v in got]
     same = len(set(kinds)) == 1 and len(got) == len(vs)
-    pooled = _verdicts(seed_pool(col) or {}).get(key)
+    pooled = _verdicts(col.pool or {}).get(key)
     if pooled is None:
         return {"outcome": "no pooled value (a run's summary has no cells)", "value": None, "ci_low": None,
                 "ci_high": None, "held_for_every_seed": same}

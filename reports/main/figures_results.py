@@ -17,6 +17,7 @@ import pandas as pd
 
 from pipeline.evaluation.metrics.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
+from pipeline.infra.outputs import number
 from reports.main.calibration import paired_value, pooled_value
 from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
@@ -27,21 +28,13 @@ PER_TARGET_METRICS = ("correct_final", "log10_mgr95_final")
 
 def _ci_rows(ax, ys, entries, color: str, marker: str, label: str) -> None:
     """Points with horizontal 95 % CI bars; entries are contract dicts (value, ci_low, ci_high)."""
-    v = np.array([_num(e.get("value")) for e in entries])
-    lo = np.array([_num(e.get("ci_low"), v[i]) for i, e in enumerate(entries)])
-    hi = np.array([_num(e.get("ci_high"), v[i]) for i, e in enumerate(entries)])
+    v = np.array([number(e.get("value"), finite=True) for e in entries])
+    lo = np.array([number(e.get("ci_low"), v[i], v[i], finite=True) for i, e in enumerate(entries)])
+    hi = np.array([number(e.get("ci_high"), v[i], v[i], finite=True) for i, e in enumerate(entries)])
     ok = np.isfinite(v)
     err = np.vstack([np.clip(v - lo, 0, None), np.clip(hi - v, 0, None)])
     ax.errorbar(v[ok], np.asarray(ys)[ok], xerr=err[:, ok], fmt=marker, color=color, ms=5, capsize=3,
                 lw=1.3, label=label)
-
-
-def _num(x, default=np.nan) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return default
-    return v if np.isfinite(v) else default
 
 
 def fig_forest(pop: dict) -> Any:
@@ -63,7 +56,7 @@ def fig_forest(pop: dict) -> Any:
             ys = np.arange(len(rows)) + (i - (len(keys) - 1) / 2) * 0.22
             _ci_rows(ax, ys, entries, method_color(base), marks[i % len(marks)],
                      f"{method_label(m, True)} − {method_label(base, True)}")
-            drawn += [_num(e.get(k)) for e in entries for k in ("value", "ci_low", "ci_high")]
+            drawn += [number(e.get(k), finite=True) for e in entries for k in ("value", "ci_low", "ci_high")]
         if "mgr" in metric:
             mgr_axis(ax, drawn, axis="x")
         ax.axvline(0.0, color="#444444", lw=1)
@@ -109,7 +102,7 @@ def fig_per_target(pop: dict) -> Any:
             ys = np.arange(len(rows)) + (i - (len(methods) - 1) / 2) * 0.2
             _ci_rows(ax, ys, entries, method_color(m), "o", method_label(m))
             if "mgr" in metric:
-                drawn += [_num(e.get(k)) for e in entries for k in ("value", "ci_low", "ci_high")]
+                drawn += [number(e.get(k), finite=True) for e in entries for k in ("value", "ci_low", "ci_high")]
         if "mgr" in metric:
             mgr_axis(ax, drawn, axis="x")
         ax.axhline(len(targets) - 0.5, color="#bbbbbb", lw=0.8)
@@ -230,10 +223,11 @@ def _ci_line(ax, x, ests, color: str, label: str, ls: str = "-") -> int:
     """Line with CI error bars through Estimates; an infinite upper bound is drawn to the axis top
     (returned count) so the bar still says 'unbounded'."""
     # a method missing from a setting has no estimate there: a gap, not a crash
-    v = np.array([_num(getattr(e, "value", None)) for e in ests])
-    lo = np.array([_num(getattr(e, "low", None), v[i]) for i, e in enumerate(ests)])
+    v = np.array([number(getattr(e, "value", None), finite=True) for e in ests])
+    lo = np.array([number(getattr(e, "low", None), v[i], v[i], finite=True) for i, e in enumerate(ests)])
     hi_raw = np.array([np.inf if getattr(e, "high", None) is not None and np.isposinf(float(e.high))
-                       else _num(getattr(e, "high", None), v[i]) for i, e in enumerate(ests)])
+                       else number(getattr(e, "high", None), v[i], v[i], finite=True)
+                       for i, e in enumerate(ests)])
     top = np.nanmax(np.concatenate([v, lo, hi_raw[np.isfinite(hi_raw)], [0.0]]))
     hi = np.where(np.isinf(hi_raw), top * 1.05 + 0.05, hi_raw)
     err = np.vstack([np.clip(v - lo, 0, None), np.clip(hi - v, 0, None)])
@@ -257,7 +251,8 @@ def fig_sensitivity(summ: dict) -> Any:
     axes[0, 0].set_ylabel("correct ratio, final step")
     axes[0, 0].set_title("Correct ratio vs σ (higher is better)")
     for ax, metric in zip(axes[0], ("correct_final", "log10_mgr95_final")):
-        vals = [_num(getattr(summ[s]["methods"][m].get(metric), k, None)) for s in settings for m in methods
+        vals = [number(getattr(summ[s]["methods"][m].get(metric), k, None), finite=True)
+                for s in settings for m in methods
                 if summ[s]["methods"].get(m, {}).get(metric) is not None for k in ("value", "low", "high")]
         finite = [x for x in vals if np.isfinite(x)]
         if metric.startswith("log10_mgr"):

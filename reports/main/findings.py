@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.evaluation.metrics.labels import comparison_label, method_label, ordered_methods
-from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
+from pipeline.evaluation.metrics.spec import higher_is_better, metric_label, percentile
 from reports.main.calibration import paired_value, pooled_value
 from reports.shared.checks import Ledger, outcome_of
 from reports.shared.numbers import Estimate, fmt
@@ -68,7 +68,7 @@ def bands(df, column: str) -> str:
     parts, meds = [], []
     for m in ordered_methods(fin["method"].unique()):
         v = fin[fin["method"] == m][column].to_numpy(float)
-        lo, med, hi = (np.percentile(np.where(np.isposinf(v), np.inf, v), q) for q in (10, 50, 90))
+        lo, med, hi = percentile(v, [10, 50, 90])
         parts.append(f"{method_label(m, True)} median {fmt(med)} (10–90 %: {fmt(lo)} to {fmt(hi)})")
         meds.append((float(med), method_label(m, True)))
     what = "P(truth)" if column == "p_truth" else "log10 MGR"

@@ -9,10 +9,11 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.evaluation.statistics.records import record
 from reports.main.context import ReportContext
 from reports.shared.figures import mgr_axis, new_subplots, step_ticks
 from reports.shared.numbers import Estimate, fmt
-from reports.shared.records import PHRASE, interval_text
+from reports.shared.records import sentence
 
 COLOURS = {"info_gain": "#0072B2", "known_pose": "#56B4E9", "random": "#999999", "fixed": "#000000",
            "orbit": "#E69F00", "hindsight": "#009E73"}
@@ -32,19 +33,24 @@ def scope(block: dict) -> str:
 CURVES = (("correct", "correct ratio"), ("confident_error", "confident-error rate"), ("nll", "NLL of the truth"))
 
 
-def verdict_sentences(block: dict) -> list[str]:
-    """One sentence per paired entry on steps to a decision and on the correct ratio at a step."""
+def verdict_records(block: dict) -> list[dict]:
+    """The paired entries on steps to a decision and on the correct ratio at a step as verdict
+    records (``records.record``: the one outcome rule), so they are worded and checked as every
+    other verdict."""
     out = []
     for comp, entries in (block.get("paired") or {}).items():
-        a, b = comp.split("-", 1)
         for m, est in entries.items():
             if m != "steps_to_decision" and not m.startswith("correct_at"):
                 continue
-            rec = {"lo": est.get("ci_low"), "hi": est.get("ci_high")}
-            out.append(f"{name(a)} {PHRASE[est['outcome']]} {name(b)} on {block['labels'].get(m, m)} (mean over "
-                       f"targets of the differences {fmt(est['value'], signed=True)}, {interval_text(rec)}, over "
-                       f"{scope(block)}).")
+            out.append(record(comp, m, est, pooling=est.get("pooling", "mean"), better=est.get("better", "higher"),
+                              over=est.get("over") or ["targets", "starts"], n=est.get("n") or {}, primary=True))
     return out
+
+
+def verdict_sentences(block: dict) -> list[str]:
+    """One sentence per verdict record, by the one renderer (``reports.shared.records.sentence``)."""
+    labels = block.get("labels") or {}
+    return [sentence(r, name=name, metric_name=lambda m: labels.get(m, m)) for r in verdict_records(block)]
 
 
 def curves_caption(block: dict) -> str:
@@ -160,6 +166,9 @@ def planning_section(ctx: ReportContext) -> None:
     ctx.page.table(["planner", "steps to a confident correct decision"] + [f"correct ratio at step {k}" for k in at],
                    rows, cls="planning", caption=f"Pooled over {scope(block)}; no confident correct decision within the budget "
                                  f"counts as {block['budget'] + 1} steps.")
+    for r in verdict_records(block):
+        ctx.ledger.register(("planning", r["comparison"], r["metric"]), r["value"], r["lo"], r["hi"],
+                            label=r["outcome"], where="planning verdicts", higher_is_better=r["better"] == "higher")
     sentences = verdict_sentences(block)
     if sentences:
         ctx.page.bullets(sentences)

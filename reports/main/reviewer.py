@@ -10,6 +10,7 @@ from typing import Any
 
 from pipeline.evaluation.metrics.labels import method_label, method_note, ordered_methods
 from pipeline.infra.outputs import path as out_path
+from pipeline.infra.outputs import read as read_artifact
 from reports.main.bottom_line import counts
 from reports.main.context import ReportContext
 from reports.shared.figures import MGR_SATURATION
@@ -109,9 +110,8 @@ def limitations_section(ctx: ReportContext) -> None:
 
 
 def _study(ctx: ReportContext) -> dict | None:
-    p = out_path(Path(ctx.run.run_dir) / "study", "study", "summary")
     try:
-        return json.loads(p.read_text())
+        return read_artifact(Path(ctx.run.run_dir) / "study", "study", "summary", missing=None)
     except (OSError, ValueError):
         return None
 

@@ -13,7 +13,6 @@ down that labels the same statistic otherwise fails the build.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
 from pipeline.evaluation.metrics.spec import higher_is_better
 from pipeline.evaluation.metrics.paper import CLAIMS, TABLES_NOTE, Claim
 from pipeline.evaluation.statistics.records import equivalence
+from pipeline.infra.outputs import number
 from reports.main.calibration import paired_value
 from reports.main.context import ReportContext
 from reports.shared.checks import outcome_of
@@ -31,25 +31,14 @@ EQUIVALENCE_WORDS = {"equivalent": "holds", "different": "fails", "not distingui
 DEFAULT_MARGIN = 0.05   # report.equivalence_margin_correct's default (pipeline/infra/config/evaluation.py)
 
 
-def _end(x, default: float) -> float | None:
-    """An interval end; null in a record means an unbounded (infinite) end."""
-    if x is None:
-        return default
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return None if math.isnan(v) else v
-
-
 def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
     """{value, lo, hi, n, over} of one paired comparison on one metric: from the verdict records
     where the run has them, else from the paired block (older runs)."""
     for r in pop.get("records") or []:
         if r.get("comparison") == comparison and r.get("metric") == metric:
             unb = bool(r.get("unbounded"))
-            lo = _end(r.get("lo"), -math.inf if unb else None)
-            hi = _end(r.get("hi"), math.inf if unb else None)
+            lo = number(r.get("lo"), -math.inf if unb else None, None)   # null: an unbounded end
+            hi = number(r.get("hi"), math.inf if unb else None, None)
             return {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
                     "over": r.get("over") or ["targets", "tracks"]}
     d = paired_value(pop, comparison, metric)
@@ -91,11 +80,10 @@ def simulate_claims(run_dir: Path | None) -> list[dict]:
     """The §5.3 claims the simulate stage checked ([] where it did not run in this run folder)."""
     if run_dir is None:
         return []
-    from pipeline.infra.outputs import path as out_path
-    p = out_path(Path(run_dir) / "simulate", "simulate", "summary")
+    from pipeline.infra.outputs import read
     try:
-        claims = json.loads(p.read_text()).get("claims") or []
-    except (OSError, ValueError):
+        claims = read(Path(run_dir) / "simulate", "simulate", "summary").get("claims") or []
+    except (OSError, ValueError, AttributeError):
         return []
     return [c for c in claims if isinstance(c, dict)]
 

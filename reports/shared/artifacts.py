@@ -17,6 +17,7 @@ import pandas as pd
 
 from loaders.errors import BadInputError
 from pipeline.infra.cache import NpzFileError, load_npz
+from pipeline.infra import outputs
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import path as out_path
@@ -37,12 +38,11 @@ STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
 
 
 def read_json(path: Path) -> Any:
+    """The catalog's JSON reader (``outputs.read_json``), its problems as the reports' ``BadInputError``."""
     try:
-        return json.loads(Path(path).read_text())
-    except json.JSONDecodeError as e:
-        raise BadInputError(path, f"not valid JSON: {e}") from None
-    except UnicodeDecodeError:
-        raise BadInputError(path, "not UTF-8 text") from None
+        return outputs.read_json(path)
+    except outputs.ArtifactError as e:
+        raise BadInputError(e.path, e.problem) from None
 
 
 def read_npz(path: Path, required: Iterable[str]) -> dict[str, np.ndarray]:

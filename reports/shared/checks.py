@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pipeline.evaluation.statistics.records import outcome
+from pipeline.infra.outputs import number
 
 # A caption states a finding when, after removing the CI level ("95 %"), it still holds a number
 # (a measured value) and a word that compares (a direction or an outcome). "Paired differences per
@@ -167,14 +168,6 @@ class Entry:
     higher_is_better: bool | None
 
 
-def _num(x) -> float | None:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return None if math.isnan(v) else v
-
-
 def _same(a: float | None, b: float | None, rel: float = 1e-9) -> bool:
     if a is None or b is None:
         return a is b
@@ -193,9 +186,9 @@ class Ledger:
         """Record a printed statistic. ``key`` names the statistic (e.g. ('paired', comparison,
         metric)); ``label`` is the word printed with it (better / worse / not distinguishable /
         holds / fails / inconclusive, or '')."""
-        self.entries.append(Entry(tuple(key) if isinstance(key, (tuple, list)) else (key,), _num(value),
-                                  _num(low), _num(high), str(label or "").strip().lower(), where,
-                                  higher_is_better))
+        self.entries.append(Entry(tuple(key) if isinstance(key, (tuple, list)) else (key,),
+                                  number(value, None, None), number(low, None, None), number(high, None, None),
+                                  str(label or "").strip().lower(), where, higher_is_better))
 
     def register_estimate(self, key, d: dict | None, **kw) -> None:
         d = d or {}
@@ -261,10 +254,7 @@ def label_problems(e: Entry) -> list[str]:
 def outcome_of(low, high, higher_is_better: bool, words=("better", "worse", "not distinguishable")) -> str:
     """The one outcome rule (``records.outcome``: the side of 0 the interval lies on; a JSON null
     end is unbounded) in ``words``."""
-    def end(x):   # None stays None (unbounded); a non-number is NaN (no interval)
-        v = _num(x)
-        return None if x is None else math.nan if v is None else v
-    res = outcome(end(low), end(high), higher_is_better)
+    res = outcome(number(low, None), number(high, None), higher_is_better)
     return words[("better", "worse", "not distinguishable").index(res)]
 
 

@@ -14,6 +14,8 @@ import re
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from pipeline.infra.outputs import number
+
 SIG = 3
 TINY = 1e-6        # below this in size: "< 1e-6"
 HUGE = 1e5         # from this up: exponent notation
@@ -120,10 +122,7 @@ def percent(share: Any, decimals: int = 0) -> str:
 
 
 def _missing(x: Any) -> bool:
-    try:
-        return x is None or math.isnan(float(x))
-    except (TypeError, ValueError):
-        return True
+    return math.isnan(number(x))
 
 
 _DECIMAL = re.compile(r"(?<![\w.])([-+−]?)(\d+\.\d+(?:e[-+]?\d+)?|\d+e[-+]?\d+)(?![\w.])")

@@ -5,7 +5,7 @@ number and its interval in a sentence are the record's own."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from pipeline.evaluation.metrics.labels import method_label
@@ -42,18 +42,23 @@ def interval_text(rec: Mapping) -> str:
 
 def over_text(rec: Mapping) -> str:
     n = rec.get("n") or {}
-    parts = [f"{n[k]} {k if n[k] != 1 else k[:-1]}" for k in ("seeds", "targets", "tracks") if k in n]
+    parts = [f"{n[k]} {k if n[k] != 1 else k[:-1]}" for k in ("seeds", "targets", "tracks", "starts") if k in n]
     return " × ".join(parts) if parts else " and ".join(rec.get("over") or [])
 
 
-def sentence(rec: Mapping) -> str:
+def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
+             metric_name: Callable[[str], str] | None = None) -> str:
     """One record as a sentence: outcome, statistic, value, interval, what it varies over, the
-    wins/losses and the caveats the record carries."""
+    wins/losses and the caveats the record carries. ``name`` and ``metric_name`` word another
+    family's entries (the view planners and their metrics); by default methods and metrics."""
     a = method_label(rec["method"], short=True) if "method" in rec else rec["comparison"].split("-", 1)[0]
     b = method_label(rec.get("baseline"), short=True) if "baseline" in rec else \
         rec["comparison"].split("-", 1)[1]
     stat = STATISTIC.get(rec.get("pooling"), "difference")
-    text = (f"{a} {PHRASE[rec['outcome']]} {b} on {metric_label(rec['metric'])} ({stat} "
+    if name is not None:
+        a, b = name(rec["method"]), name(rec["baseline"])
+    what = (metric_name or metric_label)(rec["metric"])
+    text = (f"{a} {PHRASE[rec['outcome']]} {b} on {what} ({stat} "
             f"{fmt(rec.get('value'), signed=True)}, {interval_text(rec)}, over {over_text(rec)}")
     lmin, lmax = rec.get("loto_min"), rec.get("loto_max")
     if isinstance(lmin, (int, float)) and isinstance(lmax, (int, float)) and math.isfinite(lmin) and math.isfinite(lmax):

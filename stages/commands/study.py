@@ -12,7 +12,6 @@ distinguishable) for every (comparison, metric) record.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 import time
@@ -21,8 +20,8 @@ from typing import Any, Callable
 
 from pipeline.infra.cache import write_json, write_text
 from reports.study.page import entry_label, render_html
-from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import path as out_path
+from pipeline.infra.outputs import read, read_manifest
 
 log = logging.getLogger("viewfuse.study")
 
@@ -51,11 +50,8 @@ def share_data(cfg, scfg) -> None:
 
 
 def _finished(scfg) -> str | None:
-    p = scfg.stage_dir(CHAIN_END) / MANIFEST
-    try:
-        return json.loads(p.read_text()).get("finished")
-    except (FileNotFoundError, json.JSONDecodeError):
-        return None
+    m = read_manifest(scfg.stage_dir(CHAIN_END), missing=None, invalid=None)
+    return m.get("finished") if isinstance(m, dict) else None
 
 
 def seed_result(scfg, reused: bool) -> dict:
@@ -64,23 +60,22 @@ def seed_result(scfg, reused: bool) -> dict:
                            "classifier_accuracy_ci95": None,
                            "varying_fits": None, "varying_fits_at_bound": None,
                            "pooled": None, "records": None}
-    card = out_path(scfg.stage_dir("classifier"), "classifier", "card")
-    if card.is_file():
-        c = json.loads(card.read_text())
+    c = read(scfg.stage_dir("classifier"), "classifier", "card", missing=None)
+    if c is not None:
         out["classifier_accuracy"] = c.get("accuracy")
         out["classifier_accuracy_ci95"] = c.get("accuracy_ci95")
-    index = out_path(scfg.stage_dir("models"), "models", "index")
-    if index.is_file():  # the GP-fit health of this seed's scores: no varying fit at a bound
-        idx = json.loads(index.read_text())
+    idx = read(scfg.stage_dir("models"), "models", "index", missing=None)
+    if idx is not None:  # the GP-fit health of this seed's scores: no varying fit at a bound
         thr = float(idx.get("varying_std_threshold", 0.01))
         out["varying_fits"] = sum(1 for d in idx.get("diagnostics", []) if d.get("train_std", 0.0) > thr)
         out["varying_fits_at_bound"] = idx.get("varying_fits_at_bound")
-    summ = out_path(scfg.stage_dir(CHAIN_END), CHAIN_END, "summary")
-    if summ.is_file():
-        pop = json.loads(summ.read_text()).get("population") or {}
+    summ = read(scfg.stage_dir(CHAIN_END), CHAIN_END, "summary", missing=None)
+    if summ is not None:
+        pop = summ.get("population") or {}
         for k in ("pooled", "records"):
             out[k] = pop.get(k)
         out["primary_metrics"] = pop.get("primary_metrics")
+        out["bootstrap"] = pop.get("bootstrap")
         out["cells"] = pop.get("cells")  # for the seed-pooled bootstrap; not written per seed
     return out
 
@@ -90,10 +85,8 @@ def chain_seconds(scfg) -> dict[str, float | None]:
     reuses the seed still reports what computing it cost."""
     out: dict[str, float | None] = {}
     for stage in CHAIN:
-        try:
-            out[stage] = json.loads((scfg.stage_dir(stage) / MANIFEST).read_text()).get("seconds")
-        except (FileNotFoundError, json.JSONDecodeError):
-            out[stage] = None
+        m = read_manifest(scfg.stage_dir(stage), missing=None, invalid=None)
+        out[stage] = m.get("seconds") if isinstance(m, dict) else None
     return out
 
 
@@ -106,29 +99,13 @@ def outcomes(result: dict) -> dict[str, str] | None:
     return None
 
 
-def pool_seeds(results: dict[int, dict], n_boot: int) -> dict | None:
-    """Every seed's cells in one bootstrap (seeds, then targets, then tracks): pooled values, paired
-    differences and records that cover training runs (``pipeline.evaluation.statistics.engine.seed_block``)."""
-    from pipeline.evaluation.metrics.labels import comparisons, methods as method_keys
-    from pipeline.evaluation.metrics.spec import METRICS
-    from pipeline.evaluation.statistics.engine import seed_block
-
-    cells = {str(s): r["cells"] for s, r in results.items() if r.get("cells")}
-    if not cells:
-        return None
-    present = {m for cs in cells.values() for c in cs for m in (c.get("values") or {})}
-    methods = [m for m in method_keys() if m in present]
-    metrics = [k for k in METRICS if any(k in (c.get("values") or {}).get(methods[0], {})
-                                         for cs in cells.values() for c in cs[:1])]
-    primary = next((r.get("primary_metrics") for r in results.values() if r.get("primary_metrics")), ())
-    return seed_block(cells, methods, metrics, comparisons(), n_boot, primary=tuple(primary or ()))
-
-
-def summarize(results: dict[int, dict], n_boot: int = 2000) -> dict:
+def summarize(results: dict[int, dict]) -> dict:
     """Side by side: per seed the pooled values and the verdict; whether the verdict agrees; and
-    the verdict pooled over the seeds."""
+    the verdict pooled over the seeds (the engine's one seed pool, at the seeds' own resample count)."""
+    from pipeline.evaluation.statistics.engine import seed_pool
+
     seeds = sorted(results)
-    pooled = pool_seeds(results, n_boot)
+    pooled = seed_pool({str(s): results[s] for s in seeds})
     per_seed = {str(s): {k: v for k, v in results[s].items() if k != "cells"} for s in seeds}
     outs = {s: outcomes(results[s]) for s in seeds}
     missing = [s for s in seeds if outs[s] is None]
@@ -170,7 +147,7 @@ def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = Fals
         timings[str(seed)] = round(time.perf_counter() - t, 2)
         reused = before is not None and before == _finished(scfg)
         results[seed] = seed_result(scfg, reused)
-    summary = summarize(results, cfg.evaluate.bootstrap)
+    summary = summarize(results)
     summary["timings_s"] = {"per_seed": timings, "total": round(time.perf_counter() - t0, 2),
                             "chain_per_seed": {str(sd): chain_seconds(seed_config(cfg, sd)) for sd in cfg.study.seeds}}
     out = study_dir(cfg)

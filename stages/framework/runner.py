@@ -14,7 +14,6 @@ rewriting an upstream output (a model file, results) makes everything below it s
 from __future__ import annotations
 
 import importlib
-import json
 import logging
 import shutil
 import time
@@ -28,6 +27,7 @@ from pipeline.infra.cache import (confined_writes, folder_records, hash_json, re
                                    write_json)
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST, undeclared
+from pipeline.infra.outputs import read_manifest as outputs_manifest
 from pipeline.infra.progress import echo
 from pipeline.infra.workers import pid_file, stop_leftovers
 from stages.framework.registry import STAGES, StageSpec, code_version, defines
@@ -66,13 +66,8 @@ class StageContext:
 
 
 def read_manifest(cfg: Config, stage: str) -> dict | None:
-    p = cfg.stage_dir(stage) / MANIFEST
-    if not p.is_file():
-        return None
-    try:
-        m = json.loads(p.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        return None
+    # an unreadable manifest counts as none: the stage is stale and reruns
+    m = outputs_manifest(cfg.stage_dir(stage), missing=None, invalid=None)
     return m if isinstance(m, dict) else None
 
 

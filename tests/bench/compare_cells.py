@@ -23,7 +23,7 @@ banks, indexes = SE.load_banks(root / "models", ())
 avd, scores, meta = read_features(root / "features" / out_name("features", "avd"))
 scans = sorted(avd["scan"].unique())
 from stages.framework.runner import SkipPolicy
-intr, steps, grids = SE.scan_geometry(cfg, scans, avd, SkipPolicy(True))
+intr, steps, grids, _ = SE.scan_geometry(cfg, scans, avd, SkipPolicy(True))
 truth = json.loads((root / "data" / "truth.json").read_text())
 cells, tracks, skipped = P.build_cells(cfg.evaluate, avd, scores, indexes, truth, intr, steps, None, grids)
 bank = banks["default"]

@@ -4,7 +4,7 @@ clean once finished; thinning keeps the ticks and labels every n-th, anchored at
 names keep every label; a long title is wrapped, never cut."""
 from __future__ import annotations
 
-from pipeline.evaluation.metrics.labels import COMPARISONS, comparison_key
+from pipeline.evaluation.metrics.labels import comparison_key, comparisons
 from reports.main.figures_results import fig_forest
 from reports.shared.checks import figure_text_problems
 from reports.shared.figures import new_figure, new_subplots, save
@@ -17,7 +17,7 @@ def _est(v, lo, hi):
 
 def _symlog_pop(n_targets: int = 3) -> dict:
     """Every log10 MGR difference spans −1e4..1e4: eleven decade ticks on a third of the width."""
-    keys = [comparison_key(*c) for c in COMPARISONS]
+    keys = [comparison_key(*c) for c in comparisons()]
     targets = [f"target_{i}" for i in range(n_targets)]
     row = {"correct_final": _est(0.1, -0.1, 0.3), "prob_truth_final": _est(0.1, 0.0, 0.2),
            "log10_mgr95_final": _est(-5e3, -1e4, 1e4)}

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from pipeline.evaluation.metrics.labels import COMPARISONS, comparison_key
+from pipeline.evaluation.metrics.labels import comparison_key, comparisons
 from pipeline.method.names import DIRICHLET, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 from reports.shared.checks import figure_text_problems
 from reports.shared.layout import finish_figure
@@ -70,7 +70,7 @@ def estimates(draw, bounded: bool = False):
 @st.composite
 def populations(draw):
     targets = draw(st.lists(names, min_size=1, max_size=4, unique=True))
-    keys = [comparison_key(*c) for c in draw(st.lists(st.sampled_from(COMPARISONS), min_size=1, max_size=3,
+    keys = [comparison_key(*c) for c in draw(st.lists(st.sampled_from(comparisons()), min_size=1, max_size=3,
                                                          unique=True))]
     methods = draw(st.lists(st.sampled_from(METHODS), min_size=1, max_size=4, unique=True))
     metrics = ("correct_final", "prob_truth_final", "log10_mgr95_final")

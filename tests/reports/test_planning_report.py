@@ -55,10 +55,19 @@ def test_the_section_shows_the_block(tmp_path, block):
     sentences = verdict_sentences(block)
     assert len(sentences) >= 3 and all(s.split(" (")[0] in html for s in sentences)
     # each sentence's label is its entry's outcome under the one rule
-    from pipeline.evaluation.statistics.records import outcome
+    from pipeline.evaluation.statistics.records import consistent, outcome
     for entries in block["paired"].values():
         for e in entries.values():
             assert e["outcome"] == outcome(e["ci_low"], e["ci_high"], e["better"] == "higher")
+    # the entries are verdict records, worded by the one renderer like every other verdict
+    from reports.main.planning import verdict_records
+    from reports.shared.records import PHRASE
+    recs = verdict_records(block)
+    assert len(recs) == len(sentences) and all(consistent(r) for r in recs)
+    for r, s in zip(recs, sentences):
+        assert r["outcome"] == block["paired"][r["comparison"]][r["metric"]]["outcome"]
+        assert f" {PHRASE[r['outcome']]} " in s and "mean over targets of the differences" in s
+        assert f"over {r['n']['targets']} targets × {r['n']['starts']} starts" in s
 
 
 def test_a_run_without_planning_has_no_section(tmp_path):

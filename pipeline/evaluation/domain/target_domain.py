@@ -34,7 +34,7 @@ def instance_poses(cfg, avd: pd.DataFrame, truth: dict | None, intr: dict, class
             if len(d) >= 2:
                 yaw = P.yaw_for(inst, scan, truth, "config", ev.yaw_deg, ev.targets, ev.yaws_deg)
                 try:
-                    out[(scan, inst)] = (P.locate(d, *intr[scan], ev.max_ray_residual_m), yaw)
+                    out[(scan, inst)] = (P.locate(d, *intr[scan], ev.max_ray_residual_m).xy, yaw)
                 except P.InconsistentRays as e:  # no pose, so none of its crops enters the test domain
                     log.warning("test domain: %s in %s left out: %s", inst, scan, e)
     return out, ("synthetic sidecar (truth.json)" if ev.yaw_source == "truth" else "located object, configured yaw")

@@ -9,7 +9,6 @@ grid is split or scheduled, and an ablation variant sees the same noise as the d
 from __future__ import annotations
 
 import math
-import time
 import zlib
 from dataclasses import dataclass
 
@@ -18,7 +17,7 @@ import pandas as pd
 
 from pipeline.evaluation.grid import experiments as E
 from pipeline.method.dirichlet import DirichletModels
-from pipeline.scene.location import InconsistentRays, Location, locate_rays
+from pipeline.scene.location import InconsistentRays, locate
 from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
 
@@ -82,19 +81,6 @@ def target_views(avd: pd.DataFrame, target: str, max_difficulty: int) -> pd.Data
     return tgt.drop_duplicates(["scan", "image"])
 
 
-def located(det: pd.DataFrame, fx: float, cx: float, max_residual_m: float = math.inf) -> Location:
-    """The object's 2D position from the rays through its box centres in every view that sees it,
-    with the rays' RMS distance from it; ``InconsistentRays`` past ``max_residual_m``."""
-    box_cx = 0.5 * (det["box_x0"].to_numpy(float) + det["box_x1"].to_numpy(float))
-    return locate_rays(det[["cam_x", "cam_y"]].to_numpy(float), det["heading"].to_numpy(float), box_cx, fx, cx,
-                       max_residual_m)
-
-
-def locate(det: pd.DataFrame, fx: float, cx: float, max_residual_m: float = math.inf) -> np.ndarray:
-    """``located(...).xy``."""
-    return located(det, fx, cx, max_residual_m).xy
-
-
 @dataclass(frozen=True)
 class TrackInfo:
     target: str
@@ -137,7 +123,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
             d = det[det["scan"] == scan].set_index("image")
             if all(n in d.index for n in explicit):
                 sel = d.loc[list(explicit)]
-                obj = locate(d, *intrinsics[scan], max_residual_m)
+                obj = locate(d, *intrinsics[scan], max_residual_m).xy
                 return [TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
                                   sel["heading"].to_numpy(float), obj)]
         raise TrackError(f"evaluate.track_images: not every image has a scored box of {target!r} in one scan")
@@ -154,7 +140,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
             errors.append(f"{scan}: {len(d)} view(s)")
             continue
         try:
-            obj = locate(d, *intrinsics[scan], max_residual_m)
+            obj = locate(d, *intrinsics[scan], max_residual_m).xy
             cam = d[["cam_x", "cam_y"]].to_numpy(float)
             err = facing_error(cam, d["heading"].to_numpy(float), obj)
             gid = None if grid_points is None else view_grid_ids(d["image"], grid_points[scan], scan)

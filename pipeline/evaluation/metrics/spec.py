@@ -127,20 +127,22 @@ def step_values(post, truth, *, is_log: bool = False) -> dict[str, np.ndarray]:
 
 
 # -- the one percentile -----------------------------------------------------------------------------
-_BIG = np.finfo(float).max / 4   # +inf's stand-in: finite, so numpy interpolates instead of NaN
-_INF_ABOVE = 1e300               # any interpolation weight on the stand-in lands above this
+_BIG = np.finfo(float).max / 4   # +-inf's stand-in: finite, so numpy interpolates instead of NaN
+_INF_ABOVE = 1e300               # any interpolation weight on the stand-in lands beyond this
 
 
 def percentile(x, q, axis: int | None = None) -> np.ndarray:
-    """Linear-interpolation percentile (``numpy.percentile``) that keeps +inf as a value: a
-    result that interpolates toward an infinite entry is +inf. ``axis=None`` flattens."""
+    """Linear-interpolation percentile (``numpy.percentile``) with the one infinity rule: +inf and
+    -inf are values, and a result that interpolates toward an infinite entry is that infinity; a
+    NaN entry makes its slice NaN. ``axis=None`` flattens (an empty input gives NaN). The
+    statistics engine's interval is this percentile at 2.5 and 97.5."""
     x = np.asarray(x, dtype=float)
     if axis is None:
         x = x.ravel()
         if x.size == 0:
             return np.full(np.shape(q), np.nan)
-    out = np.percentile(np.where(np.isposinf(x), _BIG, x), q, axis=-1 if axis is None else axis)
-    return np.where(out > _INF_ABOVE, np.inf, out)
+    out = np.percentile(np.clip(x, -_BIG, _BIG), q, axis=-1 if axis is None else axis)
+    return np.where(out > _INF_ABOVE, np.inf, np.where(out < -_INF_ABOVE, -np.inf, out))
 
 
 # -- aggregate metrics -------------------------------------------------------------------------------

@@ -168,6 +168,28 @@ def seed_block(cells_by_seed: Mapping[str, Sequence[Mapping]], methods: Sequence
     return out
 
 
+def seed_pool(populations: Mapping[str, Mapping]) -> dict | None:
+    """The one seed pool (``viewfuse study`` and ``viewfuse compare``): ``seed_block`` over several
+    runs' ``population`` blocks of summary.json, keyed by seed name: the methods their cells hold,
+    the metrics every seed's cells hold, the runs' own resample count (``population.bootstrap``, the
+    ``evaluate.bootstrap`` default where a summary lacks it) and primary metrics. None without a
+    population, or when one of them holds no cells (a pool without a seed would overstate)."""
+    from pipeline.evaluation.metrics.labels import comparisons, ordered_methods
+    from pipeline.infra.config.evaluation import EvaluateConfig
+
+    pops = {str(k): p for k, p in populations.items()}
+    if not pops or not all(p.get("cells") for p in pops.values()):
+        return None
+    methods = ordered_methods({m for p in pops.values() for c in p["cells"] for m in (c.get("values") or {})})
+    metrics = [k for k in M.METRICS if all(k in (p["cells"][0].get("values") or {}).get(methods[0], {})
+                                           for p in pops.values())]
+    first = next(iter(pops.values()))
+    n_boot = int(first.get("bootstrap") or EvaluateConfig.__dataclass_fields__["bootstrap"].default)
+    primary = next((p.get("primary_metrics") for p in pops.values() if p.get("primary_metrics")), ())
+    return seed_block({k: p["cells"] for k, p in pops.items()}, methods, metrics, comparisons(), n_boot,
+                      primary=tuple(primary or ()))
+
+
 def over_realizations(mats: Mapping[str, np.ndarray], params: M.Params, n_boot: int, seed=0) -> dict[str, dict]:
     """Each metric of one (R, K) set of per-step values (``spec.matrices``) with its interval over
     realizations (the single-track tables: only the localization noise varies), from the shared

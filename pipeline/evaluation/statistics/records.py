@@ -20,21 +20,16 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from pipeline.infra.outputs import number
+
 OUTCOMES = ("better", "worse", "not distinguishable")
-
-
-def _f(x: Any, missing: float) -> float:
-    """A record end as a float: None (JSON's infinity) is the unbounded side ``missing``."""
-    if x is None:
-        return missing
-    return float(x)
 
 
 def outcome(lo: float | None, hi: float | None, higher_is_better: bool) -> str:
     """The one outcome rule: "better" when the 95 % interval of method - baseline lies wholly on
     the good side of 0, "worse" on the bad side, else (or without an interval) "not distinguishable".
-    ``lo`` None is -inf, ``hi`` None is +inf (an unbounded end)."""
-    a, b = _f(lo, -math.inf), _f(hi, math.inf)
+    ``lo`` None is -inf, ``hi`` None is +inf (an unbounded end); a non-number is no interval."""
+    a, b = number(lo, -math.inf), number(hi, math.inf)
     if math.isnan(a) or math.isnan(b) or (math.isinf(a) and math.isinf(b)):
         return "not distinguishable"
     if a > 0:
@@ -48,9 +43,9 @@ def record(comparison: str, metric: str, est: Mapping[str, float], *, pooling: s
            over: list[str], n: Mapping[str, int], primary: bool, **extra: Any) -> dict:
     """One record from an estimate {"value", "ci_low", "ci_high"} of method - baseline."""
     method, baseline = comparison.split("-", 1)
-    lo, hi = float(est["ci_low"]), float(est["ci_high"])
+    lo, hi = number(est["ci_low"], -math.inf), number(est["ci_high"], math.inf)   # null: unbounded (JSON)
     return {"comparison": comparison, "method": method, "baseline": baseline, "metric": metric,
-            "pooling": pooling, "value": float(est["value"]), "lo": lo, "hi": hi,
+            "pooling": pooling, "value": number(est["value"]), "lo": lo, "hi": hi,
             "unbounded": bool(math.isinf(lo) or math.isinf(hi)), "over": list(over),
             "n": {k: int(v) for k, v in n.items()}, "better": better,
             "outcome": outcome(lo, hi, better == "higher"), "primary": bool(primary), **extra}
@@ -65,7 +60,7 @@ def consistent(rec: Mapping[str, Any]) -> bool:
     v, lo, hi = rec.get("value"), rec.get("lo"), rec.get("hi")
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return True
-    a, b = _f(lo, -math.inf), _f(hi, math.inf)
+    a, b = number(lo, -math.inf), number(hi, math.inf)
     return math.isnan(a) or math.isnan(b) or a <= float(v) <= b
 
 

@@ -1,4 +1,4 @@
-"""The one hierarchical resampler, the one interval rule and the one infinity rule.
+"""The one hierarchical resampler and the one interval rule (the percentile and its infinity rule: ``spec.percentile``).
 
 Levels: seeds (classifier training runs) -> targets -> tracks, as the data has them: one seed
 is a population of one evaluate run, one target is a per-target CI over its tracks, one
@@ -30,19 +30,16 @@ from functools import lru_cache
 
 import numpy as np
 
+from pipeline.evaluation.metrics.spec import percentile
+
 LEVEL = 0.95
-_BIG = np.finfo(float).max / 4   # +-inf's stand-in: finite, so numpy interpolates instead of NaN
-_INF_ABOVE = 1e300
 
 
 def interval(draws: np.ndarray, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
-    """The percentile interval of ``draws`` along ``axis``, infinities kept (module docstring)."""
-    d = np.asarray(draws, float)
-    q = [50 * (1 - LEVEL), 50 * (1 + LEVEL)]
-    bad = np.isnan(d).any(axis=axis)
-    out = np.percentile(np.clip(np.nan_to_num(d, nan=0.0, posinf=_BIG, neginf=-_BIG), -_BIG, _BIG), q, axis=axis)
-    out = np.where(out > _INF_ABOVE, np.inf, np.where(out < -_INF_ABOVE, -np.inf, out))
-    return np.where(bad, np.nan, out[0]), np.where(bad, np.nan, out[1])
+    """The percentile interval of ``draws`` along ``axis``: the one percentile
+    (``spec.percentile``, its infinity rule) at the ends of the ``LEVEL`` interval."""
+    lo, hi = percentile(draws, [50 * (1 - LEVEL), 50 * (1 + LEVEL)], axis=axis)
+    return lo, hi
 
 
 def estimate(value: float, draws: np.ndarray | None) -> dict[str, float]:

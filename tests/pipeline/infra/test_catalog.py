@@ -75,3 +75,44 @@ def test_the_literal_name_check_catches_a_planted_name(tmp_path):
     (tmp_path / "pipeline" / "infra").mkdir()
     (tmp_path / "pipeline" / "infra" / "outputs.py").write_text('n = "results.parquet"\n')
     assert _literal_hits({"results.parquet"}, tmp_path) == ['stages/x.py:1: p = d / "results.parquet"']
+
+
+def test_the_one_json_number_reader():
+    """null stands for what the caller says (an unbounded end, a missing value); a non-number and
+    NaN are 'bad'; with ``finite`` an infinity is too."""
+    import math
+
+    from pipeline.infra.outputs import number
+
+    assert number(None, -math.inf) == -math.inf and number(None, None) is None and math.isnan(number(None))
+    assert number("0.25") == 0.25 and number(3) == 3.0 and number(math.inf) == math.inf
+    assert number("x", bad=None) is None and number([1], bad=7.0) == 7.0 and number(math.nan, bad=None) is None
+    assert number(math.inf, bad=0.0, finite=True) == 0.0 and number(-1.5, finite=True) == -1.5
+
+
+# Where JSON text may be parsed outside the catalog's one reader: strings inside Parquet metadata,
+# the compare command's size-bounded reader of runs it did not write, and the datasets' own files.
+JSON_PARSERS = {"pipeline/infra/outputs.py", "pipeline/banks/model_bank.py", "reports/shared/artifacts.py",
+                "reports/compare/read.py", "loaders/avd.py", "loaders/real_imagery/write.py"}
+
+
+def test_artifacts_are_read_through_the_catalog_only():
+    hits = [f"{f.relative_to(ROOT)}:{i}" for pkg in PACKAGES for f in sorted((ROOT / pkg).rglob("*.py"))
+            if str(f.relative_to(ROOT)) not in JSON_PARSERS
+            for i, line in enumerate(f.read_text().splitlines(), 1) if re.search(r"\bjson\.loads?\(", line)]
+    assert not hits, f"parse artifacts with pipeline.infra.outputs.read / read_json: {hits}"
+
+
+def test_the_one_json_reader_names_the_file_and_says_what_is_missing(tmp_path):
+    p = outputs.path(tmp_path, "evaluate", "summary")
+    with pytest.raises(FileNotFoundError):
+        outputs.read(tmp_path, "evaluate", "summary")
+    assert outputs.read(tmp_path, "evaluate", "summary", missing=None) is None
+    p.write_text("{not json")
+    with pytest.raises(outputs.ArtifactError, match=r"summary\.json: not valid JSON"):
+        outputs.read(tmp_path, "evaluate", "summary", missing=None)
+    assert outputs.read(tmp_path, "evaluate", "summary", invalid={}) == {}
+    p.write_text('{"a": null}')
+    assert outputs.read(tmp_path, "evaluate", "summary") == {"a": None}
+    with pytest.raises(KeyError, match="parquet, not JSON"):
+        outputs.read(tmp_path, "evaluate", "results")

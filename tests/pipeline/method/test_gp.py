@@ -189,3 +189,20 @@ def test_invalid_models_and_inputs_raise():
         m.select(["b"])
     with pytest.raises(ValueError, match="amplitude_bounds"):
         fit_class_models(X, Y, ["a"], [0], amplitude_bounds=(1.0, 0.5), progress=False)
+
+
+def test_one_content_hash_per_gp_and_bank(tmp_path):
+    """The digest follows the content, not the names or the object: a saved and reloaded bank has
+    the same one; another target or hyperparameter, or (unless trained_only) a test-domain
+    variance, changes it."""
+    m = make_models(np.random.default_rng(4))
+    save_bank(m, tmp_path)
+    back = load_bank(tmp_path)
+    assert back.digest() == m.digest() and back.digest(1, 0) == m.digest(1, 0)
+    assert m.digest(1, 0) != m.digest(1, 1) != m.digest()
+    other = make_models(np.random.default_rng(4))
+    other.Y[1][0, 0] += 1e-9
+    assert other.digest(1, 0) != m.digest(1, 0) and other.digest(0, 0) == m.digest(0, 0)
+    assert other.digest() != m.digest()
+    cal = m.with_test_variance(0.01)
+    assert cal.digest() != m.digest() and cal.digest(0, 1, trained_only=True) == m.digest(0, 1, trained_only=True)

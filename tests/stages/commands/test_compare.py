@@ -99,6 +99,12 @@ def test_three_runs_with_a_seed_group_pool_over_seeds(tmp_path):
     assert v["outcome"] == "not distinguishable" and not v["held_for_every_seed"]   # +0.2, -0.2, +0.2 over seeds
     assert v["per_seed"] == "better ×2, worse ×1"
     assert c.changed[(KEY, "correct_final")] == [False, False, True, False, True]
+    # `viewfuse study` pools the same seeds with the same function: the same numbers
+    from stages.commands.study import summarize
+
+    study_pool = summarize({s: {**p, "records": None} for s, p in enumerate(runs)})["pooled_over_seeds"]
+    assert study_pool["pooled"] == c.columns[-1].pool["pooled"]
+    assert study_pool["records"] == c.columns[-1].pool["records"]
 
 
 def test_a_seed_group_without_cells_has_no_pooled_value(tmp_path):
@@ -150,3 +156,17 @@ def test_three_plain_runs_are_three_columns_and_each_changed_key_is_listed_once(
     assert [col.name for col in c.columns] == ["a", "b", "c"] and not any(col.pooled_over_seeds for col in c.columns)
     assert c.config == {"classifier.seed": [0, 0, 4], "evaluate.randomized.sigmas_m": [[0.1, 0.3], [0.2], [0.1, 0.3]]}
     assert c.changed[(KEY, "correct_final")] == [False, False, True]
+
+
+def test_an_older_summary_with_an_unbounded_end_follows_the_records_outcome_rule(tmp_path):
+    """A paired CI with a null (infinite) end is read by the one outcome rule: unbounded on the good
+    side still lies wholly above 0; unbounded towards 0 cannot."""
+    run = write_run(tmp_path / "old", table=False)
+    path = run / "evaluate" / "summary.json"
+    s = json.loads(path.read_text())
+    s["population"]["paired"][KEY]["correct_final"] = {"value": 0.3, "ci_low": 0.1, "ci_high": None}
+    s["population"]["paired"][KEY]["log10_mgr95_final"] = {"value": -1.0, "ci_low": None, "ci_high": 0.5}
+    path.write_text(json.dumps(s))
+    v = compare([run]).verdicts
+    assert v[(KEY, "correct_final")][0]["outcome"] == "better"
+    assert v[(KEY, "log10_mgr95_final")][0]["outcome"] == "not distinguishable"

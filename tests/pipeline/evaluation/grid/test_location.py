@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.evaluation.grid import population as P
-from pipeline.scene.location import InconsistentRays, locate_rays, ray_distances
+from pipeline.scene.location import InconsistentRays, locate, locate_all, locate_rays, ray_distances
 from pipeline.scene.rays import TrackError
 from tests.pipeline.evaluation.grid.test_population import CX, FX, scene
 
@@ -66,4 +66,15 @@ def test_the_planner_excludes_the_inconsistent_scan_and_names_it():
     assert {t.scan for t in P.plan_tracks(det, "t", 4, 5, 0, intr, steps)} == {"s1", "s2"}
     with pytest.raises(TrackError, match="s2: the .* do not meet"):
         P.plan_tracks(det[det["scan"] == "s2"], "t", 4, 5, 0, intr, steps, max_residual_m=0.25)
-    assert P.locate(det[det["scan"] == "s1"], FX, CX, 0.25) == pytest.approx([0.1, -0.2])
+    assert locate(det[det["scan"] == "s1"], FX, CX, 0.25).xy == pytest.approx([0.1, -0.2])
+    # the one locate over every instance of a scan: the located ones and a record per refusal
+    views = [("t", det[det["scan"] == "s1"]), ("copies", det[det["scan"] == "s2"]), ("one", det.iloc[:1])]
+    found, refused = locate_all(views, FX, CX, 0.25, "scan")
+    assert list(found) == ["t"] and found["t"].xy == pytest.approx([0.1, -0.2])
+    by = {r["instance"]: r for r in refused}
+    assert by["copies"]["residual_m"] > 0.25 and by["copies"]["scan"] == "scan" and by["one"]["residual_m"] is None
+    # a mapping of arrays (a scan's boxes) is located as the table it holds (to the last bits,
+    # which follow the memory layout)
+    d = det[det["scan"] == "s1"]
+    cols = {k: d[k].to_numpy(float) for k in ("cam_x", "cam_y", "heading", "box_x0", "box_x1")}
+    np.testing.assert_allclose(locate(cols, FX, CX).xy, found["t"].xy, rtol=0, atol=1e-12)

@@ -55,7 +55,7 @@ def test_the_object_is_located_from_its_box_centres():
     df, _ = scene(scans=("s1",))
     det = P.target_views(df, "t", max_difficulty=4)
     assert (det["pass"] == -1).all() and det["image"].is_unique
-    np.testing.assert_allclose(P.locate(det, FX, CX), [0.1, -0.2], atol=1e-9)
+    np.testing.assert_allclose(P.locate(det, FX, CX).xy, [0.1, -0.2], atol=1e-9)
 
 
 def test_tracks_alternate_over_the_scans_and_hold_distinct_views():

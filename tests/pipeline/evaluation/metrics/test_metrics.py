@@ -74,6 +74,24 @@ def test_percentile_keeps_infinity():
     assert np.isnan(M.percentile([], 50))
 
 
+def test_one_infinity_rule_for_percentiles_and_intervals():
+    """-inf is a value like +inf, a NaN entry makes its slice NaN, and the engine's interval is this
+    percentile at 2.5 and 97.5 (the same numbers, one rule)."""
+    from pipeline.evaluation.statistics.resampler import interval
+
+    assert M.percentile([-np.inf, 0.0, 1.0, 2.0], 5) == -np.inf
+    assert M.percentile([-np.inf, 0.0, 1.0, 2.0], 50) == pytest.approx(0.5)
+    assert np.isnan(M.percentile([0.0, np.nan, 1.0], 50))
+    draws = np.random.default_rng(3).normal(size=(3, 400))
+    draws[1, :30] = np.inf
+    draws[2, -30:] = -np.inf
+    lo, hi = interval(draws)
+    np.testing.assert_array_equal(lo, M.percentile(draws, 2.5, axis=-1))
+    np.testing.assert_array_equal(hi, M.percentile(draws, 97.5, axis=-1))
+    np.testing.assert_array_equal(lo[0], np.percentile(draws[0], 2.5))     # finite draws: numpy's own
+    assert hi[1] == np.inf and lo[2] == -np.inf
+
+
 def test_metric_metadata():
     for k, m in M.METRICS.items():
         cols = (m.column,) if isinstance(m.column, str) else m.column
