@@ -2,6 +2,7 @@
 code edited) runs through a small chain: it is in summary.json (pooled values, a paired comparison
 and its verdict records, the difficulty), in results.parquet, on the report's tables and method
 notes, and on the compare page; the simulation fuses it too."""
+import html
 import json
 
 import pyarrow.parquet as pq
@@ -54,7 +55,9 @@ def test_the_report_and_the_compare_page_show_it(toy_run):
     from reports.compare.runs import compare
 
     report = (toy_run.stage_dir("report") / "index.html").read_text()
-    assert ToyTempered.label in report and ToyTempered.note in report and ToyTempered.short in report
+    note = ToyTempered.note
+    assert ToyTempered.label in report and ToyTempered.short in report
+    assert any(n in report for n in (note, html.escape(note), html.escape(note, quote=False))), "method note"
     c = compare([toy_run.stage_dir("evaluate").parent])
     assert any(m == KEY for m, _ in c.pooled)
     page = write_page(c, toy_run.stage_dir("evaluate").parent / "compare_toy")
