@@ -37,7 +37,7 @@ from loaders.eth80 import Eth80Folder, class_object
 from loaders.pbm import encode_pbm
 from loaders.real_imagery.clutter import read_backgrounds, render_category_frame
 from loaders.real_imagery.frames import object_bearing_deg
-from loaders.real_imagery.pairing import box_rows, locate_instances
+from loaders.real_imagery.pairing import box_rows, located_xy
 from loaders.real_imagery.write import frame_views, write_scan_files
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
 from pipeline.scene.folds import fold_class
@@ -159,7 +159,7 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
         s = AVDScan(avd_root, scan, skip=skips.log("avd", "AVD entry"), frames=False)
         K = s.intrinsics()
         rows = box_rows(s, ri.max_difficulty)
-        loc, refused = locate_instances(rows, float(K[0, 0]), float(K[0, 2]), ri.max_ray_residual_m)
+        loc, refused = located_xy(rows, float(K[0, 0]), float(K[0, 2]), ri.max_ray_residual_m, scan)
         scans[scan] = (s, rows, loc, refused)
         located[scan] = sorted(loc)
     placed = assign_targets(located, sorted(targets), ri.pairing_seed)

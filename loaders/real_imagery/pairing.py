@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from pipeline.scene.location import locate_all
+
 
 ROW_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_y0", "box_x1", "box_y1",
                "cam_x", "cam_y", "heading", "pass")
@@ -50,6 +52,16 @@ def instance_views(rows: pd.DataFrame):
     """(instance, its rows, one per image) in instance order: what ``locate_all`` locates."""
     for inst, d in rows.groupby("instance", sort=True):
         yield inst, d.drop_duplicates("image")
+
+
+def located_xy(rows: pd.DataFrame, fx: float, cx: float, max_residual_m: float, scan: str
+               ) -> tuple[dict[str, tuple[np.ndarray, float]], list[dict]]:
+    """The scan's instances located by the one locate (``pipeline.scene.location.locate_all``):
+    {instance: (xy, RMS residual)} and the refused ones, residuals to 0.1 mm as the sidecar keeps them."""
+    found, refused = locate_all(instance_views(rows), fx, cx, max_residual_m, scan)
+    for r in refused:
+        r["residual_m"] = None if r["residual_m"] is None else round(r["residual_m"], 4)
+    return {inst: (np.asarray(f.xy, float), float(f.residual_m)) for inst, f in found.items()}, refused
 
 
 def _rng(seed: int, *parts: str) -> np.random.Generator:

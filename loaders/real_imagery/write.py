@@ -34,10 +34,9 @@ from loaders.real_imagery.frames import (
     render_frame,
     view_error_deg,
 )
-from loaders.real_imagery.pairing import box_rows, instance_views, pair_scan
+from loaders.real_imagery.pairing import box_rows, located_xy, pair_scan
 from loaders.real_imagery.training import write_training_object
 from loaders.synthetic.bigbird_writer import encode_jpeg
-from pipeline.scene.location import locate_all
 from pipeline.scene.rays import facing_error
 from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
 
@@ -143,10 +142,7 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
     s = AVDScan(avd_root, scan, skip=skips.log("avd", "AVD entry"), frames=False)
     K = s.intrinsics()
     rows = box_rows(s, ri.max_difficulty)
-    found, refused = locate_all(instance_views(rows), float(K[0, 0]), float(K[0, 2]), ri.max_ray_residual_m, scan)
-    for r in refused:   # the sidecar keeps residuals to 0.1 mm, as its paired instances
-        r["residual_m"] = None if r["residual_m"] is None else round(r["residual_m"], 4)
-    loc = {inst: (np.asarray(f.xy, float), float(f.residual_m)) for inst, f in found.items()}
+    loc, refused = located_xy(rows, float(K[0, 0]), float(K[0, 2]), ri.max_ray_residual_m, scan)
     pairs, left = pair_scan(scan, loc, sorted(heldout), ri.pairing_seed, ri.yaws_seed)
     grid = s.grid_points()
     items: dict[str, list] = {}
