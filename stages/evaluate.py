@@ -163,14 +163,6 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     return seconds
 
 
-
-def extra_key(cfg) -> str:
-    """Fusion methods registered from outside the project (their keys and code): a new or edited
-    one reruns the stage."""
-    from pipeline.method.registry import outside_fingerprint
-    return outside_fingerprint()
-
-
 def fusion_device(ctx, executor) -> tuple[str, bool]:
     """(device for the fusion engine in each cell, whether tasks ask the executor for a GPU).
     In this process: run.device resolved here (auto -> cuda when torch sees a GPU). On Ray: each

@@ -32,14 +32,6 @@ from pipeline.infra.progress import bar as progress_bar
 log = logging.getLogger("viewfuse.simulate")
 
 
-
-def extra_key(cfg) -> str:
-    """Fusion methods registered from outside the project (their keys and code): a new or edited
-    one reruns the stage."""
-    from pipeline.method.registry import outside_fingerprint
-    return outside_fingerprint()
-
-
 def _fit_budget(sim, limit: int):
     """The results of every realization are kept (refused when they cannot fit); a fused batch
     holds ``simulate.chunk`` realizations (capped to a quarter of the budget; the results do not

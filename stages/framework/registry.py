@@ -28,6 +28,7 @@ class StageSpec:
     sections: tuple[str, ...] = ()       # config sections hashed into the key
     help: str = ""
     after: tuple[str, ...] = field(default=())  # stages run right after this one by the CLI
+    methods: bool = False                # the fusion methods registered from outside enter the key
 
 
 STAGES: dict[str, StageSpec] = {s.name: s for s in (
@@ -41,12 +42,12 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
               ("models", "evaluate.targets", "evaluate.n_candidates", "evaluate.candidates",
                "evaluate.candidate_seed", "evaluate.candidate_folds", "evaluate.ablations"),
               help="choose feature components and fit one GP per (class, component)"),
-    StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate", "plan"),
+    StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate", "plan"), methods=True,
               help="the population evaluation (targets x tracks x localization settings x methods, CIs, "
                    "verdict) and the detailed track's experiments", after=("report",)),
     StageSpec("report", "stages.report", ("models", "evaluate"), ("report",),
               help="render the HTML + PNG report from existing results"),
-    StageSpec("simulate", "stages.simulate", (), ("simulate",),
+    StageSpec("simulate", "stages.simulate", (), ("simulate",), methods=True,
               help="simulation scenarios of the paper's section 5.3 (synthetic GP measurements)"),
 )}
 

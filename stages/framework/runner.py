@@ -90,6 +90,10 @@ def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[s
     extra_key = None if defines(spec.module, "extra_key") is False else getattr(_load(spec), "extra_key", None)
     if extra_key is not None:
         parts["inputs"] = extra_key(cfg)
+    if spec.methods:  # a fusion method registered from outside (entry point, test): new or edited reruns the stage
+        from pipeline.method.registry import outside_fingerprint
+
+        parts["methods"] = outside_fingerprint()
     return hash_json(parts), {**parts, "code_modules": per_module}
 
 

@@ -72,7 +72,7 @@ def equivalence(lo: float | None, hi: float | None, margin: float) -> str:
     "equivalent" when the whole 95 % interval lies inside [-margin, margin], "different" when it
     lies wholly outside it (beyond +margin or below -margin), else (or without an interval, or with
     an unbounded end) "not distinguishable". ``lo``/``hi`` None are unbounded ends."""
-    a, b = _f(lo, -math.inf), _f(hi, math.inf)
+    a, b = number(lo, -math.inf), number(hi, math.inf)
     m = float(margin)
     if math.isnan(a) or math.isnan(b) or math.isnan(m) or m < 0:
         return "not distinguishable"

@@ -7,7 +7,7 @@ import numpy as np
 
 from pipeline.method.fusion import fuse_with_uncertainty
 from pipeline.method.names import WU_DROPOUT_ONLY, WU_POSES_ONLY
-from pipeline.method.registry import FusionMethod, TrackInput, register
+from pipeline.method.method_base import FusionMethod, TrackInput, register
 
 
 @register

@@ -8,7 +8,7 @@ import numpy as np
 
 from pipeline.method import dirichlet_fusion as DF
 from pipeline.method.names import DIRICHLET
-from pipeline.method.registry import FusionMethod, TrackInput, register
+from pipeline.method.method_base import FusionMethod, TrackInput, register
 
 
 @register

@@ -6,7 +6,7 @@ import numpy as np
 
 from pipeline.method.fusion import fuse_model_based
 from pipeline.method.names import MODEL_BASED
-from pipeline.method.registry import FusionMethod, TrackInput, register
+from pipeline.method.method_base import FusionMethod, TrackInput, register
 
 
 @register

@@ -6,7 +6,7 @@ import numpy as np
 
 from pipeline.method.fusion import simple_bayes
 from pipeline.method.names import SIMPLE_BAYES
-from pipeline.method.registry import FusionMethod, TrackInput, register
+from pipeline.method.method_base import FusionMethod, TrackInput, register
 
 
 def to_simplex(scores: np.ndarray, floor: float) -> np.ndarray:

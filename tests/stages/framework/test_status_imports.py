@@ -27,7 +27,7 @@ def test_module_files_are_found_by_path_without_importing():
     assert registry._module_file("stages.models") == ROOT / "stages" / "models.py"
     assert registry._module_file("pipeline.infra") == ROOT / "pipeline" / "infra" / "__init__.py"
     assert registry._module_file("pipeline.nope") is None and registry._module_file("torch") is None
-    assert registry.defines("stages.features", "extra_key") and registry.defines("stages.evaluate", "extra_key") is False
+    assert registry.defines("stages.features", "extra_key") and registry.defines("stages.models", "extra_key") is False
 
 
 def test_the_import_scan_finds_what_the_syntax_tree_holds():

@@ -1,0 +1,109 @@
+"""What a fusion method is (``FusionMethod``, the ``TrackInput`` it reads) and how it registers
+(``register``). The method files import this module only; ``pipeline.method.registry`` loads the
+built-ins and entry points and answers which methods there are (so the two never import each other)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, ClassVar
+
+import numpy as np
+
+NEEDS = frozenset({"gp", "dirichlet", "scores", "probs"})
+ENTRY_POINT_GROUP = "viewfuse.methods"
+# The method every other (non-attribution) method is paired against in the population.
+REFERENCE = "with_uncertainty"
+
+
+@dataclass(frozen=True)
+class TrackInput:
+    """What a method may read to fuse one track. ``R`` realizations of pose estimates share the
+    track's scores; arrays a cell does not carry are None (a method whose ``needs`` miss is skipped).
+
+    ``estimates`` (R, K, 2) and ``samples`` (R, N_x, K, 2) are ground-frame positions; ``inputs``
+    maps positions (..., 2) to the GP inputs (unit circle, object frame). ``rng`` is the track's own
+    stream for methods that draw (seeded by the cell's identity, not by the setting)."""
+    dropout: np.ndarray                    # (K, N_s, F) MC-dropout scores of the GP components
+    gp: object | None = None               # GPClassModels of the candidates
+    dirichlet: object | None = None        # DirichletModels of the candidates
+    own: np.ndarray | None = None          # (K, N_s, C) each candidate's own score
+    probs: np.ndarray | None = None        # (K, N_s, D) whole probability vectors
+    estimates: np.ndarray | None = None    # (R, K, 2)
+    samples: np.ndarray | None = None      # (R, N_x, K, 2)
+    inputs: Callable[[np.ndarray], np.ndarray] | None = None
+    var_floor: float = 1e-6
+    n_ss: int = 100                        # Dirichlet cloud size (evaluate.dirichlet.n_ss)
+    rng: np.random.Generator | None = None
+
+    @property
+    def measurement(self) -> np.ndarray:
+        """One measurement per step: the mean of the dropout samples (K, F)."""
+        return self.dropout.mean(axis=1)
+
+    def has(self, need: str) -> bool:
+        return {"gp": self.gp, "dirichlet": self.dirichlet, "scores": self.own, "probs": self.probs}[need] is not None
+
+
+class FusionMethod:
+    """One fusion method. Subclasses set the class attributes and implement ``fuse``."""
+    key: ClassVar[str]                 # stored in every results row and summary.json
+    label: ClassVar[str]               # display name (tables, legends)
+    short: ClassVar[str]               # short display name
+    color: ClassVar[str] = "#555555"   # figures' colour
+    note: ClassVar[str] = ""           # one line for the report's method table
+    needs: ClassVar[frozenset] = frozenset({"gp"})
+    uses_poses: ClassVar[bool] = True
+    uses_dropout: ClassVar[bool] = True
+    simulation: ClassVar[bool] = False      # also fused in the §5.3 simulation (``simulate``)
+    attribution: ClassVar[bool] = False     # an ingredient variant: runs only with evaluate.attribution
+
+    def applies(self, t: TrackInput) -> bool:
+        return all(t.has(n) for n in self.needs)
+
+    def fuse(self, t: TrackInput) -> np.ndarray:
+        """Log posteriors after every step: (R, K, C) for a pose-using method, (K, C) for a
+        pose-free one (repeated over the realizations by the caller)."""
+        raise NotImplementedError
+
+    def fuse_with_extras(self, t: TrackInput) -> tuple[np.ndarray, dict]:
+        """``fuse`` plus what the method reports beside its posterior (kept per cell, e.g. a
+        spread); a pose-free method is fused through this once per track."""
+        return self.fuse(t), {}
+
+    def single_view(self, t: TrackInput) -> np.ndarray | None:
+        """Each view alone at the true pose (``t.estimates`` (1, K, 2) true positions): log
+        posteriors (K, C), or None when the method has no single-view reading."""
+        return None
+
+    def simulate(self, models, draws, sim) -> np.ndarray:
+        """The §5.3 simulation (``simulation = True``): posteriors (R, K, C), probabilities, from
+        ``draws`` (``pipeline.evaluation.simulation.scenarios.Draws``) and the section ``sim``."""
+        raise NotImplementedError
+
+
+_REGISTRY: dict[str, FusionMethod] = {}
+
+
+def register(cls: type[FusionMethod]) -> type[FusionMethod]:
+    """Class decorator: add a method under ``cls.key`` (a key registered twice is an error)."""
+    key = getattr(cls, "key", None)
+    if not isinstance(key, str) or not key or "-" in key:
+        raise ValueError(f"{cls.__name__}: a fusion method needs a non-empty key without '-' (comparison keys "
+                         f"join two with '-'), got {key!r}")
+    bad = set(cls.needs) - NEEDS
+    if bad:
+        raise ValueError(f"{cls.__name__}: unknown needs {sorted(bad)} (known: {sorted(NEEDS)})")
+    if key in _REGISTRY and type(_REGISTRY[key]) is not cls:
+        raise ValueError(f"fusion method {key!r} is registered twice ({type(_REGISTRY[key]).__name__}, {cls.__name__})")
+    _REGISTRY[key] = cls()
+    return cls
+
+
+def unregister(key: str) -> None:
+    """Remove a method (tests that register a toy one clean up after themselves)."""
+    _REGISTRY.pop(key, None)
+
+
+def registered() -> dict[str, FusionMethod]:
+    """The registered methods by key, in registration order (``pipeline.method.registry`` loads
+    the built-ins and entry points first)."""
+    return _REGISTRY
