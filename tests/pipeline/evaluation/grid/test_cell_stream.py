@@ -14,7 +14,7 @@ from pipeline.evaluation.metrics.results import (
     write_results,
 )
 from pipeline.evaluation.statistics.pooled_calibration import cell_sums, track_sums
-from pipeline.method.names import DIRICHLET
+from pipeline.method.names import DIRICHLET, WU_DROPOUT_ONLY, WU_POSES_ONLY
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
 from tests.pipeline.method.test_dirichlet_fusion import D
 from tests.pipeline.method.test_dirichlet_fusion import models as dirichlet_models
@@ -79,7 +79,7 @@ def test_streamed_results_file_and_kept_values_equal_the_all_at_once_ones(tmp_pa
              "setting": s, "method": m, **cell_metrics(lp, c.truth, PARAMS)}
             for c, r in zip(cells, results) for (e, s), posts in r["posts"].items() for m, lp in posts.items()]
     assert rows == want
-    assert {E.WU_POSES_ONLY, E.WU_DROPOUT_ONLY, DIRICHLET} <= {r["method"] for r in rows}
+    assert {WU_POSES_ONLY, WU_DROPOUT_ONLY, DIRICHLET} <= {r["method"] for r in rows}
     for variant in ("default", "abl"):
         a, b = track_sums(cells, kept, variant, PARAMS.ece_bins), track_sums(cells, results, variant, PARAMS.ece_bins)
         assert a.keys() == b.keys() and all(np.array_equal(a[key], b[key]) for key in a)

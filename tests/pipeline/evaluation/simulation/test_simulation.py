@@ -148,9 +148,12 @@ def test_each_method_gets_its_input(monkeypatch):
             return real(*args, **kw)
         return f
 
-    monkeypatch.setattr(S, "fuse_with_uncertainty", spy("wu", S.fuse_with_uncertainty))
-    monkeypatch.setattr(S, "fuse_model_based", spy("mb", S.fuse_model_based))
-    monkeypatch.setattr(S, "simple_bayes", spy("sb", S.simple_bayes))
+    # the simulation fuses through each registered method's own file
+    from pipeline.method.methods import model_based as MB, simple_bayes as SB, with_uncertainty as WU
+
+    monkeypatch.setattr(WU, "fuse_with_uncertainty", spy("wu", WU.fuse_with_uncertainty))
+    monkeypatch.setattr(MB, "fuse_model_based", spy("mb", MB.fuse_model_based))
+    monkeypatch.setattr(SB, "simple_bayes", spy("sb", SB.simple_bayes))
     true_xy = S.track_positions(sim.track_start, sim.track_length, sim.track_steps)
     mu, cov = models.predict(true_xy)
 
