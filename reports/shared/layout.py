@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import textwrap
+from matplotlib.text import Annotation
 from matplotlib.ticker import FixedFormatter, Formatter
 
 from reports.shared.checks import text_artists
@@ -270,8 +271,17 @@ def _is_tick(t, ax) -> bool:
     return ax is not None and (t in ax.get_xticklabels() or t in ax.get_yticklabels())
 
 
+def _point_label(t) -> bool:
+    return isinstance(t, Annotation) and t.xycoords == "data"
+
+
 def _fix_pair(fig, p1, p2, r, done: set, legends: set) -> bool:
-    """Two texts (not neighbouring ticks of one axis) that touch: wrap, move or shrink one of them."""
+    """Two texts (not neighbouring ticks of one axis) that touch: wrap, move or shrink one of them.
+    Two labels of data points (annotations anchored in data coordinates, e.g. camera numbers)
+    that touch are thinned like ticks: the later one is hidden, the first keeps its point named."""
+    if all(_point_label(t) for _, t, _, _ in (p1, p2)):
+        p2[1].set_visible(False)
+        return True
     for g, t, ax, b in (p1, p2):
         if id(t) in done:
             continue

@@ -7,6 +7,8 @@ Cases hypothesis found failing are kept as explicit ``@example``s. The run is de
 same cases on every machine) and prints how many generated cases it ran."""
 from __future__ import annotations
 
+import os
+
 import math
 
 import numpy as np
@@ -21,12 +23,14 @@ from reports.shared.checks import figure_text_problems
 from reports.shared.layout import finish_figure
 from reports.shared.numbers import Estimate
 
-# each case lays a figure out two or three times (about a second of CPU): the whole file takes
-# minutes, so make test-fast skips it and make test runs it
+# each case lays a figure out two or three times (one to several seconds of CPU): make test runs a
+# few generated cases per figure besides the explicit examples; VIEWFUSE_FIGURE_EXAMPLES=25 (or
+# more) runs the thorough sweep. make test-fast skips the file.
 pytestmark = pytest.mark.slow
 
 CASES = {"n": 0}
-SETTINGS = settings(max_examples=25, deadline=None, derandomize=True, database=None,
+N_EXAMPLES = int(os.environ.get("VIEWFUSE_FIGURE_EXAMPLES", "3"))
+SETTINGS = settings(max_examples=N_EXAMPLES, deadline=None, derandomize=True, database=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                            HealthCheck.filter_too_much])
 METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES, DIRICHLET)
@@ -208,6 +212,10 @@ coords = st.floats(-1e4, 1e4, allow_nan=False)
 @given(st.lists(st.tuples(coords, coords), min_size=1, max_size=12), st.booleans(),
        st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1)), max_size=4), st.booleans())
 @example([(0.0, 0.015625)], False, [], False)   # found: one camera, an equal-aspect axis squeezed to two touching labels
+@example([(-1.7598514790610627e-158, -1.1), (-1.628421834887212e-170, -1644.9096431742764),
+          (-8092.023694382088, 3038.5257396874113), (2428.7501124364735, -2.220446049250313e-16),
+          (5824.8683094758835, 3.6), (1.5, 6641.801986296723), (2.821213028641448e-221, 0.99999), (0.0, 0.0)],
+         False, [], False)   # found: cameras metres apart on a kilometre axis, their number labels touching
 def test_track(cams, headings, biases, objects):
     from reports.main.figures_results import fig_track
     track = {"camera_xy": [list(c) for c in cams]}
@@ -239,14 +247,14 @@ def gp_blocks(draw):
     return gp, classes, comps, inputs
 
 
-@settings(SETTINGS, max_examples=15)
+@settings(SETTINGS, max_examples=N_EXAMPLES)
 @given(gp_blocks())
 def test_gp_rasters(block):
     from reports.main.figures_models import fig_gp_rasters
     _clean(fig_gp_rasters(*block), "gp_rasters.png")
 
 
-@settings(SETTINGS, max_examples=15)
+@settings(SETTINGS, max_examples=N_EXAMPLES)
 @given(gp_blocks())
 def test_gp_ring(block):
     from reports.main.figures_models import fig_gp_ring
@@ -267,7 +275,7 @@ def bias_map_blocks(draw):
         classes, target, images
 
 
-@settings(SETTINGS, max_examples=15)
+@settings(SETTINGS, max_examples=N_EXAMPLES)
 @given(bias_map_blocks())
 def test_bias_maps(block):
     from reports.main.figures_models import fig_bias_maps
@@ -351,7 +359,7 @@ def measurement_rows(draw):
     return pd.DataFrame(rows), classes
 
 
-@settings(SETTINGS, max_examples=15)
+@settings(SETTINGS, max_examples=N_EXAMPLES)
 @given(measurement_rows())
 def test_simulate_measurements(block):
     from reports.simulate.page import fig_measurements
@@ -374,7 +382,7 @@ def sweeps(draw):
             "default": {"noise": noise[-1], "sigma_max": sig[0]}, "summary": {"best": best}}
 
 
-@settings(SETTINGS, max_examples=15)
+@settings(SETTINGS, max_examples=N_EXAMPLES)
 @given(sweeps(), st.integers(1, 50))
 def test_simulate_sweep(sweep, step):
     from reports.simulate.claims import fig_sweep
@@ -397,7 +405,7 @@ class _Bank:
         return mean, np.ones_like(mean)
 
 
-@settings(SETTINGS, max_examples=10)
+@settings(SETTINGS, max_examples=N_EXAMPLES)
 @given(st.integers(2, 6), st.sampled_from((1e-300, 1.0, 1e300)), st.integers(0, 99), st.booleans(),
        st.lists(names, min_size=6, max_size=6))
 def test_simulate_class_maps(C, scale, seed, biased, classes):
