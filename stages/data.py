@@ -23,7 +23,7 @@ from pathlib import Path
 from loaders.errors import BadInputError
 from pipeline.infra import footprints
 from pipeline.infra.budget import budget, cap_workers
-from pipeline.infra.cache import tree_fingerprint, write_json
+from pipeline.infra.cache import load_memo, memo_record, save_memo, tree_digest, write_json
 from pipeline.infra.workers import worker_pool
 from pipeline.infra.outputs import name as out_name
 from stages.framework.roots import data_roots
@@ -32,34 +32,37 @@ from pipeline.infra.progress import bar as progress_bar
 CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
 
 
+DIGEST_MEMO = ".data.digests.json"  # in <artifacts>/<run>/: per-file sha256 by size, mtime, ctime, inode
+
+
 def extra_key(cfg) -> str:
-    """Real data: a cheap fingerprint of the inputs, so edits to them rerun the pipeline. The scan
-    folder is fingerprinted file by file; each BigBIRD object folder by its calibration file and
-    the modification times of the folder and of masks/ and poses/ (files added, removed or
-    renamed; an in-place rewrite keeping the name needs --force)."""
+    """Real data: a content fingerprint of the inputs, so edits to them rerun the pipeline and a
+    moved or copied dataset (new paths, new mtimes, same bytes) does not. Each scan folder and the
+    instance map enter by name and sha256; each BigBIRD object folder by its calibration file's
+    sha256 and the names and sizes of its other files (the views, which the features stage reads
+    and records by sha256). Only names relative to the roots enter the key; the per-file digests
+    are memoised in the run folder (``DIGEST_MEMO``), so a rerun reads only what changed."""
     if cfg.data.source != "real":
         return ""
     bb, avd = data_roots(cfg)
+    memo_path = cfg.run_dir / DIGEST_MEMO
+    memo, used = load_memo(memo_path), {}
     h = hashlib.sha256()
     for name in cfg.data.scans:
         scan = avd / name
-        h.update(tree_fingerprint(scan).encode() if scan.is_dir() else f"no scan {name}".encode())
-    for p in (avd / "instance_id_map.txt", bb):
-        h.update(_stat_line(p))
+        h.update(f"scan {name}:{tree_digest(scan, memo, into=used) if scan.is_dir() else 'missing'}\n".encode())
+    idmap = avd / "instance_id_map.txt"
+    h.update(f"map:{memo_record(idmap, memo, used)['sha256'] if idmap.is_file() else 'missing'}\n".encode())
     if bb.is_dir():
         for obj in sorted(bb.iterdir()):
             if (obj / "calibration.h5").is_file():
-                for p in (obj, obj / "calibration.h5", obj / "masks", obj / "poses"):
-                    h.update(_stat_line(p))
+                views = tree_digest(obj, memo, by_name=lambda rel: rel != "calibration.h5", into=used)
+                h.update(f"object {obj.name}:{views}\n".encode())
+    else:
+        h.update(b"bigbird missing\n")
+    if used != memo:
+        save_memo(memo_path, used)
     return h.hexdigest()
-
-
-def _stat_line(p: Path) -> bytes:
-    try:
-        st = p.stat()
-    except FileNotFoundError:
-        return f"{p}|missing\n".encode()
-    return f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode()
 
 
 def run(ctx) -> str:

@@ -187,15 +187,57 @@ def load_npz(path: str | Path) -> dict[str, np.ndarray]:
         raise NpzFileError(path, f"not a valid .npz file (truncated or corrupt: {e})") from None
 
 
-def tree_fingerprint(root: str | Path, pattern: str = "*") -> str:
-    """Cheap fingerprint of a file tree: relative names, sizes and mtimes."""
+def tree_digest(root: str | Path, memo: dict | None = None, by_name=None, into: dict | None = None) -> str:
+    """Content fingerprint of a file tree: sha256 over each file's name relative to ``root`` and
+    its sha256, so a moved or copied tree (new paths, new mtimes) keeps it and one changed byte
+    moves it. ``memo`` ({real path: record}, updated in place) skips rehashing a file whose size,
+    mtime, ctime and inode are unchanged: an edit with the mtime restored still moves the ctime.
+    ``by_name(rel)`` true: that file enters by name and size only (large files the stage never
+    reads; the stages that read them record their sha256). ``into``: where the records used go
+    (default ``memo``), so a caller can keep only the current files' records."""
     root = Path(root)
+    memo = {} if memo is None else memo
+    into = memo if into is None else into
     h = hashlib.sha256()
-    for p in sorted(root.rglob(pattern)):
-        if p.is_file():
-            st = p.stat()
-            h.update(f"{p.relative_to(root)}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+    for p in sorted(root.rglob("*")):
+        if not p.is_file():
+            continue
+        rel = p.relative_to(root).as_posix()
+        if by_name is not None and by_name(rel):
+            h.update(f"{rel}\0size {p.stat().st_size}\n".encode())
+            continue
+        h.update(f"{rel}\0{memo_record(p, memo, into)['sha256']}\n".encode())
     return h.hexdigest()
+
+
+def memo_record(path: str | Path, memo: dict, into: dict | None = None) -> dict:
+    """``file_record`` of ``path``, reusing ``memo[real path]`` when size, mtime, ctime and inode
+    all match (no re-read), else hashing; the record goes into ``into`` (default ``memo``)."""
+    key = os.path.realpath(path)
+    st = os.stat(key)
+    known = memo.get(key)
+    if not (isinstance(known, dict) and known.get("ctime_ns") == st.st_ctime_ns and known.get("ino") == st.st_ino
+            and isinstance(known.get("sha256"), str)):
+        known = None
+    rec = {**file_record(key, known=known), "ctime_ns": st.st_ctime_ns, "ino": st.st_ino}
+    (memo if into is None else into)[key] = rec
+    return rec
+
+
+def load_memo(path: str | Path) -> dict:
+    """A digest memo written by ``save_memo``; {} when missing or unreadable (it is only a memo)."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def save_memo(path: str | Path, memo: dict) -> None:
+    """Write a digest memo into an existing, real (not symlinked) folder; otherwise keep it in memory only."""
+    folder = Path(path).parent
+    if folder.is_dir() and not folder.is_symlink():
+        write_json(path, memo)
 
 
 # ------------------------------------------------------------------------------------------------

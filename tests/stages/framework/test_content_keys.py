@@ -79,3 +79,86 @@ def test_make_rebuilds_a_venv_that_no_longer_runs(tmp_path, shebang):
     assert ("no longer runs" in out.stdout) == broken
     assert (tmp_path / ".venv").exists() != broken
     assert ("install" in out.stdout) == broken, out.stdout
+
+
+# ------------------------------------------------------------------------------------------------
+# data.source = "real": the data stage's key is a content fingerprint of the dataset trees.
+
+def _real_project(folder):
+    """A project with a tiny real-format dataset (relative roots): a scan, an instance map, one
+    BigBIRD object with a calibration file and a view. The bytes are arbitrary: only the key is read."""
+    scan = folder / "data" / "avd" / "Home_001_1"
+    (scan / "jpg_rgb").mkdir(parents=True)
+    for i in range(3):
+        (scan / "jpg_rgb" / f"00011000{i}101.jpg").write_bytes(bytes([i]) * 300)
+    (scan / "annotations.json").write_text('{"000110000101.jpg": {"bounding_boxes": []}}')
+    (folder / "data" / "avd" / "instance_id_map.txt").write_text("background 0\nsyrup 1\n")
+    obj = folder / "data" / "bigbird" / "syrup"
+    obj.mkdir(parents=True)
+    (obj / "calibration.h5").write_bytes(b"calibration" * 20)
+    (obj / "NP1_0.jpg").write_bytes(b"view" * 50)
+    cfg = folder / "c.toml"
+    cfg.write_text(f'extends = "{ROOT / "configs" / "synthetic.toml"}"\n[run]\nartifacts = "artifacts"\n'
+                   '[data]\nsource = "real"\nbigbird_root = "data/bigbird"\navd_root = "data/avd"\n'
+                   'scans = ["Home_001_1"]\n')
+    return cfg
+
+
+def _data_key(cfg_path):
+    from pipeline.infra.config import load_config
+    from stages.data import extra_key
+
+    return extra_key(load_config(cfg_path))
+
+
+def _edit_keeping_mtime(path, data: bytes):
+    st = os.stat(path)
+    path.write_bytes(data)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+
+
+def test_a_moved_or_copied_real_dataset_keeps_the_data_key(tmp_path):
+    key = _data_key(_real_project(tmp_path / "one"))
+    assert str(tmp_path) not in key
+    shutil.copytree(tmp_path / "one", tmp_path / "two")          # new paths, inodes, mtimes
+    for p in (tmp_path / "two").rglob("*"):
+        os.utime(p, ns=(5, 5))
+    shutil.rmtree(tmp_path / "one")
+    assert _data_key(tmp_path / "two" / "c.toml") == key
+    for p in (tmp_path / "two" / "data").rglob("*"):          # touched again: same bytes, same key
+        os.utime(p, ns=(7, 7))
+    assert _data_key(tmp_path / "two" / "c.toml") == key
+
+
+@pytest.mark.parametrize("target", ["data/avd/Home_001_1/jpg_rgb/000110000101.jpg", "data/avd/instance_id_map.txt",
+                                    "data/bigbird/syrup/calibration.h5", "data/avd/Home_001_1/annotations.json"])
+def test_one_changed_byte_in_the_real_dataset_changes_the_data_key(tmp_path, target):
+    cfg = _real_project(tmp_path / "p")
+    from pipeline.infra.config import load_config
+
+    load_config(cfg).run_dir.mkdir(parents=True)                 # the run folder: the memo is kept there
+    key = _data_key(cfg)
+    assert _data_key(cfg) == key                                 # the memo answers the same
+    path = tmp_path / "p" / target
+    data = bytearray(path.read_bytes())
+    data[0] ^= 1
+    _edit_keeping_mtime(path, bytes(data))                       # same size, mtime restored
+    assert _data_key(cfg) != key
+
+
+def test_the_digest_memo_stays_in_the_run_folder_and_spares_rereads(tmp_path, monkeypatch):
+    from pipeline.infra import cache
+    from pipeline.infra.config import load_config
+
+    cfg_path = _real_project(tmp_path / "p")
+    run_dir = load_config(cfg_path).run_dir
+    run_dir.mkdir(parents=True)
+    before = {p for p in tmp_path.rglob("*")}
+    key = _data_key(cfg_path)
+    assert {p for p in tmp_path.rglob("*")} - before == {run_dir / ".data.digests.json"}
+    hashed = []
+    real_sha = cache.sha256_file
+    monkeypatch.setattr(cache, "sha256_file", lambda p, *a: hashed.append(p) or real_sha(p, *a))
+    assert _data_key(cfg_path) == key and hashed == []            # a rerun reads no file
+    (tmp_path / "p" / "data" / "avd" / "instance_id_map.txt").write_text("background 0\nsyrup 2\n")
+    assert _data_key(cfg_path) != key and len(hashed) == 1        # only the changed file is read
