@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -137,11 +138,41 @@ def stale_reason(cfg: Config, name: str, key: str, parts: dict, verify: dict | N
         why = record_changed(final / rel, rec, verify)
         if why:
             return f"output {final / rel} {why}"
-    for path, rec in (m.get("inputs") or {}).items():
+    for entry, rec in (m.get("inputs") or {}).items():
+        path = input_path(cfg, entry)
         why = record_changed(path, rec)
         if why:
             return f"input {path} {why}"
     return None
+
+
+# Dataset roots an input record is kept relative to: a moved project (relative roots) or a dataset
+# copied elsewhere (its root setting changed) finds its inputs again by content.
+INPUT_ROOTS = ("data.bigbird_root", "data.avd_root", "data.coil_root", "data.eth80_root", "data.avd_frames_root")
+
+
+def portable_inputs(cfg: Config, records: dict[str, dict]) -> dict[str, dict]:
+    """``records`` with each path under a configured dataset root written ``<root key>:<relative
+    name>`` (e.g. ``data.coil_root:obj1__0.png``); other paths stay absolute."""
+    roots = [(k, os.path.abspath(cfg.path(k))) for k in INPUT_ROOTS if cfg.section(k)]
+    roots.sort(key=lambda kr: -len(kr[1]))  # the innermost root wins
+    out = {}
+    for path, rec in records.items():
+        for key, root in roots:
+            if path.startswith(root + os.sep):
+                out[f"{key}:{Path(os.path.relpath(path, root)).as_posix()}"] = rec
+                break
+        else:
+            out[path] = rec
+    return out
+
+
+def input_path(cfg: Config, name: str) -> str:
+    """The file an input record names (``portable_inputs``) under the current config."""
+    key, sep, rel = name.partition(":")
+    if sep and key in INPUT_ROOTS and not os.path.isabs(name):
+        return str(cfg.path(key) / rel)
+    return name
 
 
 def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
@@ -222,7 +253,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
             summary = mod.run(ctx)
         # Files in the run folder are upstream outputs, already covered by the upstream digests;
         # leaving them out also keeps a moved artifacts folder valid.
-        inputs = rec.records(exclude=cfg.run_dir)
+        inputs = portable_inputs(cfg, rec.records(exclude=cfg.run_dir))
         outputs = folder_records(tmp, skip=(MANIFEST, OWNER))
         stray = undeclared(spec.name, outputs)
         if stray:  # the catalog is the one list of what a stage writes

@@ -111,6 +111,29 @@ def test_input_rewritten_in_place_is_detected(tmp_config, fake_chain, capsys):
     assert calls == []
 
 
+def test_inputs_under_a_dataset_root_are_found_again_after_a_move(tmp_config, fake_chain, tmp_path):
+    """Input records name files relative to their dataset root: the dataset copied elsewhere (new
+    path and mtime, same bytes) with its root setting moved keeps the stage up to date."""
+    import shutil
+
+    from stages.framework.runner import ensure, plan, read_manifest
+
+    calls, _, src = fake_chain
+    ensure(tmp_config({"data": {"coil_root": str(tmp_path)}}), "a")
+    assert list(read_manifest(tmp_config(), "a")["inputs"]) == ["data.coil_root:input.bin"]
+    moved = tmp_path / "moved" / "input.bin"
+    moved.parent.mkdir()
+    shutil.copyfile(src, moved)
+    os.utime(moved, ns=(9, 9))
+    src.unlink()
+    calls.clear()
+    ensure(tmp_config({"data": {"coil_root": str(moved.parent)}}), "a")
+    assert calls == []
+    moved.write_bytes(b"input v3")
+    state = plan(tmp_config({"data": {"coil_root": str(moved.parent)}}), "a")
+    assert state["state"] == "stale" and state["why"].startswith(f"input {moved} content changed")
+
+
 def test_swapped_model_files_are_an_error_naming_both(tmp_path):
     from pipeline.method.gp import ModelFileError
     from tests.pipeline.method.test_gp import make_models
