@@ -24,7 +24,7 @@ from pipeline.method.gp_files import load_bank
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
-from pipeline.infra.config import Config, is_model_ablation
+from pipeline.infra.config import Config, ConfigError, is_model_ablation
 from pipeline.scoring.features import read_features
 from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp_files import read_bank_index
@@ -157,6 +157,13 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     settings = len(P.population_settings(ev))
     n_stats = len(METRICS) * ((len(methods()) + len(comparisons())) * (1 + settings) + n_targets * len(methods()))
     seconds = n_stats * draw_seconds([list(tracks) or [width] * n_targets], ev.bootstrap)
+    if cfg.run.max_bootstrap_minutes and seconds > 60 * cfg.run.max_bootstrap_minutes:
+        raise ConfigError(
+            f"'evaluate.bootstrap' = {ev.bootstrap}: the {n_stats}+ bootstrap intervals over {n_targets} targets "
+            f"would take about {seconds:.0f} s ({seconds / 60:.0f} min; scaled from a timed run of "
+            f"{min(ev.bootstrap, 20000)} draws on this machine, a lower bound), over "
+            f"'run.max_bootstrap_minutes' = {cfg.run.max_bootstrap_minutes:g}; lower 'evaluate.bootstrap' or raise "
+            f"'run.max_bootstrap_minutes' (0 = no limit)")
     if seconds > 60:
         echo(f"[evaluate] evaluate.bootstrap = {ev.bootstrap}: the {n_stats}+ bootstrap intervals will take about "
              f"{seconds / 60:.0f} min (scaled from a timed run of 20000 draws; lower evaluate.bootstrap to shorten)")

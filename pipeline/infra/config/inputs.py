@@ -41,6 +41,10 @@ class RunConfig:
                           doc="memory budget, GiB: settings whose peak would exceed it are refused before the work "
                               "starts, and batch sizes and worker counts are capped to fit; 0 = 80 % of this "
                               "machine's memory (or of its cgroup limit)")
+    max_bootstrap_minutes: float = _f(60.0, lo=0.0, hi=1e6,
+                                      doc="evaluate refuses, before its grid, an evaluate.bootstrap whose intervals it "
+                                          "estimates (a timed small draw, scaled) to take longer than this; 0 = no "
+                                          "limit (the estimate is still said). Not part of any stage's key")
 
 
 @dataclass(frozen=True)
