@@ -261,6 +261,18 @@ def confined_writes(root: str | Path) -> Iterator[None]:
         _write_roots.pop()
 
 
+def write_root() -> str | None:
+    """The innermost ``confined_writes`` root of this process, or None: what a worker pool hands
+    to its processes (``pipeline.infra.workers``), which start with no root of their own."""
+    return _write_roots[-1] if _write_roots else None
+
+
+def confine_process(root: str | None) -> None:
+    """In a worker process: confine every write of its life to ``root`` (None: leave it free)."""
+    if root is not None:
+        _write_roots.append(os.path.realpath(root))
+
+
 def confined(path: str | Path) -> Path:
     """``path`` if it resolves (symlinked folders followed) inside the innermost ``confined_writes``
     root, or when none is active; OutsideFolderError naming both otherwise."""

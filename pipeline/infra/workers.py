@@ -5,7 +5,8 @@ parent-pid watchdog thread elsewhere), so a run killed with SIGKILL leaves no pr
 its folder, and the multiprocessing resource tracker, which lives as long as someone holds its
 pipe, ends with them. A pool left by an exception (SIGINT, SIGTERM: ``Terminated``) is terminated,
 not drained. Each worker appends its pid to the stage's pid file (``<run>/.<stage>.workers``, set
-by the runner with ``pid_file``), so a rerun can stop any leftover (``stop_leftovers``).
+by the runner with ``pid_file``), so a rerun can stop any leftover (``stop_leftovers``). A worker
+writes under the same confinement root as the stage that started the pool (``cache.confined``).
 """
 from __future__ import annotations
 
@@ -24,6 +25,8 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 import psutil
+
+from pipeline.infra.cache import confine_process, write_root
 
 log = logging.getLogger("viewfuse")
 
@@ -69,8 +72,10 @@ def _die_with_parent(parent: int) -> None:
         threading.Thread(target=watch, daemon=True).start()
 
 
-def _start(parent: int, pids: str, initializer: Callable | None, initargs: tuple) -> None:
+def _start(parent: int, pids: str, root: str | None, initializer: Callable | None, initargs: tuple) -> None:
     _die_with_parent(parent)
+    # A spawned process starts unconfined: it writes under the same root as the stage that started it.
+    confine_process(root)
     if pids:
         with contextlib.suppress(OSError):
             fd = os.open(pids, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
@@ -88,7 +93,7 @@ def worker_pool(workers: int, initializer: Callable | None = None, initargs: tup
     exception (including SIGINT/SIGTERM) the workers are terminated at once."""
     pids = str(_PID_FILE[0] or "")
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start,
-                               initargs=(os.getpid(), pids, initializer, initargs))
+                               initargs=(os.getpid(), pids, write_root(), initializer, initargs))
     try:
         yield pool
     except BaseException:

@@ -157,3 +157,32 @@ def test_real_imagery_writer_stops_on_a_planted_key_with_skips_off(planted, tmp_
     with pytest.raises(BadInputError, match=r"annotations.json: image key .* refused"):
         AVDScan(base / "avd", "Home_005_1", frames=False)
     assert not os.path.exists(tmp_path / "PWNED.jpg")
+
+
+def _write_in_worker(target: str) -> str:
+    """Runs in a pool worker: write one file, say what happened."""
+    from pipeline.infra.cache import OutsideFolderError, write_bytes
+
+    try:
+        write_bytes(target, b"x")
+    except OutsideFolderError as e:
+        return f"refused: {e}"
+    return "written"
+
+
+def test_pool_workers_write_under_the_stage_folder_too(tmp_path):
+    """Spawned workers start with no confinement of their own: the pool hands them the stage's."""
+    from pipeline.infra.cache import confined_writes
+    from pipeline.infra.workers import worker_pool
+
+    stage, outside = tmp_path / "run" / ".data.tmp", tmp_path / "outside"
+    stage.mkdir(parents=True)
+    outside.mkdir()
+    targets = [str(stage / "ok" / "a.bin"), str(outside / "PWNED"), str(stage / ".." / ".." / "PWNED")]
+    with confined_writes(stage), worker_pool(2) as pool:
+        said = list(pool.map(_write_in_worker, targets))
+    assert said[0] == "written" and (stage / "ok" / "a.bin").is_file()
+    assert all(s.startswith("refused:") and "outside the stage's temporary folder" in s for s in said[1:]), said
+    assert not list(outside.iterdir()) and not (tmp_path / "PWNED").exists()
+    with worker_pool(1) as pool:  # no stage running: workers write where told, as the parent would
+        assert list(pool.map(_write_in_worker, [str(outside / "free.bin")])) == ["written"]
