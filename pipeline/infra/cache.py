@@ -190,7 +190,7 @@ def load_npz(path: str | Path) -> dict[str, np.ndarray]:
 def tree_digest(root: str | Path, memo: dict | None = None, by_name=None, into: dict | None = None) -> str:
     """Content fingerprint of a file tree: sha256 over each file's name relative to ``root`` and
     its sha256, so a moved or copied tree (new paths, new mtimes) keeps it and one changed byte
-    moves it. ``memo`` ({real path: record}, updated in place) skips rehashing a file whose size,
+    moves it. ``memo`` ({absolute path: record}, updated in place) skips rehashing a file whose size,
     mtime, ctime and inode are unchanged: an edit with the mtime restored still moves the ctime.
     ``by_name(rel)`` true: that file enters by name and size only (large files the stage never
     reads; the stages that read them record their sha256). ``into``: where the records used go
@@ -211,9 +211,10 @@ def tree_digest(root: str | Path, memo: dict | None = None, by_name=None, into: 
 
 
 def memo_record(path: str | Path, memo: dict, into: dict | None = None) -> dict:
-    """``file_record`` of ``path``, reusing ``memo[real path]`` when size, mtime, ctime and inode
-    all match (no re-read), else hashing; the record goes into ``into`` (default ``memo``)."""
-    key = os.path.realpath(path)
+    """``file_record`` of ``path``, reusing ``memo[absolute path]`` when size, mtime, ctime and
+    inode all match (no re-read), else hashing; the record goes into ``into`` (default ``memo``).
+    The stat follows a symlink, so a link pointed elsewhere shows a new inode."""
+    key = os.path.abspath(path)
     st = os.stat(key)
     known = memo.get(key)
     if not (isinstance(known, dict) and known.get("ctime_ns") == st.st_ctime_ns and known.get("ino") == st.st_ino
@@ -222,6 +223,30 @@ def memo_record(path: str | Path, memo: dict, into: dict | None = None) -> dict:
     rec = {**file_record(key, known=known), "ctime_ns": st.st_ctime_ns, "ino": st.st_ino}
     (memo if into is None else into)[key] = rec
     return rec
+
+
+def input_changed(path: str | Path, rec: dict, memo: dict) -> str | None:
+    """Why the dataset file ``path`` no longer matches its manifest record ``rec``, or None. The
+    sha256 comes from ``memo`` while size, mtime, ctime and inode are those it was hashed at, so a
+    copied dataset (new mtimes) is hashed once, not on every check, and an edit with its mtime
+    restored is still caught (it moves the ctime)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "missing"
+    if st.st_size != rec.get("size"):
+        return f"content changed (size {rec.get('size')} -> {st.st_size} bytes)"
+    return None if memo_record(path, memo)["sha256"] == rec.get("sha256") else "content changed (sha256 differs)"
+
+
+def remember(records: dict[str, dict], memo: dict) -> None:
+    """Put the records of files just read (``InputRecorder.records``) into ``memo`` with their
+    ctime and inode, so the next check of them reads nothing."""
+    for path, rec in records.items():
+        with contextlib.suppress(OSError):
+            st = os.stat(path)
+            if st.st_size == rec.get("size") and st.st_mtime_ns == rec.get("mtime_ns"):
+                memo[os.path.abspath(path)] = {**rec, "ctime_ns": st.st_ctime_ns, "ino": st.st_ino}
 
 
 def load_memo(path: str | Path) -> dict:

@@ -24,8 +24,8 @@ from typing import Any
 
 from loaders.errors import SkipPolicy
 from loaders.files import set_max_megapixels
-from pipeline.infra.cache import (confined_writes, folder_records, hash_json, record_changed, recording_inputs,
-                                   write_json)
+from pipeline.infra.cache import (confined_writes, folder_records, hash_json, input_changed, load_memo,
+                                   record_changed, recording_inputs, remember, save_memo, write_json)
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.outputs import read_manifest as outputs_manifest
@@ -38,6 +38,7 @@ from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove
 log = logging.getLogger("viewfuse")
 
 HASHES = "\0hashes"  # ensure()'s per-run memo of file hashes, kept in its digest dict
+INPUT_MEMO = ".inputs.digests.json"  # in <run>/: sha256 of dataset files read, by size, mtime, ctime, inode
 
 
 
@@ -138,11 +139,18 @@ def stale_reason(cfg: Config, name: str, key: str, parts: dict, verify: dict | N
         why = record_changed(final / rel, rec, verify)
         if why:
             return f"output {final / rel} {why}"
-    for entry, rec in (m.get("inputs") or {}).items():
-        path = input_path(cfg, entry)
-        why = record_changed(path, rec)
-        if why:
-            return f"input {path} {why}"
+    memo_path = cfg.run_dir / INPUT_MEMO
+    memo = load_memo(memo_path)
+    before = dict(memo)
+    try:
+        for entry, rec in (m.get("inputs") or {}).items():
+            path = input_path(cfg, entry)
+            why = input_changed(path, rec, memo)
+            if why:
+                return f"input {path} {why}"
+    finally:
+        if memo != before:
+            save_memo(memo_path, memo)
     return None
 
 
@@ -253,7 +261,12 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
             summary = mod.run(ctx)
         # Files in the run folder are upstream outputs, already covered by the upstream digests;
         # leaving them out also keeps a moved artifacts folder valid.
-        inputs = portable_inputs(cfg, rec.records(exclude=cfg.run_dir))
+        read = rec.records(exclude=cfg.run_dir)
+        inputs = portable_inputs(cfg, read)
+        if read:  # their digests, so the next check reads none of them
+            memo = load_memo(cfg.run_dir / INPUT_MEMO)
+            remember(read, memo)
+            save_memo(cfg.run_dir / INPUT_MEMO, memo)
         outputs = folder_records(tmp, skip=(MANIFEST, OWNER))
         stray = undeclared(spec.name, outputs)
         if stray:  # the catalog is the one list of what a stage writes

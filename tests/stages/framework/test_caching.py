@@ -111,6 +111,30 @@ def test_input_rewritten_in_place_is_detected(tmp_config, fake_chain, capsys):
     assert calls == []
 
 
+def test_an_input_edited_with_its_mtime_restored_is_detected(tmp_config, fake_chain, monkeypatch):
+    """Same size, same mtime, other bytes: the ctime moved, so the digest is taken again; an
+    unchanged input is not reread (its digest is memoised in the run folder)."""
+    from pipeline.infra import cache
+    from stages.framework.runner import INPUT_MEMO, ensure, plan
+
+    calls, _, src = fake_chain
+    cfg = tmp_config()
+    ensure(cfg, "a")
+    assert (cfg.run_dir / INPUT_MEMO).is_file()
+    hashed = []
+    real_sha = cache.sha256_file
+    monkeypatch.setattr(cache, "sha256_file", lambda p, *a: hashed.append(str(p)) or real_sha(p, *a))
+    assert plan(cfg, "a")["state"] == "up to date" and str(src) not in hashed
+    st = os.stat(src)
+    src.write_bytes(b"input v9")                   # same size as "input v1"
+    os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns))
+    state = plan(cfg, "a")
+    assert state["state"] == "stale" and state["why"] == f"input {src} content changed (sha256 differs)"
+    calls.clear()
+    ensure(cfg, "a")
+    assert calls == ["a"]
+
+
 def test_inputs_under_a_dataset_root_are_found_again_after_a_move(tmp_config, fake_chain, tmp_path):
     """Input records name files relative to their dataset root: the dataset copied elsewhere (new
     path and mtime, same bytes) with its root setting moved keeps the stage up to date."""
