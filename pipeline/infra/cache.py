@@ -251,9 +251,11 @@ def remember(records: dict[str, dict], memo: dict) -> None:
 
 def load_memo(path: str | Path) -> dict:
     """A digest memo written by ``save_memo``; {} when missing or unreadable (it is only a memo)."""
+    from pipeline.infra.outputs import read_json
+
     try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError):
+        data = read_json(path, missing={}, invalid={})
+    except OSError:
         return {}
     return data if isinstance(data, dict) else {}
 
