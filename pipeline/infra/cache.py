@@ -68,20 +68,24 @@ def file_record(path: str | Path, data: bytes | None = None, known: dict | None 
     return {"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
-def record_changed(path: str | Path, rec: dict, verify: dict | None = None) -> str | None:
+def record_changed(path: str | Path, rec: dict, verify: dict | None = None, memo: dict | None = None) -> str | None:
     """Why ``path`` no longer matches ``rec`` ("missing", "content changed"), or None.
 
     Without ``verify`` (``viewfuse status``), the same size and mtime are trusted: a fast path
     that a byte edit with the mtime restored fools. With ``verify`` (a dict kept for one run), the
     bytes are always hashed, once per run per file state, and compared with the recorded sha256:
-    what a stage about to use an upstream output does."""
+    what a stage about to use an upstream output does. With ``memo`` (``memo_record``; dataset
+    files), the sha256 is reused while size, mtime, ctime and inode match: a copied dataset (new
+    mtimes) is hashed once, not on every check, and an edit with its mtime restored moves the ctime."""
     try:
         st = os.stat(path)
     except FileNotFoundError:
         return "missing"
     if st.st_size != rec.get("size"):
         return f"content changed (size {rec.get('size')} -> {st.st_size} bytes)"
-    if verify is None:
+    if memo is not None:
+        digest = memo_record(path, memo)["sha256"]
+    elif verify is None:
         if st.st_mtime_ns == rec.get("mtime_ns"):
             return None
         digest = sha256_file(path)
@@ -223,20 +227,6 @@ def memo_record(path: str | Path, memo: dict, into: dict | None = None) -> dict:
     rec = {**file_record(key, known=known), "ctime_ns": st.st_ctime_ns, "ino": st.st_ino}
     (memo if into is None else into)[key] = rec
     return rec
-
-
-def input_changed(path: str | Path, rec: dict, memo: dict) -> str | None:
-    """Why the dataset file ``path`` no longer matches its manifest record ``rec``, or None. The
-    sha256 comes from ``memo`` while size, mtime, ctime and inode are those it was hashed at, so a
-    copied dataset (new mtimes) is hashed once, not on every check, and an edit with its mtime
-    restored is still caught (it moves the ctime)."""
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        return "missing"
-    if st.st_size != rec.get("size"):
-        return f"content changed (size {rec.get('size')} -> {st.st_size} bytes)"
-    return None if memo_record(path, memo)["sha256"] == rec.get("sha256") else "content changed (sha256 differs)"
 
 
 def remember(records: dict[str, dict], memo: dict) -> None:

@@ -24,7 +24,7 @@ from typing import Any
 
 from loaders.errors import SkipPolicy
 from loaders.files import set_max_megapixels
-from pipeline.infra.cache import (confined_writes, folder_records, hash_json, input_changed, load_memo,
+from pipeline.infra.cache import (confined_writes, folder_records, hash_json, load_memo,
                                    record_changed, recording_inputs, remember, save_memo, write_json)
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST, undeclared
@@ -145,7 +145,7 @@ def stale_reason(cfg: Config, name: str, key: str, parts: dict, verify: dict | N
     try:
         for entry, rec in (m.get("inputs") or {}).items():
             path = input_path(cfg, entry)
-            why = input_changed(path, rec, memo)
+            why = record_changed(path, rec, memo=memo)
             if why:
                 return f"input {path} {why}"
     finally:
