@@ -215,11 +215,12 @@ def method_rng(seed: int, target: str, track: int, method: str) -> np.random.Gen
     return np.random.default_rng([seed, zlib.crc32(target.encode()), track, zlib.crc32(method.encode())])
 
 
-def pose_free_track(cell: Cell, models, clock: dict[str, float] | None = None) -> tuple[dict, dict]:
+def pose_free_track(cell: Cell, models) -> tuple[E.Posteriors, dict]:
     """The pose-free methods on the cell's track, fused once (``experiments.pose_free``): their
-    (K, C) log posteriors, repeated over every setting's realizations, and their extras."""
+    (K, C) log posteriors (with their seconds), repeated over every setting's realizations, and
+    their extras."""
     t = E.track_input(models, cell.data, var_floor=cell.var_floor, dirichlet=cell.dirichlet, n_ss=cell.n_ss)
-    return E.pose_free(t, clock, rng=lambda key: method_rng(cell.seed, cell.target, cell.track, key))
+    return E.pose_free(t, rng=lambda key: method_rng(cell.seed, cell.target, cell.track, key))
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
@@ -241,22 +242,22 @@ def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
-    clock: dict[str, float] = {}
-    fixed, extras = pose_free_track(cell, models, clock)
+    fixed, extras = pose_free_track(cell, models)
     posts: dict = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
                                                       var_floor=cell.var_floor, attribution=cell.attribution,
-                                                      clock=clock, fixed=fixed)
+                                                      fixed=fixed)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
                                                           rng, var_floor=cell.var_floor, attribution=cell.attribution,
-                                                          clock=clock, fixed=fixed)
+                                                          fixed=fixed)
     diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, dirichlet=cell.dirichlet)
             if cell.difficulty else None)
-    return {"posts": posts, "difficulty": diff, "seconds": clock, **extras}
+    seconds = E.add_seconds(fixed.seconds, *(p.seconds for p in posts.values()))
+    return {"posts": posts, "difficulty": diff, "seconds": seconds, **extras}
 
 
 def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
