@@ -342,7 +342,8 @@ def _ablations(ctx: ReportContext) -> None:
         recs = [r for r in (find(records_of(a), key, m) for m in HEADLINE) if r is not None]
         for r in recs:
             ctx.ledger.register(("ablation", name, key, r["metric"]), r.get("value"), r.get("lo"), r.get("hi"),
-                                label=r["outcome"], where="ablation table", higher_is_better=higher_is_better(r["metric"]))
+                                label=r["outcome"], where="ablation table",
+                                higher_is_better=higher_is_better(r["metric"]))
         # short and computed: the headline metrics' outcomes, as the ablation's records word them
         said = "; ".join(outcome_clauses(recs, subject=False))
         rows.append([over, Estimate.of(ests.get("correct_final"), True), Estimate.of(ests.get("log10_mgr95_final"), True),
