@@ -103,29 +103,40 @@ class TrackInfo:
         return d
 
 
+class PlannedTracks(list):
+    """The planned tracks (``TrackInfo``), returned with ``refused``: each scan whose rays do not
+    meet, as {"target", "scan", "reason", "residual_m"}."""
+
+    def __init__(self, tracks=(), refused: list[dict] | None = None):
+        super().__init__(tracks)
+        self.refused = list(refused or [])
+
+
 def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int,
                 intrinsics: dict[str, tuple[float, float]], grid_steps: dict[str, float],
                 explicit: tuple[str, ...] = (), *, grid_points: dict[str, dict[str, int]] | None = None,
-                max_residual_m: float = math.inf, refused: list[dict] | None = None) -> list[TrackInfo]:
+                max_residual_m: float = math.inf) -> PlannedTracks:
     """``n_tracks`` tracks of ``k`` views of one target, spread over the scans that see it (track j
     goes to the j-th scan in turn). ``explicit`` image names give exactly one track.
 
     ``grid_points`` ({scan: {image: grid point id}}, ``AVDScan.grid_points``) say which views share
     a stop; without them views of one stop must share a position. A scan whose rays do not meet
-    (``max_residual_m``, ``pipeline.scene.location``) gives no track; with ``refused`` (a
-    list) each such scan is appended to it as {"target", "scan", "reason", "residual_m"}."""
+    (``max_residual_m``, ``pipeline.scene.location``) gives no track and is named in the result's
+    ``refused``."""
     scans = sorted(det["scan"].unique())
     if not scans:
         raise TrackError(f"no AVD view of {target!r}")
     out: list[TrackInfo] = []
+    refused: list[dict] = []
     if explicit:
         for scan in scans:
             d = det[det["scan"] == scan].set_index("image")
             if all(n in d.index for n in explicit):
                 sel = d.loc[list(explicit)]
                 obj = locate(d, *intrinsics[scan], max_residual_m).xy
-                return [TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
-                                  sel["heading"].to_numpy(float), obj)]
+                one = TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
+                                sel["heading"].to_numpy(float), obj)
+                return PlannedTracks([one])
         raise TrackError(f"evaluate.track_images: not every image has a scored box of {target!r} in one scan")
     per_scan = {s: len(range(i, n_tracks, len(scans))) for i, s in enumerate(scans)}
     errors = []
@@ -148,7 +159,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
                                   grid_step=grid_steps[scan], grid_id=gid)
         except TrackError as e:
             errors.append(f"{scan}: {e}")
-            if isinstance(e, InconsistentRays) and refused is not None:
+            if isinstance(e, InconsistentRays):
                 refused.append({"target": target, "scan": scan, "reason": f"{scan}: {e}",
                                 "residual_m": round(e.residual_m, 4)})
             continue
@@ -159,7 +170,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
                                  sel["heading"].to_numpy(float), obj, p))
     if not out:
         raise TrackError(f"no usable track of {target!r}: " + "; ".join(errors))
-    return out
+    return PlannedTracks(out, refused)
 
 
 def view_grid_ids(images, grid: dict[str, int], scan: str) -> np.ndarray:
@@ -289,15 +300,14 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
     cells, tracks, skipped = [], [], []
     for target in choose_targets(ev, avd, plan):
         det = target_views(avd, target, ev.max_difficulty)
-        refused: list[dict] = []
         try:
             infos = plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
                                 tuple(ev.track_images), grid_points=grid_points,
-                                max_residual_m=ev.max_ray_residual_m, refused=refused)
+                                max_residual_m=ev.max_ray_residual_m)
         except TrackError as e:  # its reason names every scan, the inconsistent ones included
             skipped.append({"target": target, "reason": str(e)})
             continue
-        skipped.extend(refused)  # an inconsistent scan of a target with tracks elsewhere: named too
+        skipped.extend(infos.refused)  # an inconsistent scan of a target with tracks elsewhere: named too
         classes = plan[target]["classes"]
         for info in infos:
             yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
