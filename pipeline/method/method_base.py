@@ -33,6 +33,7 @@ class TrackInput:
     var_floor: float = 1e-6
     n_ss: int = 100                        # Dirichlet cloud size (evaluate.dirichlet.n_ss)
     rng: np.random.Generator | None = None
+    threads: int | None = None             # engine threads (speed only); planning's workers use 1
 
     @property
     def measurement(self) -> np.ndarray:
@@ -54,6 +55,7 @@ class FusionMethod:
     uses_poses: ClassVar[bool] = True
     uses_dropout: ClassVar[bool] = True
     simulation: ClassVar[bool] = False      # also fused in the §5.3 simulation (``simulate``)
+    planning: ClassVar[bool] = False        # view planning's belief update may use it (``fuse_tracks``)
     attribution: ClassVar[bool] = False     # an ingredient variant: runs only with evaluate.attribution
 
     def applies(self, t: TrackInput) -> bool:
@@ -73,6 +75,12 @@ class FusionMethod:
         """Each view alone at the true pose (``t.estimates`` (1, K, 2) true positions): log
         posteriors (K, C), or None when the method has no single-view reading."""
         return None
+
+    def fuse_tracks(self, t: TrackInput) -> np.ndarray:
+        """View planning's belief update (``planning = True``): R tracks of equal length, each with
+        its own views, so ``t.dropout`` is (R, K, N_s, F) beside ``t.samples`` (R, N_x, K, 2) and
+        ``t.estimates`` (R, K, 2) -> log posteriors (R, K, C)."""
+        raise NotImplementedError
 
     def simulate(self, models, draws, sim) -> np.ndarray:
         """The §5.3 simulation (``simulation = True``): posteriors (R, K, C), probabilities, from

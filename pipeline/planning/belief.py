@@ -1,7 +1,9 @@
-"""The robot's belief: the class posterior of With Uncertainty and its localization samples.
+"""The robot's belief: the class posterior of a registered fusion method (With Uncertainty by
+default) and its localization samples.
 
-The belief is updated with the existing fusion engine (``pipeline.method.fusion``) on the real
-scores recorded at the visited nodes; nothing of the fusion is redone here. Pose estimates follow
+The belief is updated by the method's own ``fuse_tracks`` (``pipeline.method.registry``: any
+method that declares ``planning``) on the real scores recorded at the visited nodes; nothing of
+the fusion is redone here. Pose estimates follow
 the evaluate stage's settings: estimate = truth + bias + N(0, est_sigma² I) per view, and the
 N_x localization samples are the estimate plus N(0, sigma² I) (sigma as told to the method).
 Every random draw is keyed by (seed, target, scan, start, setting, node), never by the order of
@@ -14,7 +16,8 @@ import zlib
 
 import numpy as np
 
-from pipeline.method.fusion import fuse_with_uncertainty, log_prior
+from pipeline.method import registry
+from pipeline.method.fusion import log_prior
 from pipeline.planning.world import World
 
 
@@ -24,10 +27,15 @@ def _crc(s: str) -> int:
 
 class Belief:
     def __init__(self, models, world: World, *, bias=(0.0, 0.0), est_sigma: float = 0.0, sigma: float = 0.0,
-                 n_x: int = 1, var_floor: float = 1e-6, key=(0,)):
+                 n_x: int = 1, var_floor: float = 1e-6, key=(0,), method: str = registry.REFERENCE):
         if n_x < 1 or sigma < 0 or est_sigma < 0:
             raise ValueError(f"Belief: need n_x >= 1 and sigmas >= 0, got n_x={n_x}, sigma={sigma}, "
                              f"est_sigma={est_sigma}")
+        self.method = registry.get(method)
+        if self.method is None or not self.method.planning:
+            able = [m.key for m in registry.methods() if m.planning]
+            raise ValueError(f"Belief: method {method!r} is not a registered method that applies to planning "
+                             f"(those that do: {able})")
         self.models, self.world = models, world
         self.bias = np.asarray(bias, float)
         self.est_sigma, self.sigma, self.n_x, self.var_floor = float(est_sigma), float(sigma), int(n_x), var_floor
@@ -69,9 +77,10 @@ class Belief:
         """Log posteriors after the last step of each track (R, C), one engine call."""
         X = np.stack([np.stack([self.samples(n) for n in t], axis=1) for t in tracks])   # (R, N_x, K, 2)
         Z = np.stack([np.stack([self.world.dropout[n] for n in t]) for t in tracks])      # (R, K, N_s, F)
-        post = fuse_with_uncertainty(self.models, self.world.inputs(X), Z, var_floor=self.var_floor,
-                                     return_log=True, progress=False, threads=1)
-        return post[:, -1]
+        est = np.stack([np.stack([self.estimate(n) for n in t]) for t in tracks])         # (R, K, 2)
+        t = registry.TrackInput(dropout=Z, gp=self.models, estimates=est, samples=X, inputs=self.world.inputs,
+                                var_floor=self.var_floor, threads=1)
+        return self.method.fuse_tracks(t)[:, -1]
 
     def update(self, node: str) -> np.ndarray:
         """Move to ``node`` and fuse its recorded scores: the new log posterior (C,)."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.evaluation.grid.population import TrackInfo, track_samples
+from pipeline.method.registry import REFERENCE
 from pipeline.planning.belief import Belief
 from pipeline.planning.eig import RingTable, standard_draws
 from pipeline.planning.episode import Episode, run_episode
@@ -50,6 +51,7 @@ class Task:
     eig_samples: int
     seed: int
     var_floor: float
+    method: str = REFERENCE      # the registered method whose belief the robot keeps (``planning``)
 
 
 def build_world(cell, info: TrackInfo, avd, scores, moves: dict, max_difficulty: int) -> World:
@@ -124,7 +126,7 @@ def run_task(banks, task: Task) -> list[tuple[str, str, Episode]]:
     for s in task.settings:
         for name in task.planners:
             belief = Belief(models, task.world, bias=s.bias, est_sigma=s.est_sigma, sigma=s.sigma, n_x=s.n_x,
-                            var_floor=task.var_floor, key=(task.seed, task.start, _crc(s.name)))
+                            var_floor=task.var_floor, key=(task.seed, task.start, _crc(s.name)), method=task.method)
             rng = np.random.default_rng([task.seed, _crc(task.world.target), _crc(task.world.scan), task.start,
                                          _crc(s.name), _crc(name)])
             ep = run_episode(belief, make_planner(name, eps, table), task.world.track[0], budget=task.budget,

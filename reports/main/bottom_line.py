@@ -7,18 +7,10 @@ here without an edit (labels from ``pipeline.evaluation.metrics.labels``).
 from __future__ import annotations
 
 import math
-import re
 from collections import Counter
 
-from pipeline.evaluation.metrics.labels import comparison_label
 from pipeline.evaluation.metrics.spec import higher_is_better as _higher, metric_label
-from reports.shared.records import records_of
-
-OUTCOMES = ("better", "worse", "not distinguishable")
-
-
-def _join(items: list[str]) -> str:
-    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+from reports.shared.records import join_words, outcome_clauses, records_of
 
 
 def counts(pop: dict) -> dict:
@@ -66,45 +58,6 @@ def realizations_text(c: dict) -> str:
     return ", ".join(parts)
 
 
-def _by_comparison(table: list[dict]) -> dict[str, dict[str, str]]:
-    """comparison -> {metric: outcome}, in table order."""
-    out: dict[str, dict[str, str]] = {}
-    for row in table:
-        out.setdefault(str(row.get("comparison")), {})[str(row.get("metric"))] = str(row.get("outcome"))
-    return out
-
-
-def metric_family(metric: str) -> str:
-    """'log10 MGR 95th percentile, final step' -> 'log10 MGR'; 'correct ratio, final step' -> 'correct ratio'."""
-    head = metric_label(metric).split(",")[0]
-    return re.sub(r"\s*\d+(st|nd|rd|th) percentile", "", head).strip()
-
-
-def _grouped(outcomes: dict[str, str]) -> dict[str, list[str]]:
-    """Outcome -> phrases: a metric family whose entries share one outcome is named once."""
-    fam: dict[str, list[str]] = {}
-    for m in outcomes:
-        fam.setdefault(metric_family(m), []).append(m)
-    out: dict[str, list[str]] = {o: [] for o in OUTCOMES}
-    for name, ms in fam.items():
-        kinds = {outcomes[m] for m in ms}
-        if len(kinds) == 1:
-            out.setdefault(kinds.pop(), []).append(name + (f" (all {len(ms)} entries)" if len(ms) > 2 else ""))
-        else:
-            for m in ms:
-                out.setdefault(outcomes[m], []).append(metric_label(m))
-    return out
-
-
-def comparison_clause(key: str, outcomes: dict[str, str]) -> str:
-    a, _, b = comparison_label(key).partition(" − ")
-    g = _grouped(outcomes)
-    if not g["better"] and not g["worse"]:
-        return f"{a} is not distinguishable from {b} on any metric"
-    parts = [f"{o} on {_join(g[o])}" for o in OUTCOMES if g.get(o)]
-    return f"{a} vs {b}: " + "; ".join(parts)
-
-
 def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     """One or two sentences from the verdict records of the primary metrics
     (``evaluate.primary_metrics``): per comparison what holds and what does not, then what the CIs
@@ -113,10 +66,10 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     table = [r for r in recs if r.get("primary")] or recs
     if not table:
         return []
-    clauses = [comparison_clause(k, r) for k, r in _by_comparison(table).items()]
+    clauses = outcome_clauses(table)
     c = counts(pop)
     prim = sorted({metric_label(r["metric"]) for r in table if r.get("primary")})
-    first = ("Bottom line" + (f" (primary metrics: {_join(prim)}; every other metric is exploratory)" if prim
+    first = ("Bottom line" + (f" (primary metrics: {join_words(prim)}; every other metric is exploratory)" if prim
                               else "") + ". " + " ".join(cl + "." for cl in clauses))
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
     n_scans = next((r.get("n", {}).get("scans") for r in table if "scans" in (r.get("over") or [])), None)

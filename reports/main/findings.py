@@ -4,34 +4,31 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.evaluation.metrics.labels import comparison_label, method_label, ordered_methods
+from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label, percentile
-from reports.main.calibration import paired_value, pooled_value
-from reports.shared.checks import Ledger, outcome_of
+from reports.main.calibration import pooled_value
+from reports.shared.checks import Ledger
 from reports.shared.numbers import Estimate, fmt
-
-
-def _outcome(e: Estimate, higher: bool) -> str:
-    """The one outcome rule (reports.shared.checks.outcome_of) in the alt text's words."""
-    out = outcome_of(e.low, e.high, higher)
-    return "not distinguishable from 0" if out == "not distinguishable" else out
+from reports.shared.records import clause, find, records_of
 
 
 def forest(pop: dict, ledger: Ledger | None = None) -> str:
-    paired, ppt = pop.get("paired") or {}, pop.get("paired_per_target") or {}
+    """The pooled paired differences the plot shows, each as its verdict record words it
+    (``reports.shared.records.clause``), and how many targets' own CIs exclude 0."""
+    recs, ppt = records_of(pop), pop.get("paired_per_target") or {}
     parts = []
-    for key, per in paired.items():
+    for key in pop.get("paired") or {}:
         for metric in ("correct_final", "log10_mgr95_final"):
-            if metric not in per:
+            rec = find(recs, key, metric)
+            if rec is None:
                 continue
-            higher = higher_is_better(metric)
-            e = Estimate.of(paired_value(pop, key, metric), signed=True)
             if ledger is not None:
-                ledger.register(("paired", key, metric), e.value, e.low, e.high, label=_outcome(e, higher),
-                                where="forest plot caption", higher_is_better=higher)
-            excl = sum(1 for t in (ppt.get(key) or {}).values() if Estimate.of((t or {}).get(metric)).excludes_zero())
-            parts.append(f"{comparison_label(key)}, {metric_label(metric)}: pooled {e.text()} "
-                         f"({_outcome(e, higher)}); {excl} of {len(ppt.get(key) or {})} targets have a CI excluding 0")
+                ledger.register(("paired", key, metric), rec.get("value"), rec.get("lo"), rec.get("hi"),
+                                label=rec["outcome"], where="forest plot caption",
+                                higher_is_better=higher_is_better(metric))
+            excl = sum(1 for t in (ppt.get(key) or {}).values()
+                       if Estimate.of((t or {}).get(metric)).excludes_zero())
+            parts.append(f"{clause(rec)}; {excl} of {len(ppt.get(key) or {})} targets have a CI excluding 0")
     return "Forest plot of paired differences. " + "; ".join(parts) + "." if parts else "Forest plot of paired differences."
 
 

@@ -12,7 +12,7 @@ from pipeline.scoring.classifiers import describe_card, display_of
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt
-from reports.shared.records import records_of, select, sentence, sentences as render
+from reports.shared.records import find, outcome_clauses, records_of, select, sentence, sentences as render
 from reports.main.calibration import paired_value, pooled_value
 from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
@@ -339,12 +339,13 @@ def _ablations(ctx: ReportContext) -> None:
             continue
         over = "; ".join(override_words(k, v) for k, v in (a.get("override") or {}).items()) or name
         ests = {m: paired_value(a, key, m) for m in HEADLINE}
-        for m, d in ests.items():
-            if d:
-                ctx.ledger.register(("ablation", name, key, m), d.get("value"), d.get("ci_low"), d.get("ci_high"),
-                                    label=_outcome(d, m), where="ablation table", higher_is_better=higher_is_better(m))
-        # short and computed: the headline outcomes (each from the interval shown in the verdict's terms)
-        said = "; ".join(f"{metric_label(m, short=True)}: {_outcome(d, m)}" for m, d in ests.items() if d)
+        recs = [r for r in (find(records_of(a), key, m) for m in HEADLINE) if r is not None]
+        for r in recs:
+            ctx.ledger.register(("ablation", name, key, r["metric"]), r.get("value"), r.get("lo"), r.get("hi"),
+                                label=r["outcome"], where="ablation table",
+                                higher_is_better=higher_is_better(r["metric"]))
+        # short and computed: the headline metrics' outcomes, as the ablation's records word them
+        said = "; ".join(outcome_clauses(recs, subject=False))
         rows.append([over, Estimate.of(ests.get("correct_final"), True), Estimate.of(ests.get("log10_mgr95_final"), True),
                      said or "—"])
     ctx.page.table(["ablation", "Δ correct, final", "Δ log10 MGR 95 %, final", "outcomes with it"],

@@ -1,10 +1,15 @@
 """The one renderer of verdict sentences: prose from the structured records of ``summary.json``
 (``pipeline.evaluation.statistics.records``), never stored as text. Every page that states a
 verdict (main report, calibration, ablations, study, compare) renders it here, so the label, the
-number and its interval in a sentence are the record's own."""
+number and its interval in a sentence are the record's own.
+
+Forms: ``sentence`` (one record, in full), ``clause`` (one record in a few words: alt texts,
+table cells) and ``outcome_clauses`` (several records, one clause per comparison naming only the
+outcomes: the bottom line, the ablation table, the seed study)."""
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -46,17 +51,22 @@ def over_text(rec: Mapping) -> str:
     return " × ".join(parts) if parts else " and ".join(rec.get("over") or [])
 
 
+def sides(rec: Mapping, name: Callable[[str], str] | None = None) -> tuple[str, str]:
+    """The record's method and baseline in words (``name``: another family's; by default the
+    methods' short labels). An older summary's row has only ``comparison``: its two keys."""
+    a, _, b = str(rec.get("comparison") or "").partition("-")
+    a, b = rec.get("method", a), rec.get("baseline", b)
+    word = name or (lambda k: method_label(k, short=True))
+    return word(a), word(b)
+
+
 def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
              metric_name: Callable[[str], str] | None = None) -> str:
     """One record as a sentence: outcome, statistic, value, interval, what it varies over, the
     wins/losses and the caveats the record carries. ``name`` and ``metric_name`` word another
     family's entries (the view planners and their metrics); by default methods and metrics."""
-    a = method_label(rec["method"], short=True) if "method" in rec else rec["comparison"].split("-", 1)[0]
-    b = method_label(rec.get("baseline"), short=True) if "baseline" in rec else \
-        rec["comparison"].split("-", 1)[1]
+    a, b = sides(rec, name)
     stat = STATISTIC.get(rec.get("pooling"), "difference")
-    if name is not None:
-        a, b = name(rec["method"]), name(rec["baseline"])
     what = (metric_name or metric_label)(rec["metric"])
     text = (f"{a} {PHRASE[rec['outcome']]} {b} on {what} ({stat} "
             f"{fmt(rec.get('value'), signed=True)}, {interval_text(rec)}, over {over_text(rec)}")
@@ -84,6 +94,69 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
     if rec.get("primary") is False:
         notes.append("exploratory metric")
     return text + ("; " + "; ".join(notes) if notes else "") + "."
+
+
+def clause(rec: Mapping, *, name: Callable[[str], str] | None = None,
+           metric_name: Callable[[str], str] | None = None) -> str:
+    """One record in a few words (an alt text's, a table cell's): '<method> − <baseline>,
+    <metric>: <value>, 95 % CI [lo, hi] (<outcome>)', the value, interval and outcome of ``sentence``."""
+    a, b = sides(rec, name)
+    what = (metric_name or metric_label)(rec["metric"])
+    return f"{a} − {b}, {what}: {fmt(rec.get('value'), signed=True)}, {interval_text(rec)} ({rec['outcome']})"
+
+
+def metric_family(metric: str) -> str:
+    """'log10 MGR 95th percentile, final step' -> 'log10 MGR'; 'correct ratio, final step' -> 'correct ratio'."""
+    head = metric_label(metric).split(",")[0]
+    return re.sub(r"\s*\d+(st|nd|rd|th) percentile", "", head).strip()
+
+
+def join_words(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def _grouped(outcomes: Mapping[str, str]) -> dict[str, list[str]]:
+    """Outcome -> phrases: a metric family whose entries share one outcome is named once."""
+    fam: dict[str, list[str]] = {}
+    for m in outcomes:
+        fam.setdefault(metric_family(m), []).append(m)
+    out: dict[str, list[str]] = {o: [] for o in PHRASE}
+    for family, ms in fam.items():
+        kinds = {outcomes[m] for m in ms}
+        if len(kinds) == 1:
+            out.setdefault(kinds.pop(), []).append(family + (f" (all {len(ms)} entries)" if len(ms) > 2 else ""))
+        else:
+            for m in ms:
+                out.setdefault(outcomes[m], []).append(metric_label(m))
+    return out
+
+
+def outcome_clauses(records: Iterable[Mapping], *, subject: bool = True,
+                    name: Callable[[str], str] | None = None) -> list[str]:
+    """Several records, outcomes only: one clause per comparison, in record order ('<method> vs
+    <baseline>: better on correct ratio; not distinguishable on log10 MGR'; '<method> is not
+    distinguishable from <baseline> on any metric'). A metric family whose entries share one
+    outcome is named once. Without ``subject`` the clause starts at the outcomes (a table row
+    that names its comparison elsewhere)."""
+    by: dict[str, list[Mapping]] = {}
+    for r in records:
+        by.setdefault(str(r.get("comparison")), []).append(r)
+    out = []
+    for recs in by.values():
+        a, b = sides(recs[0], name)
+        g = _grouped({str(r["metric"]): str(r["outcome"]) for r in recs})
+        if not g["better"] and not g["worse"]:
+            out.append(f"{a} is not distinguishable from {b} on any metric" if subject
+                       else "not distinguishable on any metric")
+            continue
+        said = "; ".join(f"{o} on {join_words(g[o])}" for o in PHRASE if g.get(o))
+        out.append(f"{a} vs {b}: {said}" if subject else said)
+    return out
+
+
+def find(records: Iterable[Mapping], comparison: str, metric: str) -> Mapping | None:
+    """The record of (comparison, metric), or None."""
+    return next((r for r in records if r.get("comparison") == comparison and r.get("metric") == metric), None)
 
 
 def select(records: Iterable[Mapping], metrics: Sequence[str] | None = None, *, primary: bool | None = None) -> list:

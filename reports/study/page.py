@@ -9,7 +9,7 @@ from typing import Any
 from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.shared.numbers import fmt
-from reports.shared.records import records_of, sentences
+from reports.shared.records import outcome_clauses, records_of, sentences
 
 
 def entry_label(key: str) -> str:
@@ -20,6 +20,25 @@ def entry_label(key: str) -> str:
     if not metric or not b:
         return key
     return f"{method_label(a, short=True)} vs {method_label(b, short=True)}, {metric_label(metric)}"
+
+
+def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int, held: dict[str, str]) -> str:
+    """The study's answer: whether every seed reaches the same verdict, and the decided outcomes
+    held for every seed (``held``: (comparison / metric) -> outcome), worded by the records'
+    renderer (``reports.shared.records.outcome_clauses``)."""
+    if missing:
+        return (f"Seed(s) {', '.join(map(str, missing))} have no population verdict (evaluate/summary.json "
+                f"lacks 'population'); the verdicts cannot be compared yet.")
+    if not differ:
+        text = f"The verdict is the same for every seed ({', '.join(map(str, seeds))})."
+    else:
+        text = (f"The verdict differs between seeds on {len(differ)} of {n_entries} "
+                f"(comparison / metric) entries: {'; '.join(entry_label(k) for k in differ)}.")
+    decided = [{"comparison": k.partition(" / ")[0], "metric": k.partition(" / ")[2], "outcome": o}
+               for k, o in held.items() if o in ("better", "worse")]
+    if decided:
+        text += " Held for every seed: " + "; ".join(outcome_clauses(decided)) + "."
+    return text
 
 
 def _fmt(v: Any) -> str:

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from pipeline.infra.cache import write_json, write_text
-from reports.study.page import entry_label, render_html
+from reports.study.page import render_html, study_sentence
 from pipeline.infra.outputs import path as out_path
 from pipeline.infra.outputs import read, read_manifest
 
@@ -114,17 +114,7 @@ def summarize(results: dict[int, dict]) -> dict:
     differ = sorted(k for k, row in table.items() if len(set(row.values())) > 1)
     held = {k: next(iter(row.values())) for k, row in table.items() if k not in differ and None not in row.values()}
     same = not missing and not differ
-    if missing:
-        sentence = (f"Seed(s) {', '.join(map(str, missing))} have no population verdict (evaluate/summary.json "
-                    f"lacks 'population'); the verdicts cannot be compared yet.")
-    elif same:
-        sentence = f"The verdict is the same for every seed ({', '.join(map(str, seeds))})."
-    else:
-        sentence = (f"The verdict differs between seeds on {len(differ)} of {len(keys)} "
-                    f"(comparison / metric) entries: {'; '.join(entry_label(k) for k in differ)}.")
-    decided = {k: o for k, o in held.items() if o in ("better", "worse")}
-    if not missing and decided:
-        sentence += (" Held for every seed: " + "; ".join(f"{entry_label(k)}: {o}" for k, o in decided.items()) + ".")
+    sentence = study_sentence(seeds, missing, differ, len(keys), held)
     return {"seeds": seeds, "per_seed": per_seed, "outcomes": table, "differs_on": differ, "held": held,
             "missing": missing, "verdict_same": same, "sentence": sentence, "pooled_over_seeds": pooled}
 

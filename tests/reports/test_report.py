@@ -289,10 +289,19 @@ def test_population_tables_show_paired_differences_per_target_and_ablations(rend
     abl = page.table("ablations")
     assert abl["section"] == "diagnostics"
     assert abl["rows"][1][0] == "GP noise floor at the dropout variance"    # the override in plain words
-    # short, computed outcomes: one per headline metric, each the one its interval gives
-    a = pop["ablations"]["models.noise_floor=dropout"]["paired"]["with_uncertainty-model_based"]["correct_final"]
+    # short, computed outcomes of the headline metrics, worded by the records' renderer, each the
+    # one its interval gives
+    from reports.main.verdict import HEADLINE
+    from reports.shared.records import find, outcome_clauses
+
+    block = pop["ablations"]["models.noise_floor=dropout"]
+    a = block["paired"]["with_uncertainty-model_based"]["correct_final"]
     want = "not distinguishable" if a["ci_low"] <= 0 <= a["ci_high"] else ("better" if a["ci_low"] > 0 else "worse")
-    assert abl["rows"][1][3].startswith(f"correct, final: {want}") and len(abl["rows"][1][3]) < 300
+    recs = [find(block["records"], "with_uncertainty-model_based", m) for m in HEADLINE]
+    cell = abl["rows"][1][3]
+    assert cell == "; ".join(outcome_clauses([r for r in recs if r], subject=False)) and len(cell) < 300
+    said = next((part for part in cell.split("; ") if "correct ratio" in part), cell)   # "<outcome> on ..."
+    assert want == recs[0]["outcome"] and said.startswith(f"{want} on")
     assert {"forest.png", "per_target.png"} <= set(res.figures)
 
 

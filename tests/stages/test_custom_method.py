@@ -61,8 +61,8 @@ def test_the_report_and_the_compare_page_show_it(toy_run):
     c = compare([toy_run.stage_dir("evaluate").parent])
     assert any(m == KEY for m, _ in c.pooled)
     page = write_page(c, toy_run.stage_dir("evaluate").parent / "compare_toy")
-    html = (page if page.suffix == ".html" else page / "index.html").read_text()
-    assert ToyTempered.short in html
+    shown = (page if page.suffix == ".html" else page / "index.html").read_text()
+    assert ToyTempered.short in shown
 
 
 def test_the_simulation_fuses_it(toy_run):

@@ -19,8 +19,8 @@ from pipeline.method.fusion import fuse_model_based
 from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 
-__all__ = ["MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "track_input", "pose_free", "run_track",
-           "fuse_track", "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
+__all__ = ["MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "Posteriors", "track_input", "pose_free",
+           "run_track", "fuse_track", "biased", "randomized", "bias_maps", "gp_rasters", "single_view_first", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,24 @@ def _chunks(n: int, size: int) -> Iterable[tuple[int, int]]:
         yield a, min(n, a + size)
 
 
+class Posteriors(dict):
+    """{method: log posteriors}, returned with ``seconds``: {method: wall seconds of its fusion
+    calls} (the evaluate stage's and the bench's time split)."""
+
+    def __init__(self, posts=(), seconds: dict[str, float] | None = None):
+        super().__init__(posts)
+        self.seconds = dict(seconds or {})
+
+
+def add_seconds(*parts: dict[str, float]) -> dict[str, float]:
+    """Per-method seconds summed over several results' ``seconds``."""
+    out: dict[str, float] = {}
+    for part in parts:
+        for m, sec in part.items():
+            out[m] = out.get(m, 0.0) + sec
+    return out
+
+
 def track_input(models, track: TrackData, *, var_floor: float, estimates: np.ndarray | None = None,
                 samples: np.ndarray | None = None, dirichlet=None, n_ss: int = 100,
                 rng: np.random.Generator | None = None) -> registry.TrackInput:
@@ -61,44 +79,38 @@ def track_input(models, track: TrackData, *, var_floor: float, estimates: np.nda
                                n_ss=n_ss, rng=rng)
 
 
-def pose_free(t: registry.TrackInput, clock: dict[str, float] | None = None,
-              rng: Callable[[str], np.random.Generator] | None = None) -> tuple[dict[str, np.ndarray], dict]:
-    """The pose-free methods that apply to the track, fused once: ({method: log posteriors (K, C)},
-    their extras, e.g. the Dirichlet cloud's spread ``dirichlet_std``). ``rng(key)``: each
-    method's own random stream."""
-    posts, extras = {}, {}
+def pose_free(t: registry.TrackInput, rng: Callable[[str], np.random.Generator] | None = None
+              ) -> tuple[Posteriors, dict]:
+    """The pose-free methods that apply to the track, fused once: ({method: log posteriors (K, C)}
+    with their ``seconds``, their extras, e.g. the Dirichlet cloud's spread ``dirichlet_std``).
+    ``rng(key)``: each method's own random stream."""
+    posts, extras, seconds = {}, {}, {}
     for m in registry.methods(attribution=False):
         if not m.uses_poses and m.applies(t):
             tm = t if rng is None else replace(t, rng=rng(m.key))
-            posts[m.key], more = _timed(clock, m.key, m.fuse_with_extras, tm)
+            (posts[m.key], more), seconds[m.key] = _timed(m.fuse_with_extras, tm)
             extras.update(more)
-    return posts, extras
+    return Posteriors(posts, seconds), extras
 
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
-              clock: dict[str, float] | None = None, fixed: dict[str, np.ndarray] | None = None
-              ) -> dict[str, np.ndarray]:
+              fixed: dict[str, np.ndarray] | None = None) -> Posteriors:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
     draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
-    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, clock=clock,
-                      fixed=fixed)
+    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, fixed=fixed)
 
 
-def _timed(clock: dict[str, float] | None, key: str, fn, *args, **kw):
-    """``fn(*args, **kw)``, its wall time added to ``clock[key]`` when a clock is given."""
-    if clock is None:
-        return fn(*args, **kw)
+def _timed(fn, *args, **kw):
+    """(``fn(*args, **kw)``, its wall seconds)."""
     t0 = time.perf_counter()
     out = fn(*args, **kw)
-    clock[key] = clock.get(key, 0.0) + time.perf_counter() - t0
-    return out
+    return out, time.perf_counter() - t0
 
 
 def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
-               attribution: bool = False, clock: dict[str, float] | None = None,
-               fixed: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+               attribution: bool = False, fixed: dict[str, np.ndarray] | None = None) -> Posteriors:
     """Every registered method that applies on realizations of pose estimates (R, K, 2) and their
     localization samples (R, N_x, K, 2) -> log posteriors (R, K, C) each, in registry order.
 
@@ -115,32 +127,34 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
     with one ingredient each, on the same estimates and no extra random draws, so the other
     methods' results do not change.
 
-    ``clock``: wall seconds per method are added to it (the bench's time split).
+    The result's ``seconds``: wall seconds per method fused here (a ``fixed`` posterior's were
+    counted where it was fused).
     """
-    r = len(estimates)
+    r, seconds = len(estimates), {}
     t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples)
     out = {}
     for m in registry.methods(attribution=attribution):
         if m.uses_poses:
             if m.applies(t):
-                out[m.key] = _timed(clock, m.key, m.fuse, t)
+                out[m.key], seconds[m.key] = _timed(m.fuse, t)
             continue
         if fixed is not None:
             one = fixed.get(m.key)
+        elif m.applies(t):
+            one, seconds[m.key] = _timed(m.fuse, t)
         else:
-            one = _timed(clock, m.key, m.fuse, t) if m.applies(t) else None
+            one = None
         if one is not None:
             out[m.key] = np.broadcast_to(one, (r,) + one.shape).copy()
-    return out
+    return Posteriors(out, seconds)
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
-           *, var_floor: float, attribution: bool = False, clock: dict[str, float] | None = None,
-           fixed: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+           *, var_floor: float, attribution: bool = False, fixed: dict[str, np.ndarray] | None = None
+           ) -> Posteriors:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
-    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, clock=clock,
-                     fixed=fixed)
+    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, fixed=fixed)
 
 
 # With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
@@ -152,27 +166,28 @@ BATCH_TRAJECTORIES = 100_000
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
                progress: Callable[[int], None] | None = None, attribution: bool = False,
-               clock: dict[str, float] | None = None, fixed: dict[str, np.ndarray] | None = None
-               ) -> dict[str, np.ndarray]:
+               fixed: dict[str, np.ndarray] | None = None) -> Posteriors:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
 
     The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
     localization samples, which fixes the random stream; ``batch`` realizations (default: as many
     as make ``BATCH_TRAJECTORIES`` trajectories) are fused per call, which changes speed and
-    memory only. ``progress`` is told the realizations of each fused batch; ``clock`` as in
-    ``fuse_track``, and so is ``fixed``."""
+    memory only. ``progress`` is told the realizations of each fused batch; ``fixed`` as in
+    ``fuse_track``; the result's ``seconds`` sum its batches'."""
     per_call = int(batch) if batch else max(1, BATCH_TRAJECTORIES // max(int(n_x), 1))
     out: dict[str, list[np.ndarray]] = {}
     est_parts: list[np.ndarray] = []
     smp_parts: list[np.ndarray] = []
+    seconds: list[dict[str, float]] = []
 
     def fuse() -> None:
         est, smp = np.concatenate(est_parts), np.concatenate(smp_parts)
         est_parts.clear()
         smp_parts.clear()
-        for m, v in fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution,
-                               clock=clock, fixed=fixed).items():
+        fused = fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution, fixed=fixed)
+        for m, v in fused.items():
             out.setdefault(m, []).append(v)
+        seconds.append(fused.seconds)
         if progress:
             progress(len(est))
 
@@ -188,7 +203,7 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
             pending = 0
     if pending:
         fuse()
-    return {m: np.concatenate(v, axis=0) for m, v in out.items()}
+    return Posteriors({m: np.concatenate(v, axis=0) for m, v in out.items()}, add_seconds(*seconds))
 
 
 def bias_maps(models, track: TrackData, extent: float, steps: int) -> tuple[np.ndarray, np.ndarray]:

@@ -103,29 +103,40 @@ class TrackInfo:
         return d
 
 
+class PlannedTracks(list):
+    """The planned tracks (``TrackInfo``), returned with ``refused``: each scan whose rays do not
+    meet, as {"target", "scan", "reason", "residual_m"}."""
+
+    def __init__(self, tracks=(), refused: list[dict] | None = None):
+        super().__init__(tracks)
+        self.refused = list(refused or [])
+
+
 def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int,
                 intrinsics: dict[str, tuple[float, float]], grid_steps: dict[str, float],
                 explicit: tuple[str, ...] = (), *, grid_points: dict[str, dict[str, int]] | None = None,
-                max_residual_m: float = math.inf, refused: list[dict] | None = None) -> list[TrackInfo]:
+                max_residual_m: float = math.inf) -> PlannedTracks:
     """``n_tracks`` tracks of ``k`` views of one target, spread over the scans that see it (track j
     goes to the j-th scan in turn). ``explicit`` image names give exactly one track.
 
     ``grid_points`` ({scan: {image: grid point id}}, ``AVDScan.grid_points``) say which views share
     a stop; without them views of one stop must share a position. A scan whose rays do not meet
-    (``max_residual_m``, ``pipeline.scene.location``) gives no track; with ``refused`` (a
-    list) each such scan is appended to it as {"target", "scan", "reason", "residual_m"}."""
+    (``max_residual_m``, ``pipeline.scene.location``) gives no track and is named in the result's
+    ``refused``."""
     scans = sorted(det["scan"].unique())
     if not scans:
         raise TrackError(f"no AVD view of {target!r}")
     out: list[TrackInfo] = []
+    refused: list[dict] = []
     if explicit:
         for scan in scans:
             d = det[det["scan"] == scan].set_index("image")
             if all(n in d.index for n in explicit):
                 sel = d.loc[list(explicit)]
                 obj = locate(d, *intrinsics[scan], max_residual_m).xy
-                return [TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
-                                  sel["heading"].to_numpy(float), obj)]
+                one = TrackInfo(target, scan, 0, tuple(explicit), sel[["cam_x", "cam_y"]].to_numpy(float),
+                                sel["heading"].to_numpy(float), obj)
+                return PlannedTracks([one])
         raise TrackError(f"evaluate.track_images: not every image has a scored box of {target!r} in one scan")
     per_scan = {s: len(range(i, n_tracks, len(scans))) for i, s in enumerate(scans)}
     errors = []
@@ -148,7 +159,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
                                   grid_step=grid_steps[scan], grid_id=gid)
         except TrackError as e:
             errors.append(f"{scan}: {e}")
-            if isinstance(e, InconsistentRays) and refused is not None:
+            if isinstance(e, InconsistentRays):
                 refused.append({"target": target, "scan": scan, "reason": f"{scan}: {e}",
                                 "residual_m": round(e.residual_m, 4)})
             continue
@@ -159,7 +170,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
                                  sel["heading"].to_numpy(float), obj, p))
     if not out:
         raise TrackError(f"no usable track of {target!r}: " + "; ".join(errors))
-    return out
+    return PlannedTracks(out, refused)
 
 
 def view_grid_ids(images, grid: dict[str, int], scan: str) -> np.ndarray:
@@ -215,11 +226,12 @@ def method_rng(seed: int, target: str, track: int, method: str) -> np.random.Gen
     return np.random.default_rng([seed, zlib.crc32(target.encode()), track, zlib.crc32(method.encode())])
 
 
-def pose_free_track(cell: Cell, models, clock: dict[str, float] | None = None) -> tuple[dict, dict]:
+def pose_free_track(cell: Cell, models) -> tuple[E.Posteriors, dict]:
     """The pose-free methods on the cell's track, fused once (``experiments.pose_free``): their
-    (K, C) log posteriors, repeated over every setting's realizations, and their extras."""
+    (K, C) log posteriors (with their seconds), repeated over every setting's realizations, and
+    their extras."""
     t = E.track_input(models, cell.data, var_floor=cell.var_floor, dirichlet=cell.dirichlet, n_ss=cell.n_ss)
-    return E.pose_free(t, clock, rng=lambda key: method_rng(cell.seed, cell.target, cell.track, key))
+    return E.pose_free(t, rng=lambda key: method_rng(cell.seed, cell.target, cell.track, key))
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
@@ -241,22 +253,22 @@ def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
-    clock: dict[str, float] = {}
-    fixed, extras = pose_free_track(cell, models, clock)
+    fixed, extras = pose_free_track(cell, models)
     posts: dict = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
                                                       var_floor=cell.var_floor, attribution=cell.attribution,
-                                                      clock=clock, fixed=fixed)
+                                                      fixed=fixed)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
                                                           rng, var_floor=cell.var_floor, attribution=cell.attribution,
-                                                          clock=clock, fixed=fixed)
+                                                          fixed=fixed)
     diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, dirichlet=cell.dirichlet)
             if cell.difficulty else None)
-    return {"posts": posts, "difficulty": diff, "seconds": clock, **extras}
+    seconds = E.add_seconds(fixed.seconds, *(p.seconds for p in posts.values()))
+    return {"posts": posts, "difficulty": diff, "seconds": seconds, **extras}
 
 
 def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
@@ -288,15 +300,14 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
     cells, tracks, skipped = [], [], []
     for target in choose_targets(ev, avd, plan):
         det = target_views(avd, target, ev.max_difficulty)
-        refused: list[dict] = []
         try:
             infos = plan_tracks(det, target, ev.tracks_per_target, ev.track_length, ev.seed, intr, steps,
                                 tuple(ev.track_images), grid_points=grid_points,
-                                max_residual_m=ev.max_ray_residual_m, refused=refused)
+                                max_residual_m=ev.max_ray_residual_m)
         except TrackError as e:  # its reason names every scan, the inconsistent ones included
             skipped.append({"target": target, "reason": str(e)})
             continue
-        skipped.extend(refused)  # an inconsistent scan of a target with tracks elsewhere: named too
+        skipped.extend(infos.refused)  # an inconsistent scan of a target with tracks elsewhere: named too
         classes = plan[target]["classes"]
         for info in infos:
             yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)

@@ -20,11 +20,16 @@ class WithUncertainty(FusionMethod):
             "(model uncertainty)")
     needs = frozenset({"gp"})
     simulation = True
+    planning = True
 
     def fuse(self, t: TrackInput) -> np.ndarray:
         r = len(t.samples)
         return fuse_with_uncertainty(t.gp, t.inputs(t.samples), np.broadcast_to(t.dropout, (r,) + t.dropout.shape),
                                      var_floor=t.var_floor, return_log=True, progress=False)
+
+    def fuse_tracks(self, t: TrackInput) -> np.ndarray:
+        return fuse_with_uncertainty(t.gp, t.inputs(t.samples), t.dropout, var_floor=t.var_floor, return_log=True,
+                                     progress=False, threads=t.threads)
 
     def single_view(self, t: TrackInput) -> np.ndarray:
         pos = t.estimates[0][:, None, None, :]                             # (K, N_x=1, 1, 2)

@@ -63,7 +63,7 @@ def test_summary_puts_seeds_side_by_side_and_says_whether_the_verdict_agrees():
     assert same["verdict_same"] and same["differs_on"] == [] and "same for every seed" in same["sentence"]
     assert same["outcomes"] == {"with_uncertainty-model_based / correct_final": {"0": "better", "1": "better"}}
     assert same["held"] == {"with_uncertainty-model_based / correct_final": "better"}
-    assert "Held for every seed: With Uncertainty vs Model Based, correct ratio, final step: better." in same["sentence"]
+    assert "Held for every seed: With Uncertainty vs Model Based: better on correct ratio." in same["sentence"]
     flip = summarize({0: _population("better", 0.2), 1: _population("not distinguishable", 0.0)})
     assert not flip["verdict_same"] and flip["differs_on"] == ["with_uncertainty-model_based / correct_final"]
     assert flip["held"] == {} and "Held for every seed" not in flip["sentence"]

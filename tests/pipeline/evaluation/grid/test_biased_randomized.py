@@ -37,7 +37,7 @@ def test_the_estimates_have_the_stated_bias_and_spread_and_the_method_is_told_si
     def spy(models, track, estimates, samples, **kw):
         seen.append((estimates.copy(), samples.copy()))
         r, c = len(estimates), len(models.classes)
-        return {E.WITH_UNCERTAINTY: np.zeros((r, track.k, c)), E.MODEL_BASED: np.zeros((r, track.k, c))}
+        return E.Posteriors({E.WITH_UNCERTAINTY: np.zeros((r, track.k, c)), E.MODEL_BASED: np.zeros((r, track.k, c))})
 
     monkeypatch.setattr(E, "fuse_track", spy)
     rng = np.random.default_rng(7)

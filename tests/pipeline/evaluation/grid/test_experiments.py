@@ -199,3 +199,32 @@ def test_gp_rasters_match_marginal_predictions():
     np.testing.assert_allclose(r["raster_mean"][:, :, 1, 3], mu[0])
     np.testing.assert_allclose(r["raster_std"][:, :, 1, 3], np.sqrt(var[0]))
     assert r["train_y"].shape == (3, 2, 24)
+
+
+def test_fusion_seconds_come_back_with_the_posteriors(monkeypatch):
+    """Each fused method's wall time is returned with its posteriors (no clock to fill in): per
+    engine call for one track, summed over the batches of a randomized setting; a pose-free
+    posterior passed in as ``fixed`` is timed where it was fused, not again."""
+    from itertools import count
+    from types import SimpleNamespace
+
+    from pipeline.method.names import WU_DROPOUT_ONLY, WU_POSES_ONLY
+
+    m = ring_models()
+    tr = make_track(m)
+    ticks = count()
+    monkeypatch.setattr(E, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))   # a call: 1 s
+    one = E.biased(m, tr, (0.1, 0.0), 0.2, 4, np.random.default_rng(3), var_floor=1e-6, attribution=True)
+    assert one.seconds == {E.WITH_UNCERTAINTY: 1.0, E.MODEL_BASED: 1.0, WU_POSES_ONLY: 1.0, WU_DROPOUT_ONLY: 1.0}
+    many = E.randomized(m, tr, (0.1, 0.0), 0.2, 11, 4, np.random.default_rng(3), var_floor=1e-6, chunk=3, batch=5)
+    assert many.seconds == {E.MODEL_BASED: 2.0, E.WITH_UNCERTAINTY: 2.0}         # two engine calls: 6 + 5
+    assert set(many) >= set(many.seconds) and many[E.MODEL_BASED].shape[0] == 11
+
+    own = np.full((tr.k, tr.dropout.shape[1], len(m.classes)), 1.0 / len(m.classes))
+    with_own = E.TrackData(tr.images, tr.cam_xy, tr.obj_xy, tr.yaw, tr.dropout, own=own)
+    fixed, _ = E.pose_free(E.track_input(m, with_own, var_floor=1e-6))
+    assert fixed.seconds == {E.SIMPLE_BAYES: 1.0}
+    again = E.biased(m, with_own, (0.0, 0.0), 0.2, 4, np.random.default_rng(3), var_floor=1e-6, fixed=fixed)
+    assert E.SIMPLE_BAYES in again and E.SIMPLE_BAYES not in again.seconds
+    assert E.add_seconds(fixed.seconds, again.seconds, many.seconds) == {
+        E.SIMPLE_BAYES: 1.0, E.WITH_UNCERTAINTY: 3.0, E.MODEL_BASED: 3.0}

@@ -57,10 +57,9 @@ def test_the_planner_excludes_the_inconsistent_scan_and_names_it():
     u = CX - FX * np.tan(np.arctan2(second[1] - cam[:, 1], second[0] - cam[:, 0]) - det.loc[s2, "heading"].to_numpy())
     det.loc[s2, "box_x0"], det.loc[s2, "box_x1"] = u - 10.0, u + 10.0
     intr, steps = {"s1": (FX, CX), "s2": (FX, CX)}, {"s1": 0.3, "s2": 0.3}
-    refused = []
-    tracks = P.plan_tracks(det, "t", 4, 5, 0, intr, steps, max_residual_m=0.25, refused=refused)
+    tracks = P.plan_tracks(det, "t", 4, 5, 0, intr, steps, max_residual_m=0.25)
     assert {t.scan for t in tracks} == {"s1"}
-    (r,) = refused
+    (r,) = tracks.refused
     assert r["scan"] == "s2" and r["target"] == "t" and r["residual_m"] > 0.25 and "s2: the " in r["reason"]
     # without a limit the planner averages the two copies, as it used to
     assert {t.scan for t in P.plan_tracks(det, "t", 4, 5, 0, intr, steps)} == {"s1", "s2"}
