@@ -60,11 +60,16 @@ $(STAGES): $(VENV)/.installed
 study: $(VENV)/.installed
 	$(BIN)/viewfuse study --config $(CONFIG) $(ARGS)
 
+# one pytest worker per core (pytest-xdist); a test file stays on one worker, so a module's
+# expensive fixture (a finished chain) runs once. TEST_JOBS=0 runs everything in one process.
+TEST_JOBS ?= 2
+XDIST = $(if $(filter 0,$(TEST_JOBS)),,-n $(TEST_JOBS) --dist loadfile)
+
 test: $(VENV)/.installed
-	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 test-fast: $(VENV)/.installed
-	$(BIN)/python -m pytest -q -m 'not slow' $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q -m 'not slow' $(XDIST) $(PYTEST_ARGS)
 
 bench: $(VENV)/.installed
 	$(BIN)/python tests/bench/run_all.py $(BENCH_ARGS)

@@ -58,10 +58,21 @@ def power_sentence(power: dict) -> str:
             f"(half-width {fmt(worst['half_width'])} over {worst['n_units']} {worst['unit']}): {tail}{beyond}.")
 
 
+def priced(power: dict, seconds: float | None) -> dict:
+    """``power`` with each projection's cost: the measured seconds of the chain times its scale
+    (the block itself holds no measured time, so reruns write the same summary)."""
+    if seconds is None or power.get("seconds_measured") is not None:
+        return power
+    comps = [{**e, "cost_s": None if e.get("scale") is None else float(seconds) * e["scale"]}
+             for e in power.get("comparisons") or []]
+    return {**power, "seconds_measured": float(seconds), "comparisons": comps}
+
+
 def power_section(ctx: ReportContext) -> None:
     pop = ctx.population or {}
     power = pop.get("power")
     if power:
+        power = priced(power, ((ctx.ev.summary or {}).get("timings_s") or {}).get("chain_total"))
         ctx.section("Power", "power")
         ctx.page.paragraph(power_sentence(power), cls="context")
         ctx.page.table(["comparison", "metric", "CI half-width", "units now", f"units for ≤ {fmt(power.get('goal'))}",

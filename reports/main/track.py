@@ -144,7 +144,8 @@ def details_section(ctx: ReportContext) -> None:
     if seeds:
         page.table(["seed", "value"], [[k, str(v)] for k, v in seeds.items()], caption="Seeds.")
     t_rows = [[k, v] for k, v in ctx.timings.items()]
-    t_rows += [[f"evaluate: {k}", v] for k, v in ((ctx.ev.summary or {}).get("timings_s") or {}).items()]
+    t_rows += [["data … evaluate (whole chain)" if k == "chain_total" else f"evaluate: {k}", v]
+               for k, v in ((ctx.ev.summary or {}).get("timings_s") or {}).items()]
     if t_rows:
         page.table(["stage / part", "seconds"], t_rows, caption="Timings.")
     page.table(["package", "version"], [[k, v] for k, v in package_versions().items()], caption="Package versions.")

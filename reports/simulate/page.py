@@ -155,19 +155,31 @@ def fig_class_maps(models, true_xy: np.ndarray, est_xy: np.ndarray | None, class
         if est_xy is not None:
             ax.plot(est_xy[:, 0], est_xy[:, 1], ".--", color="#D55E00", ms=3, lw=0.8, label="biased estimates")
         ax.plot(0, 0, "k*", ms=9, label="object")
-        ax.set_title(f"GP model of {classes[c]}" + (" (truth)" if c == truth else ""))
+        # the panel is ~3.6 in wide: a long class name would squeeze the maps to nothing; the key
+        # below names every class in full
+        ax.set_title(f"GP model of {_short(classes[c], 26)}" + (" (truth)" if c == truth else ""))
         ax.set_aspect("equal")
         ax.set_xlabel("x (east)")
         ax.grid(False)
     axes[0, 0].set_ylabel("y (north)")
-    axes[0, 0].legend(loc="lower left", fontsize=6.5)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
     gs = axes[1, 0].get_gridspec()
     for ax in axes[1]:
         ax.remove()
     _class_map_key(fig.add_subplot(gs[1, :]), classes, colors)
+    # outside the panels: inside one it can cover the map or the ticks of a small panel
+    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=7)
     fig.suptitle("What each class looks like around the object (colour: highest expected score; "
                  "pale: ambiguous); dots: model points")
     return fig
+
+
+def _short(name: str, chars: int) -> str:
+    """``name`` cut in the middle to at most ``chars`` characters."""
+    if len(name) <= chars:
+        return name
+    head = (chars - 1) // 2
+    return name[:head] + "…" + name[len(name) - (chars - 1 - head):]
 
 
 def _class_map_key(ax, classes: list[str], colors: np.ndarray) -> None:

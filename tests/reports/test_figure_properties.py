@@ -408,6 +408,11 @@ class _Bank:
 @settings(SETTINGS, max_examples=N_EXAMPLES)
 @given(st.integers(2, 6), st.sampled_from((1e-300, 1.0, 1e300)), st.integers(0, 99), st.booleans(),
        st.lists(names, min_size=6, max_size=6))
+# found failing: long names in the panel titles squeezed the maps until the legend covered the ticks
+@example(6, 1e-300, 0, False, ['rdZ yaoejkpkgqtijfl gnxupt za', 'EQmzECz4yufEWk dmr qzakto tjuvpxxaayrljsj',
+                               'a1nZvIr9gTt5YzD3zUAkjty qia zw u', 'C gzcokq ulkjfmxgegzjco kwqytv',
+                               'U cdvde rrxdmrh u', 'E'])
+@example(6, 1.0, 0, True, ["A" * 70 + " abcdefghijklmno" * 3] * 6)
 def test_simulate_class_maps(C, scale, seed, biased, classes):
     from reports.simulate.page import fig_class_maps
     true_xy = np.c_[np.linspace(-1.5, 1.5, 5), np.ones(5)]

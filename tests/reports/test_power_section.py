@@ -3,7 +3,7 @@ population's ``power`` block and ``by_setting`` entries (nothing recomputed)."""
 from types import SimpleNamespace
 
 from pipeline.evaluation.statistics.power import power_block
-from reports.main.power import paper_setting, power_section, power_sentence
+from reports.main.power import paper_setting, power_section, power_sentence, priced
 
 
 class Page:
@@ -17,10 +17,12 @@ class Page:
         self.items.append(("table", header, rows, caption))
 
 
-def _ctx(pop):
+def _ctx(pop, chain_s: float | None = None):
     page = Page()
     sections = []
-    return SimpleNamespace(page=page, population=pop, section=lambda title, anchor: sections.append(title)), sections
+    ev = SimpleNamespace(summary={"timings_s": {} if chain_s is None else {"chain_total": chain_s}})
+    return SimpleNamespace(page=page, population=pop, ev=ev,
+                           section=lambda title, anchor: sections.append(title)), sections
 
 
 def _records():
@@ -33,8 +35,8 @@ def _records():
 
 
 def test_the_power_section_states_the_widest_half_width_and_the_population_it_needs():
-    power = power_block(_records(), seconds=3600.0, available={"scans": 15})
-    ctx, sections = _ctx({"power": power})
+    power = power_block(_records(), available={"scans": 15})       # as evaluate writes it: no time
+    ctx, sections = _ctx({"power": power}, chain_s=3600.0)
     power_section(ctx)
     assert sections == ["Power"]
     text = ctx.page.items[0][1]
@@ -79,3 +81,11 @@ def test_targets_as_the_unit_are_named_once():
     recs = [dict(r, over=["targets", "tracks"], n={"targets": 12, "tracks": 35}) for r in _records()]
     text = power_sentence(power_block(recs, seconds=600.0))
     assert "about 24 targets (20 min" in text and "24 targets, " not in text   # 12 x (0.07 / 0.05)^2 = 23.5
+
+
+def test_the_summary_block_holds_no_measured_time_and_the_report_prices_it():
+    recs = [dict(r, over=["targets", "tracks"], n={"targets": 12, "tracks": 35}) for r in _records()]
+    block = power_block(recs)
+    assert block["seconds_measured"] is None and all(e["cost_s"] is None for e in block["comparisons"])
+    assert priced(block, 600.0) == power_block(recs, seconds=600.0)
+    assert priced(block, None) is block
