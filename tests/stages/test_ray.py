@@ -2,8 +2,9 @@
 retries, failures that name the task, and the features stage giving the same Parquet files through
 Ray as in this process. Skipped when Ray is not installed, unless VIEWFUSE_REQUIRE_RAY=1 (CI).
 
-Bounded in time: if the Ray part hangs, faulthandler dumps every thread's stack and ends the run
-after ``LIMIT_S`` instead of letting CI sit until its own limit.
+Bounded in time: if a test hangs, faulthandler dumps every thread's stack and ends the run after
+``LIMIT_S`` (per test, generous: a loaded 2-core machine runs a chain test here in 2-5 min) instead
+of letting CI sit until its own limit.
 """
 import faulthandler
 import importlib.util
@@ -21,7 +22,7 @@ from tests.support.tiny_world import TINY as TINY_WORLD
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
 
-LIMIT_S = 600
+LIMIT_S = 1200
 HAVE_RAY = importlib.util.find_spec("ray") is not None
 if not HAVE_RAY and os.environ.get("VIEWFUSE_REQUIRE_RAY") == "1":
     raise RuntimeError("VIEWFUSE_REQUIRE_RAY=1 but Ray is not installed (pip install -e '.[ray]')")
@@ -77,13 +78,18 @@ def _bad(shared, item):
 def ray_ex():
     if not HAVE_RAY:
         pytest.skip("Ray not installed")
-    faulthandler.dump_traceback_later(LIMIT_S, exit=True)
     ex = make_executor("ray", workers=2)
     try:
         yield ex
     finally:
         ex.close()
-        faulthandler.cancel_dump_traceback_later()
+
+
+@pytest.fixture(autouse=True)
+def _watchdog():
+    faulthandler.dump_traceback_later(LIMIT_S, exit=True)
+    yield
+    faulthandler.cancel_dump_traceback_later()
 
 
 @needs_ray

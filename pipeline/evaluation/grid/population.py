@@ -35,6 +35,9 @@ class Setting:
     n_x: int
 
 
+PAPER_PREFIX = "paper §5.5: "   # the biased_randomized setting's label starts with it
+
+
 def setting_label(sigma: float, bias) -> str:
     # ``g`` keeps every digit a user typed: sigmas 0.001 and 0.004 stay two settings.
     return f"sigma={sigma:g} m, bias=({bias[0]:+g}, {bias[1]:+g}) m"
@@ -57,11 +60,15 @@ def population_settings(ev) -> list[Setting]:
         # The paper's §5.5 setting: a bias on every pose, then noise around the biased estimate
         # (``experiments.randomized`` draws truth + bias + N(0, sigma^2 I) per axis).
         p = ev.biased_randomized
-        out.append(Setting("biased_randomized", setting_label(p.sigma_m, p.bias_m), p.sigma_m, tuple(p.bias_m),
-                           p.realizations, p.n_loc_samples))
-    labels = [(s.experiment, s.label) for s in out]
+        # its own label: the biased experiment with the same sigma and bias draws no noise, and
+        # results are keyed by label
+        out.append(Setting("biased_randomized", PAPER_PREFIX + setting_label(p.sigma_m, p.bias_m), p.sigma_m,
+                           tuple(p.bias_m), p.realizations, p.n_loc_samples))
+    labels = [s.label for s in out]
     if len(set(labels)) != len(labels):
-        raise ValueError("evaluate.randomized.sigmas_m lists the same sigma twice")
+        twice = sorted({x for x in labels if labels.count(x) > 1})
+        raise ValueError(f"evaluate: two settings are the same ({', '.join(twice)}): "
+                         "evaluate.randomized.sigmas_m lists the same sigma twice")
     return out
 
 

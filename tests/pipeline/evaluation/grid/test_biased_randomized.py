@@ -26,6 +26,11 @@ def test_the_setting_carries_the_configured_bias_sigma_and_sizes():
     both = dataclasses.replace(EvaluateConfig(), experiments=("biased", "randomized", "biased_randomized"))
     kinds = [x.experiment for x in P.population_settings(both)]
     assert kinds.count("biased_randomized") == 1 and "biased" in kinds and "randomized" in kinds
+    # the same sigma and bias as the biased experiment: still two settings (results are keyed by label)
+    same = dataclasses.replace(both, biased_randomized=BiasedRandomizedConfig(
+        bias_m=tuple(both.biased.bias_m), sigma_m=both.biased.sigma_m))
+    labels = [x.label for x in P.population_settings(same)]
+    assert len(set(labels)) == len(labels)
 
 
 def test_the_estimates_have_the_stated_bias_and_spread_and_the_method_is_told_sigma(monkeypatch):
