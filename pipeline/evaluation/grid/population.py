@@ -65,10 +65,14 @@ def population_settings(ev) -> list[Setting]:
         out.append(Setting("biased_randomized", PAPER_PREFIX + setting_label(p.sigma_m, p.bias_m), p.sigma_m,
                            tuple(p.bias_m), p.realizations, p.n_loc_samples))
     labels = [s.label for s in out]
-    if len(set(labels)) != len(labels):
-        twice = sorted({x for x in labels if labels.count(x) > 1})
-        raise ValueError(f"evaluate: two settings are the same ({', '.join(twice)}): "
-                         "evaluate.randomized.sigmas_m lists the same sigma twice")
+    for label in sorted({x for x in labels if labels.count(x) > 1}):
+        kinds = [s.experiment for s in out if s.label == label]
+        if set(kinds) == {"randomized"}:
+            raise ValueError(f"evaluate.randomized.sigmas_m lists the same sigma twice ({label})")
+        # results are keyed by label: a biased and a randomized setting with one sigma and bias
+        # would merge
+        raise ValueError(f"evaluate: the {' and '.join(kinds)} experiments both give the setting {label!r}; "
+                         "change evaluate.randomized.bias_m or evaluate.biased.sigma_m")
     return out
 
 

@@ -31,6 +31,11 @@ def test_the_setting_carries_the_configured_bias_sigma_and_sizes():
         bias_m=tuple(both.biased.bias_m), sigma_m=both.biased.sigma_m))
     labels = [x.label for x in P.population_settings(same)]
     assert len(set(labels)) == len(labels)
+    # a randomized setting with the biased experiment's sigma and bias would merge with it: refused
+    clash = dataclasses.replace(both, randomized=dataclasses.replace(
+        both.randomized, bias_m=tuple(both.biased.bias_m), sigmas_m=(both.biased.sigma_m,)))
+    with pytest.raises(ValueError, match="biased and randomized experiments both give the setting"):
+        P.population_settings(clash)
 
 
 def test_the_estimates_have_the_stated_bias_and_spread_and_the_method_is_told_sigma(monkeypatch):
