@@ -27,7 +27,7 @@ from reports.main.showcase import showcase_section
 from reports.main.reviewer import limitations_section, methods_section, reproduce_section, seeds_section
 from reports.shared.artifacts import load_run
 from reports.main.context import ReportContext
-from reports.shared.checks import ReportCheckError, figure_text_problems
+from reports.shared.checks import ReportCheckError
 from reports.shared.figures import save
 from reports.main.figures_calibration import calibration_plan
 from reports.main.figures_models import fig_bias_maps, fig_gp_rasters, fig_gp_ring
@@ -201,7 +201,7 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
         fig = build()
         ctx.checks[name] = chk = save(fig, out / name, dpi)
-        slips = figure_text_problems(fig, name)
+        slips = list(chk.text_problems)   # the self-check's figure_text_problems, from save's one placement
         if slips:
             ctx.layout_problems[name] = slips
         written.append(name)

@@ -103,9 +103,10 @@ def text_artists(fig) -> list[tuple[str, Any, Any]]:
     return out
 
 
-def _text_boxes(fig) -> list[tuple[str, str, Any]]:
-    """(group, text, window box) of every text ``text_artists`` lists."""
-    arts = text_artists(fig)
+def _text_boxes(fig, arts=None) -> list[tuple[str, str, Any]]:
+    """(group, text, window box) of every text ``text_artists`` lists (``arts``: its list, if the
+    caller has just made it)."""
+    arts = text_artists(fig) if arts is None else arts
     r = fig.canvas.get_renderer()
     return [(g, t.get_text(), t.get_window_extent(r)) for g, t, _ in arts]
 
@@ -123,9 +124,10 @@ def _short(s: str) -> str:
     return repr(s if len(s) <= 40 else s[:37] + "...")
 
 
-def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0) -> list[str]:
-    """Text of ``fig`` that overlaps other text or leaves the canvas (after layout)."""
-    boxes = _text_boxes(fig)
+def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0, arts=None) -> list[str]:
+    """Text of ``fig`` that overlaps other text or leaves the canvas (after layout). ``arts``:
+    ``text_artists(fig)`` made since the figure's last change, to spare a second layout."""
+    boxes = _text_boxes(fig, arts)
     W, H = fig.bbox.width, fig.bbox.height
     out = []
     for _, s, b in boxes:

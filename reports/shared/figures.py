@@ -100,6 +100,7 @@ class FigureCheck:
     min_font_px: float            # smallest text at 100 % zoom
     overlaps: tuple[str, ...]     # tick labels that overlap a neighbour ('axes title: a / b')
     width_px: int
+    text_problems: tuple[str, ...] = ()   # the self-check's: text that overlaps or leaves the canvas
 
 
 def text_sizes_px(fig: Figure, dpi: float) -> list[float]:
@@ -109,30 +110,45 @@ def text_sizes_px(fig: Figure, dpi: float) -> list[float]:
             if t.get_visible() and t.get_text().strip() and t.get_figure() is not None]
 
 
-def tick_overlaps(fig: Figure) -> list[str]:
-    """Pairs of tick labels on one axis whose drawn boxes overlap (after layout)."""
-    fig.canvas.draw()
+def freeze_layout(fig: Figure) -> None:
+    """Keep the layout the text was checked in: every later draw (the PNG, the checks) places the
+    axes where the last layout put them instead of solving the layout again. The layout is
+    relative to the canvas, so the PNG's other dpi gives the same places; and the layout solve is
+    most of a draw's cost, paid once instead of four times per figure."""
+    if fig.get_layout_engine() is None:
+        return
+    if fig.stale:
+        fig.draw_without_rendering()
+    fig.set_layout_engine("none")
+
+
+def tick_overlaps(fig: Figure, arts=None) -> list[str]:
+    """Pairs of tick labels on one axis whose drawn boxes overlap (after layout). ``arts``: the
+    checker's ``text_artists(fig)`` if just made (its tick groups are the labels matplotlib draws)."""
+    from reports.shared.checks import text_artists
+    arts = text_artists(fig) if arts is None else arts
     renderer = fig.canvas.get_renderer()
+    groups: dict[str, tuple] = {}
+    for g, t, ax in arts:
+        if g:
+            groups.setdefault(g, (ax, []))[1].append((t.get_text(), t.get_window_extent(renderer)))
     out = []
-    for ax in fig.axes:
-        if not ax.get_visible():
-            continue
-        for name, labels in (("x", ax.get_xticklabels()), ("y", ax.get_yticklabels())):
-            boxes = [(t.get_text(), t.get_window_extent(renderer)) for t in labels
-                     if t.get_visible() and t.get_text().strip()]
-            # only labels inside the axes' span are drawn
-            lo, hi = (ax.bbox.x0, ax.bbox.x1) if name == "x" else (ax.bbox.y0, ax.bbox.y1)
-            boxes = [(s, b) for s, b in boxes if lo - 2 <= ((b.x0 + b.x1) / 2 if name == "x" else (b.y0 + b.y1) / 2) <= hi + 2]
-            boxes.sort(key=lambda sb: sb[1].x0 if name == "x" else sb[1].y0)
-            for (s1, b1), (s2, b2) in zip(boxes, boxes[1:]):
-                if b1.overlaps(b2) and b1.width > 0 and b2.width > 0:
-                    out.append(f"{ax.get_title() or 'axes'} {name}: {s1!r} / {s2!r}")
+    for g, (ax, boxes) in groups.items():
+        name = g[-1]
+        boxes.sort(key=lambda sb: sb[1].x0 if name == "x" else sb[1].y0)
+        for (s1, b1), (s2, b2) in zip(boxes, boxes[1:]):
+            if b1.overlaps(b2) and b1.width > 0 and b2.width > 0:
+                out.append(f"{ax.get_title() or 'axes'} {name}: {s1!r} / {s2!r}")
     return out
 
 
-def check(fig: Figure, dpi: int = 110) -> FigureCheck:
+def check(fig: Figure, dpi: int = 110, name: str = "figure") -> FigureCheck:
+    """The legibility check and the self-check's text problems, from one placement of the text."""
+    from reports.shared.checks import figure_text_problems, text_artists
     sizes = text_sizes_px(fig, dpi)
-    return FigureCheck(min(sizes) if sizes else 0.0, tuple(tick_overlaps(fig)), int(fig.get_figwidth() * dpi))
+    arts = text_artists(fig)
+    return FigureCheck(min(sizes) if sizes else 0.0, tuple(tick_overlaps(fig, arts)), int(fig.get_figwidth() * dpi),
+                       tuple(figure_text_problems(fig, name, arts=arts)))
 
 
 def save(fig: Figure, path, dpi: int = 110) -> FigureCheck:
@@ -142,12 +158,13 @@ def save(fig: Figure, path, dpi: int = 110) -> FigureCheck:
         raise ValueError(f"{path}: figures are written as .png")
     from reports.shared.layout import finish_figure
     finish_figure(fig)   # no text overlaps or leaves the canvas, whatever the data (see layout.py)
+    freeze_layout(fig)
     with atomic_path(path) as tmp:
         # No creation timestamp in the metadata: the same results give the same bytes.
         # bbox "tight" keeps outside legends and edge labels from being clipped.
         fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None}, bbox_inches="tight",
                     pad_inches=0.06)
-    return check(fig, dpi)
+    return check(fig, dpi, path.name)
 
 
 def mgr_axis(ax, values, axis: str = "y") -> None:

@@ -8,6 +8,7 @@ import json
 import pyarrow.parquet as pq
 import pytest
 
+from tests.support.shared_upstream import copy_upstream, tiny_upstream
 from tests.support.tiny_world import TINY
 from tests.support.toy_method import KEY, ToyTempered
 
@@ -26,8 +27,8 @@ def toy_run(tmp_path_factory):
     from stages.framework.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
-    tmp = tmp_path_factory.mktemp("toy")
-    cfg = load_config(DEFAULT_CONFIG, merge(merge({"run": {"artifacts": str(tmp / "artifacts"), "device": "cpu"}}, TINY),
+    art = copy_upstream(tiny_upstream(tmp_path_factory), tmp_path_factory.mktemp("toy") / "artifacts")
+    cfg = load_config(DEFAULT_CONFIG, merge(merge({"run": {"artifacts": str(art), "device": "cpu"}}, TINY),
                                             SMALL))
     registry.register(ToyTempered)
     try:

@@ -1,11 +1,13 @@
 """The whole chain on a tiny configuration: data -> classifier -> features -> models -> evaluate ->
-report, through the same runner the CLI uses. Small sizes keep it to about a minute."""
+report, through the same runner the CLI uses. Small sizes keep it to about a minute; the upstream
+stages are the session's shared tiny run (tests/support/shared_upstream.py), copied."""
 import json
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from tests.support.shared_upstream import copy_upstream, tiny_upstream
 from tests.support.tiny_world import TINY
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
@@ -17,8 +19,8 @@ def run_all(tmp_path_factory):
     from stages.framework.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
-    tmp = tmp_path_factory.mktemp("e2e")
-    cfg = load_config(DEFAULT_CONFIG, merge({"run": {"artifacts": str(tmp / "artifacts"), "device": "cpu"}}, TINY))
+    art = copy_upstream(tiny_upstream(tmp_path_factory), tmp_path_factory.mktemp("e2e") / "artifacts")
+    cfg = load_config(DEFAULT_CONFIG, merge({"run": {"artifacts": str(art), "device": "cpu"}}, TINY))
     keys: dict = {}
     ensure(cfg, "evaluate", device="cpu", _keys=keys)
     ensure(cfg, "report", device="cpu", _keys=keys)
