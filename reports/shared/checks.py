@@ -58,12 +58,14 @@ class ReportCheckError(RuntimeError):
 
 # ---------------------------------------------------------------- figure text
 
-def text_artists(fig) -> list[tuple[str, Any, Any]]:
+def text_artists(fig, draw: bool = True) -> list[tuple[str, Any, Any]]:
     """(group, text artist, its axes or None) of every visible, non-empty text after layout, in the
     checker's order. ``group`` names the axis a tick label belongs to ('' for every other text);
-    only tick labels matplotlib draws (inside the axes' span) are listed."""
+    only tick labels matplotlib draws (inside the axes' span) are listed. ``draw=False``: the
+    caller has just drawn the figure and changed nothing since."""
     # layout and text placement without rasterizing (the boxes are the same; it is several times faster)
-    fig.draw_without_rendering()
+    if draw:
+        fig.draw_without_rendering()
     r = fig.canvas.get_renderer()
     out: list[tuple[str, Any, Any]] = []
     seen: set[int] = set()

@@ -110,16 +110,19 @@ def text_sizes_px(fig: Figure, dpi: float) -> list[float]:
             if t.get_visible() and t.get_text().strip() and t.get_figure() is not None]
 
 
-def freeze_layout(fig: Figure) -> None:
+def freeze_layout(fig: Figure, relayout: bool = False) -> None:
     """Keep the layout the text was checked in: every later draw (the PNG, the checks) places the
     axes where the last layout put them instead of solving the layout again. The layout is
     relative to the canvas, so the PNG's other dpi gives the same places; and the layout solve is
-    most of a draw's cost, paid once instead of four times per figure."""
-    if fig.get_layout_engine() is None:
-        return
-    if fig.stale:
+    most of a draw's cost, paid once instead of four times per figure. ``relayout``: the figure
+    may have changed since its last draw (``finish_figure`` ran out of rounds, or did not run), so
+    lay it out once more first."""
+    if relayout:
         fig.draw_without_rendering()
-    fig.set_layout_engine("none")
+    # None, not "none": savefig lays a figure out once more under any engine, a placeholder too
+    fig.set_layout_engine(None)
+    if fig.get_layout_engine() is not None:      # rcParams ask for a layout by default
+        fig.set_layout_engine("none")
 
 
 def tick_overlaps(fig: Figure, arts=None) -> list[str]:
@@ -142,11 +145,12 @@ def tick_overlaps(fig: Figure, arts=None) -> list[str]:
     return out
 
 
-def check(fig: Figure, dpi: int = 110, name: str = "figure") -> FigureCheck:
-    """The legibility check and the self-check's text problems, from one placement of the text."""
+def check(fig: Figure, dpi: int = 110, name: str = "figure", drawn: bool = False) -> FigureCheck:
+    """The legibility check and the self-check's text problems, from one placement of the text
+    (``drawn``: the figure's last draw placed it and nothing changed since)."""
     from reports.shared.checks import figure_text_problems, text_artists
     sizes = text_sizes_px(fig, dpi)
-    arts = text_artists(fig)
+    arts = text_artists(fig, draw=not drawn)
     return FigureCheck(min(sizes) if sizes else 0.0, tuple(tick_overlaps(fig, arts)), int(fig.get_figwidth() * dpi),
                        tuple(figure_text_problems(fig, name, arts=arts)))
 
@@ -156,15 +160,18 @@ def save(fig: Figure, path, dpi: int = 110) -> FigureCheck:
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"{path}: figures are written as .png")
-    from reports.shared.layout import finish_figure
-    finish_figure(fig)   # no text overlaps or leaves the canvas, whatever the data (see layout.py)
-    freeze_layout(fig)
+    from reports.shared import layout
+    layout.finish_figure(fig)   # no text overlaps or leaves the canvas, whatever the data (see layout.py)
+    freeze_layout(fig, relayout=not layout.ended_on_draw(fig))
+    # checked as placed by that last draw: the PNG below draws the same frozen layout
+    chk = check(fig, dpi, path.name, drawn=True)
+    # The tight box (it keeps outside legends and edge labels from being clipped), measured in
+    # inches from that placement too: "tight" would lay the figure out once more to measure it.
+    tight = fig.get_tightbbox(fig.canvas.get_renderer()).padded(0.06)
     with atomic_path(path) as tmp:
         # No creation timestamp in the metadata: the same results give the same bytes.
-        # bbox "tight" keeps outside legends and edge labels from being clipped.
-        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None}, bbox_inches="tight",
-                    pad_inches=0.06)
-    return check(fig, dpi, path.name)
+        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None}, bbox_inches=tight)
+    return chk
 
 
 def mgr_axis(ax, values, axis: str = "y") -> None:

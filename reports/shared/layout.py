@@ -22,12 +22,16 @@ from __future__ import annotations
 
 import functools
 import textwrap
+import weakref
 from matplotlib.text import Annotation
 from matplotlib.ticker import FixedFormatter, Formatter
 
 from reports.shared.checks import text_artists
 
 MAX_ROUNDS = 12
+# figures whose last finish_figure ended on a measuring draw, nothing changed since (save reads
+# their text where that draw placed it instead of laying them out again)
+_ENDED_ON_DRAW: weakref.WeakSet = weakref.WeakSet()
 MAX_HEIGHT_IN = 80.0
 MIN_FONT_PT = 8.0
 MAX_WIDTH_IN = 10.8          # as reports.shared.figures (the page's width at 100 %)
@@ -308,9 +312,11 @@ def finish_figure(fig) -> list[str]:
     """Change ``fig`` until no text overlaps another or leaves the canvas (at most ``MAX_ROUNDS``
     draws); returns what it changed, one line per round (empty when the figure was clean)."""
     log: list[str] = []
+    _ENDED_ON_DRAW.discard(fig)
     for rnd in range(MAX_ROUNDS):
         ticks, clipped, pairs, r = _problems(fig)
         if not ticks and not clipped and not pairs:
+            _ENDED_ON_DRAW.add(fig)
             return log
         last = rnd >= MAX_ROUNDS // 2
         changed = []
@@ -329,6 +335,12 @@ def finish_figure(fig) -> list[str]:
             if _fix_pair(fig, p1, p2, r, done, legends):
                 changed.append(f"overlap {p1[1].get_text()[:20]!r} / {p2[1].get_text()[:20]!r}")
         if not changed:
+            _ENDED_ON_DRAW.add(fig)
             break
         log.append("; ".join(changed))
     return log
+
+
+def ended_on_draw(fig) -> bool:
+    """Whether ``finish_figure``'s last act on ``fig`` was a draw, with nothing changed since."""
+    return fig in _ENDED_ON_DRAW
