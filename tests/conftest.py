@@ -25,3 +25,28 @@ def tmp_config(tmp_path):
         return load_config(DEFAULT_CONFIG, over)
 
     return make
+
+
+# The longest modules (whole chains) run first. Under pytest-xdist (`make test`, --dist loadfile) a
+# module runs whole on one worker, and workers take modules in collection order: a chain collected
+# last ran alone at the end while the other worker sat idle. Moving whole modules keeps each
+# module's tests together (its module-scoped fixture still runs once).
+LONGEST_FIRST = (
+    "tests/stages/test_smoke_run.py", "tests/stages/test_end_to_end.py", "tests/stages/test_ray.py",
+    "tests/stages/test_real_category_chain.py", "tests/stages/test_real_imagery_chain.py",
+    "tests/pipeline/planning/test_population.py", "tests/stages/test_custom_method.py",
+    "tests/stages/test_signals.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+
+    def key(item):
+        try:
+            rel = Path(str(item.fspath)).resolve().relative_to(ROOT).as_posix()
+        except ValueError:
+            return len(rank)
+        return rank.get(rel, len(rank))
+
+    items.sort(key=key)   # stable: every other module keeps its place and its order
