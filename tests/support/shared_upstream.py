@@ -1,8 +1,9 @@
 """The tiny world's upstream stages (data → classifier → features → models), built once per test
 session and copied into each chain test's own artifacts folder.
 
-Four chain tests (end to end, Ray, a custom method, reruns) need the same finished upstream; each
-built it anew, a few minutes apiece. Under pytest-xdist the workers share one build folder beside
+The end-to-end and custom-method chain tests need the same finished upstream; each built it anew,
+a few minutes apiece (the custom-method test's config differs in evaluate.ablations, so its copy
+refits the models stage and reuses the rest). Under pytest-xdist the workers share one build folder beside
 their own temporary roots: the framework's stage locks let the first worker build a stage while
 the others wait and then find it up to date, which is the behaviour a user running two commands on
 one run folder gets. Each test then works on a copy, so no test sees another's downstream output."""
@@ -14,7 +15,7 @@ from pathlib import Path
 
 from tests.support.tiny_world import TINY
 
-UPSTREAM = "models"   # the last stage every chain test shares
+UPSTREAM = "models"   # the last stage built in the shared folder
 
 
 def _shared_root(tmp_path_factory) -> Path:
@@ -23,15 +24,15 @@ def _shared_root(tmp_path_factory) -> Path:
     return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
-def tiny_upstream(tmp_path_factory, through: str = UPSTREAM) -> Path:
-    """The artifacts folder holding the tiny run with every stage up to ``through`` done."""
+def tiny_upstream(tmp_path_factory) -> Path:
+    """The artifacts folder holding the tiny run with every stage up to ``UPSTREAM`` done."""
     from pipeline.infra.config import load_config, merge
     from stages.framework.runner import ensure
     from tests.conftest import DEFAULT_CONFIG
 
     art = _shared_root(tmp_path_factory) / "tiny-upstream" / "artifacts"
     cfg = load_config(DEFAULT_CONFIG, merge({"run": {"artifacts": str(art), "device": "cpu"}}, TINY))
-    ensure(cfg, through, device="cpu")
+    ensure(cfg, UPSTREAM, device="cpu")
     return art
 
 
