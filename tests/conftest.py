@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -11,6 +13,26 @@ DEFAULT_CONFIG = ROOT / "configs" / "synthetic.toml"
 
 # Two cores here: keep BLAS/torch from oversubscribing when tests run.
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+_NUMBA_CACHE: list[str] = []
+
+
+def pytest_configure(config):
+    """The fusion kernels compile once for the session, not once per process: the suite starts
+    dozens (xdist workers, CLI runs, Ray workers, examples), each 10-30 s of numba compiling.
+    NUMBA_CACHE_DIR (pipeline/method/kernels.py) points numba at a folder of the session's own,
+    set here in the controlling process before any worker starts (they inherit it) and removed at
+    the end. A user's own NUMBA_CACHE_DIR is left as it is."""
+    if hasattr(config, "workerinput") or os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    _NUMBA_CACHE.append(tempfile.mkdtemp(prefix="viewfuse-tests-numba-"))
+    os.environ["NUMBA_CACHE_DIR"] = _NUMBA_CACHE[0]
+
+
+def pytest_unconfigure(config):
+    if _NUMBA_CACHE:
+        os.environ.pop("NUMBA_CACHE_DIR", None)
+        shutil.rmtree(_NUMBA_CACHE.pop(), ignore_errors=True)
 
 
 @pytest.fixture

@@ -80,7 +80,7 @@ def _start(parent: int, pids: str, root: str | None, initializer: Callable | Non
         with contextlib.suppress(OSError):
             fd = os.open(pids, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
             try:
-                os.write(fd, f"{os.getpid()}\n".encode())
+                os.write(fd, record_line(os.getpid()).encode())
             finally:
                 os.close(fd)
     if initializer is not None:
@@ -109,20 +109,42 @@ def worker_pool(workers: int, initializer: Callable | None = None, initargs: tup
     pool.shutdown(wait=True)
 
 
+def _start_mark(pid: int) -> str:
+    """When ``pid`` started, in a form that another process reads the same: on Linux the kernel's
+    start tick (``/proc/<pid>/stat``, counted from boot, so no wall-clock step or boot-time rounding
+    moves it); elsewhere psutil's start time."""
+    with contextlib.suppress(OSError, IndexError):
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return "t" + stat[stat.rindex(")") + 2:].split()[19]   # field 22: starttime
+    return f"c{psutil.Process(pid).create_time():.2f}"
+
+
+def record_line(pid: int) -> str:
+    """A pid file's line for ``pid``: the pid and its start, so a later run knows the process again
+    (a pid the kernel has handed to another program since has another start)."""
+    return f"{pid} {_start_mark(pid)}\n"
+
+
+def _ours(p: psutil.Process, started: str) -> bool:
+    return p.pid != os.getpid() and _start_mark(p.pid) == started and \
+        any("multiprocessing" in a for a in p.cmdline())
+
+
 def stop_leftovers(path: Path, timeout: float = 10.0) -> list[int]:
     """Kill the workers a dead run recorded in ``path`` that still live (a pid reused since by
-    another program is left alone: only processes started before the file's last write and running
-    Python's multiprocessing are ours); wait for them to end; remove the file. Returns their pids."""
+    another program is left alone: only a process with the recorded start time that runs Python's
+    multiprocessing is ours); wait for them to end; remove the file. Returns their pids."""
     try:
-        text, written = path.read_text(), path.stat().st_mtime
+        text = path.read_text()
     except OSError:
         return []
     procs = []
-    for line in text.split():
+    for line in text.splitlines():
+        # "<pid> <start>"; a line without a start (an older file) cannot be told from a reused pid
         with contextlib.suppress(ValueError, psutil.Error):
-            p = psutil.Process(int(line))
-            if p.pid != os.getpid() and p.create_time() <= written + 1 and \
-                    any("multiprocessing" in a for a in p.cmdline()):
+            pid, started = line.split()
+            p = psutil.Process(int(pid))
+            if _ours(p, started):
                 procs.append(p)
     for p in procs:
         with contextlib.suppress(psutil.Error):

@@ -17,14 +17,19 @@ reference engine to rounding (tests/test_engine.py).
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 from numba import njit
 
-_NJIT = dict(nogil=True, cache=False, fastmath=False, error_model="numpy", boundscheck=False)
+# Compiling these takes each new process 10-30 s. numba keeps the machine code between processes
+# only where NUMBA_CACHE_DIR names a folder: by default nothing is written outside the run
+# folder, and a user (or the test suite, which starts dozens of processes) opts in by setting it.
+_CACHE = bool(os.environ.get("NUMBA_CACHE_DIR"))
+_NJIT = dict(nogil=True, cache=_CACHE, fastmath=False, error_model="numpy", boundscheck=False)
 
 
-@njit(nogil=True, cache=False, error_model="numpy", boundscheck=False, fastmath={"reassoc", "contract"})
+@njit(nogil=True, cache=_CACHE, error_model="numpy", boundscheck=False, fastmath={"reassoc", "contract"})
 def _gram(Z, w, A):
     """A[i, j] = Σ_{p < P} w_p Z[i, p] Z[j, p] for j <= i (the lower triangle of Z diag(w) Zᵀ),
     Z (K, ≥ P), P = len(w)."""
@@ -38,7 +43,7 @@ def _gram(Z, w, A):
             A[i, j] = t
 
 
-@njit(nogil=True, cache=False, error_model="numpy", boundscheck=False, fastmath={"reassoc", "contract"})
+@njit(nogil=True, cache=_CACHE, error_model="numpy", boundscheck=False, fastmath={"reassoc", "contract"})
 def _sparse_z(F, idx, val, z):
     """z[i, p] = Σ_t val[p, t] F[i, idx[p, t]]: z = Q φ for Q's sparse form, F (K, ≥ P) features."""
     K = F.shape[0]

@@ -8,8 +8,7 @@ import json
 import pyarrow.parquet as pq
 import pytest
 
-from tests.support.shared_upstream import copy_upstream, tiny_upstream
-from tests.support.tiny_world import TINY
+from tests.support.shared_upstream import copy_upstream, smoke_config, smoke_upstream
 from tests.support.toy_method import KEY, ToyTempered
 
 pytestmark = pytest.mark.slow  # runs real stages
@@ -22,14 +21,11 @@ SMALL = {"evaluate": {"ablations": [], "attribution": False, "tracks_per_target"
 
 @pytest.fixture(scope="module")
 def toy_run(tmp_path_factory):
-    from pipeline.infra.config import load_config, merge
     from pipeline.method import registry
     from stages.framework.runner import ensure
-    from tests.conftest import DEFAULT_CONFIG
 
-    art = copy_upstream(tiny_upstream(tmp_path_factory), tmp_path_factory.mktemp("toy") / "artifacts")
-    cfg = load_config(DEFAULT_CONFIG, merge(merge({"run": {"artifacts": str(art), "device": "cpu"}}, TINY),
-                                            SMALL))
+    art = copy_upstream(smoke_upstream(tmp_path_factory), tmp_path_factory.mktemp("toy") / "artifacts")
+    cfg = smoke_config(art, SMALL)
     registry.register(ToyTempered)
     try:
         keys: dict = {}

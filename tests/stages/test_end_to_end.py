@@ -1,13 +1,14 @@
 """The whole chain on a tiny configuration: data -> classifier -> features -> models -> evaluate ->
-report, through the same runner the CLI uses. Small sizes keep it to about a minute; the upstream
-stages are the session's shared tiny run (tests/support/shared_upstream.py), copied."""
+report, through the same runner the CLI uses. The upstream stages are the session's smoke run's
+(configs/smoke.toml, tests/support/shared_upstream.py), copied; evaluate runs here with the tiny
+world's population (two ablations, six realizations)."""
 import json
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from tests.support.shared_upstream import copy_upstream, tiny_upstream
+from tests.support.shared_upstream import copy_upstream, smoke_config, smoke_upstream
 from tests.support.tiny_world import TINY
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
@@ -15,12 +16,10 @@ pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
 
 @pytest.fixture(scope="module")
 def run_all(tmp_path_factory):
-    from pipeline.infra.config import load_config, merge
     from stages.framework.runner import ensure
-    from tests.conftest import DEFAULT_CONFIG
 
-    art = copy_upstream(tiny_upstream(tmp_path_factory), tmp_path_factory.mktemp("e2e") / "artifacts")
-    cfg = load_config(DEFAULT_CONFIG, merge({"run": {"artifacts": str(art), "device": "cpu"}}, TINY))
+    art = copy_upstream(smoke_upstream(tmp_path_factory), tmp_path_factory.mktemp("e2e") / "artifacts")
+    cfg = smoke_config(art, {"evaluate": TINY["evaluate"], "report": TINY["report"]})
     keys: dict = {}
     ensure(cfg, "evaluate", device="cpu", _keys=keys)
     ensure(cfg, "report", device="cpu", _keys=keys)

@@ -80,14 +80,21 @@ def test_after_sigkill_no_worker_writes_and_a_rerun_succeeds(tmp_path):
 def test_a_rerun_stops_leftover_workers_it_finds_recorded(tmp_path):
     """Without the kernel's help (another OS, a worker started before its request took effect),
     the pid file lets the next run stop what the killed one left."""
-    from pipeline.infra.workers import stop_leftovers
+    from pipeline.infra.workers import record_line, stop_leftovers
     child = subprocess.Popen([sys.executable, "-c", "import multiprocessing, time; time.sleep(60)"])
+    other = subprocess.Popen([sys.executable, "-c", "import multiprocessing, time; time.sleep(60)"])
     try:
         pids = tmp_path / ".data.workers"
-        pids.write_text(f"{child.pid}\n{os.getpid()}\n999999999\n")
+        # the worker as a pool records it; this process; a pid that is gone; a live pid whose recorded
+        # start is not its own (the kernel reused it for another program), and one with no start:
+        # only the first is stopped
+        stale = f"{other.pid} t1\n{other.pid}\n"
+        pids.write_text(record_line(child.pid) + record_line(os.getpid()) + "999999999 t5\n" + stale)
         assert stop_leftovers(pids) == [child.pid]
+        assert other.poll() is None
         child.wait(timeout=10)  # it would sleep 60 s: ended here means it was stopped
         assert not pids.exists()
         assert psutil.pid_exists(os.getpid())
     finally:
         child.kill()
+        other.kill()

@@ -1,7 +1,9 @@
 """The main job end to end as a new user runs it: ``viewfuse evaluate`` and ``viewfuse simulate`` on
 configs/smoke.toml (the default config shrunk: every stage, every method, planning, the strict
-report) through the CLI into a temporary artifacts folder. The run must exit 0 and write the page
-whatever the one-epoch classifier's weights came out as on this machine."""
+report) through the CLI into the session's shared smoke folder (tests/support/shared_upstream.py:
+the chain tests reuse its upstream stages; whichever process comes first builds each stage). The
+run must exit 0 and write the page whatever the one-epoch classifier's weights came out as on this
+machine."""
 from __future__ import annotations
 
 import json
@@ -12,23 +14,23 @@ import sys
 import pytest
 
 from tests.conftest import ROOT
+from tests.support.shared_upstream import DEVICE, SMOKE, smoke_artifacts
 
 pytestmark = pytest.mark.slow  # the whole chain: make test runs it, make test-fast skips it
 
-SMOKE = ROOT / "configs" / "smoke.toml"
 METHODS = {"with_uncertainty", "model_based", "simple_bayes", "dirichlet"}
 
 
 def _viewfuse(*args: str, artifacts) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "stages.commands.cli", *args, "--config", str(SMOKE),
-           "--set", f"run.artifacts={artifacts}", "--progress", "off"]
+           "--set", f"run.artifacts={artifacts}", "--device", DEVICE, "--progress", "off"]
     env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
     return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
 
 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory):
-    art = tmp_path_factory.mktemp("smoke") / "artifacts"
+    art = smoke_artifacts(tmp_path_factory)
     runs = {stage: _viewfuse(stage, artifacts=art) for stage in ("evaluate", "simulate")}
     return art / "smoke", runs
 

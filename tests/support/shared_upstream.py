@@ -1,21 +1,27 @@
-"""The tiny world's upstream stages (data → classifier → features → models), built once per test
-session and copied into each chain test's own artifacts folder.
+"""The smoke run (configs/smoke.toml), built once per test session in a folder the test workers
+share, and its upstream stages (data → classifier → features → models) copied into the chain
+tests' own artifacts folders.
 
-The end-to-end and custom-method chain tests need the same finished upstream; each built it anew,
-a few minutes apiece (the custom-method test's config differs in evaluate.ablations, so its copy
-refits the models stage and reuses the rest). Under pytest-xdist the workers share one build folder beside
-their own temporary roots: the framework's stage locks let the first worker build a stage while
-the others wait and then find it up to date, which is the behaviour a user running two commands on
-one run folder gets. Each test then works on a copy, so no test sees another's downstream output."""
+The smoke test runs the main job through the CLI there; the end-to-end and custom-method chain
+tests need the same finished upstream (their configs differ downstream of it). Each built it anew,
+a few minutes apiece. Under pytest-xdist the workers share one folder beside their own temporary
+roots: the framework's stage locks let the first process build a stage while the others wait and
+then find it up to date, the behaviour a user running two commands on one run folder gets. Each
+chain test then works on a copy of the upstream stages only, so no test sees another's downstream
+output, and a copy taken while the smoke CLI still writes its evaluate stage takes none of it."""
 from __future__ import annotations
 
 import os
 import shutil
 from pathlib import Path
 
-from tests.support.tiny_world import TINY
+from tests.conftest import ROOT
 
-UPSTREAM = "models"   # the last stage built in the shared folder
+SMOKE = ROOT / "configs" / "smoke.toml"
+UPSTREAM = ("data", "classifier", "features", "models")   # built in the shared folder, copied
+# The smoke run's evaluate settings the chain tests keep (a tiny population, fast bootstrap); they
+# add their own on top. Upstream keys are the smoke run's, so the copied stages are up to date.
+DEVICE = "cpu"   # one device for the CLI and the in-process runs: stage keys name it
 
 
 def _shared_root(tmp_path_factory) -> Path:
@@ -24,19 +30,29 @@ def _shared_root(tmp_path_factory) -> Path:
     return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
-def tiny_upstream(tmp_path_factory) -> Path:
-    """The artifacts folder holding the tiny run with every stage up to ``UPSTREAM`` done."""
-    from pipeline.infra.config import load_config, merge
-    from stages.framework.runner import ensure
-    from tests.conftest import DEFAULT_CONFIG
+def smoke_artifacts(tmp_path_factory) -> Path:
+    """The session's shared artifacts folder of the smoke run (it may not be built yet)."""
+    return _shared_root(tmp_path_factory) / "smoke-shared" / "artifacts"
 
-    art = _shared_root(tmp_path_factory) / "tiny-upstream" / "artifacts"
-    cfg = load_config(DEFAULT_CONFIG, merge({"run": {"artifacts": str(art), "device": "cpu"}}, TINY))
-    ensure(cfg, UPSTREAM, device="cpu")
+
+def smoke_config(artifacts: Path, overrides: dict | None = None):
+    from pipeline.infra.config import load_config, merge
+    return load_config(SMOKE, merge({"run": {"artifacts": str(artifacts), "device": DEVICE}}, overrides or {}))
+
+
+def smoke_upstream(tmp_path_factory) -> Path:
+    """The shared artifacts folder with the smoke run's upstream stages done (built here, or by
+    the process that got there first)."""
+    from stages.framework.runner import ensure
+
+    art = smoke_artifacts(tmp_path_factory)
+    ensure(smoke_config(art), UPSTREAM[-1], device=DEVICE)
     return art
 
 
 def copy_upstream(src: Path, dst: Path) -> Path:
-    """Copy a finished artifacts folder, leaving out lock files another worker may hold or delete."""
-    shutil.copytree(src, dst, ignore=shutil.ignore_patterns(".*.lock", ".*.workers"))
+    """Copy the finished upstream stage folders of every run in artifacts folder ``src`` to ``dst``."""
+    for run in (p for p in src.iterdir() if p.is_dir()):
+        for stage in UPSTREAM:
+            shutil.copytree(run / stage, dst / run.name / stage)
     return dst

@@ -17,14 +17,16 @@ HAVE_RAY = importlib.util.find_spec("ray") is not None
 SETTINGS = (LocSetting("biased", (-0.2, 0.1), 0.0, 0.2, 6), LocSetting("randomized", (0.0, 0.0), 0.2, 0.2, 6))
 
 
-def tasks(n_targets=3, starts=2):
+ALL_PLANNERS = ("info_gain", "known_pose", "random", "fixed", "orbit", "hindsight")
+
+
+def tasks(n_targets=3, starts=2, planners=ALL_PLANNERS, settings=SETTINGS):
     out = []
     for t in range(n_targets):
         for s in range(starts):
             w = ring_world(truth=t % 2, seed=10 * t + s, chords=True)
             w = type(w)(**{**w.__dict__, "target": f"obj{t}"})
-            out.append(Task(w, s, SETTINGS, ("info_gain", "known_pose", "random", "fixed", "orbit", "hindsight"),
-                            5, 2, 0.9, 32, 0, 1e-6))
+            out.append(Task(w, s, settings, planners, 5, 2, 0.9, 32, 0, 1e-6))
     return out
 
 
@@ -92,7 +94,9 @@ def test_run_task_is_deterministic():
 def test_same_on_ray():
     from pipeline.infra.executor import make_executor
 
-    ts = tasks(2, 1)
+    # the planners that draw random numbers (sampled poses, the expected information gain's
+    # samples, the random walk), under the setting that draws the most: those could differ on Ray
+    ts = tasks(2, 1, planners=("info_gain", "random"), settings=SETTINGS[1:])
     local = [run_task(banks(), t) for t in ts]
     ex = make_executor("ray", workers=2)
     try:
