@@ -61,9 +61,10 @@ study: $(VENV)/.installed
 	$(BIN)/viewfuse study --config $(CONFIG) $(ARGS)
 
 # one pytest worker per core (pytest-xdist); a test file stays on one worker, so a module's
-# expensive fixture (a finished chain) runs once. TEST_JOBS=0 runs everything in one process.
+# expensive fixture (a finished chain) runs once; files go out in tests/conftest.py's order (the
+# chains first). TEST_JOBS=0 runs everything in one process.
 TEST_JOBS ?= 2
-XDIST = $(if $(filter 0,$(TEST_JOBS)),,-n $(TEST_JOBS) --dist loadfile)
+XDIST = $(if $(filter 0,$(TEST_JOBS)),,-n $(TEST_JOBS) --dist loadfile --no-loadscope-reorder)
 
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -q $(XDIST) $(PYTEST_ARGS)

@@ -49,14 +49,18 @@ def tmp_config(tmp_path):
     return make
 
 
-# The longest modules (whole chains) run first. Under pytest-xdist (`make test`, --dist loadfile) a
-# module runs whole on one worker, and workers take modules in collection order: a chain collected
-# last ran alone at the end while the other worker sat idle. Moving whole modules keeps each
-# module's tests together (its module-scoped fixture still runs once).
+# The longest modules (whole chains) run first. Under pytest-xdist (`make test`, --dist loadfile
+# --no-loadscope-reorder: without the last flag xdist sorts modules by their number of tests and
+# ignores this order) a module runs whole on one worker, and workers take modules in collection
+# order: a chain taken last runs alone at the end while the other worker sits idle. The two
+# workers start on the smoke run and the Ray tests; the chains that copy the smoke run's upstream
+# (end to end, custom method) come after the real-data chains, when it is built, so that no worker
+# waits on the other's build. Moving whole modules keeps each module's tests together (its
+# module-scoped fixture still runs once).
 LONGEST_FIRST = (
-    "tests/stages/test_smoke_run.py", "tests/stages/test_end_to_end.py", "tests/stages/test_ray.py",
+    "tests/stages/test_smoke_run.py", "tests/stages/test_ray.py",
     "tests/stages/test_real_category_chain.py", "tests/stages/test_real_imagery_chain.py",
-    "tests/pipeline/planning/test_population.py", "tests/stages/test_custom_method.py",
+    "tests/stages/test_end_to_end.py", "tests/stages/test_custom_method.py",
     "tests/stages/test_signals.py",
 )
 

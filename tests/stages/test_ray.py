@@ -227,12 +227,14 @@ def test_evaluate_through_ray_equals_the_local_run(ray_ex, upstream):
     del ex.STATS[:]
     # the models stage runs in-process whatever the executor: the local run's fits, not a refit
     ray_ = _run(upstream, "ray", "evaluate", "ray", reuse=local, stages=("models",))
-    cells = [r for r in ex.STATS if r["executor"] == "ray" and r["desc"].startswith("evaluate")]
+    cells = [r for r in ex.STATS if r["executor"] == "ray" and r["desc"] == "evaluate: cells"]
     assert cells and cells[0]["tasks"] >= 2 * 2          # the grid really ran as Ray tasks
+    # and so did the planning episodes (their random draws: sampled poses, the information gain's)
+    assert [r for r in ex.STATS if r["executor"] == "ray" and r["desc"] == "evaluate: planning" and r["tasks"] > 0]
     a, b = local.stage_dir("evaluate"), ray_.stage_dir("evaluate")
     names = sorted(p.name for p in a.iterdir() if p.suffix in (".parquet", ".json", ".npz"))
     assert names == sorted(p.name for p in b.iterdir() if p.suffix in (".parquet", ".json", ".npz"))
-    assert "results.parquet" in names and "summary.json" in names
+    assert {"results.parquet", "planning.parquet", "summary.json"} <= set(names)
     for name in names:
         if name.endswith(".parquet"):
             assert_same_parquet(a / name, b / name)

@@ -1,11 +1,9 @@
 """The planning population on hand-built worlds: tasks, the per-step table, the pooled block with
-its CIs and verdicts, and the same results through Ray (skipped where Ray is not installed)."""
+its CIs and verdicts. The same episodes through Ray: tests/stages/test_ray.py (the evaluate stage's
+planning.parquet, local and on Ray)."""
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
-import pandas as pd
 import pytest
 
 from pipeline.planning.evaluation import episode_table
@@ -13,20 +11,17 @@ from pipeline.planning.population import LocSetting, Task, run_task
 from pipeline.planning.summary import episode_values, planning_block, step_rows
 from tests.pipeline.planning.ring import models, ring_world
 
-HAVE_RAY = importlib.util.find_spec("ray") is not None
 SETTINGS = (LocSetting("biased", (-0.2, 0.1), 0.0, 0.2, 6), LocSetting("randomized", (0.0, 0.0), 0.2, 0.2, 6))
 
 
-ALL_PLANNERS = ("info_gain", "known_pose", "random", "fixed", "orbit", "hindsight")
-
-
-def tasks(n_targets=3, starts=2, planners=ALL_PLANNERS, settings=SETTINGS):
+def tasks(n_targets=3, starts=2):
     out = []
     for t in range(n_targets):
         for s in range(starts):
             w = ring_world(truth=t % 2, seed=10 * t + s, chords=True)
             w = type(w)(**{**w.__dict__, "target": f"obj{t}"})
-            out.append(Task(w, s, settings, planners, 5, 2, 0.9, 32, 0, 1e-6))
+            out.append(Task(w, s, SETTINGS, ("info_gain", "known_pose", "random", "fixed", "orbit", "hindsight"),
+                            5, 2, 0.9, 32, 0, 1e-6))
     return out
 
 
@@ -87,22 +82,3 @@ def _same(a, b):
 def test_run_task_is_deterministic():
     t = tasks(1, 1)[0]
     _same(run_task(banks(), t), run_task(banks(), t))
-
-
-@pytest.mark.slow
-@pytest.mark.skipif(not HAVE_RAY, reason="Ray not installed (pip install -e '.[ray]')")
-def test_same_on_ray():
-    from pipeline.infra.executor import make_executor
-
-    # the planners that draw random numbers (sampled poses, the expected information gain's
-    # samples, the random walk), under the setting that draws the most: those could differ on Ray
-    ts = tasks(2, 1, planners=("info_gain", "random"), settings=SETTINGS[1:])
-    local = [run_task(banks(), t) for t in ts]
-    ex = make_executor("ray", workers=2)
-    try:
-        remote = list(ex.imap(run_task, ts, shared=banks(), desc="planning", total=len(ts)))
-    finally:
-        ex.close()
-    for a, b in zip(local, remote):
-        _same(a, b)
-    pd.testing.assert_frame_equal(episode_table(ts, local)[0], episode_table(ts, remote)[0])
