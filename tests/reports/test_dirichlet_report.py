@@ -8,7 +8,7 @@ import json
 from pipeline.evaluation.metrics import labels
 from reports.main.page import build_main_report
 from reports.shared.numbers import Estimate
-from tests.support.report_fixtures import write_fake_run
+from tests.support.report_fixtures import only_figures, write_fake_run
 from tests.reports.test_report import parse
 
 import pytest
@@ -16,7 +16,8 @@ import pytest
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
 
 
-def test_report_shows_the_dirichlet_when_the_results_hold_it(tmp_path):
+def test_report_shows_the_dirichlet_when_the_results_hold_it(tmp_path, monkeypatch):
+    only_figures(monkeypatch, "forest.png")   # the figure that draws a row per paired comparison
     facts = write_fake_run(tmp_path / "run", K=4, R=5, ablation=False)
     path = tmp_path / "run" / "evaluate" / "summary.json"
     summary = json.loads(path.read_text())

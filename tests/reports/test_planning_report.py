@@ -11,7 +11,7 @@ from pipeline.planning.population import run_task
 from pipeline.planning.summary import planning_block
 from tests.pipeline.planning.test_population import banks, tasks
 from tests.reports.test_report import estimate, parse
-from tests.support.report_fixtures import write_fake_run
+from tests.support.report_fixtures import only_figures, write_fake_run
 
 
 @pytest.fixture(scope="module")
@@ -32,15 +32,20 @@ def with_planning(run, block):
     p.write_text(json.dumps(s))
 
 
-def test_the_section_shows_the_block(tmp_path, block):
+PLANNING_FIGURES = ("planning_curves.png", "planning_map.png")
+
+
+def test_the_section_shows_the_block(tmp_path, block, monkeypatch):
     from reports.main.page import build_main_report
+
+    only_figures(monkeypatch, *PLANNING_FIGURES)   # the other figures do not depend on planning
 
     facts = write_fake_run(tmp_path / "run", K=3, R=3, n_boot=50)
     with_planning(facts["run"], block)
     res = build_main_report(facts["run"], tmp_path / "out", dpi=40, progress=False, n_boot=50)
     page = parse(res.index)
     assert "planning" in page.sections
-    assert {"planning_curves.png", "planning_map.png"} <= set(res.figures)
+    assert set(PLANNING_FIGURES) <= set(res.figures)
     rows = page.table("planning")["rows"][1:]
     from reports.main.planning import name
     assert [r[0] for r in rows] == [name(p) for p in block["planners"]]
@@ -70,8 +75,10 @@ def test_the_section_shows_the_block(tmp_path, block):
         assert f"over {r['n']['targets']} targets × {r['n']['starts']} starts" in s
 
 
-def test_a_run_without_planning_has_no_section(tmp_path):
+def test_a_run_without_planning_has_no_section(tmp_path, monkeypatch):
     from reports.main.page import build_main_report
+
+    only_figures(monkeypatch, *PLANNING_FIGURES)   # drawn if the plan wrongly held them
 
     facts = write_fake_run(tmp_path / "run", K=3, R=3, n_boot=50)
     res = build_main_report(facts["run"], tmp_path / "out", dpi=40, progress=False, n_boot=50)

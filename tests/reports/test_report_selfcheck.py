@@ -16,7 +16,7 @@ from reports.main import page as page_module
 from reports.main.page import build_main_report
 from reports.shared.checks import ReportCheckError, page_text, plain_words_problems
 from reports.shared.figures import new_figure
-from tests.support.report_fixtures import rendered_run, write_fake_run  # noqa: F401 (fixture)
+from tests.support.report_fixtures import only_figures, rendered_run, write_fake_run  # noqa: F401 (fixture)
 
 pytestmark = pytest.mark.slow  # renders whole reports (make test-fast skips it)
 
@@ -41,6 +41,7 @@ def test_a_clean_build_passes_and_writes_the_page(fake_run, tmp_path):
 
 def test_a_planted_label_that_its_ci_contradicts_fails_the_build(fake_run, tmp_path, monkeypatch):
     # every claim of the scorecard labelled 'fails', whatever its interval says
+    only_figures(monkeypatch)   # the scorecard is a table: no figure needed
     monkeypatch.setattr(scorecard, "claim_status", lambda entry, metric: "fails")
     with pytest.raises(ReportCheckError, match=r"claims scorecard\): labelled 'fails' but its interval"):
         _build(fake_run, tmp_path / "out")
@@ -69,6 +70,7 @@ def _slip_past_layout(monkeypatch, planted):
     from reports.shared import layout
     monkeypatch.setattr(page_module, "fig_forest", planted)
     monkeypatch.setattr(layout, "finish_figure", lambda fig: [])
+    only_figures(monkeypatch, "forest.png")
 
 
 @pytest.mark.parametrize("planted, message", [(_overlapping_titles, "overlaps"), (_clipped_ylabel, "is clipped")])
@@ -81,6 +83,7 @@ def test_planted_figure_text_problems_fail_the_build_under_strict_all(fake_run, 
 
 def test_the_finishing_step_fixes_a_clipped_label_before_the_check(fake_run, tmp_path, monkeypatch):
     monkeypatch.setattr(page_module, "fig_forest", _clipped_ylabel)
+    only_figures(monkeypatch, "forest.png")
     res = _build(fake_run, tmp_path / "out")
     assert res.layout_problems == {}
 
@@ -101,6 +104,7 @@ def test_a_layout_slip_under_strict_contradictions_is_written_with_a_warning_box
 
 
 def test_a_contradiction_under_strict_contradictions_still_fails(fake_run, tmp_path, monkeypatch):
+    only_figures(monkeypatch)
     monkeypatch.setattr(scorecard, "claim_status", lambda entry, metric: "fails")
     with pytest.raises(ReportCheckError, match="labelled 'fails'"):
         build_main_report(fake_run, tmp_path / "out", dpi=60, progress=False, n_boot=100, strict="contradictions")
@@ -108,12 +112,14 @@ def test_a_contradiction_under_strict_contradictions_still_fails(fake_run, tmp_p
 
 
 def test_a_caption_without_a_finding_is_fatal_under_strict_contradictions(fake_run, tmp_path, monkeypatch):
+    only_figures(monkeypatch, "per_target.png")
     monkeypatch.setattr(findings, "per_target", lambda pop, ledger=None: "")
     with pytest.raises(ReportCheckError, match="caption states no finding"):
         build_main_report(fake_run, tmp_path / "out", dpi=60, progress=False, n_boot=100, strict="contradictions")
 
 
 def test_a_caption_without_a_finding_fails_the_build(fake_run, tmp_path, monkeypatch):
+    only_figures(monkeypatch, "per_target.png")
     monkeypatch.setattr(findings, "per_target", lambda pop, ledger=None: "")
     with pytest.raises(ReportCheckError, match="per_target.png: caption states no finding"):
         _build(fake_run, tmp_path / "out")

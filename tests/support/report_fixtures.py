@@ -263,3 +263,13 @@ def rendered_run_default_dpi(tmp_path_factory):
     facts = write_fake_run(root / "run", K=4, R=4, n_boot=50)
     res = build_main_report(facts["run"], root / "out", run_name="fake", progress=False, n_boot=50)
     return facts, res
+
+
+def only_figures(monkeypatch, *names: str) -> None:
+    """Within the test, the main report draws only the figures ``names`` (the others are left out
+    as a run without their data leaves them out): a test about one figure, or about a
+    contradiction in the tables, need not wait for the other dozen to be laid out."""
+    from reports.main import page
+
+    real = page.progress_bar
+    monkeypatch.setattr(page, "progress_bar", lambda plan, **kw: real([(n, b) for n, b in plan if n in names], **kw))
