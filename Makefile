@@ -23,9 +23,12 @@ help:
 # Installs go through uv where it can be had (pip install uv, then uv pip install: it unpacks
 # torch's ~6 GB of wheels in parallel, several times faster than pip: docs/benchmarks.md), with pip's
 # own indexes, find-links and constraints (tools/uv_flags.py); pip installs when uv cannot.
+# --compile-bytecode writes the .pyc files at install, as pip does: uv leaves them to the first
+# import, and where PYTHONDONTWRITEBYTECODE is set (CI, many containers) every process compiled
+# torch's sources again (27 s to import the stack against 10 s: docs/benchmarks.md).
 PIP     := $(BIN)/python -m pip install --quiet --disable-pip-version-check
 define install
-	@if $(PIP) uv >/dev/null 2>&1 && $(BIN)/uv pip install --quiet --python $(BIN)/python \
+	@if $(PIP) uv >/dev/null 2>&1 && $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python \
 	    $$($(BIN)/python tools/uv_flags.py) -e '$(1)'; then echo "installed $(1) with uv"; \
 	else echo "uv not available: installing $(1) with pip"; $(PIP) -e '$(1)'; fi
 endef
