@@ -17,7 +17,7 @@ help:
 	@echo "make study                      seed study: the chain once per study.seeds classifier seed"
 	@echo "make venv-ray                   add the optional Ray extra (run.executor = \"ray\" / --executor ray)"
 	@echo "make test                       every test (real stages included; CI runs this)"
-	@echo "make test-fast                  the unit tests only (no test marked slow), under a minute"
+	@echo "make test-fast                  the unit tests only (no test marked slow), about 2-3 min"
 	@echo "make bench | clean | distclean"
 
 # Installs go through uv where it can be had (pip install uv, then uv pip install: it unpacks
