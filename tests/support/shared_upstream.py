@@ -18,9 +18,9 @@ from pathlib import Path
 from tests.conftest import ROOT
 
 SMOKE = ROOT / "configs" / "smoke.toml"
-UPSTREAM = ("data", "classifier", "features", "models")   # built in the shared folder, copied
-# The smoke run's evaluate settings the chain tests keep (a tiny population, fast bootstrap); they
-# add their own on top. Upstream keys are the smoke run's, so the copied stages are up to date.
+# Built in the shared folder and copied. A chain test's config is the smoke config with its own
+# evaluate/report/simulate settings on top, so the copied stages' keys match and they are up to date.
+UPSTREAM = ("data", "classifier", "features", "models")
 DEVICE = "cpu"   # one device for the CLI and the in-process runs: stage keys name it
 
 

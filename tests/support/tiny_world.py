@@ -1,5 +1,6 @@
-"""The tiny configuration the whole-chain tests share (test_end_to_end, test_ray): one scan, small
-images, a one-epoch classifier and a small population with one ablation. Tests that need it even
+"""The tiny configuration several chain tests build on (test_ray, test_signals, test_memory_budget;
+test_end_to_end takes its evaluate and report settings over the smoke run's upstream): one scan,
+small images, a one-epoch classifier and a small population with two ablations. Tests that need it even
 smaller merge their changes on top (``pipeline.infra.config.merge``)."""
 
 TINY = {
