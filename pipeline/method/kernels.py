@@ -27,9 +27,10 @@ from numba import njit
 # folder, and a user (or the test suite, which starts dozens of processes) opts in by setting it.
 _CACHE = bool(os.environ.get("NUMBA_CACHE_DIR"))
 _NJIT = dict(nogil=True, cache=_CACHE, fastmath=False, error_model="numpy", boundscheck=False)
+_NJIT_SUMS = {**_NJIT, "fastmath": {"reassoc", "contract"}}   # sums may be reassociated (module docstring)
 
 
-@njit(nogil=True, cache=_CACHE, error_model="numpy", boundscheck=False, fastmath={"reassoc", "contract"})
+@njit(**_NJIT_SUMS)
 def _gram(Z, w, A):
     """A[i, j] = Σ_{p < P} w_p Z[i, p] Z[j, p] for j <= i (the lower triangle of Z diag(w) Zᵀ),
     Z (K, ≥ P), P = len(w)."""
@@ -43,7 +44,7 @@ def _gram(Z, w, A):
             A[i, j] = t
 
 
-@njit(nogil=True, cache=_CACHE, error_model="numpy", boundscheck=False, fastmath={"reassoc", "contract"})
+@njit(**_NJIT_SUMS)
 def _sparse_z(F, idx, val, z):
     """z[i, p] = Σ_t val[p, t] F[i, idx[p, t]]: z = Q φ for Q's sparse form, F (K, ≥ P) features."""
     K = F.shape[0]
