@@ -98,7 +98,7 @@ def _check_real(ctx) -> str:
 
     cfg = ctx.cfg
     bb, avd = data_roots(cfg)
-    where = f" (set it in {cfg.source_path}; see README, Real data)" if cfg.source_path else ""
+    where = f" (set it in {cfg.source_path}; see README, Real photographs)" if cfg.source_path else ""
     if not bb.is_dir():
         raise BadInputError(bb, f"'data.bigbird_root' is not an existing folder{where}")
     objects = list_objects(bb)

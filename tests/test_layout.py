@@ -328,12 +328,12 @@ def test_the_loader_and_circle_checks_catch_planted_violations(tmp_path):
 
 
 def unlisted_rooms(root: Path) -> list[str]:
-    """Packages under the four floors that the README's room table ("Where things are") names
+    """Packages under the four floors that the room map (docs/design.md, "Where things are") names
     neither by path (``pipeline/scene/``, or a room inside it) nor as ``(+ `name/`)`` of a row."""
     import re
 
-    text = (root / "README.md").read_text()
-    table = text.split("## Where things are", 1)[1].split("\n## ", 1)[0]
+    text = (root / "docs" / "design.md").read_text()
+    table = text.split("### Where things are", 1)[1].split("\n#", 1)[0]
     tokens = set(re.findall(r"`([^`]+)`", table))
     bad = []
     for floor in FLOORS:
@@ -346,13 +346,14 @@ def unlisted_rooms(root: Path) -> list[str]:
 
 def test_the_readme_room_table_lists_every_room():
     bad = unlisted_rooms(ROOT)
-    assert not bad, "rooms missing from the README's table (Where things are):\n" + "\n".join(bad)
+    assert not bad, "rooms missing from docs/design.md's room map (Where things are):\n" + "\n".join(bad)
 
 
 def test_the_room_table_check_catches_a_missing_room(tmp_path):
     for d in ("pipeline/scene", "pipeline/infra/config", "loaders/real_imagery", "stages", "reports"):
         (tmp_path / d).mkdir(parents=True, exist_ok=True)
         (tmp_path / d / "__init__.py").write_text("")
-    (tmp_path / "README.md").write_text("# x\n## Where things are\n| `pipeline/scene/` | a |\n"
-                                        "| `pipeline/infra/` (+ `config/`) | b |\n## Next\n`loaders/real_imagery/`\n")
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "design.md").write_text("# x\n### Where things are\n| `pipeline/scene/` | a |\n"
+                                                 "| `pipeline/infra/` (+ `config/`) | b |\n## Next\n`loaders/real_imagery/`\n")
     assert unlisted_rooms(tmp_path) == ["loaders/real_imagery", "reports", "stages"]

@@ -71,7 +71,7 @@ def main() -> None:
         return
     real = Path(os.environ.get("VIEWFUSE_REALDATA") or ROOT.parent / "shared" / "realdata")
     if not (real / "coil100").is_dir() or not (real / "avd").is_dir():
-        print(f"skipped: real data {real} is absent (README, Real data)")
+        print(f"skipped: real data {real} is absent (README, Real photographs)")
         return
     if not Path("/usr/bin/time").is_file():
         print("skipped: /usr/bin/time (GNU time) is not installed")

@@ -73,7 +73,7 @@ def test_a_class_file_symlinked_out_of_the_folder_is_refused(run):
 
 
 def test_a_linked_models_folder_still_loads(run, tmp_path):
-    # README: a run may link another run's models/ (paper_grade reuses the default's)
+    # docs/usage.md (configs): a run may link another run's models/ (paper_grade reuses the default's)
     os.symlink(run, tmp_path / "linked")
     banks, _ = load_banks(tmp_path / "linked", (ABL,))
     assert len(banks) == 2
