@@ -201,6 +201,8 @@ def _bmp(data: bytes) -> tuple[int, int]:
 
 def _gif(data: bytes) -> tuple[int, int]:
     sw, sh = struct.unpack_from("<HH", data, 6)
+    if not sw or not sh:
+        return sw, sh  # an empty screen is refused whatever its frames say
     i = 13 + (3 << ((data[10] & 7) + 1) if data[10] & 0x80 else 0)
     while i < len(data):
         kind = data[i]
