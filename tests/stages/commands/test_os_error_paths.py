@@ -1,4 +1,4 @@
-"""Every OS error names its path: a write that fails with ENOSPC (or EIO, EDQUOT) raises no file
+"""Every OS error names its path: a write (or a read) that fails with ENOSPC (or EIO, EDQUOT) raises no file
 name of its own (write() and flush() never do; pyarrow's and numpy's writers neither), so the
 atomic writer adds the file it was writing and the stage runner, for a write outside it, the
 stage's folder. The full disk is simulated in each real writer's lowest Python-level call."""
@@ -64,6 +64,32 @@ def test_a_failed_write_names_the_file(tmp_path, monkeypatch, name, code):
         write(target)
     assert e.value.errno == code and e.value.filename == str(target), e.value
     assert sorted(target.parent.iterdir()) == []   # the temporary file is gone too
+
+
+class _FailingFile:
+    """A file whose read() fails as a bad disk does: EIO, no file name."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        return False
+
+    def read(self, *a):
+        raise OSError(errno.EIO, os.strerror(errno.EIO))
+
+
+@pytest.mark.parametrize("read", ["sha256_file", "read_json"])
+def test_a_failed_read_names_the_file(tmp_path, monkeypatch, read):
+    from pipeline.infra.outputs import read_json
+
+    p = tmp_path / "in.json"
+    p.write_text("{}")
+    monkeypatch.setattr(cache, "open", lambda *a, **k: _FailingFile(), raising=False)  # shadows the builtin there
+    monkeypatch.setattr("pathlib.Path.read_text", lambda self, *a, **k: _FailingFile().read())
+    with pytest.raises(OSError) as e:
+        cache.sha256_file(p) if read == "sha256_file" else read_json(p)
+    assert e.value.errno == errno.EIO and e.value.filename == str(p)
 
 
 def test_errors_with_their_own_file_or_no_errno_are_kept(tmp_path, monkeypatch):
