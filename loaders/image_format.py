@@ -1,8 +1,8 @@
 """An image's format and declared size, read from its first bytes without decoding (pure bytes
 parsing; the gate that uses it is ``loaders.image_gate``).
 
-``sniff`` names the format by its magic bytes, as OpenCV's decoders recognise them (each
-signature starts at byte 0, so at most one matches). ``declared_size`` reads the (width, height)
+``sniff`` names the format by its magic bytes, as OpenCV's decoders recognise them (bytes that
+match two signatures are refused, so OpenCV's decoder order never matters). ``declared_size`` reads the (width, height)
 the header declares, for every format this OpenCV build decodes by content: PNG, JPEG, WebP
 (VP8, VP8L, VP8X), TIFF (both byte orders, BigTIFF; the first IFD, tiles included), PBM,
 PGM, PPM (P1-P6), PAM, PFM, BMP, GIF (the screen and the first frame), JPEG 2000 (JP2 and raw
@@ -24,38 +24,41 @@ class HeaderError(ValueError):
 # SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
 SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 
-_PNM_MAGIC = {b"P1": "PBM", b"P4": "PBM", b"P2": "PGM", b"P5": "PGM", b"P3": "PPM", b"P6": "PPM"}
+def _is_avif(data: bytes) -> bool:
+    size = _u32(data, 0, ">")
+    return data[4:8] == b"ftyp" and re.search(rb"avi[fs]", data[8:max(16, min(len(data), size))]) is not None
+
+
+# (format, test of the first bytes): the signatures OpenCV's decoders check
+_SIGNATURES = (
+    ("PNG", lambda d: d[:8] == b"\x89PNG\r\n\x1a\n"),
+    ("JPEG", lambda d: d[:3] == b"\xff\xd8\xff"),
+    ("WebP", lambda d: d[:4] == b"RIFF" and d[8:12] == b"WEBP"),
+    ("TIFF", lambda d: d[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")),
+    ("PBM", lambda d: d[:2] in (b"P1", b"P4") and d[2:3].isspace()),
+    ("PGM", lambda d: d[:2] in (b"P2", b"P5") and d[2:3].isspace()),
+    ("PPM", lambda d: d[:2] in (b"P3", b"P6") and d[2:3].isspace()),
+    ("PAM", lambda d: d[:2] == b"P7" and d[2:3].isspace()),
+    ("PFM", lambda d: d[:2] in (b"PF", b"Pf") and d[2:3].isspace()),
+    ("BMP", lambda d: d[:2] == b"BM"),
+    ("GIF", lambda d: d[:6] in (b"GIF87a", b"GIF89a")),
+    ("JPEG 2000", lambda d: d[:12] == b"\x00\x00\x00\x0cjP  \r\n\x87\n" or d[:4] == b"\xff\x4f\xff\x51"),
+    ("HDR", lambda d: d[:6] == b"#?RGBE" or d[:10] == b"#?RADIANCE"),
+    ("Sun raster", lambda d: d[:4] == b"\x59\xa6\x6a\x95"),
+    ("AVIF", _is_avif),
+)
+
+
+def signatures(data: bytes) -> list[str]:
+    """Every format whose signature the first bytes match (one for any real image: the gate
+    refuses bytes that match several, as OpenCV's choice would then depend on its decoder order)."""
+    return [name for name, test in _SIGNATURES if test(data)]
 
 
 def sniff(data: bytes) -> str | None:
-    """The format name the magic bytes identify, or None for anything else."""
-    if data[:8] == b"\x89PNG\r\n\x1a\n":
-        return "PNG"
-    if data[:3] == b"\xff\xd8\xff":
-        return "JPEG"
-    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
-        return "WebP"
-    if data[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
-        return "TIFF"
-    if data[:2] in _PNM_MAGIC and data[2:3].isspace():
-        return _PNM_MAGIC[data[:2]]
-    if data[:2] == b"P7" and data[2:3].isspace():
-        return "PAM"
-    if data[:2] in (b"PF", b"Pf") and data[2:3].isspace():
-        return "PFM"
-    if data[:2] == b"BM":
-        return "BMP"
-    if data[:6] in (b"GIF87a", b"GIF89a"):
-        return "GIF"
-    if data[:12] == b"\x00\x00\x00\x0cjP  \r\n\x87\n" or data[:4] == b"\xff\x4f\xff\x51":
-        return "JPEG 2000"
-    if data[:6] == b"#?RGBE" or data[:10] == b"#?RADIANCE":
-        return "HDR"
-    if data[:4] == b"\x59\xa6\x6a\x95":
-        return "Sun raster"
-    if data[4:8] == b"ftyp" and re.search(rb"avi[fs]", data[8:max(16, min(len(data), _u32(data, 0, ">")))]):
-        return "AVIF"
-    return None
+    """The one format the magic bytes identify, or None (no format, or several)."""
+    found = signatures(data)
+    return found[0] if len(found) == 1 else None
 
 
 def declared_size(data: bytes, fmt: str) -> tuple[int, int]:
@@ -253,7 +256,7 @@ def _boxes(data: bytes, at: int, end: int):
         at += size
 
 
-def _avif(data: bytes) -> tuple[int, int]:
+def _avif_size(data: bytes) -> tuple[int, int]:
     sizes = []
 
     def walk(at: int, end: int) -> None:
@@ -288,4 +291,4 @@ def _sun(data: bytes) -> tuple[int, int]:
 
 _READERS = {"PNG": _png, "JPEG": _jpeg, "WebP": _webp, "TIFF": _tiff, "PBM": _pnm, "PGM": _pnm, "PPM": _pnm, "PAM": _pam,
             "PFM": _pnm, "BMP": _bmp, "GIF": _gif, "JPEG 2000": _jpeg2000, "HDR": _hdr,
-            "Sun raster": _sun, "AVIF": _avif}
+            "Sun raster": _sun, "AVIF": _avif_size}

@@ -28,7 +28,7 @@ import numpy as np
 
 from loaders.errors import BadInputError
 from loaders.files import max_megapixels
-from loaders.image_format import HeaderError, declared_size, sniff
+from loaders.image_format import HeaderError, declared_size, signatures
 
 
 def check_declared(w: int, h: int, path: str | Path) -> None:
@@ -47,7 +47,10 @@ def checked_image(data: bytes, path: str | Path, expect: tuple[str, ...] | None 
     wanted = " or ".join(expect) if expect else "an image"
     if not data:
         raise BadInputError(path, f"empty file (0 bytes), not {_article(wanted)}")
-    fmt = sniff(data)
+    found = signatures(data)
+    if len(found) > 1:  # OpenCV's decoder order would decide which header counts
+        raise BadInputError(path, f"bytes match the signatures of {' and '.join(found)}; ambiguous, not decoded")
+    fmt = found[0] if found else None
     if fmt is None:
         what = f"not {_article(wanted)} (no {wanted} signature)" if expect else \
             "not an image format whose size can be read before decoding"

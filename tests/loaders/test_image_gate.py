@@ -204,6 +204,7 @@ def test_garbage_and_empty_files_never_reach_the_decoder(tmp_path, no_decoder, e
     (b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n+Q 40 +X 50\n", "bad resolution line"),
     (b"\x00\x00\x00\x18ftypavif\x00\x00\x00\x00avifmif1", "no image size property"),
     (b"\xff\x4f\xff\x51" + struct.pack(">HH8I", 41, 0, 50, 40, 60, 0, 50, 40, 0, 0), "outside the reference grid"),
+    (b"BM\0\0ftypavif" + bytes(32), "signatures of BMP and AVIF; ambiguous"),   # OpenCV's order would decide
 ])
 def test_unreadable_headers_are_named(tmp_path, no_decoder, data, problem):
     with pytest.raises(BadInputError, match=problem) as e:
