@@ -289,6 +289,6 @@ def _sun(data: bytes) -> tuple[int, int]:
     return struct.unpack_from(">II", data, 4)
 
 
-_READERS = {"PNG": _png, "JPEG": _jpeg, "WebP": _webp, "TIFF": _tiff, "PBM": _pnm, "PGM": _pnm, "PPM": _pnm, "PAM": _pam,
-            "PFM": _pnm, "BMP": _bmp, "GIF": _gif, "JPEG 2000": _jpeg2000, "HDR": _hdr,
+_READERS = {"PNG": _png, "JPEG": _jpeg, "WebP": _webp, "TIFF": _tiff, "PBM": _pnm, "PGM": _pnm, "PPM": _pnm,
+            "PAM": _pam, "PFM": _pnm, "BMP": _bmp, "GIF": _gif, "JPEG 2000": _jpeg2000, "HDR": _hdr,
             "Sun raster": _sun, "AVIF": _avif_size}

@@ -65,7 +65,8 @@ def _fixtures() -> dict[str, bytes]:
             continue
     if "JP2" in out:
         out["J2K codestream"] = out["JP2"][out["JP2"].index(b"\xff\x4f\xff\x51"):]
-    for name, chunk in [("WebP lossless (VP8L)", b"VP8L"), ("WebP lossy (VP8)", b"VP8 "), ("WebP extended (VP8X)", b"VP8X")]:
+    webp = [("WebP lossless (VP8L)", b"VP8L"), ("WebP lossy (VP8)", b"VP8 "), ("WebP extended (VP8X)", b"VP8X")]
+    for name, chunk in webp:
         assert out[name][12:16] == chunk, name
     return out
 
@@ -140,6 +141,11 @@ def no_decoder(monkeypatch):
     def called(*a, **k):
         raise AssertionError("the decoder was called")
     monkeypatch.setattr(cv2, "imdecode", called)
+
+
+def test_every_format_recognised_has_a_size_reader():
+    from loaders import image_format
+    assert {name for name, _ in image_format._SIGNATURES} == set(image_format._READERS)
 
 
 @pytest.mark.parametrize("name", sorted(FIXTURES))
