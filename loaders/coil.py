@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 
 from loaders.errors import BadInputError, SkipLog
-from loaders.files import checked_header, read_checked
+from loaders.files import read_checked
+from loaders.image_gate import decode_image
 from pipeline.infra.cache import note_read
 
 NAME_RE = re.compile(r"^obj([1-9][0-9]*)__(0|[1-9][0-9]*)\.png$")
@@ -101,13 +102,7 @@ class CoilFolder:
         or an empty mask (the caller applies the skip policy)."""
         data = read_checked(view.path, self.folder, "COIL-100 image")
         note_read(view.path)
-        checked_header(data, view.path, "PNG")  # the declared size, before anything is decoded
-        try:
-            bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        except cv2.error as e:  # OpenCV asserts on some inputs instead of returning None
-            raise BadInputError(view.path, f"corrupt PNG: OpenCV failed to decode it ({e.err or e})") from None
-        if bgr is None:
-            raise BadInputError(view.path, "cannot decode the PNG")
+        bgr = decode_image(data, view.path, cv2.IMREAD_UNCHANGED, expect=("PNG",))
         if bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.dtype != np.uint8 or bgr.shape[1::-1] != SIZE:
             raise BadInputError(view.path, f"image is {'x'.join(map(str, bgr.shape))} {bgr.dtype}, "
                                            f"expected {SIZE[0]}x{SIZE[1]}x3 uint8 (COIL-100 size)")

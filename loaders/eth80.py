@@ -17,7 +17,7 @@ at least ``MASK_THRESHOLD`` = 128 (half way: the soft rim, about 3 % of the pixe
 
 Bad files follow ``data.skip_bad_views`` as for COIL-100 (``loaders.coil``): a name that does not
 match, a view without its map, a header declaring more than ``data.max_image_megapixels`` (checked
-before decoding, ``loaders.files.check_image_size``), an undecodable PNG, an image that is not
+before decoding, ``loaders.image_gate``), a file that is not a decodable PNG, an image that is not
 square (decoded as 8-bit colour), a map of another size or an empty mask raise ``BadInputError`` or, with a
 ``SkipLog``, are counted and skipped.
 """
@@ -31,7 +31,8 @@ import cv2
 import numpy as np
 
 from loaders.errors import BadInputError, SkipLog
-from loaders.files import check_image_size, read_checked
+from loaders.files import read_checked
+from loaders.image_gate import decode_image
 from pipeline.infra.cache import note_read
 
 CATEGORIES = ("apple", "car", "cow", "cup", "dog", "horse", "pear", "tomato")
@@ -154,9 +155,8 @@ class Eth80Folder:
 
 def _decode(path: Path, root: Path, flag: int, what: str) -> np.ndarray:
     data = read_checked(path, root, what)
-    check_image_size(data, path)
     note_read(path)
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), flag)
-    if img is None or img.dtype != np.uint8:
+    img = decode_image(data, path, flag, expect=("PNG",))
+    if img.dtype != np.uint8:
         raise BadInputError(path, "cannot decode the PNG as 8-bit")
     return img

@@ -1,110 +1,27 @@
-"""JPEG decoding for every reader: completeness and corruption checks (libjpeg's warnings are
-captured and turned into errors naming the file), decoding to RGB, and the frame size read from
-the header without decoding."""
+"""JPEG reading for the BigBIRD and AVD readers: decoding to RGB through the image gate
+(``loaders.image_gate``: size limit, completeness, libjpeg's corruption warnings), and the frame
+size read from the header without reading the whole file."""
 from __future__ import annotations
 
-import contextlib
-import os
 import struct
-import sys
-import tempfile
-import threading
 from pathlib import Path
-from typing import Iterator
 
 import cv2
 import numpy as np
 
 from loaders.errors import BadInputError
-from loaders.files import SOF_MARKERS, check_image_size, checked_file, checked_header, read_checked
+from loaders.files import checked_file, read_checked
+from loaders.image_format import SOF_MARKERS
+from loaders.image_gate import decode_image
 from pipeline.infra.cache import note_read
 
 
-def check_jpeg_complete(data: bytes, path: Path) -> None:
-    """OpenCV decodes a truncated JPEG into a grey-padded image with only a warning, so check the
-    markers ourselves: SOI first, and an EOI after the first scan (SOS). Entropy-coded data
-    byte-stuffs 0xFF, so FF D9 after SOS can only be the real end marker (EXIF thumbnails, which
-    carry their own EOI, sit before the first SOS)."""
-    if data[:2] != b"\xff\xd8":
-        raise BadInputError(path, "not a JPEG (no SOI marker); file is corrupt")
-    sos = data.find(b"\xff\xda", 2)
-    if sos < 0:
-        raise BadInputError(path, "corrupt JPEG: no image scan (SOS marker) found")
-    if data.find(b"\xff\xd9", sos) < 0:
-        raise BadInputError(path, "corrupt JPEG: truncated (no end-of-image marker after the scan)")
-
-
-# libjpeg reports damaged entropy-coded data ("Corrupt JPEG data: premature end of data
-# segment", bad Huffman codes) only as a warning printed on the C-level stderr, then returns grey
-# or garbage pixels; OpenCV passes neither the warning nor a status back. So the decode runs with
-# file descriptor 2 redirected into a temporary file, and a warning there makes the image corrupt.
-# "N extraneous bytes before marker" is left out: the decoder skipped padding between segments
-# and the pixels are intact.
-_STDERR_LOCK = threading.Lock()
-_CORRUPT_MARKS = ("Corrupt JPEG data", "Premature end of JPEG file", "Inconsistent progression")
-
-
-@contextlib.contextmanager
-def c_stderr_captured() -> Iterator[list[str]]:
-    """Collect what C code writes to file descriptor 2 meanwhile (lines go into the yielded list);
-    lines that are not libjpeg messages are passed on to the real stderr afterwards."""
-    lines: list[str] = []
-    with _STDERR_LOCK:
-        try:
-            sys.stderr.flush()
-        except (AttributeError, ValueError):
-            pass
-        try:
-            saved = os.dup(2)
-        except OSError:  # no stderr at all (closed descriptor): nothing to capture from
-            yield lines
-            return
-        try:
-            with tempfile.TemporaryFile() as tf:
-                os.dup2(tf.fileno(), 2)
-                try:
-                    yield lines
-                finally:
-                    os.dup2(saved, 2)
-                    tf.seek(0)
-                    text = tf.read().decode("utf-8", "replace")
-                    lines.extend(ln for ln in text.splitlines() if ln.strip())
-        finally:
-            os.close(saved)
-    other = [ln for ln in lines if not _is_jpeg_message(ln)]
-    if other:
-        os.write(2, ("\n".join(other) + "\n").encode())
-
-
-def _is_jpeg_message(line: str) -> bool:
-    return "JPEG" in line or "jpeg" in line or "marker" in line or "Huffman" in line
-
-
-def _jpeg_problem(lines: list[str]) -> str | None:
-    for ln in lines:
-        if "extraneous bytes before marker" in ln:
-            continue
-        if any(m in ln for m in _CORRUPT_MARKS):
-            return ln.strip()
-    return None
-
-
 def decode_jpeg(data: bytes, path: str | Path) -> np.ndarray:
-    """Decode JPEG bytes into RGB uint8 (H, W, 3); BadInputError naming ``path`` when the file is
-    truncated or libjpeg reports corrupt data."""
-    path = Path(path)
-    checked_header(data, path, "JPEG")  # the declared size, before anything is decoded
-    check_jpeg_complete(data, path)
-    with c_stderr_captured() as lines:
-        try:
-            bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
-        except cv2.error as e:
-            raise BadInputError(path, f"corrupt JPEG: OpenCV failed to decode it ({e})") from None
-    problem = _jpeg_problem(lines)
-    if problem is not None:
-        raise BadInputError(path, f"corrupt JPEG: libjpeg reports {problem!r}")
-    if bgr is None or bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.size == 0:
-        raise BadInputError(path, "corrupt JPEG: OpenCV could not decode it")
+    """Decode JPEG bytes into RGB uint8 (H, W, 3) through the image gate; BadInputError naming
+    ``path`` for another format, a size above the limit, a truncated file or corrupt data."""
+    bgr = decode_image(data, path, cv2.IMREAD_COLOR, expect=("JPEG",))
+    if bgr.ndim != 3 or bgr.shape[2] != 3:
+        raise BadInputError(path, f"corrupt JPEG: decoded to shape {bgr.shape}, not colour")
     return np.ascontiguousarray(bgr[:, :, ::-1])  # OpenCV gives BGR
 
 
@@ -114,7 +31,6 @@ def read_rgb(path: str | Path, root: str | Path | None = None) -> np.ndarray:
     path = Path(path)
     data = read_checked(path, root, "image file")
     note_read(path, data)
-    check_image_size(data, path)
     return decode_jpeg(data, path)
 
 

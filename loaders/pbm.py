@@ -11,31 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from loaders.errors import BadInputError
-from loaders.files import check_declared, read_checked
+from loaders.files import read_checked
+from loaders.image_format import pnm_tokens
+from loaders.image_gate import checked_image
 from pipeline.infra.cache import note_read
-
-
-def _tokens(data: bytes, path: Path) -> tuple[list[bytes], int]:
-    """The three header tokens (magic, width, height) and the raster's byte offset."""
-    toks: list[bytes] = []
-    i, n = 0, len(data)
-    while len(toks) < 3:
-        while i < n and data[i:i + 1].isspace():
-            i += 1
-        if i < n and data[i:i + 1] == b"#":
-            while i < n and data[i:i + 1] not in (b"\n", b"\r"):
-                i += 1
-            continue
-        j = i
-        while j < n and not data[j:j + 1].isspace() and data[j:j + 1] != b"#":
-            j += 1
-        if j == i:
-            raise BadInputError(path, "truncated PBM header")
-        toks.append(data[i:j])
-        i = j
-    if i >= n or not data[i:i + 1].isspace():
-        raise BadInputError(path, "PBM header not followed by a single whitespace byte")
-    return toks, i + 1
 
 
 def read_pbm(path: str | Path, root: str | Path | None = None) -> np.ndarray:
@@ -44,16 +23,10 @@ def read_pbm(path: str | Path, root: str | Path | None = None) -> np.ndarray:
     path = Path(path)
     data = read_checked(path, root, "mask file")
     note_read(path, data)
-    toks, off = _tokens(data, path)
+    _, w, h = checked_image(data, path, expect=("PBM",))  # before unpacking: 8 bytes per stored byte
+    toks, off = pnm_tokens(data, 3)
     if toks[0] != b"P4":
         raise BadInputError(path, f"not a raw PBM (magic {toks[0][:8]!r}, expected b'P4')")
-    try:
-        w, h = int(toks[1]), int(toks[2])
-    except ValueError:
-        raise BadInputError(path, f"bad PBM size {toks[1]!r} x {toks[2]!r}") from None
-    if w <= 0 or h <= 0:
-        raise BadInputError(path, f"bad PBM size {w} x {h}")
-    check_declared(w, h, path)  # before the raster is unpacked (8 bytes per stored byte)
     row = (w + 7) // 8
     raster = np.frombuffer(data, dtype=np.uint8, count=len(data) - off, offset=off)
     if raster.size < row * h:

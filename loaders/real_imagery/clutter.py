@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 
 from loaders.errors import BadInputError
-from loaders.files import check_image_size, read_checked
+from loaders.files import read_checked
+from loaders.image_gate import decode_image
 from loaders.real_imagery.frames import apply_sensor, paste, resampled_view
 
 LABEL_ROWS = 24            # the "Step #N" label of the avd_frames copy: about 50 x 20 px, top left
@@ -37,10 +38,7 @@ def read_backgrounds(folder: Path, skips) -> list[np.ndarray]:
             continue
         try:
             data = read_checked(p, folder, "background frame")
-            check_image_size(data, p)
-            bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise BadInputError(p, "cannot decode the background frame")
+            bgr = decode_image(data, p, cv2.IMREAD_COLOR, expect=("PNG", "JPEG"))
             if bgr.shape[0] <= LABEL_ROWS + 8 or bgr.shape[1] < 8:
                 raise BadInputError(p, f"background frame is {bgr.shape[1]}x{bgr.shape[0]}, too small")
             out.append(np.ascontiguousarray(bgr[:, :, ::-1]))

@@ -30,12 +30,15 @@ def sha256_bytes(data: bytes) -> str:
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
     h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while True:
-            b = f.read(chunk)
-            if not b:
-                break
-            h.update(b)
+    try:
+        with open(path, "rb") as f:
+            while True:
+                b = f.read(chunk)
+                if not b:
+                    break
+                h.update(b)
+    except OSError as e:  # a failed read() (EIO) names no file
+        raise naming(e, path) from None
     return h.hexdigest()
 
 
@@ -346,10 +349,22 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp_path
         os.replace(tmp_path, path)
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
+        named = naming(e, path) if isinstance(e, OSError) else e
+        if named is not e:
+            raise named from e
         raise
+
+
+def naming(e: OSError, path: str | Path) -> OSError:
+    """``e`` with ``path`` as its file: a failed write() or flush (ENOSPC, EIO; also from pyarrow's
+    and numpy's writers) carries an errno but no file name, and "no space left" alone does not say
+    which disk. Errors without an errno keep their own words (and type)."""
+    if e.filename or e.errno is None:
+        return e
+    return OSError(e.errno, e.strerror or str(e), str(path))  # the errno's own subclass
 
 
 def _strict(o: Any) -> Any:

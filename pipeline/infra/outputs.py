@@ -184,6 +184,10 @@ def read_json(p: str | Path, *, missing: Any = _RAISE, invalid: Any = _RAISE) ->
         if invalid is _RAISE:
             raise ArtifactError(p, "not valid JSON: not UTF-8 text") from None
         return invalid
+    except OSError as e:  # a failed read() (EIO) names no file (as cache.naming; cache imports this module)
+        if e.errno is None or e.filename:
+            raise
+        raise OSError(e.errno, e.strerror, str(p)) from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:

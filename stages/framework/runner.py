@@ -24,7 +24,7 @@ from typing import Any
 
 from loaders.errors import SkipPolicy
 from loaders.files import set_max_megapixels
-from pipeline.infra.cache import (confined_writes, folder_records, hash_json, load_memo,
+from pipeline.infra.cache import (confined_writes, folder_records, hash_json, load_memo, naming,
                                    record_changed, recording_inputs, remember, save_memo, write_json)
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST, undeclared
@@ -250,13 +250,13 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     if tmp.exists() or tmp.is_symlink():
         remove_leftover(tmp, required=True)  # left by an interrupted run (we hold the lock)
     tmp.mkdir()
-    mark_owned(tmp)
     set_max_megapixels(cfg.data.max_image_megapixels)  # the dataset readers' image size limit
     ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads,
                        skips=SkipPolicy.from_config(cfg))
     echo(f"[{spec.name}] running: {spec.help}")
     t0 = time.perf_counter()
     try:
+        mark_owned(tmp)  # inside: a full disk here too names the folder and removes it
         with recording_inputs() as rec, pid_file(paths.workers), confined_writes(tmp):
             summary = mod.run(ctx)
         # Files in the run folder are upstream outputs, already covered by the upstream digests;
@@ -272,8 +272,11 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         if stray:  # the catalog is the one list of what a stage writes
             raise RuntimeError(f"stage {spec.name!r} wrote output(s) that pipeline/infra/outputs.py does not "
                                f"declare: {', '.join(stray[:5])}")
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
+        named = naming(e, tmp) if isinstance(e, OSError) else e  # a write outside atomic_path: the folder
+        if named is not e:
+            raise named from e
         raise
     elapsed = time.perf_counter() - t0
     if ctx.skips.enabled:

@@ -29,7 +29,8 @@ def main() -> None:
     import cv2
     import numpy as np
 
-    from loaders.jpeg import check_jpeg_complete, decode_jpeg
+    from loaders.image_gate import check_jpeg_complete
+    from loaders.jpeg import decode_jpeg
     from pipeline.infra.cache import file_record, record_changed
 
     rng = np.random.default_rng(0)

@@ -14,6 +14,7 @@ import pytest
 
 import loaders.files as files
 from loaders.bigbird import BigBirdObject
+from loaders.image_format import declared_size
 from loaders.jpeg import read_rgb
 from loaders.errors import BadInputError, SkipLog
 from tests.support import stage_fakes
@@ -119,7 +120,7 @@ def test_a_huge_declared_jpeg_is_refused_before_decoding(tmp_path, monkeypatch):
     p = tmp_path / "small.jpg"
     write_jpeg(p, np.full((48, 64, 3), 120, np.uint8))
     assert read_rgb(p).shape == (48, 64, 3)
-    assert files.declared_size(p.read_bytes()) == (64, 48)
+    assert declared_size(p.read_bytes(), "JPEG") == (64, 48)
     huge = tmp_path / "huge.jpg"
     huge.write_bytes(_declare_size(p.read_bytes(), 30000, 30000))
     t0 = time.perf_counter()
@@ -133,7 +134,7 @@ def test_a_huge_declared_jpeg_is_refused_before_decoding(tmp_path, monkeypatch):
 
 def test_png_headers_are_read_too():
     png = b"\x89PNG\r\n\x1a\n" + b"\x00\x00\x00\x0dIHDR" + (40000).to_bytes(4, "big") + (50).to_bytes(4, "big")
-    assert files.declared_size(png) == (40000, 50)
+    assert declared_size(png, "PNG") == (40000, 50)
 
 
 def test_the_runner_applies_the_configured_limit(tmp_config, monkeypatch):

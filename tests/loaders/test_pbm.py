@@ -57,7 +57,7 @@ def test_encode_roundtrip_and_one_line_header(tmp_path):
     (b"P1 10 3\n" + RASTER, "not a raw PBM"),
     (b"P4 10 3\n" + RASTER[:4], "truncated"),
     (b"P4 10\n", "header"),
-    (b"P4 x 3\n" + RASTER, "bad PBM size"),
+    (b"P4 x 3\n" + RASTER, "corrupt PBM: bad size"),
 ])
 def test_bad_pbm_names_file_and_problem(tmp_path, data, problem):
     p = tmp_path / "bad.pbm"

@@ -103,7 +103,7 @@ def test_entropy_cut_jpeg_is_named_not_scored(tmp_path, capfd):
 
 
 def test_other_c_stderr_output_is_passed_on(capfd):
-    from loaders.jpeg import c_stderr_captured
+    from loaders.image_gate import c_stderr_captured
 
     with c_stderr_captured() as lines:
         os.write(2, b"unrelated native message\nCorrupt JPEG data: bad Huffman code\n")

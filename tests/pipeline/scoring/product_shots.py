@@ -47,14 +47,13 @@ IMAGENET_NORM = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
 def load_shots(folder: Path, size: int = 224) -> tuple[list[str], np.ndarray]:
     """(instance names, uint8 crops (n, size, size, 3)): each whole photograph squared by
     replicating its light border (the project's crop policy, margin 0) and resized."""
-    import cv2
-
+    from loaders.jpeg import read_rgb
     from pipeline.scoring.crops import CropPolicy
 
     policy = CropPolicy(margin=0.0, square=True, size=size, pad="edge")
     names, crops = [], []
     for p in sorted(Path(folder).glob("*.jpg")):
-        img = cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB)
+        img = read_rgb(p)  # through the image gate, as the readers decode
         crops.append(policy.crop(img, (0, 0, img.shape[1], img.shape[0]))[0])
         names.append(p.stem)
     return names, np.stack(crops)
