@@ -53,7 +53,10 @@ def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str) -> tuple[int
 
 
 def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
-    return leave_one_out(h, lambda rs, keep: rs.estimate(values[:, keep][:, :, : rs.shape[2]], pool), higher)
+    """Leave-one-target-out on targets -> tracks from the draws already made (``leave_one_out``)."""
+    rs = h.target_rs
+    return leave_one_out(h, rs.estimate(values, pool), rs.leave_one_out_points(values, pool),
+                         rs.draws(values, pool, slots=rs.shape[1] - 1), higher)
 
 
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,

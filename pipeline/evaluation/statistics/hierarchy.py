@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.statistics import records as REC
-from pipeline.evaluation.statistics.resampler import Resampler, draws
+from pipeline.evaluation.statistics.resampler import Resampler, draws, estimate
 
 
 class Hierarchy:
@@ -81,32 +81,40 @@ class Hierarchy:
     def per_target(self, ti: int) -> Resampler:
         return draws([[len(self.units[0][ti][1])]], self.n_boot, [*np.atleast_1d(self.seed), 1, ti])
 
-    def without(self, ti: int) -> tuple[Resampler, np.ndarray]:
-        keep = np.array([k for k in range(len(self.units[0])) if k != ti])
-        sizes = [len(self.units[0][k][1]) for k in keep]
-        return draws([sizes], self.n_boot, [*np.atleast_1d(self.seed), 2, ti]), keep
 
-
-def leave_one_out(h: Hierarchy, fn, higher: bool) -> dict:
-    """Leave each target out in turn (each subset with its own shared draws): ``fn(resampler,
-    kept target indices)`` gives the estimate. The range of its values and the targets whose
-    removal alone changes the outcome of the whole population."""
+def leave_one_out(h: Hierarchy, full: Mapping[str, float], points: np.ndarray, loo_draws: np.ndarray,
+                  higher: bool) -> dict:
+    """The leave-one-target-out check from the draws already made (jackknife-after-bootstrap):
+    ``full`` the estimate on all targets (``target_rs``), ``points`` (T,) the statistic with each
+    target left out, ``loo_draws`` (B,) the statistic of each draw's first T - 1 target slots
+    (``Resampler.draws(slots=T - 1)``). Target t's interval is the percentile interval of the
+    draws whose first T - 1 slots miss t: in distribution a bootstrap of the other T - 1 targets,
+    about B (1 - 1/T)^(T - 1) ~ 0.37 B of them (docs/design.md §8, its Monte Carlo error). The
+    range of the values and the targets whose removal alone changes the outcome of the whole
+    population."""
     names = h.targets
-    if len(names) < 3:
+    T = len(names)
+    if T < 3:
         return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "loto_flip_outcomes": {}}
-    full = REC.outcome(*_ends(fn(h.target_rs, np.arange(len(names)))), higher)
-    vals, flips, to = [], [], {}
-    for ti, name in enumerate(names):
-        est = fn(*h.without(ti))
-        vals.append(est["value"])
+    res_full = REC.outcome(*_ends(full), higher)
+    flips, to = [], {}
+    for name, est in zip(names, loto_estimates(h, points, loo_draws)):
         res = REC.outcome(*_ends(est), higher)
-        if res != full:
+        if res != res_full:
             flips.append(name)
             to[name] = res
-    v = np.asarray(vals, float)
+    v = np.asarray(points, float)
     v = v[np.isfinite(v)]
     return {"loto_min": float(v.min()) if len(v) else float("nan"), "loto_max": float(v.max()) if len(v) else float("nan"),
             "loto_flips": flips, "loto_flip_outcomes": to}
+
+
+def loto_estimates(h: Hierarchy, points: np.ndarray, loo_draws: np.ndarray) -> list[dict]:
+    """Each target's left-out estimate {"value", "ci_low", "ci_high"} (as ``leave_one_out`` reads
+    them; for tests and benchmarks)."""
+    out = h.target_rs.left_out(len(h.targets) - 1)                      # (B, T)
+    return [estimate(points[ti], loo_draws[out[:, ti]] if out[:, ti].sum() >= 2 else None)
+            for ti in range(len(h.targets))]
 
 
 def _ends(est: Mapping[str, float]) -> tuple[float, float]:

@@ -98,6 +98,7 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
            "per_target": {}, "paired": {}, "paired_per_target": {},
            "reliability": {m: {w: K.reliability(np.einsum("tj,tjwkb->wkb", w0, pads[m])[i])
                                for i, w in enumerate(WHERE)} for m in present}}
+    loo_w = h.target_rs.leaf_weights(slots=len(targets) - 1)[:, 0] if loto and len(targets) >= 3 else None
     tgt = {}
     for ti, t in enumerate(targets):
         rs = h.per_target(ti)
@@ -121,7 +122,7 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
             res[f"ece_{w}"] = {**est, "wins": float(np.mean(d_t < 0)), "losses": float(np.mean(d_t > 0)),
                                "n_cells": len(targets), "unit": "targets", "better": "lower"}
             if loto:
-                res[f"ece_{w}"].update(_loto(h, pads[a], pads[b], i))
+                res[f"ece_{w}"].update(_loto(h, pads[a], pads[b], i, est, loo_w))
             for t, d in zip(targets, d_t):
                 res_t.setdefault(t, {})[f"ece_{w}"] = {"value": float(d), "ci_low": float("nan"),
                                                        "ci_high": float("nan")}
@@ -130,14 +131,15 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
     return out
 
 
-def _loto(h, pa: np.ndarray, pb: np.ndarray, i: int) -> dict:
-    """The ECE difference with each target left out (``hierarchy.leave_one_out``)."""
+def _loto(h, pa: np.ndarray, pb: np.ndarray, i: int, full: dict, loo_w: np.ndarray) -> dict:
+    """The ECE difference with each target left out (``hierarchy.leave_one_out``): ``full`` its
+    estimate on every target, ``loo_w`` the leaf weights of the draws' first T - 1 target slots."""
     from pipeline.evaluation.statistics.hierarchy import leave_one_out
 
-    def est(rs, keep):
-        W = rs.shape[2]
-        w0, bw = rs.point_weights()[0], rs.leaf_weights()[:, 0]
-        a, b = pa[keep][:, :W], pb[keep][:, :W]
-        return estimate(_ece(w0, a)[i] - _ece(w0, b)[i], _ece(bw, a)[:, i] - _ece(bw, b)[:, i])
-
-    return leave_one_out(h, est, False)
+    if loo_w is None:                                    # under 3 targets: no check (leave_one_out says so)
+        return leave_one_out(h, full, np.array([]), np.array([]), False)
+    T = h.target_rs.shape[1]
+    w0 = h.target_rs.point_weights()[0]
+    w_loo = np.where(np.eye(T, dtype=bool)[..., None], 0.0, w0[None] * T / (T - 1))   # (T, T, W): row t without t
+    points = _ece(w_loo, pa)[:, i] - _ece(w_loo, pb)[:, i]
+    return leave_one_out(h, full, points, _ece(loo_w, pa)[:, i] - _ece(loo_w, pb)[:, i], False)
