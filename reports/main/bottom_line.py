@@ -10,6 +10,7 @@ import math
 from collections import Counter
 
 from pipeline.evaluation.metrics.spec import higher_is_better as _higher, metric_label
+from pipeline.evaluation.statistics.multiplicity import adjusted
 from reports.shared.records import join_words, outcome_clauses, records_of
 
 
@@ -66,11 +67,14 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     table = [r for r in recs if r.get("primary")] or recs
     if not table:
         return []
-    clauses = outcome_clauses(table)
+    # the primary family's verdicts as Holm-adjusted (familywise 95 %); unadjusted where a record has none
+    clauses = outcome_clauses([{**r, "outcome": adjusted(r)} for r in table])
+    fam = next((r.get("family") for r in table if r.get("family")), None)
     c = counts(pop)
     prim = sorted({metric_label(r["metric"]) for r in table if r.get("primary")})
-    first = ("Bottom line" + (f" (primary metrics: {join_words(prim)}; every other metric is exploratory)" if prim
-                              else "") + ". " + " ".join(cl + "." for cl in clauses))
+    holm = (f"; Holm-adjusted over the {fam} primary comparisons, familywise 95 %" if fam else "")
+    first = ("Bottom line" + (f" (primary metrics: {join_words(prim)}; every other metric is exploratory{holm})"
+                              if prim else "") + ". " + " ".join(cl + "." for cl in clauses))
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
     n_scans = next((r.get("n", {}).get("scans") for r in table if "scans" in (r.get("over") or [])), None)
     scans = f"{n_scans} scans, " if n_scans else ""

@@ -91,6 +91,9 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
         notes.append(f"{rec['ceiling_cells']} of {cells} cells had both methods at the best possible value")
     if rec.get("floor_cells"):
         notes.append(f"{rec['floor_cells']} of {cells} at the worst")
+    if rec.get("outcome_holm") and rec["outcome_holm"] != rec["outcome"]:
+        notes.append(f"{rec['outcome_holm']} after the Holm adjustment over the {rec.get('family')} primary "
+                     "comparisons")
     if rec.get("primary") is False:
         notes.append("exploratory metric")
     return text + ("; " + "; ".join(notes) if notes else "") + "."
@@ -103,6 +106,17 @@ def clause(rec: Mapping, *, name: Callable[[str], str] | None = None,
     a, b = sides(rec, name)
     what = (metric_name or metric_label)(rec["metric"])
     return f"{a} − {b}, {what}: {fmt(rec.get('value'), signed=True)}, {interval_text(rec)} ({rec['outcome']})"
+
+
+def holm_text(rec: Mapping) -> str:
+    """A primary-family record's adjusted verdict with its widened interval: 'not distinguishable
+    (98.3 % CI [−0.01, +0.05]; Holm p 0.06)'; '' outside the family."""
+    if not rec.get("outcome_holm"):
+        return ""
+    level = 100 * float(rec.get("level_holm") or 0.95)
+    ci = interval_text({"lo": rec.get("lo_holm"), "hi": rec.get("hi_holm"),
+                        "unbounded": rec.get("lo_holm") is None or rec.get("hi_holm") is None})
+    return (f"{rec['outcome_holm']} ({ci.replace('95 %', f'{level:.3g} %')}; Holm p {fmt(rec.get('p_holm'))})")
 
 
 def metric_family(metric: str) -> str:

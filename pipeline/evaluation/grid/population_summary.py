@@ -34,6 +34,10 @@ STATISTICS = {
                "distinguishable",
     "pooling": "per metric (spec): the mean over targets of the target means, or the median over targets for "
                "unbounded metrics (log10 MGR percentiles, NLL); ECE from the pooled posteriors",
+    "multiplicity": "Holm over the primary family (With Uncertainty against each baseline on each primary metric), "
+                    "familywise 95 %: step by step each open interval is widened to level 1 - 0.05/(open records); "
+                    "records carry both verdicts (outcome, outcome_holm); the bottom line and scorecard read the "
+                    "adjusted one",
 }
 
 

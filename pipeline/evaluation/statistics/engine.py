@@ -5,7 +5,8 @@ page call ``block``; the single-track tables call ``over_realizations``. All of 
 with ``resampler.draws`` (one hierarchy: seeds -> targets -> tracks), take the percentile
 interval with its infinity rule, pool targets as the metric spec says (``spec.pool_of``: the
 mean, or the median over targets for unbounded metrics) and label with ``records.outcome``, so
-the number shown, its CI and its verdict are one statistic wherever they appear.
+the number shown, its CI and its verdict are one statistic wherever they appear; the primary
+family's records also carry their Holm-adjusted verdicts (``multiplicity``).
 
 Units: a cell is one (target, track, setting); a track's value is the mean over its settings of
 the cell values, a target's the mean over its tracks, a seed's the ``pool`` over its targets, the
@@ -22,7 +23,8 @@ from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.metrics.labels import comparison_key
 from pipeline.evaluation.statistics import records as REC
 from pipeline.evaluation.statistics.hierarchy import Hierarchy, leave_one_out
-from pipeline.evaluation.statistics.resampler import draws, interval
+from pipeline.evaluation.statistics.multiplicity import holm
+from pipeline.evaluation.statistics.resampler import draws, estimate, interval
 
 KEYS = ["target", "track", "setting"]
 
@@ -72,6 +74,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
     n, over = h.n(), h.over()
     n_cells = int(sum(len(f[f["method"] == methods[0]]) for f in frames.values())) if methods else 0
     out: dict = {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "records": []}
+    boot: dict[tuple[str, str], np.ndarray | None] = {}   # each record's draws, for the Holm steps
     single = len(h.seeds) == 1
     for m in methods:
         for k in metrics:
@@ -96,7 +99,8 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             pool = M.pool_of(k)
             d = np.concatenate([x[k].to_numpy(float) for x in dfs])
             wins, losses = (d > 0, d < 0) if higher else (d < 0, d > 0)
-            est = {**h.rs.estimate(v, pool), "wins": float(wins.mean()), "losses": float(losses.mean()),
+            boot[(key, k)] = h.rs.draws(v, pool) if h.rs.spread() else None
+            est = {**estimate(h.rs.point(v, pool), boot[(key, k)]), "wins": float(wins.mean()), "losses": float(losses.mean()),
                    "n_cells": len(d), "unit": "cells", "better": "higher" if higher else "lower",
                    "pooling": pool, "over": over, "n": n}
             out["paired"].setdefault(key, {})[k] = est
@@ -138,9 +142,11 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             for t, vals in per.items():
                 out["paired_per_target"].setdefault(key, {}).setdefault(t, {}).update(vals)
         out["reliability"] = e["reliability"]
+        boot.update(e["draws"])
     order = {k: i for i, k in enumerate(list(metrics) + list(M.POOLED_METRICS))}
     comps = [comparison_key(a, b) for a, b in comparisons]
     out["records"].sort(key=lambda r: (comps.index(r["comparison"]), order.get(r["metric"], len(order))))
+    holm(out["records"], boot)
     return out
 
 

@@ -84,10 +84,11 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
                loto: bool = True) -> dict:
     """{"pooled": {method: {ece_final, ece_overall}}, "per_target": {target: {method: ...}},
     "paired": {comparison key: {ece_<where>: est + wins/losses over targets}}, "reliability":
-    {method: {where: diagram}}} on the hierarchy ``h`` (``hierarchy.Hierarchy``, one seed)."""
+    {method: {where: diagram}}, "draws": {(comparison key, metric): the paired difference's draws}}
+    on the hierarchy ``h`` (``hierarchy.Hierarchy``, one seed)."""
     present = [m for m in methods if any(k[0] == m for k in sums)]
     if not sums or not present:
-        return {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "reliability": {}}
+        return {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "reliability": {}, "draws": {}}
     targets = h.targets
     pads = {m: _padded(h, sums, m) for m in present}
     bw, w0 = h.target_rs.leaf_weights()[:, 0], h.target_rs.point_weights()[0]
@@ -95,7 +96,7 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
     boot = {m: _ece(bw, pads[m]) for m in present}
     out = {"pooled": {m: {f"ece_{w}": estimate(point[m][i], boot[m][:, i]) for i, w in enumerate(WHERE)}
                       for m in present},
-           "per_target": {}, "paired": {}, "paired_per_target": {},
+           "per_target": {}, "paired": {}, "paired_per_target": {}, "draws": {},
            "reliability": {m: {w: K.reliability(np.einsum("tj,tjwkb->wkb", w0, pads[m])[i])
                                for i, w in enumerate(WHERE)} for m in present}}
     loo_w = h.target_rs.leaf_weights(slots=len(targets) - 1)[:, 0] if loto and len(targets) >= 3 else None
@@ -118,7 +119,8 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
         res, res_t = {}, {}
         for i, w in enumerate(WHERE):
             d_t = np.array([tgt[t][a][f"ece_{w}"]["value"] - tgt[t][b][f"ece_{w}"]["value"] for t in targets])
-            est = estimate(point[a][i] - point[b][i], boot[a][:, i] - boot[b][:, i])
+            out["draws"][(key, f"ece_{w}")] = boot[a][:, i] - boot[b][:, i]
+            est = estimate(point[a][i] - point[b][i], out["draws"][(key, f"ece_{w}")])
             res[f"ece_{w}"] = {**est, "wins": float(np.mean(d_t < 0)), "losses": float(np.mean(d_t > 0)),
                                "n_cells": len(targets), "unit": "targets", "better": "lower"}
             if loto:

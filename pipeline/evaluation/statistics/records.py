@@ -12,7 +12,10 @@ A record is data, never prose: ``reports.shared.records`` renders the sentences.
 - ``better``: "higher" | "lower"; ``outcome``: ``outcome(lo, hi, better)``; ``primary``: the
   metric is one of ``evaluate.primary_metrics`` (the rest are exploratory);
 - optional: ``wins``/``losses`` (shares of ``unit``: cells or targets), the leave-one-target-out
-  range ``loto_min``/``loto_max`` and ``loto_flips``, ``ceiling_cells``/``floor_cells``.
+  range ``loto_min``/``loto_max`` and ``loto_flips``, ``ceiling_cells``/``floor_cells``;
+- the primary family only (``metrics.labels.in_primary_family``; ``multiplicity.holm``):
+  ``family`` (its size), ``p``/``p_holm`` (bootstrap p-value, Holm-adjusted), ``level_holm``,
+  ``lo_holm``/``hi_holm`` (the interval widened to its Holm step) and ``outcome_holm``.
 """
 from __future__ import annotations
 

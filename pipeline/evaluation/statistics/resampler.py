@@ -35,20 +35,21 @@ from pipeline.evaluation.metrics.spec import percentile
 LEVEL = 0.95
 
 
-def interval(draws: np.ndarray, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+def interval(draws: np.ndarray, axis: int = -1, level: float = LEVEL) -> tuple[np.ndarray, np.ndarray]:
     """The percentile interval of ``draws`` along ``axis``: the one percentile
-    (``spec.percentile``, its infinity rule) at the ends of the ``LEVEL`` interval."""
-    lo, hi = percentile(draws, [50 * (1 - LEVEL), 50 * (1 + LEVEL)], axis=axis)
+    (``spec.percentile``, its infinity rule) at the ends of the ``level`` interval (``LEVEL``;
+    the Holm steps ask for wider ones: ``multiplicity``)."""
+    lo, hi = percentile(draws, [50 * (1 - level), 50 * (1 + level)], axis=axis)
     return lo, hi
 
 
-def estimate(value: float, draws: np.ndarray | None) -> dict[str, float]:
+def estimate(value: float, draws: np.ndarray | None, level: float = LEVEL) -> dict[str, float]:
     """{"value", "ci_low", "ci_high"}: the point value and the percentile interval of its draws
     (None or fewer than two resampled units: no interval)."""
     v = float(value)
     if draws is None:
         return {"value": v, "ci_low": math.nan, "ci_high": math.nan}
-    lo, hi = (float(x) for x in interval(draws))
+    lo, hi = (float(x) for x in interval(draws, level=level))
     if not math.isnan(v) and not math.isnan(lo):
         lo, hi = min(lo, v), max(hi, v)
     return {"value": v, "ci_low": lo, "ci_high": hi}
@@ -145,10 +146,13 @@ class Resampler:
         keep = ~np.eye(T, dtype=bool)                                            # row t: every target but t
         return _stat(np.broadcast_to(tm, (T, T)), keep, pool)
 
+    def spread(self) -> bool:
+        """Whether some level has two units to resample (else no interval)."""
+        return bool(len(self.n_targets) > 1 or self.n_targets[0] > 1 or self.n_tracks[0, 0] > 1)
+
     def estimate(self, values: np.ndarray, pool: str) -> dict[str, float]:
         """``point`` with its interval; no interval when no level has two units to resample."""
-        spread = len(self.n_targets) > 1 or self.n_targets[0] > 1 or self.n_tracks[0, 0] > 1
-        return estimate(self.point(values, pool), self.draws(values, pool) if spread else None)
+        return estimate(self.point(values, pool), self.draws(values, pool) if self.spread() else None)
 
     def leaf_weights(self, slots: int | None = None) -> np.ndarray:
         """(B, S, T, W): weight of every (seed, target, track) in each draw of the mean statistic
