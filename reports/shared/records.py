@@ -21,6 +21,29 @@ PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguish
 STATISTIC = {"mean": "mean over targets of the differences",
              "median": "median over targets of the target differences",
              "pooled posteriors": "difference of the pooled-posterior values"}
+# What an interval varies over, per clustering (a record's ``cluster``: evaluate.statistics.cluster).
+VARIES = {"target": "targets and tracks", "scan": "scans, targets and tracks",
+          "category": "categories, targets and tracks", "crossed": "targets and scans, crossed"}
+GROUP = {"scan": "scans", "category": "categories"}
+SINGULAR = {"categories": "category", "seeds": "seed", "scans": "scan", "targets": "target", "tracks": "track",
+            "starts": "start"}
+
+
+def varies_text(rec: Mapping) -> str:
+    """'categories, targets and tracks': the levels a record's (or a summary's) interval resamples."""
+    c = rec.get("cluster")
+    if c in VARIES:
+        return VARIES[c]
+    return join_words(list(rec.get("over") or ["targets", "tracks"]))
+
+
+def statistic_text(rec: Mapping) -> str:
+    """The pooled statistic in words: over targets, or over the groups on top (scans, categories)
+    of their targets' values."""
+    pool, group = rec.get("pooling"), GROUP.get(str(rec.get("cluster")))
+    if group and pool in ("mean", "median"):
+        return f"{pool} over {group} of their targets' {pool} differences"
+    return STATISTIC.get(pool, "difference")
 
 
 def records_of(block: Mapping | None) -> list[dict]:
@@ -46,9 +69,13 @@ def interval_text(rec: Mapping) -> str:
 
 
 def over_text(rec: Mapping) -> str:
-    n = rec.get("n") or {}
-    parts = [f"{n[k]} {k if n[k] != 1 else k[:-1]}" for k in ("seeds", "targets", "tracks", "starts") if k in n]
-    return " × ".join(parts) if parts else " and ".join(rec.get("over") or [])
+    n, over = rec.get("n") or {}, list(rec.get("over") or [])
+    word = lambda k: f"{n[k]} {k if n[k] != 1 else SINGULAR[k]}"
+    if rec.get("cluster") == "crossed" and "targets" in n and "scans" in n:
+        return f"{word('targets')} crossed with {word('scans')}"
+    parts = [word(k) for k in ("seeds", "scans", "categories", "targets", "tracks", "starts")
+             if k in n and (k in over or not over or k in ("targets", "tracks", "starts"))]
+    return " × ".join(parts) if parts else " and ".join(over)
 
 
 def sides(rec: Mapping, name: Callable[[str], str] | None = None) -> tuple[str, str]:
@@ -66,7 +93,7 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
     wins/losses and the caveats the record carries. ``name`` and ``metric_name`` word another
     family's entries (the view planners and their metrics); by default methods and metrics."""
     a, b = sides(rec, name)
-    stat = STATISTIC.get(rec.get("pooling"), "difference")
+    stat = statistic_text(rec)
     what = (metric_name or metric_label)(rec["metric"])
     text = (f"{a} {PHRASE[rec['outcome']]} {b} on {what} ({stat} "
             f"{fmt(rec.get('value'), signed=True)}, {interval_text(rec)}, over {over_text(rec)}")

@@ -1,5 +1,5 @@
-"""The units of one population and their shared draws (``Hierarchy``: seeds -> targets -> tracks),
-and the leave-one-target-out check on them: what the engine and the pooled ECE both resample on.
+"""The units of one population and their shared draws (``Hierarchy``: seeds -> targets -> tracks,
+or the design's clusters on top), and the leave-one-target-out check on them: what the engine and the pooled ECE both resample on.
 """
 from __future__ import annotations
 
@@ -9,19 +9,34 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.statistics import records as REC
+from pipeline.evaluation.statistics.crossed import crossed_draws
 from pipeline.evaluation.statistics.resampler import Resampler, draws, estimate
+from pipeline.scene.folds import category_of
+
+
+CLUSTERS = ("target", "scan", "category", "crossed")
+# What each clustering's intervals resample, top level first (a record's ``over``).
+OVER = {"target": ["targets", "tracks"], "scan": ["scans", "targets", "tracks"],
+        "category": ["categories", "targets", "tracks"], "crossed": ["targets", "scans"]}
 
 
 class Hierarchy:
     """The units of one population: per seed, its sorted targets and each target's sorted tracks,
     and the shared draws over them.
 
-    ``by_scan`` (one seed whose cells carry a ``scan`` column): the pooled values and paired
-    differences resample scans, then the targets seen in each scan, then their tracks in that
-    scan (``rs``, the resampler's top level holding scans instead of seeds); per-target values,
-    leave-one-target-out and the pooled ECE keep targets, then tracks (``target_rs``)."""
+    ``cluster`` (``evaluate.statistics.cluster``; one seed, else "target") names the design's
+    independent unit, the top level of the pooled values' and paired differences' draws (``rs``):
+    "target": targets, then tracks; "scan" (cells with a ``scan`` column): scans, then the
+    targets seen in each scan, then their tracks in it; "category": categories (a ``category``
+    column, else the targets' ``<category>__f<k>`` names), then their targets, then tracks;
+    "crossed": targets and scans resampled independently (``crossed.CrossedResampler``).
+    Per-target values, leave-one-target-out and the pooled ECE keep targets, then tracks
+    (``target_rs``). ``by_scan``: the former spelling of cluster = "scan"."""
 
-    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed, by_scan: bool = False):
+    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed, by_scan: bool = False,
+                 cluster: str = "target"):
+        if cluster not in CLUSTERS:
+            raise ValueError(f"evaluate.statistics.cluster = {cluster!r}: one of {', '.join(CLUSTERS)}")
         self.seeds = list(frames)
         self.units = []  # per seed: [(target, [tracks])]
         for s in self.seeds:
@@ -33,19 +48,59 @@ class Hierarchy:
         self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
                       for u in self.units]
         first = frames[self.seeds[0]] if self.seeds else None
-        self.scans: list[str] = []
-        self.by_scan = bool(by_scan and len(self.seeds) == 1 and first is not None and "scan" in first)
+        cluster = "scan" if by_scan and cluster == "target" else cluster
+        if len(self.seeds) != 1 or first is None or (cluster in ("scan", "crossed") and "scan" not in first):
+            cluster = "target"
+        self.cluster = cluster
+        self.groups: list[str] = []
         self.rs = self.target_rs
-        if self.by_scan:
-            self.scans = sorted(str(x) for x in first["scan"].unique())
-            self.scan_units = [[(str(t), sorted(int(x) for x in g["track"].unique()))
-                                for t, g in first[first["scan"].astype(str) == sc].groupby("target", sort=True)]
-                               for sc in self.scans]
-            self.scan_index = {(t, tr): (si, ti, j) for si, u in enumerate(self.scan_units)
-                               for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
-            if sum(len(tr) for u in self.scan_units for _, tr in u) != len(self.index[0]):
-                raise ValueError("resampling scans: a (target, track) lies in more than one scan")
-            self.rs = draws([[len(tr) for _, tr in u] for u in self.scan_units], n_boot, [*np.atleast_1d(seed), 3])
+        if cluster in ("scan", "category"):
+            self._nest(first, cluster, seed)
+        elif cluster == "crossed":
+            self._cross(first, seed)
+
+    def _nest(self, first: pd.DataFrame, cluster: str, seed) -> None:
+        """Groups (scans or categories) on top: each group's targets, each target's tracks in it."""
+        f = first.copy()
+        if cluster == "category":
+            f["_group"] = f["category"].astype(str) if "category" in f else [category_of(t) for t in f["target"].astype(str)]
+        else:
+            f["_group"] = f["scan"].astype(str)
+        self.groups = sorted(f["_group"].unique())
+        self.group_units = [[(str(t), sorted(int(x) for x in g["track"].unique()))
+                             for t, g in f[f["_group"] == gr].groupby("target", sort=True)] for gr in self.groups]
+        self.group_index = {(t, tr): (gi, ti, j) for gi, u in enumerate(self.group_units)
+                            for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
+        if sum(len(tr) for u in self.group_units for _, tr in u) != len(self.index[0]):
+            raise ValueError(f"resampling {cluster}s: a (target, track) lies in more than one {cluster}")
+        self.rs = draws([[len(tr) for _, tr in u] for u in self.group_units], self.n_boot,
+                        [*np.atleast_1d(seed), 3 if cluster == "scan" else 4])
+
+    def _cross(self, first: pd.DataFrame, seed) -> None:
+        """Targets and scans crossed: the scan of each (target, track)."""
+        sc = {(str(t), int(tr)): str(s) for t, tr, s in zip(first["target"], first["track"], first["scan"])}
+        per = {}
+        for (t, tr), s in sc.items():
+            per.setdefault((t, tr), set()).add(s)
+        if any(len(v) > 1 for v in per.values()):
+            raise ValueError("crossed bootstrap: a (target, track) lies in more than one scan")
+        self.groups = sorted(set(sc.values()))
+        gi = {g: i for i, g in enumerate(self.groups)}
+        self.rs = crossed_draws([[gi[sc[(t, tr)]] for tr in trs] for t, trs in self.units[0]], self.n_boot,
+                                [*np.atleast_1d(seed), 5])
+
+    @property
+    def by_scan(self) -> bool:
+        return self.cluster == "scan"
+
+    @property
+    def nested(self) -> bool:
+        """Whether ``rs`` holds a group level above the targets (its values padded by group)."""
+        return self.cluster in ("scan", "category")
+
+    @property
+    def scans(self) -> list[str]:
+        return self.groups if self.cluster in ("scan", "crossed") else []
 
     @property
     def targets(self) -> list[str]:
@@ -55,24 +110,27 @@ class Hierarchy:
         out = {"targets": sum(len(u) for u in self.units), "tracks": sum(len(tr) for u in self.units for _, tr in u)}
         if len(self.seeds) > 1:
             out["seeds"] = len(self.seeds)
-        if self.by_scan:
-            out["scans"] = len(self.scans)
-            out["scan_targets"] = sum(len(u) for u in self.scan_units)
+        if self.cluster in ("scan", "crossed"):
+            out["scans"] = len(self.groups)
+        if self.cluster == "scan":
+            out["scan_targets"] = sum(len(u) for u in self.group_units)
+        if self.cluster == "category":
+            out["categories"] = len(self.groups)
         return out
 
     def over(self) -> list[str]:
-        return (["seeds"] if len(self.seeds) > 1 else []) + (["scans"] if self.by_scan else []) + ["targets", "tracks"]
+        return (["seeds"] if len(self.seeds) > 1 else []) + OVER[self.cluster]
 
     def pad(self, tvs: Sequence[pd.DataFrame], column: str, flat: bool = False) -> np.ndarray:
         """Track values of ``column`` from each seed's track frame (target, track, ...), padded to
-        ``rs``'s (S, T, W) (``flat`` or no scan level: ``target_rs``'s, seeds -> targets -> tracks)."""
-        scan = self.by_scan and not flat
-        out = np.zeros(self.rs.shape if scan else self.target_rs.shape)
+        ``rs``'s (S, T, W) (``flat`` or no group level: ``target_rs``'s, seeds -> targets -> tracks)."""
+        grouped = self.nested and not flat
+        out = np.zeros(self.rs.shape if grouped else self.target_rs.shape)
         for s, tv in enumerate(tvs):
             idx = self.index[s]
             for t, tr, v in zip(tv["target"].astype(str), tv["track"].astype(int), tv[column].to_numpy(float)):
-                if scan:
-                    out[self.scan_index[(t, tr)]] = v
+                if grouped:
+                    out[self.group_index[(t, tr)]] = v
                 else:
                     ti, j = idx[(t, tr)]
                     out[s, ti, j] = v
