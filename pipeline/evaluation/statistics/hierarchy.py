@@ -48,9 +48,11 @@ class Hierarchy:
         self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
                       for u in self.units]
         first = frames[self.seeds[0]] if self.seeds else None
-        cluster = "scan" if by_scan and cluster == "target" else cluster
-        if len(self.seeds) != 1 or first is None or (cluster in ("scan", "crossed") and "scan" not in first):
-            cluster = "target"
+        if cluster in ("scan", "crossed") and first is not None and "scan" not in first:
+            raise ValueError(f"cluster = {cluster!r} needs the cells' 'scan' column (the population has none)")
+        cluster = "scan" if by_scan and cluster == "target" and first is not None and "scan" in first else cluster
+        if len(self.seeds) != 1 or first is None:
+            cluster = "target"        # a seed pool keeps seeds on top
         self.cluster = cluster
         self.groups: list[str] = []
         self.rs = self.target_rs

@@ -67,8 +67,8 @@ class StatisticsConfig:
 def cluster_of(ev) -> str:
     """The clustering in force: ``evaluate.statistics.cluster``, or "scan" where only the former
     key ``evaluate.resample_scans`` asks for it."""
-    c = ev.statistics.cluster
-    return "scan" if ev.resample_scans and c == "target" else c
+    c = getattr(getattr(ev, "statistics", None), "cluster", "target")   # a hand-built section may lack it
+    return "scan" if getattr(ev, "resample_scans", False) and c == "target" else c
 
 
 @dataclass(frozen=True)
