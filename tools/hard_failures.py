@@ -39,11 +39,12 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--ratio", type=float, default=10.0)
     a = ap.parse_args(argv)
     pop = json.loads((a.run / "evaluate" / "summary.json").read_text())["population"]
-    by_scan = "scans" in (pop["records"][0].get("over") or [])
+    r0 = pop["records"][0]
+    cluster = r0.get("cluster") or ("scan" if "scans" in (r0.get("over") or []) else "target")
     table = cells(pd.read_parquet(a.run / "evaluate" / "results.parquet"), a.experiment, a.ratio)
     methods = [m for m in pop["methods"] if m in set(table["method"])]
     b = population_block(table.rename(columns={"hard": "hard_failure"}), methods, ["hard_failure"], comparisons(),
-                         pop["bootstrap"], 0, per_target=False, loto=False, by_scan=by_scan)
+                         pop["bootstrap"], 0, per_target=False, loto=False, cluster=cluster)
     over = ", ".join(b["pooled"][methods[0]]["hard_failure"]["over"])
     print(f"share of runs with a wrong class >= {a.ratio:g} x the truth at the final step, {a.experiment} "
           f"(95 % CIs over {over}):")

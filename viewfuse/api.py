@@ -103,13 +103,15 @@ def track_metrics(log_posteriors, truth: int, params: M.Params = DEFAULT_PARAMS)
 
 def evaluate_population(results: pd.DataFrame, *, metrics: Sequence[str] | None = None,
                         comparisons: Sequence[tuple[str, str]] | None = None, n_boot: int = 2000, seed: int = 0,
-                        params: M.Params = DEFAULT_PARAMS) -> dict:
+                        params: M.Params = DEFAULT_PARAMS, cluster: str = "target") -> dict:
     """Pooled values with 95 % CIs, paired differences and verdict records over a population.
 
     ``results``: one row per (target, track, setting, method) with a column per metric (e.g. from
     ``track_metrics``), or the evaluate stage's results table (one row per realization and step,
     with ``realization``, ``step``, ``posterior`` and ``truth``), reduced to those rows here.
-    CIs resample targets, then tracks within targets (``pipeline.evaluation.statistics``).
+    CIs resample targets, then tracks within targets (``pipeline.evaluation.statistics``), or the
+    design's clusters on top: ``cluster`` = "scan" | "category" | "crossed" (``evaluate.statistics.cluster``;
+    "scan" and "crossed" need a ``scan`` column).
     ``comparisons``: (method, baseline) pairs (default: the registry's, of the methods present)."""
     cells = _cells(results, params) if "posterior" in results.columns else results.copy()
     for col in ("target", "track", "method"):
@@ -123,7 +125,7 @@ def evaluate_population(results: pd.DataFrame, *, metrics: Sequence[str] | None 
     keys = list(metrics) if metrics is not None else [k for k in M.METRICS if k in cells.columns]
     pairs = [tuple(c) for c in (comparisons if comparisons is not None else registry.comparisons())
              if c[0] in present and c[1] in present]
-    return population_block(cells, order, keys, pairs, n_boot, seed)
+    return population_block(cells, order, keys, pairs, n_boot, seed, cluster=cluster)
 
 
 def _cells(rows: pd.DataFrame, params: M.Params) -> pd.DataFrame:

@@ -17,3 +17,10 @@ def fold_of(name: str) -> str:
     if not sep or not head or not k.isdigit():
         raise ValueError(f"class {name!r} has no fold suffix '{FOLD_SEP}<k>' (evaluate.candidate_folds = true)")
     return k
+
+
+def category_of(name: str) -> str:
+    """The category of a category class or target ``<category>__f<k>`` (``category``); ValueError
+    for another name (a target that belongs to no category)."""
+    fold_of(name)
+    return str(name).rpartition(FOLD_SEP)[0]

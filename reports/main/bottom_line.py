@@ -10,7 +10,8 @@ import math
 from collections import Counter
 
 from pipeline.evaluation.metrics.spec import higher_is_better as _higher, metric_label
-from reports.shared.records import join_words, outcome_clauses, records_of
+from pipeline.evaluation.statistics.multiplicity import adjusted
+from reports.shared.records import join_words, outcome_clauses, records_of, varies_text
 
 
 def counts(pop: dict) -> dict:
@@ -66,15 +67,22 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     table = [r for r in recs if r.get("primary")] or recs
     if not table:
         return []
-    clauses = outcome_clauses(table)
+    # the primary family's verdicts as Holm-adjusted (familywise 95 %); unadjusted where a record has none
+    clauses = outcome_clauses([{**r, "outcome": adjusted(r)} for r in table])
+    fam = next((r.get("family") for r in table if r.get("family")), None)
     c = counts(pop)
     prim = sorted({metric_label(r["metric"]) for r in table if r.get("primary")})
-    first = ("Bottom line" + (f" (primary metrics: {join_words(prim)}; every other metric is exploratory)" if prim
-                              else "") + ". " + " ".join(cl + "." for cl in clauses))
+    holm = (f"; Holm-adjusted over the {fam} primary comparisons, familywise 95 %" if fam else "")
+    first = ("Bottom line" + (f" (primary metrics: {join_words(prim)}; every other metric is exploratory{holm})"
+                              if prim else "") + ". " + " ".join(cl + "." for cl in clauses))
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
-    n_scans = next((r.get("n", {}).get("scans") for r in table if "scans" in (r.get("over") or [])), None)
-    scans = f"{n_scans} scans, " if n_scans else ""
-    levels = "scans, targets and tracks" if n_scans else "targets and tracks"
+    r0 = table[0]
+    group = {"scan": "scans", "category": "categories", "crossed": "scans"}.get(str(r0.get("cluster")))
+    if group is None and "scans" in (r0.get("over") or []):   # a summary from before the cluster field
+        group = "scans"
+    n_top = (r0.get("n") or {}).get(group) if group else None
+    scans = (f"{n_top} {group}" + (" crossed with " if r0.get("cluster") == "crossed" else ", ")) if n_top else ""
+    levels = varies_text(r0) if r0.get("cluster") or not n_top else "scans, targets and tracks"
     second = (f"Each outcome is read off the 95 % CI of a paired difference over {scans}{c['n_targets']} targets and "
               f"{tracks_text(c)}; it varies over {levels} only, with {seeds} (the seed study, viewfuse study, repeats "
               "it over training seeds).")

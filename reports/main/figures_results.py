@@ -18,6 +18,7 @@ import pandas as pd
 from pipeline.evaluation.metrics.labels import comparison_key, method_color, method_label, ordered_methods, present_comparisons
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, higher_is_better, matrices, metric_label
 from pipeline.infra.outputs import number
+from reports.shared.records import varies_text
 from reports.main.calibration import paired_value, pooled_value
 from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
@@ -69,7 +70,7 @@ def fig_forest(pop: dict) -> Any:
     axes[0, 0].invert_yaxis()
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=max(len(keys), 1),
                frameon=False)
-    fig.suptitle("Paired differences per target, 95 % bootstrap CIs over tracks (pooled: over targets too)")
+    fig.suptitle(f"Paired differences per target, 95 % bootstrap CIs over tracks ({_pooled_over(pop)})")
     return fig
 
 
@@ -112,7 +113,7 @@ def fig_per_target(pop: dict) -> Any:
     axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=3, frameon=False)
-    fig.suptitle("Per target and pooled, 95 % bootstrap CIs over tracks (pooled: over targets too)")
+    fig.suptitle(f"Per target and pooled, 95 % bootstrap CIs over tracks ({_pooled_over(pop)})")
     return fig
 
 
@@ -305,3 +306,9 @@ def fig_track(track: dict, biases: list[tuple[float, float]]) -> Any:
     ax.set_ylabel("y (m, ground frame)")
     fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1, fontsize=8, frameon=False)
     return fig
+
+
+def _pooled_over(pop: dict) -> str:
+    """What the pooled rows' CIs vary over (the population's ``cluster``)."""
+    c = pop.get("cluster")
+    return "pooled: over targets too" if c in (None, "target") else f"pooled: over {varies_text(pop)}"

@@ -10,6 +10,7 @@ from pipeline.evaluation.metrics.labels import comparison_label, method_label
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt
+from reports.shared.records import varies_text
 
 # The paper's own figure for its §5.5 run (../shared/paper/numbers.md): Model Based ends with a wrong
 # class at about 10 times the correct one's probability in around 10 % of runs.
@@ -89,7 +90,8 @@ def paper_setting(ctx: ReportContext, pop: dict) -> None:
     if not settings:
         return
     ctx.section("The paper's §5.5 setting", "paper-setting")
-    over = "scans, targets and tracks" if "scans" in str(pop.get("scope", "")) else "targets and tracks"
+    over = (varies_text(pop) if pop.get("cluster") else
+            "scans, targets and tracks" if "scans" in str(pop.get("scope", "")) else "targets and tracks")
     for s in settings:
         entry = (pop.get("by_setting") or {}).get(s["setting"]) or {}
         pooled = entry.get("pooled") or {}

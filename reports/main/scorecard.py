@@ -39,8 +39,11 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
             unb = bool(r.get("unbounded"))
             lo = number(r.get("lo"), -math.inf if unb else None, None)   # null: an unbounded end
             hi = number(r.get("hi"), math.inf if unb else None, None)
-            return {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
-                    "over": r.get("over") or ["targets", "tracks"]}
+            out = {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
+                   "over": r.get("over") or ["targets", "tracks"]}
+            if r.get("outcome_holm"):   # a primary-family verdict: read off its Holm-widened interval
+                out["holm"] = (number(r.get("lo_holm"), -math.inf, None), number(r.get("hi_holm"), math.inf, None))
+            return out
     d = paired_value(pop, comparison, metric)
     if not d:
         return None
@@ -49,10 +52,12 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
 
 
 def claim_status(entry: dict | None, metric: str) -> str:
-    """A directional claim: the side of 0 its interval lies on (the one outcome rule)."""
+    """A directional claim: the side of 0 its interval lies on (the one outcome rule); for a record
+    of the primary family, its Holm-adjusted interval (``multiplicity``)."""
     if entry is None:
         return "not measured"
-    return outcome_of(entry["lo"], entry["hi"], higher_is_better(metric), words=CLAIM_WORDS)
+    lo, hi = entry.get("holm") or (entry["lo"], entry["hi"])
+    return outcome_of(lo, hi, higher_is_better(metric), words=CLAIM_WORDS)
 
 
 def equivalence_status(entry: dict | None, margin: float) -> str:
@@ -104,9 +109,13 @@ def scorecard(ctx: ReportContext) -> None:
         if e:
             # An equivalence verdict is about ±margin, not the side of 0: the number is registered
             # (one statistic across the page) without the directional label the ledger checks.
+            holm = e.get("holm") if not equiv else None
             ctx.ledger.register(("paired", key, c.metric), e["value"], e["lo"], e["hi"],
-                                label="" if equiv else status, where="claims scorecard",
+                                label="" if equiv or holm else status, where="claims scorecard",
                                 higher_is_better=higher_is_better(c.metric))
+            if holm:
+                ctx.ledger.register(("holm", key, c.metric), e["value"], *holm, label=status,
+                                    where="claims scorecard (Holm)", higher_is_better=higher_is_better(c.metric))
         rows.append([c.text, c.how.format(margin=margin), paper_cell(c), est, status])
     ctx.page.table(["claim of the paper (in our words)", "our reading", "paper's number (section; not our scene)",
                     "ours: difference [95 % CI]", "verdict"], rows, cls="scorecard",
@@ -114,7 +123,8 @@ def scorecard(ctx: ReportContext) -> None:
                            f"{comparison_label(comparison_key(CLAIMS[0].method, CLAIMS[0].baseline))} and the other "
                            "comparisons as paired differences on the same (target, track, setting) cells. A directional "
                            "claim holds when the 95 % CI lies on the claimed side of 0, fails on the other side, and is "
-                           "inconclusive when it contains 0; the 'similar' claim holds when the whole 95 % CI lies "
+                           "inconclusive when it contains 0 (for the primary comparisons, its Holm-adjusted "
+                           "interval: familywise 95 %, as the paired table shows); the 'similar' claim holds when the whole 95 % CI lies "
                            f"within ±{margin:g} (report.equivalence_margin_correct), fails when it lies wholly "
                            "outside, else is inconclusive. The CIs vary over targets and tracks, not over classifier "
                            "training runs.")

@@ -12,7 +12,8 @@ from pipeline.scoring.classifiers import describe_card, display_of
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt
-from reports.shared.records import find, outcome_clauses, records_of, select, sentence, sentences as render
+from reports.shared.records import (find, holm_text, outcome_clauses, records_of, select, sentence,
+                                    sentences as render)
 from reports.main.calibration import paired_value, pooled_value
 from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
@@ -160,13 +161,25 @@ def population_section(ctx: ReportContext) -> None:
                              "realization), per target and pooled, with 95 % bootstrap CIs over tracks. "
                              "A bar that crosses 0 is not distinguishable from no difference.")
     rows = _paired_rows(pop)
+    recs = records_of(pop)
     for r in rows:
-        ctx.ledger.register(("paired", r[-1][0], r[-1][1]), r[3].value, r[3].low, r[3].high, label=r[2],
+        ctx.ledger.register(("paired", r[-1][0], r[-1][1]), r[4].value, r[4].low, r[4].high, label=r[2],
                             where="paired table", higher_is_better=higher_is_better(r[-1][1]))
-    page.table(["comparison", "metric", "outcome", "difference [95 % CI]", "cells won", "cells lost", "cells"],
+        rec = find(recs, *r[-1])
+        if rec and rec.get("outcome_holm"):   # the adjusted verdict is read off its own, wider interval
+            ctx.ledger.register(("holm", *r[-1]), rec.get("value"), rec.get("lo_holm"), rec.get("hi_holm"),
+                                label=rec["outcome_holm"], where="paired table (Holm)",
+                                higher_is_better=higher_is_better(r[-1][1]))
+    fam = next((x.get("family") for x in recs if x.get("family")), None)
+    page.table(["comparison", "metric", "outcome", "Holm-adjusted outcome", "difference [95 % CI]", "cells won",
+                "cells lost", "cells"],
                [r[:-1] for r in rows], cls="paired",
                caption="Paired differences, pooled. Won/lost: share of (target, track, setting) cells where "
-                       "With Uncertainty is strictly better / worse.")
+                       "With Uncertainty is strictly better / worse. "
+                       + (f"Holm-adjusted: the {fam} primary comparisons (With Uncertainty against each baseline on "
+                          "the primary metrics) as one family, familywise 95 % (each interval widened to its Holm "
+                          "step's level); the bottom line and the scorecard read these; '—': exploratory, "
+                          "unadjusted." if fam else "No primary family: nothing is Holm-adjusted."))
     note = dirichlet_note(pop)
     if note:
         page.paragraph(note, cls="note")
@@ -195,6 +208,7 @@ def comparison_keys(pop: dict) -> list[str]:
 
 def _paired_rows(pop: dict) -> list[list]:
     outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in records_of(pop)}
+    holm = {(r.get("comparison"), r.get("metric")): holm_text(r) for r in records_of(pop) if r.get("outcome_holm")}
     rows = []
     for key in comparison_keys(pop):
         metrics = list(PAIRED_METRICS) + [k for k in (pop["paired"].get(key) or {}) if k not in PAIRED_METRICS
@@ -204,7 +218,8 @@ def _paired_rows(pop: dict) -> list[list]:
             if not d:
                 continue
             rows.append([comparison_label(key), metric_label(metric, short=True),
-                         outcome.get((key, metric)) or _outcome(d, metric), Estimate.of(d, signed=True),
+                         outcome.get((key, metric)) or _outcome(d, metric), holm.get((key, metric), "—"),
+                         Estimate.of(d, signed=True),
                          _share(d.get("wins")), _share(d.get("losses")), d.get("n_cells"), (key, metric)])
     return rows
 

@@ -21,6 +21,29 @@ PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguish
 STATISTIC = {"mean": "mean over targets of the differences",
              "median": "median over targets of the target differences",
              "pooled posteriors": "difference of the pooled-posterior values"}
+# What an interval varies over, per clustering (a record's ``cluster``: evaluate.statistics.cluster).
+VARIES = {"target": "targets and tracks", "scan": "scans, targets and tracks",
+          "category": "categories, targets and tracks", "crossed": "targets and scans, crossed"}
+GROUP = {"scan": "scans", "category": "categories"}
+SINGULAR = {"categories": "category", "seeds": "seed", "scans": "scan", "targets": "target", "tracks": "track",
+            "starts": "start"}
+
+
+def varies_text(rec: Mapping) -> str:
+    """'categories, targets and tracks': the levels a record's (or a summary's) interval resamples."""
+    c = rec.get("cluster")
+    if c in VARIES:
+        return VARIES[c]
+    return join_words(list(rec.get("over") or ["targets", "tracks"]))
+
+
+def statistic_text(rec: Mapping) -> str:
+    """The pooled statistic in words: over targets, or over the groups on top (scans, categories)
+    of their targets' values."""
+    pool, group = rec.get("pooling"), GROUP.get(str(rec.get("cluster")))
+    if group and pool in ("mean", "median"):
+        return f"{pool} over {group} of their targets' {pool} differences"
+    return STATISTIC.get(pool, "difference")
 
 
 def records_of(block: Mapping | None) -> list[dict]:
@@ -46,9 +69,13 @@ def interval_text(rec: Mapping) -> str:
 
 
 def over_text(rec: Mapping) -> str:
-    n = rec.get("n") or {}
-    parts = [f"{n[k]} {k if n[k] != 1 else k[:-1]}" for k in ("seeds", "targets", "tracks", "starts") if k in n]
-    return " × ".join(parts) if parts else " and ".join(rec.get("over") or [])
+    n, over = rec.get("n") or {}, list(rec.get("over") or [])
+    word = lambda k: f"{n[k]} {k if n[k] != 1 else SINGULAR[k]}"
+    if rec.get("cluster") == "crossed" and "targets" in n and "scans" in n:
+        return f"{word('targets')} crossed with {word('scans')}"
+    parts = [word(k) for k in ("seeds", "scans", "categories", "targets", "tracks", "starts")
+             if k in n and (k in over or not over or k in ("targets", "tracks", "starts"))]
+    return " × ".join(parts) if parts else " and ".join(over)
 
 
 def sides(rec: Mapping, name: Callable[[str], str] | None = None) -> tuple[str, str]:
@@ -66,7 +93,7 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
     wins/losses and the caveats the record carries. ``name`` and ``metric_name`` word another
     family's entries (the view planners and their metrics); by default methods and metrics."""
     a, b = sides(rec, name)
-    stat = STATISTIC.get(rec.get("pooling"), "difference")
+    stat = statistic_text(rec)
     what = (metric_name or metric_label)(rec["metric"])
     text = (f"{a} {PHRASE[rec['outcome']]} {b} on {what} ({stat} "
             f"{fmt(rec.get('value'), signed=True)}, {interval_text(rec)}, over {over_text(rec)}")
@@ -91,6 +118,9 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
         notes.append(f"{rec['ceiling_cells']} of {cells} cells had both methods at the best possible value")
     if rec.get("floor_cells"):
         notes.append(f"{rec['floor_cells']} of {cells} at the worst")
+    if rec.get("outcome_holm") and rec["outcome_holm"] != rec["outcome"]:
+        notes.append(f"{rec['outcome_holm']} after the Holm adjustment over the {rec.get('family')} primary "
+                     "comparisons")
     if rec.get("primary") is False:
         notes.append("exploratory metric")
     return text + ("; " + "; ".join(notes) if notes else "") + "."
@@ -103,6 +133,17 @@ def clause(rec: Mapping, *, name: Callable[[str], str] | None = None,
     a, b = sides(rec, name)
     what = (metric_name or metric_label)(rec["metric"])
     return f"{a} − {b}, {what}: {fmt(rec.get('value'), signed=True)}, {interval_text(rec)} ({rec['outcome']})"
+
+
+def holm_text(rec: Mapping) -> str:
+    """A primary-family record's adjusted verdict with its widened interval: 'not distinguishable
+    (98.3 % CI [−0.01, +0.05]; Holm p 0.06)'; '' outside the family."""
+    if not rec.get("outcome_holm"):
+        return ""
+    level = 100 * float(rec.get("level_holm") or 0.95)
+    ci = interval_text({"lo": rec.get("lo_holm"), "hi": rec.get("hi_holm"),
+                        "unbounded": rec.get("lo_holm") is None or rec.get("hi_holm") is None})
+    return (f"{rec['outcome_holm']} ({ci.replace('95 %', f'{level:.3g} %')}; Holm p {fmt(rec.get('p_holm'))})")
 
 
 def metric_family(metric: str) -> str:

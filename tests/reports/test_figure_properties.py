@@ -102,10 +102,13 @@ def _rows(methods, steps, R, values):
 # ----------------------------------------------------------------- population figures
 
 @SETTINGS
-@given(populations())
-def test_forest(pop):
+@given(populations(), st.sampled_from([None, "target", "scan", "category", "crossed"]))
+def test_forest(pop, cluster):
     from reports.main.figures_results import fig_forest
-    _clean(fig_forest(pop), "forest.png")
+    fig = fig_forest({**pop, "cluster": cluster})
+    _clean(fig, "forest.png")
+    if cluster in ("category", "crossed"):   # the pooled rows say over what they vary
+        assert ("categories" if cluster == "category" else "crossed") in fig._suptitle.get_text()
 
 
 @SETTINGS

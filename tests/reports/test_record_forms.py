@@ -81,3 +81,22 @@ def test_the_study_sentence_words_the_held_outcomes_as_the_records_do():
     recs = [{"comparison": WU_MB, "metric": "correct_final", "outcome": "better"}]
     assert text.endswith("Held for every seed: " + outcome_clauses(recs)[0] + ".")
     assert "Held" not in study_sentence([0, 1], [1], [], 2, held)
+
+
+def test_the_sentence_and_the_bottom_line_say_over_what_each_clustering_varies():
+    est = {"value": 0.05, "ci_low": 0.01, "ci_high": 0.09}
+    cases = {"category": (["categories", "targets", "tracks"], {"categories": 8, "targets": 72, "tracks": 144},
+                          "8 categories × 72 targets × 144 tracks", "mean over categories of their targets'"),
+             "crossed": (["targets", "scans"], {"targets": 75, "scans": 15, "tracks": 600},
+                         "75 targets crossed with 15 scans", "mean over targets of the differences"),
+             "target": (["targets", "tracks"], {"targets": 12, "tracks": 96}, "12 targets × 96 tracks",
+                        "mean over targets of the differences")}
+    for cluster, (over, n, words, stat) in cases.items():
+        r = record(WU_MB, "correct_final", est, pooling="mean", better="higher", over=over, n=n, primary=True,
+                   cluster=cluster)
+        s = sentence(r)
+        assert f"over {words}" in s and stat in s, s
+        second = bottom_line({"records": [r], "n_targets": n["targets"]})[1]
+        levels = {"category": "categories, targets and tracks", "crossed": "targets and scans, crossed",
+                  "target": "targets and tracks"}[cluster]
+        assert f"varies over {levels} only" in second, second

@@ -278,12 +278,13 @@ def test_population_tables_show_paired_differences_per_target_and_ablations(rend
     pop = facts["summary"]["population"]
     paired = page.table("paired")
     header, *rows = paired["rows"]
-    assert header[:4] == ["comparison", "metric", "outcome", "difference [95 % CI]"]
+    assert header[:5] == ["comparison", "metric", "outcome", "Holm-adjusted outcome", "difference [95 % CI]"]
     first = rows[0]
     d = pop["paired"]["with_uncertainty-model_based"]["correct_final"]
-    assert first[0] == "With Uncertainty − Model Based" and first[3] == Estimate.of(d, signed=True).text()
+    assert first[0] == "With Uncertainty − Model Based" and first[4] == Estimate.of(d, signed=True).text()
     assert first[2] == [r for r in pop["records"] if r["metric"] == "correct_final"][0]["outcome"]
-    assert first[4] == f"{100 * d['wins']:.0f} %"
+    assert first[3] == "—"                      # the fake run's records carry no Holm fields: unadjusted
+    assert first[5] == f"{100 * d['wins']:.0f} %"
     per = page.table("per-target")["rows"][1:]
     assert len(per) == 3 * 3 and {r[0] for r in per} == {f"{t} (2 tracks)" for t in pop["targets"]}
     abl = page.table("ablations")

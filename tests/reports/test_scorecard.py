@@ -81,3 +81,19 @@ def test_the_paper_column_names_sections_and_converts_mgr_to_log10():
         text = numbers.read_text()
         for raw in ("629.2", "2.46", "48.6", "0.74", "0.76", "0.66", "0.72", "0.958", "10 %"):
             assert raw in text, raw
+
+
+def test_a_primary_family_record_is_judged_by_its_holm_interval_and_the_bottom_line_reads_it():
+    from reports.main.bottom_line import bottom_line
+
+    rec = {"comparison": KEY, "method": "with_uncertainty", "baseline": "model_based", "metric": "correct_final",
+           "value": 0.05, "lo": 0.01, "hi": 0.09, "unbounded": False, "better": "higher", "outcome": "better",
+           "primary": True, "pooling": "mean", "over": ["targets", "tracks"], "n": {"targets": 9, "tracks": 18},
+           "family": 4, "level_holm": 1 - 0.05 / 4, "lo_holm": -0.01, "hi_holm": 0.11,
+           "outcome_holm": "not distinguishable", "p": 0.02, "p_holm": 0.08}
+    pop = {"records": [rec]}
+    e = verdict_entry(pop, KEY, "correct_final")
+    assert (e["lo"], e["hi"]) == (0.01, 0.09) and e["holm"] == (-0.01, 0.11)
+    assert claim_status(e, "correct_final") == "inconclusive"       # unadjusted it would hold
+    first = bottom_line(pop)[0]
+    assert "not distinguishable" in first and "better" not in first and "Holm-adjusted over the 4" in first

@@ -10,6 +10,7 @@ from pipeline.evaluation.metrics.labels import (ATTRIBUTION, ATTRIBUTION_COMPARI
 from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.pooled_calibration import track_sums
+from pipeline.infra.config.evaluation import cluster_of
 
 ATTRIBUTION_KEY = "attribution"
 BLOCK_KEYS = ("pooled", "paired", "records")
@@ -22,17 +23,17 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
     metrics = list(METRICS)
     main = [m for m in methods() if m in set(table["method"])]
     prim = tuple(ev.primary_metrics)
-    scans = bool(getattr(ev, "resample_scans", False))
+    cl = cluster_of(ev)
     out = {}
     sums = track_sums(cells, results, default, ev.ece_bins)
     dtab = table[table["variant"] == default]
     out["main"] = population_block(dtab[dtab["method"].isin(main)], main, metrics, comparisons(), ev.bootstrap, ev.seed,
-                                   primary=prim, ece={"sums": sums}, by_scan=scans)
+                                   primary=prim, ece={"sums": sums}, cluster=cl)
     abl = {}
     att = [m for m in (WITH_UNCERTAINTY, MODEL_BASED, *ATTRIBUTION) if m in set(dtab["method"])]
     if all(m in att for m in ATTRIBUTION):
         b = population_block(dtab[dtab["method"].isin(att)], att, metrics, ATTRIBUTION_COMPARISONS, ev.bootstrap,
-                             ev.seed, primary=prim, ece={"sums": sums}, per_target=False, by_scan=scans)
+                             ev.seed, primary=prim, ece={"sums": sums}, per_target=False, cluster=cl)
         abl[ATTRIBUTION_KEY] = {"kind": "attribution", "methods": att,
                                 "override": {"with_uncertainty_poses_only": "dropout samples replaced by their mean",
                                              "with_uncertainty_dropout_only": "no pose sampling (sigma = 0, N_x = 1)"},
@@ -42,7 +43,7 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
         if sub.empty:
             continue
         b = population_block(sub, main, metrics, comparisons(), ev.bootstrap, ev.seed, primary=prim,
-                             ece={"sums": track_sums(cells, results, a, ev.ece_bins)}, per_target=False, by_scan=scans)
+                             ece={"sums": track_sums(cells, results, a, ev.ece_bins)}, per_target=False, cluster=cl)
         key, value = (t.strip() for t in a.split("=", 1))
         abl[a] = {"override": {key: value}, **{k: b[k] for k in (*BLOCK_KEYS, "reliability") if k in b}}
     out["ablations"] = abl

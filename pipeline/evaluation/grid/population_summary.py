@@ -16,6 +16,7 @@ from pipeline.evaluation.metrics.labels import comparisons, methods as method_ke
 from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile  # noqa: F401 - check_primary: public here
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.resampler import LEVEL
+from pipeline.infra.config.evaluation import cluster_of
 
 
 def cell_table(kept: list[dict]) -> pd.DataFrame:
@@ -25,8 +26,9 @@ def cell_table(kept: list[dict]) -> pd.DataFrame:
 
 
 STATISTICS = {
-    "resampler": "one hierarchical bootstrap (targets with replacement, then each drawn target's tracks with "
-                 "replacement), its draws shared by every metric, method and paired difference of the run",
+    "resampler": "one bootstrap whose top level is the design's independent unit (evaluate.statistics.cluster; "
+                 "'cluster' and 'unit' below), its draws shared by every metric, method and paired difference of the "
+                 "run",
     "interval": "percentile (2.5th and 97.5th percentiles of the resampled statistic)",
     "infinity": "infinite values are kept; an interval end that is infinite is unbounded (null in JSON); an "
                 "undefined resampled statistic (inf - inf) gives no interval",
@@ -34,6 +36,27 @@ STATISTICS = {
                "distinguishable",
     "pooling": "per metric (spec): the mean over targets of the target means, or the median over targets for "
                "unbounded metrics (log10 MGR percentiles, NLL); ECE from the pooled posteriors",
+    "multiplicity": "Holm over the primary family (With Uncertainty against each baseline on each primary metric), "
+                    "familywise 95 %: step by step each open interval is widened to level 1 - 0.05/(open records); "
+                    "records carry both verdicts (outcome, outcome_holm); the bottom line and scorecard read the "
+                    "adjusted one",
+}
+
+
+# How the pooled values and their CIs are built, per clustering (evaluate.statistics.cluster).
+_KEEP = " (per-target CIs: tracks; the pooled ECE and leave-one-target-out: targets, then tracks)."
+UNIT = {
+    "target": "Pooled values average tracks' means (over settings) within each target, then targets; 95 % CIs "
+              "resample targets, then tracks within targets (per-target CIs: tracks).",
+    "scan": "Pooled values average tracks' means (over settings) within each (scan, target), then pool the targets "
+            "of each scan, then average scans; 95 % CIs resample scans, then the targets of each drawn scan, then "
+            "their tracks in it" + _KEEP,
+    "category": "Pooled values average tracks' means (over settings) within each target, pool the targets of each "
+                "category, then average categories; 95 % CIs resample categories, then the targets of each drawn "
+                "category, then their tracks" + _KEEP,
+    "crossed": "Pooled values average tracks' means (over settings) within each target, then targets; 95 % CIs "
+               "resample targets and scans independently (a two-way bootstrap: each (target, scan) cell's tracks "
+               "weigh the product of the two multiplicities; tracks are not resampled within a cell)" + _KEEP,
 }
 
 
@@ -53,7 +76,8 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     n_targets = default["target"].nunique()
     n_tracks = len(tracks)
     scope = f"{n_targets} targets x {n_tracks} tracks x {len(settings)} settings"
-    if ev.resample_scans:
+    cluster = cluster_of(ev)
+    if cluster in ("scan", "crossed"):
         scope = f"{default['scan'].nunique()} scans, " + scope
     check_primary(ev.primary_metrics)
     blocks = PC.population_blocks(cfg, table, cells, results, scope, DEFAULT)
@@ -64,7 +88,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         sub = main[main["setting"] == s.label]
         b = population_block(sub, methods, metrics, comparisons(), ev.bootstrap, ev.seed,
                              primary=tuple(ev.primary_metrics), per_target=False, loto=False,
-                             by_scan=ev.resample_scans)
+                             cluster=cluster)
         by_setting[s.label] = {k: b[k] for k in PC.BLOCK_KEYS}
     difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
                   for c, r in zip(cells, results) if r["difficulty"] is not None]
@@ -93,13 +117,8 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
                       "realizations": s.realizations, "n_loc_samples": s.n_x} for s in settings],
         "targets": sorted(first), "candidates": {t: list(c.classes) for t, c in sorted(first.items())},
         "components": {t: list(c.components) for t, c in sorted(first.items())},
-        "unit": ("a cell is one (target, track, setting); its metric is computed over its realizations. "
-                 + ("Pooled values average tracks' means (over settings) within each (scan, target), then pool the "
-                    "targets of each scan, then average scans; 95 % CIs resample scans, then the targets of each "
-                    "drawn scan, then their tracks in it (per-target CIs: tracks; the pooled ECE and "
-                    "leave-one-target-out: targets, then tracks)." if ev.resample_scans else
-                    "Pooled values average tracks' means (over settings) within each target, then targets; "
-                    "95 % CIs resample targets, then tracks within targets (per-target CIs: tracks).")),
+        "unit": "a cell is one (target, track, setting); its metric is computed over its realizations. " + UNIT[cluster],
+        "cluster": cluster,
         **block,
         "by_setting": by_setting,
         "difficulty": {"tracks": difficulty, "summary": spread,

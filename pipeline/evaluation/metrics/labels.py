@@ -31,6 +31,15 @@ def comparison_key(method: str, baseline: str) -> str:
     return f"{method}-{baseline}"
 
 
+def in_primary_family(comparison: str, primary: bool) -> bool:
+    """The declared primary family, whose verdicts are Holm-adjusted together (familywise 95 %:
+    ``pipeline.evaluation.statistics.multiplicity``): With Uncertainty against each baseline
+    (``comparisons()``) on each primary metric (``evaluate.primary_metrics``: by default the correct
+    ratio and the confident-error rate at the final step). The bottom line and the scorecard read
+    these adjusted verdicts; every other record is exploratory and left unadjusted."""
+    return bool(primary) and comparison in {comparison_key(a, b) for a, b in comparisons()}
+
+
 def present_comparisons(keys) -> list[tuple[str, str]]:
     """(method, baseline) of the comparison keys a results file holds: the known ones in their
     fixed order, then any others sorted (so a report shows what was computed, not a fixed list)."""

@@ -5,7 +5,8 @@ page call ``block``; the single-track tables call ``over_realizations``. All of 
 with ``resampler.draws`` (one hierarchy: seeds -> targets -> tracks), take the percentile
 interval with its infinity rule, pool targets as the metric spec says (``spec.pool_of``: the
 mean, or the median over targets for unbounded metrics) and label with ``records.outcome``, so
-the number shown, its CI and its verdict are one statistic wherever they appear.
+the number shown, its CI and its verdict are one statistic wherever they appear; the primary
+family's records also carry their Holm-adjusted verdicts (``multiplicity``).
 
 Units: a cell is one (target, track, setting); a track's value is the mean over its settings of
 the cell values, a target's the mean over its tracks, a seed's the ``pool`` over its targets, the
@@ -22,7 +23,8 @@ from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.metrics.labels import comparison_key
 from pipeline.evaluation.statistics import records as REC
 from pipeline.evaluation.statistics.hierarchy import Hierarchy, leave_one_out
-from pipeline.evaluation.statistics.resampler import draws, interval
+from pipeline.evaluation.statistics.multiplicity import holm
+from pipeline.evaluation.statistics.resampler import draws, estimate, interval
 
 KEYS = ["target", "track", "setting"]
 
@@ -53,30 +55,35 @@ def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str) -> tuple[int
 
 
 def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
-    return leave_one_out(h, lambda rs, keep: rs.estimate(values[:, keep][:, :, : rs.shape[2]], pool), higher)
+    """Leave-one-target-out on targets -> tracks from the draws already made (``leave_one_out``)."""
+    rs = h.target_rs
+    return leave_one_out(h, rs.estimate(values, pool), rs.leave_one_out_points(values, pool),
+                         rs.draws(values, pool, slots=rs.shape[1] - 1), higher)
 
 
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,
           n_boot: int, seed, *, primary: Sequence[str] = (), per_target: bool = True, loto: bool = True,
-          ece: Mapping | None = None, by_scan: bool = False) -> dict:
+          ece: Mapping | None = None, by_scan: bool = False, cluster: str = "target") -> dict:
     """{"pooled", "per_target", "paired", "paired_per_target", "records"} (+ "reliability" with
     ``ece``) of cell frames per seed (one seed: an evaluate run). ``ece``: {"sums": track bin sums
-    (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric. ``by_scan``:
-    scans -> targets -> tracks (``Hierarchy``)."""
-    h = Hierarchy(frames, n_boot, seed, by_scan=by_scan)
+    (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric. ``cluster``:
+    the top level of the draws (``Hierarchy``: target, scan, category, crossed; ``by_scan``: scan);
+    every pooled value and record says which (``cluster``) and over what it varies (``over``)."""
+    h = Hierarchy(frames, n_boot, seed, by_scan=by_scan, cluster=cluster)
     metrics = [k for k in metrics if all(k in f for f in frames.values())]
     tvs = {m: [track_values(f[f["method"] == m], metrics) for f in frames.values()] for m in methods}
     n, over = h.n(), h.over()
     n_cells = int(sum(len(f[f["method"] == methods[0]]) for f in frames.values())) if methods else 0
     out: dict = {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "records": []}
+    boot: dict[tuple[str, str], np.ndarray | None] = {}   # each record's draws, for the Holm steps
     single = len(h.seeds) == 1
     for m in methods:
         for k in metrics:
             v = h.pad(tvs[m], k)
             out["pooled"].setdefault(m, {})[k] = {**h.rs.estimate(v, M.pool_of(k)), "pooling": M.pool_of(k),
-                                                  "over": over, "n": n}
+                                                  "over": over, "cluster": h.cluster, "n": n}
             if per_target and single:
-                vt = h.pad(tvs[m], k, flat=True) if h.by_scan else v
+                vt = h.pad(tvs[m], k, flat=True) if h.nested else v
                 for ti, t in enumerate(h.targets):
                     out["per_target"].setdefault(t, {}).setdefault(m, {})[k] = h.per_target(ti).estimate(
                         vt[:, ti: ti + 1], "mean")
@@ -89,13 +96,14 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         for k in metrics:
             higher = M.higher_is_better(k)
             v = h.pad(dtv, k)
-            vt = h.pad(dtv, k, flat=True) if h.by_scan else v
+            vt = h.pad(dtv, k, flat=True) if h.nested else v
             pool = M.pool_of(k)
             d = np.concatenate([x[k].to_numpy(float) for x in dfs])
             wins, losses = (d > 0, d < 0) if higher else (d < 0, d > 0)
-            est = {**h.rs.estimate(v, pool), "wins": float(wins.mean()), "losses": float(losses.mean()),
+            boot[(key, k)] = h.rs.draws(v, pool) if h.rs.spread() else None
+            est = {**estimate(h.rs.point(v, pool), boot[(key, k)]), "wins": float(wins.mean()), "losses": float(losses.mean()),
                    "n_cells": len(d), "unit": "cells", "better": "higher" if higher else "lower",
-                   "pooling": pool, "over": over, "n": n}
+                   "pooling": pool, "over": over, "cluster": h.cluster, "n": n}
             out["paired"].setdefault(key, {})[k] = est
             extra = {}
             if per_target and single:
@@ -107,7 +115,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
                 est.update(extra)
             top, bottom = (saturation(next(iter(frames.values())), a, b, k) if single and k in M.METRICS else (0, 0))
             out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=over,
-                                             n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
+                                             cluster=h.cluster, n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
                                              losses=est["losses"], unit="cells", ceiling_cells=top,
                                              floor_cells=bottom, **{x: extra[x] for x in ("loto_min", "loto_max",
                                                                                            "loto_flips") if x in extra}))
@@ -115,19 +123,20 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
 
         e = pooled_ece(h, ece["sums"], methods, comparisons, per_target=per_target, loto=loto)
-        over = [x for x in over if x != "scans"]   # the pooled ECE resamples targets, then tracks
+        over = [x for x in over if x == "seeds"] + ["targets", "tracks"]   # the pooled ECE: targets, then tracks
         for m, per in e["pooled"].items():
             for k, est in per.items():
-                out["pooled"].setdefault(m, {})[k] = {**est, "pooling": M.pool_of(k), "over": over, "n": n}
+                out["pooled"].setdefault(m, {})[k] = {**est, "pooling": M.pool_of(k), "over": over,
+                                                      "cluster": "target", "n": n}
         for t, per in e["per_target"].items():
             for m, vals in per.items():
                 out["per_target"].setdefault(t, {}).setdefault(m, {}).update(vals)
         for key, per in e["paired"].items():
             for k, est in per.items():
-                est.update({"pooling": M.pool_of(k), "over": over, "n": n})
+                est.update({"pooling": M.pool_of(k), "over": over, "cluster": "target", "n": n})
                 out["paired"].setdefault(key, {})[k] = est
                 out["records"].append(REC.record(key, k, est, pooling=M.pool_of(k), better="lower", over=over,
-                                                 n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
+                                                 cluster="target", n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
                                                  losses=est["losses"], unit="targets",
                                                  **{x: est[x] for x in ("loto_min", "loto_max", "loto_flips")
                                                     if x in est}))
@@ -135,9 +144,11 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             for t, vals in per.items():
                 out["paired_per_target"].setdefault(key, {}).setdefault(t, {}).update(vals)
         out["reliability"] = e["reliability"]
+        boot.update(e["draws"])
     order = {k: i for i, k in enumerate(list(metrics) + list(M.POOLED_METRICS))}
     comps = [comparison_key(a, b) for a, b in comparisons]
     out["records"].sort(key=lambda r: (comps.index(r["comparison"]), order.get(r["metric"], len(order))))
+    holm(out["records"], boot)
     return out
 
 

@@ -1,5 +1,5 @@
-"""The units of one population and their shared draws (``Hierarchy``: seeds -> targets -> tracks),
-and the leave-one-target-out check on them: what the engine and the pooled ECE both resample on.
+"""The units of one population and their shared draws (``Hierarchy``: seeds -> targets -> tracks,
+or the design's clusters on top), and the leave-one-target-out check on them: what the engine and the pooled ECE both resample on.
 """
 from __future__ import annotations
 
@@ -9,19 +9,34 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.statistics import records as REC
-from pipeline.evaluation.statistics.resampler import Resampler, draws
+from pipeline.evaluation.statistics.crossed import crossed_draws
+from pipeline.evaluation.statistics.resampler import Resampler, draws, estimate
+from pipeline.scene.folds import category_of
+
+
+CLUSTERS = ("target", "scan", "category", "crossed")
+# What each clustering's intervals resample, top level first (a record's ``over``).
+OVER = {"target": ["targets", "tracks"], "scan": ["scans", "targets", "tracks"],
+        "category": ["categories", "targets", "tracks"], "crossed": ["targets", "scans"]}
 
 
 class Hierarchy:
     """The units of one population: per seed, its sorted targets and each target's sorted tracks,
     and the shared draws over them.
 
-    ``by_scan`` (one seed whose cells carry a ``scan`` column): the pooled values and paired
-    differences resample scans, then the targets seen in each scan, then their tracks in that
-    scan (``rs``, the resampler's top level holding scans instead of seeds); per-target values,
-    leave-one-target-out and the pooled ECE keep targets, then tracks (``target_rs``)."""
+    ``cluster`` (``evaluate.statistics.cluster``; one seed, else "target") names the design's
+    independent unit, the top level of the pooled values' and paired differences' draws (``rs``):
+    "target": targets, then tracks; "scan" (cells with a ``scan`` column): scans, then the
+    targets seen in each scan, then their tracks in it; "category": categories (a ``category``
+    column, else the targets' ``<category>__f<k>`` names), then their targets, then tracks;
+    "crossed": targets and scans resampled independently (``crossed.CrossedResampler``).
+    Per-target values, leave-one-target-out and the pooled ECE keep targets, then tracks
+    (``target_rs``). ``by_scan``: the former spelling of cluster = "scan"."""
 
-    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed, by_scan: bool = False):
+    def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed, by_scan: bool = False,
+                 cluster: str = "target"):
+        if cluster not in CLUSTERS:
+            raise ValueError(f"evaluate.statistics.cluster = {cluster!r}: one of {', '.join(CLUSTERS)}")
         self.seeds = list(frames)
         self.units = []  # per seed: [(target, [tracks])]
         for s in self.seeds:
@@ -33,19 +48,61 @@ class Hierarchy:
         self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
                       for u in self.units]
         first = frames[self.seeds[0]] if self.seeds else None
-        self.scans: list[str] = []
-        self.by_scan = bool(by_scan and len(self.seeds) == 1 and first is not None and "scan" in first)
+        if cluster in ("scan", "crossed") and first is not None and "scan" not in first:
+            raise ValueError(f"cluster = {cluster!r} needs the cells' 'scan' column (the population has none)")
+        cluster = "scan" if by_scan and cluster == "target" and first is not None and "scan" in first else cluster
+        if len(self.seeds) != 1 or first is None:
+            cluster = "target"        # a seed pool keeps seeds on top
+        self.cluster = cluster
+        self.groups: list[str] = []
         self.rs = self.target_rs
-        if self.by_scan:
-            self.scans = sorted(str(x) for x in first["scan"].unique())
-            self.scan_units = [[(str(t), sorted(int(x) for x in g["track"].unique()))
-                                for t, g in first[first["scan"].astype(str) == sc].groupby("target", sort=True)]
-                               for sc in self.scans]
-            self.scan_index = {(t, tr): (si, ti, j) for si, u in enumerate(self.scan_units)
-                               for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
-            if sum(len(tr) for u in self.scan_units for _, tr in u) != len(self.index[0]):
-                raise ValueError("resampling scans: a (target, track) lies in more than one scan")
-            self.rs = draws([[len(tr) for _, tr in u] for u in self.scan_units], n_boot, [*np.atleast_1d(seed), 3])
+        if cluster in ("scan", "category"):
+            self._nest(first, cluster, seed)
+        elif cluster == "crossed":
+            self._cross(first, seed)
+
+    def _nest(self, first: pd.DataFrame, cluster: str, seed) -> None:
+        """Groups (scans or categories) on top: each group's targets, each target's tracks in it."""
+        f = first.copy()
+        if cluster == "category":
+            f["_group"] = f["category"].astype(str) if "category" in f else [category_of(t) for t in f["target"].astype(str)]
+        else:
+            f["_group"] = f["scan"].astype(str)
+        self.groups = sorted(f["_group"].unique())
+        self.group_units = [[(str(t), sorted(int(x) for x in g["track"].unique()))
+                             for t, g in f[f["_group"] == gr].groupby("target", sort=True)] for gr in self.groups]
+        self.group_index = {(t, tr): (gi, ti, j) for gi, u in enumerate(self.group_units)
+                            for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
+        if sum(len(tr) for u in self.group_units for _, tr in u) != len(self.index[0]):
+            raise ValueError(f"resampling {cluster}s: a (target, track) lies in more than one {cluster}")
+        self.rs = draws([[len(tr) for _, tr in u] for u in self.group_units], self.n_boot,
+                        [*np.atleast_1d(seed), 3 if cluster == "scan" else 4])
+
+    def _cross(self, first: pd.DataFrame, seed) -> None:
+        """Targets and scans crossed: the scan of each (target, track)."""
+        sc = {(str(t), int(tr)): str(s) for t, tr, s in zip(first["target"], first["track"], first["scan"])}
+        per = {}
+        for (t, tr), s in sc.items():
+            per.setdefault((t, tr), set()).add(s)
+        if any(len(v) > 1 for v in per.values()):
+            raise ValueError("crossed bootstrap: a (target, track) lies in more than one scan")
+        self.groups = sorted(set(sc.values()))
+        gi = {g: i for i, g in enumerate(self.groups)}
+        self.rs = crossed_draws([[gi[sc[(t, tr)]] for tr in trs] for t, trs in self.units[0]], self.n_boot,
+                                [*np.atleast_1d(seed), 5])
+
+    @property
+    def by_scan(self) -> bool:
+        return self.cluster == "scan"
+
+    @property
+    def nested(self) -> bool:
+        """Whether ``rs`` holds a group level above the targets (its values padded by group)."""
+        return self.cluster in ("scan", "category")
+
+    @property
+    def scans(self) -> list[str]:
+        return self.groups if self.cluster in ("scan", "crossed") else []
 
     @property
     def targets(self) -> list[str]:
@@ -55,24 +112,27 @@ class Hierarchy:
         out = {"targets": sum(len(u) for u in self.units), "tracks": sum(len(tr) for u in self.units for _, tr in u)}
         if len(self.seeds) > 1:
             out["seeds"] = len(self.seeds)
-        if self.by_scan:
-            out["scans"] = len(self.scans)
-            out["scan_targets"] = sum(len(u) for u in self.scan_units)
+        if self.cluster in ("scan", "crossed"):
+            out["scans"] = len(self.groups)
+        if self.cluster == "scan":
+            out["scan_targets"] = sum(len(u) for u in self.group_units)
+        if self.cluster == "category":
+            out["categories"] = len(self.groups)
         return out
 
     def over(self) -> list[str]:
-        return (["seeds"] if len(self.seeds) > 1 else []) + (["scans"] if self.by_scan else []) + ["targets", "tracks"]
+        return (["seeds"] if len(self.seeds) > 1 else []) + OVER[self.cluster]
 
     def pad(self, tvs: Sequence[pd.DataFrame], column: str, flat: bool = False) -> np.ndarray:
         """Track values of ``column`` from each seed's track frame (target, track, ...), padded to
-        ``rs``'s (S, T, W) (``flat`` or no scan level: ``target_rs``'s, seeds -> targets -> tracks)."""
-        scan = self.by_scan and not flat
-        out = np.zeros(self.rs.shape if scan else self.target_rs.shape)
+        ``rs``'s (S, T, W) (``flat`` or no group level: ``target_rs``'s, seeds -> targets -> tracks)."""
+        grouped = self.nested and not flat
+        out = np.zeros(self.rs.shape if grouped else self.target_rs.shape)
         for s, tv in enumerate(tvs):
             idx = self.index[s]
             for t, tr, v in zip(tv["target"].astype(str), tv["track"].astype(int), tv[column].to_numpy(float)):
-                if scan:
-                    out[self.scan_index[(t, tr)]] = v
+                if grouped:
+                    out[self.group_index[(t, tr)]] = v
                 else:
                     ti, j = idx[(t, tr)]
                     out[s, ti, j] = v
@@ -81,32 +141,40 @@ class Hierarchy:
     def per_target(self, ti: int) -> Resampler:
         return draws([[len(self.units[0][ti][1])]], self.n_boot, [*np.atleast_1d(self.seed), 1, ti])
 
-    def without(self, ti: int) -> tuple[Resampler, np.ndarray]:
-        keep = np.array([k for k in range(len(self.units[0])) if k != ti])
-        sizes = [len(self.units[0][k][1]) for k in keep]
-        return draws([sizes], self.n_boot, [*np.atleast_1d(self.seed), 2, ti]), keep
 
-
-def leave_one_out(h: Hierarchy, fn, higher: bool) -> dict:
-    """Leave each target out in turn (each subset with its own shared draws): ``fn(resampler,
-    kept target indices)`` gives the estimate. The range of its values and the targets whose
-    removal alone changes the outcome of the whole population."""
+def leave_one_out(h: Hierarchy, full: Mapping[str, float], points: np.ndarray, loo_draws: np.ndarray,
+                  higher: bool) -> dict:
+    """The leave-one-target-out check from the draws already made (jackknife-after-bootstrap):
+    ``full`` the estimate on all targets (``target_rs``), ``points`` (T,) the statistic with each
+    target left out, ``loo_draws`` (B,) the statistic of each draw's first T - 1 target slots
+    (``Resampler.draws(slots=T - 1)``). Target t's interval is the percentile interval of the
+    draws whose first T - 1 slots miss t: in distribution a bootstrap of the other T - 1 targets,
+    about B (1 - 1/T)^(T - 1) ~ 0.37 B of them (docs/design.md §8, its Monte Carlo error). The
+    range of the values and the targets whose removal alone changes the outcome of the whole
+    population."""
     names = h.targets
-    if len(names) < 3:
+    T = len(names)
+    if T < 3:
         return {"loto_min": float("nan"), "loto_max": float("nan"), "loto_flips": [], "loto_flip_outcomes": {}}
-    full = REC.outcome(*_ends(fn(h.target_rs, np.arange(len(names)))), higher)
-    vals, flips, to = [], [], {}
-    for ti, name in enumerate(names):
-        est = fn(*h.without(ti))
-        vals.append(est["value"])
+    res_full = REC.outcome(*_ends(full), higher)
+    flips, to = [], {}
+    for name, est in zip(names, loto_estimates(h, points, loo_draws)):
         res = REC.outcome(*_ends(est), higher)
-        if res != full:
+        if res != res_full:
             flips.append(name)
             to[name] = res
-    v = np.asarray(vals, float)
+    v = np.asarray(points, float)
     v = v[np.isfinite(v)]
     return {"loto_min": float(v.min()) if len(v) else float("nan"), "loto_max": float(v.max()) if len(v) else float("nan"),
             "loto_flips": flips, "loto_flip_outcomes": to}
+
+
+def loto_estimates(h: Hierarchy, points: np.ndarray, loo_draws: np.ndarray) -> list[dict]:
+    """Each target's left-out estimate {"value", "ci_low", "ci_high"} (as ``leave_one_out`` reads
+    them; for tests and benchmarks)."""
+    out = h.target_rs.left_out(len(h.targets) - 1)                      # (B, T)
+    return [estimate(points[ti], loo_draws[out[:, ti]] if out[:, ti].sum() >= 2 else None)
+            for ti in range(len(h.targets))]
 
 
 def _ends(est: Mapping[str, float]) -> tuple[float, float]:

@@ -84,10 +84,11 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
                loto: bool = True) -> dict:
     """{"pooled": {method: {ece_final, ece_overall}}, "per_target": {target: {method: ...}},
     "paired": {comparison key: {ece_<where>: est + wins/losses over targets}}, "reliability":
-    {method: {where: diagram}}} on the hierarchy ``h`` (``hierarchy.Hierarchy``, one seed)."""
+    {method: {where: diagram}}, "draws": {(comparison key, metric): the paired difference's draws}}
+    on the hierarchy ``h`` (``hierarchy.Hierarchy``, one seed)."""
     present = [m for m in methods if any(k[0] == m for k in sums)]
     if not sums or not present:
-        return {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "reliability": {}}
+        return {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "reliability": {}, "draws": {}}
     targets = h.targets
     pads = {m: _padded(h, sums, m) for m in present}
     bw, w0 = h.target_rs.leaf_weights()[:, 0], h.target_rs.point_weights()[0]
@@ -95,9 +96,10 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
     boot = {m: _ece(bw, pads[m]) for m in present}
     out = {"pooled": {m: {f"ece_{w}": estimate(point[m][i], boot[m][:, i]) for i, w in enumerate(WHERE)}
                       for m in present},
-           "per_target": {}, "paired": {}, "paired_per_target": {},
+           "per_target": {}, "paired": {}, "paired_per_target": {}, "draws": {},
            "reliability": {m: {w: K.reliability(np.einsum("tj,tjwkb->wkb", w0, pads[m])[i])
                                for i, w in enumerate(WHERE)} for m in present}}
+    loo_w = h.target_rs.leaf_weights(slots=len(targets) - 1)[:, 0] if loto and len(targets) >= 3 else None
     tgt = {}
     for ti, t in enumerate(targets):
         rs = h.per_target(ti)
@@ -117,11 +119,12 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
         res, res_t = {}, {}
         for i, w in enumerate(WHERE):
             d_t = np.array([tgt[t][a][f"ece_{w}"]["value"] - tgt[t][b][f"ece_{w}"]["value"] for t in targets])
-            est = estimate(point[a][i] - point[b][i], boot[a][:, i] - boot[b][:, i])
+            out["draws"][(key, f"ece_{w}")] = boot[a][:, i] - boot[b][:, i]
+            est = estimate(point[a][i] - point[b][i], out["draws"][(key, f"ece_{w}")])
             res[f"ece_{w}"] = {**est, "wins": float(np.mean(d_t < 0)), "losses": float(np.mean(d_t > 0)),
                                "n_cells": len(targets), "unit": "targets", "better": "lower"}
             if loto:
-                res[f"ece_{w}"].update(_loto(h, pads[a], pads[b], i))
+                res[f"ece_{w}"].update(_loto(h, pads[a], pads[b], i, est, loo_w))
             for t, d in zip(targets, d_t):
                 res_t.setdefault(t, {})[f"ece_{w}"] = {"value": float(d), "ci_low": float("nan"),
                                                        "ci_high": float("nan")}
@@ -130,14 +133,15 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
     return out
 
 
-def _loto(h, pa: np.ndarray, pb: np.ndarray, i: int) -> dict:
-    """The ECE difference with each target left out (``hierarchy.leave_one_out``)."""
+def _loto(h, pa: np.ndarray, pb: np.ndarray, i: int, full: dict, loo_w: np.ndarray) -> dict:
+    """The ECE difference with each target left out (``hierarchy.leave_one_out``): ``full`` its
+    estimate on every target, ``loo_w`` the leaf weights of the draws' first T - 1 target slots."""
     from pipeline.evaluation.statistics.hierarchy import leave_one_out
 
-    def est(rs, keep):
-        W = rs.shape[2]
-        w0, bw = rs.point_weights()[0], rs.leaf_weights()[:, 0]
-        a, b = pa[keep][:, :W], pb[keep][:, :W]
-        return estimate(_ece(w0, a)[i] - _ece(w0, b)[i], _ece(bw, a)[:, i] - _ece(bw, b)[:, i])
-
-    return leave_one_out(h, est, False)
+    if loo_w is None:                                    # under 3 targets: no check (leave_one_out says so)
+        return leave_one_out(h, full, np.array([]), np.array([]), False)
+    T = h.target_rs.shape[1]
+    w0 = h.target_rs.point_weights()[0]
+    w_loo = np.where(np.eye(T, dtype=bool)[..., None], 0.0, w0[None] * T / (T - 1))   # (T, T, W): row t without t
+    points = _ece(w_loo, pa)[:, i] - _ece(w_loo, pb)[:, i]
+    return leave_one_out(h, full, points, _ece(loo_w, pa)[:, i] - _ece(loo_w, pb)[:, i], False)

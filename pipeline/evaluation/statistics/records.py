@@ -7,12 +7,17 @@ A record is data, never prose: ``reports.shared.records`` renders the sentences.
 - ``pooling``: how targets pool the metric (``spec.pool_of``: "mean", "median", "pooled
   posteriors"); ``value`` is that statistic of the paired differences, ``lo``/``hi`` its 95 %
   percentile interval (+-inf: unbounded on that side, written as null; NaN: no interval);
-- ``over``: the levels the interval resamples (["targets", "tracks"]; a study adds "seeds");
-  ``n``: the units of each level ({"targets": 6, "tracks": 48, "cells": 192, ...});
+- ``over``: the levels the interval resamples (["targets", "tracks"]; a study adds "seeds";
+  ``hierarchy.OVER`` per clustering); ``cluster``: the design's independent unit on top
+  (``evaluate.statistics.cluster``: target, scan, category, crossed); ``n``: the units of each
+  level ({"targets": 6, "tracks": 48, "cells": 192, ...});
 - ``better``: "higher" | "lower"; ``outcome``: ``outcome(lo, hi, better)``; ``primary``: the
   metric is one of ``evaluate.primary_metrics`` (the rest are exploratory);
 - optional: ``wins``/``losses`` (shares of ``unit``: cells or targets), the leave-one-target-out
-  range ``loto_min``/``loto_max`` and ``loto_flips``, ``ceiling_cells``/``floor_cells``.
+  range ``loto_min``/``loto_max`` and ``loto_flips``, ``ceiling_cells``/``floor_cells``;
+- the primary family only (``metrics.labels.in_primary_family``; ``multiplicity.holm``):
+  ``family`` (its size), ``p``/``p_holm`` (bootstrap p-value, Holm-adjusted), ``level_holm``,
+  ``lo_holm``/``hi_holm`` (the interval widened to its Holm step) and ``outcome_holm``.
 """
 from __future__ import annotations
 

@@ -35,20 +35,21 @@ from pipeline.evaluation.metrics.spec import percentile
 LEVEL = 0.95
 
 
-def interval(draws: np.ndarray, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+def interval(draws: np.ndarray, axis: int = -1, level: float = LEVEL) -> tuple[np.ndarray, np.ndarray]:
     """The percentile interval of ``draws`` along ``axis``: the one percentile
-    (``spec.percentile``, its infinity rule) at the ends of the ``LEVEL`` interval."""
-    lo, hi = percentile(draws, [50 * (1 - LEVEL), 50 * (1 + LEVEL)], axis=axis)
+    (``spec.percentile``, its infinity rule) at the ends of the ``level`` interval (``LEVEL``;
+    the Holm steps ask for wider ones: ``multiplicity``)."""
+    lo, hi = percentile(draws, [50 * (1 - level), 50 * (1 + level)], axis=axis)
     return lo, hi
 
 
-def estimate(value: float, draws: np.ndarray | None) -> dict[str, float]:
+def estimate(value: float, draws: np.ndarray | None, level: float = LEVEL) -> dict[str, float]:
     """{"value", "ci_low", "ci_high"}: the point value and the percentile interval of its draws
     (None or fewer than two resampled units: no interval)."""
     v = float(value)
     if draws is None:
         return {"value": v, "ci_low": math.nan, "ci_high": math.nan}
-    lo, hi = (float(x) for x in interval(draws))
+    lo, hi = (float(x) for x in interval(draws, level=level))
     if not math.isnan(v) and not math.isnan(lo):
         lo, hi = min(lo, v), max(hi, v)
     return {"value": v, "ci_low": lo, "ci_high": hi}
@@ -127,29 +128,60 @@ class Resampler:
             s = np.where(self.counts > 0, self.counts * v, 0.0).sum(axis=-1) / self.n
         return np.where(self.valid, s, np.nan)
 
-    def draws(self, values: np.ndarray, pool: str) -> np.ndarray:
-        """(B,): the statistic of ``point`` in every draw."""
-        return _stat(self.slot_means(values), self.valid, pool).mean(axis=-1)
+    def draws(self, values: np.ndarray, pool: str, slots: int | None = None) -> np.ndarray:
+        """(B,): the statistic of ``point`` in every draw; ``slots``: of each seed slot's first
+        ``slots`` target slots only (a draw of that many targets: leave-one-target-out)."""
+        k = self.shape[1] if slots is None else int(slots)
+        return _stat(self.slot_means(values)[..., :k], self.valid[..., :k], pool).mean(axis=-1)
+
+    def leave_one_out_points(self, values: np.ndarray, pool: str) -> np.ndarray:
+        """(T,): ``point`` of one seed's population with each target left out in turn (the pool of
+        the other targets' means; a NaN among them makes it NaN)."""
+        v = np.asarray(values, float)[..., : self.shape[2]]
+        lv = self.leaves_valid()
+        with np.errstate(invalid="ignore"):
+            tm = np.where(lv, v, 0.0).sum(axis=-1) / np.maximum(self.n_tracks, 1)
+        tm = np.where((np.isnan(v) & lv).any(axis=-1), np.nan, tm)[0, : self.n_targets[0]]    # (T,)
+        T = len(tm)
+        keep = ~np.eye(T, dtype=bool)                                            # row t: every target but t
+        return _stat(np.broadcast_to(tm, (T, T)), keep, pool)
+
+    def spread(self) -> bool:
+        """Whether some level has two units to resample (else no interval)."""
+        return bool(len(self.n_targets) > 1 or self.n_targets[0] > 1 or self.n_tracks[0, 0] > 1)
 
     def estimate(self, values: np.ndarray, pool: str) -> dict[str, float]:
         """``point`` with its interval; no interval when no level has two units to resample."""
-        spread = len(self.n_targets) > 1 or self.n_targets[0] > 1 or self.n_tracks[0, 0] > 1
-        return estimate(self.point(values, pool), self.draws(values, pool) if spread else None)
+        return estimate(self.point(values, pool), self.draws(values, pool) if self.spread() else None)
 
-    def leaf_weights(self) -> np.ndarray:
+    def leaf_weights(self, slots: int | None = None) -> np.ndarray:
         """(B, S, T, W): weight of every (seed, target, track) in each draw of the mean statistic
         (each seed slot 1/S, each of its target slots an equal share, shared among the drawn
-        tracks); each draw's weights sum to 1. For statistics of weighted sums (the ECE)."""
+        tracks); each draw's weights sum to 1. For statistics of weighted sums (the ECE).
+        ``slots``: of each seed slot's first ``slots`` target slots only (as in ``draws``)."""
         B, S = self.ps.shape
         S0, T, W = self.shape
-        nts = self.valid.sum(axis=-1)                                            # (B, S)
+        k = T if slots is None else int(slots)
+        valid, pt = self.valid[..., :k], self.pt[..., :k]
+        nts = valid.sum(axis=-1)                                                 # (B, S)
         with np.errstate(invalid="ignore", divide="ignore"):
-            per = np.where(self.valid[..., None], self.counts / (self.n[..., None] * nts[..., None, None] * S), 0.0)
+            per = np.where(valid[..., None], self.counts[:, :, :k] / (self.n[..., :k, None] * nts[..., None, None] * S),
+                           0.0)
         out = np.zeros((B, S0, T, W))
-        b = np.broadcast_to(np.arange(B)[:, None, None], self.pt.shape)
-        s = np.broadcast_to(self.ps[..., None], self.pt.shape)
-        np.add.at(out, (b, s, self.pt), per)
+        b = np.broadcast_to(np.arange(B)[:, None, None], pt.shape)
+        s = np.broadcast_to(self.ps[..., None], pt.shape)
+        np.add.at(out, (b, s, pt), per)
         return out
+
+    def left_out(self, slots: int) -> np.ndarray:
+        """(B, T): for one seed, whether target t is absent from the draw's first ``slots`` target
+        slots. Given that, those slots are ``slots`` draws with replacement from the other targets,
+        so the draws where it holds are draws of the population without t (jackknife-after-bootstrap)."""
+        B = self.n_boot
+        T = int(self.n_targets[0])
+        seen = np.zeros(B * T, dtype=bool)
+        seen[(np.arange(B)[:, None] * T + self.pt[:, 0, : int(slots)]).ravel()] = True
+        return ~seen.reshape(B, T)
 
     def point_weights(self) -> np.ndarray:
         """(S, T, W): the leaf weights of the data itself."""

@@ -90,6 +90,13 @@ def cross_checks(cfg: Config, where: str) -> None:
             raise ConfigError(f"{where}: {msg}")
 
     check_run(cfg, where)
+    cl = cfg.evaluate.statistics.cluster
+    need(not cfg.evaluate.resample_scans or cl in ("target", "scan"),
+         f"'evaluate.resample_scans' = true asks for scans on top, but 'evaluate.statistics.cluster' = {cl!r}: "
+         "set only the cluster")
+    need(cl != "category" or (cfg.data.source == "real_imagery" and cfg.data.real_imagery.dataset == "eth80"),
+         "'evaluate.statistics.cluster' = 'category' needs category targets (data.source = 'real_imagery' "
+         "with data.real_imagery.dataset = 'eth80')")
     s = cfg.data.synthetic
     need(s.angle_step_deg % 3 == 0, f"'data.synthetic.angle_step_deg' = {s.angle_step_deg} must be a multiple of 3 (BigBIRD angles are 0, 3, ..., 357)")
     need(360 % s.angle_step_deg == 0, f"'data.synthetic.angle_step_deg' = {s.angle_step_deg} must divide 360")

@@ -54,6 +54,24 @@ class DirichletEvalConfig:
 
 
 @dataclass(frozen=True)
+class StatisticsConfig:
+    cluster: str = _f("target", choices=("target", "scan", "category", "crossed"),
+                      doc="the design's independent unit, the top level of every pooled CI: target = targets, "
+                          "then tracks; scan = scans, then the targets of each scan, then tracks; category = "
+                          "categories, then their targets, then tracks (category classes: data.real_imagery."
+                          "dataset = 'eth80'); crossed = targets and scans resampled independently, each (target, "
+                          "scan) cell's tracks weighted by the product of the two multiplicities (the same objects "
+                          "recur across scans: configs/real_full.toml)")
+
+
+def cluster_of(ev) -> str:
+    """The clustering in force: ``evaluate.statistics.cluster``, or "scan" where only the former
+    key ``evaluate.resample_scans`` asks for it."""
+    c = getattr(getattr(ev, "statistics", None), "cluster", "target")   # a hand-built section may lack it
+    return "scan" if getattr(ev, "resample_scans", False) and c == "target" else c
+
+
+@dataclass(frozen=True)
 class EvaluateConfig:
     targets: tuple[str, ...] = _f("all", words=("all",),
                                   doc="'all' = every modelled instance present in the scanned AVD features, "
@@ -87,9 +105,10 @@ class EvaluateConfig:
         factory=lambda: ("gp_models", "biased", "randomized", "sensitivity", "bias_maps"))
     seed: int = _f(0, lo=0, hi=SEED_MAX)
     bootstrap: int = _f(2000, lo=100, hi=1000000, doc="bootstrap resamples for every 95 % confidence interval")
-    resample_scans: bool = _f(False, doc="the population's CIs resample scans, then targets within each scan, then "
-                                         "tracks (pooled: the mean over scans of each scan's pool over its targets); "
-                                         "false = targets, then tracks")
+    resample_scans: bool = _f(False, doc="the former spelling of statistics.cluster = 'scan': the population's CIs "
+                                         "resample scans, then targets within each scan, then tracks (pooled: the "
+                                         "mean over scans of each scan's pool over its targets)")
+    statistics: StatisticsConfig = _f(factory=StatisticsConfig)
     ablations: tuple[str, ...] = _f(factory=lambda: ("evaluate.test_domain_variance=cross_fit",),
                                     doc="'models.KEY=VALUE' or 'evaluate.test_domain_variance=VALUE' variants "
                                         "evaluated on the same population (models KEY: component_rule, "
