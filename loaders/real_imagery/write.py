@@ -12,7 +12,13 @@ Writes, under the stage folder, in the formats the other stages already read:
   scan is one shared black placeholder frame of the real size (hard links: the reader needs a file
   per image, nothing reads its pixels);
 - ``truth.json``: per scan, each paired object's located position, its seeded yaw, the real
-  instance it stands for and the ray residual; the refused and unpaired instances.
+  instance it stands for and the ray residual, and per frame its real box, scale and fill
+  (``frame_fit``: the object is scaled uniformly into the real box and the written box is the
+  object's own, ``frames.fit_in_box``); the refused and unpaired instances; the distributions of
+  the viewpoint error (``view_error_deg``) and of the fit (``box_fit``).
+
+An object with fewer readable training views than ``models.min_views`` is left out here
+(``training.modellable``, the check every writer of this source calls).
 """
 from __future__ import annotations
 
