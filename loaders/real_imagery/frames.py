@@ -29,7 +29,7 @@ import numpy as np
 
 from pipeline.method.geometry import bearing, relative_inputs
 
-CONTEXT = 0.5   # surround kept around the object's box, as a fraction of the box side
+CONTEXT = 0.5   # surround kept around the object's box, as a fraction of its longer side
 
 
 def object_bearing_deg(cam_xy, obj_xy, yaw_deg) -> np.ndarray:
