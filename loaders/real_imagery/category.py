@@ -159,11 +159,11 @@ def nearest_azimuth(bearing_deg: float, azimuths) -> float:
     return float(a[int(np.argmin(d))])
 
 
-def read_views(cfg, skips) -> tuple[dict, dict, dict]:
+def read_views(cfg, skips) -> tuple[dict, dict]:
     """The usable instances' photographs, split: ({(c, i): {azimuth: (rgb, mask, map)}} of the
-    training azimuths, the same of the frame azimuths). An instance with
-    fewer training views than models.min_views (``training.modellable``) or no frame azimuth is
-    left out, named under the skip policy."""
+    training azimuths, the same of the frame azimuths). An instance with fewer training views than
+    models.min_views (``training.modellable``) or no frame azimuth is left out, named under the
+    skip policy; none usable is an error naming the folder."""
     ri = cfg.data.real_imagery
     root = cfg.path("data.eth80_root")
     eth = Eth80Folder(root, skip=skips.log("eth80", "ETH-80 view"))
@@ -186,6 +186,9 @@ def read_views(cfg, skips) -> tuple[dict, dict, dict]:
                 continue
             train[(c, i)] = {a: views[a] for a in tr}
             test[(c, i)] = {a: views[a] for a in te}
+    if not train:
+        raise BadInputError(root, "no ETH-80 instance of data.real_imagery.categories x instances can be modelled "
+                                  "(the skips above say why)")
     return train, test
 
 
