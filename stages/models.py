@@ -17,6 +17,7 @@ from pipeline.banks.model_bank import ablation_dir, dirichlet_from_features, fit
 from pipeline.method.gp_files import save_bank
 from pipeline.infra.config import ablation_config, is_model_ablation
 from pipeline.infra.outputs import name as out_name
+from pipeline.infra.outputs import read as read_artifact
 
 log = logging.getLogger("viewfuse.models")
 
@@ -25,7 +26,8 @@ def run(ctx) -> str:
     cfg = ctx.cfg
     ev = cfg.evaluate
     feats = ctx.input("features") / out_name("features", "bigbird")
-    members = class_members(cfg)   # category classes: several objects' views per class
+    # category classes: several objects' views per class, as the data stage made them
+    members = class_members(cfg, read_artifact(ctx.input("data"), "data", "truth", missing=None))
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
                      candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds, class_members=members)
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)

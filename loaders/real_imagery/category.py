@@ -1,30 +1,40 @@
-"""The data stage's writer for ``data.real_imagery.dataset = "eth80"``: category-level classes with
-every test object unseen (docs/real_data.md, "Category-level classes").
+"""The data stage's writer for ``data.real_imagery.dataset = "eth80"``: ETH-80 classes by folds of
+instances, at category or instance level (docs/real_data.md, "Category-level classes" and "The
+instance-category contrast").
 
-Folds by instance: fold ``f`` holds out instance ``f`` of every category. Its classes are
-``<category>__f<f>`` (``fold_class``), each fitted on the views of the category's OTHER instances
-(several photographs per azimuth: the intra-class variation enters the fit; ``class_members``
-tells the models stage which object folders make each class). The held-out instance ``f`` of
-category ``c`` is the scene object of class ``c__f<f>``: its photographs appear only in AVD frames,
-and the evaluate stage, with ``evaluate.candidate_folds``, draws its candidates (and so its
-component choice) from fold ``f``'s classes only.
+Folds by instance: fold ``f`` holds out instance ``f`` of every category; the scene object of
+class ``<category>__f<f>`` (``fold_class``) is instance ``f``, and the evaluate stage, with
+``evaluate.candidate_folds``, draws its candidates (and so its component choice) from fold ``f``'s
+classes only. What a class is fitted on is ``class_level``: 'category' = the category's OTHER
+instances (several photographs per azimuth: the intra-class variation enters the fit, every
+scored photograph is of an unseen object); 'instance' = instance ``f`` itself, as COIL's classes.
+``view_split`` decides which azimuths train and which the frames show ('alternate': even and odd
+multiples of 22.5 degrees), the same for both levels: the frames, pairing, yaws and backgrounds
+do not depend on ``class_level``, so two runs differing only in it are the controlled contrast.
+``fold_classes`` records the classes (``truth.json`` ``classes``; the models stage reads it).
 
-Training folders (BigBIRD format, camera NP1), one per instance, ``eth80_<category><n>`` (each
-photograph is scored once however many folds use it): the view at azimuth ``a`` is
+An instance with fewer training views than ``models.min_views`` (``training.modellable``, the
+check the COIL writer calls too) or no frame azimuth is left out here, named under the skip
+policy; a fold's class of a left-out instance's category is then left out at both levels.
+
+Training folders (BigBIRD format, camera NP1), one per usable instance, ``eth80_<category><n>``
+(each photograph is scored once however many folds use it): the view at azimuth ``a`` is
 ``NP1_<360 n + round(a)>.jpg`` (the "angle" is a view code, unique within any class: its remainder
 mod 360 is the name's azimuth, its quotient the instance) with a pose file of that code that puts
 NP1 at exactly ``a`` (22.5-degree multiples, not the rounded name), its mask (map >= 128) and the
-photograph as it is, on the dataset's blue cloth.
+photograph on the training background (``clutter.training_view``: by default the frames' kind).
 
 Scenes, as for COIL (``write``): the real AVD boxes, instances located from their real rays, then
 a seeded pairing (``pairing_seed``) that spreads the held-out instances over the located instances
 of all scans so that each is placed before any is placed twice (distinct within a scan), a seeded
-yaw per placement, and per frame the held-out instance's photograph whose azimuth is nearest the
-real bearing: up to 11.25 degrees away with 16 azimuths. ``background``: the object, cut out by
-its map, over black or over real clutter (``clutter``).
+yaw per placement, and per frame the held-out instance's photograph at the frame azimuth nearest
+the real bearing; a frame whose nearest azimuth is more than ``max_view_error_deg`` away is not
+written and is counted (``truth.json`` ``view_error_deg``). The object is scaled uniformly into
+its box (``frames.fit_in_box``), cut out by its map over black or real clutter (``clutter``).
 """
 from __future__ import annotations
 
+import logging
 import zlib
 from pathlib import Path
 
@@ -33,15 +43,19 @@ import numpy as np
 
 from loaders.avd import KINECT_SIZE, AVDScan
 from loaders.errors import BadInputError
-from loaders.eth80 import Eth80Folder, class_object
+from loaders.eth80 import STEP_DEG, Eth80Folder, class_object
 from loaders.pbm import encode_pbm
-from loaders.real_imagery.clutter import read_backgrounds, render_category_frame
-from loaders.real_imagery.frames import object_bearing_deg
+from loaders.real_imagery.clutter import read_backgrounds, render_category_frame, training_view
+from loaders.real_imagery.frames import object_bearing_deg, view_error_deg
 from loaders.real_imagery.pairing import box_rows, located_xy
-from loaders.real_imagery.write import frame_views, write_scan_files
+from loaders.real_imagery.training import modellable
+from loaders.real_imagery.write import fit_summary, frame_fit, frame_views, view_error_summary, write_scan_files
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
-from pipeline.scene.folds import fold_class
+from pipeline.scene.folds import fold_class, fold_of
 from pipeline.infra.cache import write_bytes, write_json
+
+
+log = logging.getLogger("viewfuse.loaders")
 
 
 def view_code(instance: int, azimuth: float) -> int:
@@ -53,14 +67,42 @@ def rng_for(seed: int, *parts: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), *(zlib.crc32(p.encode()) for p in parts)])
 
 
-def class_members(cfg) -> dict[str, list[str]] | None:
-    """{class: its training object folders} of an ETH-80 category run (None otherwise): class
-    ``c__f<f>`` is every configured instance of ``c`` but ``f``."""
+def split_azimuths(azimuths, view_split: str) -> tuple[list[float], list[float]]:
+    """(training azimuths, frame azimuths) of one instance: every azimuth both ('none'), or the
+    even multiples of 22.5 degrees for training and the odd ones for the frames ('alternate')."""
+    az = sorted(float(a) for a in azimuths)
+    if view_split == "none":
+        return az, az
+    even = [a for a in az if round(a / STEP_DEG) % 2 == 0]
+    return even, [a for a in az if round(a / STEP_DEG) % 2 == 1]
+
+
+def fold_classes(kept, categories, instances, class_level: str) -> dict[str, list[str]]:
+    """{class ``c__f<f>``: its training object folders} over the usable instances ``kept`` (a set
+    of (category, instance)): a fold's class of category c exists only where instance f of c is
+    usable (so both levels have the same classes and candidates); 'category' = the other usable
+    instances of c, 'instance' = instance f itself."""
+    out = {}
+    for f in instances:
+        for c in categories:
+            if (c, f) not in kept:
+                continue
+            members = [f] if class_level == "instance" else [i for i in instances if i != f and (c, i) in kept]
+            out[fold_class(c, f)] = [class_object(c, i) for i in members]
+    return out
+
+
+def class_members(cfg, truth: dict | None = None) -> dict[str, list[str]] | None:
+    """{class: its training object folders} of an ETH-80 category run (None otherwise): the data
+    stage's record (``truth["classes"]``: instances it left out are in no class), or, without
+    one, what the config gives when every instance is usable (``fold_classes``)."""
     ri = cfg.data.real_imagery
     if cfg.data.source != "real_imagery" or ri.dataset != "eth80":
         return None
-    return {fold_class(c, f): [class_object(c, i) for i in ri.instances if i != f]
-            for c in ri.categories for f in ri.instances}
+    if truth and isinstance(truth.get("classes"), dict):
+        return {str(k): [str(o) for o in v] for k, v in truth["classes"].items()}
+    kept = {(c, i) for c in ri.categories for i in ri.instances}
+    return fold_classes(kept, ri.categories, ri.instances, ri.class_level)
 
 
 def write_training_class(root: Path, cls: str, members: dict[int, dict], quality: int) -> int:
@@ -85,11 +127,6 @@ def write_training_class(root: Path, cls: str, members: dict[int, dict], quality
             write_bytes(folder / "masks" / f"NP1_{code}_mask.pbm", encode_pbm(mask))
             n += 1
     return n
-
-
-def fold_members(views: dict[tuple[str, int], dict], category: str, fold: int) -> dict[int, dict]:
-    """The training instances of ``category`` in fold ``fold``: every other instance with views."""
-    return {i: v for (c, i), v in views.items() if c == category and i != fold and v}
 
 
 def assign_targets(located: dict[str, list[str]], targets: list[str], seed: int) -> dict[str, dict[str, str]]:
@@ -122,38 +159,64 @@ def nearest_azimuth(bearing_deg: float, azimuths) -> float:
     return float(a[int(np.argmin(d))])
 
 
-def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips) -> tuple[dict, str]:
-    """Write both sides (BigBIRD root ``bb_out``, AVD root ``avd_out``, the sidecar ``truth_path``);
-    returns (manifest extras, summary)."""
+def read_views(cfg, skips) -> tuple[dict, dict]:
+    """The usable instances' photographs, split: ({(c, i): {azimuth: (rgb, mask, map)}} of the
+    training azimuths, the same of the frame azimuths). An instance with fewer training views than
+    models.min_views (``training.modellable``) or no frame azimuth is left out, named under the
+    skip policy; none usable is an error naming the folder."""
     ri = cfg.data.real_imagery
-    root, avd_root = cfg.path("data.eth80_root"), cfg.path("data.avd_root")
+    root = cfg.path("data.eth80_root")
     eth = Eth80Folder(root, skip=skips.log("eth80", "ETH-80 view"))
-    views: dict[tuple[str, int], dict] = {}
+    train, test = {}, {}
+    setting = f"data.real_imagery.view_split = {ri.view_split!r}, elevations = {list(ri.elevations)}"
     for c in ri.categories:
         for i in ri.instances:
             if (c, i) not in eth.objects:
                 raise BadInputError(root / f"{c}{i}", f"ETH-80 {c}{i} (data.real_imagery.categories x instances) "
                                                       f"has no view in the folder")
-            views[(c, i)] = eth.read_instance(c, i, set(ri.elevations))
-            if not views[(c, i)]:
-                skips.handle(BadInputError(root / f"{c}{i}", "no readable view on data.real_imagery.elevations; "
-                                                             "instance left out"), "eth80", "ETH-80 view")
+            views = eth.read_instance(c, i, set(ri.elevations))
+            tr, te = split_azimuths(views, ri.view_split)
+            if not modellable(len(tr), cfg.models.min_views, class_object(c, i), root / f"{c}{i}", setting, skips,
+                              "eth80", "ETH-80 view", unit="instance"):
+                continue
+            if not te:
+                skips.handle(BadInputError(root / f"{c}{i}", f"{class_object(c, i)}: no readable view at a frame "
+                                                             f"azimuth ({setting}); instance left out"),
+                             "eth80", "ETH-80 view")
+                continue
+            train[(c, i)] = {a: views[a] for a in tr}
+            test[(c, i)] = {a: views[a] for a in te}
+    if not train:
+        raise BadInputError(root, "no ETH-80 instance of data.real_imagery.categories x instances can be modelled "
+                                  "(the skips above say why)")
+    return train, test
+
+
+def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips) -> tuple[dict, str]:
+    """Write both sides (BigBIRD root ``bb_out``, AVD root ``avd_out``, the sidecar ``truth_path``);
+    returns (manifest extras, summary)."""
+    ri = cfg.data.real_imagery
+    root, avd_root = cfg.path("data.eth80_root"), cfg.path("data.avd_root")
+    train, test = read_views(cfg, skips)
+    train_bg = ri.background if ri.train_background == "same" else ri.train_background
+    need_bg = "avd_frames" in (ri.background, train_bg)
+    backgrounds = read_backgrounds(cfg.path("data.avd_frames_root"), skips) if need_bg else None
     n_views = 0
-    for (c, i), v in sorted(views.items()):
-        if v:
-            n_views += write_training_class(bb_out, class_object(c, i), {i: v}, ri.train_jpeg_quality)
-    trained = {}
-    for f in ri.instances:
-        for c in ri.categories:
-            members = fold_members(views, c, f)
-            if not members:
-                raise BadInputError(root / f"{c}{f}", f"fold {f}: category {c!r} has no training instance with views")
-            trained[fold_class(c, f)] = sorted(members)
-    targets = {fold_class(c, i): (c, i) for (c, i), v in views.items() if v}
+    for (c, i), v in sorted(train.items()):
+        on_bg = {a: (training_view(rgb, alpha, train_bg, backgrounds,
+                                   rng_for(ri.background_seed, "train-background", c, str(i), f"{a:g}")), mask, alpha)
+                 for a, (rgb, mask, alpha) in v.items()}
+        n_views += write_training_class(bb_out, class_object(c, i), {i: on_bg}, ri.train_jpeg_quality)
+    classes = fold_classes(set(train), ri.categories, ri.instances, ri.class_level)
+    for cls, members in classes.items():
+        if not members:
+            raise BadInputError(root / cls.split("__")[0], f"class {cls}: category has no other usable instance "
+                                                            f"(data.real_imagery.instances)")
+    targets = {fold_class(c, i): (c, i) for (c, i) in test}
     ids = {t: k + 1 for k, t in enumerate(sorted(targets))}
     avd_out.mkdir(parents=True, exist_ok=True)
     write_bytes(avd_out / "instance_id_map.txt", "".join(f"{t} {ids[t]}\n" for t in sorted(ids)).encode())
-    backgrounds = read_backgrounds(cfg.path("data.avd_frames_root"), skips) if ri.background == "avd_frames" else None
+    backgrounds = backgrounds if ri.background == "avd_frames" else None
     scans, located = {}, {}
     for scan in cfg.data.scans:
         s = AVDScan(avd_root, scan, skip=skips.log("avd", "AVD entry"), frames=False)
@@ -168,23 +231,41 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
     truth, counts = {}, {}
     for scan, (s, rows, loc, refused) in scans.items():
         truth[scan], counts[scan] = _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed[scan],
-                                                targets, views, ids, backgrounds, placeholder)
+                                                targets, test, ids, backgrounds, placeholder)
     placeholder.unlink()
+    errors = [e for sc in truth.values() for r in sc["instances"].values() for e in r.pop("_errors")]
+    view_error = view_error_summary(errors, ri.max_view_error_deg)
+    if view_error["refused"]:
+        log.warning("real imagery (ETH-80): %d of %d frames refused: the nearest frame azimuth is more than "
+                    "data.real_imagery.max_view_error_deg = %g degrees from the bearing", view_error["refused"],
+                    view_error["frames"], ri.max_view_error_deg)
+    box_fit = fit_summary([f for sc in truth.values() for r in sc["instances"].values() for f in r["frame_fit"]])
     times = {t: sum(1 for p in placed.values() if t in p.values()) for t in targets}
+    left_out = sorted(class_object(c, i) for c in ri.categories for i in ri.instances if (c, i) not in train)
+    background = {"frames": ri.background, "training": train_bg}
     write_json(truth_path, {
         "source": "real_imagery", "dataset": "eth80",
         "pairing": "synthetic: seeded (data.real_imagery.pairing_seed, yaws_seed)",
-        "folds": {str(f): {"held_out_instance": f, "classes": {fold_class(c, f): trained[fold_class(c, f)]
-                                                              for c in ri.categories}} for f in ri.instances},
-        "targets": {t: {"category": c, "instance": i, "placements": times[t]} for t, (c, i) in sorted(targets.items())},
-        "scans": truth, "background": ri.background})
+        "class_level": ri.class_level, "view_split": ri.view_split, "classes": classes,
+        "folds": {str(f): {"held_out_instance": f,
+                           "classes": {k: v for k, v in classes.items() if fold_of(k) == str(f)}}
+                  for f in ri.instances},
+        "targets": {t: {"category": c, "instance": i, "placements": times[t],
+                        "training_azimuths": sorted(train[(c, i)]), "frame_azimuths": sorted(test[(c, i)])}
+                    for t, (c, i) in sorted(targets.items())},
+        "left_out_instances": left_out, "scans": truth, "background": background,
+        "view_error_deg": view_error, "box_fit": box_fit})
     unplaced = sorted(t for t, n in times.items() if n == 0)
-    extra = {"classes": len(trained), "targets": len(targets), "training_views": n_views,
-             "unplaced_targets": unplaced, "scans": counts}
+    extra = {"classes": len(classes), "targets": len(targets), "training_views": n_views,
+             "unplaced_targets": unplaced, "left_out_instances": left_out, "scans": counts,
+             "view_error_deg": view_error, "box_fit": box_fit, "background": background,
+             "class_level": ri.class_level, "view_split": ri.view_split}
     per_scan = "; ".join(f"{k}: {c['paired']} placed, {c['frames']} frames" for k, c in counts.items())
-    return extra, (f"real imagery (ETH-80 categories): {len(ri.categories)} categories x {len(ri.instances)} folds "
-                   f"= {len(trained)} classes ({n_views} training views); {len(targets) - len(unplaced)} of "
-                   f"{len(targets)} held-out instances placed; {per_scan} (pairing synthetic, seeded)")
+    return extra, (f"real imagery (ETH-80, {ri.class_level} level): {len(classes)} classes over "
+                   f"{len(ri.instances)} folds ({n_views} training views, background {train_bg}; frames on "
+                   f"{ri.background}); {len(targets) - len(unplaced)} of {len(targets)} held-out instances placed"
+                   f"{f', {len(left_out)} left out' if left_out else ''}; {per_scan}; "
+                   f"{view_error['refused']} frames beyond the view-error bound (pairing synthetic, seeded)")
 
 
 def _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed, targets, views, ids, backgrounds, placeholder):
@@ -201,21 +282,27 @@ def _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed, targets, 
         d = frame_views(rows[rows["instance"] == inst], xy, grid, ri.frames)
         bear = object_bearing_deg(d[["cam_x", "cam_y"]].to_numpy(float), xy, yaw)
         photos = views[targets[t]]
-        used, gaps = [], []
+        used, gaps, fits = [], [], []
         for r, b in zip(d.itertuples(index=False), bear):
             a = nearest_azimuth(float(b), photos)
+            gap = float(view_error_deg(b, a))
+            gaps.append(gap)
+            if gap > ri.max_view_error_deg:  # no frame: the photograph would not show this viewpoint
+                continue
             rgb, mask, alpha = photos[a]
-            box = (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1))
+            box, fit = frame_fit(r.image, (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1)), mask)
             bg_rng = rng_for(ri.background_seed, "background", scan, r.image, inst)
             items.setdefault(r.image, []).append(((rgb, mask, alpha, box), bg_rng))
             boxes.setdefault(r.image, []).append([*box, ids[t], int(r.difficulty)])
             used.append(a)
-            gaps.append(abs((a - float(b) + 180.0) % 360.0 - 180.0))
+            fits.append(fit)
         c, i = targets[t]
         record[t] = {"position": [float(xy[0]), float(xy[1])], "yaw_deg": yaw, "avd_instance": inst,
                      "category": c, "eth80_instance": i, "residual_m": round(float(loc[inst][1]), 4),
-                     "frames": len(d), "azimuths_used": sorted(set(used)),
-                     "max_view_offset_deg": round(max(gaps), 3) if gaps else None}
+                     "frames": len(used), "azimuths_used": sorted(set(used)),
+                     "frames_refused_view_error": len(gaps) - len(used),
+                     "max_view_offset_deg": round(max(gaps), 3) if gaps else None,
+                     "frame_fit": fits, "_errors": gaps}
     folder = avd_out / scan
     jpg = folder / "jpg_rgb"
     jpg.mkdir(parents=True, exist_ok=True)

@@ -7,8 +7,12 @@ map is the alpha that blends the object over the background of that patch. The b
 (the COIL frames' look), or, with ``background = "avd_frames"``, a region of a real AVD frame
 resampled to the patch: a seeded frame, a seeded region with the patch's aspect ratio whose height
 is 30-100 % of the largest that fits, below the frames' burned-in step label (the top
-``LABEL_ROWS`` rows are never used). The photograph's own blue cloth never reaches a frame; the
-training views keep it.
+``LABEL_ROWS`` rows are never used). The photograph's own blue cloth never reaches a frame.
+
+The training views get the same kind of background by default (``training_view``: cut out by the
+map onto black, or onto a seeded clutter region the size of the photograph), so the two sides
+differ in the object's view, not in what surrounds it; ``data.real_imagery.train_background``
+names a deliberate mismatch ('original' keeps the blue cloth).
 """
 from __future__ import annotations
 
@@ -65,6 +69,16 @@ def clutter_patch(backgrounds: list[np.ndarray], shape, rng: np.random.Generator
     return cv2.resize(region, (W, H), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
 
 
+def training_view(rgb: np.ndarray, alpha: np.ndarray, kind: str, backgrounds, rng: np.random.Generator) -> np.ndarray:
+    """A training photograph on background ``kind``: 'original' (as it is), 'black' (cut out by its
+    map) or 'avd_frames' (cut out over a clutter region the photograph's size, drawn by ``rng``)."""
+    if kind == "original":
+        return rgb
+    a = np.clip(alpha, 0.0, 1.0).astype(np.float32)[:, :, None]
+    bg = (np.zeros_like(rgb) if kind == "black" else clutter_patch(backgrounds, rgb.shape[:2], rng)).astype(np.float32)
+    return np.clip(np.round(a * rgb.astype(np.float32) + (1.0 - a) * bg), 0, 255).astype(np.uint8)
+
+
 def cutout_patch(rgb: np.ndarray, mask: np.ndarray, alpha: np.ndarray, box_w: int, box_h: int,
                  background: np.ndarray | None):
     """The photograph resampled to the box, blended by its map over ``background`` (a patch of the
@@ -88,7 +102,7 @@ def patch_shape(mask: np.ndarray, box_w: int, box_h: int) -> tuple[int, int]:
 def render_category_frame(size: tuple[int, int], items, backgrounds, noise_std: float, blur_sigma_px: float,
                           rng: np.random.Generator, bg_rngs) -> np.ndarray:
     """A black (H, W, 3) frame of ``size`` = (W, H) with each (rgb, mask, alpha, box) cut out and
-    pasted, larger boxes first, over black (``backgrounds`` None) or clutter drawn with the item's
+    pasted (``box``: where the object's mask box lands, ``frames.fit_in_box``), larger boxes first, over black (``backgrounds`` None) or clutter drawn with the item's
     own generator of ``bg_rngs`` (same order as ``items``); then the sensor model on each box."""
     frame = np.zeros((size[1], size[0], 3), np.uint8)
     order = sorted(range(len(items)), key=lambda i: -(items[i][3][2] - items[i][3][0]) * (items[i][3][3] - items[i][3][1]))

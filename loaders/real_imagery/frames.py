@@ -9,12 +9,18 @@ in training) nearest that bearing: at most half the spacing of the held-out view
 where a held-out view is missing the gap doubles (up to 10 degrees). ``view_error_deg`` measures it;
 the writer refuses frames beyond ``data.real_imagery.max_view_error_deg`` and records the distribution.
 
-The view is resampled so that its object mask's bounding box becomes the real box in that frame
-(width and height scaled separately: the real box decides the pixel size), with half a box of the
-photograph's own black surround on each side, and pasted onto a black frame. The sensor model acts
-on a window around each pasted box (the crop the features stage takes lies inside it): Gaussian
-optical blur (``blur_sigma_px``), Gaussian read noise (``noise_std`` grey levels), then the whole
-frame is JPEG-encoded (``jpeg_quality``) by the writer.
+The view is scaled UNIFORMLY so that its object fits the real box (the side that reaches the box
+first fills it; the object keeps its own aspect ratio, never stretched: ``fit_in_box``) and is
+centred in it; the written box annotation is the object's own box (tight, centred on the real
+box), so the crop the features stage takes frames the object as the training crops do (a tight
+mask box plus the crop margin) and not the real box's padding. The real box decides the frame's
+position and size; its centre, which locates the instance, moves by at most half a pixel.
+``fit_in_box`` also gives the scale and the box's fill (the object box's share of the real box),
+which the writer records per frame. The patch keeps a surround of the photograph's own black of
+``CONTEXT`` times the object's longer side on every side (enough to fill the square crop). The
+sensor model acts on a window around each pasted box (the crop the features stage takes lies
+inside it): Gaussian optical blur (``blur_sigma_px``), Gaussian read noise (``noise_std`` grey
+levels), then the whole frame is JPEG-encoded (``jpeg_quality``) by the writer.
 """
 from __future__ import annotations
 
@@ -23,7 +29,7 @@ import numpy as np
 
 from pipeline.method.geometry import bearing, relative_inputs
 
-CONTEXT = 0.5   # surround kept around the object's box, as a fraction of the box side
+CONTEXT = 0.5   # surround kept around the object's box, as a fraction of its longer side
 
 
 def object_bearing_deg(cam_xy, obj_xy, yaw_deg) -> np.ndarray:
@@ -57,16 +63,32 @@ def mask_bbox(mask: np.ndarray) -> tuple[int, int, int, int]:
     return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
 
 
+def fit_in_box(mask: np.ndarray, box) -> tuple[tuple[int, int, int, int], float, float]:
+    """The object's box in the frame for a real ``box`` (x0, y0, x1, y1): the mask box scaled by
+    one factor so it fits ``box`` (the tighter side fills it), centred; (object box, scale =
+    frame pixels per photograph pixel, fill = object box area / real box area)."""
+    x0, y0, x1, y1 = (int(v) for v in box)
+    bw, bh = x1 - x0, y1 - y0
+    mx0, my0, mx1, my1 = mask_bbox(mask)
+    cw, ch = mx1 - mx0, my1 - my0
+    s = min(bw / cw, bh / ch)
+    ow, oh = min(max(int(round(cw * s)), 1), bw), min(max(int(round(ch * s)), 1), bh)
+    ox, oy = x0 + (bw - ow) // 2, y0 + (bh - oh) // 2
+    return (ox, oy, ox + ow, oy + oh), float(s), (ow * oh) / float(bw * bh)
+
+
 def resampled_view(rgb: np.ndarray, mask: np.ndarray, box_w: int, box_h: int):
-    """The view scaled so its mask box is ``box_w`` x ``box_h`` pixels, with CONTEXT of surround:
+    """The view scaled so its mask box is ``box_w`` x ``box_h`` pixels (callers pass the object's
+    own aspect ratio, ``fit_in_box``), with a surround of CONTEXT times the longer output side:
     (patch uint8, (dx, dy) of the object box inside the patch)."""
     x0, y0, x1, y1 = mask_bbox(mask)
     cw, ch = x1 - x0, y1 - y0
-    ex, ey = round(CONTEXT * cw), round(CONTEXT * ch)
+    sx, sy = box_w / cw, box_h / ch
+    m = CONTEXT * max(box_w, box_h)          # output pixels of surround, the same on every side
+    ex, ey = int(round(m / sx)), int(round(m / sy))
     pad = max(ex, ey) + 1
     src = cv2.copyMakeBorder(np.ascontiguousarray(rgb), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
     region = src[y0 + pad - ey:y1 + pad + ey, x0 + pad - ex:x1 + pad + ex]
-    sx, sy = box_w / cw, box_h / ch
     dx, dy = round(ex * sx), round(ey * sy)
     size = (box_w + 2 * dx, box_h + 2 * dy)
     shrink = sx * sy < 1.0
@@ -106,7 +128,8 @@ def apply_sensor(frame: np.ndarray, box, noise_std: float, blur_sigma_px: float,
 def render_frame(size: tuple[int, int], items, noise_std: float, blur_sigma_px: float,
                  rng: np.random.Generator) -> np.ndarray:
     """A black (H, W, 3) frame of ``size`` = (W, H) with each (rgb, mask, box) pasted, larger boxes
-    first, then the sensor model on each box's window."""
+    first, then the sensor model on each box's window. ``box`` is where the object's mask box
+    lands (``fit_in_box``'s object box: the caller decides the aspect ratio)."""
     frame = np.zeros((size[1], size[0], 3), np.uint8)
     items = sorted(items, key=lambda it: -(it[2][2] - it[2][0]) * (it[2][3] - it[2][1]))
     for rgb, mask, box in items:

@@ -7,12 +7,18 @@ calibration with reference poses that put camera NP1 at bearing ``a`` around the
 (``loaders.synthetic.bigbird_writer``'s rig: the features stage reads the view's GP input from
 that pose, so training view ``a`` sits at angle ``a`` on the unit circle, where the frames'
 held-out views are placed too). Missing and bad views are left out (counted by the caller).
+
+``modellable`` is the one check, for every dataset side of this source (COIL objects, ETH-80
+instances, any later one), that a side has enough training views for the models stage: a side
+with fewer than ``models.min_views`` is skipped in the data stage (counted, logged and named under
+``data.skip_bad_views``, or refused with skips off), not two stages later.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 from loaders.coil import SIZE, CoilFolder, object_name
+from loaders.errors import BadInputError
 from loaders.pbm import encode_pbm
 from loaders.synthetic.bigbird_writer import (
     encode_jpeg,
@@ -20,6 +26,19 @@ from loaders.synthetic.bigbird_writer import (
     write_object_metadata,
 )
 from pipeline.infra.cache import write_bytes
+
+
+def modellable(n_views: int, min_views: int, name: str, path: Path, setting: str, skips, part: str,
+               what: str, unit: str = "object") -> bool:
+    """Whether a side named ``name`` with ``n_views`` readable training views (at ``setting``, the
+    keys that chose them) can be modelled; if not, a named skip under ``part`` (``skips.handle``:
+    counted and logged, or raised with skips off) and False."""
+    if n_views >= min_views:
+        return True
+    skips.handle(BadInputError(path, f"{name}: {n_views} readable training view{'s' if n_views != 1 else ''} at "
+                                     f"{setting}, fewer than models.min_views = {min_views}; {unit} left out"),
+                 part, what)
+    return False
 
 
 def training_angles(train_step_deg: int) -> list[int]:

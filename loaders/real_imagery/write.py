@@ -12,7 +12,13 @@ Writes, under the stage folder, in the formats the other stages already read:
   scan is one shared black placeholder frame of the real size (hard links: the reader needs a file
   per image, nothing reads its pixels);
 - ``truth.json``: per scan, each paired object's located position, its seeded yaw, the real
-  instance it stands for and the ray residual; the refused and unpaired instances.
+  instance it stands for and the ray residual, and per frame its real box, scale and fill
+  (``frame_fit``: the object is scaled uniformly into the real box and the written box is the
+  object's own, ``frames.fit_in_box``); the refused and unpaired instances; the distributions of
+  the viewpoint error (``view_error_deg``) and of the fit (``box_fit``).
+
+An object with fewer readable training views than ``models.min_views`` is left out here
+(``training.modellable``, the check every writer of this source calls).
 """
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
 from loaders.files import plain_name
 from loaders.real_imagery.frames import (
+    fit_in_box,
     heldout_angles,
     nearest_view,
     object_bearing_deg,
@@ -35,7 +42,7 @@ from loaders.real_imagery.frames import (
     view_error_deg,
 )
 from loaders.real_imagery.pairing import box_rows, located_xy, pair_scan
-from loaders.real_imagery.training import write_training_object
+from loaders.real_imagery.training import modellable, write_training_object
 from loaders.synthetic.bigbird_writer import encode_jpeg
 from pipeline.scene.rays import facing_error
 from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
@@ -71,6 +78,30 @@ def view_error_summary(errors, bound: float) -> dict:
             "share_over_5": round(float((e > 5.0).mean()), 4)}
 
 
+def fit_summary(fits) -> dict:
+    """The distribution over written frames of the uniform scale (frame pixels per photograph pixel)
+    and of the box's fill (the object box's share of the real box's area: 1 where the object's
+    aspect ratio is the box's, lower the more they differ)."""
+    if not fits:
+        return {"frames": 0}
+    scale = np.array([f["scale"] for f in fits], float)
+    fill = np.array([f["fill"] for f in fits], float)
+
+    def q(v):
+        p = np.percentile(v, [5, 50, 95])
+        return {"min": round(float(v.min()), 4), "p5": round(float(p[0]), 4), "median": round(float(p[1]), 4),
+                "p95": round(float(p[2]), 4), "max": round(float(v.max()), 4)}
+    return {"frames": int(len(fits)), "scale": q(scale), "fill": q(fill),
+            "share_fill_below_0_5": round(float((fill < 0.5).mean()), 4)}
+
+
+def frame_fit(image: str, box, mask) -> tuple[tuple[int, int, int, int], dict]:
+    """The object box written for a real ``box`` (``fit_in_box``) and the frame's record."""
+    obj_box, scale, fill = fit_in_box(mask, box)
+    return obj_box, {"image": image, "real_box": [int(v) for v in box], "scale": round(scale, 4),
+                     "fill": round(fill, 4)}
+
+
 def _heldout(coil: CoilFolder, k: int, step: int, skips) -> dict[int, tuple]:
     out = {}
     for a in heldout_angles([v.angle for v in coil.views(k)], step):
@@ -93,13 +124,8 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
             raise BadInputError(coil_root / f"obj{k}__0.png",
                                 f"COIL object {k} of 'data.real_imagery.objects' has no view in the folder")
         info = write_training_object(bb_out, coil, k, ri.train_step_deg, ri.train_jpeg_quality)
-        if len(info["angles"]) < cfg.models.min_views:  # the models stage could not fit its GPs
-            n = len(info["angles"])
-            skips.handle(BadInputError(coil_root / f"obj{k}__0.png",
-                                       f"{object_name(k)}: {n} readable training view{'s' if n != 1 else ''} at "
-                                       f"data.real_imagery.train_step_deg = {ri.train_step_deg}, fewer than "
-                                       f"models.min_views = {cfg.models.min_views}; object left out"),
-                         "coil", "COIL view")
+        if not modellable(len(info["angles"]), cfg.models.min_views, object_name(k), coil_root / f"obj{k}__0.png",
+                          f"data.real_imagery.train_step_deg = {ri.train_step_deg}", skips, "coil", "COIL view"):
             continue
         trained[k] = info["angles"]
         if info["missing"]:
@@ -119,19 +145,21 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
     placeholder.unlink()
     errors = [e for s in truth.values() for r in s["instances"].values() for e in r.pop("_errors")]
     view_error = view_error_summary(errors, ri.max_view_error_deg)
+    box_fit = fit_summary([f for s in truth.values() for r in s["instances"].values() for f in r["frame_fit"]])
     if view_error["refused"]:
         log.warning("real imagery: %d of %d frames refused: the nearest held-out view is more than "
                     "data.real_imagery.max_view_error_deg = %g degrees from the bearing", view_error["refused"],
                     view_error["frames"], ri.max_view_error_deg)
     write_json(truth_path, {"source": "real_imagery", "pairing": "synthetic: seeded "
                                     "(data.real_imagery.pairing_seed, yaws_seed)", "scans": truth,
-                                    "view_error_deg": view_error,
+                                    "view_error_deg": view_error, "box_fit": box_fit,
                                     "train_step_deg": ri.train_step_deg,
                                     "objects": {object_name(k): {"training_angles": trained[k],
                                                                  "heldout_angles": sorted(heldout[k])}
                                                 for k in sorted(heldout)}})
     extra = {"coil_objects": len(heldout), "training_views": sum(len(trained[k]) for k in heldout),
-             "missing_training_views": missing, "scans": counts, "view_error_deg": view_error}
+             "missing_training_views": missing, "scans": counts, "view_error_deg": view_error,
+             "box_fit": box_fit}
     per_scan = "; ".join(f"{s}: {c['paired']} paired instances, {c['frames']} frames" for s, c in counts.items())
     return extra, (f"real imagery: {len(heldout)} COIL objects x {ri.train_step_deg}-degree training views "
                    f"({extra['training_views']} views); {per_scan} (pairing synthetic, seeded)")
@@ -152,7 +180,7 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
         d = frame_views(rows[rows["instance"] == p.instance], np.asarray(p.xy), grid, ri.frames)
         bear = object_bearing_deg(d[["cam_x", "cam_y"]].to_numpy(float), np.asarray(p.xy), p.yaw_deg)
         views = heldout[p.object_id]
-        used, errs = [], []
+        used, errs, fits = [], [], []
         for r, b in zip(d.itertuples(index=False), bear):
             a = nearest_view(float(b), views)
             err = float(view_error_deg(b, a))
@@ -160,16 +188,17 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
             if err > ri.max_view_error_deg:  # no frame: the view shown would not be this viewpoint's
                 continue
             rgb, mask = views[a]
-            box = (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1))
+            box, fit = frame_fit(r.image, (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1)), mask)
             items.setdefault(r.image, []).append((rgb, mask, box))
             boxes.setdefault(r.image, []).append([*box, p.object_id, int(r.difficulty)])
             used.append(a)
+            fits.append(fit)
         record[object_name(p.object_id)] = {"position": list(p.xy), "yaw_deg": p.yaw_deg, "avd_instance": p.instance,
                                             "coil_object": p.object_id, "residual_m": round(p.residual_m, 4),
                                             "frames": len(used), "heldout_views_used": sorted(set(used)),
                                             "frames_refused_view_error": len(errs) - len(used),
                                             "view_error_deg_max": round(max(errs), 3) if errs else None,
-                                            "_errors": errs}
+                                            "frame_fit": fits, "_errors": errs}
     folder = avd_out / scan
     jpg = confined_dir(folder / "jpg_rgb")
     for name in sorted(items):

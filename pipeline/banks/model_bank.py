@@ -233,7 +233,7 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     sets = candidate_sets(pool, tlist, n_candidates, candidates, candidate_seed, class_means=means,
                           folds=candidate_folds)
     plan = plan_components(sets, S_by, mcfg.n_components, mcfg.component_rule, mcfg.components,
-                           mcfg.informative_min)
+                           mcfg.informative_min, per_candidate=candidates == "all")
     comps = sorted({i for p in plan.values() for i in p["components"]})
     for p in plan.values():
         p["component_names"] = None if names is None else [str(names[i]) for i in p["components"]]
@@ -253,7 +253,8 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         "candidate_sets": plan,
         "own_components": own_components(S_by),
         "component_choice": next(iter(plan.values()))["choice"] if len(plan) == 1 else
-        {"rule": mcfg.component_rule, "n_components": mcfg.n_components, "per_target": True},
+        {"rule": mcfg.component_rule, "n_components": mcfg.n_components, "per_target": True,
+         "per_candidate": candidates == "all"},
         "camera": mcfg.camera,
         "training_angles_deg": angles,
         "features": {"file": path.name, "rows_used": int(sum(len(x) for x in X_by.values())),

@@ -15,6 +15,45 @@ from reports.main.bottom_line import counts
 from reports.main.context import ReportContext
 from reports.shared.figures import MGR_SATURATION
 
+BACKGROUNDS = {"black": "cut out onto black", "avd_frames": "cut out onto real AVD clutter",
+               "original": "on the photographs' own background (ETH-80's blue cloth)"}
+
+
+def data_extra(ctx: ReportContext) -> dict:
+    """The data stage manifest's extras (what the real-imagery writer measured), or {}."""
+    return (((getattr(ctx.run, "manifests", None) or {}).get("data") or {}).get("extra") or {})
+
+
+def background_text(ctx: ReportContext) -> str:
+    """The background of each side of a real-imagery run, from the data stage's record."""
+    if ctx.data_source != "real_imagery":
+        return ""
+    ri = (ctx.config.get("data") or {}).get("real_imagery") or {}
+    if ri.get("dataset") != "eth80":
+        return "backgrounds: COIL-100's own black on both sides"
+    bg = data_extra(ctx).get("background") or {}
+    frames = bg.get("frames") or ri.get("background", "black")
+    train = bg.get("training") or (frames if ri.get("train_background", "same") == "same" else ri["train_background"])
+    if frames == train:
+        return f"backgrounds: frames and training views alike {BACKGROUNDS.get(frames, frames)}"
+    return (f"backgrounds: frames {BACKGROUNDS.get(frames, frames)}, training views {BACKGROUNDS.get(train, train)} "
+            "(a deliberate mismatch, data.real_imagery.train_background)")
+
+
+def box_fit_text(ctx: ReportContext) -> str | None:
+    """How far the uniform fit leaves each object from filling its real box, or None."""
+    bf = data_extra(ctx).get("box_fit")
+    if not isinstance(bf, dict) or not bf.get("frames"):
+        return None
+    fill, scale = bf.get("fill") or {}, bf.get("scale") or {}
+    return (f"Each object is scaled uniformly into the real AVD box of its frame (never stretched; the box written "
+            f"for the classifier is the object's own, centred in the real one): over {bf['frames']} frames the "
+            f"object box covers a median {fill.get('median')} of the real box's area (5th-95th percentile "
+            f"{fill.get('p5')}-{fill.get('p95')}; below half in {round(100 * float(bf.get('share_fill_below_0_5', 0)))} "
+            f"% of frames) at a median scale of {scale.get('median')} frame pixels per photograph pixel "
+            f"({scale.get('p5')}-{scale.get('p95')}).")
+
+
 def methods_section(ctx: ReportContext) -> None:
     pop = ctx.population or {}
     methods = ordered_methods(pop.get("methods") or [])
@@ -64,10 +103,13 @@ def limitations(ctx: ReportContext) -> list[str]:
     ve = (((ctx.run.manifests or {}).get("data") or {}).get("extra") or {}).get("view_error_deg") \
         if getattr(ctx.run, "manifests", None) else None
     if isinstance(ve, dict) and ve.get("frames"):
-        out.append(f"Each frame shows the held-out COIL view nearest the camera's bearing, not the bearing itself: "
+        out.append(f"Each frame shows the held-out photograph nearest the camera's bearing, not the bearing itself: "
                    f"over {ve['frames']} candidate frames the viewpoint error has median {ve.get('median')}°, "
                    f"90th percentile {ve.get('p90')}°, maximum {ve.get('max')}°; {ve.get('refused', 0)} beyond "
                    f"data.real_imagery.max_view_error_deg = {ve.get('bound')}° got no frame.")
+    fit = box_fit_text(ctx)
+    if fit:
+        out.append(fit)
     seeds = (ctx.config.get("study") or {}).get("seeds") or []
     train = ((ctx.run.card or {}).get("training") or {}).get("seed")
     if not _study(ctx):

@@ -38,7 +38,7 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
               help="resolve the network's weights (train the synthetic source-domain AlexNet, or load ImageNet weights)"),
     StageSpec("features", "stages.features", ("data", "classifier"), ("features",),
               help="crop every needed view and score it (deterministic pass + MC dropout) -> Parquet"),
-    StageSpec("models", "stages.models", ("features",),
+    StageSpec("models", "stages.models", ("data", "features"),
               ("models", "evaluate.targets", "evaluate.n_candidates", "evaluate.candidates",
                "evaluate.candidate_seed", "evaluate.candidate_folds", "evaluate.ablations"),
               help="choose feature components and fit one GP per (class, component)"),

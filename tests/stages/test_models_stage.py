@@ -128,7 +128,9 @@ def test_component_rules(tmp_path, rule):
         key = np.concatenate([s for _, s in truth.values()]).mean(0)
     else:
         key = per_class.min(0)
-    expected = [5, 0] if rule == "explicit" else [int(i) for i in np.argsort(-key, kind="stable")[:2]]
+    # candidates "all" (fit_from_features' default): N_f = max(n_components = 2, 3 candidates), the
+    # paper's N_f = N_c; the explicit rule keeps the components it names
+    expected = [5, 0] if rule == "explicit" else [int(i) for i in np.argsort(-key, kind="stable")[:3]]
     # The plan keeps the rule's rank order; the bank holds the components in index order.
     assert all(p["components"] == expected for p in extra["candidate_sets"].values())
     assert models.components == sorted(expected)

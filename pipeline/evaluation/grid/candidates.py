@@ -14,6 +14,11 @@ are taken from the target, so the relation need not be symmetric (B may be among
 not A among B's). Candidates are kept in name order, so
 the truth's position in the posterior varies between targets: ``argmax`` breaks ties towards the
 lower index, and a fixed truth position would bias ties.
+
+Components: each set's N_f is ``models.n_components``; with every class as a candidate
+(``"all"``) it grows with the set, at least one component per candidate (``set_size``): the
+paper's N_f = N_c (section 4.4.1), so eight candidates are not told apart on four numbers.
+Rule ``explicit`` keeps the components it names.
 """
 from __future__ import annotations
 
@@ -91,12 +96,22 @@ def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: in
     return out
 
 
+def set_size(n: int, n_classes: int, per_candidate: bool, rule: str = "top_mean") -> int:
+    """N_f of one candidate set: ``n`` (models.n_components), or with ``per_candidate`` at least one
+    component per candidate (the paper's N_f = N_c, section 4.4.1: ``evaluate.candidates = "all"``).
+    Rule ``explicit`` keeps the components it names: the user chose N_f."""
+    return max(int(n), int(n_classes)) if per_candidate and rule != "explicit" else int(n)
+
+
 def plan_components(sets: Mapping[str, Sequence[str]], scores_by_class: Mapping[str, np.ndarray], n: int,
-                    rule: str, explicit: Sequence[int] = (), informative_min: float = 0.02) -> dict[str, dict]:
-    """Per target: the N_f components chosen by ``rule`` on its candidates' training scores."""
+                    rule: str, explicit: Sequence[int] = (), informative_min: float = 0.02,
+                    per_candidate: bool = False) -> dict[str, dict]:
+    """Per target: the N_f components chosen by ``rule`` on its candidates' training scores; N_f is
+    ``set_size`` (``per_candidate``: never fewer components than candidates)."""
     out = {}
     for target, classes in sets.items():
-        comps, record = choose_components([scores_by_class[c] for c in classes], n, rule, explicit,
+        k = set_size(n, len(classes), per_candidate, rule)
+        comps, record = choose_components([scores_by_class[c] for c in classes], k, rule, explicit,
                                           target=list(classes).index(target), informative_min=informative_min)
         out[target] = {"classes": list(classes), "components": comps, "choice": record}
     return out

@@ -35,8 +35,12 @@ def _check_eth80(cfg: Config, need) -> None:
          "'data.real_imagery.categories' must list at least two distinct categories")
     need(len(set(ri.instances)) == len(ri.instances) and len(ri.instances) >= 2,
          "'data.real_imagery.instances' must list at least two distinct instances (one fold each)")
-    need(ri.background != "avd_frames" or bool(cfg.data.avd_frames_root),
-         "'data.real_imagery.background' = 'avd_frames' needs 'data.avd_frames_root'")
+    for key in ("background", "train_background"):
+        need(getattr(ri, key) != "avd_frames" or bool(cfg.data.avd_frames_root),
+             f"'data.real_imagery.{key}' = 'avd_frames' needs 'data.avd_frames_root'")
+    need(ri.class_level != "instance" or ri.view_split == "alternate",
+         "'data.real_imagery.class_level' = 'instance' needs 'data.real_imagery.view_split' = 'alternate' (an "
+         "instance's class is fitted on its training azimuths; the frames show the held-out ones)")
     need(cfg.evaluate.candidate_folds, "data.real_imagery.dataset = 'eth80' needs 'evaluate.candidate_folds' = true "
                                        "(a target's candidates are its own fold's classes)")
     need(cfg.evaluate.candidates not in ("sampled", "hard") or cfg.evaluate.n_candidates <= len(ri.categories),
@@ -123,6 +127,12 @@ def cross_checks(cfg: Config, where: str) -> None:
             _check_eth80(cfg, need)
         else:
             need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
+            need(ri.background == "black" and ri.train_background in ("same", "original", "black"),
+                 f"'data.real_imagery.background' = {ri.background!r}, 'train_background' = {ri.train_background!r}: "
+                 "COIL-100 photographs are on black on both sides (clutter needs data.real_imagery.dataset = 'eth80')")
+            need(ri.class_level == "category" and ri.view_split == "none",
+                 "'data.real_imagery.class_level' and 'view_split' are for dataset = 'eth80' (COIL classes are "
+                 "instances, split by data.real_imagery.train_step_deg)")
             need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
                  f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
             need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,

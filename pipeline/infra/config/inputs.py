@@ -133,8 +133,21 @@ class RealImageryConfig:
     elevations: tuple[int, ...] = _f(factory=lambda: (90,), lo=0, hi=999,
                                      doc="eth80: the rings read (the name's elevation field; 090 = equatorial)")
     background: str = _f("black", choices=("black", "avd_frames"),
-                         doc="eth80 frames: the object (by its map) on black, or over a region of a real AVD frame "
-                             "(data.avd_frames_root) resampled to the box surroundings; training views keep their own")
+                         doc="the background of both sides (training views too, unless train_background says "
+                             "otherwise): the object (by its map) on black, or over a region of a real AVD frame "
+                             "(data.avd_frames_root; eth80 only: COIL photographs are on black already)")
+    train_background: str = _f("same", choices=("same", "original", "black", "avd_frames"),
+                               doc="the training views' background: 'same' = data.real_imagery.background (the "
+                                   "controlled default); 'original' = the photograph's own (ETH-80's blue cloth); "
+                                   "'black' | 'avd_frames' = that kind, a deliberate mismatch with the frames")
+    class_level: str = _f("category", choices=("category", "instance"),
+                          doc="eth80: what a class model of fold f is fitted on: 'category' = the category's OTHER "
+                              "instances; 'instance' = instance f itself (its training azimuths; needs "
+                              "view_split = 'alternate'). The frames do not depend on it: the controlled contrast")
+    view_split: str = _f("none", choices=("none", "alternate"),
+                         doc="eth80: which azimuths train and which the frames show: 'none' = every azimuth both; "
+                             "'alternate' = training on 0, 45, ..., 315, frames on 22.5, 67.5, ... (held out, "
+                             "as COIL's 5-degree views)")
     background_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="eth80, background = avd_frames: which frame and region")
 
 

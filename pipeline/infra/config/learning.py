@@ -110,7 +110,8 @@ class ModelsConfig:
     classes: tuple[str, ...] = _f("all", words=("all",),
                                   doc="modelled classes, the candidate pool: 'all' = every BigBIRD object "
                                       "in the features, or a list of object names")
-    n_components: int = _f(4, lo=1, hi=1000, doc="N_f score components per candidate set")
+    n_components: int = _f(4, lo=1, hi=1000, doc="N_f score components per candidate set; with evaluate.candidates = "
+                                                 "'all' at least one per candidate (N_f = N_c, paper section 4.4.1)")
     component_rule: str = _f("top_mean", choices=("top_mean", "top_min", "target_informative", "explicit"),
                              doc="how each candidate set's N_f components are chosen (pipeline/method/components.py)")
     informative_min: float = _f(0.02, lo=0.0, hi=1.0,

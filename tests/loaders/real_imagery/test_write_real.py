@@ -1,5 +1,6 @@
 """The real-imagery writer on the real data (two COIL objects, one real AVD scan): every framed box
-is a real box, shows the held-out COIL view nearest the real bearing, resampled to that box."""
+is the object's own box fitted into a real box, shows the held-out COIL view nearest the real
+bearing, scaled uniformly into that box."""
 from __future__ import annotations
 
 import json
@@ -50,7 +51,10 @@ def test_framed_boxes_show_the_nearest_heldout_view(written):
             obj = ours.instance_names[b.instance_id]
             rec = truth[obj]
             rid = src.instance_ids[rec["avd_instance"]]
-            assert any((r.x0, r.y0, r.x1, r.y1, r.instance_id) == (b.x0, b.y0, b.x1, b.y1, rid)
+            # the written box is the object's own, inside a real box of its instance and centred on it
+            assert any(r.instance_id == rid and r.x0 <= b.x0 and b.x1 <= r.x1 and r.y0 <= b.y0 and b.y1 <= r.y1
+                       and abs((r.x0 + r.x1) - (b.x0 + b.x1)) <= 1 and abs((r.y0 + r.y1) - (b.y0 + b.y1)) <= 1
+                       and ((b.x0, b.x1) == (r.x0, r.x1) or (b.y0, b.y1) == (r.y0, r.y1))
                        for r in src.images[name].boxes)
             bear = float(object_bearing_deg(img.position[None], np.array(rec["position"]), rec["yaw_deg"])[0])
             a = nearest_view(bear, held)
@@ -62,7 +66,9 @@ def test_framed_boxes_show_the_nearest_heldout_view(written):
                     rgb, mask = coil.read(coil.view(rec["coil_object"], cand))
                     patch, (dx, dy) = resampled_view(rgb, mask, b.x1 - b.x0, b.y1 - b.y0)
                     errs[cand] = np.abs(patch[dy:dy + b.y1 - b.y0, dx:dx + b.x1 - b.x0] - frame).mean()
-                assert errs[a] < 3.0 and errs[a] == min(errs.values())
+                # < 5 grey levels (JPEG's chroma subsampling on colour edges: the box is the object's own
+                # now, all object pixels and none of the black the real box held) against 20-30 for other views
+                assert errs[a] < 5.0 and errs[a] == min(errs.values()), (name, len(img.boxes), errs)
                 checked += 1
     assert checked == 6
     # the training side holds training views only

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from pipeline.evaluation.grid.candidates import candidate_sets, own_components, plan_components
+from pipeline.evaluation.grid.candidates import candidate_sets, own_components, plan_components, set_size
 from pipeline.method.components import choose_components
 
 POOL = [f"obj_{i:02d}" for i in range(12)]
@@ -109,3 +109,19 @@ def test_hard_sets_need_means_and_a_pool_large_enough():
         candidate_sets(pool, ["c0"], 3, "hard", 0, class_means={c: m for c, m in means.items() if c != "tie_b"})
     with pytest.raises(ValueError, match="'hard' needs"):
         candidate_sets(pool, ["c0"], 3, "hard", 0)
+
+
+def test_all_candidates_get_at_least_one_component_each():
+    # evaluate.candidates = "all": N_f grows with the candidates (the paper's N_f = N_c, section 4.4.1)
+    rng = np.random.default_rng(1)
+    pool = POOL[:8]
+    scores = {c: rng.dirichlet(np.ones(20) * 0.3, size=6) for c in pool}
+    sets = candidate_sets(pool, pool, 4, "all", 0)
+    plan = plan_components(sets, scores, 4, "top_mean", per_candidate=True)
+    for t, p in plan.items():
+        assert len(p["classes"]) == 8 and len(p["components"]) == 8 == len(set(p["components"]))
+        pooled = np.concatenate([scores[c] for c in p["classes"]]).mean(0)
+        assert p["components"] == [int(i) for i in np.argsort(-pooled, kind="stable")[:8]]
+    assert all(len(p["components"]) == 4 for p in plan_components(sets, scores, 4, "top_mean").values())
+    assert set_size(10, 8, True) == 10 and set_size(4, 3, True) == 4 and set_size(4, 8, False) == 4
+    assert set_size(2, 8, True, "explicit") == 2          # named components: the user's N_f

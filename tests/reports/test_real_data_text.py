@@ -1,0 +1,33 @@
+"""The report's data lines for real imagery: the background of each side and the uniform box fit,
+read from the data stage's manifest (what the writer measured), never a fixed sentence."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from reports.main.reviewer import background_text, box_fit_text
+
+
+def _ctx(dataset="eth80", extra=None, **ri):
+    return SimpleNamespace(data_source="real_imagery",
+                           config={"data": {"real_imagery": {"dataset": dataset, **ri}}},
+                           run=SimpleNamespace(manifests={"data": {"extra": extra or {}}}))
+
+
+def test_each_side_background_is_named_and_a_mismatch_said():
+    assert background_text(_ctx("coil")) == "backgrounds: COIL-100's own black on both sides"
+    same = _ctx(extra={"background": {"frames": "avd_frames", "training": "avd_frames"}})
+    assert background_text(same) == "backgrounds: frames and training views alike cut out onto real AVD clutter"
+    cloth = background_text(_ctx(extra={"background": {"frames": "black", "training": "original"}}))
+    assert "frames cut out onto black" in cloth and "blue cloth" in cloth and "deliberate mismatch" in cloth
+    # an older manifest without the record: the config's keys
+    assert "alike cut out onto black" in background_text(_ctx(background="black", train_background="same"))
+    assert background_text(SimpleNamespace(data_source="synthetic", config={}, run=None)) == ""
+
+
+def test_box_fit_line_reads_the_measured_distribution():
+    assert box_fit_text(_ctx()) is None
+    bf = {"frames": 309, "fill": {"median": 0.2987, "p5": 0.1505, "p95": 0.5781},
+          "scale": {"median": 0.3828, "p5": 0.2445, "p95": 1.0054}, "share_fill_below_0_5": 0.822}
+    text = box_fit_text(_ctx(extra={"box_fit": bf}))
+    assert "over 309 frames" in text and "median 0.2987" in text and "0.1505-0.5781" in text and "82 %" in text
+    assert "never stretched" in text
