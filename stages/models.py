@@ -27,7 +27,8 @@ def run(ctx) -> str:
     feats = ctx.input("features") / out_name("features", "bigbird")
     members = class_members(cfg)   # category classes: several objects' views per class
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
-                     candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds, class_members=members)
+                     candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds, class_members=members,
+                     fit_cache={})   # one fit per distinct (data, settings, starts) across the banks below
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
