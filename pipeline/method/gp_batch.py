@@ -8,7 +8,8 @@ inside the log bounds. The optimizer is scipy's L-BFGS-B with its defaults, one 
 the draws scikit-learn makes), exactly as ``GaussianProcessRegressor.fit`` runs it. What changes
 is who evaluates: every run is driven through scipy's reverse-communication routine (``setulb``)
 in lock step, and each round the objective and its analytic gradient are computed for all runs
-waiting for one with stacked (B, n, n) arrays (one batched Cholesky and inverse). Each run keeps
+waiting for one with stacked arrays: one Cholesky and inverse per fit of the (u, u) matrix of its
+u distinct training inputs (``objective``: a category class's instances share 16 azimuths). Each run keeps
 its own L-BFGS-B state, so its convergence tests act per fit, not on a sum. Where this scipy has
 no ``setulb`` of the known signature, the runs go one by one through ``scipy.optimize.minimize``
 (same numbers, slower).
@@ -73,35 +74,49 @@ def sq_dists(X: np.ndarray) -> np.ndarray:
     return squareform(pdist(np.asarray(X, float), metric="sqeuclidean"))
 
 
-def objective(D: np.ndarray, y: np.ndarray, theta: np.ndarray, prior: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def objective(D: np.ndarray, w: np.ndarray, z: np.ndarray, ssw: np.ndarray, n: np.ndarray, theta: np.ndarray,
+              prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For B stacked fits: LML (B,), log prior (B,) and the gradient of their sum w.r.t. theta (B, 3).
 
-    ``D`` (B, n, n) squared input distances, ``y`` (B, n) centred targets, ``theta`` (B, 3),
-    ``prior`` (B, 2, 2): rows (alpha, beta) of the inverse-gamma laws of l and noise (NaN: none).
-    A kernel matrix that is not positive definite gives LML -inf and a zero gradient, as in
-    scikit-learn."""
-    B, n = y.shape
+    Each fit's n training inputs are reduced to their u distinct points (``reduce_inputs``): ``D``
+    (B, u, u) squared distances between them, ``w`` (B, u) how many inputs share each, ``z`` (B, u)
+    the centred targets summed per point over sqrt(w), ``ssw`` (B,) the targets' squared deviations
+    from their point's mean, ``n`` (B,). With U the (n, u) indicator and W = U^T U,
+    K = noise I + U A U^T (A = a exp(-D / 2l^2)); with M = noise I + W^1/2 A W^1/2 and q = M^-1 z:
+    y^T K^-1 y = ssw / noise + z^T q, log det K = (n - u) log noise + log det M, U^T K^-1 y = W^1/2 q,
+    U^T K^-1 U = W^1/2 M^-1 W^1/2, tr K^-1 = (n - u) / noise + tr M^-1: the LML and its gradient
+    exactly, from u x u matrices (u = n when the inputs are distinct; a category class's instances
+    share the 16 azimuths, u = 16). ``prior`` (B, 2, 2): rows (alpha, beta) of the inverse-gamma
+    laws of l and noise (NaN: none). An M that is not positive definite gives LML -inf and a zero
+    gradient, as scikit-learn does for K."""
+    B, u = z.shape
     a, ell, s = (np.exp(theta[:, i])[:, None, None] for i in range(3))
     Dl = D / ell ** 2
-    aE = a * np.exp(-0.5 * Dl)
-    K = aE.copy()
-    K[:, np.arange(n), np.arange(n)] += s[:, 0]
+    A = a * np.exp(-0.5 * Dl)
+    sw = np.sqrt(w)
+    sw2 = sw[:, :, None] * sw[:, None, :]
+    M = A * sw2
+    M[:, np.arange(u), np.arange(u)] += s[:, 0]
     lml = np.full(B, -np.inf)
     grad = np.zeros((B, 3))
-    Kinv, logdet, ok = _inverses(K)
+    Minv, half_logdet, ok = _inverses(M)
     if ok.any():
-        Kinv, aE, Dl, yy, s_ok = Kinv[ok], aE[ok], Dl[ok], y[ok], s[ok, 0, 0]
-        alpha = (Kinv @ yy[:, :, None])[:, :, 0]
-        lml[ok] = -0.5 * np.einsum("bi,bi->b", yy, alpha) - logdet[ok] - 0.5 * n * LOG_2PI
-        # dLML/dtheta_j = 0.5 (alpha^T dK_j alpha - tr(K^-1 dK_j)); dK/dlog a = aE,
-        # dK/dlog l = aE * D / l^2, dK/dlog noise = noise * I.
-        aED = aE * Dl
-        g_ok = np.empty((len(yy), 3))
-        for j, M in ((0, aE), (1, aED)):
-            g_ok[:, j] = 0.5 * (np.einsum("bi,bi->b", alpha, (M @ alpha[:, :, None])[:, :, 0])
-                                - np.einsum("bij,bij->b", Kinv, M))
-        g_ok[:, 2] = 0.5 * s_ok * (np.einsum("bi,bi->b", alpha, alpha) - np.trace(Kinv, axis1=1, axis2=2))
+        Minv, A, Dl, sw2, zz, s1 = Minv[ok], A[ok], Dl[ok], sw2[ok], z[ok], s[ok, 0, 0]
+        ssw_, n_, sw_ = ssw[ok], n[ok], sw[ok]
+        q = (Minv @ zz[:, :, None])[:, :, 0]
+        quad = ssw_ / s1 + np.einsum("bi,bi->b", zz, q)
+        logdet = (n_ - u) * np.log(s1) + 2 * half_logdet[ok]
+        lml[ok] = -0.5 * quad - 0.5 * logdet - 0.5 * n_ * LOG_2PI
+        # dLML/dtheta_j = 0.5 (alpha^T dK_j alpha - tr(K^-1 dK_j)), alpha = K^-1 y; dK/dlog a = U A U^T,
+        # dK/dlog l = U (A * D / l^2) U^T, dK/dlog noise = noise I.
+        v = sw_ * q
+        P = Minv * sw2
+        g_ok = np.empty((len(zz), 3))
+        for j, Aj in ((0, A), (1, A * Dl)):
+            g_ok[:, j] = 0.5 * (np.einsum("bi,bi->b", v, (Aj @ v[:, :, None])[:, :, 0])
+                                - np.einsum("bij,bij->b", P, Aj))
+        g_ok[:, 2] = 0.5 * (ssw_ / s1 + s1 * np.einsum("bi,bi->b", q, q) - (n_ - u)
+                            - s1 * np.trace(Minv, axis1=1, axis2=2))
         grad[ok] = g_ok
     lp = np.zeros(B)
     for j, i in ((0, 1), (1, 2)):   # prior row j acts on theta[i]
@@ -227,36 +242,56 @@ def lbfgsb_sequential(fg: Callable, x0: np.ndarray, lo: np.ndarray, hi: np.ndarr
     return out
 
 
+def reduce_inputs(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A training set's distinct inputs: their squared distances (u, u), multiplicities (u,) and
+    each input's point (n,)."""
+    pts, inv, w = np.unique(np.asarray(X, float), axis=0, return_inverse=True, return_counts=True)
+    return sq_dists(pts), w.astype(float), inv.reshape(-1)
+
+
+def reduce_targets(y: np.ndarray, inv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
+    """(z, ssw) of ``objective`` for centred targets y (n,) on the points ``inv``."""
+    sums = np.bincount(inv, weights=y, minlength=len(w))
+    return sums / np.sqrt(w), float(((y - (sums / w)[inv]) ** 2).sum())
+
+
 class _Stack:
-    """The runs' data: each run's problem, the distinct input sets' distance matrices."""
+    """The runs' data: each problem's reduced targets, the distinct input sets' reductions."""
 
     def __init__(self, problems: list[Problem]):
         self.problems = problems
         keys: dict[bytes, int] = {}
         self.xset = np.empty(len(problems), int)
-        self.D: list[np.ndarray] = []
+        self.sets: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.z, self.ssw = [], np.empty(len(problems))
         for i, p in enumerate(problems):
             k = np.ascontiguousarray(p.X, float).tobytes() + str(p.X.shape).encode()
             if k not in keys:
-                keys[k] = len(self.D)
-                self.D.append(sq_dists(p.X))
+                keys[k] = len(self.sets)
+                self.sets.append(reduce_inputs(p.X))
             self.xset[i] = keys[k]
+            D, w, inv = self.sets[keys[k]]
+            z, self.ssw[i] = reduce_targets(p.y, inv, w)
+            self.z.append(z)
+        self.u = np.array([len(self.sets[x][1]) for x in self.xset])
+        self.n = np.array([len(p.y) for p in problems], float)
 
     def evaluate(self, which: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(LML, log prior, gradient of their sum) of problems ``which`` at ``theta``: grouped by
-        training-set size and stacked ``BLOCK`` at a time."""
+        the number of distinct inputs and stacked ``BLOCK`` at a time."""
         lml, lp, grad = np.empty(len(which)), np.empty(len(which)), np.empty((len(which), 3))
-        sizes = np.array([len(self.problems[i].y) for i in which])
-        for n in np.unique(sizes):
-            rows = np.nonzero(sizes == n)[0]
+        sizes = self.u[which]
+        for u in np.unique(sizes):
+            rows = np.nonzero(sizes == u)[0]
             for s in range(0, len(rows), BLOCK):
                 r = rows[s:s + BLOCK]
-                probs = [self.problems[i] for i in which[r]]
-                D = np.stack([self.D[self.xset[i]] for i in which[r]])
-                y = np.stack([p.y for p in probs])
-                prior = np.stack([p.prior for p in probs])
+                idx = which[r]
+                D = np.stack([self.sets[self.xset[i]][0] for i in idx])
+                w = np.stack([self.sets[self.xset[i]][1] for i in idx])
+                z = np.stack([self.z[i] for i in idx])
+                prior = np.stack([self.problems[i].prior for i in idx])
                 with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
-                    lml[r], lp[r], grad[r] = objective(D, y, theta[r], prior)
+                    lml[r], lp[r], grad[r] = objective(D, w, z, self.ssw[idx], self.n[idx], theta[r], prior)
         return lml, lp, grad
 
 
