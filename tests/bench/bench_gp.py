@@ -2,7 +2,8 @@
 once (``pipeline/method/gp_batch.py``), on the same fits in one run (printed, never asserted).
 
 The fits are a category bank's shape (configs/real_category.toml): each class holds several
-instances' views at the same 16 azimuths (``--instances`` x 16 inputs), ``--components`` score
+instances' views at the same 16 azimuths (``--instances`` x ``--azimuths`` inputs; ``--instances 1 --azimuths 72``: distinct views, as an
+instance-level COIL class), ``--components`` score
 components a class, the config's bounds, hyperpriors and restarts; targets are generated
 (viewpoint-dependent score series plus noise). The old route is timed as the stage runs it and
 also with one BLAS thread (on a loaded machine its default BLAS threads spin against each other);
@@ -27,9 +28,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from pipeline.method.gp_fit import fit_class_models  # noqa: E402
 
 
-def workload(classes: int, components: int, instances: int, seed: int = 0):
+def workload(classes: int, components: int, instances: int, azimuths: int = 16, seed: int = 0):
     rng = np.random.default_rng(seed)
-    th = np.tile(np.deg2rad(np.arange(0, 360, 22.5)), instances)
+    th = np.tile(np.linspace(0, 2 * np.pi, azimuths, endpoint=False), instances)
     X = np.c_[np.cos(th), np.sin(th)]
     Ys = []
     for _ in range(classes):
@@ -52,9 +53,10 @@ def main(argv=None) -> None:
     ap.add_argument("--classes", type=int, default=3)
     ap.add_argument("--components", type=int, default=4)
     ap.add_argument("--instances", type=int, default=8)
+    ap.add_argument("--azimuths", type=int, default=16, help="distinct views a class (real.toml's COIL rings: 72)")
     ap.add_argument("--skip-default-threads", action="store_true", help="time the old route with one BLAS thread only")
     a = ap.parse_args(argv if argv is not None else [])
-    Xs, Ys = workload(a.classes, a.components, a.instances)
+    Xs, Ys = workload(a.classes, a.components, a.instances, a.azimuths)
     names, comps = [f"c{i}" for i in range(a.classes)], list(range(a.components))
 
     def fit(route):
@@ -75,7 +77,7 @@ def main(argv=None) -> None:
     n = a.classes * a.components
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, load average "
           f"{load0[0]:.2f} before, {load1[0]:.2f} after")
-    print(f"{n} fits ({a.classes} classes x {a.components} components, {16 * a.instances} views each, "
+    print(f"{n} fits ({a.classes} classes x {a.components} components, {a.azimuths * a.instances} views each ({a.azimuths} distinct), "
           f"{dnew[0]['restarts']} restarts)")
     print(f"    scikit-learn, 1 BLAS thread      {t_one:8.2f} s wall {c_one:8.2f} s CPU   ({t_one / n:.3f} s a fit)")
     if t_def is not None:
