@@ -94,30 +94,32 @@ def objective(D: np.ndarray, w: np.ndarray, z: np.ndarray, ssw: np.ndarray, n: n
     Dl = D / ell ** 2
     A = a * np.exp(-0.5 * Dl)
     sw = np.sqrt(w)
-    sw2 = sw[:, :, None] * sw[:, None, :]
-    M = A * sw2
+    distinct = bool(np.all(w == 1))   # the common case: no weighting to apply
+    sw2 = None if distinct else sw[:, :, None] * sw[:, None, :]
+    M = A.copy() if distinct else A * sw2
     M[:, np.arange(u), np.arange(u)] += s[:, 0]
     lml = np.full(B, -np.inf)
     grad = np.zeros((B, 3))
     Minv, half_logdet, ok = _inverses(M)
     if ok.any():
-        Minv, A, Dl, sw2, zz, s1 = Minv[ok], A[ok], Dl[ok], sw2[ok], z[ok], s[ok, 0, 0]
-        ssw_, n_, sw_ = ssw[ok], n[ok], sw[ok]
+        k = slice(None) if ok.all() else ok   # views, not copies, when every M factorised
+        Minv, A, Dl, zz, s1 = Minv[k], A[k], Dl[k], z[k], s[k, 0, 0]
+        ssw_, n_, sw_ = ssw[k], n[k], sw[k]
         q = (Minv @ zz[:, :, None])[:, :, 0]
         quad = ssw_ / s1 + np.einsum("bi,bi->b", zz, q)
-        logdet = (n_ - u) * np.log(s1) + 2 * half_logdet[ok]
-        lml[ok] = -0.5 * quad - 0.5 * logdet - 0.5 * n_ * LOG_2PI
+        logdet = (n_ - u) * np.log(s1) + 2 * half_logdet[k]
+        lml[k] = -0.5 * quad - 0.5 * logdet - 0.5 * n_ * LOG_2PI
         # dLML/dtheta_j = 0.5 (alpha^T dK_j alpha - tr(K^-1 dK_j)), alpha = K^-1 y; dK/dlog a = U A U^T,
         # dK/dlog l = U (A * D / l^2) U^T, dK/dlog noise = noise I.
         v = sw_ * q
-        P = Minv * sw2
+        P = Minv if distinct else Minv * sw2[k]
         g_ok = np.empty((len(zz), 3))
         for j, Aj in ((0, A), (1, A * Dl)):
             g_ok[:, j] = 0.5 * (np.einsum("bi,bi->b", v, (Aj @ v[:, :, None])[:, :, 0])
                                 - np.einsum("bij,bij->b", P, Aj))
         g_ok[:, 2] = 0.5 * (ssw_ / s1 + s1 * np.einsum("bi,bi->b", q, q) - (n_ - u)
                             - s1 * np.trace(Minv, axis1=1, axis2=2))
-        grad[ok] = g_ok
+        grad[k] = g_ok
     lp = np.zeros(B)
     for j, i in ((0, 1), (1, 2)):   # prior row j acts on theta[i]
         has = np.isfinite(prior[:, j, 0])

@@ -88,7 +88,6 @@ def fit_batched(specs: list[FitSpec], restarts: int, prior_index: tuple[int, int
     kernel."""
     from scipy.optimize import OptimizeResult
     from sklearn.exceptions import ConvergenceWarning
-    from sklearn.utils.optimize import _check_optimize_result
 
     from pipeline.method.gp_batch import Problem, fit_problems, prior_rows, starts_for
 
@@ -110,8 +109,7 @@ def fit_batched(specs: list[FitSpec], restarts: int, prior_index: tuple[int, int
                 if s.priors:   # the text gp_prior.map_optimizer warns with
                     warnings.warn(f"lbfgs failed to converge (MAP fit): {run['message']}", ConvergenceWarning)
                 else:
-                    _check_optimize_result("lbfgs", OptimizeResult(status=run["status"], nit=run["nit"],
-                                                                   message=run["message"]))
+                    _lbfgs_warning(OptimizeResult(status=run["status"], nit=run["nit"], message=run["message"]))
             k = s.kernel()
             k.theta = r.theta
             k._check_bounds_params()
@@ -119,6 +117,20 @@ def fit_batched(specs: list[FitSpec], restarts: int, prior_index: tuple[int, int
                   "runs": [{"status": x["status"], "nit": x["nit"], "nfev": x["nfev"]} for x in r.runs]}
         out.append((r.theta, r.lml, r.log_prior if s.priors else None, _caught(caught), record))
     return out
+
+
+def _lbfgs_warning(res) -> None:
+    """The warning scikit-learn's own optimizer gives for an L-BFGS-B run that did not converge
+    (its helper where this scikit-learn has it, else the same first line)."""
+    from sklearn.exceptions import ConvergenceWarning
+
+    try:
+        from sklearn.utils.optimize import _check_optimize_result
+    except ImportError:
+        warnings.warn(f"lbfgs failed to converge after {res.nit} iteration(s) (status={res.status}):\n{res.message}\n",
+                      ConvergenceWarning)
+        return
+    _check_optimize_result("lbfgs", res)
 
 
 def _progress(items, enabled: bool):
