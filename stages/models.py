@@ -29,7 +29,8 @@ def run(ctx) -> str:
     # category classes: several objects' views per class, as the data stage made them
     members = class_members(cfg, read_artifact(ctx.input("data"), "data", "truth", missing=None))
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
-                     candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds, class_members=members)
+                     candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds, class_members=members,
+                     fit_cache={})   # one fit per distinct (data, settings, starts) across the banks below
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}

@@ -215,13 +215,16 @@ def _training_sets(path: Path, mcfg: ModelsConfig, members=None):
 
 def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
                       n_candidates: int = 4, candidates: str | Sequence[str] = "all", candidate_seed: int = 0,
-                      progress: bool = True, candidate_folds: bool = False, class_members=None) -> tuple[GPClassModels, dict[str, Any]]:
+                      progress: bool = True, candidate_folds: bool = False, class_members=None,
+                      fit_cache: dict | None = None, route: str = "batch") -> tuple[GPClassModels, dict[str, Any]]:
     """The models stage's pure function: features Parquet + [models] config + the candidate plan -> one
     model bank (every modelled class x every component any candidate set uses) and index extras.
 
     ``targets``/``n_candidates``/``candidates``/``candidate_seed`` are the ``evaluate`` keys of the
     same names; the plan (candidate classes and components per target) goes into the index, and
     the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
+    ``fit_cache`` (shared by the banks of one stage run) and ``route``: ``fit_class_models``'s
+    ``cache`` and ``route``.
     """
     path = Path(path)
     pool, X_by, S_by, angles, names, meta, passes, means = _training_sets(path, mcfg, class_members)
@@ -243,7 +246,8 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], pool, comps, restarts=mcfg.restarts,
         amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
         noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
-        noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=tuple(mcfg.noise_prior))
+        noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=tuple(mcfg.noise_prior), route=route,
+        cache=fit_cache)
     for d in diags:
         log.debug("GP %s / %s: a=%.4g l=%.4g noise=%.3g lml=%.2f%s", d["class"], d["component_name"] or d["component"],
                   d["amplitude"], d["length_scale"], d["noise"], d["log_marginal_likelihood"],
