@@ -45,6 +45,32 @@ def expected_shape(m, t, *, hook: str = "fuse") -> tuple[int | None, ...]:
     return (K, C)
 
 
+def problem(a: np.ndarray, shape: tuple[int | None, ...], *, tol: float = TOLERANCE) -> str | None:
+    """What is wrong with float array ``a`` as log posteriors of ``shape`` over the last axis
+    (None: nothing). The one rule, also for posteriors handed to ``viewfuse.track_metrics``."""
+    want = "(" + ", ".join("?" if n is None else str(n) for n in shape) + ")"
+    if a.ndim != len(shape) or any(n is not None and n != s for n, s in zip(shape, a.shape)):
+        return f"has shape {a.shape}; expected {want} (steps K from the track, classes C from the candidates)"
+    if a.size == 0:
+        return f"is empty (shape {a.shape})"
+    bad = np.isnan(a)
+    if bad.any():
+        return f"holds NaN in {int(bad.sum())} of {a.size} entries"
+    bad = np.isposinf(a)
+    if bad.any():
+        return f"holds +inf in {int(bad.sum())} of {a.size} entries (log posteriors are <= 0)"
+    top = a.max(axis=-1, keepdims=True)
+    if np.isneginf(top).any():
+        return "holds a posterior that is -inf for every class (probability 0 everywhere)"
+    lse = (top + np.log(np.exp(a - top).sum(axis=-1, keepdims=True)))[..., 0]
+    off = np.abs(lse)
+    if (off > tol).any():
+        i = np.unravel_index(int(off.argmax()), off.shape)
+        return (f"is not normalised: the probabilities of posterior {tuple(int(j) for j in i)} sum to "
+                f"{np.exp(lse[i]):.6g}, not 1 (log-sum-exp {lse[i]:.3g}, tolerance {tol:g}; log posteriors expected)")
+    return None
+
+
 def check_output(key: str, out, shape: tuple[int | None, ...], *, hook: str = "fuse",
                  tol: float = TOLERANCE) -> np.ndarray:
     """``out`` as a float array when it is log posteriors of ``shape``; else ``MethodOutputError``
@@ -54,30 +80,9 @@ def check_output(key: str, out, shape: tuple[int | None, ...], *, hook: str = "f
         a = np.asarray(out, dtype=float)
     except (TypeError, ValueError) as e:
         raise MethodOutputError(f"{where} returned {type(out).__name__}, not an array of log posteriors ({e})") from None
-    want = "(" + ", ".join("?" if n is None else str(n) for n in shape) + ")"
-    if a.ndim != len(shape) or any(n is not None and n != s for n, s in zip(shape, a.shape)):
-        raise MethodOutputError(f"{where} returned shape {a.shape}; expected {want} (steps K from the track, "
-                                "classes C from the candidates)")
-    if a.size == 0:
-        raise MethodOutputError(f"{where} returned an empty array of shape {a.shape}")
-    bad = np.isnan(a)
-    if bad.any():
-        raise MethodOutputError(f"{where} returned NaN in {int(bad.sum())} of {a.size} entries")
-    bad = np.isposinf(a)
-    if bad.any():
-        raise MethodOutputError(f"{where} returned +inf in {int(bad.sum())} of {a.size} entries "
-                                "(log posteriors are <= 0)")
-    top = a.max(axis=-1, keepdims=True)
-    if np.isneginf(top).any():
-        raise MethodOutputError(f"{where} returned a posterior that is -inf for every class "
-                                "(probability 0 everywhere)")
-    lse = (top + np.log(np.exp(a - top).sum(axis=-1, keepdims=True)))[..., 0]
-    off = np.abs(lse)
-    if (off > tol).any():
-        i = np.unravel_index(int(off.argmax()), off.shape)
-        raise MethodOutputError(f"{where} returned posteriors that are not normalised: the probabilities of "
-                                f"posterior {tuple(int(j) for j in i)} sum to {np.exp(lse[i]):.6g}, not 1 "
-                                f"(log-sum-exp {lse[i]:.3g}, tolerance {tol:g}; a method returns log posteriors)")
+    bad = problem(a, shape, tol=tol)
+    if bad is not None:
+        raise MethodOutputError(f"{where}: its output {bad}")
     return a
 
 
