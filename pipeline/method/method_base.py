@@ -102,6 +102,9 @@ def register(cls: type[FusionMethod]) -> type[FusionMethod]:
     if isinstance(cls.needs, str) or not isinstance(cls.needs, (set, frozenset, tuple, list)) or \
             not all(isinstance(n, str) for n in cls.needs):
         raise TypeError(f"{cls.__name__}: needs must be a set of names (of {sorted(NEEDS)}), got {cls.needs!r:.80}")
+    for flag, hook in (("simulation", "simulate"), ("planning", "fuse_tracks")):
+        if getattr(cls, flag) and getattr(cls, hook) is getattr(FusionMethod, hook):
+            raise ValueError(f"{cls.__name__}: {flag} = True needs {hook}() (optional otherwise)")
     bad = set(cls.needs) - NEEDS
     if bad:
         raise ValueError(f"{cls.__name__}: unknown needs {sorted(bad)} (known: {sorted(NEEDS)})")

@@ -112,3 +112,13 @@ def test_the_grid_checks_every_call_and_a_fuse_only_method_has_no_difficulty_ent
             E.fuse_track(None, track, np.zeros((2, K, 2)), np.zeros((2, 1, K, 2)), var_floor=1e-6)
     finally:
         registry.unregister("toy_check")
+
+
+@pytest.mark.parametrize("flag, hook", [("simulation", "simulate"), ("planning", "fuse_tracks")])
+def test_a_flag_without_its_hook_is_refused_at_registration(flag, hook):
+    from pipeline.method import registry
+
+    cls = type("Flagged", (_Toy,), {"key": "toy_flagged", flag: True})
+    with pytest.raises(ValueError, match=f"{flag} = True needs {hook}"):
+        registry.register(cls)
+    assert registry.get("toy_flagged") is None
