@@ -90,7 +90,8 @@ def call_checked(m, hook: str, t, *, shape: tuple[int | None, ...] | None = None
                  call: Callable | None = None):
     """``m.<hook>(t)`` (or ``call(t)``), its error or its output named by the method's key. The
     output (the first element for ``fuse_with_extras``) is checked against ``shape`` (default
-    ``expected_shape``); a ``single_view`` that returns None (no single-view reading) passes."""
+    ``expected_shape``; ``simulate``'s, probabilities, by ``check_probabilities``); a
+    ``single_view`` that returns None (no single-view reading) passes."""
     fn = call or getattr(m, hook)
     try:
         out = fn(t)
@@ -100,6 +101,8 @@ def call_checked(m, hook: str, t, *, shape: tuple[int | None, ...] | None = None
         raise MethodOutputError(f"fusion method {m.key!r} ({hook}) failed: {type(e).__name__}: {e}") from e
     if hook == "single_view" and out is None:
         return None
+    if hook == "simulate":   # the simulation's posteriors are probabilities
+        return check_probabilities(m.key, out, shape)
     want = expected_shape(m, t, hook="single_view" if hook == "single_view" else "fuse") if shape is None else shape
     if hook == "fuse_with_extras":
         if not (isinstance(out, tuple) and len(out) == 2 and isinstance(out[1], dict)):
@@ -107,3 +110,21 @@ def call_checked(m, hook: str, t, *, shape: tuple[int | None, ...] | None = None
                                     f"(log posteriors, dict), got {type(out).__name__}")
         return check_output(m.key, out[0], want, hook=hook), out[1]
     return check_output(m.key, out, want, hook=hook)
+
+
+def check_probabilities(key: str, out, shape: tuple[int | None, ...], *, hook: str = "simulate",
+                        tol: float = TOLERANCE):
+    """``out`` as it is when it is posteriors in probability space (the simulation's ``simulate``)
+    of ``shape``: no negative entry, and their logs pass ``problem``; else ``MethodOutputError``."""
+    where = f"fusion method {key!r} ({hook})"
+    try:
+        a = np.asarray(out, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise MethodOutputError(f"{where} returned {type(out).__name__}, not an array of posteriors ({e})") from None
+    if (a < 0).any():
+        raise MethodOutputError(f"{where}: its output holds negative probabilities")
+    with np.errstate(divide="ignore"):
+        bad = problem(np.log(a), shape, tol=tol)
+    if bad is not None:
+        raise MethodOutputError(f"{where}: its output (as log probabilities) {bad}")
+    return out

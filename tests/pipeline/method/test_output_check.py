@@ -122,3 +122,13 @@ def test_a_flag_without_its_hook_is_refused_at_registration(flag, hook):
     with pytest.raises(ValueError, match=f"{flag} = True needs {hook}"):
         registry.register(cls)
     assert registry.get("toy_flagged") is None
+
+
+def test_the_simulations_probabilities_are_checked_by_the_same_rule():
+    from pipeline.method.output_check import check_probabilities
+
+    p = np.full((2, K, C), 1 / C)
+    assert check_probabilities("k", p, (2, K, C)) is p                        # returned as it is
+    for bad, words in ((p * 2, "not normalised"), (p - 0.5, "negative"), (p[:, :, :2], "shape")):
+        with pytest.raises(MethodOutputError, match=f"'k' \\(simulate\\).*{words}"):
+            check_probabilities("k", bad, (2, K, C))
