@@ -138,10 +138,10 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     drop = A.array(fn, "dropout", dropout, ndim=3, shape=(K, None, F), dims=f"(K, N_s, F) with K = {K} views")
     C = None if models is None else len(models.classes)
     if own is not None:
-        own = A.array(fn, "own", own, ndim=3, shape=(K, drop.shape[1], C), dims=f"(K, N_s, C) with K = {K}")
+        own = A.array(fn, "own", own, ndim=3, shape=(K, None, C), dims=f"(K, N_s, C) with K = {K}")
         C = own.shape[-1] if C is None else C
     if probs is not None:
-        probs = A.array(fn, "probs", probs, ndim=3, shape=(K, drop.shape[1], None), dims=f"(K, N_s, D) with K = {K}")
+        probs = A.array(fn, "probs", probs, ndim=3, shape=(K, None, None), dims=f"(K, N_s, D) with K = {K}")
     obj = A.array(fn, "object_xy", object_xy, ndim=1, shape=(2,), dims="(2,)")
     yaw = A.real(fn, "object_yaw", object_yaw)
     sigma = A.real(fn, "sigma", sigma, lo=0.0)
