@@ -9,26 +9,48 @@ import pandas as pd
 
 from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.statistics.engine import population_block
+from pipeline.evaluation.statistics.hierarchy import CLUSTERS
 from pipeline.method import registry
 from pipeline.method.geometry import relative_inputs, sample_localization
+from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
+from pipeline.method.output_check import call_checked, problem
+from viewfuse import _args as A
 
 # The evaluate stage's defaults (configs/synthetic.toml [evaluate]): confident error at max P >= 0.99, 15 ECE bins.
 DEFAULT_PARAMS = M.Params(0.99, 15)
 
 
+class UnknownMethodError(KeyError, ValueError):
+    """``method(key)`` of a key that is not registered: a KeyError (as a lookup) and a ValueError
+    (as a bad argument), its message shown as written."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
 def methods(*, attribution: bool = False) -> list[str]:
     """The registered methods' keys, in order (built-ins first, then yours)."""
-    return list(registry.keys(attribution=attribution))
+    if not isinstance(attribution, (bool, np.bool_)):
+        raise TypeError(f"methods: attribution must be True or False, got {type(attribution).__name__}")
+    return list(registry.keys(attribution=bool(attribution)))
 
 
 def method(key: str) -> registry.FusionMethod:
-    """The registered method ``key`` (a KeyError names the known ones)."""
+    """The registered method ``key`` (an ``UnknownMethodError``, a KeyError and a ValueError,
+    names the known ones)."""
+    A.string("method", "key", key)
     m = registry.get(key)
     if m is None:
-        raise KeyError(f"no fusion method {key!r} (registered: {', '.join(registry.keys(attribution=True))})")
+        raise UnknownMethodError(f"method: key {key!r} is no registered fusion method "
+                                 f"(registered: {', '.join(registry.keys(attribution=True))})")
     return m
+
+
+# fit_models' memory: each GP fit holds a few N x N float64 matrices (kernel, its Cholesky factor,
+# the gradient's solve); N the largest class's sample count.
+FIT_BYTES_PER_N2 = 4 * 8
 
 
 def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, components: Sequence[int] | None = None,
@@ -37,32 +59,61 @@ def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, componen
 
     ``samples``: {class name: (angles (N,) in radians, the direction the object is seen from in
     its own frame; scores (N, D), the classifier's score vector of each view)}. ``components``:
-    which of the D scores to model (default: all). Other keyword arguments go to
-    ``pipeline.method.gp_fit.fit_class_models`` (bounds, hyperprior). Returns ``GPClassModels``
-    (their fit diagnostics on ``.diagnostics``)."""
+    which of the D scores to model (distinct indices in [0, D); default: all). Other keyword
+    arguments go to ``pipeline.method.gp_fit.fit_class_models`` (bounds, hyperprior). Returns
+    ``GPClassModels`` (their fit diagnostics on ``.diagnostics``). Refused before any fit: a class
+    whose N x N matrices (``FIT_BYTES_PER_N2`` bytes per entry) exceed the memory available."""
+    fn = "fit_models"
+    A.instance(fn, "samples", samples, Mapping, "a mapping {class name: (angles, scores)}")
     if not samples:
-        raise ValueError("fit_models: no classes given")
+        raise ValueError("fit_models: samples has no classes")
     classes = list(samples)
     X, Y = [], []
     for c in classes:
-        ang, sc = (np.asarray(a, float) for a in samples[c])
-        if ang.ndim != 1 or sc.ndim != 2 or len(ang) != len(sc):
-            raise ValueError(f"fit_models: class {c!r} needs angles (N,) and scores (N, D), got {ang.shape} and {sc.shape}")
+        if not isinstance(c, str) or not c:
+            raise TypeError(f"fit_models: samples' keys must be non-empty class names (str), got {c!r:.60}")
+        pair = samples[c]
+        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
+            raise TypeError(f"fit_models: samples[{c!r}] must be a pair (angles, scores), got {type(pair).__name__}")
+        ang = A.array(fn, f"samples[{c!r}] angles", pair[0], ndim=1, dims="(N,) radians")
+        sc = A.array(fn, f"samples[{c!r}] scores", pair[1], ndim=2, shape=(len(ang), None), dims="(N, D)")
         X.append(np.stack([np.cos(ang), np.sin(ang)], axis=1))
         Y.append(sc.T)
     dims = {y.shape[0] for y in Y}
     if len(dims) != 1:
-        raise ValueError(f"fit_models: every class needs the same score length, got {sorted(dims)}")
-    comps = list(range(dims.pop())) if components is None else [int(f) for f in components]
+        raise ValueError(f"fit_models: samples: every class needs the same score length D, got {sorted(dims)}")
+    D = dims.pop()
+    if components is None:
+        comps = list(range(D))
+    else:
+        if isinstance(components, (str, bytes)) or not isinstance(components, Sequence | np.ndarray):
+            raise TypeError(f"fit_models: components must be a sequence of score indices, got {type(components).__name__}")
+        comps = [A.integer(fn, "components", f, lo=0, hi=D - 1) for f in components]
+        if not comps:
+            raise ValueError("fit_models: components must name at least one score index")
+        if len(set(comps)) != len(comps):
+            raise ValueError(f"fit_models: components has repeated indices: {comps}")
+    A.integer(fn, "restarts", restarts, lo=0, hi=1000)
+    A.integer(fn, "seed", seed, lo=0)
+    n_max = max(len(x) for x in X)
+    A.affordable(fn, "samples", FIT_BYTES_PER_N2 * float(n_max) ** 2)
     Y = [y[comps] for y in Y]
     models, diagnostics = fit_class_models(X, Y, classes, comps, restarts=restarts, seed=seed, progress=False, **fit)
     models.diagnostics = diagnostics
     return models
 
 
+# fuse's cost: the localization samples and the per-sample predictive means and variances,
+# (R, N_x, K) x (2 + C F) float64; time about FUSE_SECONDS per (trajectory, step², class,
+# component), single core (With Uncertainty's joint predictive over the K steps; measured within
+# a small factor of it on the engine bench).
+FUSE_SECONDS = 1e-7
+MAX_SECONDS = 60.0
+
+
 def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0.0, 0.0), object_yaw: float = 0.0,
          dropout, own=None, probs=None, dirichlet=None, sigma: float = 0.0, n_x: int = 1, seed=0,
-         var_floor: float = 1e-6, n_ss: int = 100) -> np.ndarray:
+         var_floor: float = 1e-6, n_ss: int = 100, max_seconds: float | None = MAX_SECONDS) -> np.ndarray:
     """Fuse one track with the registered method ``key``: log posteriors after every step.
 
     ``cameras``: pose estimates (K, 2), or (R, K, 2) for R realizations, ground frame;
@@ -71,34 +122,76 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     ``own`` (K, N_s, C): each candidate's own score (Simple Bayes); ``probs`` (K, N_s, D) and
     ``dirichlet`` (``DirichletModels``): the Dirichlet method. ``sigma`` and ``n_x``: the pose
     samples With Uncertainty averages over (N(estimate, sigma² I), drawn from ``seed``).
-    Returns (K, C), or (R, K, C) for (R, K, 2) cameras."""
+    Returns (K, C), or (R, K, C) for (R, K, 2) cameras, checked as every method's output is
+    (``pipeline.method.output_check``). A call estimated over the available memory or over
+    ``max_seconds`` (None: no bound) is refused before anything is drawn."""
+    fn = "fuse"
     m = method(key)
-    cams = np.asarray(cameras, float)
+    if models is not None:
+        A.instance(fn, "models", models, GPClassModels, "GPClassModels (from fit_models) or None")
+    if dirichlet is not None:
+        A.instance(fn, "dirichlet", dirichlet, DirichletModels, "DirichletModels or None")
+    cams = A.array(fn, "cameras", cameras, ndim=(2, 3), shape=(None, 2), dims="(K, 2) or (R, K, 2)")
     single = cams.ndim == 2
     est = cams[None] if single else cams
-    drop = np.asarray(dropout, float)
-    if drop.ndim != 3 or drop.shape[0] != est.shape[1]:
-        raise ValueError(f"fuse: dropout must be (K, N_s, F) with K = {est.shape[1]} views, got {drop.shape}")
-    obj = np.asarray(object_xy, float)
+    R, K = est.shape[:2]
+    F = None if models is None else len(models.components)
+    drop = A.array(fn, "dropout", dropout, ndim=3, shape=(K, None, F), dims=f"(K, N_s, F) with K = {K} views")
+    C = None if models is None else len(models.classes)
+    if own is not None:
+        own = A.array(fn, "own", own, ndim=3, shape=(K, None, C), dims=f"(K, N_s, C) with K = {K}")
+        C = own.shape[-1] if C is None else C
+    if probs is not None:
+        probs = A.array(fn, "probs", probs, ndim=3, shape=(K, None, None), dims=f"(K, N_s, D) with K = {K}")
+    obj = A.array(fn, "object_xy", object_xy, ndim=1, shape=(2,), dims="(2,)")
+    yaw = A.real(fn, "object_yaw", object_yaw)
+    sigma = A.real(fn, "sigma", sigma, lo=0.0)
+    n_x = A.integer(fn, "n_x", n_x, lo=1)
+    if seed is not None:
+        A.integer(fn, "seed", seed, lo=0)
+    var_floor = A.real(fn, "var_floor", var_floor, lo=0.0, open_lo=True)
+    n_ss = A.integer(fn, "n_ss", n_ss, lo=1)
+    if max_seconds is not None:
+        max_seconds = A.real(fn, "max_seconds", max_seconds, lo=0.0, open_lo=True)
+    units = float(R) * n_x * K * (C or 1) * drop.shape[2]
+    A.affordable(fn, "n_x and cameras", 8.0 * R * n_x * K * (2 + 2 * (C or 1) * drop.shape[2]),
+                 FUSE_SECONDS * units * K, max_seconds)
     t = registry.TrackInput(
-        dropout=drop, gp=models, dirichlet=dirichlet, own=None if own is None else np.asarray(own, float),
-        probs=None if probs is None else np.asarray(probs, float), estimates=est,
+        dropout=drop, gp=models, dirichlet=dirichlet, own=own, probs=probs, estimates=est,
         samples=sample_localization(est, sigma, n_x, np.random.default_rng(seed)),
-        inputs=lambda p: relative_inputs(p, obj, object_yaw, unit_circle=True), var_floor=var_floor, n_ss=n_ss,
+        inputs=lambda p: relative_inputs(p, obj, yaw, unit_circle=True), var_floor=var_floor, n_ss=n_ss,
         rng=np.random.default_rng(seed))
     if not m.applies(t):
         raise ValueError(f"fuse: {key!r} needs {sorted(m.needs)}; missing: {sorted(n for n in m.needs if not t.has(n))}")
-    out = m.fuse(t)
+    out = call_checked(m, "fuse", t)
     if not m.uses_poses:
         out = np.broadcast_to(out, (len(est),) + out.shape).copy()
     return out[0] if single else out
 
 
+def _params(fn: str, params) -> M.Params:
+    return A.instance(fn, "params", params, M.Params, "pipeline.evaluation.metrics.spec.Params")
+
+
 def track_metrics(log_posteriors, truth: int, params: M.Params = DEFAULT_PARAMS) -> dict[str, float]:
     """Every metric of the evaluation (``pipeline.evaluation.metrics.spec.METRICS``) of one track's
-    log posteriors (K, C) or (R, K, C) against the true class index."""
-    lp = np.asarray(log_posteriors, float)
-    return M.posterior_metrics(lp[None] if lp.ndim == 2 else lp, int(truth), params=params, is_log=True)
+    log posteriors (K, C) or (R, K, C) against the true class index. The posteriors must be what
+    a method returns (``pipeline.method.output_check``: no NaN or +inf, each normalised)."""
+    fn = "track_metrics"
+    lp = A.array(fn, "log_posteriors", log_posteriors, ndim=(2, 3), dims="(K, C) or (R, K, C)", finite=False)
+    lp = lp[None] if lp.ndim == 2 else lp
+    bad = problem(lp, (None, None, None))
+    if bad is not None:
+        raise ValueError(f"{fn}: log_posteriors {bad}")
+    truth = A.integer(fn, "truth", truth, lo=0, hi=lp.shape[-1] - 1)
+    return M.posterior_metrics(lp, truth, params=_params(fn, params), is_log=True)
+
+
+# evaluate_population's memory: the bootstrap keeps, per draw, an index per resampled unit
+# (targets and tracks) and, for the metric in hand, a float64 per method and per paired difference.
+def _population_bytes(cells: pd.DataFrame, n_pairs: int, n_boot: int) -> float:
+    n_units = cells["target"].nunique() + len(cells.drop_duplicates(["target", "track"]))
+    return 8.0 * n_boot * (n_units + cells["method"].nunique() + n_pairs)
 
 
 def evaluate_population(results: pd.DataFrame, *, metrics: Sequence[str] | None = None,
@@ -112,29 +205,132 @@ def evaluate_population(results: pd.DataFrame, *, metrics: Sequence[str] | None 
     CIs resample targets, then tracks within targets (``pipeline.evaluation.statistics``), or the
     design's clusters on top: ``cluster`` = "scan" | "category" | "crossed" (``evaluate.statistics.cluster``;
     "scan" and "crossed" need a ``scan`` column).
-    ``comparisons``: (method, baseline) pairs (default: the registry's, of the methods present)."""
+    ``comparisons``: (method, baseline) pairs (default: the registry's, of the methods present).
+    Refused: an empty or duplicated table, an unknown metric or one without a value for some
+    method, a comparison naming a method the table lacks, an unknown clustering, a bootstrap over
+    the available memory."""
+    fn = "evaluate_population"
+    A.instance(fn, "results", results, pd.DataFrame, "a pandas DataFrame")
+    if results.empty:
+        raise ValueError(f"{fn}: results is empty (no rows)")
+    n_boot = A.integer(fn, "n_boot", n_boot, lo=2)
+    A.integer(fn, "seed", seed, lo=0)
+    A.string(fn, "cluster", cluster)
+    if cluster not in CLUSTERS:
+        raise ValueError(f"{fn}: cluster must be one of {', '.join(CLUSTERS)}, got {cluster!r}")
+    if cluster in ("scan", "crossed") and "scan" not in results.columns:
+        raise ValueError(f"{fn}: cluster={cluster!r} needs a 'scan' column in results")
+    params = _params(fn, params)
     cells = _cells(results, params) if "posterior" in results.columns else results.copy()
     for col in ("target", "track", "method"):
         if col not in cells.columns:
-            raise ValueError(f"evaluate_population: the results table has no {col!r} column")
+            raise ValueError(f"{fn}: results has no {col!r} column")
     if "setting" not in cells.columns:
         cells["setting"] = "default"
+    ident = ["target", "track", "setting", "method"]
+    if cells[ident].isna().any().any():
+        raise ValueError(f"{fn}: results has missing values in its {ident} columns")
+    dup = cells.duplicated(ident)
+    if dup.any():
+        first = cells.loc[dup, ident].iloc[0].to_dict()
+        raise ValueError(f"{fn}: results has {int(dup.sum())} duplicated row(s) for one (target, track, setting, "
+                         f"method), e.g. {first}")
     present = list(dict.fromkeys(cells["method"]))
     order = [m for m in registry.keys(attribution=True) if m in present] + [m for m in present
                                                                              if registry.get(m) is None]
-    keys = list(metrics) if metrics is not None else [k for k in M.METRICS if k in cells.columns]
-    pairs = [tuple(c) for c in (comparisons if comparisons is not None else registry.comparisons())
-             if c[0] in present and c[1] in present]
+    keys = _metric_keys(fn, cells, metrics, present)
+    pairs = _pairs(fn, comparisons, present)
+    A.affordable(fn, "n_boot", _population_bytes(cells, len(pairs), n_boot))
     return population_block(cells, order, keys, pairs, n_boot, seed, cluster=cluster)
 
 
+def _metric_keys(fn: str, cells: pd.DataFrame, metrics, present) -> list[str]:
+    if metrics is None:
+        keys = [k for k in M.METRICS if k in cells.columns]
+        if not keys:
+            raise ValueError(f"{fn}: results has no metric column (known: {', '.join(M.METRICS)})")
+    else:
+        if isinstance(metrics, (str, bytes)) or not isinstance(metrics, Sequence):
+            raise TypeError(f"{fn}: metrics must be a list of metric names, got {type(metrics).__name__}")
+        keys = [A.string(fn, "metrics", k) for k in metrics]
+        unknown = [k for k in keys if k not in M.METRICS]
+        if unknown:
+            raise ValueError(f"{fn}: metrics names unknown metric(s) {unknown} (known: {', '.join(M.METRICS)})")
+        missing = [k for k in keys if k not in cells.columns]
+        if missing:
+            raise ValueError(f"{fn}: metrics names {missing}, which results has no column for")
+        if not keys:
+            raise ValueError(f"{fn}: metrics is empty")
+    for k in keys:
+        try:
+            col = pd.to_numeric(cells[k], errors="raise").astype(float)
+        except (TypeError, ValueError):
+            raise TypeError(f"{fn}: results' metric column {k!r} is not numeric") from None
+        for m in present:
+            if col[cells["method"] == m].isna().all():
+                raise ValueError(f"{fn}: results' metric column {k!r} has no value (all NaN) for method {m!r}")
+    return keys
+
+
+def _pairs(fn: str, comparisons, present) -> list[tuple[str, str]]:
+    if comparisons is None:
+        return [tuple(c) for c in registry.comparisons() if c[0] in present and c[1] in present]
+    if isinstance(comparisons, (str, bytes)) or not isinstance(comparisons, Sequence):
+        raise TypeError(f"{fn}: comparisons must be a list of (method, baseline) pairs, got {type(comparisons).__name__}")
+    pairs = []
+    for c in comparisons:
+        if isinstance(c, (str, bytes)) or not isinstance(c, Sequence) or len(c) != 2:
+            raise TypeError(f"{fn}: comparisons must hold (method, baseline) pairs, got {c!r:.60}")
+        a, b = (A.string(fn, "comparisons", x) for x in c)
+        absent = [x for x in (a, b) if x not in present]
+        if absent:
+            raise ValueError(f"{fn}: comparisons names {absent}, not a method of results (present: {present})")
+        if a == b:
+            raise ValueError(f"{fn}: comparisons pairs {a!r} with itself")
+        pairs.append((a, b))
+    return pairs
+
+
+POSTERIOR_COLUMNS = ("target", "track", "method", "realization", "step", "posterior", "truth")
+
+
 def _cells(rows: pd.DataFrame, params: M.Params) -> pd.DataFrame:
+    """The evaluate stage's long results (probabilities per realization and step) reduced to one
+    row of metrics per (target, track, setting, method), each group checked first."""
+    fn = "evaluate_population"
+    missing = [c for c in POSTERIOR_COLUMNS if c not in rows.columns]
+    if missing:
+        raise ValueError(f"{fn}: results has a 'posterior' column but lacks {missing} (a results table has "
+                         f"{', '.join(POSTERIOR_COLUMNS)})")
+    if "setting" not in rows.columns:
+        rows = rows.assign(setting="default")
     out = []
     for (target, track, setting, m), g in rows.groupby(["target", "track", "setting", "method"], sort=True):
+        where = f"results (target {target!r}, track {track!r}, setting {setting!r}, method {m!r})"
+        if g.duplicated(["realization", "step"]).any():
+            raise ValueError(f"{fn}: {where} has duplicated (realization, step) rows")
         g = g.sort_values(["realization", "step"])
         R, K = g["realization"].nunique(), g["step"].nunique()
-        post = np.stack(g["posterior"].to_numpy()).reshape(R, K, -1)
-        truth = int(g["truth"].iloc[0])
+        if len(g) != R * K:
+            raise ValueError(f"{fn}: {where} has {len(g)} rows, not one per realization and step ({R} x {K})")
+        try:
+            post = np.stack([np.asarray(p, dtype=float) for p in g["posterior"]])
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{fn}: {where}: posterior must hold probability vectors of one length ({e})") from None
+        if post.ndim != 2 or post.shape[1] < 2:
+            raise ValueError(f"{fn}: {where}: posterior must hold probability vectors over >= 2 classes, "
+                             f"got shape {post.shape}")
+        if (post < 0).any():
+            raise ValueError(f"{fn}: {where}: posterior holds negative probabilities")
+        with np.errstate(divide="ignore"):
+            bad = problem(np.log(post), (None, None))
+        if bad is not None:
+            raise ValueError(f"{fn}: {where}: posterior (as log probabilities) {bad}")
+        truths = pd.unique(g["truth"])
+        if len(truths) != 1:
+            raise ValueError(f"{fn}: {where}: truth differs between rows ({list(truths)[:4]})")
+        truth = A.integer(fn, f"{where}: truth", truths[0].item() if hasattr(truths[0], "item") else truths[0],
+                          lo=0, hi=post.shape[1] - 1)
         out.append({"target": target, "track": track, "setting": setting, "method": m,
-                    **M.posterior_metrics(post, truth, params=params, is_log=False)})
+                    **M.posterior_metrics(post.reshape(R, K, -1), truth, params=params, is_log=False)})
     return pd.DataFrame(out)

@@ -93,10 +93,18 @@ _REGISTRY: dict[str, FusionMethod] = {}
 
 def register(cls: type[FusionMethod]) -> type[FusionMethod]:
     """Class decorator: add a method under ``cls.key`` (a key registered twice is an error)."""
+    if not (isinstance(cls, type) and issubclass(cls, FusionMethod)):
+        raise TypeError(f"register: cls must be a FusionMethod subclass, got {cls!r:.80}")
     key = getattr(cls, "key", None)
     if not isinstance(key, str) or not key or "-" in key:
         raise ValueError(f"{cls.__name__}: a fusion method needs a non-empty key without '-' (comparison keys "
                          f"join two with '-'), got {key!r}")
+    if isinstance(cls.needs, str) or not isinstance(cls.needs, (set, frozenset, tuple, list)) or \
+            not all(isinstance(n, str) for n in cls.needs):
+        raise TypeError(f"{cls.__name__}: needs must be a set of names (of {sorted(NEEDS)}), got {cls.needs!r:.80}")
+    for flag, hook in (("simulation", "simulate"), ("planning", "fuse_tracks")):
+        if getattr(cls, flag) and getattr(cls, hook) is getattr(FusionMethod, hook):
+            raise ValueError(f"{cls.__name__}: {flag} = True needs {hook}() (optional otherwise)")
     bad = set(cls.needs) - NEEDS
     if bad:
         raise ValueError(f"{cls.__name__}: unknown needs {sorted(bad)} (known: {sorted(NEEDS)})")
@@ -108,6 +116,8 @@ def register(cls: type[FusionMethod]) -> type[FusionMethod]:
 
 def unregister(key: str) -> None:
     """Remove a method (tests that register a toy one clean up after themselves)."""
+    if not isinstance(key, str):
+        raise TypeError(f"unregister: key must be a method key (str), got {type(key).__name__}")
     _REGISTRY.pop(key, None)
 
 

@@ -215,7 +215,7 @@ class HtmlReport:
 
     def preformatted(self, text: str, caption: str = "") -> None:
         cap = f'<div class="precap">{_esc(caption)}</div>' if caption else ""
-        self._target().append(f"{cap}<pre>{html.escape(str(text), quote=True)}</pre>")  # verbatim
+        self._target().append(f"{cap}<pre>{html.escape(visible(str(text)), quote=True)}</pre>")  # verbatim
 
     # -- output -----------------------------------------------------------------------------
     def render(self) -> str:
@@ -257,6 +257,19 @@ def _cell_html(text: str, numeric: bool) -> str:
     return " ".join(f'<span class="nw">{_esc(part)}</span>' for part in re.split(r" (?=\[)", text))
 
 
+# Bidi overrides, embeddings, isolates and marks, and C0/C1 controls but tab and newline: a method
+# note or a label from a results file must not reorder or hide what the page shows around it
+# (U+202E turns the rest of a cell right-to-left). Each is shown as its code point.
+_CONTROLS = re.compile("[\u0000-\u0008\u000b-\u001f\u007f-\u009f\u061c\u200e\u200f\u202a-\u202e"
+                       "\u2066-\u2069]")
+
+
+def visible(text: str) -> str:
+    """``text`` with each bidi or control character replaced by a visible '[U+XXXX]'."""
+    return _CONTROLS.sub(lambda m: f"[U+{ord(m.group()):04X}]", text)
+
+
 def _esc(text: str) -> str:
-    """Escaped text in the page's one style (``numbers.typeset``: '8 %', the minus sign −)."""
-    return html.escape(typeset(str(text)), quote=True)
+    """Escaped text in the page's one style (``numbers.typeset``: '8 %', the minus sign −), bidi
+    and control characters made visible (``visible``)."""
+    return html.escape(visible(typeset(str(text))), quote=True)

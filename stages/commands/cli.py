@@ -12,6 +12,7 @@ import signal
 import sys
 import threading
 import traceback
+from concurrent.futures.process import BrokenProcessPool
 
 from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
 from stages.framework.registry import ORDER, STAGES
@@ -204,10 +205,43 @@ def describe(e: BaseException) -> str:
     return str(e) or type(e).__name__
 
 
+UNGUARDED = ("viewfuse: main() was called while a worker process re-imported the launcher script {file} "
+             "(stage worker pools start processes that import the script that started the run, as "
+             "'__mp_main__'): call main() only under `if __name__ == \"__main__\":` (docs/api.md, the launcher)")
+
+
+def _reimported_launcher() -> str | None:
+    """The file of the script this worker process is re-importing when ``main()`` is called from
+    its top level (a launcher without the ``__main__`` guard), else None. A spawned worker imports
+    the parent's main script as ``__mp_main__``; run there, ``main()`` would start the stage again
+    and wait forever on the lock its parent holds. (``multiprocessing.parent_process()`` is not
+    set yet while the worker imports the script: the module frame tells.)"""
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_globals.get("__name__") == "__mp_main__" and frame.f_code.co_name == "<module>":
+            return frame.f_globals.get("__file__", "?")
+        frame = frame.f_back
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """The error boundary: every failure ends in one line on stderr (the traceback too with
     --debug). Exit codes: 0 done, 1 a runtime error, 2 a config error, 130 interrupted, 141 stdout
-    closed early (``viewfuse status | head -1``), 143 terminated (SIGTERM)."""
+    closed early (``viewfuse status | head -1``), 143 terminated (SIGTERM).
+
+    Called without ``argv`` (a program: the ``viewfuse`` command, a launcher script) it exits
+    with the code; with ``argv`` it returns it. In a worker process re-importing a launcher that
+    lacks the ``__main__`` guard it refuses at once (exit 2) instead of running the stage again."""
+    launcher = _reimported_launcher()
+    if launcher is not None:
+        print(UNGUARDED.format(file=launcher), file=sys.stderr)
+        raise SystemExit(2)
+    if argv is None:
+        raise SystemExit(_run(None))
+    return _run(argv)
+
+
+def _run(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     where = f"viewfuse {args.stage}"
     from pipeline.infra.workers import raise_on_sigterm
@@ -248,6 +282,9 @@ def _boundary(args, where: str) -> int:
             return 2
         expected = isinstance(e, (OSError, ValueError, RuntimeError, KeyError))
         hint = "" if expected or args.debug else " (an internal error: rerun with --debug for the traceback)"
+        if isinstance(e, BrokenProcessPool):
+            hint = (" (a worker process ended early, its message is above; a launcher script must call "
+                    "main() under `if __name__ == \"__main__\":`, docs/api.md)")
         kind = "" if expected else f"{type(e).__name__}: "
         print(f"{where}: error: {kind}{describe(e)}{hint}", file=sys.stderr)
         return 1

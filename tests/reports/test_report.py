@@ -157,6 +157,21 @@ def test_html_escapes_text_and_keeps_anchors_unique(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["index.html"]  # no temp file left behind
 
 
+@pytest.mark.parametrize("ch", ["\u202e", "\u202d", "\u2066", "\u2069", "\u200f", "\u061c", "\x1b", "\x00", "\x85"])
+def test_bidi_and_control_characters_in_labels_and_notes_are_shown_not_obeyed(tmp_path, ch):
+    # a method note or label with a right-to-left override must not reorder the page around it
+    r = HtmlReport(f"run{ch}name")
+    r.section("Methods")
+    r.table(["method", "what it does"], [[f"evil{ch}label", f"note {ch}txt.exe"]])
+    r.paragraph(f"para{ch}graph")
+    r.preformatted(f"pre{ch}formatted")
+    r.write(tmp_path / "index.html")
+    text = (tmp_path / "index.html").read_text()
+    assert ch not in text
+    assert f"evil[U+{ord(ch):04X}]label" in text and f"note [U+{ord(ch):04X}]txt.exe" in text
+    assert f"pre[U+{ord(ch):04X}]formatted" in text
+
+
 def test_html_rejects_bad_tables_and_non_relative_figures():
     r = HtmlReport("t")
     with pytest.raises(ValueError, match="row 0 has 1 cells"):

@@ -17,6 +17,7 @@ from pipeline.evaluation.metrics import spec as M
 from pipeline.method import registry
 from pipeline.method.fusion import fuse_model_based
 from pipeline.method.geometry import relative_inputs, sample_localization
+from pipeline.method.output_check import call_checked
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 
 __all__ = ["MODEL_BASED", "SIMPLE_BAYES", "WITH_UNCERTAINTY", "TrackData", "Posteriors", "track_input", "pose_free",
@@ -88,7 +89,7 @@ def pose_free(t: registry.TrackInput, rng: Callable[[str], np.random.Generator] 
     for m in registry.methods(attribution=False):
         if not m.uses_poses and m.applies(t):
             tm = t if rng is None else replace(t, rng=rng(m.key))
-            (posts[m.key], more), seconds[m.key] = _timed(m.fuse_with_extras, tm)
+            (posts[m.key], more), seconds[m.key] = _timed(call_checked, m, "fuse_with_extras", tm)
             extras.update(more)
     return Posteriors(posts, seconds), extras
 
@@ -136,12 +137,12 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
     for m in registry.methods(attribution=attribution):
         if m.uses_poses:
             if m.applies(t):
-                out[m.key], seconds[m.key] = _timed(m.fuse, t)
+                out[m.key], seconds[m.key] = _timed(call_checked, m, "fuse", t)
             continue
         if fixed is not None:
             one = fixed.get(m.key)
         elif m.applies(t):
-            one, seconds[m.key] = _timed(m.fuse, t)
+            one, seconds[m.key] = _timed(call_checked, m, "fuse", t)
         else:
             one = None
         if one is not None:
@@ -258,11 +259,12 @@ def gp_rasters(models, *, grid_n: int = 61, extent: float = 1.5, ring_n: int = 1
 def single_view_first(models, track: TrackData, truth: int, *, var_floor: float = 1e-6,
                       dirichlet=None) -> dict[str, float]:
     """How hard a track is: per method, the share of its views whose posterior from that view
-    alone, at the true pose, ranks the truth first (1 = every view alone is enough)."""
+    alone, at the true pose, ranks the truth first (1 = every view alone is enough). A method
+    without a single-view reading (``single_view`` returns None, the default) has no entry."""
     t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], dirichlet=dirichlet)
     out = {}
     for m in registry.methods(attribution=False):
-        one = m.single_view(t) if m.applies(t) else None
+        one = call_checked(m, "single_view", t) if m.applies(t) else None
         if one is not None:
             out[m.key] = float(np.mean(M.correct(one, truth, is_log=True)))
     return out | {"views": track.k}

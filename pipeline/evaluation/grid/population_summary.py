@@ -94,7 +94,10 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
                   for c, r in zip(cells, results) if r["difficulty"] is not None]
     spread = {}
     for m in methods:
-        v = np.array([d["single_view_first"][m] for d in difficulty])
+        # a method without a single-view reading (FusionMethod.single_view is optional) has no entry
+        v = np.array([d["single_view_first"][m] for d in difficulty if m in d["single_view_first"]])
+        if not len(v):
+            continue
         spread[m] = {"min": float(v.min()), "q25": float(percentile(v, 25)), "median": float(np.median(v)),
                      "q75": float(percentile(v, 75)), "max": float(v.max()), "mean": float(v.mean())}
     first = {c.target: c for c in cells if c.variant == DEFAULT}

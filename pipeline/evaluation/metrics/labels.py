@@ -59,7 +59,9 @@ UNKNOWN_COLOR = "#555555"
 def method_label(method: str, short: bool = False) -> str:
     """Display name of a method key; an unknown key is shown as itself."""
     m = registry.get(method)
-    return method if m is None else (m.short if short else m.label)
+    # label and short are optional on a method of your own: the key (then the label) stands in
+    label = method if m is None else getattr(m, "label", method)
+    return getattr(m, "short", label) if short and m is not None else label
 
 
 def method_color(method: str) -> str:

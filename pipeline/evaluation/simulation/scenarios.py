@@ -36,6 +36,7 @@ from pipeline.evaluation.metrics import spec as M
 from pipeline.infra.config import SimulateConfig, check_simulate
 from pipeline.infra.config.checks import SIM_CLASSES
 from pipeline.method import registry
+from pipeline.method.output_check import call_checked
 from pipeline.method.geometry import sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
@@ -210,8 +211,14 @@ def draw_batch(scenario: str, sim: SimulateConfig, mu, cov, true_xy, realization
 
 
 def fuse_batch(models: GPClassModels, d: Draws, sim: SimulateConfig) -> dict[str, np.ndarray]:
-    """The simulation's methods on one batch: posteriors (R, K, C) per method (prior uniform)."""
-    return {key: registry.get(key).simulate(models, d, sim) for key in methods()}
+    """The simulation's methods on one batch: posteriors (R, K, C) per method (prior uniform),
+    each checked (``pipeline.method.output_check``: shape, values, normalisation; named by key)."""
+    shape = d.noised.shape[:2] + (len(models.classes),)
+    out = {}
+    for key in methods():
+        m = registry.get(key)
+        out[key] = call_checked(m, "simulate", d, shape=shape, call=lambda draws: m.simulate(models, draws, sim))
+    return out
 
 
 @dataclass
