@@ -184,14 +184,17 @@ def input_path(cfg: Config, name: str) -> str:
 
 
 def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
-    """Status of a stage without running anything: {state: up to date|stale|missing, why, digest}."""
+    """Status of a stage without running anything: {state: up to date|stale|missing, why, digest}.
+    Outputs are checked as ``ensure`` checks them (every one hashed against its manifest, once per
+    call through the shared ``_memo``), so ``viewfuse status`` says stale exactly where the next run
+    would rerun: a byte edited with its size and mtime restored included."""
     memo = {} if _memo is None else _memo
     if name in memo:
         return memo[name]
     spec = STAGES[name]
     ups = {u: plan(cfg, u, memo) for u in spec.upstream}
     key, parts = stage_key(cfg, spec, {u: p["digest"] for u, p in ups.items()})
-    why = stale_reason(cfg, name, key, parts)
+    why = stale_reason(cfg, name, key, parts, verify=memo.setdefault(HASHES, {}))
     bad_up = [u for u, p in ups.items() if p["state"] != "up to date"]
     m = read_manifest(cfg, name)
     if m is None:
