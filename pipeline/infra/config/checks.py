@@ -11,6 +11,7 @@ import re
 
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.evaluation import ABLATION_KEYS
+from pipeline.infra.config.inputs import AVD_INSTANCES
 from pipeline.infra.config.root import Config
 from pipeline.infra.config.simulate import SimulateConfig
 
@@ -98,6 +99,11 @@ def cross_checks(cfg: Config, where: str) -> None:
     need(len(s.room_size_m) == 2 and min(s.room_size_m) > 0, "'data.synthetic.room_size_m' must be two positive numbers")
     need(len(set(s.instances)) == len(s.instances) and len(s.instances) >= 2,
          "'data.synthetic.instances' must list at least two distinct instance names")
+    if cfg.data.source == "synthetic":  # the stand-ins are drawn and labelled by their AVD names
+        unknown = [n for n in s.instances if n not in AVD_INSTANCES or n == "background"]
+        need(not unknown, f"'data.synthetic.instances' names {(unknown or [''])[0]!r}, which is not an instance of "
+                          "the AVD instance map (docs/formats/avd_instance_id_map.txt; e.g. "
+                          f"{AVD_INSTANCES[2]!r})")
     scans = cfg.data.scans
     need(len(scans) >= 1 and len(set(scans)) == len(scans), "'data.scans' must list at least one scan, each once")
     for sc in scans:  # each becomes a folder name under the data stage's output
@@ -195,6 +201,8 @@ def cross_checks(cfg: Config, where: str) -> None:
     known = ("gp_models", "biased", "randomized", "biased_randomized", "sensitivity", "bias_maps")
     for e in cfg.evaluate.experiments:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")
+    dup = sorted({e for e in ev.experiments if ev.experiments.count(e) > 1})
+    need(not dup, f"'evaluate.experiments' lists {', '.join(map(repr, dup))} more than once (each runs once)")
     for key in ("biased", "randomized", "biased_randomized"):
         need(len(getattr(cfg.evaluate, key).bias_m) == 2, f"'evaluate.{key}.bias_m' must be [x, y]")
     need(len(cfg.study.seeds) >= 1 and len(set(cfg.study.seeds)) == len(cfg.study.seeds),
