@@ -64,7 +64,7 @@ def check_run(cfg: Config, where: str) -> None:
         raise ConfigError(f"{where}: 'run.artifacts' must not be empty")
 
 
-def _modelled_classes(cfg: Config) -> tuple[str, ...] | None:
+def modelled_classes(cfg: Config) -> tuple[str, ...] | None:
     """The classes the models stage will model, when the config alone says (None with real data
     and models.classes = 'all': the dataset decides, and the stages name a missing target)."""
     if not isinstance(cfg.models.classes, str):
@@ -170,7 +170,7 @@ def cross_checks(cfg: Config, where: str) -> None:
     if not isinstance(ev.targets, str):
         need(len(ev.targets) >= 1 and len(set(ev.targets)) == len(ev.targets),
              "'evaluate.targets' must be 'all' or a list of distinct instance names")
-        modelled = _modelled_classes(cfg)
+        modelled = modelled_classes(cfg)
         for t in ev.targets:
             need(modelled is None or t in modelled,
                  f"'evaluate.targets' names {t!r}, which is not a modelled instance "
@@ -185,7 +185,7 @@ def cross_checks(cfg: Config, where: str) -> None:
         need(len(set(ev.candidates)) == len(ev.candidates) and len(ev.candidates) >= 1,
              "'evaluate.candidates' must be 'sampled', 'all', 'hard' or a list of distinct class names")
     elif ev.candidates in ("sampled", "hard"):
-        modelled = _modelled_classes(cfg)
+        modelled = modelled_classes(cfg)
         need(modelled is None or ev.n_candidates <= len(set(modelled)),
              f"'evaluate.n_candidates' = {ev.n_candidates} exceeds the {len(set(modelled or ()))} modelled classes "
              f"({_modelled_words(cfg)}) that evaluate.candidates = {ev.candidates!r} draws from")

@@ -85,6 +85,10 @@ class RunConfig:
                                       doc="evaluate refuses, before its grid, an evaluate.bootstrap whose intervals it "
                                           "estimates (a timed small draw, scaled) to take longer than this; 0 = no "
                                           "limit (the estimate is still said). Not part of any stage's key")
+    max_minutes: float = _f(120.0, lo=0.0, hi=1e6,
+                            doc="a stage whose estimate (pipeline/infra/cost.py: every setting that multiplies its "
+                                "work, per-unit seconds measured on a 2-core machine) is longer than this is refused "
+                                "before it starts, naming the keys; 0 = no limit. Not part of any stage's key")
 
 
 @dataclass(frozen=True)
