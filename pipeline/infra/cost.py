@@ -30,8 +30,9 @@ from pipeline.infra.config.fields import ConfigError
 # --- per-unit seconds ---------------------------------------------------------------------------
 # One With Uncertainty trajectory of K = 9 steps over C = 4 candidates: 32,000 trajectories/s in the
 # paper-grade evaluate run (docs/benchmarks.md, "the paper-grade preset"). Cost grows as K^1.5 and
-# C^0.75: bench_cost.py measured 85, 236 and 143 us a trajectory at (K, C) = (9, 4), (18, 4), (9, 8)
-# under a load of 9 on the 2 cores (the ratios, not the level, set the exponents).
+# linearly in C: bench_cost.py measured 2.8 and 3.2 times the (9, 4) cost at K = 18, and 1.7 and 3.2
+# times at C = 8, in two runs under loads of 9 and 6 on the 2 cores (the ratios, not the level,
+# set the scaling; the level there was 2-3x slower than this constant).
 WU_TRAJECTORY_S = 1 / 32_000
 # Everything else per (cell, realization, step): Model Based and the other methods, metrics, rows,
 # writing: 28 s over 83 tracks x 2001 realizations x 9 steps in the same run.
@@ -45,17 +46,18 @@ MB_STEP_S = 15 / (83 * 2001 * 9)
 PLAN_STEP_S = 20.6 / (540 * 10)
 PLAN_DECISION_S = 2.8e-3
 PLAN_MOVES = 6  # moves from an AVD node (forward, backward, left, right, rotate cw, ccw): the horizon's branching
-# simulate (bench_cost.py, load 9 on 2 cores): a model_uncertainty realization of K = 21 steps
-# 2.0 ms + 0.024 ms per measurement sample; a localization_bias realization 0.7 ms per localization
-# sample (65 ms at N_x = 100, 142 ms at 200); the GP fits 5.6 s per (restarts + 1); a sweep
-# point 0.5 s on top of its realizations (the small sweep's 20 s, docs/benchmarks.md).
-SIM_MU_S, SIM_MU_SAMPLE_S, SIM_LB_SAMPLE_S, SIM_FIT_S, SIM_SWEEP_POINT_S = 2.0e-3, 2.4e-5, 7e-4, 5.6, 0.5
+# simulate (bench_cost.py, load 6 on 2 cores): a model_uncertainty realization of K = 21 steps
+# 1.44 ms at 20 measurement samples (split 1.2 ms + 0.012 ms a sample from 80 samples' 3.9 ms at
+# load 9); a localization_bias realization 34 ms at 100 localization samples (65 and 142 ms at 100
+# and 200 under load 9: linear in them); the GP fits 4.0 s per (restarts + 1); a sweep point 0.5 s
+# on top of its realizations (the small sweep's 20 s, docs/benchmarks.md).
+SIM_MU_S, SIM_MU_SAMPLE_S, SIM_LB_SAMPLE_S, SIM_FIT_S, SIM_SWEEP_POINT_S = 1.2e-3, 1.2e-5, 3.4e-4, 4.0, 0.5
 # The classifier: 134-141 s a seed for 6400 training + 1200 validation images x 7 epochs at 112 px,
 # rendering included (make study, docs/benchmarks.md "Seed study"), AlexNet.
 CLASSIFIER_IMAGE_EPOCH_S = 137 / ((6400 + 1200) * 7)
-# The features stage's MC-dropout head: 4.3 ms a (crop, sample) row, and the backbone 34 ms a
-# 112 px crop (bench_cost.py: AlexNet, 2 threads, load 9).
-HEAD_ROW_S, BACKBONE_CROP_S = 4.3e-3, 34e-3
+# The features stage's MC-dropout head: 1.5 ms a (crop, sample) row, and the backbone 9.4 ms a
+# 112 px crop (bench_cost.py: AlexNet, load 6 on 2 cores; 4.3 and 34 ms under load 9).
+HEAD_ROW_S, BACKBONE_CROP_S = 1.5e-3, 9.4e-3
 # The data stage: 115 CPU s for the default synthetic world (docs/benchmarks.md "Data stage"),
 # counted against its 1887 BigBIRD megapixels (AVD frames included in that time).
 RENDER_MP_S = 115 / (12 * 120 * 1280 * 1024 / 1e6)
@@ -118,7 +120,7 @@ def n_targets(cfg) -> int:
 
 
 def _wu_scale(k: int, c: int) -> float:
-    return (k / 9) ** 1.5 * (max(c, 1) / 4) ** 0.75
+    return (k / 9) ** 1.5 * max(c, 1) / 4
 
 
 def _value(cfg, key: str) -> str:

@@ -129,6 +129,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _load(args) -> Config:
+    from stages.framework.checkout import other_checkout
+
+    foreign = other_checkout()
+    if foreign:
+        logging.getLogger("viewfuse").warning("%s", foreign)
     overrides: dict = {}
     for o in args.overrides:
         overrides = merge(overrides, parse_override(o))

@@ -34,8 +34,8 @@ PLANTED = [
      ("simulate.realizations", "simulate.n_loc_samples")),
     ("classifier", {"classifier.training.epochs": 200, "classifier.training.train_images": 100000},
      ("classifier.training.epochs", "classifier.training.train_images")),
-    ("features", {"features.bigbird_samples": 1000, "data.synthetic.bigbird_cameras": "[1, 2, 3]",
-                  "features.bigbird_cameras": "[1, 2, 3]"}, ("features.bigbird_samples", "features.bigbird_cameras")),
+    ("features", {"features.bigbird_samples": 1000, "data.synthetic.bigbird_cameras": "[1, 2, 3, 4, 5]",
+                  "features.bigbird_cameras": "[1, 2, 3, 4, 5]"}, ("features.bigbird_samples", "features.bigbird_cameras")),
 ]
 
 
