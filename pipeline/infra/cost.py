@@ -20,7 +20,7 @@ re-measures the constants on the machine it runs on.
 from __future__ import annotations
 
 import resource
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from pipeline.infra import footprints
 from pipeline.infra.budget import GIB, MemoryBudgetError, address_space_left, budget, budget_words, gib
@@ -42,7 +42,9 @@ ROW_S = 28 / (83 * 2001 * 9)
 MB_STEP_S = 15 / (83 * 2001 * 9)
 # View planning, per episode step (the belief update on the history) at N_x ~ 37 and C = 4: 20.6 s
 # over 540 episodes of at most 10 steps on the default run; one information-gain decision at 64
-# draws per class, horizon 1: 2.8 ms median (docs/benchmarks.md, "View planning").
+# draws per class, horizon 1: 2.8 ms median (docs/benchmarks.md, "View planning"). A step grows with
+# the history as K^1.5 (the budget, calibrated at 10), with N_x and with C; a decision with the draws,
+# C and the nodes within the horizon.
 PLAN_STEP_S = 20.6 / (540 * 10)
 PLAN_DECISION_S = 2.8e-3
 PLAN_MOVES = 6  # moves from an AVD node (forward, backward, left, right, rotate cw, ccw): the horizon's branching
@@ -91,7 +93,6 @@ class Estimate:
     terms: tuple[Term, ...]
     base: float = 0.0
     mapped: float = 0.0  # address space the stage's imports map (checked against RLIMIT_AS)
-    notes: tuple[str, ...] = field(default=())
 
     @property
     def seconds(self) -> float:
@@ -105,8 +106,8 @@ class Estimate:
 # --- counts the config implies -------------------------------------------------------------------
 @dataclass(frozen=True)
 class Counts:
-    """What multiplies the work besides the keys: targets, tracks per target, AVD crops. None =
-    from the config (``from_config``)."""
+    """What multiplies the work besides the keys: targets and tracks per target. None = from the
+    config (``n_targets``; ``evaluate.tracks_per_target``, an upper bound)."""
     targets: int | None = None
     tracks: int | None = None
 
@@ -183,9 +184,9 @@ def evaluate_terms(cfg, counts: Counts = Counts()) -> list[Term]:
         out.append(Term(f"view planning ({episodes} episodes of up to {plan.budget} steps)",
                         ("plan.starts", "plan.budget", "plan.eig_samples", "plan.horizon", "evaluate.targets",
                          "evaluate.biased.n_loc_samples", "evaluate.randomized.n_loc_samples"),
-                        seconds=episodes * plan.budget * PLAN_STEP_S * (n_x / 37.5) * _wu_scale(plan.budget + 8, C)
+                        seconds=episodes * plan.budget * PLAN_STEP_S * (n_x / 37.5) * (plan.budget / 10) ** 1.5 * C / 4
                         + decisions * PLAN_DECISION_S * (plan.eig_samples / 64) * C / 4))
-    if ev.dirichlet.n_ss > 0:
+    if ev.dirichlet.n_ss > 0:   # not measured apart: one method's share (1/6) of ROW_S at N_ss = 100, linear in N_ss
         out.append(Term("the Dirichlet method's posterior clouds", ("evaluate.dirichlet.n_ss",),
                         seconds=cells * reals * K * ROW_S * ev.dirichlet.n_ss / 100 / 6))
     out.append(Term(f"the two-level bootstrap over {T} targets x up to {tracks} tracks", ("evaluate.bootstrap",),
