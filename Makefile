@@ -41,7 +41,9 @@ VENV_RUNS = $(shell $(BIN)/python -c 1 >/dev/null 2>&1 && test -x "$$(sed -n '1s
 # modules, so `make evaluate` would run them (and call stages up to date against them). Both are
 # compared with this checkout (the import from outside any checkout, PYTHONPATH unset), and a venv
 # of another checkout is rebuilt here like a moved one.
-VENV_SHEBANG_BIN = $(realpath $(dir $(shell sed -n '1s/^\#!//p' $(BIN)/viewfuse)))
+# (A long venv path gets a /bin/sh trampoline that finds python beside the script: nothing to compare.)
+VENV_SHEBANG = $(firstword $(shell sed -n '1s/^\#!//p' $(BIN)/viewfuse))
+VENV_SHEBANG_BIN = $(realpath $(if $(filter /bin/sh,$(VENV_SHEBANG)),$(BIN),$(dir $(VENV_SHEBANG))))
 VENV_IMPORTS = $(shell cd / && env -u PYTHONPATH "$(CURDIR)/$(BIN)/python" -c 'import os, stages; \
   print(os.path.dirname(os.path.dirname(os.path.realpath(stages.__file__))))' 2>/dev/null)
 ifneq ($(wildcard $(BIN)/viewfuse),)

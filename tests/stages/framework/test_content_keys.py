@@ -86,8 +86,12 @@ def _make_n(project) -> str:
     return out.stdout + out.stderr
 
 
+# what pip writes instead of a shebang when the venv's path is too long for one
+TRAMPOLINE = "#!/bin/sh\n'''exec' \"$(dirname -- \"$(realpath -- \"$0\")\")\"/'python' \"$0\" \"$@\"\n' '''"
+
+
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
-@pytest.mark.parametrize("shebang", ["#!/nonexistent/old/.venv/bin/python", "#!{python}"])
+@pytest.mark.parametrize("shebang", ["#!/nonexistent/old/.venv/bin/python", "#!{python}", TRAMPOLINE])
 def test_make_rebuilds_a_venv_that_no_longer_runs(tmp_path, shebang):
     _fake_venv(tmp_path, shebang)
     out = _make_n(tmp_path)
