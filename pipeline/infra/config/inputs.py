@@ -79,8 +79,9 @@ class RunConfig:
     ray_workers: int = _f(0, lo=0, hi=4096, doc="executor ray, local instance: CPUs it gets; 0 = all cores")
     memory_gb: float = _f(0.0, lo=0.0, hi=1e6,
                           doc="memory budget, GiB: settings whose peak would exceed it are refused before the work "
-                              "starts, and batch sizes and worker counts are capped to fit; 0 = 80 % of this "
-                              "machine's memory (or of its cgroup limit)")
+                              "starts, and batch sizes and worker counts are capped to fit; 0 = 80 % of what this "
+                              "process may use (physical memory, the cgroup limit, the address space ulimit -v "
+                              "leaves: the lowest); a value above that is lowered to it, with a warning")
     max_bootstrap_minutes: float = _f(60.0, lo=0.0, hi=1e6,
                                       doc="evaluate refuses, before its grid, an evaluate.bootstrap whose intervals it "
                                           "estimates (a timed small draw, scaled) to take longer than this; 0 = no "
