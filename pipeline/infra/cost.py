@@ -312,9 +312,9 @@ def check(cfg, stage: str, counts: Counts = Counts(), extra: tuple[Term, ...] = 
     for t in est.terms:
         if est.base + t.bytes > limit:
             raise MemoryBudgetError(
-                f"{_keys(cfg, t)}: {t.what} needs about {gib(est.base + t.bytes)} (the {stage} stage's process "
-                f"included), over the memory budget of {gib(limit)} ({budget_words()}); lower {_names(t)} or raise "
-                "run.memory_gb")
+                f"{_keys(cfg, t)}: {t.what} needs about {gib(est.base + t.bytes)}, over the memory budget of "
+                f"{gib(limit)} ({budget_words()}{f'; with the {stage} stage process' if est.base else ''}); lower "
+                f"{_names(t)} or raise run.memory_gb")
     left = address_space_left()
     if left is not None:
         import psutil
