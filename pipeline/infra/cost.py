@@ -106,10 +106,11 @@ class Estimate:
 # --- counts the config implies -------------------------------------------------------------------
 @dataclass(frozen=True)
 class Counts:
-    """What multiplies the work besides the keys: targets and tracks per target. None = from the
-    config (``n_targets``; ``evaluate.tracks_per_target``, an upper bound)."""
+    """What multiplies the work besides the keys: targets and tracks per target (None = from the
+    config: ``n_targets``; ``evaluate.tracks_per_target``, an upper bound) and AVD boxes."""
     targets: int | None = None
     tracks: int | None = None
+    avd_crops: int = 0     # the AVD boxes the features stage scores (0: not known yet, a lower bound)
 
 
 def n_targets(cfg) -> int:
@@ -253,7 +254,10 @@ def features_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     return [Term(f"scoring {views} BigBIRD views x (1 + {f.bigbird_samples} MC-dropout passes)",
                  ("features.bigbird_samples", "data.synthetic.instances", "data.synthetic.angle_step_deg",
                   "features.bigbird_cameras"),
-                 seconds=views * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.bigbird_samples)))]
+                 seconds=views * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.bigbird_samples))),
+            Term(f"scoring {counts.avd_crops} AVD boxes x (1 + {f.n_samples} MC-dropout passes)",
+                 ("features.n_samples", "features.max_difficulty", "data.scans"),
+                 seconds=counts.avd_crops * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.n_samples)))]
 
 
 def data_terms(cfg, counts: Counts = Counts()) -> list[Term]:

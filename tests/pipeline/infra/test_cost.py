@@ -194,3 +194,14 @@ def test_a_stage_whose_libraries_do_not_fit_the_address_space_is_refused():
                               "try:\n    cost.check(Config(), 'features')\nexcept ValueError as e:\n    print(e)\n"], 2)
     assert "the features stage needs about" in out.stdout and "more address space" in out.stdout, out
     assert "RLIMIT_AS) of 2.00 GiB" in out.stdout
+
+
+def test_the_features_stage_checks_again_with_the_avd_boxes_it_found():
+    c = Config()
+    cfg = dataclasses.replace(c, features=dataclasses.replace(c.features, n_samples=1000))
+    cost.check(cfg, "features")                                   # no box known before the data: a lower bound
+    few = cost.estimate(cfg, "features", cost.Counts(avd_crops=1000)).seconds
+    assert cost.estimate(cfg, "features", cost.Counts(avd_crops=2000)).seconds > 1.5 * few
+    with pytest.raises(ValueError, match=r"scoring 20000 AVD boxes x \(1 \+ 1000 MC-dropout passes\): about .*"
+                                         r"'features.n_samples' = 1000"):
+        cost.check(cfg, "features", cost.Counts(avd_crops=20000), base=False)
