@@ -36,9 +36,27 @@ endef
 # A venv that no longer runs (moved: its entry points name the old interpreter path; or its base
 # Python gone) is removed here, so the rule below builds it again.
 VENV_RUNS = $(shell $(BIN)/python -c 1 >/dev/null 2>&1 && test -x "$$(sed -n '1s/^\#!//p' $(BIN)/viewfuse)" && echo yes)
+# A venv copied with its project (cp -a) still runs, but the original's code: its entry points'
+# shebang names the original's interpreter and its editable install imports the original's
+# modules, so `make evaluate` would run them (and call stages up to date against them). Both are
+# compared with this checkout (the import from outside any checkout, PYTHONPATH unset), and a venv
+# of another checkout is rebuilt here like a moved one.
+# (A long venv path gets a /bin/sh trampoline that finds python beside the script: nothing to compare.)
+VENV_SHEBANG = $(firstword $(shell sed -n '1s/^\#!//p' $(BIN)/viewfuse))
+VENV_SHEBANG_BIN = $(realpath $(if $(filter /bin/sh,$(VENV_SHEBANG)),$(BIN),$(dir $(VENV_SHEBANG))))
+VENV_IMPORTS = $(shell cd / && env -u PYTHONPATH "$(CURDIR)/$(BIN)/python" -c 'import os, stages; \
+  print(os.path.dirname(os.path.dirname(os.path.realpath(stages.__file__))))' 2>/dev/null)
 ifneq ($(wildcard $(BIN)/viewfuse),)
 ifneq ($(VENV_RUNS),yes)
 $(info $(VENV) no longer runs (moved, or its Python is gone): rebuilding it)
+$(shell rm -rf $(VENV))
+else ifneq ($(VENV_SHEBANG_BIN),$(realpath $(BIN)))
+$(info $(VENV) belongs to another checkout (its entry points run $(VENV_SHEBANG_BIN)/python, not this \
+  checkout's $(realpath $(BIN))/python; copied with cp -a?): rebuilding it)
+$(shell rm -rf $(VENV))
+else ifneq ($(VENV_IMPORTS),$(realpath $(CURDIR)))
+$(info $(VENV) belongs to another checkout (its editable install imports stages from \
+  $(or $(VENV_IMPORTS),nowhere), not from this checkout $(realpath $(CURDIR)); copied with cp -a?): rebuilding it)
 $(shell rm -rf $(VENV))
 endif
 endif

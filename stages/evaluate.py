@@ -136,22 +136,18 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TargetDomain | 
 
 
 def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] = ()) -> float:
-    """Refuse, before the grid runs, settings whose memory does not stream: the bootstrap's
-    (B, targets, tracks) draws and one cell's kept results, which grow with the realizations.
-    Returns (and says) how long the bootstrap's intervals will take, from a timed small draw."""
+    """The cost model's check (``pipeline.infra.cost``) again, with the targets and tracks the
+    features hold and the bootstrap's time from a timed small draw: refused, before the grid, when
+    its memory or time does not fit. Returns (and says) how long the bootstrap's intervals will take."""
     from pipeline.evaluation.metrics.labels import comparisons, methods
     from pipeline.evaluation.metrics.spec import METRICS
     from pipeline.evaluation.statistics.resampler import draw_seconds
-    from pipeline.infra import footprints
-    from pipeline.infra.budget import budget, require
+    from pipeline.infra.cost import Counts, Term, check
     from pipeline.infra.progress import echo
 
-    ev, limit = cfg.evaluate, budget(cfg)
-    require("evaluate.bootstrap", ev.bootstrap, footprints.bootstrap(ev.bootstrap, n_targets, width), limit,
-            f"the two-level bootstrap over {n_targets} targets x up to {width} tracks")
-    require("evaluate.randomized.realizations", ev.randomized.realizations,
-            footprints.randomized_cell(ev, ev.track_length, ev.n_candidates), limit,
-            f"one cell's results ({len(ev.randomized.sigmas_m)} sigmas x {ev.track_length} steps per realization)")
+    ev = cfg.evaluate
+    counts = Counts(targets=n_targets, tracks=width)
+    check(cfg, "evaluate", counts, base=False)   # memory first: the timed draw below allocates
     # Intervals drawn: each metric for every method and paired comparison, pooled and per setting,
     # and per target for every method (a lower bound: ablations and the ECE come on top).
     settings = len(P.population_settings(ev))
@@ -164,6 +160,9 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
             f"{min(ev.bootstrap, 20000)} draws on this machine, a lower bound), over "
             f"'run.max_bootstrap_minutes' = {cfg.run.max_bootstrap_minutes:g}; lower 'evaluate.bootstrap' or raise "
             f"'run.max_bootstrap_minutes' (0 = no limit)")
+    check(cfg, "evaluate", counts, base=False,
+          extra=(Term(f"the {n_stats}+ bootstrap intervals (timed draw, scaled)", ("evaluate.bootstrap",),
+                      seconds=seconds),))
     if seconds > 60:
         echo(f"[evaluate] evaluate.bootstrap = {ev.bootstrap}: the {n_stats}+ bootstrap intervals will take about "
              f"{seconds / 60:.0f} min (scaled from a timed run of 20000 draws; lower evaluate.bootstrap to shorten)")

@@ -91,10 +91,9 @@ def bigbird_jobs(cfg, root, skips, bar) -> Iterator:
         bar.update(len(o.views(f.bigbird_cameras)) - seen)
 
 
-def avd_jobs(cfg, scan, skips, bar) -> Iterator:
-    from loaders.errors import BadInputError
-    from pipeline.scoring.features import CropJob
-
+def avd_boxes(cfg, scan) -> list:
+    """[(image, its boxes to score)] of one scan: the boxes of the scored instances up to
+    ``features.max_difficulty``, images without one left out."""
     f = cfg.features
     if f.avd_instances:
         unknown = [n for n in f.avd_instances if n not in scan.instance_ids]
@@ -107,7 +106,14 @@ def avd_jobs(cfg, scan, skips, bar) -> Iterator:
     ids = {scan.instance_ids[n] for n in names}
     todo = [(img, [b for b in img.boxes if b.instance_id in ids and b.difficulty <= f.max_difficulty])
             for img in scan.images.values()]
-    todo = [(img, boxes) for img, boxes in todo if boxes]
+    return [(img, boxes) for img, boxes in todo if boxes]
+
+
+def avd_jobs(cfg, scan, skips, bar) -> Iterator:
+    from loaders.errors import BadInputError
+    from pipeline.scoring.features import CropJob
+
+    todo = avd_boxes(cfg, scan)
     bar.reset(total=len(todo))
     for img, boxes in todo:
         bar.update(1)
@@ -163,6 +169,7 @@ def run(ctx) -> str:
 
     from loaders.avd import AVDScan
     from pipeline.scoring.crops import CropPolicy
+    from pipeline.infra.cost import Counts, check
     from pipeline.infra.executor import executor_for
     from pipeline.scoring.features import build_table, metadata, score_jobs, viewpoint_spread, write_table
     from pipeline.infra.outputs import name as out_name
@@ -176,6 +183,8 @@ def run(ctx) -> str:
     skips = ctx.skips  # data.skip_bad_views; the runner writes the counts into the manifest
     # The scans first: their files (JSON, .mat, instance map) fail fast, before minutes of scoring.
     scans = [AVDScan(avd_root, name, skip=skips.log("avd", "AVD entry")) for name in cfg.data.scans]
+    # The cost model again, with the AVD boxes the scans hold (unknown before the data existed).
+    check(cfg, "features", Counts(avd_crops=sum(len(b) for s in scans for _, b in avd_boxes(cfg, s))), base=False)
     with executor_for(cfg) as ex, _scorer_released():
         sm, card, gpu, device = prepare_scoring(ctx, ex, policy)
         for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):

@@ -38,7 +38,7 @@ def _fit_budget(sim, limit: int):
     depend on it: every realization draws from its own generator)."""
     from pipeline.evaluation.simulation.scenarios import methods
     rows = sim.realizations * len(sim.scenarios) * len(methods()) * sim.track_steps  # (method, realization, step)
-    require("simulate.realizations", sim.realizations, rows * 800, limit,  # ~100 float64 per row in its copies
+    require("simulate.realizations", sim.realizations, footprints.simulate_results(sim, len(methods())), limit,
             f"the results table ({rows} rows, kept in memory until written)")
     chunk = cap_batch("simulate.chunk", sim.chunk, footprints.simulate_realization(sim), limit / 4)
     return dataclasses.replace(sim, chunk=chunk) if chunk != sim.chunk else sim

@@ -21,47 +21,13 @@ from functools import lru_cache
 import numpy as np
 
 from loaders.synthetic.textures import CATEGORY_NAMES, N_CATEGORIES, palette, texture
+from pipeline.infra.config.inputs import AVD_INSTANCES
 
-# The real AVD instance map (docs/formats/avd_instance_id_map.txt), embedded: readers of a synthetic
-# root find it beside the scan, exactly as in a real download.
-AVD_INSTANCE_MAP_TEXT = """\
-background 0
-advil_liqui_gels 1
-aunt_jemima_original_syrup 2
-bumblebee_albacore 3
-cholula_chipotle_hot_sauce 4
-coca_cola_glass_bottle 5
-crest_complete_minty_fresh 6
-crystal_hot_sauce 7
-expo_marker_red 8
-hersheys_bar 9
-honey_bunches_of_oats_honey_roasted 10
-honey_bunches_of_oats_with_almonds 11
-hunts_sauce 12
-listerine_green 13
-mahatma_rice 14
-nature_valley_granola_thins_dark_chocolate 15
-nutrigrain_harvest_blueberry_bliss 16
-pepto_bismol 17
-pringles_bbq 18
-progresso_new_england_clam_chowder 19
-quaker_chewy_low_fat_chocolate_chunk 20
-red_bull 21
-softsoap_clear 22
-softsoap_gold 23
-softsoap_white 24
-spongebob_squarepants_fruit_snaks 25
-tapatio_hot_sauce 26
-vo5_tea_therapy_healthful_green_tea_smoothing_shampoo 27
-nature_valley_sweet_and_salty_nut_almond 28
-nature_valley_sweet_and_salty_nut_cashew 29
-nature_valley_sweet_and_salty_nut_peanut 30
-nature_valley_sweet_and_salty_nut_roasted_mix_nut 31
-paper_plate 32
-red_cup 33
-"""
-AVD_INSTANCE_IDS: dict[str, int] = {
-    ln.split()[0]: int(ln.split()[1]) for ln in AVD_INSTANCE_MAP_TEXT.splitlines() if ln.strip()}
+# The real AVD instance map (docs/formats/avd_instance_id_map.txt; its names live with the config,
+# which checks data.synthetic.instances against them), embedded: readers of a synthetic root find
+# it beside the scan, exactly as in a real download.
+AVD_INSTANCE_MAP_TEXT = "".join(f"{name} {i}\n" for i, name in enumerate(AVD_INSTANCES))
+AVD_INSTANCE_IDS: dict[str, int] = {name: i for i, name in enumerate(AVD_INSTANCES)}
 
 REGIONS = ("front", "left", "back", "right")
 PX_PER_M = 1200.0  # texture resolution: ~2 texels per image pixel at BigBIRD distance

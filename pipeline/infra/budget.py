@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import resource
 from pathlib import Path
 
 import psutil
@@ -27,27 +28,75 @@ class MemoryBudgetError(ConfigError):
     """A setting would need more memory than ``run.memory_gb`` allows (a config error: exit 2)."""
 
 
-def machine_memory() -> int:
-    """Bytes of memory this process may use: physical memory, or a lower cgroup limit."""
-    total = int(psutil.virtual_memory().total)
+def address_space_left() -> int | None:
+    """Bytes of address space this process may still map under its ``RLIMIT_AS`` (``ulimit -v``),
+    or None without such a limit. The limit counts mappings, not resident pages, and a process
+    with its imports already maps much more than it holds (torch: about a GiB), so what is left
+    beside what it maps now is the bound on what it can still allocate."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY or soft < 0:
+        return None
+    return max(int(soft) - int(psutil.Process().memory_info().vms), 0)
+
+
+def memory_limits() -> dict[str, int]:
+    """What bounds this process's memory, in bytes: physical memory, the cgroup limit where one is
+    set, and the address space ``RLIMIT_AS`` leaves (``address_space_left``) where one is set."""
+    out = {"physical memory": int(psutil.virtual_memory().total)}
     for p in _CGROUP_LIMITS:
         try:
             v = Path(p).read_text().strip()
         except OSError:
             continue
         if v.isdigit():
-            total = min(total, int(v))
-    return total
+            out["the cgroup limit"] = min(int(v), out.get("the cgroup limit", int(v)))
+    left = address_space_left()
+    if left is not None:
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        out[f"the address-space limit (ulimit -v, RLIMIT_AS) of {gib(soft)} less the {gib(soft - left)} "
+            "mapped now"] = left
+    return out
+
+
+def machine_memory() -> int:
+    """Bytes of memory this process may use: the lowest of ``memory_limits``."""
+    return min(memory_limits().values())
 
 
 def budget(cfg) -> int:
-    """The run's memory budget in bytes (``run.memory_gb``; 0 = ``AUTO_SHARE`` of ``machine_memory``)."""
+    """The run's memory budget in bytes: ``run.memory_gb``, or with 0 ``AUTO_SHARE`` of
+    ``machine_memory``. A setting above what this process may use is lowered to it, with a
+    warning: the estimates are checked against memory the process can have, not memory it was
+    promised (an address-space limit fails allocations long before physical memory runs out)."""
     gb = float(cfg.run.memory_gb)
-    return int(gb * GIB) if gb > 0 else int(AUTO_SHARE * machine_memory())
+    if gb <= 0:
+        return int(AUTO_SHARE * machine_memory())
+    limits = memory_limits()
+    what, have = min(limits.items(), key=lambda kv: kv[1])
+    if gb * GIB > have:
+        _warn_once(f"run.memory_gb = {gb:g} is more than this process may use: {gib(have)} ({what}); "
+                   f"the memory budget is {gib(have)}")
+        return have
+    return int(gb * GIB)
+
+
+_WARNED: set[str] = set()
+
+
+def _warn_once(msg: str) -> None:
+    if msg not in _WARNED:
+        _WARNED.add(msg)
+        log.warning("%s", msg)
 
 
 def gib(n: float) -> str:
     return f"{n / GIB:.2f} GiB" if n < 100 * GIB else f"{n / GIB:.0f} GiB"
+
+
+def budget_words() -> str:
+    """Where the budget comes from, for a refusal: the setting and what bounds this process."""
+    what, have = min(memory_limits().items(), key=lambda kv: kv[1])
+    return f"run.memory_gb; 0 = {AUTO_SHARE:.0%} of the {gib(have)} this process may use: {what}"
 
 
 def require(key: str, value, estimate: float, limit: int, what: str) -> None:
@@ -55,8 +104,7 @@ def require(key: str, value, estimate: float, limit: int, what: str) -> None:
     if estimate > limit:
         raise MemoryBudgetError(
             f"'{key}' = {value}: {what} needs about {gib(estimate)}, over the memory budget of {gib(limit)} "
-            f"(run.memory_gb; 0 = {AUTO_SHARE:.0%} of this machine's {gib(machine_memory())}); "
-            f"lower '{key}' or raise run.memory_gb")
+            f"({budget_words()}); lower '{key}' or raise run.memory_gb")
 
 
 def cores() -> int:

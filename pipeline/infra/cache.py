@@ -74,10 +74,10 @@ def file_record(path: str | Path, data: bytes | None = None, known: dict | None 
 def record_changed(path: str | Path, rec: dict, verify: dict | None = None, memo: dict | None = None) -> str | None:
     """Why ``path`` no longer matches ``rec`` ("missing", "content changed"), or None.
 
-    Without ``verify`` (``viewfuse status``), the same size and mtime are trusted: a fast path
-    that a byte edit with the mtime restored fools. With ``verify`` (a dict kept for one run), the
-    bytes are always hashed, once per run per file state, and compared with the recorded sha256:
-    what a stage about to use an upstream output does. With ``memo`` (``memo_record``; dataset
+    Without ``verify``, the same size and mtime are trusted: a fast path that a byte edit with the
+    mtime restored fools (the runner and ``viewfuse status`` do not take it). With ``verify`` (a dict
+    kept for one run), the bytes are always hashed, once per run per file state, and compared with
+    the recorded sha256: what a stage about to use an upstream output does, and what status does. With ``memo`` (``memo_record``; dataset
     files), the sha256 is reused while size, mtime, ctime and inode match: a copied dataset (new
     mtimes) is hashed once, not on every check, and an edit with its mtime restored moves the ctime."""
     try:

@@ -38,14 +38,31 @@ def simulate_realization(sim, n_classes: int = 3) -> float:
     return draws + fusion
 
 
+def simulate_results(sim, n_methods: int = 6) -> float:
+    """simulate's results table, kept until written: one row per (scenario, method, realization,
+    step), ~100 float64 in its copies."""
+    return 800.0 * sim.realizations * len(sim.scenarios) * n_methods * sim.track_steps
+
+
 def bootstrap(n_boot: int, groups: int, width: int) -> float:
     """The hierarchical bootstrap (``statistics.resampler.Resampler``): about nine (B, T, width) arrays
     of 8 bytes (uniforms, member indices, counts, gathered values, weights)."""
     return 9 * 8 * float(n_boot) * groups * width
 
 
+def kept_rows(realizations: float, k: int, n_classes: int, n_methods: int = 6) -> float:
+    """Results kept until written: per method the log posteriors (R, K, C) and their result rows
+    (~25 columns of 8 bytes per (realization, step))."""
+    return realizations * n_methods * k * (8 * n_classes + 25 * 8)
+
+
 def randomized_cell(ev, k: int, n_classes: int, n_methods: int = 6) -> float:
-    """One evaluate cell's kept results: per setting and method the log posteriors (R, K, C) and
-    their result rows (~25 columns of 8 bytes per (realization, step)), plus one fused batch."""
-    per_real = n_methods * k * (8 * n_classes + 25 * 8) * max(len(ev.randomized.sigmas_m), 1)
-    return ev.randomized.realizations * per_real
+    """One evaluate cell's kept results (``kept_rows``) over its randomized settings."""
+    return kept_rows(ev.randomized.realizations * max(len(ev.randomized.sigmas_m), 1), k, n_classes, n_methods)
+
+
+def fused_batch(n_x: int, k: int, n_classes: int, n_components: int = 4, chunk: int = 25) -> float:
+    """One fused batch of the randomized experiments (``grid.experiments.randomized``): ``chunk``
+    realizations' estimates and localization samples (R, N_x, K, 2) and, per call, at least one
+    realization's N_x trajectories with their per-step predictive terms (~4 float64 (C, F) arrays)."""
+    return 8 * chunk * n_x * k * 2 * 2 + 8 * 4 * max(n_x, 100_000) * k * n_classes * n_components

@@ -130,6 +130,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _load(args) -> Config:
+    from stages.framework.checkout import other_checkout
+
+    foreign = other_checkout()
+    if foreign:
+        logging.getLogger("viewfuse").warning("%s", foreign)
     overrides: dict = {}
     for o in args.overrides:
         overrides = merge(overrides, parse_override(o))
@@ -141,20 +146,31 @@ def _load(args) -> Config:
     if getattr(args, "executor", None) is not None:
         overrides = merge(overrides, {"run": {"executor": args.executor}})
     cfg = load_config(args.config, overrides or None)
+    from pipeline.evaluation.metrics.spec import check_primary
     from pipeline.scoring.classifiers import check_config
 
-    check_config(cfg.classifier, str(args.config))  # the arch's own checks, before any stage runs
-    # Metric names live with the metrics (pipeline/evaluation), above the config's floor: checked
-    # here, at load, so `status` refuses an unknown one as the stages would.
-    from pipeline.evaluation.metrics.spec import check_primary
-
-    try:
-        check_primary(cfg.evaluate.primary_metrics)
-    except ConfigError as e:
-        src = "--set on the command line" if any(o.startswith("evaluate.primary_metrics") for o in args.overrides) \
-            else args.config
-        raise ConfigError(f"{src}: {e}") from None
+    # The checks that live above the config's floor (the arch's own, in the classifier registry;
+    # metric names, with the metrics), run here at load so `status` refuses as the stages would.
+    _checked(args, cfg, "classifier.", lambda c: check_config(c.classifier, ""))
+    _checked(args, cfg, "evaluate.primary_metrics", lambda c: check_primary(c.evaluate.primary_metrics))
     return cfg
+
+
+def _checked(args, cfg: Config, prefix: str, check) -> None:
+    """Run ``check(cfg)``; its ConfigError names where the keys came from: ``--set`` when an
+    override sets a key under ``prefix`` and the file alone passes the check, else the file."""
+    try:
+        check(cfg)
+    except ConfigError as e:
+        msg = str(e).removeprefix(": ")
+        src = str(args.config)
+        if any(o.split("=", 1)[0].strip().startswith(prefix) for o in args.overrides):
+            try:
+                check(load_config(args.config))
+                src = f"--set on the command line (over {args.config})"
+            except ConfigError:
+                pass
+        raise ConfigError(f"{src}: {msg}") from None
 
 
 def status(cfg: Config) -> int:

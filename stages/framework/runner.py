@@ -38,6 +38,7 @@ from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove
 log = logging.getLogger("viewfuse")
 
 HASHES = "\0hashes"  # ensure()'s per-run memo of file hashes, kept in its digest dict
+COSTS = "\0costs"   # ensure()'s set of stages whose cost estimate was checked, kept in its digest dict
 INPUT_MEMO = ".inputs.digests.json"  # in <run>/: sha256 of dataset files read, by size, mtime, ctime, inode
 
 
@@ -184,14 +185,17 @@ def input_path(cfg: Config, name: str) -> str:
 
 
 def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
-    """Status of a stage without running anything: {state: up to date|stale|missing, why, digest}."""
+    """Status of a stage without running anything: {state: up to date|stale|missing, why, digest}.
+    Outputs are checked as ``ensure`` checks them (every one hashed against its manifest, once per
+    call through the shared ``_memo``), so ``viewfuse status`` says stale exactly where the next run
+    would rerun: a byte edited with its size and mtime restored included."""
     memo = {} if _memo is None else _memo
     if name in memo:
         return memo[name]
     spec = STAGES[name]
     ups = {u: plan(cfg, u, memo) for u in spec.upstream}
     key, parts = stage_key(cfg, spec, {u: p["digest"] for u, p in ups.items()})
-    why = stale_reason(cfg, name, key, parts)
+    why = stale_reason(cfg, name, key, parts, verify=memo.setdefault(HASHES, {}))
     bad_up = [u for u, p in ups.items() if p["state"] != "up to date"]
     m = read_manifest(cfg, name)
     if m is None:
@@ -220,6 +224,7 @@ def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto",
     hashes = keys.setdefault(HASHES, {}) if _hashes is None else _hashes
     if name in keys:
         return keys[name]
+    check_costs(cfg, name, force=force, checked=keys.setdefault(COSTS, set()))
     spec = STAGES[name]
     up = {u: ensure(cfg, u, device=device, threads=threads, _keys=keys, _hashes=hashes) for u in spec.upstream}
     key, parts = stage_key(cfg, spec, up)
@@ -240,8 +245,47 @@ def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto",
     return keys[name]
 
 
+def closure(name: str) -> list[str]:
+    """``name`` and every stage upstream of it, upstream first."""
+    out: list[str] = []
+
+    def walk(n: str) -> None:
+        for u in STAGES[n].upstream:
+            walk(u)
+        if n not in out:
+            out.append(n)
+    walk(name)
+    return out
+
+
+def check_costs(cfg: Config, name: str, *, force: bool = False, checked: set | None = None) -> None:
+    """Before any stage of a command runs: every stage it may run (``name`` and its upstream) is
+    estimated (``pipeline.infra.cost``: seconds and bytes from every setting that multiplies its
+    work) and one over ``run.max_minutes`` or the memory budget is refused, a config error naming
+    the keys, unless it is up to date (then it will not run). Pure formulas: this takes
+    milliseconds, so a refusal comes before minutes of upstream work, not after."""
+    from pipeline.infra.cost import check
+
+    checked = set() if checked is None else checked
+    memo: dict = {}
+    for stage in closure(name):
+        if stage in checked:
+            continue
+        checked.add(stage)
+        try:
+            check(cfg, stage)
+        except ValueError:
+            if (force and stage == name) or plan(cfg, stage, memo)["state"] != "up to date":
+                raise
+
+
 def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: str, threads: int) -> dict:
     """Run one stage into its temporary folder and swap it in; the caller holds the stage's lock."""
+    from pipeline.infra.cost import check, describe
+
+    est = check(cfg, spec.name)  # again, with this process as it is now (an address-space limit)
+    if est.seconds > 60:
+        echo(f"[{spec.name}] estimate: {describe(est)}")
     mod = _load(spec)
     paths = stage_paths(cfg, spec.name)
     final, tmp = paths.final, paths.tmp

@@ -11,6 +11,7 @@ import re
 
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.evaluation import ABLATION_KEYS
+from pipeline.infra.config.inputs import AVD_INSTANCES
 from pipeline.infra.config.root import Config
 from pipeline.infra.config.simulate import SimulateConfig
 
@@ -67,7 +68,7 @@ def check_run(cfg: Config, where: str) -> None:
         raise ConfigError(f"{where}: 'run.artifacts' must not be empty")
 
 
-def _modelled_classes(cfg: Config) -> tuple[str, ...] | None:
+def modelled_classes(cfg: Config) -> tuple[str, ...] | None:
     """The classes the models stage will model, when the config alone says (None with real data
     and models.classes = 'all': the dataset decides, and the stages name a missing target)."""
     if not isinstance(cfg.models.classes, str):
@@ -109,6 +110,11 @@ def cross_checks(cfg: Config, where: str) -> None:
     need(len(s.room_size_m) == 2 and min(s.room_size_m) > 0, "'data.synthetic.room_size_m' must be two positive numbers")
     need(len(set(s.instances)) == len(s.instances) and len(s.instances) >= 2,
          "'data.synthetic.instances' must list at least two distinct instance names")
+    if cfg.data.source == "synthetic":  # the stand-ins are drawn and labelled by their AVD names
+        unknown = [n for n in s.instances if n not in AVD_INSTANCES or n == "background"]
+        need(not unknown, f"'data.synthetic.instances' names {(unknown or [''])[0]!r}, which is not an instance of "
+                          "the AVD instance map (docs/formats/avd_instance_id_map.txt; e.g. "
+                          f"{AVD_INSTANCES[2]!r})")
     scans = cfg.data.scans
     need(len(scans) >= 1 and len(set(scans)) == len(scans), "'data.scans' must list at least one scan, each once")
     for sc in scans:  # each becomes a folder name under the data stage's output
@@ -181,7 +187,7 @@ def cross_checks(cfg: Config, where: str) -> None:
     if not isinstance(ev.targets, str):
         need(len(ev.targets) >= 1 and len(set(ev.targets)) == len(ev.targets),
              "'evaluate.targets' must be 'all' or a list of distinct instance names")
-        modelled = _modelled_classes(cfg)
+        modelled = modelled_classes(cfg)
         for t in ev.targets:
             need(modelled is None or t in modelled,
                  f"'evaluate.targets' names {t!r}, which is not a modelled instance "
@@ -196,7 +202,7 @@ def cross_checks(cfg: Config, where: str) -> None:
         need(len(set(ev.candidates)) == len(ev.candidates) and len(ev.candidates) >= 1,
              "'evaluate.candidates' must be 'sampled', 'all', 'hard' or a list of distinct class names")
     elif ev.candidates in ("sampled", "hard"):
-        modelled = _modelled_classes(cfg)
+        modelled = modelled_classes(cfg)
         need(modelled is None or ev.n_candidates <= len(set(modelled)),
              f"'evaluate.n_candidates' = {ev.n_candidates} exceeds the {len(set(modelled or ()))} modelled classes "
              f"({_modelled_words(cfg)}) that evaluate.candidates = {ev.candidates!r} draws from")
@@ -212,6 +218,8 @@ def cross_checks(cfg: Config, where: str) -> None:
     known = ("gp_models", "biased", "randomized", "biased_randomized", "sensitivity", "bias_maps")
     for e in cfg.evaluate.experiments:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")
+    dup = sorted({e for e in ev.experiments if ev.experiments.count(e) > 1})
+    need(not dup, f"'evaluate.experiments' lists {', '.join(map(repr, dup))} more than once (each runs once)")
     for key in ("biased", "randomized", "biased_randomized"):
         need(len(getattr(cfg.evaluate, key).bias_m) == 2, f"'evaluate.{key}.bias_m' must be [x, y]")
     need(len(cfg.study.seeds) >= 1 and len(set(cfg.study.seeds)) == len(cfg.study.seeds),

@@ -7,6 +7,46 @@ from dataclasses import dataclass
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
 
 
+# The real AVD instance map (docs/formats/avd_instance_id_map.txt): its names in id order (the
+# line number is the id). The synthetic stand-ins may only use these names (checked at load), and
+# loaders.synthetic.objects writes the map from this tuple.
+AVD_INSTANCES = (
+    "background",
+    "advil_liqui_gels",
+    "aunt_jemima_original_syrup",
+    "bumblebee_albacore",
+    "cholula_chipotle_hot_sauce",
+    "coca_cola_glass_bottle",
+    "crest_complete_minty_fresh",
+    "crystal_hot_sauce",
+    "expo_marker_red",
+    "hersheys_bar",
+    "honey_bunches_of_oats_honey_roasted",
+    "honey_bunches_of_oats_with_almonds",
+    "hunts_sauce",
+    "listerine_green",
+    "mahatma_rice",
+    "nature_valley_granola_thins_dark_chocolate",
+    "nutrigrain_harvest_blueberry_bliss",
+    "pepto_bismol",
+    "pringles_bbq",
+    "progresso_new_england_clam_chowder",
+    "quaker_chewy_low_fat_chocolate_chunk",
+    "red_bull",
+    "softsoap_clear",
+    "softsoap_gold",
+    "softsoap_white",
+    "spongebob_squarepants_fruit_snaks",
+    "tapatio_hot_sauce",
+    "vo5_tea_therapy_healthful_green_tea_smoothing_shampoo",
+    "nature_valley_sweet_and_salty_nut_almond",
+    "nature_valley_sweet_and_salty_nut_cashew",
+    "nature_valley_sweet_and_salty_nut_peanut",
+    "nature_valley_sweet_and_salty_nut_roasted_mix_nut",
+    "paper_plate",
+    "red_cup",
+)
+
 # The real AVD instance names used by the synthetic stand-ins (all are BigBIRD folder names; the
 # same list and order as loaders.synthetic.objects.DEFAULT_OBJECTS, whose test checks they agree).
 DEFAULT_INSTANCES = (
@@ -39,12 +79,17 @@ class RunConfig:
     ray_workers: int = _f(0, lo=0, hi=4096, doc="executor ray, local instance: CPUs it gets; 0 = all cores")
     memory_gb: float = _f(0.0, lo=0.0, hi=1e6,
                           doc="memory budget, GiB: settings whose peak would exceed it are refused before the work "
-                              "starts, and batch sizes and worker counts are capped to fit; 0 = 80 % of this "
-                              "machine's memory (or of its cgroup limit)")
+                              "starts, and batch sizes and worker counts are capped to fit; 0 = 80 % of what this "
+                              "process may use (physical memory, the cgroup limit, the address space ulimit -v "
+                              "leaves: the lowest); a value above that is lowered to it, with a warning")
     max_bootstrap_minutes: float = _f(60.0, lo=0.0, hi=1e6,
                                       doc="evaluate refuses, before its grid, an evaluate.bootstrap whose intervals it "
                                           "estimates (a timed small draw, scaled) to take longer than this; 0 = no "
                                           "limit (the estimate is still said). Not part of any stage's key")
+    max_minutes: float = _f(120.0, lo=0.0, hi=1e6,
+                            doc="a stage whose estimate (pipeline/infra/cost.py: every setting that multiplies its "
+                                "work, per-unit seconds measured on a 2-core machine) is longer than this is refused "
+                                "before it starts, naming the keys; 0 = no limit. Not part of any stage's key")
 
 
 @dataclass(frozen=True)

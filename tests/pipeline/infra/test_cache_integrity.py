@@ -1,6 +1,6 @@
 """Caches that a restored mtime cannot fool: a stage about to use an upstream output checks its
-sha256 against the manifest (each file hashed once per run); ``viewfuse status`` may keep the
-(size, mtime) fast path. The features readers refuse scores that are not probabilities, naming
+sha256 against the manifest (each file hashed once per run), and ``viewfuse status`` checks the
+same way, so it says stale where the next run reruns. The features readers refuse scores that are not probabilities, naming
 the file and the row."""
 from __future__ import annotations
 
@@ -32,13 +32,32 @@ def test_an_upstream_output_edited_with_its_mtime_restored_is_recomputed(tmp_con
     runner.ensure(cfg, "b")
     out = cfg.stage_dir("a") / "out.txt"
     tamper_keeping_size_and_mtime(out)
-    # status keeps its fast path (and says so in the docs) ...
-    assert runner.plan(cfg, "b")["state"] == "up to date"
-    # ... a run does not: 'a' is recomputed before 'b' could use the edited file.
+    # status sees it as the run will: 'a' stale for its content, 'b' for its upstream ...
+    st = runner.plan(cfg, "a")
+    assert st["state"] == "stale" and st["why"] == f"output {out} content changed (sha256 differs)"
+    assert runner.plan(cfg, "b")["state"] == "stale"
+    # ... and the run agrees: 'a' is recomputed before 'b' could use the edited file.
     calls.clear()
     runner.ensure(cfg, "b")
     assert calls == ["a"] and out.read_text() == "a"
     assert "content changed (sha256 differs)" in capsys.readouterr().out
+
+
+def test_status_through_the_cli_names_a_bit_flip_in_an_output(tmp_config, monkeypatch, capsys):
+    from stages.commands import cli
+
+    stage_fakes.install(monkeypatch, {"a": (), "b": ("a",)})
+    cfg = tmp_config()
+    runner.ensure(cfg, "b")
+    capsys.readouterr()
+    assert cli.status(cfg) == 0
+    assert capsys.readouterr().out.split() == ["a", "up", "to", "date", "b", "up", "to", "date"]
+    out = cfg.stage_dir("b") / "out.txt"
+    tamper_keeping_size_and_mtime(out, byte=bytes([out.read_bytes()[0] ^ 1]))   # one bit
+    assert cli.status(cfg) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split() == ["a", "up", "to", "date"]
+    assert lines[1].startswith("b") and f"stale: output {out} content changed (sha256 differs)" in lines[1]
 
 
 def test_each_file_is_hashed_once_per_run(tmp_config, monkeypatch):

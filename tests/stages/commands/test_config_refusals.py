@@ -3,6 +3,7 @@ from: the config file, or ``--set`` on the command line; a weights file that is 
 is named as what it is."""
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
@@ -112,3 +113,50 @@ def test_the_classifier_key_does_not_open_a_fifo(tmp_config, tmp_path):
     os.mkfifo(p)
     cfg = tmp_config({"classifier": {"weights": "path", "path": str(p)}})
     assert extra_key(cfg) == "w.npz|not a regular file"
+
+
+@pytest.mark.parametrize("names", ['["aunt_jemima_original_syrup", "not_an_avd_object"]',
+                                   '["background", "red_bull"]', '["red_bull", "Red_Bull"]'])
+def test_a_synthetic_instance_missing_from_the_avd_map_is_a_config_error(tmp_path, capsys, names):
+    # before: the data stage found it (exit 1) after its checks; now the config names the key
+    rc, err = _run(capsys, "data", "--config", SYN, "--set", f"run.artifacts={tmp_path}",
+                   "--set", f"data.synthetic.instances={names}")
+    bad = [n for n in json.loads(names) if n not in ("aunt_jemima_original_syrup", "red_bull")][0]
+    assert rc == 2 and "'data.synthetic.instances'" in err and repr(bad) in err and "instance map" in err
+    assert "--set on the command line (over" in err and not (tmp_path / "synthetic").exists()
+
+
+def test_the_shipped_instances_and_the_written_map_agree_with_the_config():
+    from loaders.synthetic.objects import AVD_INSTANCE_MAP_TEXT
+    from pipeline.infra.config import DEFAULT_INSTANCES
+    from pipeline.infra.config.inputs import AVD_INSTANCES
+
+    assert AVD_INSTANCE_MAP_TEXT == (ROOT / "docs" / "formats" / "avd_instance_id_map.txt").read_text()
+    assert set(DEFAULT_INSTANCES) <= set(AVD_INSTANCES) - {"background"}
+
+
+@pytest.mark.parametrize("arch", ["resnet_9000", "torchvision:not_a_model", "9lives"])
+def test_a_bad_classifier_arch_from_set_names_the_command_line(tmp_path, capsys, arch):
+    rc, err = _run(capsys, "status", "--config", SYN, "--set", f"run.artifacts={tmp_path}",
+                   "--set", f"classifier.arch={arch}")
+    assert rc == 2 and "'classifier.arch'" in err and "--set on the command line (over" in err, err
+
+
+def test_a_bad_classifier_arch_in_the_file_names_the_file(tmp_path, capsys):
+    cfg = _file(tmp_path, '[classifier]\narch = "resnet_9000"\n')
+    rc, err = _run(capsys, "status", "--config", cfg, "--set", "classifier.seed=1")
+    assert rc == 2 and "'classifier.arch'" in err and cfg in err and "--set on the command line" not in err
+
+
+@pytest.mark.parametrize("where", ["file", "set"])
+@pytest.mark.parametrize("experiments", ['["biased", "biased"]', '["gp_models", "randomized", "sensitivity", "randomized"]'])
+def test_duplicate_experiments_are_refused_at_load(tmp_path, capsys, where, experiments):
+    if where == "file":
+        cfg = _file(tmp_path, f"[evaluate]\nexperiments = {experiments}\n")
+        rc, err = _run(capsys, "status", "--config", cfg)
+        assert cfg in err
+    else:
+        rc, err = _run(capsys, "status", "--config", SYN, "--set", f"run.artifacts={tmp_path}",
+                       "--set", f"evaluate.experiments={experiments}")
+        assert "--set on the command line (over" in err
+    assert rc == 2 and "'evaluate.experiments' lists" in err and "more than once" in err

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 
 import pytest
 
@@ -64,21 +65,61 @@ def test_the_key_names_no_path_or_mtime(tmp_path):
     assert k.startswith("sha256:") and str(tmp_path) not in k and str(os.stat(tmp_path / "one" / "w.npz").st_mtime_ns) not in k
 
 
-@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
-@pytest.mark.parametrize("shebang", ["#!/nonexistent/old/.venv/bin/python", "#!{python}"])
-def test_make_rebuilds_a_venv_that_no_longer_runs(tmp_path, shebang):
-    shutil.copy(ROOT / "Makefile", tmp_path)
-    (tmp_path / "pyproject.toml").write_text("")
-    bin_ = tmp_path / ".venv" / "bin"
+def _fake_venv(project, shebang: str, imports_from=None):
+    """A project with the Makefile and an installed-looking .venv whose python imports ``stages``
+    from ``imports_from`` (an editable install's mapping; default: the project itself)."""
+    shutil.copy(ROOT / "Makefile", project)
+    (project / "pyproject.toml").write_text("")
+    (project / "stages").mkdir(exist_ok=True)
+    (project / "stages" / "__init__.py").write_text("")
+    bin_ = project / ".venv" / "bin"
     bin_.mkdir(parents=True)
-    (bin_ / "python").symlink_to(shutil.which("python3"))
+    (bin_ / "python").write_text(f'#!/bin/sh\nPYTHONPATH="{imports_from or project}" exec "{sys.executable}" "$@"\n')
+    (bin_ / "python").chmod(0o755)
     (bin_ / "viewfuse").write_text(shebang.format(python=bin_ / "python") + "\n")
-    (tmp_path / ".venv" / ".installed").touch()
-    out = subprocess.run(["make", "-n", "venv"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    (project / ".venv" / ".installed").touch()
+
+
+def _make_n(project) -> str:
+    out = subprocess.run(["make", "-n", "venv"], cwd=project, capture_output=True, text=True, timeout=60,
+                         env={k: v for k, v in os.environ.items() if not k.startswith("MAKE")})
+    return out.stdout + out.stderr
+
+
+# what pip writes instead of a shebang when the venv's path is too long for one
+TRAMPOLINE = "#!/bin/sh\n'''exec' \"$(dirname -- \"$(realpath -- \"$0\")\")\"/'python' \"$0\" \"$@\"\n' '''"
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+@pytest.mark.parametrize("shebang", ["#!/nonexistent/old/.venv/bin/python", "#!{python}", TRAMPOLINE])
+def test_make_rebuilds_a_venv_that_no_longer_runs(tmp_path, shebang):
+    _fake_venv(tmp_path, shebang)
+    out = _make_n(tmp_path)
     broken = "nonexistent" in shebang
-    assert ("no longer runs" in out.stdout) == broken
+    assert ("no longer runs" in out) == broken, out
+    assert "another checkout" not in out
     assert (tmp_path / ".venv").exists() != broken
-    assert ("install" in out.stdout) == broken, out.stdout
+    assert ("install" in out) == broken, out
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+@pytest.mark.parametrize("fix_shebang", [False, True], ids=["as copied", "entry points rewritten"])
+def test_make_rebuilds_a_venv_copied_from_another_checkout(tmp_path, fix_shebang):
+    # cp -a of a project: the copy's venv runs (the original is still there) but the original's code
+    orig, copy = tmp_path / "orig", tmp_path / "copy"
+    orig.mkdir()
+    _fake_venv(orig, "#!{python}")
+    assert "another checkout" not in _make_n(orig)
+    subprocess.run(["cp", "-a", str(orig), str(copy)], check=True)
+    if fix_shebang:   # only the editable mapping still points back
+        (copy / ".venv" / "bin" / "viewfuse").write_text(f"#!{copy / '.venv' / 'bin' / 'python'}\n")
+    out = _make_n(copy)
+    assert "belongs to another checkout" in out and "rebuilding it" in out, out
+    assert (f"imports stages from {orig}" in out) == fix_shebang
+    assert (f"points run {orig / '.venv' / 'bin'}/python" in out) != fix_shebang
+    assert not (copy / ".venv").exists() and "install" in out
+    assert (orig / ".venv" / "bin" / "viewfuse").exists()        # the original's venv untouched
+    assert "another checkout" not in _make_n(orig)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -29,7 +29,9 @@ def test_estimate_grows_with_the_draws():
 def test_evaluate_says_how_long_a_large_bootstrap_takes(tmp_config, capsys):
     from stages.evaluate import check_budget
 
-    cfg = tmp_config({"evaluate": {"bootstrap": 1_000_000}, "run": {"memory_gb": 64, "max_bootstrap_minutes": 0}})
+    # no limit on the bootstrap's time, nor on the stage's (the cost model adds the two up)
+    cfg = tmp_config({"evaluate": {"bootstrap": 1_000_000},
+                      "run": {"memory_gb": 64, "max_bootstrap_minutes": 0, "max_minutes": 0}})
     seconds = check_budget(cfg, 12, 4, [4] * 12)
     out = capsys.readouterr().out
     assert seconds > 60 and "evaluate.bootstrap = 1000000" in out and "min" in out

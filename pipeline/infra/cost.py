@@ -1,0 +1,365 @@
+"""One cost model: every setting that multiplies a stage's work feeds one estimate of the stage's
+seconds and peak bytes, checked before the stage starts (``check``): refused above
+``run.max_minutes`` or the memory budget (``pipeline.infra.budget``) with the keys and the
+estimate, a config error (exit 2). docs/design.md §2 ("One cost model").
+
+An estimate is a list of ``Term`` s, one per kind of work (the population grid, the sensitivity
+sweep, the planning episodes, ...), each naming the keys that multiply it, plus the stage's
+``BASE`` (its process with its imports, before any work). Pure formulas of config values and of
+counts the config implies, so a refusal costs nothing; the runner checks every stage a command
+will run before the first one starts, and a stage may check again with counts only its input
+says (evaluate: its targets and tracks, the bootstrap's timed draw).
+
+The per-unit constants below are seconds of one unit of work on the development machine (2
+cores, AMD EPYC), each with where it was measured. They are meant to be right within a small
+factor: a faster machine takes less, a loaded one more, so a refusal says "about". Where a
+count is unknown before the data exists (real data with ``targets = 'all'``), the estimate takes
+the smallest count (one), so it never refuses what might fit. ``tests/bench/bench_cost.py``
+re-measures the constants on the machine it runs on.
+"""
+from __future__ import annotations
+
+import resource
+from dataclasses import dataclass
+
+from pipeline.infra import footprints
+from pipeline.infra.budget import GIB, MemoryBudgetError, address_space_left, budget, budget_words, gib
+from pipeline.infra.config.checks import modelled_classes
+from pipeline.infra.config.fields import ConfigError
+
+# --- per-unit seconds ---------------------------------------------------------------------------
+# One With Uncertainty trajectory of K = 9 steps over C = 4 candidates: 32,000 trajectories/s in the
+# paper-grade evaluate run (docs/benchmarks.md, "the paper-grade preset"). Cost grows as K^1.5 and
+# linearly in C: bench_cost.py measured 2.8 and 3.2 times the (9, 4) cost at K = 18, and 1.7 and 3.2
+# times at C = 8, in two runs under loads of 9 and 6 on the 2 cores (the ratios, not the level,
+# set the scaling; the level there was 2-3x slower than this constant).
+WU_TRAJECTORY_S = 1 / 32_000
+# Everything else per (cell, realization, step): Model Based and the other methods, metrics, rows,
+# writing: 28 s over 83 tracks x 2001 realizations x 9 steps in the same run.
+ROW_S = 28 / (83 * 2001 * 9)
+# Model Based on one one-step track (the bias maps: steps^2 per view): 15 s over the same run's
+# 83 x 2001 x 9 trajectory-steps.
+MB_STEP_S = 15 / (83 * 2001 * 9)
+# View planning, per episode step (the belief update on the history) at N_x ~ 37 and C = 4: 20.6 s
+# over 540 episodes of at most 10 steps on the default run; one information-gain decision at 64
+# draws per class, horizon 1: 2.8 ms median (docs/benchmarks.md, "View planning"). A step grows with
+# the history as K^1.5 (the budget, calibrated at 10), with N_x and with C; a decision with the draws,
+# C and the nodes within the horizon.
+PLAN_STEP_S = 20.6 / (540 * 10)
+PLAN_DECISION_S = 2.8e-3
+PLAN_MOVES = 6  # moves from an AVD node (forward, backward, left, right, rotate cw, ccw): the horizon's branching
+# simulate (bench_cost.py, load 6 on 2 cores): a model_uncertainty realization of K = 21 steps
+# 1.44 ms at 20 measurement samples (split 1.2 ms + 0.012 ms a sample from 80 samples' 3.9 ms at
+# load 9); a localization_bias realization 34 ms at 100 localization samples (65 and 142 ms at 100
+# and 200 under load 9: linear in them); the GP fits 4.0 s per (restarts + 1); a sweep point 0.5 s
+# on top of its realizations (the small sweep's 20 s, docs/benchmarks.md).
+SIM_MU_S, SIM_MU_SAMPLE_S, SIM_LB_SAMPLE_S, SIM_FIT_S, SIM_SWEEP_POINT_S = 1.2e-3, 1.2e-5, 3.4e-4, 4.0, 0.5
+# The classifier: 134-141 s a seed for 6400 training + 1200 validation images x 7 epochs at 112 px,
+# rendering included (make study, docs/benchmarks.md "Seed study"), AlexNet.
+CLASSIFIER_IMAGE_EPOCH_S = 137 / ((6400 + 1200) * 7)
+# The features stage's MC-dropout head: 1.5 ms a (crop, sample) row, and the backbone 9.4 ms a
+# 112 px crop (bench_cost.py: AlexNet, load 6 on 2 cores; 4.3 and 34 ms under load 9).
+HEAD_ROW_S, BACKBONE_CROP_S = 1.5e-3, 9.4e-3
+# The data stage: 115 CPU s for the default synthetic world (docs/benchmarks.md "Data stage"),
+# counted against its 1887 BigBIRD megapixels (AVD frames included in that time).
+RENDER_MP_S = 115 / (12 * 120 * 1280 * 1024 / 1e6)
+# The models stage: 8-10 s a seed for 12 classes x 120 views x (5 restarts + 1) (make study); a
+# GP fit's cost grows with the cube of its views.
+MODEL_FIT_S = 9 / (12 * 6)
+
+# --- the stages' processes, before their work ----------------------------------------------------
+# Resident bytes after importing every project module a stage reaches (its code version's module
+# list) with their libraries: python -c "import ...; psutil rss" here. The torch stages map about
+# 3.5 GiB of address space for that (what an RLIMIT_AS must leave room for); the others 0.7 GiB.
+BASE = {"data": 0.14 * GIB, "classifier": 0.58 * GIB, "features": 0.60 * GIB, "models": 0.67 * GIB,
+        "evaluate": 0.74 * GIB, "report": 0.72 * GIB, "simulate": 0.24 * GIB}
+BASE_MAPPED = {"data": 0.7 * GIB, "simulate": 0.75 * GIB}
+TORCH_MAPPED = 3.5 * GIB
+
+
+@dataclass(frozen=True)
+class Term:
+    """One kind of work: what it is, the keys that multiply it, its seconds and the bytes it holds
+    at its peak (on top of the stage's ``BASE``)."""
+    what: str
+    keys: tuple[str, ...]
+    seconds: float = 0.0
+    bytes: float = 0.0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    stage: str
+    terms: tuple[Term, ...]
+    base: float = 0.0
+    mapped: float = 0.0  # address space the stage's imports map (checked against RLIMIT_AS)
+
+    @property
+    def seconds(self) -> float:
+        return sum(t.seconds for t in self.terms)
+
+    @property
+    def peak(self) -> float:
+        return self.base + max((t.bytes for t in self.terms), default=0.0)
+
+
+# --- counts the config implies -------------------------------------------------------------------
+@dataclass(frozen=True)
+class Counts:
+    """What multiplies the work besides the keys: targets and tracks per target (None = from the
+    config: ``n_targets``; ``evaluate.tracks_per_target``, an upper bound) and AVD boxes."""
+    targets: int | None = None
+    tracks: int | None = None
+    avd_crops: int = 0     # the AVD boxes the features stage scores (0: not known yet, a lower bound)
+
+
+def n_targets(cfg) -> int:
+    ev = cfg.evaluate
+    if not isinstance(ev.targets, str):
+        return len(ev.targets)
+    classes = modelled_classes(cfg)
+    return len(classes) if classes else 1   # real data, 'all': unknown until the features exist
+
+
+def _wu_scale(k: int, c: int) -> float:
+    return (k / 9) ** 1.5 * max(c, 1) / 4
+
+
+def _value(cfg, key: str) -> str:
+    v = cfg.section(key)
+    if isinstance(v, (tuple, list)):
+        return f"[{len(v)} entries]" if len(v) > 3 else "[" + ", ".join(map(str, v)) + "]"
+    return str(v)
+
+
+# --- the stages ----------------------------------------------------------------------------------
+def evaluate_terms(cfg, counts: Counts = Counts()) -> list[Term]:
+    ev, plan = cfg.evaluate, cfg.plan
+    T = counts.targets or n_targets(cfg)
+    tracks = counts.tracks or ev.tracks_per_target
+    K, C = ev.track_length, ev.n_candidates
+    variants = 1 + len(ev.ablations) + int(ev.attribution)  # attribution: one more With Uncertainty pass
+    trajectories, reals, keys = 0.0, 0.0, []
+    if "biased" in ev.experiments:
+        trajectories += ev.biased.n_loc_samples
+        reals += 1
+        keys += ["evaluate.biased.n_loc_samples"]
+    if "randomized" in ev.experiments:
+        r = ev.randomized
+        trajectories += len(r.sigmas_m) * r.realizations * r.n_loc_samples
+        reals += len(r.sigmas_m) * r.realizations
+        keys += ["evaluate.randomized.realizations", "evaluate.randomized.n_loc_samples", "evaluate.randomized.sigmas_m"]
+    if "biased_randomized" in ev.experiments:
+        p = ev.biased_randomized
+        trajectories += p.realizations * p.n_loc_samples
+        reals += p.realizations
+        keys += ["evaluate.biased_randomized.realizations", "evaluate.biased_randomized.n_loc_samples"]
+    cells = T * tracks * variants
+    common = ["evaluate.targets", "evaluate.tracks_per_target", "evaluate.ablations", "evaluate.attribution",
+              "evaluate.track_length", "evaluate.n_candidates"]
+    r = ev.randomized
+    out = [Term(f"the population grid ({T} targets x {tracks} tracks x {variants} variant(s), "
+                f"{trajectories * cells:.3g} With Uncertainty trajectories)", tuple(keys + common),
+                seconds=cells * (trajectories * WU_TRAJECTORY_S * _wu_scale(K, C) + reals * K * ROW_S),
+                bytes=footprints.fused_batch(max(r.n_loc_samples, ev.biased_randomized.n_loc_samples), K, C)),
+           Term(f"one cell's results ({len(r.sigmas_m)} sigmas x {K} steps per realization)",
+                ("evaluate.randomized.realizations", "evaluate.randomized.sigmas_m", "evaluate.track_length"),
+                bytes=footprints.randomized_cell(ev, K, C) if "randomized" in ev.experiments else 0.0)]
+    if "sensitivity" in ev.experiments:
+        s = ev.sensitivity
+        n = len(s.sigmas_m) * s.realizations
+        rows = footprints.kept_rows(n, K, C)
+        out.append(Term(f"the sensitivity sweep ({len(s.sigmas_m)} sigmas x {s.realizations} realizations x "
+                        f"{s.n_loc_samples} localization samples)",
+                        ("evaluate.sensitivity.realizations", "evaluate.sensitivity.n_loc_samples",
+                         "evaluate.sensitivity.sigmas_m"),
+                        seconds=n * (s.n_loc_samples * WU_TRAJECTORY_S * _wu_scale(K, C) + K * ROW_S),
+                        bytes=rows + footprints.fused_batch(s.n_loc_samples, K, C)))
+    if "bias_maps" in ev.experiments:
+        out.append(Term(f"the bias maps ({ev.bias_maps.steps}^2 biases x {K} views)", ("evaluate.bias_maps.steps",),
+                        seconds=ev.bias_maps.steps ** 2 * K * MB_STEP_S * C / 4))
+    if plan.enabled:
+        n_x = (ev.biased.n_loc_samples + ev.randomized.n_loc_samples) / 2
+        episodes = T * plan.starts * 2 * 6      # 2 localization settings x 6 planners
+        decisions = T * plan.starts * 2 * plan.budget * min(PLAN_MOVES ** (plan.horizon - 1), 10_000)
+        out.append(Term(f"view planning ({episodes} episodes of up to {plan.budget} steps)",
+                        ("plan.starts", "plan.budget", "plan.eig_samples", "plan.horizon", "evaluate.targets",
+                         "evaluate.biased.n_loc_samples", "evaluate.randomized.n_loc_samples"),
+                        seconds=episodes * plan.budget * PLAN_STEP_S * (n_x / 37.5) * (plan.budget / 10) ** 1.5 * C / 4
+                        + decisions * PLAN_DECISION_S * (plan.eig_samples / 64) * C / 4))
+    if ev.dirichlet.n_ss > 0:   # not measured apart: one method's share (1/6) of ROW_S at N_ss = 100, linear in N_ss
+        out.append(Term("the Dirichlet method's posterior clouds", ("evaluate.dirichlet.n_ss",),
+                        seconds=cells * reals * K * ROW_S * ev.dirichlet.n_ss / 100 / 6))
+    out.append(Term(f"the two-level bootstrap over {T} targets x up to {tracks} tracks", ("evaluate.bootstrap",),
+                    bytes=footprints.bootstrap(ev.bootstrap, T, tracks)))
+    return out
+
+
+def simulate_terms(cfg, counts: Counts = Counts()) -> list[Term]:
+    sim = cfg.simulate
+    K = sim.track_steps
+    per_mu = (SIM_MU_S + SIM_MU_SAMPLE_S * sim.n_samples) * (K / 21) ** 1.5
+    per_lb = SIM_LB_SAMPLE_S * sim.n_loc_samples * (K / 21) ** 1.5
+    rows = footprints.simulate_results(sim)
+    out = [Term(f"the GP fits (3 classes x {sim.restarts + 1} starts)", ("simulate.restarts",),
+                seconds=SIM_FIT_S * (sim.restarts + 1))]
+    if "model_uncertainty" in sim.scenarios:
+        out.append(Term(f"model_uncertainty ({sim.realizations} realizations x {K} steps x {sim.n_samples} samples)",
+                        ("simulate.realizations", "simulate.track_steps", "simulate.n_samples"),
+                        seconds=sim.realizations * per_mu, bytes=rows))
+    if "localization_bias" in sim.scenarios:
+        out.append(Term(f"localization_bias ({sim.realizations} realizations x {K} steps x {sim.n_loc_samples} "
+                        "localization samples)",
+                        ("simulate.realizations", "simulate.track_steps", "simulate.n_loc_samples"),
+                        seconds=sim.realizations * per_lb, bytes=rows))
+    if sim.sweep != "off":
+        full = sim.sweep == "full"
+        noise = sim.sweep_full_noise if full else sim.sweep_noise
+        sig = sim.sweep_full_sigma_max if full else sim.sweep_sigma_max
+        reals = sim.sweep_full_realizations if full else sim.sweep_realizations
+        points = len(noise) * len(sig) + 1
+        pre = "simulate.sweep_full_" if full else "simulate.sweep_"
+        out.append(Term(f"the regime sweep ({points} points x {reals} realizations)",
+                        ("simulate.sweep", pre + "noise", pre + "sigma_max", pre + "realizations"),
+                        seconds=points * (SIM_SWEEP_POINT_S + reals * per_mu) + sim.realizations * per_mu))
+    return out
+
+
+def classifier_terms(cfg, counts: Counts = Counts()) -> list[Term]:
+    c = cfg.classifier
+    t = c.training
+    if c.weights != "synthetic":
+        return []
+    return [Term(f"training ({t.train_images} + {t.val_images} images x {t.epochs} epochs at {c.input_size} px)",
+                 ("classifier.training.train_images", "classifier.training.val_images",
+                  "classifier.training.epochs", "classifier.input_size"),
+                 seconds=(t.train_images + t.val_images) * t.epochs * CLASSIFIER_IMAGE_EPOCH_S * (c.input_size / 112) ** 2,
+                 bytes=footprints.classifier_training(c))]
+
+
+def _bigbird_views(cfg) -> int:
+    """BigBIRD views the config implies (synthetic data; 0 when the dataset decides)."""
+    s = cfg.data.synthetic
+    if cfg.data.source != "synthetic":
+        return 0
+    objects = len(cfg.features.bigbird_objects or s.instances)
+    cams = len(set(cfg.features.bigbird_cameras) & set(s.bigbird_cameras))
+    return objects * cams * (360 // s.angle_step_deg)
+
+
+def features_terms(cfg, counts: Counts = Counts()) -> list[Term]:
+    f = cfg.features
+    views = _bigbird_views(cfg)
+    size = (cfg.classifier.input_size / 112) ** 2
+    return [Term(f"scoring {views} BigBIRD views x (1 + {f.bigbird_samples} MC-dropout passes)",
+                 ("features.bigbird_samples", "data.synthetic.instances", "data.synthetic.angle_step_deg",
+                  "features.bigbird_cameras"),
+                 seconds=views * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.bigbird_samples))),
+            Term(f"scoring {counts.avd_crops} AVD boxes x (1 + {f.n_samples} MC-dropout passes)",
+                 ("features.n_samples", "features.max_difficulty", "data.scans"),
+                 seconds=counts.avd_crops * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.n_samples)))]
+
+
+def data_terms(cfg, counts: Counts = Counts()) -> list[Term]:
+    s = cfg.data.synthetic
+    if cfg.data.source != "synthetic":
+        return []
+    views = len(s.instances) * len(s.bigbird_cameras) * (360 // s.angle_step_deg)
+    mp = views * s.bigbird_width * s.bigbird_height / 1e6
+    from pipeline.infra.budget import cores
+    workers = max(1, min(s.workers, cores()))
+    return [Term(f"rendering {views} BigBIRD views ({mp:.0f} megapixels) on {workers} worker(s)",
+                 ("data.synthetic.instances", "data.synthetic.bigbird_cameras", "data.synthetic.angle_step_deg",
+                  "data.synthetic.bigbird_width", "data.synthetic.bigbird_height"),
+                 seconds=mp * RENDER_MP_S / workers)]
+
+
+def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:
+    m = cfg.models
+    classes = len(modelled_classes(cfg) or ()) or 1
+    views = _bigbird_views(cfg) / max(len(cfg.features.bigbird_objects or cfg.data.synthetic.instances), 1) \
+        if cfg.data.source == "synthetic" else 120
+    cams = max(len(cfg.features.bigbird_cameras), 1)
+    per_class = max(views / cams, 1)
+    variants = 1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
+    return [Term(f"the GP fits ({classes} classes x {per_class:.0f} views x {m.restarts + 1} starts x {variants} bank(s))",
+                 ("models.restarts", "models.classes", "evaluate.ablations"),
+                 seconds=variants * classes * (m.restarts + 1) * MODEL_FIT_S * (per_class / 120) ** 3)]
+
+
+ESTIMATORS = {"data": data_terms, "classifier": classifier_terms, "features": features_terms,
+              "models": models_terms, "evaluate": evaluate_terms, "simulate": simulate_terms}
+
+
+def estimate(cfg, stage: str, counts: Counts = Counts(), extra: tuple[Term, ...] = ()) -> Estimate:
+    """The stage's estimate from its config (and ``counts`` where the caller knows them)."""
+    fn = ESTIMATORS.get(stage)
+    terms = tuple(fn(cfg, counts) if fn else ()) + tuple(extra)
+    torch_stage = stage in ("classifier", "features", "models", "evaluate", "report")
+    return Estimate(stage, terms, base=BASE.get(stage, 0.0),
+                    mapped=TORCH_MAPPED if torch_stage else BASE_MAPPED.get(stage, 0.0))
+
+
+def check(cfg, stage: str, counts: Counts = Counts(), extra: tuple[Term, ...] = (), base: bool = True) -> Estimate:
+    """Refuse (a config error, exit 2) a stage whose estimate exceeds the memory budget or
+    ``run.max_minutes``, naming the keys, their values and the estimate; return the estimate.
+    ``base=False``: the work alone (a stage checking again from inside, its process long started)."""
+    est = estimate(cfg, stage, counts, extra)
+    if not base:
+        est = Estimate(est.stage, est.terms)
+    limit = budget(cfg)
+    if est.base > limit:
+        raise MemoryBudgetError(
+            f"'run.memory_gb' = {cfg.run.memory_gb:g}: the {stage} stage's process alone (Python and the libraries "
+            f"it imports, measured) holds about {gib(est.base)}, over the memory budget of {gib(limit)} "
+            f"({budget_words()}); raise 'run.memory_gb'")
+    for t in est.terms:
+        if est.base + t.bytes > limit:
+            raise MemoryBudgetError(
+                f"{_keys(cfg, t)}: {t.what} needs about {gib(est.base + t.bytes)}, over the memory budget of "
+                f"{gib(limit)} ({budget_words()}{f'; with the {stage} stage process' if est.base else ''}); lower "
+                f"{_names(t)} or raise run.memory_gb")
+    left = address_space_left()
+    if left is not None:
+        import psutil
+        mapped_now = psutil.Process().memory_info().vms
+        need = max(est.mapped - mapped_now, 0) + max((t.bytes for t in est.terms), default=0.0)
+        if need > left:
+            soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+            raise MemoryBudgetError(
+                f"the {stage} stage needs about {gib(need)} more address space (its libraries map about "
+                f"{gib(est.mapped)}; its largest step {gib(need - max(est.mapped - mapped_now, 0))}), more than the "
+                f"{gib(left)} the address-space limit (ulimit -v, RLIMIT_AS) of {gib(soft)} leaves; raise the limit "
+                "or lower the settings")
+    minutes = float(cfg.run.max_minutes)
+    if minutes and est.seconds > 60 * minutes:
+        top = sorted(est.terms, key=lambda t: -t.seconds)
+        parts = "; ".join(f"{t.what}: about {_dur(t.seconds)} ({_keys(cfg, t)})" for t in top if t.seconds >= 0.1 * est.seconds)
+        raise ConfigError(
+            f"the {stage} stage would take about {_dur(est.seconds)}, over 'run.max_minutes' = {minutes:g}: {parts}. "
+            f"Lower those keys or raise 'run.max_minutes' (0 = no limit); the estimate is pipeline/infra/cost.py's "
+            "(per-unit seconds measured on a 2-core machine)")
+    return est
+
+
+def _names(t: Term) -> str:
+    return ", ".join(f"'{k}'" for k in t.keys[:3])
+
+
+def _keys(cfg, t: Term) -> str:
+    return ", ".join(f"'{k}' = {_value(cfg, k)}" for k in t.keys)
+
+
+def _dur(s: float) -> str:
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 2 * 3600:
+        return f"{s / 60:.0f} min"
+    return f"{s / 3600:.1f} h" if s < 48 * 3600 else f"{s / 86400:.0f} days"
+
+
+def describe(est: Estimate) -> str:
+    """One line: the estimate's seconds and peak, for the log before a long stage."""
+    return f"about {_dur(est.seconds)} and {gib(est.peak)} at its peak (pipeline/infra/cost.py)"
+
+
