@@ -13,6 +13,8 @@ from pipeline.method import registry
 from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
+from pipeline.method.gp_instance import InstanceGPClassModels
+from pipeline.method.gp_instance_fit import fit_instance_models
 
 # The evaluate stage's defaults (configs/synthetic.toml [evaluate]): confident error at max P >= 0.99, 15 ECE bins.
 DEFAULT_PARAMS = M.Params(0.99, 15)
@@ -32,14 +34,17 @@ def method(key: str) -> registry.FusionMethod:
 
 
 def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, components: Sequence[int] | None = None,
-               restarts: int = 2, seed: int = 0, **fit) -> GPClassModels:
+               restarts: int = 2, seed: int = 0, instances: Mapping[str, Sequence] | None = None,
+               **fit) -> GPClassModels:
     """One GP per (class, score component) over the viewing direction, from your own samples.
 
     ``samples``: {class name: (angles (N,) in radians, the direction the object is seen from in
     its own frame; scores (N, D), the classifier's score vector of each view)}. ``components``:
     which of the D scores to model (default: all). Other keyword arguments go to
     ``pipeline.method.gp_fit.fit_class_models`` (bounds, hyperprior). Returns ``GPClassModels``
-    (their fit diagnostics on ``.diagnostics``)."""
+    (their fit diagnostics on ``.diagnostics``). ``instances``: {class: (N,) labels naming the
+    object instance of each view} (a class left out is one instance): the models then carry an
+    instance term (``InstanceGPClassModels``, docs/design.md §5, "Instances differ")."""
     if not samples:
         raise ValueError("fit_models: no classes given")
     classes = list(samples)
@@ -55,7 +60,16 @@ def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, componen
         raise ValueError(f"fit_models: every class needs the same score length, got {sorted(dims)}")
     comps = list(range(dims.pop())) if components is None else [int(f) for f in components]
     Y = [y[comps] for y in Y]
-    models, diagnostics = fit_class_models(X, Y, classes, comps, restarts=restarts, seed=seed, progress=False, **fit)
+    if instances is not None:
+        unknown = sorted(set(instances) - set(classes))
+        if unknown:
+            raise ValueError(f"fit_models: instances name class {unknown[0]!r}, which has no samples")
+        labels = [np.zeros(len(x), int) if c not in instances else np.asarray(instances[c]) for c, x in zip(classes, X)]
+        models, diagnostics = fit_instance_models(X, Y, labels, classes, comps, restarts=restarts, seed=seed,
+                                                  progress=False, **fit)
+    else:
+        models, diagnostics = fit_class_models(X, Y, classes, comps, restarts=restarts, seed=seed, progress=False,
+                                               **fit)
     models.diagnostics = diagnostics
     return models
 
@@ -71,7 +85,8 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     ``own`` (K, N_s, C): each candidate's own score (Simple Bayes); ``probs`` (K, N_s, D) and
     ``dirichlet`` (``DirichletModels``): the Dirichlet method. ``sigma`` and ``n_x``: the pose
     samples With Uncertainty averages over (N(estimate, sigma² I), drawn from ``seed``).
-    Returns (K, C), or (R, K, C) for (R, K, 2) cameras."""
+    ``models`` with an instance term (``fit_models(..., instances=...)``) also serve the
+    ``*_instance`` methods. Returns (K, C), or (R, K, C) for (R, K, 2) cameras."""
     m = method(key)
     cams = np.asarray(cameras, float)
     single = cams.ndim == 2
@@ -81,7 +96,8 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
         raise ValueError(f"fuse: dropout must be (K, N_s, F) with K = {est.shape[1]} views, got {drop.shape}")
     obj = np.asarray(object_xy, float)
     t = registry.TrackInput(
-        dropout=drop, gp=models, dirichlet=dirichlet, own=None if own is None else np.asarray(own, float),
+        dropout=drop, gp=models, gp_instance=models if isinstance(models, InstanceGPClassModels) else None,
+        dirichlet=dirichlet, own=None if own is None else np.asarray(own, float),
         probs=None if probs is None else np.asarray(probs, float), estimates=est,
         samples=sample_localization(est, sigma, n_x, np.random.default_rng(seed)),
         inputs=lambda p: relative_inputs(p, obj, object_yaw, unit_circle=True), var_floor=var_floor, n_ss=n_ss,

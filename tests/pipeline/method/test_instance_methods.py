@@ -69,3 +69,23 @@ def test_several_instances_change_the_posterior_and_no_bank_skips():
 def test_registered_after_the_plain_methods(key):
     keys = registry.keys()
     assert key in keys and keys.index(key) > keys.index(WITH_UNCERTAINTY)
+
+
+def test_public_fit_models_takes_instance_labels():
+    import viewfuse as vf
+
+    rng = np.random.default_rng(2)
+    x1, y1, lab1 = hierarchical(rng, n_inst=3, n_views=8)
+    x2, y2, _ = hierarchical(rng, n_inst=1, n_views=8)
+    samples = {"a": (np.arctan2(x1[:, 1], x1[:, 0]), y1[:, None]), "b": (np.arctan2(x2[:, 1], x2[:, 0]), y2[:, None])}
+    models = vf.fit_models(samples, restarts=0, instances={"a": lab1})
+    assert [d["instance_term"] for d in models.diagnostics] == [True, False]
+    plain = vf.fit_models(samples, restarts=0)
+    assert models.amplitude[1, 0] == plain.amplitude[1, 0]
+    cams = 2.0 * np.c_[np.cos([0.1, 0.4]), np.sin([0.1, 0.4])]
+    drop = 0.3 + 0.01 * rng.standard_normal((2, 3, 1))
+    assert vf.fuse("with_uncertainty_instance", models, cameras=cams, dropout=drop).shape == (2, 2)
+    with pytest.raises(ValueError, match="needs"):
+        vf.fuse("with_uncertainty_instance", plain, cameras=cams, dropout=drop)
+    with pytest.raises(ValueError, match="instances name class 'zzz'"):
+        vf.fit_models(samples, restarts=0, instances={"zzz": lab1})
