@@ -151,3 +151,31 @@ def test_subset_keeps_the_instance_term_and_bad_labels_raise():
                               models.length_scale, models.noise, instances=[m[:-1] for m in models.instances],
                               instance_amplitude=models.instance_amplitude,
                               instance_length_scale=models.instance_length_scale)
+
+
+def test_bank_files_keep_the_instance_term(tmp_path):
+    import shutil
+
+    from pipeline.method.gp import ModelFileError
+    from pipeline.method.gp_files import load_bank, save_bank
+
+    models, samples, dropout = instance_case(8)
+    save_bank(models, tmp_path / "bank")
+    back = load_bank(tmp_path / "bank")
+    assert isinstance(back, InstanceGPClassModels) and back.digest() == models.digest()
+    assert np.array_equal(fuse_with_uncertainty(back, samples, dropout, progress=False),
+                          fuse_with_uncertainty(models, samples, dropout, progress=False))
+    plain = GPClassModels(models.classes, models.components, models.X, models.Y, models.mean, models.amplitude,
+                          models.length_scale, models.noise)
+    save_bank(plain, tmp_path / "plain")
+    assert type(load_bank(tmp_path / "plain")) is GPClassModels
+    # A bank whose class files disagree (one plain file copied in, its digest updated) is refused.
+    import json
+    from pipeline.infra.cache import sha256_file
+
+    shutil.copy(tmp_path / "plain" / "k1.npz", tmp_path / "bank" / "k1.npz")
+    idx = json.loads((tmp_path / "bank" / "index.json").read_text())
+    idx["sha256"]["k1.npz"] = sha256_file(tmp_path / "bank" / "k1.npz")
+    (tmp_path / "bank" / "index.json").write_text(json.dumps(idx))
+    with pytest.raises(ModelFileError, match="k1.npz.*in every class file"):
+        load_bank(tmp_path / "bank")
