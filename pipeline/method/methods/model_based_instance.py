@@ -18,7 +18,7 @@ class ModelBasedInstance(ModelBased):
     key = MB_INSTANCE
     label = "Model Based, instances differ"
     short = "Model Based + instance"
-    color = "#E69F00"
+    color = "#BB5566"   # not a class colour (metrics.labels.CLASS_COLORS)
     note = ("Model Based whose class models add a deviation of the unseen object from its class, shared by every "
             "view of the track: no localization or model uncertainty")
     needs = frozenset({"gp_instance"})

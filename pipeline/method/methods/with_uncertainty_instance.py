@@ -19,7 +19,7 @@ class WithUncertaintyInstance(WithUncertainty):
     key = WU_INSTANCE
     label = "With Uncertainty, instances differ"
     short = "With Uncertainty + instance"
-    color = "#56B4E9"
+    color = "#004488"   # not a class colour (metrics.labels.CLASS_COLORS)
     note = ("With Uncertainty whose class models add a deviation of the unseen object from its class, shared by "
             "every view of the track (fitted on the training instances)")
     needs = frozenset({"gp_instance"})
