@@ -95,7 +95,9 @@ class InstanceGPClassModels(GPClassModels):
         if self._factors is None:
             from scipy.linalg import cho_solve
 
-            out = super().factors()   # the plain factors; GPs with an instance term are redone below
+            # The plain factors of a plain copy, GPs with an instance term redone, and only then
+            # published: a worker thread must never see the plain factors under this object.
+            out = GPClassModels._copy(self, slice(None), slice(None)).factors()
             for c, fc in enumerate(out):
                 B = same_instance(self.instances[c])
                 D2 = np.sum((fc.T[:, None, :] - fc.T[None, :, :]) ** 2, axis=-1)
@@ -113,6 +115,7 @@ class InstanceGPClassModels(GPClassModels):
                             f"{self.instance_amplitude[c, f]:g}, noise {self.noise[c, f]:g})") from None
                     fc.alpha[f] = cho_solve((L, True), self.Y[c][f] - self.mean[c, f])
                     fc.L[f] = np.asfortranarray(L)
+            self._factors = out
         return self._factors
 
     def predict(self, Xs):
