@@ -45,7 +45,8 @@ AVD_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_x1", "c
 
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
-    """{variant: model bank} and {variant: models/index.json} for the default and every ablation."""
+    """{variant: model bank} and {variant: models/index.json} for the default and every ablation; with
+    ``models/instance/``, also the default plan's bank with an instance term under ``P.INSTANCE_BANK``."""
     index = read_bank_index(models_dir)
     banks, indexes = {DEFAULT: load_bank(models_dir)}, {DEFAULT: index}
     for a in ablations:
@@ -58,6 +59,13 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
                              "(rerun the models stage)")
         banks[a] = load_bank(models_dir / sub)
         indexes[a] = read_bank_index(models_dir / sub)
+    inst_dir = models_dir / out_name("models", "instance")
+    if inst_dir.is_dir():   # models.instance_term: the same plan's models with an instance term
+        inst = load_bank(inst_dir)
+        if (inst.classes, inst.components) != (banks[DEFAULT].classes, banks[DEFAULT].components):
+            raise ValueError(f"{inst_dir}: the instance bank's classes or components differ from the default "
+                             "bank's (rerun the models stage)")
+        banks[P.INSTANCE_BANK] = inst
     return banks, indexes
 
 

@@ -7,6 +7,8 @@ every modelled class x every component that some target's candidate set uses, wi
 the index (``candidate_sets``). Each ``evaluate.ablations`` entry gets its own bank under
 ``models/ablations/``. Beside the bank, the Dirichlet method's class models (``models/dirichlet/``:
 ``index.json`` + ``theta.npz``, ``pipeline.method.dirichlet``), fitted on ``models.dirichlet.passes``.
+With ``models.instance_term``, the same plan's bank with an instance term (``models/instance/``,
+``pipeline.method.gp_instance``), fitted on each class's member objects.
 """
 from __future__ import annotations
 
@@ -35,6 +37,12 @@ def run(ctx) -> str:
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
     save_bank(models, ctx.out, extra=extra)
+    if cfg.models.instance_term:
+        log.info("fitting the class models with an instance term")
+        im, iextra = fit_from_features(feats, cfg.models, **plan_keys, instance_term=True)
+        save_bank(im, ctx.out / out_name("models", "instance"), extra=iextra)
+        with_term = sum(d["instance_term"] for d in iextra["diagnostics"])
+        ctx.extra["instance_fits"] = {"with_term": with_term, "without": len(iextra["diagnostics"]) - with_term}
     dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes, extra["candidate_sets"],
                                               class_members=members)
     dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)

@@ -17,6 +17,8 @@ from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.output_check import call_checked, problem
 from viewfuse import _args as A
+from pipeline.method.gp_instance import InstanceGPClassModels
+from pipeline.method.gp_instance_fit import fit_instance_models
 
 # The evaluate stage's defaults (configs/synthetic.toml [evaluate]): confident error at max P >= 0.99, 15 ECE bins.
 DEFAULT_PARAMS = M.Params(0.99, 15)
@@ -54,7 +56,8 @@ FIT_BYTES_PER_N2 = 4 * 8
 
 
 def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, components: Sequence[int] | None = None,
-               restarts: int = 2, seed: int = 0, **fit) -> GPClassModels:
+               restarts: int = 2, seed: int = 0, instances: Mapping[str, Sequence] | None = None,
+               **fit) -> GPClassModels:
     """One GP per (class, score component) over the viewing direction, from your own samples.
 
     ``samples``: {class name: (angles (N,) in radians, the direction the object is seen from in
@@ -62,7 +65,10 @@ def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, componen
     which of the D scores to model (distinct indices in [0, D); default: all). Other keyword
     arguments go to ``pipeline.method.gp_fit.fit_class_models`` (bounds, hyperprior). Returns
     ``GPClassModels`` (their fit diagnostics on ``.diagnostics``). Refused before any fit: a class
-    whose N x N matrices (``FIT_BYTES_PER_N2`` bytes per entry) exceed the memory available."""
+    whose N x N matrices (``FIT_BYTES_PER_N2`` bytes per entry) exceed the memory available.
+    ``instances``: {class: (N,) labels naming the object instance of each view} (a class left out
+    is one instance): the models then carry an instance term (``InstanceGPClassModels``,
+    docs/design.md §5, "Instances differ")."""
     fn = "fit_models"
     A.instance(fn, "samples", samples, Mapping, "a mapping {class name: (angles, scores)}")
     if not samples:
@@ -98,7 +104,21 @@ def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, componen
     n_max = max(len(x) for x in X)
     A.affordable(fn, "samples", FIT_BYTES_PER_N2 * float(n_max) ** 2)
     Y = [y[comps] for y in Y]
-    models, diagnostics = fit_class_models(X, Y, classes, comps, restarts=restarts, seed=seed, progress=False, **fit)
+    if instances is not None:
+        A.instance(fn, "instances", instances, Mapping, "a mapping {class name: (N,) instance labels}")
+        unknown = sorted(set(instances) - set(classes), key=repr)
+        if unknown:
+            raise ValueError(f"fit_models: instances name class {unknown[0]!r}, which has no samples")
+        labels = [np.zeros(len(x), int) if c not in instances else np.asarray(instances[c]) for c, x in zip(classes, X)]
+        for c, x, lab in zip(classes, X, labels):
+            if lab.ndim != 1 or len(lab) != len(x):
+                raise ValueError(f"fit_models: instances[{c!r}] must hold one label per view ({len(x)},), "
+                                 f"got shape {lab.shape}")
+        models, diagnostics = fit_instance_models(X, Y, labels, classes, comps, restarts=restarts, seed=seed,
+                                                  progress=False, **fit)
+    else:
+        models, diagnostics = fit_class_models(X, Y, classes, comps, restarts=restarts, seed=seed, progress=False,
+                                               **fit)
     models.diagnostics = diagnostics
     return models
 
@@ -122,7 +142,8 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     ``own`` (K, N_s, C): each candidate's own score (Simple Bayes); ``probs`` (K, N_s, D) and
     ``dirichlet`` (``DirichletModels``): the Dirichlet method. ``sigma`` and ``n_x``: the pose
     samples With Uncertainty averages over (N(estimate, sigma² I), drawn from ``seed``).
-    Returns (K, C), or (R, K, C) for (R, K, 2) cameras, checked as every method's output is
+    ``models`` with an instance term (``fit_models(..., instances=...)``) also serve the
+    ``*_instance`` methods. Returns (K, C), or (R, K, C) for (R, K, 2) cameras, checked as every method's output is
     (``pipeline.method.output_check``). A call estimated over the available memory or over
     ``max_seconds`` (None: no bound) is refused before anything is drawn."""
     fn = "fuse"
@@ -157,7 +178,8 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     A.affordable(fn, "n_x and cameras", 8.0 * R * n_x * K * (2 + 2 * (C or 1) * drop.shape[2]),
                  FUSE_SECONDS * units * K, max_seconds)
     t = registry.TrackInput(
-        dropout=drop, gp=models, dirichlet=dirichlet, own=own, probs=probs, estimates=est,
+        dropout=drop, gp=models, gp_instance=models if isinstance(models, InstanceGPClassModels) else None,
+        dirichlet=dirichlet, own=own, probs=probs, estimates=est,
         samples=sample_localization(est, sigma, n_x, np.random.default_rng(seed)),
         inputs=lambda p: relative_inputs(p, obj, yaw, unit_circle=True), var_floor=var_floor, n_ss=n_ss,
         rng=np.random.default_rng(seed))

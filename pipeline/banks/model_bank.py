@@ -25,6 +25,7 @@ from pipeline.infra.outputs import name as out_name
 from pipeline.method.dirichlet import DirichletModels, fit_class_dirichlets, reduce_vectors
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
+from pipeline.method.gp_instance_fit import fit_instance_models
 
 log = logging.getLogger("viewfuse.models")
 
@@ -45,7 +46,9 @@ class FeaturesError(ValueError):
 def assemble_classes(table, members, path: Path):
     """The rows of each class's member objects under the class's name (``members`` = {class:
     [object folders]}): a category class is the views of several objects; an object may serve
-    several classes (its rows repeat), and objects of no class are left out."""
+    several classes (its rows repeat), and objects of no class are left out. The object folder of
+    each row stays as the column ``member``: the instance labels of the instance term
+    (``pipeline/method/gp_instance_fit.py``)."""
     import pyarrow as pa
 
     objects = table.column("object").to_numpy(zero_copy_only=False).astype(str)
@@ -58,6 +61,7 @@ def assemble_classes(table, members, path: Path):
             idx.extend(rows.tolist())
             labels.extend([cls] * len(rows))
     out = table.take(pa.array(np.asarray(idx, dtype=np.int64)))
+    out = out.append_column("member", out.column("object").cast(pa.string()))
     return out.set_column(out.schema.get_field_index("object"), "object", pa.array(labels, pa.string()))
 
 
@@ -93,6 +97,8 @@ def read_training_views(path: str | Path, camera: int, members=None):
         dropout = assemble_classes(dropout, members, path) if dropout.num_rows else dropout
         table = assemble_classes(table, members, path)
     cols = {c: table.column(c).to_numpy(zero_copy_only=False) for c in ("object", "angle_deg", "u_x", "u_y")}
+    # A view's instance: its object folder (a class of members is several; otherwise the class itself).
+    cols["member"] = (table.column("member") if members else table.column("object")).to_numpy(zero_copy_only=False)
     scores = _scores_matrix(table.column("scores"), path)
     try:
         check_scores(scores, path, np.arange(len(scores)) if members else keep)
@@ -171,14 +177,15 @@ def dropout_noise_floor(path: Path, passes: dict[str, dict[int, np.ndarray]], po
 def _training_sets(path: Path, mcfg: ModelsConfig, members=None):
     """Per modelled class: GP inputs (N, 2), training scores (N, D) (``models.targets``), angles;
     plus output names, Parquet metadata, the dropout passes read (for the noise floor) and each
-    class's mean deterministic-pass score vector (its position for ``evaluate.candidates = "hard"``)."""
+    class's mean deterministic-pass score vector (its position for ``evaluate.candidates = "hard"``)
+    and each class's instance labels per training view (its object folders, ``cols["member"]``)."""
     cols, scores, meta, dropout = read_training_views(path, mcfg.camera, members)
     objects = cols["object"].astype(str)
     present = sorted(set(objects.tolist()))  # plain str: names in messages read 'coil_obj006', not np.str_(...)
     pool = present if isinstance(mcfg.classes, str) else list(mcfg.classes)
     if len(pool) < 2:
         raise FeaturesError(path, f"models need at least two classes; the features hold {len(pool)}")
-    X_by, S_by, angles, means = {}, {}, {}, {}
+    X_by, S_by, angles, means, members_by = {}, {}, {}, {}, {}
     for cls in pool:
         rows = np.nonzero(objects == cls)[0]
         if len(rows) == 0:
@@ -195,6 +202,7 @@ def _training_sets(path: Path, mcfg: ModelsConfig, members=None):
         if not np.all(np.isfinite(X)):
             raise FeaturesError(path, f"class {cls!r}: non-finite GP inputs (u_x, u_y)")
         X_by[cls], S_by[cls], angles[cls] = X, scores[rows], [int(a) for a in ang]
+        members_by[cls] = [str(m) for m in cols["member"][rows]]
         means[cls] = scores[rows].astype(np.float64).mean(axis=0)   # deterministic pass: the hard sets' positions
     passes = dropout_passes(dropout, path) if (mcfg.targets == "dropout_mean" or mcfg.noise_floor == "dropout") else {}
     if mcfg.targets == "dropout_mean":
@@ -210,13 +218,14 @@ def _training_sets(path: Path, mcfg: ModelsConfig, members=None):
                                       f"names for {scores.shape[1]} score components")
     else:
         log.warning("%s: no 'viewfuse.output_names' metadata; component names left empty", path)
-    return pool, X_by, S_by, angles, names, meta, passes, means
+    return pool, X_by, S_by, angles, names, meta, passes, means, members_by
 
 
 def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Sequence[str] = "all",
                       n_candidates: int = 4, candidates: str | Sequence[str] = "all", candidate_seed: int = 0,
                       progress: bool = True, candidate_folds: bool = False, class_members=None,
-                      fit_cache: dict | None = None, route: str = "batch") -> tuple[GPClassModels, dict[str, Any]]:
+                      fit_cache: dict | None = None, route: str = "batch",
+                      instance_term: bool = False) -> tuple[GPClassModels, dict[str, Any]]:
     """The models stage's pure function: features Parquet + [models] config + the candidate plan -> one
     model bank (every modelled class x every component any candidate set uses) and index extras.
 
@@ -225,9 +234,12 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
     ``fit_cache`` (shared by the banks of one stage run) and ``route``: ``fit_class_models``'s
     ``cache`` and ``route``.
+    ``instance_term``: fit the class models with an instance term on each class's member objects
+    (``pipeline.method.gp_instance_fit``; a class of one object gets none): an
+    ``InstanceGPClassModels`` bank, its records extended, ``instances`` in the extras.
     """
     path = Path(path)
-    pool, X_by, S_by, angles, names, meta, passes, means = _training_sets(path, mcfg, class_members)
+    pool, X_by, S_by, angles, names, meta, passes, means, members_by = _training_sets(path, mcfg, class_members)
     unknown = [] if isinstance(targets, str) else [t for t in targets if t not in pool]
     if unknown:
         raise ValueError(f"'evaluate.targets' names {unknown[0]!r}, which is not a modelled instance "
@@ -242,8 +254,11 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         p["component_names"] = None if names is None else [str(names[i]) for i in p["components"]]
     comp_names = None if names is None else [str(names[i]) for i in comps]
     floor = dropout_noise_floor(path, passes, pool, comps, mcfg.noise_bounds) if mcfg.noise_floor == "dropout" else None
-    models, diags = fit_class_models(
-        [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], pool, comps, restarts=mcfg.restarts,
+    fit, by_instance = ((fit_instance_models, {"instances_by_class": [members_by[c] for c in pool]}) if instance_term
+                        else (fit_class_models, {}))
+    models, diags = fit(
+        [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], classes=pool, components=comps, **by_instance,
+        restarts=mcfg.restarts,
         amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
         noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
         noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=tuple(mcfg.noise_prior), route=route,
@@ -273,6 +288,8 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         "varying_fits_at_bound": sum(1 for d in varying if d["at_bound"]),
         "varying_std_threshold": VARYING_STD,
     }
+    if instance_term:
+        extra["instances"] = {c: sorted(set(members_by[c])) for c in pool}
     return models, extra
 
 

@@ -67,6 +67,8 @@ CATALOG: dict[str, dict[str, Artifact]] = {
         "index": Artifact("index.json", "json", _BANK_W, _BANK_R, "a model bank's index"),
         "bank": Artifact("*.npz", "npz", _BANK_W, _BANK_R, "one GP class model per file"),
         "ablations": Artifact("ablations", "folder", _BANK_W, _BANK_R, "one model bank per ablation"),
+        "instance": Artifact("instance", "folder", _BANK_W, _BANK_R,
+                             "the class models with an instance term (models.instance_term)"),
         "dirichlet": Artifact("dirichlet", "folder", "pipeline.method.dirichlet:DirichletModels.save",
                               "pipeline.method.dirichlet:DirichletModels.load",
                               "the Dirichlet method's class models: index.json + theta.npz"),

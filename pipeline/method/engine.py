@@ -21,6 +21,7 @@ import numpy as np
 
 from pipeline.method import circle_basis as cb
 from pipeline.method.gp import GPClassModels
+from pipeline.method.gp_instance import instance_term
 
 _PLANS: "weakref.WeakKeyDictionary[GPClassModels, Plan]" = weakref.WeakKeyDictionary()
 _LOCK = threading.Lock()
@@ -66,7 +67,9 @@ class Plan:
             N = len(models.X[c])
             unit = on_circle and cb.unit_error(models.X[c]) <= cb.UNIT_TOL
             for f in range(F):
-                g = _basis_gp(models, c, f) if basis and unit else None
+                # A GP with an instance term (gp_instance.py) has a training covariance that is not
+                # one stationary kernel: the exact route only.
+                g = _basis_gp(models, c, f) if basis and unit and instance_term(models, c, f) is None else None
                 self.basis[c][f] = g if g is not None and _cheaper(g, N) else None
         self.P_max = max([g.P for row in self.basis for g in row if g is not None] or [0])
         self.members = [(c, f) for c, row in enumerate(self.basis) for f, g in enumerate(row) if g is not None]
@@ -223,6 +226,9 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt):
         np.exp(kk, out=kk)
         kk *= models.amplitude[c, f]
         kk[:, diag, diag] += models.test_noise[c, f]   # σ_n² + the test-domain δ² (gp.py)
+        inst = instance_term(models, c, f)
+        if inst is not None:   # an unseen instance's deviation, shared by every view (gp_instance.py)
+            kk += inst[0] * np.exp(D2tt * (-0.5 / (inst[1] * inst[1])))
         np.subtract(kk, S, out=cov)
         yield c, f, mu, cov, _NONE, _NO_W, pl.no_idx, pl.no_val, 0.0
 

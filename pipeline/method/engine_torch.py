@@ -16,6 +16,7 @@ import numpy as np
 
 from pipeline.method import circle_basis as cb
 from pipeline.method import engine
+from pipeline.method.gp_instance import instance_term
 
 _CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _LOCK = threading.Lock()
@@ -109,6 +110,9 @@ def predictive(tp: TorchPlan, X_np: np.ndarray):
             mu[:, c, f, :] = (V @ e["alpha"][f] + tp.mean[c, f]).reshape(B, K)
             V = (V @ e["linv"][f].T).reshape(B, K, N)
             kk = a * torch.exp(D2tt * (-0.5 / (ell * ell))) + tp.noise[c, f] * eye
+            inst = instance_term(models, c, f)
+            if inst is not None:   # an unseen instance's deviation, shared by every view (gp_instance.py)
+                kk = kk + inst[0] * torch.exp(D2tt * (-0.5 / (inst[1] * inst[1])))
             cov[:, c, f] = kk - V @ V.transpose(1, 2)
     return mu, cov
 

@@ -11,6 +11,10 @@ import numpy as np
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
 from pipeline.method.bank_index import inside, read_index, write_index
 from pipeline.method.gp import FORMAT, INDEX, KERNEL_TEXT, VERSION, GPClassModels, ModelFileError
+from pipeline.method.gp_instance import InstanceGPClassModels
+
+# The instance term's arrays (pipeline/method/gp_instance.py): in every class file of such a bank, or in none.
+INSTANCE_ARRAYS = ("instances", "instance_amplitude", "instance_length_scale")
 
 
 def save_bank(models, folder: str | Path, extra: dict | None = None) -> Path:
@@ -21,15 +25,18 @@ def save_bank(models, folder: str | Path, extra: dict | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     files = _file_names(self.classes)
     digests = {}
+    inst = isinstance(self, InstanceGPClassModels)
     for c, cls in enumerate(self.classes):
+        extra_arrays = {k: getattr(self, k)[c] for k in INSTANCE_ARRAYS} if inst else {}
         with atomic_path(folder / files[cls]) as tmp:
             with open(tmp, "wb") as fh:  # a file object: np.savez must not append ".npz"
                 np.savez(fh, X=self.X[c], Y=self.Y[c], mean=self.mean[c], amplitude=self.amplitude[c],
                          length_scale=self.length_scale[c], noise=self.noise[c],
-                         components=np.asarray(self.components, dtype=np.int64))
+                         components=np.asarray(self.components, dtype=np.int64), **extra_arrays)
             digests[files[cls]] = sha256_file(tmp)
     index = {
-        "format": FORMAT, "version": VERSION, "kernel": KERNEL_TEXT,
+        "format": FORMAT, "version": VERSION,
+        "kernel": KERNEL_TEXT + ("; plus b*exp(-|x-x'|^2/(2*lam^2)) within an instance" if inst else ""),
         "classes": self.classes, "components": self.components,
         "component_names": self.component_names, "input_dim": self.input_dim,
         "files": files, "sha256": digests, "hyperparameters": self.hyperparameters(), "meta": self.meta,
@@ -54,6 +61,7 @@ def load_bank(folder: str | Path) -> GPClassModels:
     index = read_bank_index(folder)
     comps = [int(i) for i in index["components"]]
     arrays: dict[str, list] = {k: [] for k in ("X", "Y", "mean", "amplitude", "length_scale", "noise")}
+    inst: dict[str, list] = {k: [] for k in INSTANCE_ARRAYS}
     for name in index["classes"]:
         fname = index["files"].get(name)
         if not isinstance(fname, str) or not fname or "/" in fname or "\\" in fname:
@@ -73,11 +81,22 @@ def load_bank(folder: str | Path) -> GPClassModels:
             raise ModelFileError(path, f"components {data['components'].tolist()} differ from the index {comps}")
         for k in arrays:
             arrays[k].append(data[k])
+        has = {k in data for k in INSTANCE_ARRAYS}
+        if len(has) > 1 or (len(arrays["X"]) > 1 and has != {bool(inst["instances"])}):
+            raise ModelFileError(path, f"the instance term's arrays ({', '.join(INSTANCE_ARRAYS)}) must be in every "
+                                       "class file of a bank or in none")
+        for k in INSTANCE_ARRAYS:
+            if k in data:
+                inst[k].append(data[k])
     try:
-        return GPClassModels(index["classes"], comps, arrays["X"], arrays["Y"],
-                   np.stack(arrays["mean"]), np.stack(arrays["amplitude"]),
-                   np.stack(arrays["length_scale"]), np.stack(arrays["noise"]),
-                   component_names=index.get("component_names"), meta=index.get("meta"))
+        plain = GPClassModels(index["classes"], comps, arrays["X"], arrays["Y"],
+                              np.stack(arrays["mean"]), np.stack(arrays["amplitude"]),
+                              np.stack(arrays["length_scale"]), np.stack(arrays["noise"]),
+                              component_names=index.get("component_names"), meta=index.get("meta"))
+        if not inst["instances"]:
+            return plain
+        return InstanceGPClassModels.from_plain(plain, inst["instances"], np.stack(inst["instance_amplitude"]),
+                                                np.stack(inst["instance_length_scale"]))
     except ValueError as e:
         raise ModelFileError(folder, f"inconsistent model files: {e}") from None
 

@@ -8,7 +8,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
-NEEDS = frozenset({"gp", "dirichlet", "scores", "probs"})
+NEEDS = frozenset({"gp", "gp_instance", "dirichlet", "scores", "probs"})
 ENTRY_POINT_GROUP = "viewfuse.methods"
 # The method every other (non-attribution) method is paired against in the population.
 REFERENCE = "with_uncertainty"
@@ -24,6 +24,7 @@ class TrackInput:
     stream for methods that draw (seeded by the cell's identity, not by the setting)."""
     dropout: np.ndarray                    # (K, N_s, F) MC-dropout scores of the GP components
     gp: object | None = None               # GPClassModels of the candidates
+    gp_instance: object | None = None      # InstanceGPClassModels of the candidates (pipeline/method/gp_instance.py)
     dirichlet: object | None = None        # DirichletModels of the candidates
     own: np.ndarray | None = None          # (K, N_s, C) each candidate's own score
     probs: np.ndarray | None = None        # (K, N_s, D) whole probability vectors
@@ -41,7 +42,8 @@ class TrackInput:
         return self.dropout.mean(axis=1)
 
     def has(self, need: str) -> bool:
-        return {"gp": self.gp, "dirichlet": self.dirichlet, "scores": self.own, "probs": self.probs}[need] is not None
+        return {"gp": self.gp, "gp_instance": self.gp_instance, "dirichlet": self.dirichlet, "scores": self.own,
+                "probs": self.probs}[need] is not None
 
 
 class FusionMethod:

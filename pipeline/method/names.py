@@ -8,6 +8,8 @@ from __future__ import annotations
 WITH_UNCERTAINTY = "with_uncertainty"
 MODEL_BASED = "model_based"
 SIMPLE_BAYES = "simple_bayes"
+WU_INSTANCE = "with_uncertainty_instance"   # the class models with an instance term (gp_instance.py)
+MB_INSTANCE = "model_based_instance"
 DIRICHLET = "dirichlet"  # Tchuiev & Indelman 2018 (pipeline/method/dirichlet_fusion.py)
 # Attribution variants of With Uncertainty (one ingredient each), evaluated beside the methods.
 WU_POSES_ONLY = "with_uncertainty_poses_only"       # dropout samples replaced by their mean

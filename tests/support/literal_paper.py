@@ -10,6 +10,11 @@ the benchmark: it is O(K⁴) per localization sample and far slower than the eng
 Models are given as plain arrays so that nothing here depends on ``pipeline.method.gp``:
 ``XT[c]`` (N_c, d) training inputs of class c, ``ST[c]`` (F, N_c) training targets, and
 ``m, amp, ell, sn2`` (C, F) with k(x, x') = amp·exp(-|x - x'|² / (2 ell²)) plus white noise sn2.
+
+``inst`` (optional, every function): the instance term of docs/design.md §5, "Instances differ", as
+``(labels, b, lam)``: ``labels[c]`` (N_c,) the training views' instances, ``b, lam`` (C, F) the
+instance kernel's amplitude and length scale (b = 0: none). Training views of one instance share
+k_h; the test views are one unseen instance, so k_h joins their covariance and not the cross terms.
 """
 from __future__ import annotations
 
@@ -24,17 +29,28 @@ def _kernel(A: np.ndarray, B: np.ndarray, amp: float, ell: float) -> np.ndarray:
     return amp * np.exp(-np.sum(diff * diff, axis=-1) / (2.0 * ell * ell))
 
 
-def gp_joint(XT, ST, m, amp, ell, sn2, X):
+def gp_joint(XT, ST, m, amp, ell, sn2, X, inst=None):
     """Eq. 13-16 for one (class, component): mean (K,) and covariance (K, K) at inputs X.
 
     μ = m + K(X,X_T) H (S_T - m),  Σ = K(X,X) + σ_n² I - K(X,X_T) H K(X_T,X),
     H = (K(X_T,X_T) + σ_n² I)⁻¹; test measurements carry the same white noise σ_n².
+    With ``inst = (labels (N,), b, lam)`` (one GP's): K(X_T,X_T) gains same-instance k_h, K(X,X) gains k_h.
     """
-    H = np.linalg.inv(_kernel(XT, XT, amp, ell) + sn2 * np.eye(len(XT)))
+    KT, KX = _kernel(XT, XT, amp, ell), _kernel(X, X, amp, ell)
+    if inst is not None and inst[1] > 0:
+        labels, b, lam = inst
+        KT = KT + (np.asarray(labels)[:, None] == np.asarray(labels)[None, :]) * _kernel(XT, XT, b, lam)
+        KX = KX + _kernel(X, X, b, lam)
+    H = np.linalg.inv(KT + sn2 * np.eye(len(XT)))
     Ks = _kernel(X, XT, amp, ell)
     mu = m + Ks @ H @ (ST - m)
-    cov = _kernel(X, X, amp, ell) + sn2 * np.eye(len(X)) - Ks @ H @ Ks.T
+    cov = KX + sn2 * np.eye(len(X)) - Ks @ H @ Ks.T
     return mu, cov
+
+
+def _one(inst, c, i):
+    """The instance term of GP (c, i) for ``gp_joint``, or None."""
+    return None if inst is None else (inst[0][c], float(inst[1][c, i]), float(inst[2][c, i]))
 
 
 def _normal_pdf(x: float, mean: float, var: float) -> float:
@@ -61,13 +77,14 @@ def _paper_integral(s, a, Omega, Sigma_s, mu_z, Sigma_z):
     return float(norm * math.exp(expo))
 
 
-def _likelihood_uncertainty(XT, ST, m, amp, ell, sn2, track, dropout, k, c, var_floor):
+def _likelihood_uncertainty(XT, ST, m, amp, ell, sn2, track, dropout, k, c, var_floor, inst=None):
     """P(s | c, past) for one localization sample's track at step k, for every dropout sample s
     of step k: array (N_s,)."""
     F = ST[c].shape[0]
     p = np.ones(len(dropout[k]))
     for i in range(F):  # components are independent (Eq. 17)
-        mu, cov = gp_joint(XT[c], ST[c][i], m[c, i], amp[c, i], ell[c, i], sn2[c, i], track[:k + 1])
+        mu, cov = gp_joint(XT[c], ST[c][i], m[c, i], amp[c, i], ell[c, i], sn2[c, i], track[:k + 1],
+                           _one(inst, c, i))
         if k == 0:
             p *= [_normal_pdf(s[i], mu[0], cov[0, 0]) for s in dropout[k]]
             continue
@@ -84,12 +101,12 @@ def _likelihood_uncertainty(XT, ST, m, amp, ell, sn2, track, dropout, k, c, var_
 
 
 def posterior_uncertainty_sample(XT, ST, m, amp, ell, sn2, track, dropout, upto, prior=None,
-                                 var_floor=1e-6):
+                                 var_floor=1e-6, inst=None):
     """P(c | H_upto) for one localization sample, recursion run from step 0 (Eq. 20-26)."""
     C = len(ST)
     post = np.full(C, 1.0 / C) if prior is None else np.asarray(prior, float) / np.sum(prior)
     for k in range(upto + 1):
-        lik = np.array([_likelihood_uncertainty(XT, ST, m, amp, ell, sn2, track, dropout, k, c, var_floor)
+        lik = np.array([_likelihood_uncertainty(XT, ST, m, amp, ell, sn2, track, dropout, k, c, var_floor, inst)
                         for c in range(C)])                     # (C, N_s)
         new = np.zeros(C)
         for j in range(len(dropout[k])):                        # h_c(s) normalised over c, per s
@@ -99,7 +116,7 @@ def posterior_uncertainty_sample(XT, ST, m, amp, ell, sn2, track, dropout, upto,
     return post
 
 
-def literal_uncertainty(XT, ST, m, amp, ell, sn2, rel_samples, dropout, prior=None, var_floor=1e-6):
+def literal_uncertainty(XT, ST, m, amp, ell, sn2, rel_samples, dropout, prior=None, var_floor=1e-6, inst=None):
     """Model with Uncertainty after every step: (K, C), the mean over localization samples (Eq. 42).
 
     Each step's posterior is recomputed from scratch (recursion from step 0, every GP prediction
@@ -110,12 +127,12 @@ def literal_uncertainty(XT, ST, m, amp, ell, sn2, rel_samples, dropout, prior=No
     for k in range(K):
         for x in range(Nx):
             out[k] += posterior_uncertainty_sample(XT, ST, m, amp, ell, sn2, rel_samples[x], dropout,
-                                                   k, prior, var_floor)
+                                                   k, prior, var_floor, inst)
         out[k] /= Nx
     return out
 
 
-def literal_model_based(XT, ST, m, amp, ell, sn2, track, meas, prior=None):
+def literal_model_based(XT, ST, m, amp, ell, sn2, track, meas, prior=None, inst=None):
     """Model Based (Teacy et al.): one pose estimate track (K, d), one measurement (K, F) per step.
 
     P(z_k | c, z_past) = Π_i N(z_k; μ_k + Ω (z_past - μ_past), Σ_{k|past}); recursion from scratch.
@@ -130,7 +147,7 @@ def literal_model_based(XT, ST, m, amp, ell, sn2, track, meas, prior=None):
             for c in range(C):
                 for i in range(F):
                     mu, cov = gp_joint(XT[c], ST[c][i], m[c, i], amp[c, i], ell[c, i], sn2[c, i],
-                                       track[:k + 1])
+                                       track[:k + 1], _one(inst, c, i))
                     if k == 0:
                         lik[c] *= _normal_pdf(meas[0, i], mu[0], cov[0, 0])
                         continue

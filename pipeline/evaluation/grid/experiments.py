@@ -73,9 +73,11 @@ def add_seconds(*parts: dict[str, float]) -> dict[str, float]:
 
 def track_input(models, track: TrackData, *, var_floor: float, estimates: np.ndarray | None = None,
                 samples: np.ndarray | None = None, dirichlet=None, n_ss: int = 100,
-                rng: np.random.Generator | None = None) -> registry.TrackInput:
-    """What the registered methods read of one track (``pipeline.method.registry.TrackInput``)."""
-    return registry.TrackInput(dropout=track.dropout, gp=models, dirichlet=dirichlet, own=track.own, probs=track.probs,
+                rng: np.random.Generator | None = None, gp_instance=None) -> registry.TrackInput:
+    """What the registered methods read of one track (``pipeline.method.registry.TrackInput``);
+    ``gp_instance``: the candidates' models with an instance term, where the run has them."""
+    return registry.TrackInput(dropout=track.dropout, gp=models, gp_instance=gp_instance, dirichlet=dirichlet,
+                               own=track.own, probs=track.probs,
                                estimates=estimates, samples=samples, inputs=track.inputs, var_floor=var_floor,
                                n_ss=n_ss, rng=rng)
 
@@ -96,11 +98,12 @@ def pose_free(t: registry.TrackInput, rng: Callable[[str], np.random.Generator] 
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
-              fixed: dict[str, np.ndarray] | None = None) -> Posteriors:
+              fixed: dict[str, np.ndarray] | None = None, gp_instance=None) -> Posteriors:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
     draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
-    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, fixed=fixed)
+    return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, fixed=fixed,
+                      gp_instance=gp_instance)
 
 
 def _timed(fn, *args, **kw):
@@ -111,7 +114,8 @@ def _timed(fn, *args, **kw):
 
 
 def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
-               attribution: bool = False, fixed: dict[str, np.ndarray] | None = None) -> Posteriors:
+               attribution: bool = False, fixed: dict[str, np.ndarray] | None = None,
+               gp_instance=None) -> Posteriors:
     """Every registered method that applies on realizations of pose estimates (R, K, 2) and their
     localization samples (R, N_x, K, 2) -> log posteriors (R, K, C) each, in registry order.
 
@@ -132,7 +136,7 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
     counted where it was fused).
     """
     r, seconds = len(estimates), {}
-    t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples)
+    t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples, gp_instance=gp_instance)
     out = {}
     for m in registry.methods(attribution=attribution):
         if m.uses_poses:
@@ -151,11 +155,12 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
 
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
-           *, var_floor: float, attribution: bool = False, fixed: dict[str, np.ndarray] | None = None
-           ) -> Posteriors:
+           *, var_floor: float, attribution: bool = False, fixed: dict[str, np.ndarray] | None = None,
+           gp_instance=None) -> Posteriors:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
-    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, fixed=fixed)
+    return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, fixed=fixed,
+                     gp_instance=gp_instance)
 
 
 # With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
@@ -167,7 +172,7 @@ BATCH_TRAJECTORIES = 100_000
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
                progress: Callable[[int], None] | None = None, attribution: bool = False,
-               fixed: dict[str, np.ndarray] | None = None) -> Posteriors:
+               fixed: dict[str, np.ndarray] | None = None, gp_instance=None) -> Posteriors:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
 
     The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
@@ -185,7 +190,8 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
         est, smp = np.concatenate(est_parts), np.concatenate(smp_parts)
         est_parts.clear()
         smp_parts.clear()
-        fused = fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution, fixed=fixed)
+        fused = fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution, fixed=fixed,
+                           gp_instance=gp_instance)
         for m, v in fused.items():
             out.setdefault(m, []).append(v)
         seconds.append(fused.seconds)
@@ -257,11 +263,12 @@ def gp_rasters(models, *, grid_n: int = 61, extent: float = 1.5, ring_n: int = 1
 
 
 def single_view_first(models, track: TrackData, truth: int, *, var_floor: float = 1e-6,
-                      dirichlet=None) -> dict[str, float]:
+                      dirichlet=None, gp_instance=None) -> dict[str, float]:
     """How hard a track is: per method, the share of its views whose posterior from that view
     alone, at the true pose, ranks the truth first (1 = every view alone is enough). A method
     without a single-view reading (``single_view`` returns None, the default) has no entry."""
-    t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], dirichlet=dirichlet)
+    t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], dirichlet=dirichlet,
+                    gp_instance=gp_instance)
     out = {}
     for m in registry.methods(attribution=False):
         one = call_checked(m, "single_view", t) if m.applies(t) else None

@@ -23,6 +23,8 @@ from pipeline.scene.rays import TrackError, facing_error
 
 
 DEFAULT = "default"   # the model-bank variant without an ablation override
+# The banks' key of the default plan's models with an instance term (models.instance_term), when fitted.
+INSTANCE_BANK = "instance_term"
 
 
 @dataclass(frozen=True)
@@ -262,8 +264,12 @@ def run_cell(banks, cell: Cell) -> dict:
 
 def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
+    # The instance bank was fitted with the default [models]: a variant with other models has none.
+    inst = banks.get(INSTANCE_BANK) if banks[cell.variant] is banks[DEFAULT] else None
+    inst = None if inst is None else inst.subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
+        inst = None if inst is None else inst.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
     fixed, extras = pose_free_track(cell, models)
     posts: dict = {}
     for s in cell.settings:
@@ -271,13 +277,13 @@ def _run_cell(banks, cell: Cell) -> dict:
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
                                                       var_floor=cell.var_floor, attribution=cell.attribution,
-                                                      fixed=fixed)
+                                                      fixed=fixed, gp_instance=inst)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
                                                           rng, var_floor=cell.var_floor, attribution=cell.attribution,
-                                                          fixed=fixed)
-    diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, dirichlet=cell.dirichlet)
-            if cell.difficulty else None)
+                                                          fixed=fixed, gp_instance=inst)
+    diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, dirichlet=cell.dirichlet,
+                                gp_instance=inst) if cell.difficulty else None)
     seconds = E.add_seconds(fixed.seconds, *(p.seconds for p in posts.values()))
     return {"posts": posts, "difficulty": diff, "seconds": seconds, **extras}
 
