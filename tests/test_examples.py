@@ -30,6 +30,10 @@ def test_example_runs(path, tmp_path):
 def test_custom_method_example_reaches_the_comparison(tmp_path):
     r = _run([str(ROOT / "examples" / "custom_method.py")], cwd=tmp_path, env_extra={"PYTHONPATH": str(ROOT)})
     assert "majority_vote " in r.stdout and "with_uncertainty vs majority_vote" in r.stdout, r.stdout + r.stderr[-2000:]
+    # registered at the top of the script, before the built-ins loaded: listed after them all
+    order = next(line for line in r.stdout.splitlines() if line.startswith("methods in order:"))
+    keys = order.partition(":")[2].replace(" ", "").split(",")
+    assert keys[0] == "with_uncertainty" and keys[-1] == "majority_vote", order
 
 
 def test_the_installed_environment_imports_viewfuse_from_anywhere(tmp_path):
