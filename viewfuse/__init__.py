@@ -1,7 +1,7 @@
 """viewfuse's public Python API: the names a researcher uses to fit class models on their own
 data, fuse their own track with any registered method, add a method, classifier, planner or metric
-of their own (docs/extending.md), and evaluate a population. Everything else in the project (the top-level ``pipeline``, ``loaders``, ``reports``
-and ``stages`` packages) is internal and may change; import from here (docs/api.md).
+of their own (docs/extending.md), and evaluate a population. Everything else in the project (the
+top-level ``pipeline``, ``loaders``, ``reports`` and ``stages`` packages) is internal and may change; import from here (docs/api.md).
 
     import viewfuse as vf
     models = vf.fit_models({"mug": (angles, scores), ...})

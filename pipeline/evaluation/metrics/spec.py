@@ -227,7 +227,8 @@ def register_metric(key: str, metric: Metric, *, module: str | None = None) -> M
                          f"{metric.steps!r} not 'final'/'all', or pool {metric.pool!r} not in {POOLS}")
     old = METRICS.peek(key)
     if old is not None and old != metric:
-        raise RegistryError(f"metric {key!r} is registered twice ({METRICS.module_of(key)}, {module or caller_module()})")
+        raise RegistryError(f"metric {key!r} is registered twice "
+                            f"({METRICS.module_of(key)}, {module or caller_module()})")
     return METRICS.add(key, metric, module=module or caller_module(), replace=True)
 
 

@@ -4,10 +4,13 @@ loads, describes or checks a classifier asks its entry instead of testing the na
 An entry is one ``Classifier`` subclass, registered with ``@register_classifier`` (a plain name,
 e.g. ``alexnet``): a module of this package (found by discovery: a new built-in is its file alone),
 an entry point of the group ``viewfuse.classifiers`` of an installed package (loaded on first use,
-in every process, Ray workers included), or a script's own call; or through a family factory (``register_family("torchvision", ...)`` serves
-``torchvision:<model>``). Entry modules stay light (torch is imported inside their methods), so
+in every process, Ray workers included), or a script's own call; or through a family factory
+(``register_family("torchvision", ...)`` serves ``torchvision:<model>``). Entry modules stay light (torch is imported inside their methods), so
 checking a config does not load the networks.
 
+An entry declares in its class what the rest of the pipeline needs of it: the card keys that change
+a score (``card_fields``, with ``card_extra``), its training footprint (``params``,
+``activations_224``), its checks of the ``[classifier]`` section (``config_problems``, ``notes``).
 The MC-dropout site is declared by what ``build`` returns: a network with ``trunk(x)`` and
 ``head_layers()`` (the trunk runs once per crop, the head's Dropout layers are resampled), or
 torchvision's ``features -> avgpool -> flatten | classifier`` layout (``pipeline.scoring.mc_dropout``).
@@ -19,6 +22,7 @@ from pathlib import Path
 
 from pipeline.infra.config.checks import ARCH_NAME
 from pipeline.infra.config.fields import ConfigError
+from pipeline.infra.footprints import ACT_PER_IMAGE_224, ALEXNET_PARAMS
 from pipeline.infra.registry import Registry
 
 
@@ -35,6 +39,13 @@ class Classifier:
     trains = False      # weights = 'synthetic' trains it on the synthetic source domain
     imagenet = False    # weights = 'imagenet' has a local file (never downloaded)
     mc_dropout_site = ""  # where the MC-dropout masks act, in words
+    # card keys of this entry's own (from ``card_extra``) that change a score: the card hash, hence
+    # the features stage's key, holds them (the common keys are ``pipeline.scoring.card.card_hash``'s)
+    card_fields: tuple[str, ...] = ()
+    # training's memory footprint (``pipeline.infra.footprints.classifier_training``): parameters,
+    # and fp32 activations + gradients per image at 224 px; AlexNet's unless declared
+    params = ALEXNET_PARAMS
+    activations_224 = ACT_PER_IMAGE_224
 
     def build(self, num_classes: int, dropout: float, drop_connect: float = 0.0):
         """A fresh (untrained) network with ``num_classes`` outputs and head dropout p."""
