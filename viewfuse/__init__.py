@@ -19,9 +19,11 @@ from pipeline.method.registry import FusionMethod, TrackInput, comparisons, regi
 from pipeline.evaluation.metrics.spec import Metric, register_metric, unregister_metric  # noqa: E402
 from pipeline.planning.planners import Planner, register_planner, unregister_planner  # noqa: E402
 from pipeline.scoring.classifiers import Classifier, register_classifier, unregister_classifier  # noqa: E402
+from pipeline.scoring.classifiers import names as classifiers  # noqa: E402
+from viewfuse.scoring import mc_dropout_scores  # noqa: E402
 from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
 
 __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "method", "comparisons",
            "GPClassModels", "DirichletModels", "fit_models", "fuse", "track_metrics", "evaluate_population",
-           "Classifier", "register_classifier", "unregister_classifier", "Planner", "register_planner",
-           "unregister_planner", "Metric", "register_metric", "unregister_metric"]
+           "Classifier", "classifiers", "register_classifier", "unregister_classifier", "Planner", "register_planner",
+           "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores"]
