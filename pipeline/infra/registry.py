@@ -87,6 +87,13 @@ class Registry(Mapping, Generic[T]):
         if self._loaded:
             return
         self._loaded = True  # before importing: modules that register look the registry up
+        try:
+            self._load_all()
+        except BaseException:
+            self._loaded = False  # a failed load is not a loaded registry: the next use retries and fails alike
+            raise
+
+    def _load_all(self) -> None:
         pkg = importlib.import_module(self.builtin)
         for info in sorted(pkgutil.iter_modules(getattr(pkg, "__path__", [])), key=lambda i: i.name):
             if not info.name.startswith("_"):

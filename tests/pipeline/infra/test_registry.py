@@ -79,3 +79,12 @@ def test_the_fingerprint_holds_the_entries_the_code_key_cannot_see(monkeypatch):
     assert fp.startswith("mine=") and len(fp) == len("mine=") + 16
     reg.remove("mine")
     assert reg.outside_fingerprint() == ""
+
+
+def test_a_failed_load_is_retried_not_taken_as_loaded(monkeypatch):
+    monkeypatch.setitem(sys.modules, "fake_builtins", types.ModuleType("fake_builtins"))
+    _entry_points(monkeypatch, [EP("test.things", "bad", "pkg.bad:X", ImportError("nothere"))])
+    reg = Registry("thing", "test.things", "fake_builtins")
+    for _ in range(2):
+        with pytest.raises(RegistryError, match="nothere"):
+            len(reg)
