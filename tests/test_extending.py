@@ -109,7 +109,10 @@ out["expected"] = float(np.mean([np.exp(lp[-1, i]) ** 2 for i in range(3)]))
 # the cache keys
 from pipeline.method.registry import outside_fingerprint
 from stages.framework.outside import outside_parts
-out["keys"] = {s: outside_parts(s) for s in ("classifier", "features", "evaluate", "simulate", "report")}
+from types import SimpleNamespace
+cfg = SimpleNamespace(classifier=SimpleNamespace(arch="outside_tiny"))
+out["keys"] = {s: outside_parts(cfg, s) for s in ("classifier", "features", "evaluate", "simulate", "report")}
+out["alexnet_key"] = outside_parts(SimpleNamespace(classifier=SimpleNamespace(arch="alexnet")), "classifier")
 out["method_key"] = outside_fingerprint()
 print("PROBE " + json.dumps(out))
 '''
@@ -140,6 +143,7 @@ def test_a_classifier_from_an_entry_point_lists_after_the_builtins_and_scores(ou
     assert det == [2, 3] and mc == [2, 5, 3] and spread > 1e-4   # the head's Dropout samples
     assert set(outside["keys"]["classifier"]) == {"classifiers"}
     assert outside["keys"]["classifier"]["classifiers"].startswith("outside_tiny=")
+    assert outside["alexnet_key"] == {}   # a run with another arch: its key does not move
 
 
 def test_a_planner_from_an_entry_point_lists_after_the_builtins_and_plans(outside):
@@ -166,8 +170,9 @@ def test_an_entry_point_that_does_not_load_is_named(tmp_path):
 
 
 def test_without_outside_entries_the_stage_keys_gain_nothing(tmp_path):
-    code = ("from stages.framework.outside import outside_parts; from pipeline.method.registry import "
-            "outside_fingerprint; print(repr([outside_parts(s) for s in ('classifier', 'evaluate', 'simulate')]), "
+    code = ("from types import SimpleNamespace as N; from stages.framework.outside import outside_parts; "
+            "from pipeline.method.registry import outside_fingerprint; cfg = N(classifier=N(arch='alexnet')); "
+            "print(repr([outside_parts(cfg, s) for s in ('classifier', 'evaluate', 'simulate')]), "
             "repr(outside_fingerprint()))")
     r = run_with(None, code, tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]

@@ -139,9 +139,11 @@ class Registry(Mapping, Generic[T]):
         """Entries whose module the stages' static code key does not cover, in order."""
         return [n for n in self._order() if self._modules[n] not in self.static]
 
-    def outside_fingerprint(self) -> str:
-        """``name=sha256(module source)[:16]`` of every ``outside`` entry, joined by ``;``."""
-        return ";".join(f"{n}={source_digest(self._modules[n], self._entries[n])}" for n in self.outside())
+    def outside_fingerprint(self, names=None) -> str:
+        """``name=sha256(module source)[:16]`` of every ``outside`` entry (of those in ``names``,
+        when given: the ones a run uses), joined by ``;``."""
+        return ";".join(f"{n}={source_digest(self._modules[n], self._entries[n])}" for n in self.outside()
+                        if names is None or n in names)
 
 
 def source_digest(module: str, entry: Any) -> str:

@@ -7,20 +7,22 @@ from __future__ import annotations
 
 import importlib
 
-# kind -> (module holding the registry, its attribute, the stages whose output it changes)
+# kind -> (module holding the registry, its attribute, the stages whose output it changes, the
+# entries a run uses given its config: None = every registered one)
 KINDS = {
-    "classifiers": ("pipeline.scoring.classifiers", "REGISTRY", ("classifier",)),
-    "planners": ("pipeline.planning.planners", "PLANNERS", ("evaluate",)),
-    "metrics": ("pipeline.evaluation.metrics.spec", "METRICS", ("evaluate", "simulate")),
+    "classifiers": ("pipeline.scoring.classifiers", "REGISTRY", ("classifier",), lambda cfg: {cfg.classifier.arch}),
+    "planners": ("pipeline.planning.planners", "PLANNERS", ("evaluate",), lambda cfg: None),
+    "metrics": ("pipeline.evaluation.metrics.spec", "METRICS", ("evaluate", "simulate"), lambda cfg: None),
 }
 
 
-def outside_parts(stage: str) -> dict[str, str]:
-    """``{kind: fingerprint}`` of the kinds with outside entries that change ``stage``."""
+def outside_parts(cfg, stage: str) -> dict[str, str]:
+    """``{kind: fingerprint}`` of the kinds with outside entries that change ``stage`` (a
+    classifier only when ``classifier.arch`` names it: every planner and metric runs)."""
     out = {}
-    for kind, (module, attr, stages) in KINDS.items():
+    for kind, (module, attr, stages, used) in KINDS.items():
         if stage in stages:
-            fp = getattr(importlib.import_module(module), attr).outside_fingerprint()
+            fp = getattr(importlib.import_module(module), attr).outside_fingerprint(used(cfg))
             if fp:
                 out[kind] = fp
     return out

@@ -97,7 +97,7 @@ def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[s
         from pipeline.method.registry import outside_fingerprint
 
         parts["methods"] = outside_fingerprint()
-    parts.update(outside_parts(spec.name))   # classifiers, planners, metrics from outside
+    parts.update(outside_parts(cfg, spec.name))   # classifiers, planners, metrics from outside
     return hash_json(parts), {**parts, "code_modules": per_module}
 
 
