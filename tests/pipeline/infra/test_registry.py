@@ -10,6 +10,8 @@ import pytest
 
 from pipeline.infra.registry import Registry, RegistryError
 
+REG: Registry | None = None   # the registry the discovery test's modules register into
+
 
 def _entry_points(monkeypatch, eps):
     import importlib.metadata
@@ -88,3 +90,20 @@ def test_a_failed_load_is_retried_not_taken_as_loaded(monkeypatch):
     for _ in range(2):
         with pytest.raises(RegistryError, match="nothere"):
             len(reg)
+
+
+def test_every_module_of_the_builtin_folder_is_discovered(monkeypatch, tmp_path):
+    """A new built-in is its file alone: ``load`` imports each module of the folder, in name order."""
+    _entry_points(monkeypatch, [])
+    pkg = tmp_path / "fake_folder_pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    for name in ("zz_last", "aa_first", "_private"):
+        (pkg / f"{name}.py").write_text(f"from tests.pipeline.infra.test_registry import REG\n"
+                                        f"REG.add({name!r}, 1, module=__name__)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for m in [m for m in sys.modules if m.startswith("fake_folder_pkg")]:
+        monkeypatch.delitem(sys.modules, m)
+    global REG
+    REG = Registry("thing", "test.things", "fake_folder_pkg")
+    assert list(REG) == ["aa_first", "zz_last"] and REG.is_builtin("zz_last")
