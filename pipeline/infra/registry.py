@@ -70,6 +70,12 @@ class Registry(Mapping, Generic[T]):
         self._entries.pop(name, None)
         self._modules.pop(name, None)
 
+    def pop(self, name: str, default=None):
+        """Remove ``name`` and return its entry (``default`` when there is none)."""
+        entry = self._entries.get(name, default)
+        self.remove(name)
+        return entry
+
     def peek(self, name: str) -> T | None:
         """The entry under ``name`` without loading anything (for registering code)."""
         return self._entries.get(name)
