@@ -29,6 +29,9 @@ class MajorityVote(vf.FusionMethod):
         return np.log(votes / votes.sum(axis=1, keepdims=True))
 
 
+# Registered above, before anything loaded the built-ins: it still lists after them.
+print("methods in order:", ", ".join(vf.methods()))
+
 rng = np.random.default_rng(0)
 CLASSES = ("mug", "bowl", "can")
 angles = np.linspace(0.0, 2 * np.pi, 36, endpoint=False)

@@ -85,14 +85,23 @@ def run(ctx) -> str:
     return _file_weights(ctx, device)
 
 
+def _footprint(c) -> tuple[float, float]:
+    """The arch's declared training footprint: (parameters, activations per image at 224 px)."""
+    from pipeline.scoring.classifiers import classifier
+
+    entry = classifier(c.arch)
+    return entry.params, entry.activations_224
+
+
 def _check_budget(cfg) -> None:
     """The training set lives in memory whole (it is reshuffled every epoch): refuse before rendering."""
     from pipeline.infra import footprints
     from pipeline.infra.budget import budget, require
 
     c, t = cfg.classifier, cfg.classifier.training
-    require("classifier.training.train_images", t.train_images, footprints.classifier_training(c), budget(cfg),
-            f"the in-memory training set ({t.train_images} + {t.val_images} images of {c.input_size} px) and AlexNet")
+    require("classifier.training.train_images", t.train_images, footprints.classifier_training(c, *_footprint(c)),
+            budget(cfg), f"the in-memory training set ({t.train_images} + {t.val_images} images of "
+                         f"{c.input_size} px) and the network")
 
 
 def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
@@ -201,7 +210,7 @@ def _train_synthetic(ctx, device: str) -> str:
     limit = budget(ctx.cfg)
     t = dataclasses.replace(t, render_workers=cap_workers("classifier.training.render_workers", t.render_workers,
                                                           footprints.render_worker(c), limit,
-                                                          parent=footprints.classifier_training(c)))
+                                                          parent=footprints.classifier_training(c, *_footprint(c))))
     names = category_names(t.categories)
     timings, cpu = {}, {}
     t0, c0 = time.perf_counter(), _cpu_s()

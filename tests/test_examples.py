@@ -17,7 +17,7 @@ def _run(args, cwd, env_extra=None, timeout=900):
 
 
 def test_there_are_examples():
-    assert {p.name for p in EXAMPLES} >= {"fuse_arrays.py", "custom_method.py"}
+    assert {p.name for p in EXAMPLES} >= {"fuse_arrays.py", "custom_method.py", "custom_classifier.py"}
 
 
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.name)
@@ -25,11 +25,18 @@ def test_example_runs(path, tmp_path):
     r = _run([str(path)], cwd=tmp_path, env_extra={"PYTHONPATH": str(ROOT)})
     assert r.returncode == 0, r.stderr[-3000:]
     assert "P(final)" in r.stdout or "95 % CI" in r.stdout, r.stdout
+    if path.name == "custom_classifier.py":   # registered by the script: listed after the built-ins
+        assert "classifiers: alexnet, efficientnet_lite0, " in r.stdout
+        assert "mobilenet_small_example\n" in r.stdout, r.stdout
 
 
 def test_custom_method_example_reaches_the_comparison(tmp_path):
     r = _run([str(ROOT / "examples" / "custom_method.py")], cwd=tmp_path, env_extra={"PYTHONPATH": str(ROOT)})
     assert "majority_vote " in r.stdout and "with_uncertainty vs majority_vote" in r.stdout, r.stdout + r.stderr[-2000:]
+    # registered at the top of the script, before the built-ins loaded: listed after them all
+    order = next(line for line in r.stdout.splitlines() if line.startswith("methods in order:"))
+    keys = order.partition(":")[2].replace(" ", "").split(",")
+    assert keys[0] == "with_uncertainty" and keys[-1] == "majority_vote", order
 
 
 def test_the_installed_environment_imports_viewfuse_from_anywhere(tmp_path):

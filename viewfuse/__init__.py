@@ -1,7 +1,7 @@
 """viewfuse's public Python API: the names a researcher uses to fit class models on their own
-data, fuse their own track with any registered method, add a method of their own, and evaluate a
-population. Everything else in the project (the top-level ``pipeline``, ``loaders``, ``reports``
-and ``stages`` packages) is internal and may change; import from here (docs/api.md).
+data, fuse their own track with any registered method, add a method, classifier, planner or metric
+of their own (docs/extending.md), and evaluate a population. Everything else in the project (the
+top-level ``pipeline``, ``loaders``, ``reports`` and ``stages`` packages) is internal and may change; import from here (docs/api.md).
 
     import viewfuse as vf
     models = vf.fit_models({"mug": (angles, scores), ...})
@@ -16,7 +16,14 @@ check_install()
 from pipeline.method.dirichlet import DirichletModels  # noqa: E402
 from pipeline.method.gp import GPClassModels  # noqa: E402
 from pipeline.method.registry import FusionMethod, TrackInput, comparisons, register, unregister  # noqa: E402
+from pipeline.evaluation.metrics.spec import Metric, register_metric, unregister_metric  # noqa: E402
+from pipeline.planning.planners import Planner, register_planner, unregister_planner  # noqa: E402
+from pipeline.scoring.classifiers import Classifier, register_classifier, unregister_classifier  # noqa: E402
+from pipeline.scoring.classifiers import names as classifiers  # noqa: E402
+from viewfuse.scoring import mc_dropout_scores  # noqa: E402
 from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
 
 __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "method", "comparisons",
-           "GPClassModels", "DirichletModels", "fit_models", "fuse", "track_metrics", "evaluate_population"]
+           "GPClassModels", "DirichletModels", "fit_models", "fuse", "track_metrics", "evaluate_population",
+           "Classifier", "classifiers", "register_classifier", "unregister_classifier", "Planner", "register_planner",
+           "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores"]

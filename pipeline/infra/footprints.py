@@ -8,12 +8,13 @@ ALEXNET_PARAMS = 57e6    # torchvision AlexNet (head 9216 -> 4096 -> 4096 domina
 ACT_PER_IMAGE_224 = 30e6  # AlexNet training activations + gradients per image at 224 px (fp32)
 
 
-def classifier_training(c) -> float:
+def classifier_training(c, params: float = ALEXNET_PARAMS, activations_224: float = ACT_PER_IMAGE_224) -> float:
     """The classifier stage: both image sets in memory (uint8, (n, s, s, 3)), the model with its
-    gradients and Adam moments (4 x fp32 parameters), one batch's activations."""
+    gradients and Adam moments (4 x fp32 parameters), one batch's activations. ``params`` and
+    ``activations_224``: the network's, as its classifier entry declares them (AlexNet's by default)."""
     t, s = c.training, c.input_size
     images = (t.train_images + t.val_images) * s * s * 3
-    return images + 16 * ALEXNET_PARAMS + t.batch_size * ACT_PER_IMAGE_224 * (s / 224) ** 2
+    return images + 16 * params + t.batch_size * activations_224 * (s / 224) ** 2
 
 
 def render_worker(c) -> float:

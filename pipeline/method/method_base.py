@@ -8,6 +8,8 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
+from pipeline.infra.registry import Registry
+
 NEEDS = frozenset({"gp", "gp_instance", "dirichlet", "scores", "probs"})
 ENTRY_POINT_GROUP = "viewfuse.methods"
 # The method every other (non-attribution) method is paired against in the population.
@@ -90,7 +92,18 @@ class FusionMethod:
         raise NotImplementedError
 
 
-_REGISTRY: dict[str, FusionMethod] = {}
+def _adopt(name: str, obj, module: str) -> None:
+    """An entry point naming a FusionMethod subclass that did not register itself."""
+    if isinstance(obj, type) and issubclass(obj, FusionMethod):
+        register(obj)
+    else:
+        raise TypeError(f"entry point {name!r} of {ENTRY_POINT_GROUP!r} names {obj!r}: not a module or a FusionMethod")
+
+
+# Built-ins first (``pipeline.method.methods``, in their registration order), then the others in
+# theirs, whatever was imported first; loads the built-ins and entry points on first use.
+_REGISTRY: Registry[FusionMethod] = Registry("fusion method", ENTRY_POINT_GROUP, "pipeline.method.methods",
+                                             adopt=_adopt)
 
 
 def register(cls: type[FusionMethod]) -> type[FusionMethod]:
@@ -110,9 +123,10 @@ def register(cls: type[FusionMethod]) -> type[FusionMethod]:
     bad = set(cls.needs) - NEEDS
     if bad:
         raise ValueError(f"{cls.__name__}: unknown needs {sorted(bad)} (known: {sorted(NEEDS)})")
-    if key in _REGISTRY and type(_REGISTRY[key]) is not cls:
-        raise ValueError(f"fusion method {key!r} is registered twice ({type(_REGISTRY[key]).__name__}, {cls.__name__})")
-    _REGISTRY[key] = cls()
+    old = _REGISTRY.peek(key)
+    if old is not None and type(old) is not cls:
+        raise ValueError(f"fusion method {key!r} is registered twice ({type(old).__name__}, {cls.__name__})")
+    _REGISTRY.add(key, cls(), module=cls.__module__, replace=True)
     return cls
 
 
@@ -123,7 +137,7 @@ def unregister(key: str) -> None:
     _REGISTRY.pop(key, None)
 
 
-def registered() -> dict[str, FusionMethod]:
-    """The registered methods by key, in registration order (``pipeline.method.registry`` loads
-    the built-ins and entry points first)."""
+def registered() -> Registry[FusionMethod]:
+    """The registered methods by key: the built-ins first, then the others, each in registration
+    order (using it loads the built-ins and the entry points)."""
     return _REGISTRY

@@ -11,29 +11,26 @@ realization) and the dropout samples, and fuses one track batched over realizati
 
 The built-in methods live in ``pipeline.method.methods`` (one file each); other packages add
 theirs through the entry-point group ``viewfuse.methods`` (each entry point names a module or a
-class; importing it registers). Registration order is the order of tables, figures and rows.
+class; importing it registers). The order of tables, figures and rows is the built-ins' order,
+then the other methods in registration order, whatever was imported first (``pipeline.infra.registry``).
 """
 from __future__ import annotations
 
 from pipeline.method.method_base import (ENTRY_POINT_GROUP, NEEDS, REFERENCE, FusionMethod,  # noqa: F401 - public here
                                          TrackInput, register, registered, unregister)
 
-_LOADED = False
-
 
 def _load() -> None:
-    global _LOADED
-    if _LOADED:
-        return
-    _LOADED = True
-    import pipeline.method.methods  # noqa: F401  (the built-ins register on import, in order)
-    from importlib.metadata import entry_points
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        ep.load()
+    """The built-ins (their listed modules are in the stages' code key already), the folder's other
+    modules and the entry points of ``viewfuse.methods``: once per process, on first use."""
+    from pipeline.method.methods import LISTED
+
+    registered().static = frozenset(f"pipeline.method.methods.{n}" for n in LISTED)
+    registered().load()
 
 
 def methods(*, attribution: bool = True) -> list[FusionMethod]:
-    """Every registered method in registration order (without the attribution variants when
+    """Every registered method, the built-ins first (without the attribution variants when
     ``attribution`` is False)."""
     _load()
     return [m for m in registered().values() if attribution or not m.attribution]
@@ -53,27 +50,10 @@ def comparisons() -> tuple[tuple[str, str], ...]:
     return tuple((REFERENCE, k) for k in keys() if k != REFERENCE)
 
 
-def _listed() -> tuple[str, ...]:
-    from pipeline.method.methods import LISTED
-    return LISTED
-
-
 def outside_fingerprint() -> str:
     """The methods registered from outside the listed built-ins (a discovered built-in file, an
-    entry point, a test), each as ``key=sha256 of its module's source``: the evaluate and simulate stages add it to their cache key, so registering,
-    removing or editing such a method reruns them (the built-ins are in their code key already)."""
-    import hashlib
-    import inspect
-
-    parts = []
-    for m in methods():
-        cls = type(m)
-        if cls.__module__.rpartition(".")[::2] in (("pipeline.method.methods", n) for n in _listed()):
-            continue
-        try:
-            src = inspect.getsource(inspect.getmodule(cls))
-        except (OSError, TypeError):   # defined interactively: the class's own attributes stand in
-            src = repr(sorted((k, repr(v)) for k, v in vars(cls).items()))
-        parts.append(f"{m.key}={hashlib.sha256(src.encode()).hexdigest()[:16]}")
-    return ";".join(parts)
-
+    entry point, a test), each as ``key=sha256 of its module's source``: the evaluate and simulate
+    stages add it to their cache key, so registering, removing or editing such a method reruns them
+    (the built-ins are in their code key already)."""
+    _load()
+    return registered().outside_fingerprint()

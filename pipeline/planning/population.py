@@ -84,7 +84,7 @@ def build_tasks(cells, tracks, avd, scores, moves: dict, ev, plan) -> list[Task]
             continue
         seen[info.target] = i + 1
         world = build_world(cell, info, avd, scores, moves[info.scan], ev.max_difficulty)
-        tasks.append(Task(world, i, settings, PLANNERS, plan.budget, plan.horizon, plan.confidence,
+        tasks.append(Task(world, i, settings, tuple(PLANNERS), plan.budget, plan.horizon, plan.confidence,
                           plan.eig_samples, plan.seed, ev.variance_floor))
     return tasks
 

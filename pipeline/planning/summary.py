@@ -1,7 +1,8 @@
 """The planning metrics per step and per episode, pooled with CIs, and the paired verdicts.
 
 Per step k of an episode: ``correct`` (argmax = truth), ``confident_error`` (max P >= the
-confidence on a wrong class), ``nll`` (-ln P(truth)); per episode ``steps_to_decision``: the first
+confidence on a wrong class), ``nll`` (-ln P(truth)), each as the metric specification defines it
+(``pipeline.evaluation.metrics.spec``); per episode ``steps_to_decision``: the first
 step with a confident correct decision (P(truth) >= the confidence), budget + 1 when there is
 none (a missed or wrong decision costs more than the whole budget). The unit is a (target, start):
 its value is the mean over the localization settings; the pooled value is the mean over targets
@@ -15,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+
+from pipeline.evaluation.metrics import spec as M   # the one definition of each per-step quantity
 
 STEP_METRICS = {"correct": ("correct ratio", True), "confident_error": ("confident-error rate", False),
                 "nll": ("NLL of the truth", False)}
@@ -46,15 +49,15 @@ def step_rows(key: dict, log_post: np.ndarray, measured: np.ndarray, nodes: list
               confidence: float) -> pd.DataFrame:
     """One row per step of one episode (``key``: target, scan, start, setting, planner)."""
     K = len(log_post)
-    p = np.exp(log_post)
     node = [""] * K
     for i, k in enumerate(np.flatnonzero(measured)):
         node[k] = nodes[i]
-    wrong = np.argmax(log_post, axis=1) != truth
+    ok = M.correct(log_post, truth, is_log=True)
+    confident_error = M.confident_mask(M.confidence(log_post, truth, is_log=True), ok, confidence)
     return pd.DataFrame({**{k: [v] * K for k, v in key.items()}, "step": np.arange(1, K + 1), "node": node,
-                         "measured": measured, "p_truth": p[:, truth], "correct": (~wrong).astype(float),
-                         "confident_error": (wrong & (p.max(axis=1) >= confidence)).astype(float),
-                         "nll": -log_post[:, truth]})
+                         "measured": measured, "p_truth": M.prob_truth(log_post, truth, is_log=True),
+                         "correct": ok.astype(float), "confident_error": confident_error.astype(float),
+                         "nll": M.nll(log_post, truth, is_log=True)})
 
 
 def episode_values(table: pd.DataFrame, budget: int, confidence: float) -> pd.DataFrame:

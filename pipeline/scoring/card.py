@@ -9,7 +9,7 @@ from torch import nn
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import read_json
 from pipeline.infra.cache import hash_json, sha256_file
-from pipeline.scoring.classifiers import card_arch, classifier
+from pipeline.scoring.classifiers import UnknownClassifier, card_arch, classifier
 from pipeline.scoring.weight_files import WeightsError, WeightsNotFoundError, load_into, load_state_dict_file
 
 
@@ -20,7 +20,12 @@ WEIGHTS_NPZ = out_name("classifier", "weights")
 def card_hash(card: dict) -> str:
     """Hash of everything that changes a score (not timings or accuracy bookkeeping)."""
     keys = ("architecture", "weights_sha256", "num_classes", "output_names", "dropout", "input_size", "mean", "std")
-    extra = ("drop_connect",)  # only EfficientNet-Lite0's cards have it: AlexNet's hashes stay as they were
+    # the entry's own keys (EfficientNet-Lite0's drop_connect; none for AlexNet, whose hashes stay as
+    # they were); a card of an arch not registered here keeps every key it has of the known ones
+    try:
+        extra = tuple(classifier(card_arch(card)).card_fields)
+    except UnknownClassifier:
+        extra = ("drop_connect",)
     return hash_json({k: card.get(k) for k in keys} | {k: card[k] for k in extra if k in card})
 
 

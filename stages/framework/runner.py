@@ -31,6 +31,7 @@ from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.outputs import read_manifest as outputs_manifest
 from pipeline.infra.progress import echo
 from pipeline.infra.workers import pid_file, stop_leftovers
+from stages.framework.outside import outside_parts
 from stages.framework.registry import STAGES, StageSpec, code_version, defines
 from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
                                stage_lock, stage_paths, swap_in)
@@ -97,6 +98,7 @@ def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[s
         from pipeline.method.registry import outside_fingerprint
 
         parts["methods"] = outside_fingerprint()
+    parts.update(outside_parts(cfg, spec.name))   # classifiers, planners, metrics from outside
     return hash_json(parts), {**parts, "code_modules": per_module}
 
 

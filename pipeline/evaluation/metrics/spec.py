@@ -1,6 +1,7 @@
 """The metric specification: every classification metric of the paper's §5.1, computed here only.
 
-Two levels, each a registry where adding a metric is one entry:
+Two levels, each a registry where adding a metric is one entry (``register_metric``, public as
+``vf.register_metric``, or an entry point of the group ``viewfuse.metrics``):
 
 - ``STEP_COLUMNS``: per-step quantities of one posterior (..., C) against the truth, the columns of
   every results table (``pipeline.evaluation.metrics.results``):
@@ -30,6 +31,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from pipeline.infra.registry import Registry, RegistryError, caller_module
 
 LN10 = float(np.log(10.0))
 
@@ -205,7 +208,44 @@ class Metric:
         return self.best is not None and self.worst is not None
 
 
-METRICS: dict[str, Metric] = {
+ENTRY_POINT_GROUP = "viewfuse.metrics"
+
+
+def register_metric(key: str, metric: Metric, *, module: str | None = None) -> Metric:
+    """Add ``metric`` under ``key`` (after the built-ins; a key registered twice is an error):
+    every results table, cell, population summary and simulation scenario then reports it.
+    ``module``: where it is defined (default: the caller's module), whose source enters the
+    evaluate and simulate stages' cache key when it is not this module."""
+    if not isinstance(metric, Metric):
+        raise TypeError(f"metric {key!r}: {metric!r} is not a Metric")
+    if not isinstance(key, str) or not key.isidentifier() or key in POOLED_METRICS:
+        raise ValueError(f"metric key {key!r}: an identifier, not one of {sorted(POOLED_METRICS)}")
+    cols = (metric.column,) if isinstance(metric.column, str) else tuple(metric.column)
+    bad = [c for c in cols if c not in STEP_COLUMNS]
+    if bad or metric.steps not in ("final", "all") or metric.pool not in POOLS:
+        raise ValueError(f"metric {key!r}: column(s) {bad} not in {sorted(STEP_COLUMNS)}, or steps "
+                         f"{metric.steps!r} not 'final'/'all', or pool {metric.pool!r} not in {POOLS}")
+    old = METRICS.peek(key)
+    if old is not None and old != metric:
+        raise RegistryError(f"metric {key!r} is registered twice "
+                            f"({METRICS.module_of(key)}, {module or caller_module()})")
+    return METRICS.add(key, metric, module=module or caller_module(), replace=True)
+
+
+def unregister_metric(key: str) -> None:
+    METRICS.remove(key)
+
+
+def _adopt(name: str, obj, module: str) -> None:
+    if not isinstance(obj, Metric):
+        raise TypeError(f"entry point {name!r} of {ENTRY_POINT_GROUP!r} names {obj!r}: not a module or a Metric")
+    register_metric(name, obj, module=module)
+
+
+# key -> Metric: the built-ins below first, in this order, then the registered ones (``register_metric``,
+# the entry points of ``viewfuse.metrics``) in registration order.
+METRICS: Registry[Metric] = Registry("metric", ENTRY_POINT_GROUP, __name__, static=(__name__,), adopt=_adopt)
+_BUILTIN = {
     "correct_final": Metric("correct ratio, final step", "correct, final", True, "correct", "final", mean_of,
                             best=1.0, worst=0.0),
     "correct_overall": Metric("correct ratio, all steps", "correct, all steps", True, "correct", "all", mean_of,
@@ -258,6 +298,8 @@ POOLED_METRICS = {
     "ece_final": ("top-label ECE, final step", "ECE, final"),
     "ece_overall": ("top-label ECE, all steps", "ECE, all steps"),
 }
+for _key, _metric in _BUILTIN.items():
+    register_metric(_key, _metric)
 
 
 def metric_label(key: str, short: bool = False) -> str:

@@ -17,6 +17,7 @@ class EfficientNetLite0(Classifier):
     display = "EfficientNet-Lite0"
     architecture = "viewfuse.efficientnet_lite0 (own module, lukemelas key layout)"
     imagenet = True
+    card_fields = ("drop_connect",)
 
     def build(self, num_classes, dropout, drop_connect=0.0):
         from pipeline.scoring.efficientnet_lite import EfficientNetLite0 as Net

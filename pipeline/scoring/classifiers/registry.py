@@ -2,10 +2,15 @@
 loads, describes or checks a classifier asks its entry instead of testing the name.
 
 An entry is one ``Classifier`` subclass, registered with ``@register_classifier`` (a plain name,
-e.g. ``alexnet``) or through a family factory (``register_family("torchvision", ...)`` serves
-``torchvision:<model>``). Entry modules stay light (torch is imported inside their methods), so
+e.g. ``alexnet``): a module of this package (found by discovery: a new built-in is its file alone),
+an entry point of the group ``viewfuse.classifiers`` of an installed package (loaded on first use,
+in every process, Ray workers included), or a script's own call; or through a family factory
+(``register_family("torchvision", ...)`` serves ``torchvision:<model>``). Entry modules stay light (torch is imported inside their methods), so
 checking a config does not load the networks.
 
+An entry declares in its class what the rest of the pipeline needs of it: the card keys that change
+a score (``card_fields``, with ``card_extra``), its training footprint (``params``,
+``activations_224``), its checks of the ``[classifier]`` section (``config_problems``, ``notes``).
 The MC-dropout site is declared by what ``build`` returns: a network with ``trunk(x)`` and
 ``head_layers()`` (the trunk runs once per crop, the head's Dropout layers are resampled), or
 torchvision's ``features -> avgpool -> flatten | classifier`` layout (``pipeline.scoring.mc_dropout``).
@@ -17,6 +22,8 @@ from pathlib import Path
 
 from pipeline.infra.config.checks import ARCH_NAME
 from pipeline.infra.config.fields import ConfigError
+from pipeline.infra.footprints import ACT_PER_IMAGE_224, ALEXNET_PARAMS
+from pipeline.infra.registry import Registry
 
 
 class UnknownClassifier(ValueError):
@@ -32,6 +39,13 @@ class Classifier:
     trains = False      # weights = 'synthetic' trains it on the synthetic source domain
     imagenet = False    # weights = 'imagenet' has a local file (never downloaded)
     mc_dropout_site = ""  # where the MC-dropout masks act, in words
+    # card keys of this entry's own (from ``card_extra``) that change a score: the card hash, hence
+    # the features stage's key, holds them (the common keys are ``pipeline.scoring.card.card_hash``'s)
+    card_fields: tuple[str, ...] = ()
+    # training's memory footprint (``pipeline.infra.footprints.classifier_training``): parameters,
+    # and fp32 activations + gradients per image at 224 px; AlexNet's unless declared
+    params = ALEXNET_PARAMS
+    activations_224 = ACT_PER_IMAGE_224
 
     def build(self, num_classes: int, dropout: float, drop_connect: float = 0.0):
         """A fresh (untrained) network with ``num_classes`` outputs and head dropout p."""
@@ -89,10 +103,23 @@ class Classifier:
         return f"classifier: {self.display} weights from {card.get('weights_file', 'a file')}"
 
 
-# Filled as entry modules are imported: the package's __init__ imports the built-in ones (the
-# package is imported before this module is, so they are always there).
-_ENTRIES: dict[str, Classifier] = {}
+ENTRY_POINT_GROUP = "viewfuse.classifiers"
+
+
+def _adopt(name: str, obj, module: str) -> None:
+    """An entry point naming a Classifier (class or instance) that did not register itself."""
+    if isinstance(obj, Classifier) or (isinstance(obj, type) and issubclass(obj, Classifier)):
+        register_classifier(obj)
+    else:
+        raise TypeError(f"entry point {name!r} of {ENTRY_POINT_GROUP!r} names {obj!r}: not a module or a Classifier")
+
+
+# The built-ins (this package's modules) first, then the others in registration order; the built-in
+# folder and the entry points load on first use (the package's __init__ sets ``static``).
+REGISTRY: Registry[Classifier] = Registry("classifier", ENTRY_POINT_GROUP, "pipeline.scoring.classifiers",
+                                          adopt=_adopt)
 _FAMILIES: dict[str, Callable[[str], Classifier]] = {}
+_MADE: dict[str, Classifier] = {}   # family members built so far
 
 
 def register_classifier(entry):
@@ -102,11 +129,16 @@ def register_classifier(entry):
         raise TypeError(f"{entry!r} is not a Classifier")
     if not ARCH_NAME.fullmatch(inst.name or "") or ":" in inst.name:
         raise ValueError(f"classifier name {inst.name!r}: letters, digits and '_.-', no ':' (families use it)")
-    old = _ENTRIES.get(inst.name)
+    old = REGISTRY.peek(inst.name)
     if old is not None and type(old) is not type(inst):
         raise ValueError(f"classifier {inst.name!r} is already registered ({type(old).__name__})")
-    _ENTRIES[inst.name] = inst
+    REGISTRY.add(inst.name, inst, module=type(inst).__module__, replace=True)
     return entry
+
+
+def unregister_classifier(name: str) -> None:
+    """Remove an entry (tests that register a toy one clean up after themselves)."""
+    REGISTRY.remove(name)
 
 
 def register_family(prefix: str, factory: Callable[[str], Classifier]) -> None:
@@ -115,18 +147,22 @@ def register_family(prefix: str, factory: Callable[[str], Classifier]) -> None:
 
 
 def names() -> list[str]:
-    """Registered names, the families as ``<prefix>:<model>``."""
-    return sorted(_ENTRIES) + [f"{p}:<model>" for p in sorted(_FAMILIES)]
+    """Registered names, the built-ins first, then the families as ``<prefix>:<model>``, then the
+    entries registered from outside (an entry point, a script) in registration order."""
+    builtin = [n for n in REGISTRY if REGISTRY.is_builtin(n)]
+    return builtin + [f"{p}:<model>" for p in sorted(_FAMILIES)] + [n for n in REGISTRY if not REGISTRY.is_builtin(n)]
 
 
 def classifier(arch: str) -> Classifier:
     """The entry ``arch`` names, or UnknownClassifier listing the registered ones."""
-    if arch in _ENTRIES:
-        return _ENTRIES[arch]
+    if arch in REGISTRY:
+        return REGISTRY[arch]
+    if arch in _MADE:
+        return _MADE[arch]
     prefix, sep, model = str(arch).partition(":")
     if sep and prefix in _FAMILIES:
         entry = _FAMILIES[prefix](model)
-        _ENTRIES[arch] = entry
+        _MADE[arch] = entry
         return entry
     raise UnknownClassifier(f"unknown classifier architecture {arch!r} (one of {', '.join(names())})")
 

@@ -107,13 +107,15 @@ def test_entry_points_of_the_group_are_loaded_on_first_use(monkeypatch):
     loaded = []
 
     class EP:
+        name, value = "toy", "tests.support.toy_method:ToyTempered"
+
         def load(self):
             loaded.append(True)
             return registry.register(ToyTempered)
 
     monkeypatch.setattr(importlib.metadata, "entry_points",
                         lambda group=None: [EP()] if group == registry.ENTRY_POINT_GROUP else [])
-    monkeypatch.setattr(registry, "_LOADED", False)
+    monkeypatch.setattr(registry.registered(), "_loaded", False)
     try:
         assert KEY in registry.keys() and loaded == [True]
         registry.keys()

@@ -161,3 +161,29 @@ def test_a_head_with_its_own_dropout_keeps_it_at_the_configured_p():
     net = classifier("torchvision:mobilenet_v3_small").build(3, 0.3)
     drops = [m for m in net.head_layers() if isinstance(m, nn.Dropout)]
     assert len(drops) == 1 and drops[0].p == 0.3 and drops[0] is net.classifier[2]
+
+
+def test_an_entry_declares_its_card_fields_and_training_footprint(tmp_path):
+    """A classifier's own card keys reach the card hash (the features stage's key) only when its
+    class declares them; its training footprint is what it declares, not AlexNet's."""
+    from pipeline.infra import footprints
+    from pipeline.scoring.card import card_hash
+    from pipeline.scoring.classifiers import unregister_classifier
+
+    @register_classifier
+    class Knobbed(Classifier):
+        name = "knobbed_from_tests"
+        card_fields = ("knob",)
+        params, activations_224 = 1e6, 2e6
+
+    try:
+        card = {"arch": "knobbed_from_tests", "architecture": "tests.knobbed", "weights_sha256": "0", "num_classes": 3}
+        assert card_hash({**card, "knob": 1}) != card_hash({**card, "knob": 2})
+        toy = {**card, "arch": "toy_from_tests"}
+        assert card_hash({**toy, "knob": 1}) == card_hash({**toy, "knob": 2})   # not the toy's field
+        c = _cfg(tmp_path, {}).classifier
+        small = footprints.classifier_training(c, Knobbed.params, Knobbed.activations_224)
+        assert small < footprints.classifier_training(c) == footprints.classifier_training(
+            c, classifier("alexnet").params, classifier("alexnet").activations_224)
+    finally:
+        unregister_classifier("knobbed_from_tests")

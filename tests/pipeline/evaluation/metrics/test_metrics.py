@@ -102,15 +102,21 @@ def test_metric_metadata():
     assert M.metric_label("not_a_metric") == "not_a_metric"
 
 
-def test_adding_a_metric_is_one_entry(monkeypatch):
+def test_adding_a_metric_is_one_entry(request):
+    request.addfinalizer(lambda: [M.unregister_metric(k) for k in ("prob_truth_overall", "wrong_unsure")])
     extra = dataclasses.replace(M.METRICS["prob_truth_final"], label="P(truth), all steps", steps="all")
-    monkeypatch.setitem(M.METRICS, "prob_truth_overall", extra)
+    M.register_metric("prob_truth_overall", extra)
+    assert list(M.METRICS)[-1] == "prob_truth_overall" and not M.METRICS.is_builtin("prob_truth_overall")
     post = np.array([[[0.4, 0.6], [0.7, 0.3]]])
     assert M.posterior_metrics(post, 0, params=PARAMS)["prob_truth_overall"] == pytest.approx(0.55)
     # A metric of two per-step columns: the share of steps that are wrong with P(truth) < 0.5.
     two = M.Metric("wrong and unsure", "wrong, unsure", False, ("correct", "p_truth"), "all",
                    lambda ok, p, params: ((ok == 0) & (p < 0.5)).mean(axis=-1), best=0.0, worst=1.0)
-    monkeypatch.setitem(M.METRICS, "wrong_unsure", two)
+    M.register_metric("wrong_unsure", two)
+    with pytest.raises(ValueError, match="'wrong_unsure' is registered twice"):
+        M.register_metric("wrong_unsure", extra)
+    with pytest.raises(ValueError, match=r"column\(s\) \['nope'\]"):
+        M.register_metric("bad", dataclasses.replace(extra, column="nope"))
     assert M.posterior_metrics(post, 0, params=PARAMS)["wrong_unsure"] == pytest.approx(0.5)
     batch = M.compute(M.step_values(np.stack([post, post[..., ::-1]]), 0), ["wrong_unsure"], params=PARAMS)
     np.testing.assert_allclose(batch["wrong_unsure"], [0.5, 0.5])

@@ -48,13 +48,15 @@ def _record(block, metric):
     return next(r for r in block["records"] if r["metric"] == metric)
 
 
-def test_equivalent_metrics_give_identical_verdicts(monkeypatch):
+def test_equivalent_metrics_give_identical_verdicts(request):
     # A metric that is 4 x another (Brier = 4 x MSDE with 4 candidates) is the same quantity: with
     # shared draws its interval is exactly 4 x the other's and its outcome the same, for the mean
     # and for the median pooling.
     for pool, base in (("mean", "msde_final"), ("median", "nll_final")):
         scaled = dataclasses.replace(M.METRICS[base], label="4 x", pool=pool)
-        monkeypatch.setitem(M.METRICS, "scaled", scaled)
+        M.unregister_metric("scaled")
+        M.register_metric("scaled", scaled)
+        request.addfinalizer(lambda: M.unregister_metric("scaled"))
         cells = population(np.random.default_rng(3), effect=0.004)
         cells["scaled"] = 4 * cells[base]
         b = population_block(cells, ["a", "b"], [base, "scaled"], AB, 600, 0)

@@ -1,0 +1,28 @@
+"""Outside code in the cache keys: entries of a registry (``pipeline.infra.registry``) that the
+stages' static code key cannot see (an entry point's package, a discovered file, a script's own
+registration) enter the key of each stage they change, as ``name=sha256 of its module``. The
+stages below them rerun through their upstream digests. The fusion methods are the runner's
+``StageSpec.methods`` part; a kind with no outside entry adds nothing, so keys stay as they were."""
+from __future__ import annotations
+
+import importlib
+
+# kind -> (module holding the registry, its attribute, the stages whose output it changes, the
+# entries a run uses given its config: None = every registered one)
+KINDS = {
+    "classifiers": ("pipeline.scoring.classifiers", "REGISTRY", ("classifier",), lambda cfg: {cfg.classifier.arch}),
+    "planners": ("pipeline.planning.planners", "PLANNERS", ("evaluate",), lambda cfg: None),
+    "metrics": ("pipeline.evaluation.metrics.spec", "METRICS", ("evaluate", "simulate"), lambda cfg: None),
+}
+
+
+def outside_parts(cfg, stage: str) -> dict[str, str]:
+    """``{kind: fingerprint}`` of the kinds with outside entries that change ``stage`` (a
+    classifier only when ``classifier.arch`` names it: every planner and metric runs)."""
+    out = {}
+    for kind, (module, attr, stages, used) in KINDS.items():
+        if stage in stages:
+            fp = getattr(importlib.import_module(module), attr).outside_fingerprint(used(cfg))
+            if fp:
+                out[kind] = fp
+    return out
