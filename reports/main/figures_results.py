@@ -68,7 +68,7 @@ def fig_forest(pop: dict) -> Any:
     axes[0, 0].set_yticks(range(len(rows)))
     axes[0, 0].set_yticklabels(_row_labels(pop, targets))
     axes[0, 0].invert_yaxis()
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=max(len(keys), 1),
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=max(min(len(keys), 3), 1),
                frameon=False)
     fig.suptitle(f"Paired differences per target, 95 % bootstrap CIs over tracks ({_pooled_over(pop)})")
     return fig
