@@ -98,7 +98,7 @@ IN_SETTING_WORDS = {"holds": "supported in this setting", "fails": "not supporte
 def beyond_reason(c: Claim, setting: str) -> str:
     """Why a test of ``c`` in ``setting`` is a question beyond the paper (not the paper's claim)."""
     if not c.made_in:
-        return c.question
+        return c.unclaimed
     if setting == "real_category":
         return ("category level, every test object unseen: the paper's classes are instances (§5.5.1), and §6 "
                 "names category-level models a limitation; the paper made this claim in " + c.where())

@@ -168,5 +168,6 @@ def test_one_declaration_serves_the_simulation_and_the_scorecard():
     for spec, decl in zip(CL.CLAIMS, paper.SIMULATION_CLAIMS):
         assert (spec.statement, spec.op, spec.threshold, spec.section) == (decl.statement, decl.op,
                                                                            decl.threshold, decl.section)
-    assert all(c.section.startswith("§") and c.quote for c in paper.CLAIMS)
+    assert all(c.section.startswith("§") and c.quote and c.question for c in paper.CLAIMS)
+    assert all(c.unclaimed for c in paper.CLAIMS if not c.made_in)
     assert all(set(c.made_in) <= set(paper.MADE_IN) for c in paper.CLAIMS + paper.SIMULATION_CLAIMS)
