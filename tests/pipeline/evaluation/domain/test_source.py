@@ -126,3 +126,16 @@ def test_the_evaluate_stage_writes_it_into_the_domain_fit():
     assert src["n_crops"] == 80 and src["n_classes"] == 2 and src["n_boot"] == 200
     assert src["rho"]["value"] > 0.5                     # planted: spread and offset share the scale s
     assert src["source"] == "MC dropout (p = 0.2)" and src["drop_connect"].startswith("not scored")
+
+
+def test_the_weighted_resample_equals_the_expanded_one():
+    rng = np.random.default_rng(11)
+    spread = np.round(rng.uniform(0, 2, 60), 1)              # ties on purpose
+    abs_z = np.round(rng.uniform(0, 4, 60), 1)
+    stat = U.WeightedStatistics(spread, abs_z)
+    for _ in range(20):
+        w = rng.integers(0, 4, 60).astype(float)
+        idx = np.repeat(np.arange(60), w.astype(int))
+        want = U.crop_statistics(spread[idx], abs_z[idx])
+        np.testing.assert_allclose(stat(w), want, atol=1e-12)
+    np.testing.assert_allclose(stat(np.ones(60)), U.crop_statistics(spread, abs_z), atol=1e-12)
