@@ -84,7 +84,7 @@ def test_results_cover_the_population(run_all):
     from pipeline.evaluation.statistics.records import consistent
     recs = pop["records"]
     assert "verdict" not in pop and "verdict_table" not in pop and "robust" not in pop   # records, no prose
-    assert len(recs) == 3 * len(metrics) and all(consistent(r) for r in recs)
+    assert len(recs) == 4 * len(metrics) and all(consistent(r) for r in recs)
     assert {r["metric"] for r in recs if r["primary"]} == set(cfg.evaluate.primary_metrics)
     for r in recs:   # the number, its CI and its label are one statistic: the spec's pooling
         p = pop["paired"][r["comparison"]][r["metric"]]
