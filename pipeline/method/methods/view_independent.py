@@ -39,7 +39,7 @@ class ViewIndependent(FusionMethod):
     key = KEY
     label = "View-independent Gaussian"
     short = "View-independent"
-    color = "#882255"
+    color = "#8C564B"   # not a class colour (labels.CLASS_COLORS) nor another method's
     note = ("one Gaussian per class and GP component over all training views (the GP methods' own components "
             "and training scores), views fused as independent, dropout samples averaged as in Model Based: "
             "the ablation of modelling the viewpoint")
