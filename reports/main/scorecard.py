@@ -42,8 +42,11 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
             unb = bool(r.get("unbounded"))
             lo = number(r.get("lo"), -math.inf if unb else None, None)   # null: an unbounded end
             hi = number(r.get("hi"), math.inf if unb else None, None)
-            return {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
-                    "over": r.get("over") or ["targets", "tracks"]}
+            out = {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
+                   "over": r.get("over") or ["targets", "tracks"]}
+            if r.get("outcome_holm"):   # a primary-family verdict: read off its Holm-widened interval
+                out["holm"] = (number(r.get("lo_holm"), -math.inf, None), number(r.get("hi_holm"), math.inf, None))
+            return out
     d = paired_value(pop, comparison, metric)
     if not d:
         return None
@@ -52,10 +55,12 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
 
 
 def claim_status(entry: dict | None, metric: str) -> str:
-    """A directional claim: the side of 0 its interval lies on (the one outcome rule)."""
+    """A directional claim: the side of 0 its interval lies on (the one outcome rule); for a record
+    of the primary family, its Holm-adjusted interval (``multiplicity``)."""
     if entry is None:
         return "not measured"
-    return outcome_of(entry["lo"], entry["hi"], higher_is_better(metric), words=CLAIM_WORDS)
+    lo, hi = entry.get("holm") or (entry["lo"], entry["hi"])
+    return outcome_of(lo, hi, higher_is_better(metric), words=CLAIM_WORDS)
 
 
 def equivalence_status(entry: dict | None, margin: float) -> str:
@@ -125,9 +130,13 @@ def claim_row(ctx: ReportContext, c: Claim, pop: dict, margin: float) -> tuple[s
     if e:
         # An equivalence verdict is about ±margin, not the side of 0: the number is registered
         # (one statistic across the page) without the directional label the ledger checks.
+        holm = e.get("holm") if not equiv else None
         ctx.ledger.register(("paired", key, c.metric), e["value"], e["lo"], e["hi"],
-                            label="" if equiv else status, where="claims scorecard",
+                            label="" if equiv or holm else status, where="claims scorecard",
                             higher_is_better=higher_is_better(c.metric))
+        if holm:
+            ctx.ledger.register(("holm", key, c.metric), e["value"], *holm, label=status,
+                                where="claims scorecard (Holm)", higher_is_better=higher_is_better(c.metric))
     return status, est
 
 
@@ -151,7 +160,8 @@ def scorecard(ctx: ReportContext) -> None:
                            verdict_word(status, False)])
     def rule(yes: str, no: str) -> str:
         return (f"A directional test {yes} when the 95 % CI lies on the claimed side of 0, {no} on the other side, "
-                "and is inconclusive when it contains 0; the 'similar' test "
+                "and is inconclusive when it contains 0 (for the primary comparisons, its Holm-adjusted interval: "
+                "familywise 95 %, as the paired table shows); the 'similar' test "
                 f"{yes} when the whole 95 % CI lies within ±{margin:g} (report.equivalence_margin_correct), {no} "
                 "when it lies wholly outside, else is inconclusive. The CIs vary over targets and tracks, not over "
                 "classifier training runs.")
