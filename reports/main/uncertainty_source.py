@@ -32,5 +32,7 @@ def uncertainty_source_section(ctx: ReportContext) -> None:
                        f"MC samples averaged over the GP components; |z| = |mean score − GP mean| / GP sd at the "
                        f"crop's true class and viewing direction, averaged over the components. 95 % CIs over "
                        f"{src.get('over', 'classes')} ({src.get('n_boot', 0)} bootstrap resamples).")
+    if src.get("auroc_note"):
+        page.paragraph(f"AUROC: {src['auroc_note']}.", cls="note")
     page.paragraph(f"Source of the MC samples: {src.get('source', '?')}. Drop-connect: {src.get('drop_connect', '?')}.",
                    cls="note")

@@ -115,6 +115,10 @@ def source_summary(crops: pd.DataFrame, n_boot: int, seed: int) -> dict:
     for b in range(rs.n_boot):
         bd[b] = stat(np.bincount(rs.pt[b, 0], minlength=len(classes))[of_crop].astype(float))
     out.update(rho=estimate(rho, bd[:, 0]), auroc=estimate(auc, bd[:, 1]), n_boot=int(rs.n_boot))
+    undefined = int(np.isnan(bd[:, 1]).sum())
+    if undefined:   # the engine's rule: an undefined draw leaves no interval; say why
+        out["auroc_note"] = (f"no CI: {undefined} of {rs.n_boot} resamples hold no crop with |z| > {Z_FAR:g} "
+                             "(or none within it)")
     return out
 
 

@@ -139,3 +139,12 @@ def test_the_weighted_resample_equals_the_expanded_one():
         want = U.crop_statistics(spread[idx], abs_z[idx])
         np.testing.assert_allclose(stat(w), want, atol=1e-12)
     np.testing.assert_allclose(stat(np.ones(60)), U.crop_statistics(spread, abs_z), atol=1e-12)
+
+
+def test_an_auroc_without_far_crops_in_some_resamples_says_why_it_has_no_ci():
+    rng = np.random.default_rng(2)
+    crops = pd.DataFrame({"instance": [f"c{i % 6}" for i in range(120)], "spread": rng.uniform(size=120),
+                          "abs_z": np.r_[3.0, rng.uniform(0, 1, 119)]})      # one far crop, in class c0
+    s = U.source_summary(crops, 200, 0)
+    assert s["auroc"]["value"] is not None and np.isnan(s["auroc"]["ci_low"])
+    assert s["auroc_note"].startswith("no CI:") and "resamples hold no crop" in s["auroc_note"]
