@@ -29,7 +29,7 @@ EVALUATION_ROOMS = {
     "statistics": {"metrics"},
     "grid": {"metrics", "statistics"},
     "simulation": {"metrics", "statistics"},
-    "domain": {"grid", "metrics"},
+    "domain": {"grid", "metrics", "statistics"},
 }
 REPORT_ROOMS = {"shared": set(), "main": {"shared"}, "simulate": {"shared"}, "compare": {"shared"},
                 "study": {"shared"}}

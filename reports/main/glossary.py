@@ -60,6 +60,15 @@ def terms(ctx: ReportContext) -> list[tuple[str, str]]:
                      "verdict."),
         ("holds / fails / inconclusive", "a claim of the paper, read as a paired difference: its 95 % CI lies on "
                                          "the claimed side of 0 / on the other side / contains 0."),
+        ("supported / not supported in this setting", "the same test outside the setting where the paper made the "
+                                                      "claim (a question beyond the paper): a finding about this "
+                                                      "setting, not a verdict on the paper's claim."),
+        ("what the baselines read", "With Uncertainty, Model Based and the view-independent Gaussian read the same "
+                                    "numbers (the GP score components); Simple Bayes reads other numbers: each "
+                                    "candidate's own score. Only the view-independent Gaussian isolates modelling "
+                                    "the viewpoint."),
+        ("MC spread vs |z|", "how well a crop's MC-sample spread ranks its distance |z| from its class model: "
+                             "Spearman ρ (0 = no rank relation) and the AUROC for |z| > 2 (0.5 = chance)."),
         ("numerical saturation", f"a log10 MGR above {SATURATION:g}: the truth's probability is below 1e−{SATURATION:g} "
                                  "of the winner's, far past what the fusion's floating point resolves; read it as "
                                  "'confidently wrong', not as a measured size."),

@@ -24,6 +24,7 @@ from reports.main.calibration import CALIBRATED
 from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
 from reports.main.showcase import showcase_section
+from reports.main.uncertainty_source import uncertainty_source_section
 from reports.main.reviewer import limitations_section, methods_section, reproduce_section, seeds_section
 from reports.shared.artifacts import load_run
 from reports.main.context import ReportContext
@@ -45,7 +46,7 @@ log = logging.getLogger("viewfuse.report")
 SECTIONS = (verdict_sections.verdict_section, methods_section, limitations_section, seeds_section,
             calibration_sections.calibration_section, verdict_sections.population_section,
             power_sections.power_section,
-            verdict_sections.diagnostics_section, calibration_sections.domain_section,
+            verdict_sections.diagnostics_section, calibration_sections.domain_section, uncertainty_source_section,
             calibration_sections.attribution_section, planning_sections.planning_section, showcase_section,
             track_sections.track_section, track_sections.randomized_section,
             track_sections.sensitivity_section, track_sections.bias_maps_section, track_sections.gp_section,

@@ -1,5 +1,8 @@
 """The claims scorecard at the top of the report: each claim of the paper (declared once, with the
-paper's own numbers and their sections, in ``pipeline.evaluation.metrics.paper``), our reading of
+paper's own numbers, sections, quotes and where the paper made it, in
+``pipeline.evaluation.metrics.paper``), split by the run's setting into "the paper's claims" (tested
+where the paper made them) and "questions beyond the paper" (tested elsewhere: they read "supported /
+not supported in this setting", never that the paper's claim fails), our reading of
 it as one paired comparison on one metric (directional, or equivalence within ±
 ``report.equivalence_margin_correct`` for the paper's "similar" correct ratios), our value with its
 95 % CI and holds / fails / inconclusive, computed from that CI by the one outcome rule
@@ -16,9 +19,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
+from pipeline.evaluation.metrics.labels import comparison_key
 from pipeline.evaluation.metrics.spec import higher_is_better
-from pipeline.evaluation.metrics.paper import CLAIMS, TABLES_NOTE, Claim
+from pipeline.evaluation.metrics.paper import CLAIMS, TABLES_NOTE, Claim, run_setting, setting_label
 from pipeline.evaluation.statistics.records import equivalence
 from pipeline.infra.outputs import number
 from reports.main.calibration import paired_value
@@ -93,41 +96,95 @@ def simulate_claims(run_dir: Path | None) -> list[dict]:
     return [c for c in claims if isinstance(c, dict)]
 
 
+IN_SETTING_WORDS = {"holds": "supported in this setting", "fails": "not supported in this setting",
+                    "inconclusive": "inconclusive in this setting", "not measured": "not measured"}
+
+
+def beyond_reason(c: Claim, setting: str) -> str:
+    """Why a test of ``c`` in ``setting`` is a question beyond the paper (not the paper's claim)."""
+    if not c.made_in:
+        return c.unclaimed
+    if setting == "real_category":
+        return ("category level, every test object unseen: the paper's classes are instances (§5.5.1), and §6 "
+                "names category-level models a limitation; the paper made this claim in " + c.where())
+    if setting == "real_instance":
+        return ("real model uncertainty: the paper's real-image test (§5.5.2) assumed model uncertainty "
+                "negligible; the paper made this claim in " + c.where())
+    return "the paper made this claim in " + c.where()
+
+
+def verdict_word(status: str, in_setting: bool) -> str:
+    """holds / fails / inconclusive where the paper made the claim; outside that setting a finding
+    about this setting ("not supported in this setting"), never "the paper's claim fails"."""
+    return status if in_setting else IN_SETTING_WORDS[status]
+
+
+def claim_row(ctx: ReportContext, c: Claim, pop: dict, margin: float) -> tuple[str, Estimate]:
+    """The status (holds / fails / inconclusive / not measured) and estimate of one claim's test,
+    registered in the page's ledger."""
+    key = comparison_key(c.method, c.baseline)
+    e = verdict_entry(pop, key, c.metric)
+    equiv = c.reading == "equivalence"
+    status = equivalence_status(e, margin) if equiv else claim_status(e, c.metric)
+    est = Estimate(e["value"], e["lo"], e["hi"], signed=True) if e else Estimate(None)
+    if e:
+        # An equivalence verdict is about ±margin, not the side of 0: the number is registered
+        # (one statistic across the page) without the directional label the ledger checks.
+        holm = e.get("holm") if not equiv else None
+        ctx.ledger.register(("paired", key, c.metric), e["value"], e["lo"], e["hi"],
+                            label="" if equiv or holm else status, where="claims scorecard",
+                            higher_is_better=higher_is_better(c.metric))
+        if holm:
+            ctx.ledger.register(("holm", key, c.metric), e["value"], *holm, label=status,
+                                where="claims scorecard (Holm)", higher_is_better=higher_is_better(c.metric))
+    return status, est
+
+
 def scorecard(ctx: ReportContext) -> None:
-    """The claims table, the §5.3 line and the note on the paper's tables (inside the verdict section)."""
+    """The paper's claims in the setting the paper made them, the questions beyond the paper, the §5.3
+    line and the note on the paper's tables (inside the verdict section)."""
     pop = ctx.population
     if not pop:
         return
     margin = equivalence_margin(ctx.config)
-    rows = []
+    setting = run_setting(ctx.config)
+    ours, beyond = [], []
     for c in CLAIMS:
-        key = comparison_key(c.method, c.baseline)
-        e = verdict_entry(pop, key, c.metric)
-        equiv = c.reading == "equivalence"
-        status = equivalence_status(e, margin) if equiv else claim_status(e, c.metric)
-        est = Estimate(e["value"], e["lo"], e["hi"], signed=True) if e else Estimate(None)
-        if e:
-            # An equivalence verdict is about ±margin, not the side of 0: the number is registered
-            # (one statistic across the page) without the directional label the ledger checks.
-            holm = e.get("holm") if not equiv else None
-            ctx.ledger.register(("paired", key, c.metric), e["value"], e["lo"], e["hi"],
-                                label="" if equiv or holm else status, where="claims scorecard",
-                                higher_is_better=higher_is_better(c.metric))
-            if holm:
-                ctx.ledger.register(("holm", key, c.metric), e["value"], *holm, label=status,
-                                    where="claims scorecard (Holm)", higher_is_better=higher_is_better(c.metric))
-        rows.append([c.text, c.how.format(margin=margin), paper_cell(c), est, status])
-    ctx.page.table(["claim of the paper (in our words)", "our reading", "paper's number (section; not our scene)",
-                    "ours: difference [95 % CI]", "verdict"], rows, cls="scorecard",
-                   caption="The paper's claims, checked. "
-                           f"{comparison_label(comparison_key(CLAIMS[0].method, CLAIMS[0].baseline))} and the other "
-                           "comparisons as paired differences on the same (target, track, setting) cells. A directional "
-                           "claim holds when the 95 % CI lies on the claimed side of 0, fails on the other side, and is "
-                           "inconclusive when it contains 0 (for the primary comparisons, its Holm-adjusted "
-                           "interval: familywise 95 %, as the paired table shows); the 'similar' claim holds when the whole 95 % CI lies "
-                           f"within ±{margin:g} (report.equivalence_margin_correct), fails when it lies wholly "
-                           "outside, else is inconclusive. The CIs vary over targets and tracks, not over classifier "
-                           "training runs.")
+        status, est = claim_row(ctx, c, pop, margin)
+        inside = c.in_setting(setting)
+        if inside:
+            ours.append([c.text, f"{c.section}: “{c.quote}” ({c.where()})", c.how.format(margin=margin),
+                         paper_cell(c), est, verdict_word(status, True)])
+        else:
+            beyond.append([c.question, beyond_reason(c, setting), c.how.format(margin=margin), est,
+                           verdict_word(status, False)])
+    def rule(yes: str, no: str) -> str:
+        return (f"A directional test {yes} when the 95 % CI lies on the claimed side of 0, {no} on the other side, "
+                "and is inconclusive when it contains 0 (for the primary comparisons, its Holm-adjusted interval: "
+                "familywise 95 %, as the paired table shows); the 'similar' test "
+                f"{yes} when the whole 95 % CI lies within ±{margin:g} (report.equivalence_margin_correct), {no} "
+                "when it lies wholly outside, else is inconclusive. The CIs vary over targets and tracks, not over "
+                "classifier training runs.")
+    ctx.page.paragraph(f"This run's setting: {setting_label(setting)} (from its config). A claim is the paper's "
+                       "only where the paper made it (simulation §5.3, rendered scenes §5.4, real images §5.5 with "
+                       "localization uncertainty only and instance classes); tested elsewhere it is a question "
+                       "beyond the paper, and its answer holds for this setting only.")
+    if ours:
+        ctx.page.table(["claim of the paper (in our words)", "where the paper says it", "our reading",
+                        "paper's number (section; not our scene)", "ours: difference [95 % CI]", "verdict"],
+                       ours, cls="scorecard",
+                       caption="The paper's claims, in a setting where the paper made them, checked as paired "
+                               "differences on the same (target, track, setting) cells. " + rule("holds", "fails"))
+    else:
+        ctx.page.paragraph("The paper's claims: none was made in this run's setting, so none is checked here; "
+                           "each test below is a question beyond the paper.", cls="note")
+    if beyond:
+        ctx.page.table(["question beyond the paper", "why it is beyond the paper", "our reading",
+                        "ours: difference [95 % CI]", "finding in this setting"], beyond, cls="scorecard",
+                       caption="Questions beyond the paper: the same paired tests, outside the setting where the "
+                               "paper made the claim (or on a comparison the paper does not make). A finding here "
+                               "is about this setting, not a verdict on the paper's claim. "
+                               + rule("is supported", "is not supported"))
     sim = simulate_claims(getattr(ctx.run, "run_dir", None))
     if sim:
         held = sum(1 for c in sim if c.get("holds") is True)

@@ -41,7 +41,7 @@ def state(rec: Mapping) -> tuple[str, str]:
 
 def claims_rows(claims: list[Mapping]) -> list[list]:
     """Rows of the claims table: paper wording, statistic, value [95 % CI], threshold, verdict."""
-    return [[c["statement"], c["statistic"] + (f" ({c['detail']})" if c.get("detail") else ""),
+    return [[c["statement"] + (f" ({c['section']})" if c.get("section") else ""), c["statistic"] + (f" ({c['detail']})" if c.get("detail") else ""),
              Estimate(c["value"], c["ci_low"], c["ci_high"]), f"{OP_TEXT.get(c['op'], c['op'])} {c['threshold']:g}",
              verdict_word(c)]
             for c in claims]
@@ -67,7 +67,8 @@ def claims_section(page, summary: Mapping[str, Any]) -> None:
                    "(Wilson for shares, the order-statistic interval for percentiles, a seeded bootstrap "
                    "for the paired difference).")
     page.table(CLAIMS_HEADER, claims_rows(claims), cls="claims",
-               caption="The paper's wording, quoted from its §5.3; 'step' is the 0-based "
+               caption="The paper's §5.3 statements in our words, each with its figure (declared once with the main "
+                       "report's scorecard claims); the simulation is where the paper made them. 'step' is the 0-based "
                        f"track step {cp.get('step', '?')}; confident error: max P ≥ "
                        f"{cp.get('confident_threshold', float('nan')):g} on a wrong class.")
     sw = summary.get("sweep")

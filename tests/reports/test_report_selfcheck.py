@@ -128,7 +128,8 @@ def test_a_caption_without_a_finding_fails_the_build(fake_run, tmp_path, monkeyp
 # Technical terms a reader may meet on the page, each of which the glossary must define.
 TERMS = ("P(truth)", "correct ratio", "log10 MGR", "MSDE", "NLL", "ECE", "PIT", "confident-error rate",
          "calibrated likelihood", "paired difference", "realization", "cell", "setting", "95 % CI", "ablation",
-         "holds / fails / inconclusive", "score component", "showcase track", "numerical saturation")
+         "holds / fails / inconclusive", "score component", "showcase track", "numerical saturation",
+         "supported / not supported in this setting")
 
 
 def test_the_page_speaks_plain_words_and_its_glossary_defines_its_terms(rendered_run):  # noqa: F811

@@ -97,3 +97,93 @@ def test_a_primary_family_record_is_judged_by_its_holm_interval_and_the_bottom_l
     assert claim_status(e, "correct_final") == "inconclusive"       # unadjusted it would hold
     first = bottom_line(pop)[0]
     assert "not distinguishable" in first and "better" not in first and "Holm-adjusted over the 4" in first
+
+
+class _Page:
+    """Records what the scorecard writes: (kind, header or text, rows)."""
+    def __init__(self):
+        self.tables, self.paragraphs = [], []
+
+    def table(self, header, rows, **kw):
+        self.tables.append((list(header), rows, kw.get("caption", "")))
+
+    def paragraph(self, text, **kw):
+        self.paragraphs.append(text)
+
+
+def _scorecard_on(config: dict):
+    """The scorecard of a population whose every comparison is clearly against the claim."""
+    from types import SimpleNamespace
+
+    from reports.main.scorecard import scorecard
+    from reports.shared.checks import Ledger
+
+    recs = [{"comparison": "with_uncertainty-model_based", "metric": "confident_error_final", "value": 0.2,
+             "lo": 0.1, "hi": 0.3},
+            {"comparison": "with_uncertainty-model_based", "metric": "correct_final", "value": -0.3,
+             "lo": -0.4, "hi": -0.2},
+            {"comparison": "with_uncertainty-model_based", "metric": "log10_mgr95_final", "value": 2.0,
+             "lo": 1.0, "hi": 3.0},
+            {"comparison": "with_uncertainty-simple_bayes", "metric": "correct_final", "value": -0.2,
+             "lo": -0.3, "hi": -0.1}]
+    page = _Page()
+    ctx = SimpleNamespace(population={"records": recs}, config=config, ledger=Ledger(), page=page,
+                          run=SimpleNamespace(run_dir=None))
+    scorecard(ctx)
+    return page
+
+
+def _verdicts(table) -> list[str]:
+    header, rows, _ = table
+    return [str(r[-1]) for r in rows]
+
+
+def test_run_setting_is_computed_from_the_config():
+    from pipeline.evaluation.metrics.paper import run_setting
+
+    assert run_setting({"data": {"source": "synthetic"}}) == "synthetic"
+    assert run_setting({}) == "synthetic"
+    assert run_setting({"data": {"source": "real_imagery", "real_imagery": {"dataset": "coil"}}}) == "real_instance"
+    assert run_setting({"data": {"source": "real"}}) == "real_instance"
+    assert run_setting({"data": {"source": "real_imagery", "real_imagery": {"dataset": "eth80"}}}) == "real_category"
+
+
+def test_on_synthetic_data_the_paper_claims_fail_and_simple_bayes_is_a_question():
+    page = _scorecard_on({"data": {"source": "synthetic"}})
+    ours, beyond = page.tables
+    assert ours[0][0] == "claim of the paper (in our words)" and beyond[0][0] == "question beyond the paper"
+    assert _verdicts(ours) == ["fails", "fails", "fails"]          # made in simulation / rendered scenes
+    assert _verdicts(beyond) == ["not supported in this setting"]   # Simple Bayes: no claim of the paper
+    assert all("“" in r[1] and "§" in r[1] for r in ours[1])       # section and quote on every claim
+
+
+def test_at_category_level_no_claim_of_the_paper_fails():
+    page = _scorecard_on({"data": {"source": "real_imagery", "real_imagery": {"dataset": "eth80"}}})
+    assert len(page.tables) == 1                                    # only questions beyond the paper
+    header, rows, caption = page.tables[0]
+    assert header[0] == "question beyond the paper" and len(rows) == 4
+    assert set(_verdicts(page.tables[0])) == {"not supported in this setting"}
+    text = " ".join(str(c) for r in rows for c in r) + caption + " ".join(page.paragraphs)
+    assert "fails" not in text and "category level" in text
+    assert any("none was made in this run's setting" in p for p in page.paragraphs)
+
+
+def test_on_real_instances_only_the_claims_made_on_real_images_are_the_papers():
+    page = _scorecard_on({"data": {"source": "real_imagery", "real_imagery": {"dataset": "coil"}}})
+    ours, beyond = page.tables
+    assert [r[0].split(" ")[0] for r in ours[1]] == ["Modelling", "It"]   # correct_similar, fewer_confident_errors
+    assert any("real model uncertainty" in r[1] for r in beyond[1])       # MGR: made in §5.4 only
+    assert all(v.endswith("in this setting") for v in _verdicts(beyond))
+
+
+def test_one_declaration_serves_the_simulation_and_the_scorecard():
+    from pipeline.evaluation.metrics import paper
+    from pipeline.evaluation.simulation import claims as CL
+
+    assert [c.key for c in CL.CLAIMS] == [c.key for c in paper.SIMULATION_CLAIMS]
+    for spec, decl in zip(CL.CLAIMS, paper.SIMULATION_CLAIMS):
+        assert (spec.statement, spec.op, spec.threshold, spec.section) == (decl.statement, decl.op,
+                                                                           decl.threshold, decl.section)
+    assert all(c.section.startswith("§") and c.quote and c.question for c in paper.CLAIMS)
+    assert all(c.unclaimed for c in paper.CLAIMS if not c.made_in)
+    assert all(set(c.made_in) <= set(paper.MADE_IN) for c in paper.CLAIMS + paper.SIMULATION_CLAIMS)

@@ -45,16 +45,17 @@ def test_results_cover_the_population(run_all):
     assert pop["n_tracks"] == 2 * pop["n_targets"]
     assert set(df["experiment"]) == {"biased", "randomized", "sensitivity"}
     attribution = {"with_uncertainty_poses_only", "with_uncertainty_dropout_only"}
-    assert set(df["method"]) == {"with_uncertainty", "model_based", "simple_bayes", "dirichlet"} | attribution
+    assert set(df["method"]) == {"with_uncertainty", "model_based", "simple_bayes", "dirichlet",
+                                 "view_independent"} | attribution
     assert set(df[df["variant"] != "default"]["method"]) == {"with_uncertainty", "model_based", "simple_bayes",
-                                                             "dirichlet"}
+                                                             "dirichlet", "view_independent"}
     assert set(df["variant"]) == {"default", "models.noise_floor=dropout", "evaluate.test_domain_variance=cross_fit"}
     for target, cands in pop["candidates"].items():
         assert target in cands and len(cands) == 3
         rows = df[(df["target"] == target) & (df["experiment"] == "randomized") & (df["variant"] == "default")]
         assert set(rows["track"]) == {0, 1} and (rows["candidates"] == ",".join(cands)).all()
         assert (rows["truth"] == cands.index(target)).all()
-        assert len(rows) == 2 * 2 * 6 * 4 * 6          # tracks x sigmas x realizations x steps x methods
+        assert len(rows) == 2 * 2 * 6 * 4 * 7          # tracks x sigmas x realizations x steps x methods
         # the Dirichlet ignores poses: one posterior for every realization of a (track, setting)
         d = rows[rows["method"] == "dirichlet"]
         for _, g in d.groupby(["track", "setting", "step"]):
@@ -72,18 +73,18 @@ def test_results_cover_the_population(run_all):
                "log10_mgr95_final", "log10_mgr75_overall", "log10_mgr95_overall", "nll_final", "nll_overall",
                "confident_error_final", "confident_error_overall",
                "ece_final", "ece_overall"}
-    assert pop["methods"] == ["with_uncertainty", "model_based", "simple_bayes", "dirichlet"]
+    assert pop["methods"] == ["with_uncertainty", "model_based", "simple_bayes", "dirichlet", "view_independent"]
     for m in pop["methods"]:
         assert set(pop["pooled"][m]) == metrics
         for est in pop["pooled"][m].values():
             assert est["ci_low"] <= est["value"] <= est["ci_high"]
     assert set(pop["paired"]) == {"with_uncertainty-model_based", "with_uncertainty-simple_bayes",
-                                  "with_uncertainty-dirichlet"}
+                                  "with_uncertainty-dirichlet", "with_uncertainty-view_independent"}
     from pipeline.evaluation.metrics.spec import pool_of
     from pipeline.evaluation.statistics.records import consistent
     recs = pop["records"]
     assert "verdict" not in pop and "verdict_table" not in pop and "robust" not in pop   # records, no prose
-    assert len(recs) == 3 * len(metrics) and all(consistent(r) for r in recs)
+    assert len(recs) == 4 * len(metrics) and all(consistent(r) for r in recs)
     assert {r["metric"] for r in recs if r["primary"]} == set(cfg.evaluate.primary_metrics)
     for r in recs:   # the number, its CI and its label are one statistic: the spec's pooling
         p = pop["paired"][r["comparison"]][r["metric"]]

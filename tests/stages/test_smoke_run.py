@@ -18,7 +18,7 @@ from tests.support.shared_upstream import DEVICE, SMOKE, smoke_artifacts
 
 pytestmark = pytest.mark.slow  # the whole chain: make test runs it, make test-fast skips it
 
-METHODS = {"with_uncertainty", "model_based", "simple_bayes", "dirichlet"}
+METHODS = {"with_uncertainty", "model_based", "simple_bayes", "dirichlet", "view_independent"}
 
 
 def _viewfuse(*args: str, artifacts) -> subprocess.CompletedProcess:

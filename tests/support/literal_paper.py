@@ -159,3 +159,27 @@ def literal_model_based(XT, ST, m, amp, ell, sn2, track, meas, prior=None, inst=
             post = post / post.sum()
         out[upto] = post
     return out
+
+
+def literal_view_independent(ST, dropout, test_var=None, prior=None, var_floor=1e-6):
+    """The view-independent Gaussian baseline (not in the paper), from its
+    definition: per class c and component i one Gaussian with the mean and the ddof-1 variance of
+    the training targets ST[c][i] (plus the test-domain variance, floored); each step's measurement
+    the mean of its dropout samples; P(c | z_0..k) ∝ P(c) Π_j Π_i N(z_ji; m_ci, v_ci), recomputed
+    from step 0 for every k, in linear space. dropout (K, N_s, F) -> (K, C)."""
+    C, K = len(ST), len(dropout)
+    out = np.zeros((K, C))
+    for upto in range(K):
+        post = np.full(C, 1.0 / C) if prior is None else np.asarray(prior, float) / np.sum(prior)
+        for k in range(upto + 1):
+            for c in range(C):
+                for i in range(ST[c].shape[0]):
+                    t = list(ST[c][i])
+                    m = sum(t) / len(t)
+                    v = sum((x - m) ** 2 for x in t) / (len(t) - 1)
+                    v = max(v + (0.0 if test_var is None else float(test_var[c][i])), var_floor)
+                    z = sum(float(s[i]) for s in dropout[k]) / len(dropout[k])
+                    post[c] *= _normal_pdf(z, m, v)
+            post = post / post.sum()
+        out[upto] = post
+    return out

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.domain import fit as D
+from pipeline.evaluation.domain import source as U
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.domain import variance as V
 from pipeline.infra.config import domain_variance_mode
@@ -48,6 +49,8 @@ class TargetDomain:
         self.table = D.crop_residuals(avd, scores, bank, self.poses, cfg.evaluate.max_difficulty,
                                       cfg.evaluate.variance_floor)
         self.components = list(bank.components)
+        self.n_boot, self.seed = int(cfg.evaluate.bootstrap), int(cfg.evaluate.seed)
+        self.sources = mc_sources(cfg)
         keys = scans if len(scans) >= 2 else targets
         by = "scan" if len(scans) >= 2 else "instance"
         if self.table.empty:
@@ -68,7 +71,7 @@ class TargetDomain:
              for kind in ("gp", "gp_plus_dropout", "gp_calibrated")}
         out = D.summarize(t, z)
         n_crops = int(t.groupby(["scan", "instance", "image"]).ngroups)
-        return {**out, "n_crops": n_crops, "pose_source": self.pose_source,
+        return {**out, "n_crops": n_crops, "uncertainty_source": self.source_summary(), "pose_source": self.pose_source,
                 "observed": "mean of the crop's MC-dropout scores; z = (observed - GP mean) / sqrt(variance)",
                 "kinds": {"gp": "GP predictive variance (sigma_n^2 included): what Model Based uses",
                           "gp_plus_dropout": "plus the view's dropout variance: what With Uncertainty adds",
@@ -79,6 +82,12 @@ class TargetDomain:
                     "rows_used": {k: {str(f): v for f, v in e.items()} for k, e in self.used.items()},
                     "rule": ("cells of scan s use the estimate from the other scans' crops" if self.by == "scan" else
                              "cells of target t use the estimate from the other instances' crops")}}
+
+    def source_summary(self) -> dict:
+        """How well the MC spread ranks the crops' distance from their class model (``domain.source``),
+        with the sources the MC samples came from."""
+        est = U.source_summary(U.per_crop(self.table), self.n_boot, self.seed)
+        return {**est, "reading": U.reading(est), **self.sources}
 
     def ring_overlay(self, scan: str, classes, components) -> dict[str, np.ndarray]:
         """Observed mean scores of each class's crops in ``scan`` on the ring: theta (C, n) and y (C, F, n)."""
@@ -96,6 +105,20 @@ class TargetDomain:
                 if fi == 0:
                     th[ci, : len(s)] = np.arctan2(s["x1"].to_numpy(float), s["x0"].to_numpy(float))
         return {"obs_theta": th, "obs_y": y}
+
+
+def mc_sources(cfg) -> dict:
+    """What produced the MC samples: head dropout always; drop-connect only where the run scored
+    with it (then the spread is the two sources' joint one: they are not scored apart)."""
+    from pipeline.scoring.classifiers import classifier
+
+    c = cfg.classifier
+    entry = classifier(c.arch)
+    dc = float(entry.drop_connect(c))
+    return {"source": f"MC dropout (p = {entry.head_dropout(c):g})" + (f" and drop-connect (rate {dc:g})" if dc else ""),
+            "drop_connect": (f"scored together with the dropout (rate {dc:g}): the numbers are of their joint spread; "
+                             "drop-connect alone was not scored") if dc else
+                            "not scored in this run (classifier drop-connect off): no second source to measure"}
 
 
 def target_variances(cells: list[P.Cell], domain: TargetDomain, cfg) -> list[P.Cell]:

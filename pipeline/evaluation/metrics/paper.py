@@ -9,6 +9,15 @@ is the paper's value divided by ln 10 (``log10_of_ln``), with the paper's own va
 The paper's tables report the rendered 3-D (UnrealEngine) experiments of §5.4, not AVD: §5.5 on
 AVD gives a figure and one number. So a paper number is context for our AVD-style run, never the
 threshold of a verdict: the verdict is computed from our interval alone.
+
+This module is the ONE declaration of the paper's claims: the ones the main report's scorecard tests
+on a run's population (``CLAIMS``) and the §5.3 statements the simulate stage tests on simulated
+realizations (``SIMULATION_CLAIMS``; their statistics are computed in
+``pipeline.evaluation.simulation.claims``). Each carries its section, a short phrase quoted from the
+paper (as transcribed in ``shared/paper/numbers.md``) and where the paper made it (``MADE_IN``):
+the §5.3 simulation, the §5.4 rendered scenes, or §5.5 real images (localization uncertainty only,
+"assuming model uncertainty negligible", instance level). A run's setting (``run_setting``) decides
+whether a test is the paper's claim in the paper's setting or a question beyond the paper.
 """
 from __future__ import annotations
 
@@ -75,11 +84,50 @@ NUMBERS: dict[str, tuple[PaperNumber, ...]] = {
 }
 
 
+# Where the paper made a claim, and the run settings that match it. A run on synthetic stand-ins is the
+# analogue of the §5.3 simulation and §5.4 rendered scenes (known instance classes, modelled
+# uncertainty); a real-imagery run on instance classes (COIL-100) is the analogue of §5.5; a
+# category-level run (ETH-80, every test object unseen) matches nothing the paper tested (§6 names it a
+# limitation).
+MADE_IN = {
+    "simulation": ("§5.3", "the MATLAB simulation, 3 hand-specified GP classes"),
+    "rendered": ("§5.4", "rendered 3-D scenes, 3 instance classes"),
+    "real": ("§5.5", "one real AVD track, BigBIRD instances as classes, localization uncertainty only, "
+                     "'assuming model uncertainty negligible'"),
+}
+SETTINGS = {
+    "synthetic": ("synthetic stand-ins (instance classes, modelled uncertainty)", ("simulation", "rendered")),
+    "real_instance": ("real photographs, instance-level classes", ("real",)),
+    "real_category": ("real photographs, category-level classes, every test object unseen", ()),
+}
+
+
+def run_setting(config: dict | None) -> str:
+    """The setting of a run from its resolved config: ``data.source`` real_imagery with
+    ``data.real_imagery.dataset`` eth80 is category level, any other real source instance level
+    (COIL-100 objects, BigBIRD instances on AVD), else synthetic."""
+    data = (config or {}).get("data") or {}
+    source = data.get("source") or "synthetic"
+    if source == "synthetic":
+        return "synthetic"
+    if source == "real_imagery" and ((data.get("real_imagery") or {}).get("dataset") == "eth80"):
+        return "real_category"
+    return "real_instance"
+
+
+def setting_label(setting: str) -> str:
+    return SETTINGS[setting][0]
+
+
 @dataclass(frozen=True)
 class Claim:
     """One claim of the paper (in our words) and the paired comparison that tests it. ``reading``
     is "directional" (the CI of method − baseline on the claimed side of 0) or "equivalence" (the
-    CI within ± the margin ``report.equivalence_margin_correct``: the paper's "similar")."""
+    CI within ± the margin ``report.equivalence_margin_correct``: the paper's "similar").
+    ``section`` and ``quote`` say where the paper says it (a short phrase; empty where the paper
+    says it only in figures), ``made_in`` the settings of ``MADE_IN`` it was shown in (empty: the
+    paper never claims it, so it is always a question beyond the paper), ``question`` how the row
+    reads as a question outside those settings."""
     key: str
     text: str
     method: str
@@ -87,28 +135,98 @@ class Claim:
     metric: str
     reading: str        # "directional" | "equivalence"
     how: str            # how we test it, for the page
+    section: str = ""
+    quote: str = ""
+    made_in: tuple[str, ...] = ()
+    question: str = ""
+    unclaimed: str = ""     # why a claim with no ``made_in`` is not the paper's
 
     @property
     def paper(self) -> tuple[PaperNumber, ...]:
         return NUMBERS.get(self.key, ())
 
+    def in_setting(self, setting: str) -> bool:
+        """Was the claim made in a setting this run's setting matches?"""
+        return any(m in SETTINGS[setting][1] for m in self.made_in)
+
+    def where(self) -> str:
+        """Where the paper made it, in words ("" for a claim the paper does not make)."""
+        return "; ".join(f"{MADE_IN[m][0]} {m}" for m in self.made_in)
+
 
 CLAIMS = (
     Claim("correct_similar",
           "Modelling model and localization uncertainty keeps the correct-classification rate similar to Model "
-          "Based's (§6: 'generally similar').", "with_uncertainty", "model_based", "correct_final", "equivalence",
+          "Based's.", "with_uncertainty", "model_based", "correct_final", "equivalence",
           "paired difference of the correct ratio at the final step, With Uncertainty − Model Based, within "
-          "± {margin:g} (equivalence: the whole 95 % CI inside the margin)"),
+          "± {margin:g} (equivalence: the whole 95 % CI inside the margin)",
+          section="§5.4 Tables 1–2; §5.5.2 Fig. 17; §6", quote="generally similar",
+          made_in=("rendered", "real"),
+          question="Is the correct rate still similar to Model Based's here?"),
     Claim("fewer_confident_errors",
           "It is less often confidently wrong than Model Based, which trusts the pose estimate.",
           "with_uncertainty", "model_based", "confident_error_final", "directional",
-          "paired difference of the confident-error rate at the final step, < 0"),
+          "paired difference of the confident-error rate at the final step, < 0",
+          section="§5.3 Figs. 3, 5; §5.4.1 Fig. 8; §5.5.2 Fig. 17",
+          quote="we validate our contribution w.r.t. localization uncertainty on a dataset of real-world images",
+          made_in=("simulation", "rendered", "real"),
+          question="Is it less often confidently wrong than Model Based here?"),
     Claim("milder_worst_cases",
           "Its worst cases are milder: a lower MGR (how far a wrong class beats the truth) than Model Based.",
           "with_uncertainty", "model_based", "log10_mgr95_final", "directional",
-          "paired difference of the 95th percentile of log10 MGR at the final step, < 0"),
+          "paired difference of the 95th percentile of log10 MGR at the final step, < 0",
+          section="§5.4 Tables 1–2 (MGR, Eq. 45)", quote="e^20 times higher probability assigned to wrong class",
+          made_in=("simulation", "rendered"),
+          question="Are its worst cases milder than Model Based's here?"),
     Claim("beats_simple_bayes",
           "Modelling the viewpoint dependence beats the view-independent Simple Bayes baseline.",
           "with_uncertainty", "simple_bayes", "correct_final", "directional",
-          "paired difference of the correct ratio at the final step, With Uncertainty − Simple Bayes, > 0"),
+          "paired difference of the correct ratio at the final step, With Uncertainty − Simple Bayes, > 0",
+          section="§5.3 text (Figs. 3, 5) only", quote="inverse",
+          question="Does modelling the viewpoint beat Simple Bayes here?",
+          unclaimed="the paper runs Simple Bayes only in the §5.3 simulation, where it drops at the 'inverse' "
+                    "view and does well under a bias; it makes no claim on the correct ratio, and Simple Bayes "
+                    "reads other numbers (each candidate's own score)"),
+)
+
+
+@dataclass(frozen=True)
+class SimulationClaim:
+    """One §5.3 statement of the paper (our wording of it, short phrases quoted), the statistic the
+    simulate stage computes for it on simulated realizations, and the threshold it must pass."""
+    key: str
+    scenario: str               # "model_uncertainty" | "localization_bias"
+    statement: str
+    statistic: str              # what is computed, in words ("{step}", "{conf}" filled in)
+    op: str                     # value <op> threshold = holds
+    threshold: float
+    section: str
+    made_in: tuple[str, ...] = ("simulation",)
+
+
+_MU, _LB = "model_uncertainty", "localization_bias"
+SIMULATION_CLAIMS: tuple[SimulationClaim, ...] = (
+    SimulationClaim("mb_low_at_step", _MU,
+                    "model uncertainty, step 15: in more than 20 % of runs Model Based's P(truth) is below 0.2",
+                    "share of realizations with Model Based's P(truth) < 0.2 at step {step}", ">", 0.20,
+                    "§5.3, Fig. 3"),
+    SimulationClaim("ours_p20_at_step", _MU,
+                    "model uncertainty, step 15: our method's 20th percentile of P(truth) is above 0.33",
+                    "20th percentile of With Uncertainty's P(truth) at step {step}", ">", 0.33, "§5.3, Fig. 3"),
+    SimulationClaim("ours_more_correct", _MU,
+                    "model uncertainty: our method chooses the correct class more often than Model Based",
+                    "overall correct ratio, With Uncertainty − Model Based (mean over realizations of the "
+                    "per-realization share of correct steps)", ">", 0.0, "§5.3, Fig. 3"),
+    SimulationClaim("sb_poor_at_inverse", _MU,
+                    "model uncertainty: Simple Bayes performs poorly where the \"inverse\" view is, around step 15",
+                    "20th percentile of Simple Bayes' P(truth) at step {step} (poor: below 0.2)", "<", 0.20,
+                    "§5.3, Fig. 3"),
+    SimulationClaim("ours_graceful_bias", _LB,
+                    "localization bias: our method accumulates evidence gracefully",
+                    "share of realizations in which With Uncertainty makes a confident error (max P ≥ {conf:g} "
+                    "on a wrong class) at some step (graceful: at most 5 %)", "<=", 0.05, "§5.3, Fig. 5"),
+    SimulationClaim("sb_well_bias", _LB,
+                    "localization bias: Simple Bayes performs well",
+                    "Simple Bayes' correct ratio at the final step (well: at least 0.9)", ">=", 0.90,
+                    "§5.3, Fig. 5"),
 )

@@ -1,6 +1,7 @@
 """The paper's §5.3 statements about its Figs. 3 and 5, checked on simulated realizations.
 
-Each claim is the paper's wording (quoted from its §5.3), one statistic computed
+Each claim is the paper's statement (declared once, with its section, in
+``pipeline.evaluation.metrics.paper.SIMULATION_CLAIMS``), one statistic computed
 from the realizations, its 95 % CI over realizations, a threshold and a direction. The verdict is
 computed from the statistic (``holds``); ``ci_side`` says whether the whole interval agrees
 ("holds" / "fails") or straddles the threshold ("spans"), so a verdict that one more realization
@@ -29,6 +30,7 @@ from scipy import stats
 
 from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
+from pipeline.evaluation.metrics.paper import SIMULATION_CLAIMS
 from pipeline.evaluation.statistics.engine import over_members as within
 from pipeline.evaluation.statistics.records import outcome
 from pipeline.evaluation.statistics.resampler import wilson_interval
@@ -63,6 +65,7 @@ class ClaimSpec:
     op: str                     # value <op> threshold = holds
     threshold: float
     compute: Callable[[Mapping[str, np.ndarray], int, ClaimParams], Estimate]
+    section: str = "§5.3"
 
 
 # -- statistics with CIs over realizations ----------------------------------------------------------
@@ -131,28 +134,13 @@ def _sb_well(posts, truth, p):
 
 
 MU, LB = "model_uncertainty", "localization_bias"
-CLAIMS: tuple[ClaimSpec, ...] = (
-    ClaimSpec("mb_low_at_step", MU,
-              "model uncertainty, step 15: in more than 20 % of runs Model Based's P(truth) is below 0.2",
-              "share of realizations with Model Based's P(truth) < 0.2 at step {step}", ">", 0.20, _mb_low),
-    ClaimSpec("ours_p20_at_step", MU,
-              "model uncertainty, step 15: our method's 20th percentile of P(truth) is above 0.33",
-              "20th percentile of With Uncertainty's P(truth) at step {step}", ">", 0.33, _ours_p20),
-    ClaimSpec("ours_more_correct", MU,
-              "model uncertainty: our method chooses the correct class more often than Model Based",
-              "overall correct ratio, With Uncertainty − Model Based (mean over realizations of the "
-              "per-realization share of correct steps)", ">", 0.0, _ours_more_correct),
-    ClaimSpec("sb_poor_at_inverse", MU,
-              "model uncertainty: Simple Bayes performs poorly where the \"inverse\" view is, around step 15",
-              "20th percentile of Simple Bayes' P(truth) at step {step} (poor: below 0.2)", "<", 0.20, _sb_poor),
-    ClaimSpec("ours_graceful_bias", LB,
-              "localization bias: our method accumulates evidence gracefully",
-              "share of realizations in which With Uncertainty makes a confident error (max P ≥ {conf:g} "
-              "on a wrong class) at some step (graceful: at most 5 %)", "<=", 0.05, _ours_graceful),
-    ClaimSpec("sb_well_bias", LB,
-              "localization bias: Simple Bayes performs well",
-              "Simple Bayes' correct ratio at the final step (well: at least 0.9)", ">=", 0.90, _sb_well),
-)
+COMPUTE = {"mb_low_at_step": _mb_low, "ours_p20_at_step": _ours_p20, "ours_more_correct": _ours_more_correct,
+           "sb_poor_at_inverse": _sb_poor, "ours_graceful_bias": _ours_graceful, "sb_well_bias": _sb_well}
+# The statements, thresholds and sections are declared once, with the scorecard's claims
+# (pipeline.evaluation.metrics.paper); here each gets the statistic that tests it.
+CLAIMS: tuple[ClaimSpec, ...] = tuple(
+    ClaimSpec(c.key, c.scenario, c.statement, c.statistic, c.op, c.threshold, COMPUTE[c.key], c.section)
+    for c in SIMULATION_CLAIMS)
 BY_KEY = {c.key: c for c in CLAIMS}
 
 
@@ -178,7 +166,7 @@ def evaluate_claim(spec: ClaimSpec, posts: Mapping[str, np.ndarray], truth: int,
         raise ValueError(f"claims: step {p.step} is outside the track's {K} steps (simulate.claim_step)")
     e = spec.compute(posts, truth, p)
     return {
-        "key": spec.key, "scenario": spec.scenario, "statement": spec.statement,
+        "key": spec.key, "scenario": spec.scenario, "statement": spec.statement, "section": spec.section,
         "statistic": spec.statistic.format(step=p.step, conf=p.confident_threshold),
         "op": spec.op, "threshold": spec.threshold,
         "value": e.value, "ci_low": e.ci_low, "ci_high": e.ci_high, "n": e.n, "detail": e.detail,

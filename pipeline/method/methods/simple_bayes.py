@@ -22,7 +22,9 @@ class SimpleBayes(FusionMethod):
     label = "Simple Bayes"
     short = "Simple Bayes"
     color = "#009E73"
-    note = "multiplies the classifier's own class probabilities view after view; ignores the viewpoint and the poses"
+    note = ("multiplies the classifier's own score of each candidate view after view; ignores the viewpoint and "
+            "the poses. It reads other numbers than the GP methods (each candidate's own score component, not "
+            "the GP components): the view-independent Gaussian is the baseline on the same numbers")
     needs = frozenset({"scores"})
     uses_poses = False
     simulation = True

@@ -12,7 +12,7 @@ from pipeline.evaluation.simulation import scenarios as S
 from pipeline.method import registry
 from pipeline.method.geometry import sample_localization
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
-from tests.support.literal_paper import literal_model_based, literal_uncertainty
+from tests.support.literal_paper import literal_model_based, literal_uncertainty, literal_view_independent
 from tests.support.toy_method import KEY, ToyTempered, toy_method  # noqa: F401 (fixture)
 
 BUILTIN = ("with_uncertainty", "model_based", "simple_bayes", "dirichlet")
@@ -45,7 +45,7 @@ def test_registry_path_equals_the_literal_equations():
     models, track, est, smp = _case()
     args = (models.X, models.Y, models.mean, models.amplitude, models.length_scale, models.noise)
     out = E.fuse_track(models, track, est, smp, var_floor=1e-6, attribution=True)
-    assert tuple(out) == BUILTIN[:3] + labels.ATTRIBUTION
+    assert tuple(out) == BUILTIN[:3] + labels.ATTRIBUTION + ("view_independent",)
     mean_drop = track.dropout.mean(axis=1, keepdims=True)
     sb = np.cumprod(track.own.mean(axis=1), axis=0)
     sb /= sb.sum(axis=1, keepdims=True)
@@ -54,7 +54,8 @@ def test_registry_path_equals_the_literal_equations():
                 "model_based": literal_model_based(*args, track.inputs(est[r]), track.measurement),
                 "simple_bayes": sb,
                 labels.WU_POSES_ONLY: literal_uncertainty(*args, track.inputs(smp[r]), mean_drop),
-                labels.WU_DROPOUT_ONLY: literal_uncertainty(*args, track.inputs(est[r])[None], track.dropout)}
+                labels.WU_DROPOUT_ONLY: literal_uncertainty(*args, track.inputs(est[r])[None], track.dropout),
+                "view_independent": literal_view_independent(models.Y, track.dropout)}
         for m, p in want.items():
             np.testing.assert_allclose(np.exp(out[m][r]), p, atol=1e-9, err_msg=m)
 
@@ -62,7 +63,7 @@ def test_registry_path_equals_the_literal_equations():
 def test_a_pose_free_method_given_once_is_repeated_not_refused():
     models, track, est, smp = _case()
     fixed, _ = E.pose_free(E.track_input(models, track, var_floor=1e-6))
-    assert set(fixed) == {"simple_bayes"}
+    assert set(fixed) == {"simple_bayes", "view_independent"}
     a = E.fuse_track(models, track, est, smp, var_floor=1e-6)
     b = E.fuse_track(models, track, est, smp, var_floor=1e-6, fixed=fixed)
     for m in a:

@@ -103,7 +103,7 @@ def test_result_block_rows_and_summary():
     logs = E.randomized(m, tr, (0.0, 0.0), 0.1, 4, 3, np.random.default_rng(0), var_floor=1e-6)
     posts = {k: np.exp(v) for k, v in logs.items()}
     cols = result_block(logs, 2, experiment="randomized", setting="s", sigma_m=0.1)
-    n = 2 * 4 * tr.k
+    n = 3 * 4 * tr.k                              # With Uncertainty, Model Based, view-independent
     assert all(len(v) == n for v in cols.values())
     assert np.isfinite(cols["log10_mgr"]).all()  # log space: no inf even where P(truth) underflows
     i = 4 * tr.k + 5                              # second method, realization 0, step 5
@@ -136,14 +136,15 @@ def test_simple_bayes_uses_own_scores_and_repeats_over_realizations():
     own = rng.dirichlet(np.ones(3), size=(base.k, 4))               # (K, N_s, C)
     tr = E.TrackData(base.images, base.cam_xy, base.obj_xy, base.yaw, base.dropout, own)
     logs = E.randomized(m, tr, (0.0, 0.0), 0.2, 5, 3, np.random.default_rng(0), var_floor=1e-6)
-    assert set(logs) == {E.WITH_UNCERTAINTY, E.MODEL_BASED, E.SIMPLE_BAYES}   # the Dirichlet runs per cell
+    assert set(logs) == {E.WITH_UNCERTAINTY, E.MODEL_BASED, E.SIMPLE_BAYES,
+                         "view_independent"}   # the Dirichlet runs per cell
     sb = logs[E.SIMPLE_BAYES]
     assert sb.shape == (5, tr.k, 3)
     np.testing.assert_allclose(sb[0], simple_bayes(own.mean(axis=1), return_log=True))
     np.testing.assert_array_equal(sb[0], sb[4])                      # pose noise does not touch it
-    # Without own scores only the two GP methods run.
+    # Without own scores only the methods on the GP bank run.
     assert set(E.randomized(m, base, (0.0, 0.0), 0.2, 2, 3, np.random.default_rng(0), var_floor=1e-6)) == \
-        {E.WITH_UNCERTAINTY, E.MODEL_BASED}
+        {E.WITH_UNCERTAINTY, E.MODEL_BASED, "view_independent"}
 
 
 def test_single_view_difficulty():
@@ -215,16 +216,18 @@ def test_fusion_seconds_come_back_with_the_posteriors(monkeypatch):
     ticks = count()
     monkeypatch.setattr(E, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))   # a call: 1 s
     one = E.biased(m, tr, (0.1, 0.0), 0.2, 4, np.random.default_rng(3), var_floor=1e-6, attribution=True)
-    assert one.seconds == {E.WITH_UNCERTAINTY: 1.0, E.MODEL_BASED: 1.0, WU_POSES_ONLY: 1.0, WU_DROPOUT_ONLY: 1.0}
+    VI = "view_independent"
+    assert one.seconds == {E.WITH_UNCERTAINTY: 1.0, E.MODEL_BASED: 1.0, WU_POSES_ONLY: 1.0, WU_DROPOUT_ONLY: 1.0,
+                           VI: 1.0}
     many = E.randomized(m, tr, (0.1, 0.0), 0.2, 11, 4, np.random.default_rng(3), var_floor=1e-6, chunk=3, batch=5)
-    assert many.seconds == {E.MODEL_BASED: 2.0, E.WITH_UNCERTAINTY: 2.0}         # two engine calls: 6 + 5
+    assert many.seconds == {E.MODEL_BASED: 2.0, E.WITH_UNCERTAINTY: 2.0, VI: 2.0}   # two engine calls: 6 + 5
     assert set(many) >= set(many.seconds) and many[E.MODEL_BASED].shape[0] == 11
 
     own = np.full((tr.k, tr.dropout.shape[1], len(m.classes)), 1.0 / len(m.classes))
     with_own = E.TrackData(tr.images, tr.cam_xy, tr.obj_xy, tr.yaw, tr.dropout, own=own)
     fixed, _ = E.pose_free(E.track_input(m, with_own, var_floor=1e-6))
-    assert fixed.seconds == {E.SIMPLE_BAYES: 1.0}
+    assert fixed.seconds == {E.SIMPLE_BAYES: 1.0, VI: 1.0}
     again = E.biased(m, with_own, (0.0, 0.0), 0.2, 4, np.random.default_rng(3), var_floor=1e-6, fixed=fixed)
     assert E.SIMPLE_BAYES in again and E.SIMPLE_BAYES not in again.seconds
     assert E.add_seconds(fixed.seconds, again.seconds, many.seconds) == {
-        E.SIMPLE_BAYES: 1.0, E.WITH_UNCERTAINTY: 3.0, E.MODEL_BASED: 3.0}
+        E.SIMPLE_BAYES: 1.0, E.WITH_UNCERTAINTY: 3.0, E.MODEL_BASED: 3.0, VI: 3.0}
