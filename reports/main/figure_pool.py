@@ -1,14 +1,16 @@
 """Draw the report's figures: one after another in this process, or independent figures at once in
 a pool of worker processes (matplotlib is not thread-safe; each worker draws on its own Agg canvas).
 
-A figure's drawing depends on nothing but the run's artifacts and the report's arguments, so a
-worker rebuilds the plan from those (``rebuild``: a module-level function and its keyword
-arguments, which pickle) and draws the figures it is handed by name; the PNG bytes and the
-checks are the same as the serial route's (tests/reports/test_figure_pool.py). Results come back
-in the plan's order whatever the order the workers finish in.
+The workers are forked once the plan is built, so they start with the run already loaded and the
+track summaries made (a spawned worker spent seconds importing and loading again, on a machine
+with two cores); they draw the figures they are handed by name, and the PNG bytes and the checks
+are the same as the serial route's (tests/reports/test_figure_pool.py). Results come back in the
+plan's order whatever the order the workers finish in. Where processes cannot fork, the figures are
+drawn in this process.
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
 from pathlib import Path
 from typing import Any, Callable
@@ -39,8 +41,11 @@ def free_cores() -> int:
 
 def pool_size(n_figures: int, requested: int | None = None) -> int:
     """Worker processes for ``n_figures`` figures: ``requested``, or the free cores (``None``), at
-    most one per figure and as many as the memory beside this process holds (a worker loads
-    the run again, about this process's size)."""
+    most one per figure and as many as the memory beside this process holds (a worker's pages
+    are this process's until it writes to them: at most about this process's size). 1 where
+    processes cannot fork."""
+    if not can_fork():
+        return 1
     want = free_cores() if requested is None else max(1, int(requested))
     want = min(want, max(n_figures, 1))
     if want <= 1:
@@ -55,29 +60,26 @@ def draw_one(name: str, build: Callable[[], Any], out: Path, dpi: int, clipped: 
     return name, chk, clipped.get(name)
 
 
-# a worker's plan, rebuilt once by its initializer: "plan" (name -> builder) and the plan's own
-# ``clipped`` dict, which its builders record into
+# the plan the workers draw from: set in this process just before the pool forks them, so each
+# worker inherits the built plan (the run loaded, the summaries made) instead of rebuilding it
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(rebuild: Callable[..., tuple[Plan, dict]], kwargs: dict) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    plan, clipped = rebuild(**kwargs)
-    _WORKER.update(plan=dict(plan), clipped=clipped)
-
-
 def _draw_named(name: str, out: str, dpi: int) -> Drawn:
-    plan = _WORKER["plan"]
-    if name not in plan:
-        raise RuntimeError(f"report figure {name!r}: not in the plan a worker rebuilt from the run "
-                           f"({', '.join(sorted(plan)) or 'empty'})")
-    return draw_one(name, plan[name], Path(out), dpi, _WORKER["clipped"])
+    return draw_one(name, _WORKER["plan"][name], Path(out), dpi, _WORKER["clipped"])
 
 
-def draw_parallel(names: list[str], out: Path, dpi: int, workers: int,
-                  rebuild: Callable[..., tuple[Plan, dict]], kwargs: dict, progress: bool) -> list[Drawn]:
-    """Draw ``names`` in ``workers`` processes, each rebuilding the plan with ``rebuild(**kwargs)``."""
-    with worker_pool(workers, initializer=_init_worker, initargs=(rebuild, kwargs)) as pool:
-        futures = [pool.submit(_draw_named, n, str(out), dpi) for n in names]
-        return [f.result() for f in progress_bar(futures, desc="report figures", unit="fig", enabled=progress)]
+def can_fork() -> bool:
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
+def draw_parallel(plan: Plan, out: Path, dpi: int, workers: int, clipped: dict, progress: bool) -> list[Drawn]:
+    """Draw ``plan``'s figures in ``workers`` forked processes; the builders record into ``clipped``
+    in the workers, so what they recorded comes back with each figure."""
+    _WORKER.update(plan=dict(plan), clipped=clipped)
+    try:
+        with worker_pool(workers, start_method="fork") as pool:
+            futures = [pool.submit(_draw_named, name, str(out), dpi) for name, _ in plan]
+            return [f.result() for f in progress_bar(futures, desc="report figures", unit="fig", enabled=progress)]
+    finally:
+        _WORKER.clear()

@@ -190,13 +190,6 @@ def _figure_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
             + _models_plan(ctx))
 
 
-def worker_plan(**kwargs) -> tuple[list[tuple[str, Callable[[], Any]]], dict]:
-    """A figure worker's plan, rebuilt from the run (``reports.main.figure_pool``), and the dict its
-    builders record clipped values into."""
-    ctx = _context(**kwargs)
-    return _figure_plan(ctx), ctx.clipped
-
-
 def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = "viewfuse report", dpi: int = 110,
                       run_name: str = "", config: dict | None = None, timings: dict[str, float] | None = None,
                       progress: bool = True, n_boot: int = BOOTSTRAP, seed: int = 0, commit: str = "",
@@ -209,21 +202,20 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
     the canvas after ``reports.shared.layout.finish_figure``) stop it under 'all' only, and under
     'contradictions' the page is written with a warning box on the figure and a logged warning.
 
-    ``workers``: processes that draw the figures (1: in this process, the default, so that a test's
-    monkeypatches reach every figure; ``None``: the free cores, ``reports.main.figure_pool``, as the
+    ``workers``: processes that draw the figures (1: in this process, the default: a library call
+    starts no processes unless asked; ``None``: the free cores, ``reports.main.figure_pool``, as the
     report stage asks); the files are the same either way."""
     mode = strict_mode(strict)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    args = dict(run_dir=str(run_dir), title=title, run_name=run_name, config=config, timings=timings, n_boot=n_boot,
-                seed=seed, commit=commit, config_file=config_file)
-    ctx = _context(**args)
+    ctx = _context(run_dir, title=title, run_name=run_name, config=config, timings=timings, n_boot=n_boot, seed=seed,
+                   commit=commit, config_file=config_file)
     plan = _figure_plan(ctx)
     # the figures to draw (a test narrows the plan through progress_bar: tests/support/report_fixtures.py)
-    names = [name for name, _ in progress_bar(plan, enabled=False)]
-    n = pool_size(len(names), workers)
+    plan = list(progress_bar(plan, enabled=False))
+    n = pool_size(len(plan), workers)
     if n > 1:
-        drawn = draw_parallel(names, out, dpi, n, worker_plan, args, progress)
+        drawn = draw_parallel(plan, out, dpi, n, ctx.clipped, progress)
     else:
         drawn = [draw_one(name, build, out, dpi, ctx.clipped)
                  for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress)]
