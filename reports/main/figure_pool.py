@@ -10,6 +10,7 @@ drawn in this process.
 """
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import os
 from pathlib import Path
@@ -77,9 +78,13 @@ def draw_parallel(plan: Plan, out: Path, dpi: int, workers: int, clipped: dict, 
     """Draw ``plan``'s figures in ``workers`` forked processes; the builders record into ``clipped``
     in the workers, so what they recorded comes back with each figure."""
     _WORKER.update(plan=dict(plan), clipped=clipped)
+    # the objects built so far move out of the collector's reach: a worker's collections would
+    # otherwise write to (and so copy) every page it inherited
+    gc.freeze()
     try:
         with worker_pool(workers, start_method="fork") as pool:
             futures = [pool.submit(_draw_named, name, str(out), dpi) for name, _ in plan]
             return [f.result() for f in progress_bar(futures, desc="report figures", unit="fig", enabled=progress)]
     finally:
+        gc.unfreeze()
         _WORKER.clear()
