@@ -48,3 +48,29 @@ def test_pool_size_never_exceeds_the_figures_or_the_free_cores(monkeypatch):
     monkeypatch.setattr(figure_pool.os, "getloadavg", lambda: (40.0, 40.0, 40.0))
     assert figure_pool.free_cores() == 1
     assert figure_pool.pool_size(20, requested=2) == 2                       # asked for: not the load's cap
+
+
+def test_checks_from_the_finishing_draws_boxes_match_a_fresh_measurement():
+    """figures.check reads the boxes finish_figure measured; on planted problems (overlapping titles,
+    neighbouring tick labels that run together, a clipped label) they give what measuring again gives."""
+    from reports.shared import layout
+    from reports.shared.checks import figure_text_problems, text_artists
+    from reports.shared.figures import check, new_subplots, tick_overlaps
+
+    fig, axes = new_subplots(1, 3, w=6.0, h=2.2)
+    for ax in axes[0]:
+        ax.set_title("With Uncertainty, a long panel title\nR = 30 realizations")
+        ax.set_xticks(range(8))
+        ax.set_xticklabels([f"long tick label {i}" for i in range(8)])
+    axes[0, 0].set_ylabel("a y label\nthat runs much longer than the axes are tall, so its ends leave the canvas")
+    arts = text_artists(fig)
+    r = fig.canvas.get_renderer()
+    boxes = [(g, t, ax, t.get_window_extent(r)) for g, t, ax in arts]
+    fresh = figure_text_problems(fig, "planted")
+    assert any("overlaps" in p for p in fresh) and any("clipped" in p for p in fresh)
+    assert figure_text_problems(fig, "planted", boxes=boxes) == fresh
+    assert tick_overlaps(fig, boxes=boxes) == tick_overlaps(fig) != []
+
+    layout.finish_figure(fig)
+    assert layout.last_boxes(fig) is not None          # finished on a draw: save's checks read its boxes
+    assert check(fig, 110, "finished", drawn=True) == check(fig, 110, "finished", drawn=False)
