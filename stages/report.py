@@ -21,6 +21,7 @@ def run(ctx) -> str:
         title=cfg.report.title, dpi=cfg.report.dpi, run_name=cfg.run.name,
         config=to_dict(cfg), timings=stage_timings(cfg), commit=_commit(cfg.root),
         config_file=_relative(cfg.source_path, cfg.root), strict=cfg.report.strict,
+        workers=None,   # independent figures drawn at once on the free cores (reports/main/figure_pool.py)
     )
     ctx.extra["figures"] = res.figures
     ctx.extra["sections"] = res.sections

@@ -88,11 +88,13 @@ def _start(parent: int, pids: str, root: str | None, initializer: Callable | Non
 
 
 @contextlib.contextmanager
-def worker_pool(workers: int, initializer: Callable | None = None, initargs: tuple = ()) -> Iterator[ProcessPoolExecutor]:
+def worker_pool(workers: int, initializer: Callable | None = None, initargs: tuple = (),
+                start_method: str = "spawn") -> Iterator[ProcessPoolExecutor]:
     """A spawn-context ``ProcessPoolExecutor`` whose workers die with this process; on an
-    exception (including SIGINT/SIGTERM) the workers are terminated at once."""
+    exception (including SIGINT/SIGTERM) the workers are terminated at once. ``start_method``
+    "fork": workers inherit this process's memory (for work that needs no new imports or loads)."""
     pids = str(_PID_FILE[0] or "")
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start,
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(start_method), initializer=_start,
                                initargs=(os.getpid(), pids, write_root(), initializer, initargs))
     try:
         yield pool

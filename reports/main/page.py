@@ -29,7 +29,7 @@ from reports.main.reviewer import limitations_section, methods_section, reproduc
 from reports.shared.artifacts import load_run
 from reports.main.context import ReportContext
 from reports.shared.checks import ReportCheckError
-from reports.shared.figures import save
+from reports.main.figure_pool import draw_one, draw_parallel, pool_size
 from reports.main.figures_calibration import calibration_plan
 from reports.main.figures_models import fig_bias_maps, fig_gp_rasters, fig_gp_ring
 from reports.main.figures_results import (fig_bands, fig_biased, fig_forest, fig_per_target, fig_sensitivity,
@@ -177,31 +177,54 @@ def _subtitle(ctx: ReportContext) -> str:
     return " · ".join(p for p in parts if p)
 
 
+def _context(run_dir: str | Path, *, title: str, run_name: str, config: dict | None, timings: dict[str, float] | None,
+             n_boot: int, seed: int, commit: str, config_file: str) -> ReportContext:
+    ctx = ReportContext(HtmlReport(title), load_run(run_dir), run_name, config or {}, timings or {}, n_boot=n_boot,
+                        commit=commit, config_file=config_file)
+    ctx.comp_names = component_labels(ctx.run.index, ctx.run.evaluate.gp, ctx.run.evaluate.target)
+    _summaries(ctx, seed)
+    return ctx
+
+
+def _figure_plan(ctx: ReportContext) -> list[tuple[str, Callable[[], Any]]]:
+    return (_population_plan(ctx) + planning_sections.planning_plan(ctx) + _track_plan(ctx, ctx.clipped)
+            + _models_plan(ctx))
+
+
 def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = "viewfuse report", dpi: int = 110,
                       run_name: str = "", config: dict | None = None, timings: dict[str, float] | None = None,
                       progress: bool = True, n_boot: int = BOOTSTRAP, seed: int = 0, commit: str = "",
-                      config_file: str = "", strict: str | bool = "all") -> ReportResult:
+                      config_file: str = "", strict: str | bool = "all", workers: int | None = 1) -> ReportResult:
     """Render ``out_dir/index.html`` and its PNGs from ``run_dir``'s evaluate, models and classifier outputs.
 
     Self-checks come in two classes (``strict``, the config's ``report.strict``): contradictions (a
     label its CI contradicts, two numbers for one statistic, a value outside its CI, a caption
     without a finding) always stop the build; layout slips (figure text that overlaps or leaves
     the canvas after ``reports.shared.layout.finish_figure``) stop it under 'all' only, and under
-    'contradictions' the page is written with a warning box on the figure and a logged warning."""
+    'contradictions' the page is written with a warning box on the figure and a logged warning.
+
+    ``workers``: processes that draw the figures (1: in this process, the default: a library call
+    starts no processes unless asked; ``None``: the free cores, ``reports.main.figure_pool``, as the
+    report stage asks); the files are the same either way."""
     mode = strict_mode(strict)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    run = load_run(run_dir)
-    ctx = ReportContext(HtmlReport(title), run, run_name, config or {}, timings or {}, n_boot=n_boot, commit=commit,
-                        config_file=config_file)
-    ctx.comp_names = component_labels(run.index, run.evaluate.gp, run.evaluate.target)
-    _summaries(ctx, seed)
-    plan = (_population_plan(ctx) + planning_sections.planning_plan(ctx) + _track_plan(ctx, ctx.clipped)
-            + _models_plan(ctx))
+    ctx = _context(run_dir, title=title, run_name=run_name, config=config, timings=timings, n_boot=n_boot, seed=seed,
+                   commit=commit, config_file=config_file)
+    plan = _figure_plan(ctx)
+    # the figures to draw (a test narrows the plan through progress_bar: tests/support/report_fixtures.py)
+    plan = list(progress_bar(plan, enabled=False))
+    n = pool_size(len(plan), workers)
+    if n > 1:
+        drawn = draw_parallel(plan, out, dpi, n, ctx.clipped, progress)
+    else:
+        drawn = [draw_one(name, build, out, dpi, ctx.clipped)
+                 for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress)]
     written = []
-    for name, build in progress_bar(plan, desc="report figures", unit="fig", enabled=progress):
-        fig = build()
-        ctx.checks[name] = chk = save(fig, out / name, dpi)
+    for name, chk, clipped in drawn:
+        ctx.checks[name] = chk
+        if clipped is not None:
+            ctx.clipped[name] = clipped
         slips = list(chk.text_problems)   # the self-check's figure_text_problems, from save's one placement
         if slips:
             ctx.layout_problems[name] = slips

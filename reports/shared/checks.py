@@ -126,10 +126,12 @@ def _short(s: str) -> str:
     return repr(s if len(s) <= 40 else s[:37] + "...")
 
 
-def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0, arts=None) -> list[str]:
+def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0, arts=None, boxes=None) -> list[str]:
     """Text of ``fig`` that overlaps other text or leaves the canvas (after layout). ``arts``:
-    ``text_artists(fig)`` made since the figure's last change, to spare a second layout."""
-    boxes = _text_boxes(fig, arts)
+    ``text_artists(fig)`` made since the figure's last change, to spare a second layout; ``boxes``:
+    those texts' (group, text, axes, box) as measured since (``layout.last_boxes``), to spare measuring."""
+    boxes = _text_boxes(fig, arts) if boxes is None else [(g, t.get_text(), b) for g, t, _, b in boxes]
+    rank = _ranks(boxes)
     W, H = fig.bbox.width, fig.bbox.height
     out = []
     for _, s, b in boxes:
@@ -141,7 +143,8 @@ def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0, arts=No
             out.append(f"{name}: text {_short(s)} prints mathtext markup literally")
     for i, (g1, s1, b1) in enumerate(boxes):
         for g2, s2, b2 in boxes[i + 1:]:
-            if g1 and g1 == g2 and not _neighbours(boxes, g1, b1, b2):
+            if g1 and g1 == g2 and abs(rank[id(b1)] - rank[id(b2)]) != 1:
+                # tick labels of one axis are compared with the next one along it only
                 continue
             ox = min(b1.x1, b2.x1) - max(b1.x0, b2.x0)
             oy = min(b1.y1, b2.y1) - max(b1.y0, b2.y0)
@@ -150,13 +153,17 @@ def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0, arts=No
     return out
 
 
-def _neighbours(boxes, group: str, b1, b2) -> bool:
-    """Tick labels of one axis are compared with the next one along it only."""
-    axis = group[-1]
-    key = (lambda b: b.x0) if axis == "x" else (lambda b: b.y0)
-    same = sorted((b for g, _, b in boxes if g == group), key=key)
-    i, j = same.index(b1), same.index(b2)
-    return abs(i - j) == 1
+def _ranks(boxes) -> dict[int, int]:
+    """Each tick label box's place along its axis (by its left or bottom edge), per tick group."""
+    groups: dict[str, list] = {}
+    for g, _, b in boxes:
+        if g:
+            groups.setdefault(g, []).append(b)
+    rank = {}
+    for g, bs in groups.items():
+        key = (lambda b: b.x0) if g[-1] == "x" else (lambda b: b.y0)
+        rank.update((id(b), i) for i, b in enumerate(sorted(bs, key=key)))
+    return rank
 
 
 # ---------------------------------------------------------------- the ledger

@@ -125,16 +125,19 @@ def freeze_layout(fig: Figure, relayout: bool = False) -> None:
         fig.set_layout_engine("none")
 
 
-def tick_overlaps(fig: Figure, arts=None) -> list[str]:
+def tick_overlaps(fig: Figure, arts=None, boxes=None) -> list[str]:
     """Pairs of tick labels on one axis whose drawn boxes overlap (after layout). ``arts``: the
-    checker's ``text_artists(fig)`` if just made (its tick groups are the labels matplotlib draws)."""
+    checker's ``text_artists(fig)`` if just made (its tick groups are the labels matplotlib draws);
+    ``boxes``: their (group, text, axes, box) if measured since (``layout.last_boxes``)."""
     from reports.shared.checks import text_artists
-    arts = text_artists(fig) if arts is None else arts
-    renderer = fig.canvas.get_renderer()
+    if boxes is None:
+        arts = text_artists(fig) if arts is None else arts
+        renderer = fig.canvas.get_renderer()
+        boxes = [(g, t, ax, t.get_window_extent(renderer)) for g, t, ax in arts if g]
     groups: dict[str, tuple] = {}
-    for g, t, ax in arts:
+    for g, t, ax, b in boxes:
         if g:
-            groups.setdefault(g, (ax, []))[1].append((t.get_text(), t.get_window_extent(renderer)))
+            groups.setdefault(g, (ax, []))[1].append((t.get_text(), b))
     out = []
     for g, (ax, boxes) in groups.items():
         name = g[-1]
@@ -148,11 +151,14 @@ def tick_overlaps(fig: Figure, arts=None) -> list[str]:
 def check(fig: Figure, dpi: int = 110, name: str = "figure", drawn: bool = False) -> FigureCheck:
     """The legibility check and the self-check's text problems, from one placement of the text
     (``drawn``: the figure's last draw placed it and nothing changed since)."""
+    from reports.shared import layout
     from reports.shared.checks import figure_text_problems, text_artists
     sizes = text_sizes_px(fig, dpi)
-    arts = text_artists(fig, draw=not drawn)
-    return FigureCheck(min(sizes) if sizes else 0.0, tuple(tick_overlaps(fig, arts)), int(fig.get_figwidth() * dpi),
-                       tuple(figure_text_problems(fig, name, arts=arts)))
+    # the finishing draw's measured boxes when it was the last draw: the texts are not measured twice
+    boxes = layout.last_boxes(fig) if drawn else None
+    arts = text_artists(fig, draw=not drawn) if boxes is None else None
+    return FigureCheck(min(sizes) if sizes else 0.0, tuple(tick_overlaps(fig, arts, boxes)),
+                       int(fig.get_figwidth() * dpi), tuple(figure_text_problems(fig, name, arts=arts, boxes=boxes)))
 
 
 def save(fig: Figure, path, dpi: int = 110) -> FigureCheck:

@@ -32,6 +32,8 @@ MAX_ROUNDS = 12
 # figures whose last finish_figure ended on a measuring draw, nothing changed since (save reads
 # their text where that draw placed it instead of laying them out again)
 _ENDED_ON_DRAW: weakref.WeakSet = weakref.WeakSet()
+# and the (group, text, axes, box) that draw measured, for the checks to read instead of measuring again
+_LAST_BOXES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 MAX_HEIGHT_IN = 80.0
 MIN_FONT_PT = 8.0
 MAX_WIDTH_IN = 10.8          # as reports.shared.figures (the page's width at 100 %)
@@ -217,6 +219,7 @@ def _problems(fig):
     arts = text_artists(fig)
     r = fig.canvas.get_renderer()
     boxes = [(g, t, ax, t.get_window_extent(r)) for g, t, ax in arts]
+    _LAST_BOXES[fig] = boxes
     W, H = fig.bbox.width, fig.bbox.height
     clipped = [(t, ax, b) for _, t, ax, b in boxes
                if b.x0 < -TOL_PX or b.y0 < -TOL_PX or b.x1 > W + TOL_PX or b.y1 > H + TOL_PX]
@@ -313,6 +316,7 @@ def finish_figure(fig) -> list[str]:
     draws); returns what it changed, one line per round (empty when the figure was clean)."""
     log: list[str] = []
     _ENDED_ON_DRAW.discard(fig)
+    _LAST_BOXES.pop(fig, None)
     for rnd in range(MAX_ROUNDS):
         ticks, clipped, pairs, r = _problems(fig)
         if not ticks and not clipped and not pairs:
@@ -344,3 +348,9 @@ def finish_figure(fig) -> list[str]:
 def ended_on_draw(fig) -> bool:
     """Whether ``finish_figure``'s last act on ``fig`` was a draw, with nothing changed since."""
     return fig in _ENDED_ON_DRAW
+
+
+def last_boxes(fig) -> list | None:
+    """The (group, text, axes, box) of every checked text as ``finish_figure``'s last draw placed
+    them, when that draw was its last act (``ended_on_draw``); else None."""
+    return _LAST_BOXES.get(fig) if fig in _ENDED_ON_DRAW else None

@@ -1,0 +1,90 @@
+"""Draw the report's figures: one after another in this process, or independent figures at once in
+a pool of worker processes (matplotlib is not thread-safe; each worker draws on its own Agg canvas).
+
+The workers are forked once the plan is built, so they start with the run already loaded and the
+track summaries made (a spawned worker spent seconds importing and loading again, on a machine
+with two cores); they draw the figures they are handed by name, and the PNG bytes and the checks
+are the same as the serial route's (tests/reports/test_figure_pool.py). Results come back in the
+plan's order whatever the order the workers finish in. Where processes cannot fork, the figures are
+drawn in this process.
+"""
+from __future__ import annotations
+
+import gc
+import multiprocessing
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+import psutil
+
+from pipeline.infra.budget import AUTO_SHARE, cap_workers, machine_memory
+from pipeline.infra.device import available_cores
+from pipeline.infra.progress import bar as progress_bar
+from pipeline.infra.workers import worker_pool
+from reports.shared.figures import FigureCheck, save
+
+Plan = list[tuple[str, Callable[[], Any]]]
+# (name, its check, what the figure's builder recorded in the plan's ``clipped`` for it)
+Drawn = tuple[str, FigureCheck, Any]
+
+
+def free_cores() -> int:
+    """Cores not busy with other work: this process's cores less the one-minute load beyond this
+    process itself (the machine may be shared; more processes than free cores only queue)."""
+    n = available_cores()
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):     # pragma: no cover - not Unix
+        return n
+    return max(1, min(n, int(n - max(0.0, load - 1.0) + 0.5)))
+
+
+def pool_size(n_figures: int, requested: int | None = None) -> int:
+    """Worker processes for ``n_figures`` figures: ``requested``, or the free cores (``None``), at
+    most one per figure and as many as the memory beside this process holds (a worker's pages
+    are this process's until it writes to them: at most about this process's size). 1 where
+    processes cannot fork."""
+    if not can_fork():
+        return 1
+    want = free_cores() if requested is None else max(1, int(requested))
+    want = min(want, max(n_figures, 1))
+    if want <= 1:
+        return 1
+    rss = float(psutil.Process().memory_info().rss)
+    return cap_workers("report.workers", want, rss, int(AUTO_SHARE * machine_memory()), parent=rss)
+
+
+def draw_one(name: str, build: Callable[[], Any], out: Path, dpi: int, clipped: dict) -> Drawn:
+    """Build one figure, finish and write it (``reports.shared.figures.save``)."""
+    chk = save(build(), Path(out) / name, dpi)
+    return name, chk, clipped.get(name)
+
+
+# the plan the workers draw from: set in this process just before the pool forks them, so each
+# worker inherits the built plan (the run loaded, the summaries made) instead of rebuilding it
+_WORKER: dict[str, Any] = {}
+
+
+def _draw_named(name: str, out: str, dpi: int) -> Drawn:
+    return draw_one(name, _WORKER["plan"][name], Path(out), dpi, _WORKER["clipped"])
+
+
+def can_fork() -> bool:
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
+def draw_parallel(plan: Plan, out: Path, dpi: int, workers: int, clipped: dict, progress: bool) -> list[Drawn]:
+    """Draw ``plan``'s figures in ``workers`` forked processes; the builders record into ``clipped``
+    in the workers, so what they recorded comes back with each figure."""
+    _WORKER.update(plan=dict(plan), clipped=clipped)
+    # the objects built so far move out of the collector's reach: a worker's collections would
+    # otherwise write to (and so copy) every page it inherited
+    gc.freeze()
+    try:
+        with worker_pool(workers, start_method="fork") as pool:
+            futures = [pool.submit(_draw_named, name, str(out), dpi) for name, _ in plan]
+            return [f.result() for f in progress_bar(futures, desc="report figures", unit="fig", enabled=progress)]
+    finally:
+        gc.unfreeze()
+        _WORKER.clear()
