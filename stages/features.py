@@ -140,6 +140,7 @@ def _scorer_released():
 def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
     from pipeline.scoring.card import load_classifier
+    from pipeline.scoring.classifiers import card_arch, classifier
     from pipeline.scoring.mc_dropout import MCDropoutScorer
     from pipeline.scoring.features import ScoringModel, register_scorer
 
@@ -147,7 +148,8 @@ def prepare_scoring(ctx, executor, policy):
         device = ctx.device
         model, card = load_classifier(ctx.input("classifier"), device)
         sm = ScoringModel.from_model(model, card, policy, device, with_weights=False)
-        register_scorer(sm.key, MCDropoutScorer(model, device))
+        fast = classifier(card_arch(card)).channels_last_scoring
+        register_scorer(sm.key, MCDropoutScorer(model, device, channels_last=fast))
         return sm, card, False, device
     # Ray: the weights go to the object store; tasks score on a GPU where the cluster has one.
     want = ctx.device_request

@@ -95,12 +95,16 @@ class MCDropoutScorer:
 
     ``p`` is read from the model's Dropout layers. ``masks`` are lists (one per Dropout layer, in
     order) of float tensors ``(B, N_s, F_k)`` with entries 0 or ``1/(1-p)``. ``onednn``: run the
-    head's matmuls through oneDNN on CPU (see ``OneDNNLinear``).
+    head's matmuls through oneDNN on CPU (see ``OneDNNLinear``). ``channels_last``: the trunk's
+    convolutions in NHWC, oneDNN's fast layout (AlexNet's trunk at 112 px: 2.4 against 4.0 CPU ms a
+    crop here, ``tests/bench/bench_features.py``); the scores move by rounding only, how much
+    depends on the network (the registry's ``channels_last_scoring`` says where it is within 1e-6).
     """
 
-    def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True):
+    def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True, channels_last: bool = False):
         self._trunk, head = mc_site(model)
-        self.model = model.eval().to(device)
+        self.format = torch.channels_last if channels_last else torch.contiguous_format
+        self.model = model.eval().to(device).to(memory_format=self.format)
         self.device = device
         self.head = fast_head(head, device, onednn)
         self.dropout_dims: list[int] = []
@@ -116,11 +120,14 @@ class MCDropoutScorer:
         self.block_rates = [r for _, r in getattr(model, "drop_blocks", [])]
 
     # The parts, separately (the benchmark times them one by one).
-    @torch.no_grad()
-    def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        return self._trunk(x.to(self.device))
+    def _input(self, x: torch.Tensor) -> torch.Tensor:
+        return x.to(self.device).contiguous(memory_format=self.format)
 
-    @torch.no_grad()
+    @torch.inference_mode()
+    def trunk(self, x: torch.Tensor) -> torch.Tensor:
+        return self._trunk(self._input(x))
+
+    @torch.inference_mode()
     def head_eval(self, f: torch.Tensor) -> torch.Tensor:
         for m in self.head:
             if not isinstance(m, nn.Dropout):
@@ -159,16 +166,16 @@ class MCDropoutScorer:
             out[b] = (u < keep) / keep
         return torch.from_numpy(out).to(self.device)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def trunk_samples(self, x: torch.Tensor, keeps: torch.Tensor) -> torch.Tensor:
         """Features (B, N_s, F): the trunk once per (crop, sample) with its drop-connect factors."""
         B, n, K = keeps.shape
         step = max(1, TRUNK_ROWS // n)  # crops per trunk call: their N_s copies, ~TRUNK_ROWS images
-        f = [self._trunk(x[a:a + step].to(self.device).repeat_interleave(n, dim=0), keeps[a:a + step].reshape(-1, K))
+        f = [self._trunk(self._input(x[a:a + step].repeat_interleave(n, dim=0)), keeps[a:a + step].reshape(-1, K))
              for a in range(0, B, step)]
         return torch.cat(f).reshape(B, n, -1)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def head_samples(self, f: torch.Tensor, masks: Sequence[torch.Tensor]) -> torch.Tensor:
         """Logits (B, N_s, D): the head on B*N_s rows, one mask row each, one matmul chain. ``f``:
         trunk features (B, F), shared by the samples, or (B, N_s, F), one per sample."""
@@ -185,7 +192,7 @@ class MCDropoutScorer:
                 h = m(h if h.dim() == 2 else h.reshape(B, -1))
         return h.reshape(B, n, -1)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def score(self, x: torch.Tensor, seeds: Sequence[int] | None = None, n_samples: int = 0
               ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Softmax scores: deterministic (B, D) and, if ``n_samples``, MC samples (B, N_s, D)."""

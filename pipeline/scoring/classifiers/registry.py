@@ -32,6 +32,9 @@ class Classifier:
     trains = False      # weights = 'synthetic' trains it on the synthetic source domain
     imagenet = False    # weights = 'imagenet' has a local file (never downloaded)
     mc_dropout_site = ""  # where the MC-dropout masks act, in words
+    # score with the trunk in channels-last (faster) only where that keeps the scores within 1e-6
+    # of the contiguous route's (tests/pipeline/scoring/test_scoring_route.py)
+    channels_last_scoring = False
 
     def build(self, num_classes: int, dropout: float, drop_connect: float = 0.0):
         """A fresh (untrained) network with ``num_classes`` outputs and head dropout p."""
