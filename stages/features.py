@@ -137,6 +137,30 @@ def _scorer_released():
         forget_scorers()
 
 
+@contextmanager
+def _threads_for_scoring(ctx, executor):
+    """Local scoring with threads left at 0 ("all cores"): as many torch threads as cores are
+    free now (``mc_dropout.scoring_threads``), the count restored after. Yields the count used."""
+    import torch
+
+    from pipeline.infra.device import available_cores
+    from pipeline.scoring.mc_dropout import runnable_others, scoring_threads
+
+    auto = executor.name == "local" and ctx.device == "cpu" and not (ctx.threads or ctx.cfg.run.threads)
+    before = torch.get_num_threads()   # after ctx.device has configured the stage's threads
+    if not auto:
+        yield before
+        return
+    cores, others = available_cores(), runnable_others()
+    n = scoring_threads(cores, others)
+    log.info("scoring with %d torch thread(s): %d core(s), %.0f other runnable thread(s)", n, cores, others)
+    torch.set_num_threads(n)
+    try:
+        yield n
+    finally:
+        torch.set_num_threads(before)
+
+
 def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
     from pipeline.scoring.card import load_classifier
@@ -161,8 +185,6 @@ def prepare_scoring(ctx, executor, policy):
 
 
 def run(ctx) -> str:
-    import torch
-
     from loaders.avd import AVDScan
     from pipeline.scoring.crops import CropPolicy
     from pipeline.infra.executor import executor_for
@@ -178,7 +200,7 @@ def run(ctx) -> str:
     skips = ctx.skips  # data.skip_bad_views; the runner writes the counts into the manifest
     # The scans first: their files (JSON, .mat, instance map) fail fast, before minutes of scoring.
     scans = [AVDScan(avd_root, name, skip=skips.log("avd", "AVD entry")) for name in cfg.data.scans]
-    with executor_for(cfg) as ex, _scorer_released():
+    with executor_for(cfg) as ex, _scorer_released(), _threads_for_scoring(ctx, ex) as threads:
         sm, card, gpu, device = prepare_scoring(ctx, ex, policy)
         for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
             if card.get(key) is not None and card[key] != mine:
@@ -224,7 +246,7 @@ def run(ctx) -> str:
         "bigbird_crops": bb.n, "avd_crops": av.n, "n_samples": f.n_samples,
         "bigbird_samples": f.bigbird_samples, "score_dim": dim,
         "classifier_hash": card["hash"], "crop_policy": policy.as_dict(),
-        "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": torch.get_num_threads(),
+        "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": threads,
         "executor": cfg.run.executor,
     })
     n_skip = skips.count
