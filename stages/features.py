@@ -143,9 +143,34 @@ def _scorer_released():
         forget_scorers()
 
 
+@contextmanager
+def _threads_for_scoring(ctx, executor):
+    """Local scoring with threads left at 0 ("all cores"): as many torch threads as cores are
+    free now (``mc_dropout.scoring_threads``), the count restored after. Yields the count used."""
+    import torch
+
+    from pipeline.infra.device import available_cores
+    from pipeline.scoring.mc_dropout import runnable_others, scoring_threads
+
+    auto = executor.name == "local" and ctx.device == "cpu" and not (ctx.threads or ctx.cfg.run.threads)
+    before = torch.get_num_threads()   # after ctx.device has configured the stage's threads
+    if not auto:
+        yield before
+        return
+    cores, others = available_cores(), runnable_others()
+    n = scoring_threads(cores, others)
+    log.info("scoring with %d torch thread(s): %d core(s), %.0f other runnable thread(s)", n, cores, others)
+    torch.set_num_threads(n)
+    try:
+        yield n
+    finally:
+        torch.set_num_threads(before)
+
+
 def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
     from pipeline.scoring.card import load_classifier
+    from pipeline.scoring.classifiers import card_arch, classifier
     from pipeline.scoring.mc_dropout import MCDropoutScorer
     from pipeline.scoring.features import ScoringModel, register_scorer
 
@@ -153,7 +178,8 @@ def prepare_scoring(ctx, executor, policy):
         device = ctx.device
         model, card = load_classifier(ctx.input("classifier"), device)
         sm = ScoringModel.from_model(model, card, policy, device, with_weights=False)
-        register_scorer(sm.key, MCDropoutScorer(model, device))
+        fast = classifier(card_arch(card)).channels_last_scoring
+        register_scorer(sm.key, MCDropoutScorer(model, device, channels_last=fast))
         return sm, card, False, device
     # Ray: the weights go to the object store; tasks score on a GPU where the cluster has one.
     want = ctx.device_request
@@ -165,8 +191,6 @@ def prepare_scoring(ctx, executor, policy):
 
 
 def run(ctx) -> str:
-    import torch
-
     from loaders.avd import AVDScan
     from pipeline.scoring.crops import CropPolicy
     from pipeline.infra.cost import Counts, check
@@ -185,7 +209,7 @@ def run(ctx) -> str:
     scans = [AVDScan(avd_root, name, skip=skips.log("avd", "AVD entry")) for name in cfg.data.scans]
     # The cost model again, with the AVD boxes the scans hold (unknown before the data existed).
     check(cfg, "features", Counts(avd_crops=sum(len(b) for s in scans for _, b in avd_boxes(cfg, s))), base=False)
-    with executor_for(cfg) as ex, _scorer_released():
+    with executor_for(cfg) as ex, _scorer_released(), _threads_for_scoring(ctx, ex) as threads:
         sm, card, gpu, device = prepare_scoring(ctx, ex, policy)
         for key, mine in (("input_size", policy.size), ("mean", list(policy.mean)), ("std", list(policy.std))):
             if card.get(key) is not None and card[key] != mine:
@@ -231,7 +255,7 @@ def run(ctx) -> str:
         "bigbird_crops": bb.n, "avd_crops": av.n, "n_samples": f.n_samples,
         "bigbird_samples": f.bigbird_samples, "score_dim": dim,
         "classifier_hash": card["hash"], "crop_policy": policy.as_dict(),
-        "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": torch.get_num_threads(),
+        "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": threads,
         "executor": cfg.run.executor,
     })
     n_skip = skips.count

@@ -36,7 +36,8 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
-def _cpu_flags() -> set[str]:
+def cpu_flags() -> set[str]:
+    """The processor's feature flags (/proc/cpuinfo; empty where unknown)."""
     try:
         with open("/proc/cpuinfo") as fh:
             for line in fh:
@@ -76,7 +77,7 @@ def machine_fingerprint() -> dict:
     versions (for card.json and the report's run details)."""
     import platform
 
-    flags = _cpu_flags()
+    flags = cpu_flags()
     versions = {"torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
     for mod in ("torchvision", "cv2"):
         try:

@@ -233,7 +233,7 @@ def _scorer(model: ScoringModel):
         net = entry.build(model.num_classes, model.dropout, model.drop_connect)
         load_into(net, {k: torch.from_numpy(np.array(v)) for k, v in model.weights.items()}, "object store",
                   entry.display)
-        sc = MCDropoutScorer(net.eval().to(model.device), model.device)
+        sc = MCDropoutScorer(net.eval().to(model.device), model.device, channels_last=entry.channels_last_scoring)
         register_scorer(model.key, sc)  # one classifier per worker process at a time
     return sc
 

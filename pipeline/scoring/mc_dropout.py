@@ -16,6 +16,7 @@ groups of ``TRUNK_ROWS`` images.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Callable
 from typing import Sequence
 
@@ -95,12 +96,16 @@ class MCDropoutScorer:
 
     ``p`` is read from the model's Dropout layers. ``masks`` are lists (one per Dropout layer, in
     order) of float tensors ``(B, N_s, F_k)`` with entries 0 or ``1/(1-p)``. ``onednn``: run the
-    head's matmuls through oneDNN on CPU (see ``OneDNNLinear``).
+    head's matmuls through oneDNN on CPU (see ``OneDNNLinear``). ``channels_last``: the trunk's
+    convolutions in NHWC, oneDNN's fast layout (AlexNet's trunk at 112 px: 2.4 against 4.0 CPU ms a
+    crop here, ``tests/bench/bench_features.py``); the scores move by rounding only, how much
+    depends on the network (the registry's ``channels_last_scoring`` says where it is within 1e-6).
     """
 
-    def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True):
+    def __init__(self, model: nn.Module, device: str = "cpu", onednn: bool = True, channels_last: bool = False):
         self._trunk, head = mc_site(model)
-        self.model = model.eval().to(device)
+        self.format = torch.channels_last if channels_last else torch.contiguous_format
+        self.model = model.eval().to(device).to(memory_format=self.format)
         self.device = device
         self.head = fast_head(head, device, onednn)
         self.dropout_dims: list[int] = []
@@ -116,11 +121,14 @@ class MCDropoutScorer:
         self.block_rates = [r for _, r in getattr(model, "drop_blocks", [])]
 
     # The parts, separately (the benchmark times them one by one).
-    @torch.no_grad()
-    def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        return self._trunk(x.to(self.device))
+    def _input(self, x: torch.Tensor) -> torch.Tensor:
+        return x.to(self.device).contiguous(memory_format=self.format)
 
-    @torch.no_grad()
+    @torch.inference_mode()
+    def trunk(self, x: torch.Tensor) -> torch.Tensor:
+        return self._trunk(self._input(x))
+
+    @torch.inference_mode()
     def head_eval(self, f: torch.Tensor) -> torch.Tensor:
         for m in self.head:
             if not isinstance(m, nn.Dropout):
@@ -159,16 +167,16 @@ class MCDropoutScorer:
             out[b] = (u < keep) / keep
         return torch.from_numpy(out).to(self.device)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def trunk_samples(self, x: torch.Tensor, keeps: torch.Tensor) -> torch.Tensor:
         """Features (B, N_s, F): the trunk once per (crop, sample) with its drop-connect factors."""
         B, n, K = keeps.shape
         step = max(1, TRUNK_ROWS // n)  # crops per trunk call: their N_s copies, ~TRUNK_ROWS images
-        f = [self._trunk(x[a:a + step].to(self.device).repeat_interleave(n, dim=0), keeps[a:a + step].reshape(-1, K))
+        f = [self._trunk(self._input(x[a:a + step].repeat_interleave(n, dim=0)), keeps[a:a + step].reshape(-1, K))
              for a in range(0, B, step)]
         return torch.cat(f).reshape(B, n, -1)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def head_samples(self, f: torch.Tensor, masks: Sequence[torch.Tensor]) -> torch.Tensor:
         """Logits (B, N_s, D): the head on B*N_s rows, one mask row each, one matmul chain. ``f``:
         trunk features (B, F), shared by the samples, or (B, N_s, F), one per sample."""
@@ -185,7 +193,7 @@ class MCDropoutScorer:
                 h = m(h if h.dim() == 2 else h.reshape(B, -1))
         return h.reshape(B, n, -1)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def score(self, x: torch.Tensor, seeds: Sequence[int] | None = None, n_samples: int = 0
               ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Softmax scores: deterministic (B, D) and, if ``n_samples``, MC samples (B, N_s, D)."""
@@ -208,3 +216,31 @@ class MCDropoutScorer:
         parts = [F.softmax(self.head_samples(features(a), self.draw_masks(seeds[a:a + per], n_samples)), dim=-1)
                  for a in range(0, f.shape[0], per)]
         return det, parts[0] if len(parts) == 1 else torch.cat(parts)
+
+
+def runnable_others(samples: int = 5, gap_s: float = 0.05) -> float:
+    """Other processes' runnable threads now: the median over ``samples`` reads of the kernel's
+    count of runnable entities (/proc/loadavg, this reader included, so minus one). Unlike the load
+    average it does not remember this chain's own previous stage. The 1-minute load average
+    (minus one) where /proc is not there."""
+    import os
+    import time
+
+    counts = []
+    for i in range(samples):
+        try:
+            with open("/proc/loadavg") as fh:
+                counts.append(int(fh.read().split()[3].split("/")[0]))
+        except (OSError, IndexError, ValueError):
+            return max(0.0, os.getloadavg()[0] - 1) if hasattr(os, "getloadavg") else 0.0
+        if i + 1 < samples:
+            time.sleep(gap_s)
+    return max(0.0, float(np.median(counts)) - 1)
+
+
+def scoring_threads(cores: int, others: float) -> int:
+    """Torch threads for scoring in one process: the cores the other runnable threads leave free,
+    at least one. On a shared machine threads beyond the free cores wait on each other
+    (EfficientNet-Lite0 on a loaded 2-core machine: 175 ms a crop with 2 threads, 81 ms with 1). Scores do not depend on
+    the count (tests/pipeline/scoring/test_thread_counts.py), so choosing it by load is safe."""
+    return int(min(cores, max(1, math.floor(cores - others + 0.5))))

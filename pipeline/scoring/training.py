@@ -27,7 +27,8 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     """Adam + warmup/cosine on uint8 images, ``augment``ed per batch. Returns per-epoch history.
 
     ``precision`` "bf16" = autocast mixed precision (fp32 master weights), several times faster on
-    CPUs with native bf16; "auto" picks it where the hardware has it. ``split``, if given, receives
+    CPUs with native bf16 and slower where oneDNN emulates it; "auto" picks it only where the
+    hardware has it (``resolve_precision``). ``split``, if given, receives
     the wall seconds spent in each part of the loop (augment, forward, backward, optimizer).
     """
     from pipeline.infra.memory import reuse_freed_memory
@@ -137,13 +138,26 @@ def augment(xb: np.ndarray, gen: np.random.Generator, mean, std) -> torch.Tensor
     return torch.from_numpy(x).permute(0, 3, 1, 2)
 
 
-def resolve_precision(precision: str, device: str) -> str:
+# CPU flags of native bf16 arithmetic. oneDNN also runs bf16 autocast on plain AVX-512 CPUs by
+# emulating it, and there a training step costs about 2.4x fp32's CPU time (docs/benchmarks.md).
+NATIVE_BF16_FLAGS = ("avx512_bf16", "amx_bf16")
+
+
+def resolve_precision(precision: str, device: str, flags: set[str] | None = None) -> str:
+    """``auto``: bf16 autocast on a GPU that supports it or a CPU with native bf16 instructions
+    (``NATIVE_BF16_FLAGS``; ``flags`` defaults to this machine's), else fp32."""
     if precision not in ("auto", "fp32", "bf16"):
         raise ValueError(f"precision must be auto, fp32 or bf16, got {precision!r}")
     if precision != "auto":
         return precision
     if device == "cuda":
         return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    if flags is None:
+        from pipeline.infra.fingerprint import cpu_flags
+
+        flags = cpu_flags()
+    if not any(f in flags for f in NATIVE_BF16_FLAGS):
+        return "fp32"
     try:
         return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
     except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN

@@ -7,6 +7,11 @@ the stage's split (render, train, validate: wall and CPU seconds; wall on an idl
 about CPU s / 2, so a loaded machine shows in wall minus CPU/2), the training loop's own split
 (augment, forward, backward, optimizer: wall seconds and seconds per step), the held-out accuracy,
 and the GP fits at a bound.
+
+First, the training step by the previous and the current precision rule, in one run: ``precision = "auto"`` picked bf16
+wherever oneDNN offers it, emulated on AVX-512 CPUs without native bf16; it now picks bf16 only
+with avx512_bf16/amx_bf16 (``training.resolve_precision``). Wall and CPU seconds a step (batch
+128, the default input size), interleaved, with the machine and its load.
 """
 from __future__ import annotations
 
@@ -23,11 +28,55 @@ sys.path.insert(0, str(ROOT))
 GOAL_S, GOAL_ACC = 180.0, 0.90
 
 
+def precision_steps(steps: int = 2, batch: int = 128, size: int = 112) -> dict:
+    """Best wall and CPU seconds of one training step in each precision, rounds interleaved."""
+    import torch
+    import torch.nn.functional as F
+
+    from pipeline.scoring.alexnet import build_alexnet, init_for_training
+
+    x = torch.randn(batch, 3, size, size, generator=torch.Generator().manual_seed(0)).contiguous(
+        memory_format=torch.channels_last)
+    y = torch.arange(batch) % 12
+    nets = {}
+    for prec in ("bf16", "fp32"):
+        m = init_for_training(build_alexnet(12, 0.5), 0).to(memory_format=torch.channels_last).train()
+        nets[prec] = (m, torch.optim.Adam(m.parameters(), lr=1e-4, fused=True))
+    best = {k: [float("inf"), float("inf")] for k in nets}
+    for r in range(steps + 1):
+        for prec, (m, opt) in nets.items():
+            w, c = time.perf_counter(), time.process_time()
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=prec == "bf16"):
+                out = m(x)
+            loss = F.cross_entropy(out.float(), y)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            if r:  # round 0 warms up
+                best[prec] = [min(best[prec][0], time.perf_counter() - w), min(best[prec][1], time.process_time() - c)]
+    return best
+
+
 def main() -> None:
     from pipeline.infra.config import load_config
     from stages.framework.runner import ensure, read_manifest
     from tests.support.world_checks import VARYING_STD, bound_report
 
+    import torch
+
+    from pipeline.infra.fingerprint import cpu_flags, cpu_model
+    from pipeline.infra.memory import reuse_freed_memory
+    from pipeline.scoring.training import resolve_precision
+
+    with reuse_freed_memory():
+        st = precision_steps()
+    old = "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
+    print(f"bench_classifier: a training step (batch 128, 112 px, {torch.get_num_threads()} threads) on "
+          f"{cpu_model()} (native bf16: {'yes' if {'avx512_bf16', 'amx_bf16'} & cpu_flags() else 'no'}), "
+          f"load average {os.getloadavg()[0]:.1f}: bf16 {st['bf16'][0]:.2f} s wall / {st['bf16'][1]:.2f} CPU s, "
+          f"fp32 {st['fp32'][0]:.2f} s / {st['fp32'][1]:.2f} CPU s; auto picked {old} before, picks "
+          f"{resolve_precision('auto', 'cpu')} now: ratio before/now "
+          f"{st[old][1] / st[resolve_precision('auto', 'cpu')][1]:.2f}x CPU")
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(ROOT / "configs" / "synthetic.toml", {"run": {"artifacts": tmp}})
         ensure(cfg, "data")

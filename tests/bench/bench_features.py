@@ -10,6 +10,12 @@ Three timings on the same crops, the same model and the same machine, in one run
 Goals: A at least 3x faster than B, and within 15% of L. Each time is the best of ``--repeats``
 interleaved rounds (the machine is shared).
 
+Then the previous and the current scoring route in one run (AlexNet at the default 112 px): before = the
+trunk in contiguous NCHW with torch threads on every core; now = the trunk in channels-last with
+the threads the free cores allow (``mc_dropout.scoring_threads``); wall and CPU ms a crop, and the
+per-crop path split (JPEG decode of an AVD and a BigBIRD frame, crop and resize, tensor, trunk,
+head), with the machine and its load.
+
     python tests/bench/bench_features.py [--crops 64] [--samples 10] [--size 128] [--repeats 5]
 """
 from __future__ import annotations
@@ -25,7 +31,7 @@ import torch  # noqa: E402
 
 from pipeline.scoring.alexnet import build_alexnet, init_for_training  # noqa: E402
 from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed, fast_head  # noqa: E402
-from pipeline.infra.device import configure_threads  # noqa: E402
+from pipeline.infra.device import available_cores, configure_threads  # noqa: E402
 
 
 def _interleaved_times(fns: dict, repeats: int) -> dict[str, float]:
@@ -99,6 +105,71 @@ def measure(crops: int = 64, samples: int = 10, size: int = 128, repeats: int = 
             "speedup_vs_full": t_full / t_ours, "over_bound": t_ours / bound - 1.0}
 
 
+def _wall_cpu(fn, repeats: int) -> tuple[float, float]:
+    """Best wall and best CPU seconds (this process, all its threads) of ``fn`` over ``repeats``."""
+    walls, cpus = [], []
+    for _ in range(repeats):
+        w, c = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - w)
+        cpus.append(time.process_time() - c)
+    return min(walls), min(cpus)
+
+
+def route_comparison(crops: int = 64, samples: int = 10, size: int = 112, repeats: int = 3) -> dict:
+    """Before/now scoring routes on the same crops, interleaved round by round."""
+    import copy
+
+    from pipeline.scoring.mc_dropout import runnable_others, scoring_threads
+
+    model = init_for_training(build_alexnet(12, 0.5), 0).eval()
+    x = torch.randn(crops, 3, size, size, generator=torch.Generator().manual_seed(1))
+    seeds = [crop_seed(0, f"crop{i}") for i in range(crops)]
+    cores, others = available_cores(), runnable_others()
+    routes = {"before": (MCDropoutScorer(copy.deepcopy(model), channels_last=False), cores),
+              "now": (MCDropoutScorer(copy.deepcopy(model), channels_last=True), scoring_threads(cores, others))}
+    best = {k: [float("inf"), float("inf")] for k in routes}
+    for _ in range(repeats):
+        for k, (sc, threads) in routes.items():
+            torch.set_num_threads(threads)
+            sc.score(x[:2], seeds[:2], samples)  # warm-up at this thread count
+            w, c = _wall_cpu(lambda: sc.score(x, seeds, samples), 1)
+            best[k] = [min(best[k][0], w), min(best[k][1], c)]
+    configure_threads(0)
+    return {"crops": crops, "others": others, "threads": {k: t for k, (_, t) in routes.items()},
+            **{f"{k}_wall_ms": 1e3 * v[0] / crops for k, v in best.items()},
+            **{f"{k}_cpu_ms": 1e3 * v[1] / crops for k, v in best.items()}}
+
+
+def path_split(size: int = 112, repeats: int = 5) -> dict:
+    """CPU ms of each part of one crop's path at one thread (a JPEG like the synthetic data's)."""
+    import cv2
+    import numpy as np
+
+    from pipeline.scoring.crops import CropPolicy, to_tensor
+
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(0)
+    big = cv2.GaussianBlur(rng.integers(0, 256, (1024, 1280, 3), dtype=np.uint8), (9, 9), 3)
+    jpeg = {name: cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, q])[1]
+            for name, img, q in (("avd 640x360", big[:360, :640], 88), ("bigbird 1280x1024", big, 75))}
+    policy = CropPolicy(size=size)
+    crops = np.stack([policy.crop(big, (100 + i, 200, 300 + i, 400))[0] for i in range(32)])
+    sc = MCDropoutScorer(init_for_training(build_alexnet(12, 0.5), 0), channels_last=True)
+    x = to_tensor(crops)
+    f = sc.trunk(x)
+    seeds = [crop_seed(0, str(i)) for i in range(len(crops))]
+    parts = {f"decode {k}": (lambda b=b: cv2.imdecode(b, cv2.IMREAD_COLOR), 1) for k, b in jpeg.items()}
+    parts.update({"crop + resize": (lambda: policy.crop(big, (100, 200, 500, 600)), 1),
+                  "to tensor": (lambda: to_tensor(crops), len(crops)),
+                  "trunk": (lambda: sc.trunk(x), len(crops)),
+                  "head, deterministic": (lambda: sc.head_eval(f), len(crops)),
+                  "head, 10 dropout samples + masks": (lambda: sc.head_samples(f, sc.draw_masks(seeds, 10)), len(crops))})
+    out = {k: 1e3 * _wall_cpu(fn, repeats)[1] / n for k, (fn, n) in parts.items()}
+    configure_threads(0)
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--crops", type=int, default=64)
@@ -123,6 +194,21 @@ def main(argv: list[str] | None = None) -> None:
     print(f"  speed-up A vs B: {r['speedup_vs_full']:.2f}x (goal >= 3x: {ok1}); "
           f"A vs bound: {100 * r['over_bound']:+.1f}% (goal <= +15%: {ok2}); "
           f"A vs torchvision full passes: {r['t_full_tv'] / r['t_ours']:.2f}x")
+    import os
+
+    from pipeline.infra.fingerprint import cpu_model
+
+    rc = route_comparison(repeats=args.repeats)
+    print(f"scoring route, AlexNet at 112 px, {rc['crops']} crops x (1 + 10 passes); {cpu_model()}, "
+          f"{available_cores()} cores, {rc['others']:.0f} other runnable threads, load average "
+          f"{os.getloadavg()[0]:.1f}")
+    for k in ("before", "now"):
+        print(f"  {k:6s} ({rc['threads'][k]} thread(s), {'channels-last' if k == 'now' else 'contiguous'} trunk): "
+              f"{rc[k + '_wall_ms']:6.2f} ms wall, {rc[k + '_cpu_ms']:6.2f} CPU ms a crop")
+    print(f"  ratio before/now: wall {rc['before_wall_ms'] / rc['now_wall_ms']:.2f}x, "
+          f"CPU {rc['before_cpu_ms'] / rc['now_cpu_ms']:.2f}x")
+    split = path_split()
+    print("  one crop's path, CPU ms at 1 thread: " + ", ".join(f"{k} {v:.2f}" for k, v in split.items()))
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ class AlexNet(Classifier):
     architecture = "torchvision.models.alexnet"
     trains = True
     imagenet = True
+    channels_last_scoring = True   # within 1e-7 here; EfficientNet-Lite0's depthwise kernels move scores ~3e-6
 
     def build(self, num_classes, dropout, drop_connect=0.0):
         from pipeline.scoring.alexnet import build_alexnet

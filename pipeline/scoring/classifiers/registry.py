@@ -46,6 +46,9 @@ class Classifier:
     # and fp32 activations + gradients per image at 224 px; AlexNet's unless declared
     params = ALEXNET_PARAMS
     activations_224 = ACT_PER_IMAGE_224
+    # score with the trunk in channels-last (faster) only where that keeps the scores within 1e-6
+    # of the contiguous route's (tests/pipeline/scoring/test_scoring_route.py)
+    channels_last_scoring = False
 
     def build(self, num_classes: int, dropout: float, drop_connect: float = 0.0):
         """A fresh (untrained) network with ``num_classes`` outputs and head dropout p."""

@@ -1,0 +1,79 @@
+"""The scoring route's speed-ups (trunk in channels-last, inference mode) leave the scores equal to
+the plain route's (contiguous NCHW, no_grad as before) to 1e-6 for the networks whose registry entry
+scores in channels-last (AlexNet); EfficientNet-Lite0's depthwise kernels move them by ~3e-6, so it
+keeps the contiguous route (the measured difference is asserted, so a change shows)."""
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.scoring.crops import to_tensor
+from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed
+
+TOL = 1e-6
+
+
+def _randomised(net):
+    """Weights drawn at fan-in scale (a fresh EfficientNet's head is zero: every score equal)."""
+    g = torch.Generator().manual_seed(3)
+    with torch.no_grad():
+        for p in net.parameters():
+            fan_in = p[0].numel() if p.dim() > 1 else 1
+            p.copy_(torch.randn(p.shape, generator=g) * (2.0 / fan_in) ** 0.5 if p.dim() > 1 else
+                    1 + 0.1 * torch.randn(p.shape, generator=g))
+    return net
+
+
+def _nets():
+    from pipeline.scoring.alexnet import build_alexnet, init_for_training
+    from pipeline.scoring.classifiers import classifier
+
+    torch.manual_seed(0)
+    eff = classifier("efficientnet_lite0")
+    yield "alexnet", init_for_training(build_alexnet(7, 0.5), 0), 64
+    yield "efficientnet_lite0", _randomised(eff.build(7, 0.2, 0.0)), 64
+    yield "efficientnet_lite0 drop-connect", _randomised(eff.build(7, 0.2, 0.2)), 64
+
+
+@pytest.mark.parametrize("name,net,size", list(_nets()), ids=lambda v: v if isinstance(v, str) else "")
+def test_channels_last_scores_equal_the_plain_route_where_the_registry_uses_it(name, net, size):
+    from pipeline.scoring.classifiers import classifier
+
+    tol = TOL if classifier(name.split()[0]).channels_last_scoring else 1e-4
+    rng = np.random.default_rng(1)
+    crops = rng.integers(0, 256, (5, size, size, 3), dtype=np.uint8)
+    x = to_tensor(crops)
+    seeds = [crop_seed(0, f"{name}/{i}") for i in range(len(crops))]
+    old = MCDropoutScorer(copy.deepcopy(net), channels_last=False)
+    new = MCDropoutScorer(copy.deepcopy(net), channels_last=True)
+    assert new.model.features[0].weight.is_contiguous(memory_format=torch.channels_last) if name == "alexnet" else True
+    det0, mc0 = old.score(x, seeds, 4)
+    det1, mc1 = new.score(x, seeds, 4)
+    assert mc0.shape == (5, 4, 7) and float(mc0.std(dim=1).max()) > 0   # the samples do differ
+    assert float((det0 - det1).abs().max()) <= tol
+    assert float((mc0 - mc1).abs().max()) <= tol
+    # and the deterministic pass is the network's own eval-mode forward
+    with torch.no_grad():
+        plain = torch.softmax(copy.deepcopy(net).eval()(x), -1)
+    assert float((plain - det0).abs().max()) <= tol
+    assert float((plain - det1).abs().max()) <= tol
+
+
+def test_the_executor_task_scores_like_the_plain_route():
+    """``score_batch`` (what the stage's executor runs) against the contiguous no_grad route."""
+    from pipeline.scoring.alexnet import build_alexnet, init_for_training
+    from pipeline.scoring.features import CropBatch, ScoringModel, forget_scorers, score_batch
+
+    net = init_for_training(build_alexnet(5, 0.5), 2)
+    crops = np.random.default_rng(4).integers(0, 256, (6, 64, 64, 3), dtype=np.uint8)
+    seeds = [crop_seed(1, f"c{i}") for i in range(len(crops))]
+    mean, std = (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)
+    det0, mc0 = MCDropoutScorer(copy.deepcopy(net), channels_last=False).score(to_tensor(crops, mean, std), seeds, 3)
+    sm = ScoringModel("route-test", 5, 0.5, mean, std, "cpu", {k: v.numpy() for k, v in net.state_dict().items()})
+    try:
+        det1, mc1 = score_batch(sm, CropBatch("test", 0, crops, seeds, 3))
+    finally:
+        forget_scorers()
+    np.testing.assert_allclose(det1, det0.numpy(), rtol=0, atol=TOL)
+    np.testing.assert_allclose(mc1, mc0.numpy(), rtol=0, atol=TOL)
