@@ -89,9 +89,12 @@ def test_the_registered_methods_equal_the_direct_engine_calls_bit_for_bit(seed):
     want = _reference(models.subset(cell.classes, cell.components), cell)
     assert set(got["posts"]) == set(want["posts"])
     for key, per in want["posts"].items():
-        assert list(got["posts"][key]) == list(per), key           # the four methods, in registry order
+        # the paper's four methods, in registry order; the view-independent baseline (its own oracle
+        # test: test_view_independent.py) also runs; the instance methods need an instance bank
+        assert [m for m in got["posts"][key] if m in per] == list(per), key
+        assert set(got["posts"][key]) - set(per) == {"view_independent"}, key
         for m, p in per.items():
             assert got["posts"][key][m].shape == p.shape and np.array_equal(got["posts"][key][m], p), (key, m)
     assert np.array_equal(got["dirichlet_std"], want["dirichlet_std"])
-    assert got["difficulty"] == want["difficulty"]
-    assert set(got["seconds"]) == {"with_uncertainty", "model_based", "simple_bayes", "dirichlet"}
+    assert {k: v for k, v in got["difficulty"].items() if k != "view_independent"} == want["difficulty"]
+    assert set(got["seconds"]) == {"with_uncertainty", "model_based", "simple_bayes", "dirichlet", "view_independent"}
