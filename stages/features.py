@@ -146,11 +146,10 @@ def _scorer_released():
 @contextmanager
 def _threads_for_scoring(ctx, executor):
     """Local scoring with threads left at 0 ("all cores"): as many torch threads as cores are
-    free now (``mc_dropout.scoring_threads``), the count restored after. Yields the count used."""
+    free now (``pipeline.infra.device.free_of``), the count restored after. Yields the count used."""
     import torch
 
-    from pipeline.infra.device import available_cores
-    from pipeline.scoring.mc_dropout import runnable_others, scoring_threads
+    from pipeline.infra.device import available_cores, free_of, runnable_others
 
     auto = executor.name == "local" and ctx.device == "cpu" and not (ctx.threads or ctx.cfg.run.threads)
     before = torch.get_num_threads()   # after ctx.device has configured the stage's threads
@@ -158,7 +157,7 @@ def _threads_for_scoring(ctx, executor):
         yield before
         return
     cores, others = available_cores(), runnable_others()
-    n = scoring_threads(cores, others)
+    n = free_of(cores, others)
     log.info("scoring with %d torch thread(s): %d core(s), %.0f other runnable thread(s)", n, cores, others)
     torch.set_num_threads(n)
     try:

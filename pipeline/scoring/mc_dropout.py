@@ -16,7 +16,6 @@ groups of ``TRUNK_ROWS`` images.
 from __future__ import annotations
 
 import hashlib
-import math
 from collections.abc import Callable
 from typing import Sequence
 
@@ -216,31 +215,3 @@ class MCDropoutScorer:
         parts = [F.softmax(self.head_samples(features(a), self.draw_masks(seeds[a:a + per], n_samples)), dim=-1)
                  for a in range(0, f.shape[0], per)]
         return det, parts[0] if len(parts) == 1 else torch.cat(parts)
-
-
-def runnable_others(samples: int = 5, gap_s: float = 0.05) -> float:
-    """Other processes' runnable threads now: the median over ``samples`` reads of the kernel's
-    count of runnable entities (/proc/loadavg, this reader included, so minus one). Unlike the load
-    average it does not remember this chain's own previous stage. The 1-minute load average
-    (minus one) where /proc is not there."""
-    import os
-    import time
-
-    counts = []
-    for i in range(samples):
-        try:
-            with open("/proc/loadavg") as fh:
-                counts.append(int(fh.read().split()[3].split("/")[0]))
-        except (OSError, IndexError, ValueError):
-            return max(0.0, os.getloadavg()[0] - 1) if hasattr(os, "getloadavg") else 0.0
-        if i + 1 < samples:
-            time.sleep(gap_s)
-    return max(0.0, float(np.median(counts)) - 1)
-
-
-def scoring_threads(cores: int, others: float) -> int:
-    """Torch threads for scoring in one process: the cores the other runnable threads leave free,
-    at least one. On a shared machine threads beyond the free cores wait on each other
-    (EfficientNet-Lite0 on a loaded 2-core machine: 175 ms a crop with 2 threads, 81 ms with 1). Scores do not depend on
-    the count (tests/pipeline/scoring/test_thread_counts.py), so choosing it by load is safe."""
-    return int(min(cores, max(1, math.floor(cores - others + 0.5))))

@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import gc
 import multiprocessing
-import os
 from pathlib import Path
 from typing import Any, Callable
 
 import psutil
 
 from pipeline.infra.budget import AUTO_SHARE, cap_workers, machine_memory
-from pipeline.infra.device import available_cores
+from pipeline.infra.device import free_cores
 from pipeline.infra.progress import bar as progress_bar
 from pipeline.infra.workers import worker_pool
 from reports.shared.figures import FigureCheck, save
@@ -29,19 +28,9 @@ Plan = list[tuple[str, Callable[[], Any]]]
 Drawn = tuple[str, FigureCheck, Any]
 
 
-def free_cores() -> int:
-    """Cores not busy with other work: this process's cores less the one-minute load beyond this
-    process itself (the machine may be shared; more processes than free cores only queue)."""
-    n = available_cores()
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):     # pragma: no cover - not Unix
-        return n
-    return max(1, min(n, int(n - max(0.0, load - 1.0) + 0.5)))
-
-
 def pool_size(n_figures: int, requested: int | None = None) -> int:
-    """Worker processes for ``n_figures`` figures: ``requested``, or the free cores (``None``), at
+    """Worker processes for ``n_figures`` figures: ``requested``, or the free cores (``None``:
+    ``pipeline.infra.device.free_cores``, as the features stage's scoring threads), at
     most one per figure and as many as the memory beside this process holds (a worker's pages
     are this process's until it writes to them: at most about this process's size). 1 where
     processes cannot fork."""

@@ -12,7 +12,7 @@ interleaved rounds (the machine is shared).
 
 Then the previous and the current scoring route in one run (AlexNet at the default 112 px): before = the
 trunk in contiguous NCHW with torch threads on every core; now = the trunk in channels-last with
-the threads the free cores allow (``mc_dropout.scoring_threads``); wall and CPU ms a crop, and the
+the threads the free cores allow (``pipeline.infra.device.free_of``); wall and CPU ms a crop, and the
 per-crop path split (JPEG decode of an AVD and a BigBIRD frame, crop and resize, tensor, trunk,
 head), with the machine and its load.
 
@@ -120,14 +120,14 @@ def route_comparison(crops: int = 64, samples: int = 10, size: int = 112, repeat
     """Before/now scoring routes on the same crops, interleaved round by round."""
     import copy
 
-    from pipeline.scoring.mc_dropout import runnable_others, scoring_threads
+    from pipeline.infra.device import free_of, runnable_others
 
     model = init_for_training(build_alexnet(12, 0.5), 0).eval()
     x = torch.randn(crops, 3, size, size, generator=torch.Generator().manual_seed(1))
     seeds = [crop_seed(0, f"crop{i}") for i in range(crops)]
     cores, others = available_cores(), runnable_others()
     routes = {"before": (MCDropoutScorer(copy.deepcopy(model), channels_last=False), cores),
-              "now": (MCDropoutScorer(copy.deepcopy(model), channels_last=True), scoring_threads(cores, others))}
+              "now": (MCDropoutScorer(copy.deepcopy(model), channels_last=True), free_of(cores, others))}
     best = {k: [float("inf"), float("inf")] for k in routes}
     for _ in range(repeats):
         for k, (sc, threads) in routes.items():

@@ -35,17 +35,17 @@ def test_parallel_route_writes_the_same_files_as_the_serial_one(tmp_path):
 
 
 def test_pool_size_never_exceeds_the_figures_or_the_free_cores(monkeypatch):
-    from pipeline.infra import budget
-    monkeypatch.setattr(figure_pool, "available_cores", lambda: 4)
+    from pipeline.infra import budget, device
+    monkeypatch.setattr(device, "available_cores", lambda: 4)
     monkeypatch.setattr(budget, "cores", lambda: 4)
-    monkeypatch.setattr(figure_pool.os, "getloadavg", lambda: (1.0, 1.0, 1.0))   # only this process runs
+    monkeypatch.setattr(device, "runnable_others", lambda: 0.0)                  # only this process runs
     assert figure_pool.free_cores() == 4
     assert figure_pool.pool_size(3) == 3
     assert figure_pool.pool_size(0) == 1
-    monkeypatch.setattr(figure_pool.os, "getloadavg", lambda: (3.6, 3.0, 3.0))   # 2.6 cores busy elsewhere
+    monkeypatch.setattr(device, "runnable_others", lambda: 2.6)                  # 2.6 cores busy elsewhere
     assert figure_pool.free_cores() == 1
     assert figure_pool.pool_size(20) == 1
-    monkeypatch.setattr(figure_pool.os, "getloadavg", lambda: (40.0, 40.0, 40.0))
+    monkeypatch.setattr(device, "runnable_others", lambda: 39.0)
     assert figure_pool.free_cores() == 1
     assert figure_pool.pool_size(20, requested=2) == 2                       # asked for: not the load's cap
 

@@ -34,11 +34,11 @@ def test_mc_dropout_scores_are_identical_at_1_and_2_threads():
 
 
 def test_scoring_threads_take_the_free_cores_and_at_least_one():
-    from pipeline.scoring.mc_dropout import runnable_others, scoring_threads
+    from pipeline.infra.device import free_of, runnable_others
 
-    assert scoring_threads(2, 0.0) == 2          # an idle machine: every core
-    assert scoring_threads(2, 0.4) == 2
-    assert scoring_threads(2, 1.0) == 1          # one other busy thread leaves one core
-    assert scoring_threads(2, 7.0) == 1          # overloaded: still one thread, never zero
-    assert scoring_threads(16, 3.0) == 13
+    assert free_of(2, 0.0) == 2          # an idle machine: every core
+    assert free_of(2, 0.4) == 2
+    assert free_of(2, 1.0) == 1          # one other busy thread leaves one core
+    assert free_of(2, 7.0) == 1          # overloaded: still one thread, never zero
+    assert free_of(16, 3.0) == 13
     assert runnable_others(samples=2, gap_s=0.0) >= 0.0
