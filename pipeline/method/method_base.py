@@ -3,7 +3,7 @@
 built-ins and entry points and answers which methods there are (so the two never import each other)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, ClassVar
 
 import numpy as np
@@ -104,6 +104,20 @@ def _adopt(name: str, obj, module: str) -> None:
 # theirs, whatever was imported first; loads the built-ins and entry points on first use.
 _REGISTRY: Registry[FusionMethod] = Registry("fusion method", ENTRY_POINT_GROUP, "pipeline.method.methods",
                                              adopt=_adopt)
+
+
+class OnInstanceModels:
+    """Put before a method's class (``class X(OnInstanceModels, ModelBased)``): the same method on
+    the class models with an instance term (``TrackInput.gp_instance``, ``pipeline/method/gp_instance.py``)
+    in place of ``gp``; it applies only where the cell carries that bank."""
+    needs = frozenset({"gp_instance"})
+    simulation = False
+
+    def fuse(self, t: TrackInput) -> np.ndarray:
+        return super().fuse(replace(t, gp=t.gp_instance))
+
+    def single_view(self, t: TrackInput) -> np.ndarray:
+        return super().single_view(replace(t, gp=t.gp_instance))
 
 
 def register(cls: type[FusionMethod]) -> type[FusionMethod]:

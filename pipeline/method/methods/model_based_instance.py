@@ -4,28 +4,17 @@ instance's deviation is shared by every view of the track. With the With Uncerta
 attributes a gain to the instance term alone (both with and without pose and dropout sampling)."""
 from __future__ import annotations
 
-from dataclasses import replace
-
-import numpy as np
-
-from pipeline.method.method_base import TrackInput, register
+from pipeline.method.method_base import OnInstanceModels, register
 from pipeline.method.methods.model_based import ModelBased
 from pipeline.method.names import MB_INSTANCE
 
 
 @register
-class ModelBasedInstance(ModelBased):
+class ModelBasedInstance(OnInstanceModels, ModelBased):
     key = MB_INSTANCE
     label = "Model Based, instances differ"
     short = "Model Based + instance"
     color = "#BB5566"   # not a class colour (metrics.labels.CLASS_COLORS)
     note = ("Model Based whose class models add a deviation of the unseen object from its class, shared by every "
             "view of the track: no localization or model uncertainty")
-    needs = frozenset({"gp_instance"})
-    simulation = False
 
-    def fuse(self, t: TrackInput) -> np.ndarray:
-        return super().fuse(replace(t, gp=t.gp_instance))
-
-    def single_view(self, t: TrackInput) -> np.ndarray:
-        return super().single_view(replace(t, gp=t.gp_instance))
