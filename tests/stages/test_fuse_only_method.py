@@ -14,6 +14,7 @@ import textwrap
 import pytest
 
 from tests.conftest import ROOT
+from tests.support.outside_package import write_package
 from tests.support.shared_upstream import DEVICE, SMOKE, copy_upstream, smoke_upstream
 
 pytestmark = pytest.mark.slow  # runs the evaluate and report stages on the smoke upstream
@@ -68,12 +69,7 @@ def _plant(tmp_path):
         if __name__ == "__main__":
             sys.exit(main())
     '''))
-    (dist / "entry_flat_pkg").mkdir(parents=True)
-    (dist / "entry_flat_pkg" / "__init__.py").write_text(BARE)
-    info = dist / "entry_flat_pkg-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: entry-flat-pkg\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[viewfuse.methods]\nentry_flat = entry_flat_pkg\n")
+    write_package(dist, "entry_flat_pkg", BARE, {"viewfuse.methods": {"entry_flat": "entry_flat_pkg"}})
     return mine / "launch.py", dist
 
 
