@@ -32,6 +32,7 @@ from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import read as read_artifact
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
+from pipeline.evaluation.grid.contrast import ARM as CONTRAST_ARM
 from pipeline.evaluation.grid.population_summary import cell_table, check_primary, dirichlet_summary, population_summary
 from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
 from pipeline.evaluation.metrics.spec import Params
@@ -66,7 +67,17 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
             raise ValueError(f"{inst_dir}: the instance bank's classes or components differ from the default "
                              "bank's (rerun the models stage)")
         banks[P.INSTANCE_BANK] = inst
+    arm = models_dir / out_name("models", "contrast")
+    if arm.is_dir():   # data.real_imagery.contrast: the instance arm runs as one more variant on the same tracks
+        banks[CONTRAST_ARM], indexes[CONTRAST_ARM] = load_bank(arm), read_bank_index(arm)
     return banks, indexes
+
+
+def variant_dirichlets(models_dir: Path) -> dict:
+    """{variant: its own Dirichlet models} where a variant's classes were fitted on another training
+    set (the contrast's instance arm, ``models/contrast/dirichlet/``)."""
+    d = models_dir / out_name("models", "contrast") / out_name("models", "dirichlet")
+    return {CONTRAST_ARM: DirichletModels.load(d)} if d.is_dir() else {}
 
 
 def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict, dict]:
@@ -206,7 +217,8 @@ def run(ctx) -> str:
     scans = sorted(avd["scan"].unique())
     intr, steps, grids, moves = scan_geometry(cfg, scans, avd, ctx.skips)
     truth = read_artifact(ctx.input("data"), "data", "truth", missing=None)
-    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids,
+                                           variant_dirichlets(ctx.input("models")))
     per_target = Counter(i.target for i in tracks)
     check_budget(cfg, len(per_target), max(per_target.values(), default=1), list(per_target.values()))
     for sk in skipped:

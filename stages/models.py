@@ -8,13 +8,15 @@ the index (``candidate_sets``). Each ``evaluate.ablations`` entry gets its own b
 ``models/ablations/``. Beside the bank, the Dirichlet method's class models (``models/dirichlet/``:
 ``index.json`` + ``theta.npz``, ``pipeline.method.dirichlet``), fitted on ``models.dirichlet.passes``.
 With ``models.instance_term``, the same plan's bank with an instance term (``models/instance/``,
-``pipeline.method.gp_instance``), fitted on each class's member objects.
+``pipeline.method.gp_instance``), fitted on each class's member objects. With
+``data.real_imagery.contrast``, the contrast's instance arm (``models/contrast/``: a bank on the same
+plan keys and features, each class fitted on its own instance, and its Dirichlets).
 """
 from __future__ import annotations
 
 import logging
 
-from loaders.real_imagery.category import class_members
+from loaders.real_imagery.category import class_members, contrast_members
 from pipeline.banks.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
 from pipeline.method.gp_files import save_bank
 from pipeline.infra.config import ablation_config, is_model_ablation
@@ -24,12 +26,24 @@ from pipeline.infra.outputs import read as read_artifact
 log = logging.getLogger("viewfuse.models")
 
 
+def contrast_check(first: dict, second: dict) -> None:
+    """The two arms of the contrast score the same candidates per target (drawn from the same
+    classes; only the component choice may differ with the training set), else the pairing breaks."""
+    differ = sorted(t for t in set(first) | set(second)
+                    if (first.get(t) or {}).get("classes") != (second.get(t) or {}).get("classes"))
+    if differ:
+        raise ValueError(f"data.real_imagery.contrast: the instance arm's candidate sets differ from the category "
+                         f"arm's for {len(differ)} target(s) (first: {differ[0]}); a candidate rule that reads the "
+                         f"training scores (evaluate.candidates) cannot pair the arms")
+
+
 def run(ctx) -> str:
     cfg = ctx.cfg
     ev = cfg.evaluate
     feats = ctx.input("features") / out_name("features", "bigbird")
     # category classes: several objects' views per class, as the data stage made them
-    members = class_members(cfg, read_artifact(ctx.input("data"), "data", "truth", missing=None))
+    truth = read_artifact(ctx.input("data"), "data", "truth", missing=None)
+    members = class_members(cfg, truth)
     plan_keys = dict(targets=ev.targets, n_candidates=ev.n_candidates, candidates=ev.candidates,
                      candidate_seed=ev.candidate_seed, candidate_folds=ev.candidate_folds, class_members=members,
                      fit_cache={})   # one fit per distinct (data, settings, starts) across the banks below
@@ -46,6 +60,16 @@ def run(ctx) -> str:
     dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes, extra["candidate_sets"],
                                               class_members=members)
     dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
+    arm = contrast_members(cfg, truth)
+    if arm is not None:   # data.real_imagery.contrast: the instance arm, same features and plan keys
+        log.info("the contrast's instance arm: fitting its model bank and Dirichlets")
+        cm, cextra = fit_from_features(feats, cfg.models, **{**plan_keys, "class_members": arm})
+        contrast_check(extra["candidate_sets"], cextra["candidate_sets"])
+        cdir = ctx.out / out_name("models", "contrast")
+        save_bank(cm, cdir, extra={**cextra, "class_members": arm})
+        cd, cdx = dirichlet_from_features(feats, cfg.models, cm.classes, cextra["candidate_sets"], class_members=arm)
+        cd.save(cdir / out_name("models", "dirichlet"), extra=cdx)
+        ctx.extra["contrast_classes"] = len(arm)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)

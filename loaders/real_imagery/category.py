@@ -51,7 +51,7 @@ from loaders.real_imagery.pairing import box_rows, located_xy
 from loaders.real_imagery.training import modellable
 from loaders.real_imagery.write import fit_summary, frame_fit, frame_views, view_error_summary, write_scan_files
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
-from pipeline.scene.folds import fold_class, fold_of
+from pipeline.scene.folds import category_of, fold_class, fold_of
 from pipeline.infra.cache import write_bytes, write_json
 
 
@@ -103,6 +103,20 @@ def class_members(cfg, truth: dict | None = None) -> dict[str, list[str]] | None
         return {str(k): [str(o) for o in v] for k, v in truth["classes"].items()}
     kept = {(c, i) for c in ri.categories for i in ri.instances}
     return fold_classes(kept, ri.categories, ri.instances, ri.class_level)
+
+
+def contrast_members(cfg, truth: dict | None = None) -> dict[str, list[str]] | None:
+    """{class: [its instance's folder]} of the contrast's instance arm (``data.real_imagery.contrast``;
+    None otherwise): the same classes as the run's category arm (``class_members``), each fitted on
+    instance f of its category alone. Every usable instance has its own training folder (written
+    once, whatever the level), so the features are shared and only the class models' training set
+    differs between the arms."""
+    if not getattr(cfg.data.real_imagery, "contrast", False):
+        return None
+    members = class_members(cfg, truth)
+    if members is None:
+        return None
+    return {cls: [class_object(category_of(cls), int(fold_of(cls)))] for cls in members}
 
 
 def write_training_class(root: Path, cls: str, members: dict[int, dict], quality: int) -> int:

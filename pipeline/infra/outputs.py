@@ -69,6 +69,9 @@ CATALOG: dict[str, dict[str, Artifact]] = {
         "ablations": Artifact("ablations", "folder", _BANK_W, _BANK_R, "one model bank per ablation"),
         "instance": Artifact("instance", "folder", _BANK_W, _BANK_R,
                              "the class models with an instance term (models.instance_term)"),
+        "contrast": Artifact("contrast", "folder", _BANK_W, _BANK_R,
+                             "the instance arm of the class-level contrast (data.real_imagery.contrast): its "
+                             "model bank and dirichlet/"),
         "dirichlet": Artifact("dirichlet", "folder", "pipeline.method.dirichlet:DirichletModels.save",
                               "pipeline.method.dirichlet:DirichletModels.load",
                               "the Dirichlet method's class models: index.json + theta.npz"),

@@ -31,7 +31,8 @@ def _est(d: dict | None, signed: bool = False) -> str:
 def _verdict_text(d: dict | None) -> str:
     if not d:
         return "—"
-    return f"{d['outcome']} ({Estimate.of(d, signed=True).text()})"
+    holm = f"; Holm-adjusted outcome: {d['holm']}" if d.get("holm") else ""
+    return f"{d['outcome']} ({Estimate.of(d, signed=True).text()}){holm}"
 
 
 def headline(c: Comparison) -> str:
@@ -76,7 +77,7 @@ def render_text(c: Comparison) -> str:
     vrows = [[f"{comparison_label(k[0])}: {metric_label(k[1], short=True)}"] + [_verdict_text(v) for v in row]
              for k, row in c.verdicts.items()]
     marks = [[False] + c.changed[k] for k in c.verdicts]
-    out += ["Paired verdicts (* = outcome differs from the first column):",
+    out += ["Paired verdicts (* = outcome or Holm-adjusted outcome differs from the first column):",
             _grid(["comparison: metric"] + names, vrows, marks, width=56)]
     if c.planning:
         out += ["", "View planning, pooled [95 % CI]:",
@@ -124,8 +125,11 @@ def build_page(c: Comparison, title: str = "viewfuse compare", intro: list[str] 
         marks |= {(i, j + 2) for j, ch in enumerate(c.changed[k]) if ch}
     page.table(["comparison", "metric"] + names, rows, cls="verdict-compare", highlight=marks,
                caption="Outcome of each paired difference (better / worse / not distinguishable: its 95 % CI above, "
-                       "below or across 0) with the difference [95 % CI]; shaded: the outcome differs from the first "
-                       "column. A seed group's outcome is that of the difference pooled over its seeds.")
+                       "below or across 0) with the difference [95 % CI]; for the primary comparisons (With "
+                       "Uncertainty against each baseline on the primary metrics) also the Holm-adjusted outcome, "
+                       "familywise 95 % as on the main report (each interval widened to its Holm step's level); "
+                       "shaded: the outcome or the adjusted one differs from the first column. A seed group's "
+                       "outcome is that of the difference pooled over its seeds.")
     if c.planning:
         page.section("View planning", anchor="planning")
         page.table(["metric", "planner"] + names,

@@ -74,7 +74,8 @@ ESTIMATE = ("object", {"value": NUMBER, "ci_low": NUMBER, "ci_high": NUMBER})
 VERDICT_ROW = ("object", {"comparison": "string", "metric": "string", "outcome": "string",
                           "value": NUMBER, "ci_low": NUMBER, "ci_high": NUMBER})
 RECORD = ("object", {"comparison": "string", "metric": "string", "outcome": "string",
-                     "value": NUMBER, "lo": NUMBER, "hi": NUMBER})
+                     "value": NUMBER, "lo": NUMBER, "hi": NUMBER, "outcome_holm": "string",
+                     "lo_holm": NUMBER, "hi_holm": NUMBER, "level_holm": NUMBER, "p_holm": NUMBER})
 REQUIRED = {id(VERDICT_ROW): ("comparison", "metric", "outcome"),   # keys every verdict row has
             id(RECORD): ("comparison", "metric", "outcome")}
 SUMMARY_SCHEMA = ("object", {"population": ("object", {

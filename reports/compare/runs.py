@@ -31,6 +31,7 @@ from pipeline.infra.outputs import name as out_name
 from reports.compare.planning import block_of as planning_block
 from reports.compare.planning import rows as planning_rows
 from reports.compare.read import RunFileError, manifest_sections, read_summary
+from reports.shared.records import holm_text
 
 STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
 SUMMARY = Path("evaluate") / out_name("evaluate", "summary")
@@ -225,8 +226,11 @@ def _verdicts(pop: dict) -> dict[tuple[str, str], dict]:
     out = {}
     if pop.get("records"):
         for r in pop["records"]:
+            # the primary family's Holm-adjusted verdict beside it, worded as on the main report
             out[(str(r["comparison"]), str(r["metric"]))] = {"outcome": r.get("outcome"), "value": r.get("value"),
-                                                             "ci_low": r.get("lo"), "ci_high": r.get("hi")}
+                                                             "ci_low": r.get("lo"), "ci_high": r.get("hi"),
+                                                             **({"outcome_holm": r["outcome_holm"],
+                                                                 "holm": holm_text(r)} if r.get("outcome_holm") else {})}
         return out
     table = pop.get("verdict_table")
     if table:
@@ -277,7 +281,7 @@ class Comparison:
     metrics: list[str]
     pooled: dict[tuple[str, str], list[dict | None]]          # (method, metric) -> per column
     verdicts: dict[tuple[str, str], list[dict | None]]        # (comparison, metric) -> per column
-    changed: dict[tuple[str, str], list[bool]]                # outcome differs from the first column
+    changed: dict[tuple[str, str], list[bool]]                # outcome (or Holm-adjusted) differs from the first column
     notes: list[str]
     planning: list = field(default_factory=list)              # [(planner, metric, per column)]
     planning_paired: list = field(default_factory=list)       # [(comparison, metric, per column)]
@@ -290,7 +294,9 @@ def compare(args: list[str | Path]) -> Comparison:
     pooled = {(m, k): [pooled_value(c, m, k) for c in cols] for k in metrics for m in methods}
     vkeys = verdict_keys(cols)
     ver = {k: [column_verdict(c, k) for c in cols] for k in vkeys}
-    changed = {k: [bool(v and row[0] and v["outcome"] != row[0]["outcome"]) for v in row] for k, row in ver.items()}
+    changed = {k: [bool(v and row[0] and (v["outcome"], v.get("outcome_holm")) != (row[0]["outcome"],
+                                                                               row[0].get("outcome_holm")))
+                   for v in row] for k, row in ver.items()}
     notes = [f"{r.name}: {n}" for r in runs for n in r.notes]
     plan_pooled, plan_paired = planning_rows([c.runs[0].planning if len(c.runs) == 1 and not c.pooled_over_seeds
                                               else None for c in cols])

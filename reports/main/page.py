@@ -23,6 +23,7 @@ from reports.main import power as power_sections
 from reports.main.calibration import CALIBRATED
 from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
+from reports.main.contrast import contrast_section
 from reports.main.showcase import showcase_section
 from reports.main.uncertainty_source import uncertainty_source_section
 from reports.main.reviewer import limitations_section, methods_section, reproduce_section, seeds_section
@@ -45,7 +46,7 @@ log = logging.getLogger("viewfuse.report")
 
 SECTIONS = (verdict_sections.verdict_section, methods_section, limitations_section, seeds_section,
             calibration_sections.calibration_section, verdict_sections.population_section,
-            power_sections.power_section,
+            power_sections.power_section, contrast_section,
             verdict_sections.diagnostics_section, calibration_sections.domain_section, uncertainty_source_section,
             calibration_sections.attribution_section, planning_sections.planning_section, showcase_section,
             track_sections.track_section, track_sections.randomized_section,

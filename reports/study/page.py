@@ -9,7 +9,7 @@ from typing import Any
 from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.shared.numbers import fmt
-from reports.shared.records import outcome_clauses, records_of, sentences
+from reports.shared.records import holm_text, outcome_clauses, records_of, sentences
 
 
 def entry_label(key: str) -> str:
@@ -63,6 +63,33 @@ def _accuracy(seed: dict) -> str:
     return _cell({"value": seed.get("classifier_accuracy"), "ci_low": ci[0], "ci_high": ci[1]})
 
 
+def adjusted_outcomes(block: dict | None) -> dict[str, str]:
+    """(comparison / metric) -> the Holm-adjusted verdict of a primary-family record
+    (``reports.shared.records.holm_text``, as the main report words it); others are absent."""
+    return {f"{r['comparison']} / {r['metric']}": holm_text(r) for r in records_of(block) if r.get("outcome_holm")}
+
+
+def _outcome_cell(outcome: Any, holm: str | None) -> str:
+    """A seed's verdict, and beside it its Holm-adjusted one where the record is in the primary family."""
+    if not holm:
+        return _fmt(outcome)
+    return f"{_fmt(outcome)}<br><small>Holm-adjusted outcome: {html.escape(holm)}</small>"
+
+
+def holm_table(block: dict | None) -> str:
+    """The pooled-over-seeds primary family: outcome and Holm-adjusted outcome side by side."""
+    recs = [r for r in records_of(block) if r.get("outcome_holm")]
+    if not recs:
+        return ""
+    fam = recs[0].get("family")
+    rows = "".join(f"<tr><td>{html.escape(entry_label(r['comparison'] + ' / ' + r['metric']))}</td>"
+                   f"<td>{_fmt(r['outcome'])}</td><td>{html.escape(holm_text(r))}</td></tr>" for r in recs)
+    return (f"<table><tr><th>comparison, metric</th><th>outcome</th><th>Holm-adjusted outcome</th></tr>{rows}"
+            f"</table><p><small>Holm-adjusted: the {fam} primary comparisons (With Uncertainty against each baseline "
+            "on the primary metrics) as one family, familywise 95 % (each interval widened to its Holm step's "
+            "level), as on the main report.</small></p>")
+
+
 def render_html(summary: dict, run_name: str) -> str:
     """One page: the answer (does the verdict hold across seeds), the outcome per entry and seed,
     then the pooled values with their CIs and every seed's verdict sentences."""
@@ -70,10 +97,11 @@ def render_html(summary: dict, run_name: str) -> str:
     per = summary["per_seed"]
     head = "".join(f"<th>seed {s}</th>" for s in seeds)
     out_rows = []
+    adjusted = {s: adjusted_outcomes(per[s]) for s in seeds}
     for k, row in summary["outcomes"].items():
         cls = ' class="differs"' if k in summary["differs_on"] else ""
         out_rows.append(f"<tr{cls}><td>{html.escape(entry_label(k))}</td>"
-                        + "".join(f"<td>{_fmt(row[s])}</td>" for s in seeds) + "</tr>")
+                        + "".join(f"<td>{_outcome_cell(row[s], adjusted[s].get(k))}</td>" for s in seeds) + "</tr>")
     rows = [f"<tr><td>classifier held-out top-1 <small>[95 % CI over the held-out images]</small></td>"
             + "".join(f"<td>{_accuracy(per[s])}</td>" for s in seeds) + "</tr>",
             "<tr><td>GP fits with varying scores (std over views &gt; 0.01) · at a bound</td>"
@@ -94,7 +122,8 @@ def render_html(summary: dict, run_name: str) -> str:
     sp = summary.get("pooled_over_seeds") or {}
     seed_verdict = ("<h2>Pooled over seeds</h2><p>One bootstrap over seeds, then targets, then tracks: these CIs "
                     "cover classifier training runs.</p><ul>"
-                    + "".join(f"<li>{html.escape(v)}</li>" for v in sentences(records_of(sp))) + "</ul>") if sp else ""
+                    + "".join(f"<li>{html.escape(v)}</li>" for v in sentences(records_of(sp))) + "</ul>"
+                    + holm_table(sp)) if sp else ""
     verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"
                        + "".join(f"<li>{html.escape(v)}</li>" for v in (sentences(records_of(per[s])) or ["(no verdict)"]))
                        + "</ul>" for s in seeds)
@@ -107,7 +136,8 @@ tr.differs td{{background:#fde2e2}}small{{color:#666}}</style></head><body>
 <p><b>{html.escape(summary['sentence'])}</b></p>
 <p>Each seed trains the classifier again (classifier.seed) and reruns features, models and evaluate on the
 same data. An outcome is computed from the 95 % bootstrap CI of the paired difference over targets and tracks
-(better / worse: the CI excludes 0); rows where the seeds disagree are shaded.</p>
+(better / worse: the CI excludes 0); rows where the seeds disagree are shaded. The primary comparisons also
+show their Holm-adjusted outcome (familywise 95 % over the primary family, as on the main report).</p>
 {seed_verdict}
 <h2>Verdict per seed</h2><table><tr><th>comparison, metric</th>{head}</tr>{''.join(out_rows)}</table>
 <h2>Pooled values</h2>

@@ -27,21 +27,27 @@ SMALL = {
 }
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
+def small_chain(tmp_path_factory, config: str, extra: dict | None = None):
+    """``configs/<config>`` at SMALL (and ``extra``) on the real ETH-80 and AVD copies, run through
+    evaluate and report; returns the config."""
     from pipeline.infra.config import load_config, merge
     from stages.framework.runner import ensure
     from tests.conftest import ROOT
 
     real = need("eth80").parent
-    tmp = tmp_path_factory.mktemp("cat")
-    over = merge({"run": {"artifacts": str(tmp / "artifacts"), "device": "cpu"},
-                  "data": {"eth80_root": str(real / "eth80"), "avd_root": str(need("avd"))}}, SMALL)
-    cfg = load_config(ROOT / "configs" / "real_category.toml", over)
+    tmp = tmp_path_factory.mktemp(config.split(".")[0])
+    over = merge(merge({"run": {"artifacts": str(tmp / "artifacts"), "device": "cpu"},
+                        "data": {"eth80_root": str(real / "eth80"), "avd_root": str(need("avd"))}}, SMALL), extra or {})
+    cfg = load_config(ROOT / "configs" / config, over)
     keys: dict = {}
     ensure(cfg, "evaluate", device="cpu", _keys=keys)
     ensure(cfg, "report", device="cpu", _keys=keys)
-    return cfg, real / "eth80"
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    return small_chain(tmp_path_factory, "real_category.toml"), need("eth80")
 
 
 def _fold(cls: str) -> int:

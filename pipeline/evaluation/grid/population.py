@@ -302,15 +302,18 @@ def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
 
 
 def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
-                intr: dict, steps: dict, dirichlet=None, grid_points: dict | None = None
-                ) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
+                intr: dict, steps: dict, dirichlet=None, grid_points: dict | None = None,
+                variant_dirichlets: dict | None = None) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
     """Every (variant, target, track) cell of the ``evaluate`` section ``ev``: ``indexes`` maps
     variant -> its model bank's index (the plan), ``intr``/``steps``/``grid_points`` the scans'
     (fx, cx), grid steps and {image: grid point}. Targets without a usable track are skipped with
     a reason (returned), and so is each (target, scan) whose rays do not meet (with its scan and
     residual_m; the target keeps its other scans' tracks). With
     ``dirichlet`` models (``pipeline.method.dirichlet.DirichletModels``), every cell also carries
-    the candidates' Dirichlets and the views' whole probability vectors (the fourth method)."""
+    the candidates' Dirichlets and the views' whole probability vectors (the fourth method);
+    ``variant_dirichlets`` ({variant: DirichletModels}): a variant fitted on another training set
+    (the class-level contrast's instance arm) takes its own. Every variant's cell of a (target,
+    track) shares the track, its seed and so its localization draws: the variants pair."""
     plan = indexes[DEFAULT]["candidate_sets"]
     own = indexes[DEFAULT]["own_components"]
     settings = tuple(population_settings(ev))
@@ -334,12 +337,14 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                 raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
             for variant, index in indexes.items():
                 comps = index["candidate_sets"][target]["components"]
+                vdm = dm if variant not in (variant_dirichlets or {}) else \
+                    variant_dirichlets[variant].for_set(target, classes)
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
                                    dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
-                                   probs=None if dm is None else full)
+                                   probs=None if vdm is None else full)
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                   classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                  difficulty=variant == DEFAULT, dirichlet=dm, n_ss=ev.dirichlet.n_ss,
+                                  difficulty=variant == DEFAULT, dirichlet=vdm, n_ss=ev.dirichlet.n_ss,
                                   attribution=ev.attribution and variant == DEFAULT))
             tracks.append(info)
     if not cells:

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.grid import population as P
+from pipeline.evaluation.grid.contrast import contrast_block
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.metrics.labels import comparisons, methods as method_keys
 from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile  # noqa: F401 - check_primary: public here
@@ -130,6 +131,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         "cells": cell_rows,
         "tracks": [t.as_dict() for t in tracks],
         "ablations": ablations,
+        "contrast": contrast_block(ev, table),   # data.real_imagery.contrast: instance vs category arm, else None
         "domain_fit": domain_fit or {},
         "skipped_targets": skipped,
     }

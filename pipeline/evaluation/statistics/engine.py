@@ -63,12 +63,13 @@ def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
 
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,
           n_boot: int, seed, *, primary: Sequence[str] = (), per_target: bool = True, loto: bool = True,
-          ece: Mapping | None = None, by_scan: bool = False, cluster: str = "target") -> dict:
+          ece: Mapping | None = None, by_scan: bool = False, cluster: str = "target", family=None) -> dict:
     """{"pooled", "per_target", "paired", "paired_per_target", "records"} (+ "reliability" with
     ``ece``) of cell frames per seed (one seed: an evaluate run). ``ece``: {"sums": track bin sums
     (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric. ``cluster``:
     the top level of the draws (``Hierarchy``: target, scan, category, crossed; ``by_scan``: scan);
-    every pooled value and record says which (``cluster``) and over what it varies (``over``)."""
+    every pooled value and record says which (``cluster``) and over what it varies (``over``).
+    ``family``: the Holm family's predicate (``multiplicity.holm``; default the declared primary one)."""
     h = Hierarchy(frames, n_boot, seed, by_scan=by_scan, cluster=cluster)
     metrics = [k for k in metrics if all(k in f for f in frames.values())]
     tvs = {m: [track_values(f[f["method"] == m], metrics) for f in frames.values()] for m in methods}
@@ -148,7 +149,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
     order = {k: i for i, k in enumerate(list(metrics) + list(M.POOLED_METRICS))}
     comps = [comparison_key(a, b) for a, b in comparisons]
     out["records"].sort(key=lambda r: (comps.index(r["comparison"]), order.get(r["metric"], len(order))))
-    holm(out["records"], boot)
+    holm(out["records"], boot, family)
     return out
 
 

@@ -49,12 +49,13 @@ def holm_p(p: Sequence[float]) -> list[float]:
     return out
 
 
-def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None]) -> None:
-    """Add the Holm fields to each record of the primary family (in place): ``p`` and ``p_holm``,
+def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None], family=None) -> None:
+    """Add the Holm fields to each record of the primary family (in place; ``family``: another
+    predicate of (comparison, primary), e.g. the class-level contrast's own): ``p`` and ``p_holm``,
     ``level_holm`` (the interval's level), ``lo_holm``/``hi_holm`` (null: unbounded) and
     ``outcome_holm``, and ``family`` (its size). ``draws``: {(comparison, metric): the draws of
     the record's difference} (missing or None: no interval, never rejected)."""
-    fam = [r for r in records if in_primary_family(r["comparison"], r.get("primary"))]
+    fam = [r for r in records if (family or in_primary_family)(r["comparison"], r.get("primary"))]
     if not fam:
         return
     d = [draws.get((r["comparison"], r["metric"])) for r in fam]

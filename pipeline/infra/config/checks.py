@@ -42,6 +42,12 @@ def _check_eth80(cfg: Config, need) -> None:
     need(ri.class_level != "instance" or ri.view_split == "alternate",
          "'data.real_imagery.class_level' = 'instance' needs 'data.real_imagery.view_split' = 'alternate' (an "
          "instance's class is fitted on its training azimuths; the frames show the held-out ones)")
+    need(not ri.contrast or (ri.class_level == "category" and ri.view_split == "alternate"),
+         "'data.real_imagery.contrast' = true needs 'class_level' = 'category' (the first arm; the instance arm is "
+         "the second) and 'view_split' = 'alternate' (no frame shows an azimuth an instance class was fitted on)")
+    need(not ri.contrast or cfg.evaluate.test_domain_variance == "none",
+         "'data.real_imagery.contrast' = true needs 'evaluate.test_domain_variance' = 'none' (the calibrated "
+         "likelihood is fitted against the category arm's models only)")
     need(cfg.evaluate.candidate_folds, "data.real_imagery.dataset = 'eth80' needs 'evaluate.candidate_folds' = true "
                                        "(a target's candidates are its own fold's classes)")
     need(cfg.evaluate.candidates not in ("sampled", "hard") or cfg.evaluate.n_candidates <= len(ri.categories),
@@ -136,8 +142,8 @@ def cross_checks(cfg: Config, where: str) -> None:
             need(ri.background == "black" and ri.train_background in ("same", "original", "black"),
                  f"'data.real_imagery.background' = {ri.background!r}, 'train_background' = {ri.train_background!r}: "
                  "COIL-100 photographs are on black on both sides (clutter needs data.real_imagery.dataset = 'eth80')")
-            need(ri.class_level == "category" and ri.view_split == "none",
-                 "'data.real_imagery.class_level' and 'view_split' are for dataset = 'eth80' (COIL classes are "
+            need(ri.class_level == "category" and ri.view_split == "none" and not ri.contrast,
+                 "'data.real_imagery.class_level', 'view_split' and 'contrast' are for dataset = 'eth80' (COIL classes are "
                  "instances, split by data.real_imagery.train_step_deg)")
             need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
                  f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")

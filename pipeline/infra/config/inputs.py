@@ -189,6 +189,10 @@ class RealImageryConfig:
                           doc="eth80: what a class model of fold f is fitted on: 'category' = the category's OTHER "
                               "instances; 'instance' = instance f itself (its training azimuths; needs "
                               "view_split = 'alternate'). The frames do not depend on it: the controlled contrast")
+    contrast: bool = _f(False, doc="eth80: also the instance arm in the same run (class_level = 'category' is the "
+                                   "first): the models stage fits an instance-level bank beside the category one, "
+                                   "evaluate runs both on the same tracks, the report pairs them (needs view_split "
+                                   "= 'alternate'; configs/real_contrast.toml)")
     view_split: str = _f("none", choices=("none", "alternate"),
                          doc="eth80: which azimuths train and which the frames show: 'none' = every azimuth both; "
                              "'alternate' = training on 0, 45, ..., 315, frames on 22.5, 67.5, ... (held out, "

@@ -170,3 +170,30 @@ def test_an_older_summary_with_an_unbounded_end_follows_the_records_outcome_rule
     v = compare([run]).verdicts
     assert v[(KEY, "correct_final")][0]["outcome"] == "better"
     assert v[(KEY, "log10_mgr95_final")][0]["outcome"] == "not distinguishable"
+
+
+def test_the_paired_verdicts_show_the_holm_adjusted_outcome_beside_the_unadjusted_one(tmp_path):
+    def with_records(d, holm):
+        path = d / "evaluate" / "summary.json"
+        summary = json.loads(path.read_text())
+        pop = summary["population"]
+        pop["records"] = [{**r, "lo": r["ci_low"], "hi": r["ci_high"], "primary": r["metric"] == "correct_final",
+                           **(holm if r["metric"] == "correct_final" else {})} for r in pop.pop("verdict_table")]
+        path.write_text(json.dumps(summary))
+        return d
+
+    nd = {"outcome_holm": "not distinguishable", "lo_holm": -0.01, "hi_holm": 0.31, "level_holm": 0.975,
+          "p_holm": 0.06, "family": 2}
+    a = with_records(write_run(tmp_path / "a"), {**nd, "outcome_holm": "better", "lo_holm": 0.05})
+    b = with_records(write_run(tmp_path / "b"), nd)
+    c = compare([a, b])
+    row = c.verdicts[(KEY, "correct_final")]
+    assert [v["outcome"] for v in row] == ["better", "better"]
+    assert [v["outcome_holm"] for v in row] == ["better", "not distinguishable"]
+    assert c.changed[(KEY, "correct_final")] == [False, True]         # the adjusted verdict changed
+    assert "outcome_holm" not in c.verdicts[(KEY, "log10_mgr95_final")][0]   # exploratory: unadjusted only
+    text = render_text(c)
+    from reports.shared.records import holm_text
+    assert f"Holm-adjusted outcome: {holm_text(nd)}" in text and holm_text(nd).startswith("not distinguishable (97.5 %")
+    html = build_page(c).render()
+    assert "Holm-adjusted outcome: better (97.5 % CI" in html and "Holm-adjusted outcome: not distinguishable" in html

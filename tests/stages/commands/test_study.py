@@ -119,3 +119,23 @@ def test_study_runs_each_seed_then_reuses_finished_ones(tmp_config):
 def test_page_escapes_text():
     s = summarize({0: {**_population("better", 0.1), "records": [_record("better", 0.1, metric="<b>x</b>")]}})
     assert "&lt;b&gt;x&lt;/b&gt;" in render_html(s, "r<1>") and "r&lt;1&gt;" in render_html(s, "r<1>")
+
+
+def test_the_page_shows_each_seeds_holm_adjusted_verdict_beside_the_unadjusted_one():
+    # seed 0: better unadjusted, not distinguishable after Holm; seed 1: better both ways; the pool's
+    # records come from the engine (Holm over its primary family)
+    holm0 = {"outcome_holm": "not distinguishable", "lo_holm": -0.02, "hi_holm": 0.22, "level_holm": 0.975,
+             "p_holm": 0.08, "family": 2}
+    holm1 = {"outcome_holm": "better", "lo_holm": 0.05, "hi_holm": 0.4, "level_holm": 0.975, "p_holm": 0.01, "family": 2}
+    s = summarize({0: {**_population("better", 0.1), "records": [{**_record("better", 0.1), **holm0}]},
+                   1: {**_population("better", 0.2), "records": [{**_record("better", 0.2), **holm1}]}})
+    page = render_html(s, "r")
+    from reports.shared.records import holm_text
+    assert holm_text(holm0).startswith("not distinguishable (97.5 % CI [") and "Holm p" in holm_text(holm0)
+    assert f"Holm-adjusted outcome: {holm_text(holm0)}" in page and f"Holm-adjusted outcome: {holm_text(holm1)}" in page
+    from reports.study.page import holm_table   # the pooled-over-seeds family, adjusted too
+    table = holm_table({"records": [{**_record("better", 0.1), **holm0}, _record("better", 0.3, "nll_final")]})
+    assert "Holm-adjusted outcome" in table and holm_text(holm0) in table and "the 2 primary comparisons" in table
+    assert table.count("<tr>") == 2 and holm_table({"records": [_record("better", 0.1)]}) == ""
+    plain = render_html(summarize({0: _population("better", 0.1)}), "r")
+    assert "Holm-adjusted outcome:" not in plain              # no adjusted verdict where the record has none

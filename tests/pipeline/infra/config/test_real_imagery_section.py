@@ -47,11 +47,28 @@ def test_background_and_level_keys_are_checked(path, over, match):
         load_config(path, over)
 
 
-def test_the_contrast_config_differs_from_its_instance_arm_in_one_key():
-    cat = load_config(ROOT / "configs" / "real_contrast.toml")
-    ins = load_config(ROOT / "configs" / "real_contrast.toml", {"data": {"real_imagery": {"class_level": "instance"}}})
-    ri = cat.data.real_imagery
-    assert (ri.view_split, ri.class_level, ri.max_view_error_deg, ri.train_background) == ("alternate", "category", 22.5, "same")
-    assert ins.data.real_imagery.class_level == "instance"
-    assert {k: v for k, v in vars(ri).items() if k != "class_level"} == \
-        {k: v for k, v in vars(ins.data.real_imagery).items() if k != "class_level"}
+def test_the_contrast_config_runs_both_arms_in_one_run():
+    from loaders.real_imagery.category import class_members, contrast_members
+
+    cfg = load_config(ROOT / "configs" / "real_contrast.toml")
+    ri = cfg.data.real_imagery
+    assert (ri.view_split, ri.class_level, ri.contrast, ri.max_view_error_deg, ri.train_background) == \
+        ("alternate", "category", True, 22.5, "same")
+    # the arms: the same classes, fitted on the other instances (category) or on the instance itself
+    truth = {"classes": {"car__f2": ["eth80_car1", "eth80_car3"], "cup__f10": ["eth80_cup1"]}}
+    assert class_members(cfg, truth) == truth["classes"]
+    assert contrast_members(cfg, truth) == {"car__f2": ["eth80_car2"], "cup__f10": ["eth80_cup10"]}
+    assert set(contrast_members(cfg)) == set(class_members(cfg))          # without a record: the config's classes
+    assert contrast_members(load_config(CATEGORY), truth) is None
+
+
+@pytest.mark.parametrize("over,match", [
+    ({"data": {"real_imagery": {"class_level": "instance"}}}, "contrast' = true needs 'class_level' = 'category'"),
+    ({"data": {"real_imagery": {"view_split": "none"}}}, "contrast' = true needs .*'view_split' = 'alternate'"),
+    ({"evaluate": {"test_domain_variance": "cross_fit"}}, "contrast' = true needs 'evaluate.test_domain_variance'"),
+])
+def test_the_contrast_keys_are_checked(over, match):
+    with pytest.raises(ConfigError, match=match):
+        load_config(ROOT / "configs" / "real_contrast.toml", over)
+    with pytest.raises(ConfigError, match="'contrast' are for dataset = 'eth80'"):
+        load_config(REAL, {"data": {"real_imagery": {"contrast": True}}})

@@ -1,0 +1,49 @@
+"""The report's "Instance vs category class models" section (reports/main/contrast.py) renders the
+engine's contrast block on a generated population: the arms' values, the difference, the verdict
+and the Holm-adjusted verdict as computed, over what the interval varies, and no section without
+the arm."""
+from types import SimpleNamespace
+
+from pipeline.evaluation.grid import population as P
+from pipeline.evaluation.grid.contrast import contrast_block
+from reports.main.contrast import contrast_section
+from reports.shared.checks import Ledger
+from tests.pipeline.evaluation.grid.test_contrast import _ev, _row, _table
+from tests.reports.test_power_section import Page
+
+
+def _ctx(pop):
+    sections = []
+    return SimpleNamespace(page=Page(), population=pop, ledger=Ledger(),
+                           section=lambda title, anchor: sections.append(title)), sections
+
+
+def test_the_section_shows_each_arm_the_difference_and_both_verdicts():
+    block = contrast_block(_ev(), _table(shift=0.3))
+    ctx, sections = _ctx({"contrast": block})
+    contrast_section(ctx)
+    assert sections == ["Instance vs category class models"]
+    text = ctx.page.items[0][1]
+    assert "With Uncertainty" in text and "correct" in text and "instance level better" in text
+    _, header, rows, caption = ctx.page.items[1]
+    assert header[4].startswith("instance − category")
+    assert "categories, targets and tracks" in caption and "4 categories" in caption and "'category'" in caption
+    assert len(rows) == 4                                  # 2 methods x 2 primary metrics
+    wu = _row(block, "with_uncertainty", "correct_final")
+    first = rows[0]
+    assert first[2].value == wu["instance"]["value"] and first[3].value == wu["category"]["value"]
+    assert first[4].value == wu["difference"]["value"] and first[4].low == wu["difference"]["lo"]
+    assert first[5] == "instance level better" and first[6].startswith("instance level better (")
+    assert "Holm p" in first[6]
+    mb = next(r for r in rows if r[0] != first[0] and r[1] == first[1])
+    assert mb[5] == "not distinguishable" and mb[6].startswith("not distinguishable (")
+    explo = ctx.page.items[2]
+    assert "exploratory" in explo[3] and all(r[6] == "—" for r in explo[2]) and len(explo[2]) == 2
+    assert not ctx.ledger.problems()                       # every label agrees with its printed interval
+
+
+def test_no_arm_no_section():
+    t = _table(shift=0.3)
+    ctx, sections = _ctx({"contrast": contrast_block(_ev(), t[t["variant"] == P.DEFAULT])})
+    contrast_section(ctx)
+    assert sections == [] and ctx.page.items == []
