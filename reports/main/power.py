@@ -30,9 +30,11 @@ def power_rows(power: dict) -> list[list]:
     rows = []
     for e in power.get("comparisons") or []:
         need = e.get("needed_units")
+        cross = e.get("crossed_with")   # a crossed design: both top levels, scaled together
+        now = f"{e.get('n_units')} {e.get('unit')}" + (f" × {e.get('n_scans')} {cross}" if cross else "")
+        want = "—" if need is None else f"{need} {e.get('unit')}" + (f" × {e.get('needed_scans')} {cross}" if cross else "")
         rows.append([comparison_label(e["comparison"]), metric_label(e["metric"], short=True),
-                     fmt(e.get("half_width")), f"{e.get('n_units')} {e.get('unit')}",
-                     "reached" if e.get("reached") else ("—" if need is None else f"{need} {e.get('unit')}"),
+                     fmt(e.get("half_width")), now, "reached" if e.get("reached") else want,
                      "—" if e.get("needed_targets") is None else str(e["needed_targets"]),
                      _cost(e.get("cost_s")) if not e.get("reached") else "—"])
     return rows
@@ -50,13 +52,16 @@ def power_sentence(power: dict) -> str:
     worst = max(open_, key=lambda e: (e.get("needed_units") or math.inf))
     need = worst.get("needed_units")
     targets = "" if worst["unit"] == "targets" else f"{worst.get('needed_targets')} targets, "
-    tail = (f"about {need} {worst['unit']} ({targets}{_cost(worst.get('cost_s'))} at this run's measured cost) "
+    crossed = bool(worst.get("crossed_with"))   # targets and scans scaled together
+    unit = worst["unit"] + (f" crossed with {worst.get('needed_scans')} scans" if crossed else "")
+    now = f" crossed with {worst.get('n_scans')} scans" if crossed else ""
+    tail = (f"about {need} {unit} ({targets}{_cost(worst.get('cost_s'))} at this run's measured cost) "
             f"would bring it to {fmt(goal)}" if need is not None else
             "its interval is unbounded, so no population size follows from it")
     beyond = "".join(f" ({worst[k]})" for k in ("beyond", "caution") if worst.get(k))
     return (f"{len(open_)} of {len(entries)} primary comparisons have a 95 % CI half-width above {fmt(goal)}; the "
             f"widest, {comparison_label(worst['comparison'])} on {metric_label(worst['metric'], short=True)} "
-            f"(half-width {fmt(worst['half_width'])} over {worst['n_units']} {worst['unit']}): {tail}{beyond}.")
+            f"(half-width {fmt(worst['half_width'])} over {worst['n_units']} {worst['unit']}{now}): {tail}{beyond}.")
 
 
 def priced(power: dict, seconds: float | None) -> dict:
@@ -78,7 +83,10 @@ def power_section(ctx: ReportContext) -> None:
         ctx.page.paragraph(power_sentence(power), cls="context")
         ctx.page.table(["comparison", "metric", "CI half-width", "units now", f"units for ≤ {fmt(power.get('goal'))}",
                         "targets for it", "projected cost"], power_rows(power), cls="power",
-                       caption=f"Primary comparisons. Projection: {power.get('assumption')}. Measured cost: "
+                       caption=f"Primary comparisons. The projection's unit is the intervals' top level "
+                               f"(evaluate.statistics.cluster = {pop.get('cluster', 'target')!r}: they resample "
+                               f"{varies_text(pop) if pop.get('cluster') else 'targets and tracks'}). "
+                               f"Projection: {power.get('assumption')}. Measured cost: "
                                f"{_cost(power.get('seconds_measured'))} (data, features, models and this "
                                "population's evaluation).")
     paper_setting(ctx, pop)

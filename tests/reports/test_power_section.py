@@ -89,3 +89,29 @@ def test_the_summary_block_holds_no_measured_time_and_the_report_prices_it():
     assert block["seconds_measured"] is None and all(e["cost_s"] is None for e in block["comparisons"])
     assert priced(block, 600.0) == power_block(recs, seconds=600.0)
     assert priced(block, None) is block
+
+
+def test_a_crossed_design_projects_over_targets_and_scans_together():
+    # half-width 0.1 over 20 targets crossed with 6 scans: x4 both -> 80 targets x 24 scans
+    n = {"targets": 20, "scans": 6, "tracks": 40, "cells": 120}
+    rec = {"comparison": "with_uncertainty-model_based", "metric": "correct_final", "lo": -0.05, "hi": 0.15,
+           "primary": True, "over": ["targets", "scans"], "n": n, "cluster": "crossed"}
+    block = power_block([rec], seconds=600.0, available={"scans": 15})
+    (e,) = block["comparisons"]
+    assert e["unit"] == "targets" and e["needed_units"] == 80 and e["needed_scans"] == 24 and e["scale"] == 4.0
+    assert e["beyond"] == "24 scans needed, 15 exist" and "crossed" in block["assumption"]
+    assert "caution" not in e
+    few = power_block([dict(rec, n={**n, "scans": 3})])["comparisons"][0]
+    assert few["caution"].startswith("3 scans:")                  # the smaller top level is the coarse one
+    ctx, _ = _ctx({"power": block, "cluster": "crossed"}, chain_s=600.0)
+    power_section(ctx)
+    text, rows, caption = ctx.page.items[0][1], ctx.page.items[1][2], ctx.page.items[1][3]
+    assert "over 20 targets crossed with 6 scans" in text and "about 80 targets crossed with 24 scans" in text
+    assert rows[0][3] == "20 targets × 6 scans" and rows[0][4] == "80 targets × 24 scans"
+    assert "cluster = 'crossed'" in caption and "targets and scans, crossed" in caption
+    # a nested clustering projects over its own top level, named in the caption
+    cat = dict(rec, over=["categories", "targets", "tracks"], n={"categories": 8, "targets": 72, "tracks": 144},
+               cluster="category")
+    ctx, _ = _ctx({"power": power_block([cat]), "cluster": "category"})
+    power_section(ctx)
+    assert ctx.page.items[1][2][0][3] == "8 categories" and "categories, targets and tracks" in ctx.page.items[1][3]

@@ -9,6 +9,11 @@ resampled statistic falls as 1 / n, n the number of top-level units, so its half
 then ``ceil(n (w / goal)^2)`` units: a projection from the observed between-unit variance, not a
 guarantee (the next units may vary more or less than these did). The cost of that population is
 the measured cost scaled by the same factor, as every stage's work grows linearly with the units.
+
+A crossed design (``cluster = "crossed"``: targets and scans resampled independently) has two top
+levels: the variance is a target term over n_targets plus a scan term over n_scans, so more targets
+alone leave the scan term as it is. The projection scales both by the same factor k (the variance
+then falls as 1 / k, as above) and names both counts (``needed_units`` targets, ``needed_scans``).
 """
 from __future__ import annotations
 
@@ -20,7 +25,8 @@ GOAL = 0.05   # the half-width a primary comparison's interval should reach to d
 
 ASSUMPTION = ("half-width proportional to 1/sqrt(n) over the top level's units (each unit's composition kept: "
               "targets per scan, tracks per target, settings and realizations); projected from the observed "
-              "between-unit variance; cost = the measured seconds scaled by the same factor")
+              "between-unit variance; cost = the measured seconds scaled by the same factor; a crossed design "
+              "(targets x scans) scales targets and scans together")
 
 
 def half_width(lo: float | None, hi: float | None) -> float:
@@ -64,10 +70,19 @@ def power_block(records: Sequence[Mapping], seconds: float | None = None, goal: 
                  "needed_targets": None if scale is None else int(math.ceil(scale * int(n.get("targets", 0)))),
                  "needed_tracks": None if scale is None else int(math.ceil(scale * int(n.get("tracks", 0)))),
                  "cost_s": None if scale is None or seconds is None else float(seconds) * scale}
-        if n_top < MIN_UNITS:
-            entry["caution"] = (f"{n_top} {top}: a bootstrap over so few units understates their spread; the "
+        few = (n_top, top)   # the top level with the fewest units
+        if r.get("cluster") == "crossed" and n.get("scans"):   # both top levels grow together
+            n_scans = int(n["scans"])
+            entry.update(crossed_with="scans", n_scans=n_scans,
+                         needed_scans=None if scale is None else int(math.ceil(scale * n_scans - 1e-9)))
+            few = min(few, (n_scans, "scans"))
+        if few[0] < MIN_UNITS:
+            entry["caution"] = (f"{few[0]} {few[1]}: a bootstrap over so few units understates their spread; the "
                                 "projection is a lower bound")
         if available and top in available and need is not None and need > available[top]:
             entry["beyond"] = f"{need} {top} needed, {available[top]} exist"
+        more = entry.get("needed_scans")
+        if available and entry.get("crossed_with") and "scans" in available and more and more > available["scans"]:
+            entry["beyond"] = f"{more} scans needed, {available['scans']} exist"
         out.append(entry)
     return {"goal": goal, "assumption": ASSUMPTION, "seconds_measured": seconds, "comparisons": out}
