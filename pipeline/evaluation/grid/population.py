@@ -312,7 +312,8 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
     ``dirichlet`` models (``pipeline.method.dirichlet.DirichletModels``), every cell also carries
     the candidates' Dirichlets and the views' whole probability vectors (the fourth method);
     ``variant_dirichlets`` ({variant: DirichletModels}): a variant fitted on another training set
-    (the class-level contrast's instance arm) takes its own. Every variant's cell of a (target,
+    (the class-level contrast's instance arm) takes its own, as it takes its own index's
+    ``own_components`` (Simple Bayes' score per class) where it has them. Every variant's cell of a (target,
     track) shares the track, its seed and so its localization draws: the variants pair."""
     plan = indexes[DEFAULT]["candidate_sets"]
     own = indexes[DEFAULT]["own_components"]
@@ -340,7 +341,8 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                 vdm = dm if variant not in (variant_dirichlets or {}) else \
                     variant_dirichlets[variant].for_set(target, classes)
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
-                                   dropout=full[:, :, list(comps)], own=full[:, :, [own[c] for c in classes]],
+                                   dropout=full[:, :, list(comps)],
+                                   own=full[:, :, [index.get("own_components", own)[c] for c in classes]],
                                    probs=None if vdm is None else full)
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                   classes.index(target), data, settings, ev.seed, ev.variance_floor,

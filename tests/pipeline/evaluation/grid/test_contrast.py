@@ -25,7 +25,8 @@ def test_the_instance_arm_runs_on_the_default_arms_tracks_seeds_and_draws():
                              yaw_source="config", experiments=("biased", "randomized"))
     own = {"t": 0, "u": 1}
     indexes = {P.DEFAULT: {"candidate_sets": {"t": {"classes": ["t", "u"], "components": [0, 1]}}, "own_components": own},
-               ARM: {"candidate_sets": {"t": {"classes": ["t", "u"], "components": [2, 4]}}, "own_components": own}}
+               ARM: {"candidate_sets": {"t": {"classes": ["t", "u"], "components": [2, 4]}},
+                     "own_components": {"t": 3, "u": 1}}}    # the instance arm's own peak components
     intr, steps = {"s1": (FX, CX), "s2": (FX, CX)}, {"s1": 0.3, "s2": 0.3}
     cells, tracks, _ = P.build_cells(ev, df, scores, indexes, None, intr, steps)
     by = {}
@@ -38,7 +39,12 @@ def test_the_instance_arm_runs_on_the_default_arms_tracks_seeds_and_draws():
         np.testing.assert_array_equal(a.data.cam_xy, b.data.cam_xy)
         assert a.classes == b.classes and a.truth == b.truth and a.seed == b.seed and a.settings == b.settings
         assert a.components == (0, 1) and b.components == (2, 4)       # each arm its own component choice
-        np.testing.assert_array_equal(a.data.own, b.data.own)
+        # Simple Bayes reads each class's own peak component as its arm's index names it: score
+        # column 0 (= the default's component 0) for t in the default arm, column 3 in the instance arm
+        np.testing.assert_array_equal(a.data.own[:, :, 0], a.data.dropout[:, :, 0])
+        assert not np.array_equal(a.data.own[:, :, 0], b.data.own[:, :, 0])
+        np.testing.assert_array_equal(a.data.own[:, :, 1], b.data.own[:, :, 1])   # u: column 1 in both
+        np.testing.assert_array_equal(a.data.own[:, :, 1], a.data.dropout[:, :, 1])
         for s in a.settings:                                             # the same localization draws
             assert P.cell_rng(a.seed, a.target, a.track, s).random() == P.cell_rng(b.seed, b.target, b.track, s).random()
         assert a.difficulty and not b.difficulty
