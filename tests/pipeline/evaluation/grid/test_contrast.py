@@ -117,3 +117,14 @@ def test_an_unpaired_cell_is_refused():
     drop = t[(t["variant"] == ARM) & (t["method"] == WU)].index[:1]
     with pytest.raises(ValueError, match="not run on the same cells"):
         contrast_block(_ev(), t.drop(drop))
+
+
+def test_the_models_stage_refuses_arms_with_other_candidates():
+    from stages.models import contrast_check
+
+    cat = {"a__f1": {"classes": ["a__f1", "b__f1"], "components": [0, 1]}}
+    contrast_check(cat, {"a__f1": {"classes": ["a__f1", "b__f1"], "components": [5, 7]}})   # components may differ
+    with pytest.raises(ValueError, match=r"candidate sets differ .* for 1 target\(s\) \(first: a__f1\)"):
+        contrast_check(cat, {"a__f1": {"classes": ["a__f1", "c__f1"], "components": [0, 1]}})
+    with pytest.raises(ValueError, match="first: b__f1"):
+        contrast_check(cat, {**cat, "b__f1": {"classes": ["b__f1", "a__f1"], "components": [0, 1]}})
