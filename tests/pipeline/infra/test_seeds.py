@@ -13,7 +13,7 @@ import pytest
 from pipeline.infra import seeds
 
 ROOT = Path(__file__).resolve().parents[3]
-CODE = ("pipeline", "loaders", "stages", "reports", "viewfuse", "examples")
+CODE = ("pipeline", "loaders", "stages", "reports", "viewfuse", "examples", "tools")
 RNG_CALLS = {"default_rng", "SeedSequence", "RandomState", "Generator", "PCG64", "PCG64DXSM", "Philox",
              "MT19937", "SFC64", "manual_seed", "Random", "seed"}
 
