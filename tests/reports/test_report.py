@@ -390,7 +390,7 @@ def test_names_say_what_they_are_and_run_details_show_skips(rendered_run):
     skips = [t for t in page.tables if t["rows"][0] == ["stage", "what", "skipped", "reasons"]][0]["rows"][1:]
     assert ["features", "bigbird", "2", "mask is empty (2)"] in skips
     assert ["evaluate", "target mahatma_rice", "1", "no track of 5 views sees it (3 views)"] in skips
-    assert "evaluate.seed" in text and "numpy" in text and "3.6 cm" in text and "(rule: top_mean)" in text
+    assert "evaluate.seed" in text and "numpy" in text and "3.61 cm" in text and "(rule: top_mean)" in text
     assert "scans Home_001_1, Home_002_1" in text  # the subtitle names every scan tracks came from
 
 
