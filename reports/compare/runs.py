@@ -31,7 +31,6 @@ from pipeline.infra.outputs import name as out_name
 from reports.compare.planning import block_of as planning_block
 from reports.compare.planning import rows as planning_rows
 from reports.compare.read import RunFileError, manifest_sections, read_summary
-from reports.shared.numbers import MISSING
 
 STAGES = ("data", "classifier", "features", "models", "evaluate", "report")
 SUMMARY = Path("evaluate") / out_name("evaluate", "summary")
@@ -161,6 +160,7 @@ def resolve(args: list[str | Path]) -> list[Column]:
 
 
 # -- what differs ----------------------------------------------------------------------------------
+MISSING = "—"
 
 
 def config_diff(runs: list[Run]) -> dict[str, list[Any]]:

@@ -8,7 +8,7 @@ from typing import Any
 
 from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import metric_label
-from reports.shared.numbers import MISSING, fmt
+from reports.shared.numbers import fmt
 from reports.shared.records import outcome_clauses, records_of, sentences
 
 
@@ -43,7 +43,7 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
 
 def _fmt(v: Any) -> str:
     if v is None:
-        return MISSING
+        return fmt(None)   # numbers.MISSING
     if isinstance(v, float):
         return fmt(v)
     return html.escape(str(v))
