@@ -35,7 +35,6 @@ its box (``frames.fit_in_box``), cut out by its map over black or real clutter (
 from __future__ import annotations
 
 import logging
-import zlib
 from pathlib import Path
 
 import cv2
@@ -53,6 +52,7 @@ from loaders.real_imagery.write import fit_summary, frame_fit, frame_views, view
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
 from pipeline.scene.folds import category_of, fold_class, fold_of
 from pipeline.infra.cache import write_bytes, write_json
+from pipeline.infra import seeds
 
 
 log = logging.getLogger("viewfuse.loaders")
@@ -61,10 +61,6 @@ log = logging.getLogger("viewfuse.loaders")
 def view_code(instance: int, azimuth: float) -> int:
     """The BigBIRD angle field of one training view: 360 x instance + the name's azimuth."""
     return 360 * int(instance) + int(round(azimuth)) % 360
-
-
-def rng_for(seed: int, *parts: str) -> np.random.Generator:
-    return np.random.default_rng([int(seed), *(zlib.crc32(p.encode()) for p in parts)])
 
 
 def split_azimuths(azimuths, view_split: str) -> tuple[list[float], list[float]]:
@@ -148,14 +144,14 @@ def assign_targets(located: dict[str, list[str]], targets: list[str], seed: int)
     least often so far (ties by a seeded draw), distinct within the scan, matched to its located
     instances by a seeded permutation; a scan with more located instances than targets leaves
     the extra ones (drawn) unpaired."""
-    tie = rng_for(seed, "eth80-ties").permutation(len(targets))
+    tie = seeds.stream(seed, "eth80-ties").permutation(len(targets))
     order = {t: int(tie[k]) for k, t in enumerate(sorted(targets))}
     used = {t: 0 for t in targets}
     out: dict[str, dict[str, str]] = {}
     for scan, names in located.items():
         names = sorted(names)
         k = min(len(names), len(targets))
-        rng = rng_for(seed, "eth80-pairing", scan)
+        rng = seeds.stream(seed, "eth80-pairing", scan)
         if len(names) > k:
             names = sorted(rng.choice(names, size=k, replace=False).tolist())
         chosen = sorted(targets, key=lambda t: (used[t], order[t]))[:k]
@@ -218,7 +214,7 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
     n_views = 0
     for (c, i), v in sorted(train.items()):
         on_bg = {a: (training_view(rgb, alpha, train_bg, backgrounds,
-                                   rng_for(ri.background_seed, "train-background", c, str(i), f"{a:g}")), mask, alpha)
+                                   seeds.stream(ri.background_seed, "train-background", c, str(i), f"{a:g}")), mask, alpha)
                  for a, (rgb, mask, alpha) in v.items()}
         n_views += write_training_class(bb_out, class_object(c, i), {i: on_bg}, ri.train_jpeg_quality)
     classes = fold_classes(set(train), ri.categories, ri.instances, ri.class_level)
@@ -292,7 +288,7 @@ def _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed, targets, 
     for inst in sorted(placed):
         t = placed[inst]
         xy = loc[inst][0]
-        yaw = round(float(rng_for(ri.yaws_seed, "yaw", scan, inst).uniform(0.0, 360.0)), 6)
+        yaw = round(float(seeds.stream(ri.yaws_seed, "yaw", scan, inst).uniform(0.0, 360.0)), 6)
         d = frame_views(rows[rows["instance"] == inst], xy, grid, ri.frames)
         bear = object_bearing_deg(d[["cam_x", "cam_y"]].to_numpy(float), xy, yaw)
         photos = views[targets[t]]
@@ -305,7 +301,7 @@ def _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed, targets, 
                 continue
             rgb, mask, alpha = photos[a]
             box, fit = frame_fit(r.image, (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1)), mask)
-            bg_rng = rng_for(ri.background_seed, "background", scan, r.image, inst)
+            bg_rng = seeds.stream(ri.background_seed, "background", scan, r.image, inst)
             items.setdefault(r.image, []).append(((rgb, mask, alpha, box), bg_rng))
             boxes.setdefault(r.image, []).append([*box, ids[t], int(r.difficulty)])
             used.append(a)
@@ -321,7 +317,7 @@ def _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed, targets, 
     jpg = folder / "jpg_rgb"
     jpg.mkdir(parents=True, exist_ok=True)
     for name in sorted(items):
-        rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
+        rng = seeds.stream(cfg.data.seed, f"{scan}/{name}")
         its = [it for it, _ in items[name]]
         frame = render_category_frame(KINECT_SIZE, its, backgrounds, ri.noise_std, ri.blur_sigma_px, rng,
                                       [g for _, g in items[name]])

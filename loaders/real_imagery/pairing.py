@@ -12,13 +12,13 @@ instance).
 """
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from pipeline.scene.location import locate_all
+from pipeline.infra import seeds
 
 
 ROW_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_y0", "box_x1", "box_y1",
@@ -64,16 +64,12 @@ def located_xy(rows: pd.DataFrame, fx: float, cx: float, max_residual_m: float, 
     return {inst: (np.asarray(f.xy, float), float(f.residual_m)) for inst, f in found.items()}, refused
 
 
-def _rng(seed: int, *parts: str) -> np.random.Generator:
-    return np.random.default_rng([int(seed), *(zlib.crc32(p.encode()) for p in parts)])
-
-
 def pair_scan(scan: str, located_xy: dict[str, tuple[np.ndarray, float]], objects, pairing_seed: int,
               yaws_seed: int) -> tuple[list[Pair], list[str]]:
     """The scan's pairs (sorted by instance) and the located instances left unpaired (more
     instances than objects). Deterministic for the seeds; independent of the other scans."""
     names = sorted(located_xy)
-    rng = _rng(pairing_seed, "pairing", scan)
+    rng = seeds.stream(pairing_seed, "pairing", scan)
     if len(names) > len(objects):
         keep = set(rng.choice(names, size=len(objects), replace=False).tolist())
         left = [n for n in names if n not in keep]
@@ -84,6 +80,6 @@ def pair_scan(scan: str, located_xy: dict[str, tuple[np.ndarray, float]], object
     pairs = []
     for name, k in zip(names, chosen):
         xy, res = located_xy[name]
-        yaw = float(_rng(yaws_seed, "yaw", scan, name).uniform(0.0, 360.0))
+        yaw = float(seeds.stream(yaws_seed, "yaw", scan, name).uniform(0.0, 360.0))
         pairs.append(Pair(scan, name, int(k), (float(xy[0]), float(xy[1])), res, round(yaw, 6)))
     return pairs, left

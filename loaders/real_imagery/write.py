@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import logging
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +45,7 @@ from loaders.real_imagery.training import modellable, write_training_object
 from loaders.synthetic.bigbird_writer import encode_jpeg
 from pipeline.scene.rays import facing_error
 from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
+from pipeline.infra import seeds
 
 log = logging.getLogger("viewfuse.loaders")
 
@@ -202,7 +202,7 @@ def _write_scan(cfg, avd_root: Path, avd_out: Path, scan: str, heldout: dict, pl
     folder = avd_out / scan
     jpg = confined_dir(folder / "jpg_rgb")
     for name in sorted(items):
-        rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
+        rng = seeds.stream(cfg.data.seed, f"{scan}/{name}")
         frame = render_frame(KINECT_SIZE, items[name], ri.noise_std, ri.blur_sigma_px, rng)
         write_bytes(jpg / name, encode_jpeg(frame, ri.jpeg_quality))
     write_scan_files(avd_root, folder, scan, boxes, placeholder,

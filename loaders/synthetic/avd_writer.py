@@ -32,10 +32,11 @@ import scipy.io
 
 from loaders.avd import KINECT_K, KINECT_SIZE, STRUCT_FIELDS, difficulty
 from loaders.synthetic.bigbird_writer import encode_jpeg
-from loaders.synthetic.objects import AVD_INSTANCE_MAP_TEXT, rng_for
+from loaders.synthetic.objects import AVD_INSTANCE_MAP_TEXT
 from loaders.synthetic.render import Camera, render
 from loaders.synthetic.scene import ROOM_LIGHT, Room, make_room, room_meshes
 from pipeline.infra.cache import write_bytes, write_json, write_text
+from pipeline.infra import seeds
 
 CLUSTER = 12                      # images per grid point, 30 degrees apart
 SCALE_MM = 331.7                  # mm per recon unit (the file's `scale`)
@@ -127,7 +128,7 @@ def _plan_scan(cfg, scan: str, seed: int, instances: tuple) -> ScanPlan:
     room = make_room(instances, cfg, seed, scan)
     n = len(room.grid_xy) * CLUSTER
     # Interpolated images: opposite pairs (j, j+6), at most 5 pairs of a cluster (>= 2 registered).
-    rng = rng_for(seed, "interpolated")
+    rng = seeds.stream(seed, "interpolated")
     want = int(round(cfg.interpolated_fraction * n / 2))
     dropped: dict[int, set] = {}
     for flat in rng.permutation(len(room.grid_xy) * 6):
@@ -140,7 +141,7 @@ def _plan_scan(cfg, scan: str, seed: int, instances: tuple) -> ScanPlan:
     shots = []
     for k, (x, y) in enumerate(room.grid_xy):
         # Reconstructed poses are never exactly on the grid: a little per-vertex jitter.
-        r = rng_for(seed, "vertex", k)
+        r = seeds.stream(seed, "vertex", k)
         phi0 = float(r.normal(0.0, 1.5))
         pos = (float(x + r.normal(0, 0.008)), float(y + r.normal(0, 0.008)))
         for j in range(CLUSTER):
@@ -177,7 +178,7 @@ def visible_boxes(ids: np.ndarray, instance_ids) -> list[list[int]]:
 def _noise_bank(seed: int, size: int) -> np.ndarray:
     """Gaussian sensor noise drawn once per process; each image takes a slice at its own random
     offset (drawing fresh normals per image cost more than rendering it)."""
-    bank = rng_for(seed, "avd-noise-bank").standard_normal(4 * size, dtype=np.float32) * NOISE_STD
+    bank = seeds.stream(seed, "avd-noise-bank").standard_normal(4 * size, dtype=np.float32) * NOISE_STD
     bank.setflags(write=False)
     return bank
 
@@ -204,7 +205,7 @@ def capture(rgb: np.ndarray, nz: Nuisance, rng: np.random.Generator) -> np.ndarr
 def render_shot(plan: ScanPlan, shot: Shot):
     """(RGB with auto-exposure, motion blur and sensor noise, ID buffer) of one shot."""
     res = render(plan.camera(shot), _meshes(plan), ROOM_LIGHT, (0, 0, 0))
-    rng = rng_for(plan.seed, "avd-noise", shot.name)
+    rng = seeds.stream(plan.seed, "avd-noise", shot.name)
     n = res.rgb.size
     off = int(rng.integers(0, 3 * n))
     rgb = capture(res.rgb, plan.nuisance, rng)
@@ -232,7 +233,7 @@ def write_shot(folder: Path, plan: ScanPlan, shot: Shot) -> tuple[list, int]:
     jpg = encode_jpeg(rgb, plan.quality)
     write_bytes(folder / "jpg_rgb" / shot.name, jpg)
     boxes = visible_boxes(ids, [p.instance_id for p in plan.room.placements])
-    rng = rng_for(plan.seed, "avd-box-jitter", shot.name)
+    rng = seeds.stream(plan.seed, "avd-box-jitter", shot.name)
     return jitter_boxes(boxes, plan.nuisance.box_jitter_px, plan.width, plan.height, rng), len(jpg)
 
 

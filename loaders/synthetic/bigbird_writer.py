@@ -23,10 +23,11 @@ import numpy as np
 
 from loaders.pbm import encode_pbm
 from loaders.synthetic.nuisance import RigNuisance, bounding_box, mask_errors, object_pose, sensor
-from loaders.synthetic.objects import (Instance, make_instance, prism_faces, rng_for, rot_z,
+from loaders.synthetic.objects import (Instance, make_instance, prism_faces, rot_z,
                                        transform_faces)
 from loaders.synthetic.render import Camera, Light, Mesh, render
 from pipeline.infra.cache import atomic_path, write_bytes
+from pipeline.infra import seeds
 
 CAMERAS = (1, 2, 3, 4, 5)
 FULL_SIZE = (1280, 1024)            # Carmine RGB (width, height)
@@ -220,7 +221,7 @@ def write_view(folder: Path, instance: Instance, rig: Rig, camera: int, angle: i
     rgb, mask = render_view(instance, rig, camera, angle, pose)
     if not mask.any():
         raise RuntimeError(f"{folder.name} NP{camera}_{angle}: the object is not in view (rig misconfigured)")
-    rng = rng_for(seed, "bigbird-view", instance.name, camera, angle)
+    rng = seeds.stream(seed, "bigbird-view", instance.name, camera, angle)
     jpg = encode_jpeg(sensor(rgb, nuisance, seed, rng), nuisance.quality)
     written = mask_errors(mask, nuisance.mask_error_px, rng)
     pbm = encode_pbm(add_specks(written, rng))

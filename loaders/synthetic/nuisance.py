@@ -15,7 +15,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from loaders.synthetic.objects import rng_for, rot_z
+from loaders.synthetic.objects import rot_z
+from pipeline.infra import seeds
 
 
 @dataclass(frozen=True)
@@ -43,10 +44,10 @@ class RigNuisance:
 def object_pose(nz: RigNuisance, seed: int, name: str, angle: int) -> tuple[np.ndarray, np.ndarray]:
     """(R, t): the object's placement in the table frame at a turntable angle. The decentring is
     one offset per object; the wobble is per angle (all cameras shoot the same placement)."""
-    r = rng_for(seed, "bigbird-decentre", name)
+    r = seeds.stream(seed, "bigbird-decentre", name)
     phi = r.uniform(0, 2 * np.pi)
     off = nz.decentre_m * np.array([np.cos(phi), np.sin(phi), 0.0])
-    w = rng_for(seed, "bigbird-wobble", name, angle)
+    w = seeds.stream(seed, "bigbird-wobble", name, angle)
     yaw = w.normal(0.0, nz.wobble_deg) if nz.wobble_deg > 0 else 0.0
     dxy = w.normal(0.0, nz.wobble_m, 2) if nz.wobble_m > 0 else np.zeros(2)
     return rot_z(yaw), off + np.array([dxy[0], dxy[1], 0.0])
@@ -56,7 +57,7 @@ def object_pose(nz: RigNuisance, seed: int, name: str, angle: int) -> tuple[np.n
 def _normal_bank(seed: int, size: int) -> np.ndarray:
     """Standard normals drawn once per process; each image takes a slice at a random offset
     (fresh normals per 1280x1024 image would cost more than rendering it)."""
-    bank = rng_for(seed, "bigbird-noise-bank").standard_normal(2 * size, dtype=np.float32)
+    bank = seeds.stream(seed, "bigbird-noise-bank").standard_normal(2 * size, dtype=np.float32)
     bank.setflags(write=False)
     return bank
 

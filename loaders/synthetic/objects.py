@@ -14,7 +14,6 @@ as in the paper. Both writers call ``make_instance`` and get identical appearanc
 """
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -22,6 +21,7 @@ import numpy as np
 
 from loaders.synthetic.textures import CATEGORY_NAMES, N_CATEGORIES, palette, texture
 from pipeline.infra.config.inputs import AVD_INSTANCES
+from pipeline.infra import seeds
 
 # The real AVD instance map (docs/formats/avd_instance_id_map.txt; its names live with the config,
 # which checks data.synthetic.instances against them), embedded: readers of a synthetic root find
@@ -31,17 +31,6 @@ AVD_INSTANCE_IDS: dict[str, int] = {name: i for i, name in enumerate(AVD_INSTANC
 
 REGIONS = ("front", "left", "back", "right")
 PX_PER_M = 1200.0  # texture resolution: ~2 texels per image pixel at BigBIRD distance
-
-
-def stable_int(*parts: object) -> int:
-    """A 64-bit integer from text, stable across processes and runs (unlike ``hash``)."""
-    h = hashlib.sha256("\x1f".join(str(p) for p in parts).encode()).digest()
-    return int.from_bytes(h[:8], "little")
-
-
-def rng_for(seed: int, *parts: object) -> np.random.Generator:
-    """An independent generator for (seed, purpose...), so results do not depend on call order."""
-    return np.random.default_rng([int(seed), stable_int(*parts)])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -145,7 +134,7 @@ def instance_spec(name: str) -> InstanceSpec:
         parts, (front, sides, back, shared), hue = _KNOWN[name]
         return InstanceSpec(name, parts, _paint(front, sides, back, shared=shared, name=name), hue)
     # Generic stand-in: a box or a bottle with name-seeded size and three distinct families.
-    r = np.random.default_rng(stable_int("instance-shape", name))
+    r = seeds.stream(0, "instance-shape", name)
     fams = [CATEGORY_NAMES[i] for i in r.choice(N_CATEGORIES, 3, replace=False)]
     if r.random() < 0.5:
         parts = _box(r.uniform(0.04, 0.09), r.uniform(0.08, 0.2), r.uniform(0.12, 0.3))
@@ -256,7 +245,7 @@ def prism_faces(foot: np.ndarray, z0: float, z1: float, *, side_color=(0.5, 0.5,
 @lru_cache(maxsize=256)
 def region_texture(key: str, family: int, seed: int, size: tuple[int, int]) -> np.ndarray:
     """The one image of a texture key (cached: every view of every writer reuses it)."""
-    img = texture(family, rng_for(seed, "texture", key), size)
+    img = texture(family, seeds.stream(seed, "texture", key), size)
     img.setflags(write=False)
     return img
 
@@ -321,7 +310,7 @@ def build_instance(spec: InstanceSpec, seed: int) -> Instance:
 def _cap_colour(spec: InstanceSpec, seed: int) -> tuple:
     """Top of a painted body: the front family's main colour, a little darker."""
     _, fam = spec.paint["front"]
-    c1, _ = palette(fam, rng_for(seed, "cap", spec.name))
+    c1, _ = palette(fam, seeds.stream(seed, "cap", spec.name))
     return tuple(float(v) * 0.8 for v in c1)
 
 

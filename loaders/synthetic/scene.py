@@ -22,9 +22,10 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from loaders.synthetic.objects import (Face, make_instance, prism_faces, rng_for, rot_z,
+from loaders.synthetic.objects import (Face, make_instance, prism_faces, rot_z,
                                        transform_faces)
 from loaders.synthetic.render import Light, Mesh
+from pipeline.infra import seeds
 
 WALL_HEIGHT_M = 2.5
 WALL_MARGIN_M = 0.3       # grid points keep this far from the walls
@@ -142,7 +143,7 @@ def make_room(instances, cfg, seed: int, scan: str = "") -> Room:
                          f"least {MIN_ROOM_M} m to hold the furniture")
     # Home_001_1 (and an unnamed scan) keeps the layout stream it had before there were several
     # scans, so its room is the one earlier runs and tests know; any other scan is another home.
-    rng = rng_for(seed, "room-layout") if scan in ("", "Home_001_1") else rng_for(seed, "room-layout", scan)
+    rng = seeds.stream(seed, "room-layout") if scan in ("", "Home_001_1") else seeds.stream(seed, "room-layout", scan)
     furniture = _layout(Lx, Ly, rng)
     surfaces = furniture  # every piece has a top to stand things on
     taken: dict[str, list] = {f.name: [] for f in furniture}
@@ -241,7 +242,7 @@ def _occluders(placements, furniture, taken, n: int, rng: np.random.Generator) -
 def clutter_texture(key: str, seed: int, size: tuple[int, int] = (128, 128)) -> np.ndarray:
     """Non-periodic "packaging" texture: smooth colour noise with a few solid print blocks.
     Deliberately unlike the periodic source-domain families on the instances."""
-    rng = rng_for(seed, "clutter-texture", key)
+    rng = seeds.stream(seed, "clutter-texture", key)
     h, w = size
     base = rng.uniform(0.2, 0.9, 3)
     low = cv2.resize(rng.normal(0, 0.12, (4, 4, 3)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
@@ -258,7 +259,7 @@ def clutter_texture(key: str, seed: int, size: tuple[int, int] = (128, 128)) -> 
 @lru_cache(maxsize=4)
 def floor_texture(seed: int, size: tuple[int, int] = (768, 768)) -> np.ndarray:
     """Wooden planks: bands with per-plank tone and a fine grain."""
-    rng = rng_for(seed, "floor")
+    rng = seeds.stream(seed, "floor")
     h, w = size
     planks = 12
     tone = rng.uniform(0.85, 1.15, planks)
@@ -328,7 +329,7 @@ def _shell(room: Room) -> Mesh:
 def _posters(room: Room) -> list[Mesh]:
     """Two framed pictures on the walls (scenery, clutter textures)."""
     Lx, Ly = room.size
-    rng = rng_for(room.seed, "posters")
+    rng = seeds.stream(room.seed, "posters")
     out = []
     for k, (x, y, yaw) in enumerate(((0.6 * Lx, 0.012, 90.0), (Lx - 0.012, 0.6 * Ly, 180.0))):
         w, h = rng.uniform(0.4, 0.8), rng.uniform(0.3, 0.6)

@@ -70,24 +70,11 @@ def read_training_views(path: str | Path, camera: int, members=None):
     numpy dict, scores (n, D)), the Parquet metadata, and its MC-dropout rows (pass >= 0) as a
     table for ``dropout_passes``; with ``members``, the rows as classes (``assemble_classes``)."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
-    from pipeline.scoring.features import check_scores
-    from pipeline.scoring.table_checks import check_table
+    from pipeline.scoring.features import check_scores, read_features_table
 
     path = Path(path)
-    if not path.is_file():
-        raise FeaturesError(path, "features file not found (run the 'features' stage)")
-    try:
-        table = pq.read_table(path)
-    except (pa.ArrowInvalid, OSError) as e:
-        raise FeaturesError(path, f"not a readable Parquet file: {e}") from None
-    missing = [c for c in REQUIRED if c not in table.column_names]
-    if missing:
-        raise FeaturesError(path, f"missing column(s) {', '.join(missing)}")
-    check_table(table, "bigbird", path, FeaturesError, [c for c in REQUIRED if c != "scores"])
-    meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
-            if k.decode().startswith("viewfuse.")}
+    table, meta = read_features_table(path, "bigbird", [c for c in REQUIRED if c != "scores"], FeaturesError)
     cam = table.column("camera").to_numpy()
     pas = table.column("pass").to_numpy()
     keep = np.nonzero((cam == camera) & (pas == -1))[0]

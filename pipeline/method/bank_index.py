@@ -1,13 +1,34 @@
 """The JSON index of a model bank folder (GP banks: ``gp_files.py``; Dirichlet banks:
 ``dirichlet.py``): one reader that checks it before anything trusts it, one writer that merges a
-caller's extra keys without letting them overwrite the bank's own."""
+caller's extra keys without letting them overwrite the bank's own; and the one content digest of
+a bank or any part of one (``content_digest``)."""
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.infra.cache import write_json
 from pipeline.infra.outputs import ArtifactError, read_json
+
+
+def content_digest(*parts) -> str:
+    """The one content digest of model-bank contents (GP banks, one GP of one, Dirichlet banks):
+    blake2b-128, hex, over the parts in order, an array by its dtype, shape and bytes, anything
+    else by its canonical JSON. It keys the in-process caches that must not serve other models
+    under the same names and the Dirichlet index's check of its parameters."""
+    h = hashlib.blake2b(digest_size=16)
+    for p in parts:
+        if isinstance(p, np.ndarray):
+            a = np.ascontiguousarray(p)
+            h.update(f"array {a.dtype.str} {a.shape}\n".encode())
+            h.update(a.tobytes())
+        else:
+            h.update(f"json {json.dumps(p, sort_keys=True, separators=(',', ':'))}\n".encode())
+    return h.hexdigest()
 
 
 def read_index(ipath: Path, fmt: str, version: int, keys: tuple[str, ...], error, what: str) -> dict:

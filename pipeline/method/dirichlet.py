@@ -23,8 +23,6 @@ and renormalised before the log, in the fit and in the likelihood alike.
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 import warnings
 from pathlib import Path
@@ -34,7 +32,7 @@ import numpy as np
 from scipy.special import digamma, gammaln, polygamma
 
 from pipeline.infra.cache import NpzFileError, atomic_path, load_npz, sha256_file
-from pipeline.method.bank_index import inside, read_index, write_index
+from pipeline.method.bank_index import content_digest, inside, read_index, write_index
 from pipeline.infra.outputs import name as out_name
 
 log = logging.getLogger("viewfuse.dirichlet")
@@ -228,14 +226,13 @@ class DirichletModels:
         return self.sets[key].subset(classes)
 
     def fingerprint(self) -> str:
-        """sha256 of the parameters, classes and floor (and every reduced set): changes whenever the models do."""
-        h = hashlib.sha256(json.dumps({"classes": self.classes, "floor": self.floor}, sort_keys=True).encode())
-        h.update(np.ascontiguousarray(self.theta, "<f8").tobytes())
+        """The one content digest (``bank_index.content_digest``) of the parameters, classes and
+        floor (and every reduced set): changes whenever the models do."""
+        parts = [{"classes": self.classes, "floor": self.floor}, np.asarray(self.theta, "<f8")]
         for key in sorted(self.sets):
             m = self.sets[key]
-            h.update(json.dumps({"set": key, "classes": m.classes, "select": m.select.tolist()}).encode())
-            h.update(np.ascontiguousarray(m.theta, "<f8").tobytes())
-        return h.hexdigest()
+            parts += [{"set": key, "classes": m.classes, "select": m.select.tolist()}, np.asarray(m.theta, "<f8")]
+        return content_digest(*parts)
 
     def save(self, folder: str | Path, extra: dict | None = None) -> Path:
         folder = Path(folder)

@@ -25,7 +25,7 @@ from pipeline.method.gp_instance import instance_term
 
 _PLANS: "weakref.WeakKeyDictionary[GPClassModels, Plan]" = weakref.WeakKeyDictionary()
 _LOCK = threading.Lock()
-_BASIS: dict[bytes, cb.BasisGP | None] = {}
+_BASIS: dict[str, cb.BasisGP | None] = {}
 _BASIS_MAX = 8192
 
 

@@ -305,23 +305,22 @@ class GPClassModels:
                       for f, comp in enumerate(self.components)}
                 for c, cls in enumerate(self.classes)}
 
-    def digest(self, c: int | None = None, f: int | None = None, *, trained_only: bool = False) -> bytes:
-        """The one content hash of these models: of one GP (class ``c``, component ``f``: its inputs,
-        targets and hyperparameters, and the test-domain noise unless ``trained_only``: what depends
-        on the fit alone is shared by the calibrated variant) or, without ``c``, of every GP. The key
-        of any cache that must not serve other models under the same names."""
-        import hashlib
+    def digest(self, c: int | None = None, f: int | None = None, *, trained_only: bool = False) -> str:
+        """The one content digest (``bank_index.content_digest``) of these models: of one GP (class
+        ``c``, component ``f``: its inputs, targets and hyperparameters, and the test-domain noise
+        unless ``trained_only``: what depends on the fit alone is shared by the calibrated variant)
+        or, without ``c``, of every GP. The key of any cache that must not serve other models under
+        the same names."""
+        from pipeline.method.bank_index import content_digest
 
-        h = hashlib.blake2b(digest_size=16)
-        cs = range(self.n_classes) if c is None else [c]
-        for ci in cs:
-            fs = range(self.n_components) if f is None else [f]
-            h.update(self.X[ci].tobytes())
-            for fi in fs:
-                h.update(np.ascontiguousarray(self.Y[ci][fi]).tobytes())
-                h.update(np.array([self.mean[ci, fi], self.amplitude[ci, fi], self.length_scale[ci, fi],
-                                   self.noise[ci, fi]] + ([] if trained_only else [self.test_noise[ci, fi]])).tobytes())
-        return h.digest()
+        parts = []
+        for ci in range(self.n_classes) if c is None else [c]:
+            parts.append(self.X[ci])
+            for fi in range(self.n_components) if f is None else [f]:
+                parts.append(np.asarray(self.Y[ci][fi]))
+                parts.append(np.array([self.mean[ci, fi], self.amplitude[ci, fi], self.length_scale[ci, fi],
+                                       self.noise[ci, fi]] + ([] if trained_only else [self.test_noise[ci, fi]])))
+        return content_digest(*parts)
 
 
 def _whiten_rows(L: np.ndarray, V: np.ndarray) -> None:

@@ -141,17 +141,15 @@ class InstanceGPClassModels(GPClassModels):
                                            instance_length_scale=float(self.instance_length_scale[c, f]))
         return out
 
-    def digest(self, c: int | None = None, f: int | None = None, *, trained_only: bool = False) -> bytes:
-        import hashlib
+    def digest(self, c: int | None = None, f: int | None = None, *, trained_only: bool = False) -> str:
+        from pipeline.method.bank_index import content_digest
 
-        h = hashlib.blake2b(super().digest(c, f, trained_only=trained_only), digest_size=16)
-        cs = range(self.n_classes) if c is None else [c]
-        for ci in cs:
-            h.update(self.instances[ci].tobytes())
+        parts = [super().digest(c, f, trained_only=trained_only)]
+        for ci in range(self.n_classes) if c is None else [c]:
             fs = range(self.n_components) if f is None else [f]
-            h.update(np.array([[self.instance_amplitude[ci, fi], self.instance_length_scale[ci, fi]]
-                               for fi in fs]).tobytes())
-        return h.digest()
+            parts += [self.instances[ci], np.array([[self.instance_amplitude[ci, fi], self.instance_length_scale[ci, fi]]
+                                                    for fi in fs])]
+        return content_digest(*parts)
 
 
 def instance_term(models: GPClassModels, c: int, f: int) -> tuple[float, float] | None:

@@ -12,17 +12,13 @@ executor.
 """
 from __future__ import annotations
 
-import zlib
 
 import numpy as np
 
 from pipeline.method import registry
 from pipeline.method.fusion import log_prior
 from pipeline.planning.world import World
-
-
-def _crc(s: str) -> int:
-    return zlib.crc32(s.encode())
+from pipeline.infra import seeds
 
 
 class Belief:
@@ -39,7 +35,7 @@ class Belief:
         self.models, self.world = models, world
         self.bias = np.asarray(bias, float)
         self.est_sigma, self.sigma, self.n_x, self.var_floor = float(est_sigma), float(sigma), int(n_x), var_floor
-        self.key = [int(k) for k in key] + [_crc(world.target), _crc(world.scan)]
+        self.key = (*key, world.target, world.scan)   # (seed, names...): seeds.stream
         self.visited: list[str] = []
         self.log_post = log_prior(None, len(world.classes))
         self._draws: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -47,7 +43,7 @@ class Belief:
     # -- poses -----------------------------------------------------------------------------------
     def _draw(self, node: str) -> tuple[np.ndarray, np.ndarray]:
         if node not in self._draws:
-            rng = np.random.default_rng(self.key + [_crc(node)])
+            rng = seeds.stream(*self.key, node)
             self._draws[node] = (rng.standard_normal(2), rng.standard_normal((self.n_x, 2)))
         return self._draws[node]
 

@@ -8,7 +8,6 @@ start, setting, node or planner), never by its place in the population or the wo
 """
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +20,7 @@ from pipeline.planning.episode import Episode, run_episode
 from pipeline.planning.graph import MoveGraph
 from pipeline.planning.planners import PLANNERS, make_planner
 from pipeline.planning.world import World
+from pipeline.infra import seeds
 
 
 @dataclass(frozen=True)
@@ -113,22 +113,17 @@ def ring_table(models, world: World) -> RingTable | None:
     return _TABLES[key]
 
 
-def _crc(s: str) -> int:
-    return zlib.crc32(s.encode())
-
-
 def run_task(banks, task: Task) -> list[tuple[str, str, Episode]]:
     """Every (setting, planner) episode of one task: [(setting name, planner, Episode)]."""
     models = models_for(banks, task.world)
-    eps = standard_draws(task.eig_samples, len(task.world.components), [task.seed, _crc("eig")])
+    eps = standard_draws(task.eig_samples, len(task.world.components), seeds.key(task.seed, "eig"))
     table = ring_table(models, task.world)
     out = []
     for s in task.settings:
         for name in task.planners:
             belief = Belief(models, task.world, bias=s.bias, est_sigma=s.est_sigma, sigma=s.sigma, n_x=s.n_x,
-                            var_floor=task.var_floor, key=(task.seed, task.start, _crc(s.name)), method=task.method)
-            rng = np.random.default_rng([task.seed, _crc(task.world.target), _crc(task.world.scan), task.start,
-                                         _crc(s.name), _crc(name)])
+                            var_floor=task.var_floor, key=(task.seed, task.start, s.name), method=task.method)
+            rng = seeds.stream(task.seed, task.world.target, task.world.scan, task.start, s.name, name)
             ep = run_episode(belief, make_planner(name, eps, table), task.world.track[0], budget=task.budget,
                              confidence=task.confidence, horizon=task.horizon, rng=rng)
             out.append((s.name, name, ep))

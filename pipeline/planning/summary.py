@@ -19,8 +19,11 @@ import pandas as pd
 
 from pipeline.evaluation.metrics import spec as M   # the one definition of each per-step quantity
 
-STEP_METRICS = {"correct": ("correct ratio", True), "confident_error": ("confident-error rate", False),
-                "nll": ("NLL of the truth", False)}
+# Each step metric is the spec's all-steps metric of that column (its label without ", all steps",
+# its direction): planning keeps no list of its own.
+SPEC_OF = {"correct": "correct_overall", "confident_error": "confident_error_overall", "nll": "nll_overall"}
+STEP_METRICS = {k: (M.METRICS.peek(v).label.rsplit(", ", 1)[0], M.METRICS.peek(v).higher_is_better)
+                for k, v in SPEC_OF.items()}
 EPISODE_METRICS = {"steps_to_decision": ("steps to a confident correct decision", False)}
 AT_STEPS = (3, 5, 10)
 COMPARISONS = (("info_gain", "random"), ("info_gain", "fixed"), ("info_gain", "known_pose"))
@@ -52,12 +55,12 @@ def step_rows(key: dict, log_post: np.ndarray, measured: np.ndarray, nodes: list
     node = [""] * K
     for i, k in enumerate(np.flatnonzero(measured)):
         node[k] = nodes[i]
-    ok = M.correct(log_post, truth, is_log=True)
-    confident_error = M.confident_mask(M.confidence(log_post, truth, is_log=True), ok, confidence)
+    sv = M.step_values(log_post, truth, is_log=True)      # the grid's per-step values (cell_reduce)
+    confident_error = M.confident_mask(sv["confidence"], sv["correct"], confidence)
     return pd.DataFrame({**{k: [v] * K for k, v in key.items()}, "step": np.arange(1, K + 1), "node": node,
-                         "measured": measured, "p_truth": M.prob_truth(log_post, truth, is_log=True),
-                         "correct": ok.astype(float), "confident_error": confident_error.astype(float),
-                         "nll": M.nll(log_post, truth, is_log=True)})
+                         "measured": measured, "p_truth": sv["p_truth"],
+                         "correct": sv["correct"].astype(float), "confident_error": confident_error.astype(float),
+                         "nll": sv["nll"]})
 
 
 def episode_values(table: pd.DataFrame, budget: int, confidence: float) -> pd.DataFrame:

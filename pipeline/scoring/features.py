@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -84,30 +84,42 @@ def write_table(table, path: str | Path) -> None:
         pq.write_table(table, tmp, compression="zstd")
 
 
-def read_features(path: str | Path, kind: str | None = None,
-                  required: Iterable[str] = ()) -> tuple["Any", np.ndarray, dict[str, str]]:
-    """(DataFrame of every column but ``scores`` (RangeIndex = row number), scores (n, D) float32,
-    ``viewfuse.*`` metadata as strings). The columns are checked against the ``kind`` table's
-    contract (bigbird or avd; default: from the file name), the ``required`` ones (those the
-    caller uses) must be there (``table_checks.check_table``)."""
+def read_features_table(path: str | Path, kind: str | None = None, required: Iterable[str] = (),
+                        error: Callable[[Path, str], Exception] | None = None) -> tuple["Any", dict[str, str]]:
+    """The one reader of a features Parquet: (its pyarrow table, its ``viewfuse.*`` metadata as
+    strings), the file checked readable, with ``scores`` and the ``kind`` table's contract (bigbird
+    or avd; default: from the file name; ``required``: the columns the caller uses,
+    ``table_checks.check_table``). Problems raise ``error(path, problem)`` (default: ValueError
+    naming the file; a missing file: FileNotFoundError)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     from pipeline.scoring.table_checks import check_table, kind_of
 
     path = Path(path)
+    fail = error or (lambda p, m: ValueError(f"{p}: {m}"))
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: features file not found (run the 'features' stage)")
+        msg = "features file not found (run the 'features' stage)"
+        raise FileNotFoundError(f"{path}: {msg}") if error is None else error(path, msg)
     try:
         table = pq.read_table(path)
     except (pa.ArrowInvalid, OSError) as e:
-        raise ValueError(f"{path}: not a readable Parquet file ({e})") from None
+        raise fail(path, f"not a readable Parquet file ({e})") from None
     if "scores" not in table.column_names:
-        raise ValueError(f"{path}: no 'scores' column")
-    check_table(table, kind or kind_of(path, table.column_names), path, lambda p, m: ValueError(f"{p}: {m}"),
-                required)
+        raise fail(path, "missing column(s) scores")
+    check_table(table, kind or kind_of(path, table.column_names), path, fail, required)
     meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
             if k.decode().startswith("viewfuse.")}
+    return table, meta
+
+
+def read_features(path: str | Path, kind: str | None = None,
+                  required: Iterable[str] = ()) -> tuple["Any", np.ndarray, dict[str, str]]:
+    """(DataFrame of every column but ``scores`` (RangeIndex = row number), scores (n, D) float32,
+    ``viewfuse.*`` metadata as strings), read by ``read_features_table``."""
+    import pyarrow as pa
+
+    table, meta = read_features_table(path, kind, required)
     col = table.column("scores").combine_chunks()
     if not pa.types.is_fixed_size_list(col.type):
         raise ValueError(f"{path}: 'scores' is {col.type}, expected fixed_size_list<float32>")

@@ -15,7 +15,6 @@ groups of ``TRUNK_ROWS`` images.
 """
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable
 from typing import Sequence
 
@@ -23,6 +22,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from pipeline.infra.seeds import crop_seed  # noqa: F401 - public here (the features stage, viewfuse.scoring)
 
 
 def mc_site(model: nn.Module) -> tuple[Callable[[torch.Tensor], torch.Tensor], list[nn.Module]]:
@@ -38,12 +39,6 @@ def mc_site(model: nn.Module) -> tuple[Callable[[torch.Tensor], torch.Tensor], l
         return torch.flatten(model.avgpool(model.features(x)), 1)
 
     return trunk, list(model.classifier)
-
-
-def crop_seed(seed: int, key: str) -> int:
-    """64-bit seed for one crop's dropout masks: depends only on (seed, crop key)."""
-    h = hashlib.blake2b(f"{int(seed)}|{key}".encode(), digest_size=8).digest()
-    return int.from_bytes(h, "little")
 
 
 class OneDNNLinear(nn.Module):

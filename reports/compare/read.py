@@ -25,6 +25,7 @@ from loaders.errors import BadInputError
 from loaders.files import checked_file
 from pipeline.infra.nesting import depth
 from pipeline.infra.outputs import name as out_name
+from reports.shared.numbers import fmt, plain
 
 # Real summaries are ~3 MB (the paper-grade evaluate), manifests a few kB: the caps leave room
 # for growth and stop a multi-GB file before it is read.
@@ -48,12 +49,12 @@ def read_json(path: Path, max_bytes: int, what: str) -> Any:
         raise RunFileError(f"{path}: {e.problem}") from None
     size = os.stat(path).st_size
     if size > max_bytes:
-        raise RunFileError(f"{path}: {what} is {size / 2**20:.1f} MiB, above the {max_bytes / 2**20:.0f} MiB "
+        raise RunFileError(f"{path}: {what} is {fmt(size / 2**20)} MiB, above the {plain(max_bytes / 2**20)} MiB "
                            "a run writes; not read")
     with open(path, "rb") as f:
         data = f.read(max_bytes + 1)  # the file may grow between stat and read
     if len(data) > max_bytes:
-        raise RunFileError(f"{path}: {what} grew above {max_bytes / 2**20:.0f} MiB while read; not read")
+        raise RunFileError(f"{path}: {what} grew above {plain(max_bytes / 2**20)} MiB while read; not read")
     try:
         value = json.loads(data)
     except RecursionError:

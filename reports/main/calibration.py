@@ -6,7 +6,7 @@ from __future__ import annotations
 from pipeline.evaluation.metrics.labels import comparison_label, method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate, fmt, plain
 from reports.shared.records import records_of, sentences
 
 CALIBRATED = "evaluate.test_domain_variance=cross_fit"
@@ -61,7 +61,7 @@ def calibration_section(ctx: ReportContext) -> None:
     rows = _rows("paper (GP predictive)", pop) + (_rows("calibrated (+ test-domain variance)", cal) if cal else [])
     page.table(_header(), rows, cls="calibration pooled",
                caption=f"Pooled over the population, value [95 % CI] (targets, then tracks). Confident errors: share "
-                       f"of posteriors with max P ≥ {thr:g} on a wrong class. ECE: top-label, {bins} equal-width bins "
+                       f"of posteriors with max P ≥ {plain(thr)} on a wrong class. ECE: top-label, {bins} equal-width bins "
                        "(torchmetrics' definition), over the pooled posteriors weighted as every pooled value. NLL = "
                        "−ln P(truth) and log10 MGR are unbounded: shown (and judged) as the median over targets of "
                        "the target means, so that no single target carries them.")

@@ -8,6 +8,7 @@ import numpy as np
 
 from pipeline.evaluation.metrics.labels import method_color, method_label, ordered_methods
 from reports.shared.figures import new_subplots
+from reports.shared.numbers import fmt, percent, plain
 
 KIND_TITLES = {"gp": "GP predictive alone (Model Based)", "gp_plus_dropout": "GP + dropout variance (With Uncertainty)",
                "gp_calibrated": "GP + cross-fitted test-domain variance"}
@@ -70,7 +71,7 @@ def fig_reliability(pop: dict, where: str = "final", counts: dict | None = None)
         ax.plot(conf[ok], acc[ok], color=method_color(m), lw=1.2)
         ax.scatter(conf[ok], acc[ok], s=10 + 400 * share[ok], color=method_color(m), alpha=0.7, lw=0)
         ece = ((pop.get("pooled") or {}).get(m) or {}).get(f"ece_{where}") or {}
-        ax.set_title(f"{method_label(m, short=True)}\nECE {ece.get('value', float('nan')):.3f}")
+        ax.set_title(f"{method_label(m, short=True)}\nECE {fmt(ece.get('value'))}")
         ax.set_xlim(0, 1.02)
         ax.set_ylim(0, 1.02)
         if j % ncol == 0:
@@ -91,7 +92,7 @@ def fig_reliability(pop: dict, where: str = "final", counts: dict | None = None)
             # print its markup
             from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
             cax.yaxis.set_major_locator(LogLocator(base=10, numticks=4))
-            cax.yaxis.set_major_formatter(FuncFormatter(lambda x, _p: f"{x:g}" if x < 1e4 else f"1e{round(np.log10(x))}"))
+            cax.yaxis.set_major_formatter(FuncFormatter(lambda x, _p: plain(x) if x < 1e4 else f"1e{round(np.log10(x))}"))
             cax.yaxis.set_minor_formatter(NullFormatter())
         cax.set_xlim(0, 1.02)
         cax.set_xlabel("confidence (max P)")
@@ -114,8 +115,8 @@ def fig_pit(domain: dict) -> Any:
             edges = np.linspace(0, 1, len(pit) + 1)
             ax.bar(edges[:-1], pit, width=1 / len(pit), align="edge", color="#6699CC", edgecolor="white")
             ax.axhline(1 / len(pit), color="#333333", ls="--", lw=0.8)
-        ax.set_title(f"{KIND_TITLES.get(k, k)}\n|z|>3: {100 * (o.get('share_gt3') or 0):.1f} %, "
-                     f"95 % cover: {100 * (o.get('coverage95') or 0):.0f} %", fontsize=9)
+        ax.set_title(f"{KIND_TITLES.get(k, k)}\n|z|>3: {percent(o.get('share_gt3') or 0, 1)}, "
+                     f"95 % cover: {percent(o.get('coverage95') or 0)}", fontsize=9)
         ax.set_xlabel("PIT = Φ(z)")
     axes.flat[0].set_ylabel("share of (crop, component)")
     fig.suptitle("Test-domain fit: PIT of AVD crop scores under the own-class GP")

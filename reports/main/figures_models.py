@@ -11,6 +11,7 @@ import numpy as np
 
 from pipeline.evaluation.metrics.labels import class_colors
 from reports.shared.figures import new_subplots, wrap_label
+from reports.shared.numbers import percent
 
 
 def _as_radians(theta: np.ndarray) -> np.ndarray:
@@ -235,7 +236,7 @@ def fig_bias_maps(bm: dict, classes: list[str], target: str, images: list[str]) 
             ax.contour(bx, by, (arg == ti).astype(float), levels=[0.5], colors="white", linewidths=1.8)
         ax.plot([0], [0], marker="+", color="white", ms=10, mew=2)
         v = found["views"][k]
-        share = f"truth wins {100 * v['truth_share']:.0f} %"
+        share = f"truth wins {percent(v['truth_share'])}"
         ax.set_title(f"view {k}" + (f"\n{images[k]}" if k < len(images) else "") + f"\n{share}", fontsize=8.5)
         ax.set_xlabel("bias x (m)")
         ax.set_ylabel("bias y (m)" if k % ncol == 0 else "")

@@ -22,6 +22,7 @@ from reports.shared.records import varies_text
 from reports.main.calibration import paired_value, pooled_value
 from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
+from reports.shared.numbers import fmt, plain
 
 FOREST_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PER_TARGET_METRICS = ("correct_final", "log10_mgr95_final")
@@ -142,7 +143,7 @@ def fig_biased(df: pd.DataFrame, n_classes: int, images: list[str] | None = None
         ax.axvspan(key["step"] - 0.5, key["step"] + 0.5, color="#f2d7a6", alpha=0.55, lw=0, zorder=0)
         img = images[key["step"]] if images and 0 <= key["step"] < len(images) else ""
         ax.annotate(f"view {key['step']}{' (' + img + ')' if img else ''} moves P(truth) most:\n"
-                    f"{method_label(key['method'], True)} {key['before']:.2f} → {key['after']:.2f}",
+                    f"{method_label(key['method'], True)} {fmt(key['before'])} → {fmt(key['after'])}",
                     xy=(key["step"], 1.02), xycoords=("data", "axes fraction"), ha="center", va="bottom",
                     fontsize=8.5, annotation_clip=False)
     for m in ordered_methods(df["method"].unique()):
@@ -216,7 +217,7 @@ def constant_note(v: np.ndarray) -> str:
     if np.all(np.nan_to_num(spread, nan=0.0) < 1e-12):
         flat = np.nanmax(v) - np.nanmin(v) < 1e-12
         return ("all identical: the localization noise\ndoes not reach this method"
-                + (f" (constant {np.nanmax(v):.3g})" if flat else ""))
+                + (f" (constant {fmt(np.nanmax(v))})" if flat else ""))
     return ""
 
 
@@ -259,7 +260,7 @@ def fig_sensitivity(summ: dict) -> Any:
         if metric.startswith("log10_mgr"):
             mgr_axis(ax, finite, axis="y")
         if finite and max(finite) - min(finite) < 1e-12:
-            ax.text(0.5, 0.5, f"{metric_label(metric)} is {finite[0]:.3g} for every method and σ",
+            ax.text(0.5, 0.5, f"{metric_label(metric)} is {fmt(finite[0])} for every method and σ",
                     transform=ax.transAxes, ha="center", va="center", fontsize=8.5,
                     bbox={"boxstyle": "round", "fc": "white", "ec": "#999999", "alpha": 0.92})
     axes[0, 1].axhline(0.0, color="#777777", ls="--", lw=1)
@@ -289,7 +290,7 @@ def fig_track(track: dict, biases: list[tuple[float, float]]) -> Any:
     for i, b in enumerate(biases):
         bc = cam + np.asarray(b, float)
         ax.scatter(bc[:, 0], bc[:, 1], facecolors="none", edgecolors="#999999", s=28, zorder=2,
-                   label=f"biased estimate ({b[0]:+.2f}, {b[1]:+.2f}) m" if i < 3 else None)
+                   label=f"biased estimate ({plain(b[0], signed=True)}, {plain(b[1], signed=True)}) m" if i < 3 else None)
         for p, q in zip(cam, bc):
             ax.plot([p[0], q[0]], [p[1], q[1]], color="#999999", lw=0.7, alpha=0.6, zorder=1)
     est, tru = track.get("object_xy_est"), track.get("object_xy_truth")

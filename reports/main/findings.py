@@ -8,7 +8,7 @@ from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label, percentile
 from reports.main.calibration import pooled_value
 from reports.shared.checks import Ledger
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate, fmt, percent
 from reports.shared.records import clause, find, records_of
 
 
@@ -165,6 +165,6 @@ def pit(domain: dict) -> str:
             for o in [((domain.get(k) or {}).get("overall") or {})] if o]
     if not rows:
         return "PIT histograms (no residuals recorded)."
-    parts = "; ".join(f"{KIND_TITLES.get(k, k)}: {100 * v:.1f} % of |z| above 3" for v, k in rows)
+    parts = "; ".join(f"{KIND_TITLES.get(k, k)}: {percent(v, 1)} of |z| above 3" for v, k in rows)
     best = min(rows)
     return (f"{parts} (0.3 % if the model fitted); the fewest outliers with {KIND_TITLES.get(best[1], best[1])}.")

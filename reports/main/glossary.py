@@ -4,6 +4,7 @@ from __future__ import annotations
 from reports.main.context import ReportContext
 from reports.shared.figures import MGR_SATURATION as SATURATION
 from reports.shared.figures import MGR_SCALE_NOTE
+from reports.shared.numbers import plain
 
 
 def terms(ctx: ReportContext) -> list[tuple[str, str]]:
@@ -69,7 +70,7 @@ def terms(ctx: ReportContext) -> list[tuple[str, str]]:
                                     "the viewpoint."),
         ("MC spread vs |z|", "how well a crop's MC-sample spread ranks its distance |z| from its class model: "
                              "Spearman ρ (0 = no rank relation) and the AUROC for |z| > 2 (0.5 = chance)."),
-        ("numerical saturation", f"a log10 MGR above {SATURATION:g}: the truth's probability is below 1e−{SATURATION:g} "
+        ("numerical saturation", f"a log10 MGR above {plain(SATURATION)}: the truth's probability is below 1e−{plain(SATURATION)} "
                                  "of the winner's, far past what the fusion's floating point resolves; read it as "
                                  "'confidently wrong', not as a measured size."),
         ("showcase track", "the one track shown in detail (paper figures), chosen by a rule the results record "
@@ -79,7 +80,7 @@ def terms(ctx: ReportContext) -> list[tuple[str, str]]:
 
 def _threshold(ctx: ReportContext) -> str:
     t = (ctx.population or {}).get("confident_threshold") or (ctx.config.get("evaluate") or {}).get("confident_threshold")
-    return f"{float(t):g}" if t is not None else "the configured threshold"
+    return plain(t) if t is not None else "the configured threshold"
 
 
 def glossary_section(ctx: ReportContext) -> None:

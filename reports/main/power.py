@@ -9,7 +9,7 @@ import math
 from pipeline.evaluation.metrics.labels import comparison_label, method_label
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate, fmt, plain
 from reports.shared.records import varies_text
 
 # The paper's own figure for its §5.5 run (../shared/paper/numbers.md): Model Based ends with a wrong
@@ -23,7 +23,7 @@ def _cost(seconds) -> str:
     if seconds is None or not math.isfinite(float(seconds)):
         return "—"
     s = float(seconds)
-    return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min"
+    return f"{fmt(s / 3600, 2)} h" if s >= 3600 else f"{plain(round(s / 60))} min"
 
 
 def power_rows(power: dict) -> list[list]:
@@ -106,9 +106,9 @@ def paper_setting(ctx: ReportContext, pop: dict) -> None:
         methods = [m for m in pop.get("methods") or pooled if m in pooled]
         rows = [[method_label(m)] + [Estimate.of(pooled[m].get(k)) for k in SETTING_METRICS] for m in methods]
         ctx.page.table(["method"] + [metric_label(k, short=True) for k in SETTING_METRICS], rows, cls="paper-setting",
-                       caption=(f"Every pose biased by ({s['bias_m'][0]:+g}, {s['bias_m'][1]:+g}) m, then N(0, "
-                                f"{s['sigma_m']:g} m) per axis around the biased estimate, With Uncertainty told σ = "
-                                f"{s['sigma_m']:g} m; {s['realizations']} realizations per (target, track); 95 % CIs "
+                       caption=(f"Every pose biased by ({plain(s['bias_m'][0], signed=True)}, {plain(s['bias_m'][1], signed=True)}) m, then N(0, "
+                                f"{plain(s['sigma_m'])} m) per axis around the biased estimate, With Uncertainty told σ = "
+                                f"{plain(s['sigma_m'])} m; {s['realizations']} realizations per (target, track); 95 % CIs "
                                 f"over {over}. Beside it, {PAPER_55}. A confident error here is max P ≥ "
                                 f"{fmt(pop.get('confident_threshold'))} on a wrong class, a stricter test than the "
                                 "paper's ten-to-one."))

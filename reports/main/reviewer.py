@@ -14,6 +14,7 @@ from pipeline.infra.outputs import read as read_artifact
 from reports.main.bottom_line import counts
 from reports.main.context import ReportContext
 from reports.shared.figures import MGR_SATURATION
+from reports.shared.numbers import plain
 
 BACKGROUNDS = {"black": "cut out onto black", "avd_frames": "cut out onto real AVD clutter",
                "original": "on the photographs' own background (ETH-80's blue cloth)"}
@@ -120,7 +121,7 @@ def limitations(ctx: ReportContext) -> list[str]:
                    "number on this page comes from one of them.")
     sat = saturated(pop)
     if sat:
-        out.append(f"{len(sat)} (target, method) pairs reach a log10 MGR above {MGR_SATURATION:g} "
+        out.append(f"{len(sat)} (target, method) pairs reach a log10 MGR above {plain(MGR_SATURATION)} "
                    f"({', '.join(sat[:6])}{', …' if len(sat) > 6 else ''}): numerical saturation (see the "
                    "glossary), so means of log10 MGR are dominated by them; the pooled log10 MGR is a median over "
                    "targets for that reason.")

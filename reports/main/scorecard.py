@@ -27,7 +27,7 @@ from pipeline.infra.outputs import number
 from reports.main.calibration import paired_value
 from reports.main.context import ReportContext
 from reports.shared.checks import outcome_of
-from reports.shared.numbers import Estimate
+from reports.shared.numbers import Estimate, plain
 
 CLAIM_WORDS = ("holds", "fails", "inconclusive")
 EQUIVALENCE_WORDS = {"equivalent": "holds", "different": "fails", "not distinguishable": "inconclusive"}
@@ -162,7 +162,7 @@ def scorecard(ctx: ReportContext) -> None:
         return (f"A directional test {yes} when the 95 % CI lies on the claimed side of 0, {no} on the other side, "
                 "and is inconclusive when it contains 0 (for the primary comparisons, its Holm-adjusted interval: "
                 "familywise 95 %, as the paired table shows); the 'similar' test "
-                f"{yes} when the whole 95 % CI lies within ±{margin:g} (report.equivalence_margin_correct), {no} "
+                f"{yes} when the whole 95 % CI lies within ±{plain(margin)} (report.equivalence_margin_correct), {no} "
                 "when it lies wholly outside, else is inconclusive. The CIs vary over targets and tracks, not over "
                 "classifier training runs.")
     ctx.page.paragraph(f"This run's setting: {setting_label(setting)} (from its config). A claim is the paper's "

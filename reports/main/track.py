@@ -8,7 +8,7 @@ import math
 from pipeline.evaluation.metrics.labels import method_label
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, metric_label
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate, fmt, plain
 from reports.shared.tables import (component_legend, dump_toml, find_seeds, package_versions, skip_rows)
 
 TRACK_TABLE = ("correct_final", "correct_overall", "log10_mgr95_final", "log10_mgr95_overall")
@@ -53,7 +53,7 @@ def track_section(ctx: ReportContext) -> None:
         b = sorted({(float(x), float(y)) for x, y in zip(biased["bias_x"], biased["bias_y"])})
         sig = ", ".join(fmt(v) for v in sorted(set(biased["sigma_m"])))
         ctx.page.paragraph(
-            "Biased track: every pose estimate is shifted by " + ", ".join(f"({x:+.2f}, {y:+.2f}) m" for x, y in b)
+            "Biased track: every pose estimate is shifted by " + ", ".join(f"({plain(x, signed=True)}, {plain(y, signed=True)}) m" for x, y in b)
             + f". Model Based uses the shifted estimates as if exact; With Uncertainty also knows the localization "
               f"noise σ = {sig} m and averages over sampled poses.")
     ctx.figure("track.png", "Track seen from above: camera positions (numbered in track order) with headings, "
@@ -164,14 +164,14 @@ def _facts(ctx: ReportContext) -> list[list]:
         facts.append(["track views", f"{len(track['images'])}: " + ", ".join(track["images"])])
     est, tru = track.get("object_xy_est"), track.get("object_xy_truth")
     if est is not None:
-        facts.append(["object position estimate (m)", f"({est[0]:.3f}, {est[1]:.3f})"])
+        facts.append(["object position estimate (m)", f"({fmt(est[0])}, {fmt(est[1])})"])
     if est is not None and tru is not None:
         err = math.hypot(est[0] - tru[0], est[1] - tru[1])
-        facts.append(["object position error", f"{100 * err:.1f} cm (ray intersection vs truth)"])
+        facts.append(["object position error", f"{fmt(100 * err)} cm (ray intersection vs truth)"])
     elif track.get("localization_error_m") is not None:
-        facts.append(["object position error", f"{100 * float(track['localization_error_m']):.1f} cm"])
+        facts.append(["object position error", f"{fmt(100 * float(track['localization_error_m']))} cm"])
     if track.get("yaw_deg") is not None:
-        facts.append(["object yaw", f"{float(track['yaw_deg']):.1f}°"])
+        facts.append(["object yaw", f"{fmt(float(track['yaw_deg']))}°"])
     if ctx.run.card:  # numbers move with the processor as with the seed: say which one trained and ran
         facts.append(["classifier's machine", machine_text(ctx.run.card.get("determinism"))])
         if ctx.run.card.get("weights_sha256"):

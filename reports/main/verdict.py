@@ -11,7 +11,7 @@ from pipeline.evaluation.statistics.resampler import wilson_interval
 from pipeline.scoring.classifiers import describe_card, display_of
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate, fmt, percent
 from reports.shared.records import (find, holm_text, outcome_clauses, records_of, select, sentence,
                                     sentences as render)
 from reports.main.calibration import paired_value, pooled_value
@@ -257,7 +257,7 @@ def _outcome(d: dict, metric: str) -> str:
 
 
 def _share(v) -> str:
-    return "—" if v is None else f"{100 * float(v):.0f} %"
+    return percent(v)
 
 
 def _target_rows(pop: dict) -> list[list]:

@@ -136,8 +136,8 @@ def figure_text_problems(fig, name: str = "figure", tol_px: float = 1.0, arts=No
     out = []
     for _, s, b in boxes:
         if b.x0 < -tol_px or b.y0 < -tol_px or b.x1 > W + tol_px or b.y1 > H + tol_px:
-            out.append(f"{name}: text {_short(s)} is clipped (its box x {b.x0:.0f}–{b.x1:.0f}, y {b.y0:.0f}–{b.y1:.0f} "
-                       f"px leaves the {W:.0f}×{H:.0f} px canvas)")
+            out.append(f"{name}: text {_short(s)} is clipped (its box x {round(b.x0)}–{round(b.x1)}, y {round(b.y0)}–{round(b.y1)} "
+                       f"px leaves the {round(W)}×{round(H)} px canvas)")
     for _, s, _b in boxes:
         if "\\mathdefault" in s or "\\times" in s:   # a formatter's mathtext, printed literally (no mathtext)
             out.append(f"{name}: text {_short(s)} prints mathtext markup literally")

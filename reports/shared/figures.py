@@ -17,6 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from pipeline.infra.cache import atomic_path
+from reports.shared.numbers import plain
 
 DEFAULT_LEVELS = (10, 20, 30, 40, 50, 60, 70, 80, 90)
 MAX_WIDTH_IN = 10.8      # widest figure (at 110 dpi: 1188 px + margins; the page's content is 1276 px at 1400 px)
@@ -207,7 +208,7 @@ def _decade_label(x: float, _pos=None) -> str:
         return "0"
     k = math.log10(abs(x))
     sign = "−" if x < 0 else ""
-    return f"{sign}{abs(x):g}" if abs(x) < 1e3 else f"{sign}1e{int(round(k))}"
+    return f"{sign}{plain(abs(x))}" if abs(x) < 1e3 else f"{sign}1e{int(round(k))}"
 
 
 
@@ -240,7 +241,7 @@ def percentile_bands(ax, steps: Sequence[float], values, color: str, label: str 
     alpha = min(0.85, 1.6 / (n + 1))  # n stacked bands reach ~0.8 opacity at the centre
     for i, p in enumerate(lows):
         ax.fill_between(x, q[p], q[100 - p], step="mid", color=color, alpha=alpha, linewidth=0,
-                        label=(f"{label}: {p:g}–{100 - p:g}%" if label and i == 0 else None))
+                        label=(f"{label}: {plain(p)}–{plain(100 - p)}%" if label and i == 0 else None))
     ax.plot(x, q[50.0], color=_darken(color, 0.55), linewidth=2.0, drawstyle="steps-mid",
             label=(f"{label}: median" if label else None))
 

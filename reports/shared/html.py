@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.infra.cache import atomic_path
-from reports.shared.numbers import Estimate, fmt, typeset
+from reports.shared.numbers import MISSING, Estimate, fmt, typeset
 
 _CSS = """
 :root { --ink:#1d2330; --muted:#5b6475; --line:#d9dde5; --bg:#ffffff; --panel:#f6f7f9;
@@ -87,7 +87,7 @@ def format_cell(value: Any) -> tuple[str, bool]:
     """Cell text and whether it is numeric (right-aligned): floats and estimates via
     ``reports.shared.numbers`` (significant digits, one format for the whole page)."""
     if value is None:
-        return "—", False
+        return MISSING, False
     if isinstance(value, Estimate):
         return value.text(), True
     if isinstance(value, bool):
@@ -156,7 +156,7 @@ class HtmlReport:
             raise ValueError(f"figure {name!r}: must be a file name relative to the report "
                              "(the page has to work opened from disk)")
         self.figures.append(name)
-        font = f' data-min-font-px="{min_font_px:.1f}"' if min_font_px else ""
+        font = f' data-min-font-px="{round(float(min_font_px), 1)}"' if min_font_px else ""
         if tick_overlaps is not None:
             font += f' data-tick-overlaps="{int(tick_overlaps)}"'
         # a figure whose text still collides after layout says so, in a box above it

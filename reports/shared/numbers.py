@@ -6,6 +6,9 @@ to ``0.886`` (not ``1`` next to ``0.8856``). Plain decimals from 1e-4 up to 1e5 
 next to ``-0.00657``, not ``-7.93e-04``); a short exponent outside (``9.50e-6``, ``3.30e5``); below
 1e-6 in size a value is shown as ``< 1e-6`` (``> −1e-6`` when negative): such digits are
 bootstrap noise around 0, not information. MGR values reach the reports as log10 already.
+A missing value (None, NaN) reads ``MISSING`` everywhere; ``plain`` writes a setting as configured
+(``0.9``, ``1e-06``) and ``percent`` a share. Nothing in ``reports/`` formats a number itself
+(tests/reports/test_number_format.py walks the code).
 """
 from __future__ import annotations
 
@@ -21,18 +24,19 @@ TINY = 1e-6        # below this in size: "< 1e-6"
 HUGE = 1e5         # from this up: exponent notation
 SMALL = 1e-4       # below this (down to TINY): a short exponent, 9.50e-6, not 0.00000950
 MINUS = "−"        # typographic minus, as everywhere on the pages
+MISSING = "—"      # the one spelling of a missing value, in tables and sentences alike
 
 
 def fmt(value: Any, sig: int = SIG, *, signed: bool = False) -> str:
-    """A float with ``sig`` significant digits; None/NaN as 'n/a', infinities as ∞."""
+    """A float with ``sig`` significant digits; None/NaN as ``MISSING``, infinities as ∞."""
     if value is None:
-        return "n/a"
+        return MISSING
     try:
         v = float(value)
     except (TypeError, ValueError):
         return str(value)
     if math.isnan(v):
-        return "n/a"
+        return MISSING
     if math.isinf(v):
         return "∞" if v > 0 else MINUS + "∞"
     if v == 0:
@@ -115,10 +119,22 @@ def ci_digits(value, low, high, signed: bool = False) -> tuple[str, str, str] | 
 
 
 def percent(share: Any, decimals: int = 0) -> str:
-    """A share in the page's one percent style: '8 %' (a space before the sign), 'n/a' when missing."""
+    """A share in the page's one percent style: '8 %' (a space before the sign), ``MISSING`` when missing."""
     if _missing(share):
-        return "n/a"
+        return MISSING
     return f"{100 * float(share):.{decimals}f} %".replace("-", MINUS)
+
+
+def plain(value: Any, *, signed: bool = False) -> str:
+    """A setting as it was configured, in its shortest form (``0.9``, ``0.25``, ``1e-06``, ``+0.3``):
+    thresholds, sigmas, grid values; ``MISSING`` when missing."""
+    if _missing(value):
+        return MISSING
+    v = float(value)
+    if math.isinf(v):
+        return fmt(v)
+    text = f"{v:+g}" if signed else f"{v:g}"
+    return MINUS + text[1:] if text.startswith("-") else text
 
 
 def _missing(x: Any) -> bool:

@@ -15,7 +15,7 @@ from typing import Any
 
 from pipeline.evaluation.metrics.labels import method_label
 from pipeline.evaluation.metrics.spec import metric_label
-from reports.shared.numbers import fmt
+from reports.shared.numbers import fmt, percent, plain
 
 PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguishable": "is not distinguishable from"}
 STATISTIC = {"mean": "mean over targets of the differences",
@@ -102,7 +102,7 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
         text += f"; leaving one target out: {fmt(lmin, signed=True)} to {fmt(lmax, signed=True)}"
     unit = rec.get("unit") or "cells"
     if rec.get("wins") is not None and rec.get("losses") is not None:
-        text += f"; better in {100 * rec['wins']:.0f} % of {unit}, worse in {100 * rec['losses']:.0f} %"
+        text += f"; better in {percent(rec['wins'])} of {unit}, worse in {percent(rec['losses'])}"
     text += ")"
     notes = []
     flips = rec.get("loto_flips") or []
@@ -143,7 +143,7 @@ def holm_text(rec: Mapping) -> str:
     level = 100 * float(rec.get("level_holm") or 0.95)
     ci = interval_text({"lo": rec.get("lo_holm"), "hi": rec.get("hi_holm"),
                         "unbounded": rec.get("lo_holm") is None or rec.get("hi_holm") is None})
-    return (f"{rec['outcome_holm']} ({ci.replace('95 %', f'{level:.3g} %')}; Holm p {fmt(rec.get('p_holm'))})")
+    return (f"{rec['outcome_holm']} ({ci.replace('95 %', f'{plain(level)} %')}; Holm p {fmt(rec.get('p_holm'))})")
 
 
 def metric_family(metric: str) -> str:

@@ -7,6 +7,8 @@ import platform
 from importlib import metadata as importlib_metadata
 from typing import Any
 
+from reports.shared.numbers import MISSING
+
 PACKAGES = ("numpy", "scipy", "scikit-learn", "torch", "torchvision", "pandas", "pyarrow", "matplotlib",
             "h5py", "opencv-python-headless")
 
@@ -54,7 +56,7 @@ def hyperparameter_table(index: dict) -> tuple[list[str], list[list], list[str]]
         ident = " / ".join(str(f.get(k)) for k in id_keys if f.get(k) is not None)
         warns += [f"{ident}: {x}" for x in at_bound + messages]
         cell = at_bound + messages
-        rows.append([f.get(k) for k in id_keys] + [f.get(k) for k in cols] + ["; ".join(cell) or "—"])
+        rows.append([f.get(k) for k in id_keys] + [f.get(k) for k in cols] + ["; ".join(cell) or MISSING])
     warns += [str(w) for w in (index.get("warnings") or [])]
     return header, rows, warns
 
@@ -109,14 +111,14 @@ def skip_rows(skipped: dict[str, Any]) -> list[list]:
         items = entry.items() if isinstance(entry, dict) and "skipped" not in entry else [("", entry)]
         for what, e in items:
             if e is None:
-                rows.append([stage, what or "—", 0, "—"])
+                rows.append([stage, what or MISSING, 0, MISSING])
             elif isinstance(e, dict):
                 reasons = "; ".join(f"{r} ({n})" for r, n in (e.get("reasons") or {}).items())
-                rows.append([stage, what or "—", int(e.get("skipped") or 0), reasons or "—"])
+                rows.append([stage, what or MISSING, int(e.get("skipped") or 0), reasons or MISSING])
             elif isinstance(e, (int, float)):
-                rows.append([stage, what or "—", int(e), "—"])
+                rows.append([stage, what or MISSING, int(e), MISSING])
             elif isinstance(e, list):
-                rows.append([stage, what or "—", len(e), "; ".join(map(str, e[:5])) or "—"])
+                rows.append([stage, what or MISSING, len(e), "; ".join(map(str, e[:5])) or MISSING])
     return rows
 
 

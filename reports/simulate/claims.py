@@ -12,7 +12,7 @@ import numpy as np
 from pipeline.evaluation.simulation.claims import verdict_word
 from pipeline.evaluation.metrics.labels import method_color, method_label
 from reports.shared.figures import new_subplots
-from reports.shared.numbers import Estimate
+from reports.shared.numbers import Estimate, fmt, plain
 
 # Holds / fails, dark where the whole 95 % CI agrees with the verdict, pale where it spans the
 # threshold (Okabe-Ito blue and vermillion, readable without colour vision by lightness).
@@ -42,7 +42,7 @@ def state(rec: Mapping) -> tuple[str, str]:
 def claims_rows(claims: list[Mapping]) -> list[list]:
     """Rows of the claims table: paper wording, statistic, value [95 % CI], threshold, verdict."""
     return [[c["statement"] + (f" ({c['section']})" if c.get("section") else ""), c["statistic"] + (f" ({c['detail']})" if c.get("detail") else ""),
-             Estimate(c["value"], c["ci_low"], c["ci_high"]), f"{OP_TEXT.get(c['op'], c['op'])} {c['threshold']:g}",
+             Estimate(c["value"], c["ci_low"], c["ci_high"]), f"{OP_TEXT.get(c['op'], c['op'])} {plain(c['threshold'])}",
              verdict_word(c)]
             for c in claims]
 
@@ -62,7 +62,7 @@ def claims_section(page, summary: Mapping[str, Any]) -> None:
     held = sum(c["holds"] for c in claims)
     page.paragraph(f"{held} of {len(claims)} of the paper's §5.3 statements hold on this run "
                    f"({R} realizations per scenario; class models '{cp.get('model_confidence', '?')}', "
-                   f"median predictive std along the track {cp.get('predictive_std', float('nan')):.3g}). "
+                   f"median predictive std along the track {fmt(cp.get('predictive_std'))}). "
                    "Each verdict is computed from the statistic; the CI is over realizations "
                    "(Wilson for shares, the order-statistic interval for percentiles, a seeded bootstrap "
                    "for the paired difference).")
@@ -70,7 +70,7 @@ def claims_section(page, summary: Mapping[str, Any]) -> None:
                caption="The paper's §5.3 statements in our words, each with its figure (declared once with the main "
                        "report's scorecard claims); the simulation is where the paper made them. 'step' is the 0-based "
                        f"track step {cp.get('step', '?')}; confident error: max P ≥ "
-                       f"{cp.get('confident_threshold', float('nan')):g} on a wrong class.")
+                       f"{plain(cp.get('confident_threshold'))} on a wrong class.")
     sw = summary.get("sweep")
     if sw:
         s = sw["summary"]
@@ -82,8 +82,8 @@ def claims_section(page, summary: Mapping[str, Any]) -> None:
     if br:
         page.table(CLAIMS_HEADER, claims_rows(br["claims"]), cls="claims",
                    caption=f"The same claims where the sweep finds the most of them holding: GP noise variance "
-                           f"{br['noise']:.3g} (predictive std {br['predictive_std']:.3g}), σ_max "
-                           f"{br['sigma_max']:g}, {br['realizations']} realizations per scenario "
+                           f"{fmt(br['noise'])} (predictive std {fmt(br['predictive_std'])}), σ_max "
+                           f"{plain(br['sigma_max'])}, {br['realizations']} realizations per scenario "
                            "(model_confidence = \"hand_made\" with that noise): "
                            f"{sum(c['holds'] for c in br['claims'])} of {len(br['claims'])} hold at this size.")
 
@@ -117,7 +117,7 @@ def fig_sweep(sweep: Mapping[str, Any], step: int):
                     continue
                 ax.add_patch(_rect(a, b, STATE_COLORS[state(r)]))
                 if annotate:
-                    ax.text(a, b, f"{r['value']:.2g}", ha="center", va="center", fontsize=6,
+                    ax.text(a, b, fmt(r['value'], 2), ha="center", va="center", fontsize=6,
                             color="white" if state(r)[1] != "spans" else "#1d2330")
         _mark(ax, noise, sig, d["noise"], d["sigma_max"], "*", "default")
         if best:
@@ -125,9 +125,9 @@ def fig_sweep(sweep: Mapping[str, Any], step: int):
         ax.set_xlim(-0.5, len(noise) - 0.5)
         ax.set_ylim(-0.5, len(sig) - 0.5)
         ax.set_xticks(range(len(noise)))
-        ax.set_xticklabels([f"{v:.0e}".replace("e-0", "e-") + f"\n{sd[v]:.3f}" for v in noise], fontsize=6.5)
+        ax.set_xticklabels([f"{fmt(v, 1)}\n{fmt(sd[v])}" for v in noise], fontsize=6.5)
         ax.set_yticks(range(len(sig)))
-        ax.set_yticklabels([f"{s:g}" for s in sig], fontsize=7)
+        ax.set_yticklabels([plain(s) for s in sig], fontsize=7)
         ax.set_title(SHORT.get(k, k).format(step=step), fontsize=8.5)
         ax.grid(False)
         if i % ncol == 0:
@@ -166,7 +166,7 @@ def fig_confident_errors(conf: Mapping[str, Mapping], threshold: float, title: s
     from matplotlib.ticker import MaxNLocator
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("track step k")
-    ax.set_ylabel(f"share with max P ≥ {threshold:g}\non a wrong class")
+    ax.set_ylabel(f"share with max P ≥ {plain(threshold)}\non a wrong class")
     ax.set_ylim(-0.02, 1.02)
     ax.legend(loc="best", fontsize=7)
     ax.set_title(title, fontsize=9.5)

@@ -9,6 +9,7 @@ import pandas as pd
 
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, method_label
 from pipeline.evaluation.metrics.spec import confident_errors, percentile
+from reports.shared.numbers import fmt, percent, plain
 
 OURS = WITH_UNCERTAINTY
 OTHERS = (MODEL_BASED, SIMPLE_BAYES)
@@ -93,15 +94,15 @@ def findings_text(found: dict[str, Any]) -> list[str]:
         w = {m: mu[m]["ptruth_band_10_90_mean"] for m in (OURS,) + OTHERS if m in mu}
         narrower = all(w[OURS] < w[m] for m in OTHERS if m in w)
         lines.append(
-            f"Model uncertainty — P(truth) percentiles: mean 10–90% band width {w.get(OURS, float('nan')):.2f} "
+            f"Model uncertainty — P(truth) percentiles: mean 10–90% band width {fmt(w.get(OURS))} "
             f"(With Uncertainty; {'the narrowest' if narrower else 'not the narrowest'}) vs "
-            + ", ".join(f"{w[m]:.2f} ({method_label(m, short=True)})" for m in OTHERS if m in w)
+            + ", ".join(f"{fmt(w[m])} ({method_label(m, short=True)})" for m in OTHERS if m in w)
             + "; 90th percentile of log10 MGR at its worst step: "
-            + ", ".join(f"{mu[m]['log10_mgr_p90_max']:.2f} ({method_label(m, short=True)})"
+            + ", ".join(f"{fmt(mu[m]['log10_mgr_p90_max'])} ({method_label(m, short=True)})"
                         for m in (OURS,) + OTHERS if m in mu)
-            + f"; confidently wrong (max P ≥ {conf:g} on a wrong class) over all steps / at some step of a realization: "
-            + ", ".join(f"{100 * mu[m]['confident_wrong_overall']:.1f}% / "
-                        f"{100 * mu[m]['confident_wrong_any_step']:.0f}% ({method_label(m, short=True)})"
+            + f"; confidently wrong (max P ≥ {plain(conf)} on a wrong class) over all steps / at some step of a realization: "
+            + ", ".join(f"{percent(mu[m]['confident_wrong_overall'], 1)} / "
+                        f"{percent(mu[m]['confident_wrong_any_step'])} ({method_label(m, short=True)})"
                         for m in (OURS,) + OTHERS if m in mu) + ".")
         if mu.get("inverse_steps") and "simple_bayes" in mu:
             sb, inv = mu["simple_bayes"], mu["inverse_steps"]
@@ -109,24 +110,24 @@ def findings_text(found: dict[str, Any]) -> list[str]:
             lines.append(
                 f"Model uncertainty — Simple Bayes at the inverse view (steps {inv[0]}–{inv[-1]}, where the "
                 f"truth looks like another class): its median P(truth) falls from "
-                f"{sb['median_before_inverse']:.2f} to {sb['median_min_at_inverse']:.2f} "
-                f"(drop {sb['median_drop_at_inverse']:.2f}); With Uncertainty goes {ours.get('median_before_inverse', float('nan')):.2f}"
-                f" → {ours.get('median_min_at_inverse', float('nan')):.2f}, Model Based "
-                f"{mu.get('model_based', {}).get('median_before_inverse', float('nan')):.2f} → "
-                f"{mu.get('model_based', {}).get('median_min_at_inverse', float('nan')):.2f}. The 90th "
-                f"percentile of Simple Bayes' log10 MGR rises from {sb['log10_mgr_p90_before_inverse']:.2f} to "
-                f"{sb['log10_mgr_p90_max_at_inverse']:.2f} there (With Uncertainty: "
-                f"{ours.get('log10_mgr_p90_before_inverse', float('nan')):.2f} → "
-                f"{ours.get('log10_mgr_p90_max_at_inverse', float('nan')):.2f}).")
+                f"{fmt(sb['median_before_inverse'])} to {fmt(sb['median_min_at_inverse'])} "
+                f"(drop {fmt(sb['median_drop_at_inverse'])}); With Uncertainty goes {fmt(ours.get('median_before_inverse'))}"
+                f" → {fmt(ours.get('median_min_at_inverse'))}, Model Based "
+                f"{fmt(mu.get('model_based', {}).get('median_before_inverse'))} → "
+                f"{fmt(mu.get('model_based', {}).get('median_min_at_inverse'))}. The 90th "
+                f"percentile of Simple Bayes' log10 MGR rises from {fmt(sb['log10_mgr_p90_before_inverse'])} to "
+                f"{fmt(sb['log10_mgr_p90_max_at_inverse'])} there (With Uncertainty: "
+                f"{fmt(ours.get('log10_mgr_p90_before_inverse'))} → "
+                f"{fmt(ours.get('log10_mgr_p90_max_at_inverse'))}).")
     lb = found.get("localization_bias")
     if lb and "model_based" in lb:
         mb, ours = lb["model_based"], lb.get(OURS, {})
         lines.append(
-            f"Localization bias — Model Based is confidently wrong (max P ≥ {conf:g} on a wrong class) in "
-            f"{100 * mb['confident_wrong_any_step']:.0f}% of realizations at some step and "
-            f"{100 * mb['confident_wrong_final']:.0f}% at the last step; its median P(truth) bottoms at "
-            f"{mb['ptruth_median_min']:.2f} (step {mb['ptruth_median_argmin_step']}). With Uncertainty: "
-            f"{100 * ours.get('confident_wrong_any_step', float('nan')):.0f}% / "
-            f"{100 * ours.get('confident_wrong_final', float('nan')):.0f}%, median P(truth) ≥ "
-            f"{ours.get('ptruth_median_min', float('nan')):.2f}.")
+            f"Localization bias — Model Based is confidently wrong (max P ≥ {plain(conf)} on a wrong class) in "
+            f"{percent(mb['confident_wrong_any_step'])} of realizations at some step and "
+            f"{percent(mb['confident_wrong_final'])} at the last step; its median P(truth) bottoms at "
+            f"{fmt(mb['ptruth_median_min'])} (step {mb['ptruth_median_argmin_step']}). With Uncertainty: "
+            f"{percent(ours.get('confident_wrong_any_step'))} / "
+            f"{percent(ours.get('confident_wrong_final'))}, median P(truth) ≥ "
+            f"{fmt(ours.get('ptruth_median_min'))}.")
     return lines

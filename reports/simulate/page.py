@@ -31,6 +31,7 @@ from pipeline.infra.outputs import path as out_path
 from reports.shared.artifacts import load_simulate
 from reports.shared.figures import new_subplots, percentile_bands, save
 from reports.shared.html import HtmlReport
+from reports.shared.numbers import MISSING, plain
 from reports.simulate.claims import claims_section, fig_confident_errors, fig_sweep
 from reports.simulate.findings import OURS, findings_text, matrix
 from reports.shared.stats import BOOTSTRAP, metric_params, track_summary
@@ -247,12 +248,12 @@ def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
     facts = [["classes", ", ".join(classes)], ["ground truth", classes[truth] if classes else str(truth)],
              ["realizations per scenario", R], ["track steps K", K]]
     if cfg:
-        facts += [["track", f"from ({cfg['track_start'][0]:g}, {cfg['track_start'][1]:g}) east over "
-                            f"{cfg['track_length']:g} units; object at the origin"],
-                  ["model uncertainty", f"σ_u² ~ U(0, {cfg['sigma_max']:g}²), N_s = {cfg['n_samples']}"],
-                  ["localization bias", f"{cfg['bias_east']:+g} units easting; With Uncertainty told "
-                                        f"σ = {cfg['sigma_loc']:g}, N_x = {cfg['n_loc_samples']}"]]
-    facts.append(["config hash (simulate)", so.meta.get("config_hash", "—")])
+        facts += [["track", f"from ({plain(cfg['track_start'][0])}, {plain(cfg['track_start'][1])}) east over "
+                            f"{plain(cfg['track_length'])} units; object at the origin"],
+                  ["model uncertainty", f"σ_u² ~ U(0, {plain(cfg['sigma_max'])}²), N_s = {cfg['n_samples']}"],
+                  ["localization bias", f"{plain(cfg['bias_east'], signed=True)} units easting; With Uncertainty told "
+                                        f"σ = {plain(cfg['sigma_loc'])}, N_x = {cfg['n_loc_samples']}"]]
+    facts.append(["config hash (simulate)", so.meta.get("config_hash", MISSING)])
     page.table(["", ""], facts, cls="facts")
     page.paragraph(
         "Three classes with hand-specified, viewpoint-dependent score vectors, turned into one GP per (class, score "
@@ -335,7 +336,7 @@ def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int 
         page.section("GP fits", anchor="gp-fits")
         page.table(["class", "component", "mean", "amplitude", "length scale", "noise", "at bound"],
                    [[d["class"], d.get("component_name") or d["component"], d["mean"], d["amplitude"],
-                     d["length_scale"], d["noise"], "; ".join(d.get("at_bound") or []) or "—"] for d in fits],
+                     d["length_scale"], d["noise"], "; ".join(d.get("at_bound") or []) or MISSING] for d in fits],
                    caption="scikit-learn marginal-likelihood fits of the hand-specified responses")
     page.write(out_path(out, "simulate", "html"))
     return ReportResult(out_path(out, "simulate", "html"), written)

@@ -43,7 +43,7 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
 
 def _fmt(v: Any) -> str:
     if v is None:
-        return "–"
+        return fmt(None)   # numbers.MISSING
     if isinstance(v, float):
         return fmt(v)
     return html.escape(str(v))

@@ -115,7 +115,7 @@ def test_one_number_format_with_significant_digits():
     assert fmt(9.5e-6) == "9.50e-6" and fmt(1836.2) == "1840"
     assert Estimate(7.62e-19, 4.09e-20, 2.14e-18).text() == "< 1e-6 [< 1e-6, < 1e-6]"
     assert Estimate(0.5, float("nan"), float("nan")).text() == "0.500"  # no interval: the value alone
-    assert fmt(None) == fmt(float("nan")) == "n/a" and fmt(float("inf")) == "∞"
+    assert fmt(None) == fmt(float("nan")) == "—" and fmt(float("inf")) == "∞"
     # digits follow the CI's width (two significant digits of it); an end that would round to 0 keeps its own
     assert Estimate(0.46, 0.31, 0.6).text() == "0.46 [0.31, 0.60]"
     assert Estimate(0.181, 0.0139, 0.319, signed=True).text() == "+0.18 [+0.01, +0.32]"
@@ -152,7 +152,7 @@ def test_html_escapes_text_and_keeps_anchors_unique(tmp_path):
     assert "A &lt;b&gt; title" in text and "&lt;raw&gt;" in text and 'class="tag">synthetic data' in text
     assert page.ids.count("results") == 1 and "results-2" in page.ids
     rows = page.tables[0]["rows"]
-    assert rows[1] == ["1", "0.123"] and rows[2] == ["—", "n/a"] and rows[3] == ["∞", "yes"]
+    assert rows[1] == ["1", "0.123"] and rows[2] == ["—", "—"] and rows[3] == ["∞", "yes"]
     assert page.tables[1]["collapsed"] and page.tables[1]["rows"][1] == ["1.0 [0.5, 2.0]"]  # digits follow the CI width
     assert [p.name for p in tmp_path.iterdir()] == ["index.html"]  # no temp file left behind
 
@@ -390,7 +390,7 @@ def test_names_say_what_they_are_and_run_details_show_skips(rendered_run):
     skips = [t for t in page.tables if t["rows"][0] == ["stage", "what", "skipped", "reasons"]][0]["rows"][1:]
     assert ["features", "bigbird", "2", "mask is empty (2)"] in skips
     assert ["evaluate", "target mahatma_rice", "1", "no track of 5 views sees it (3 views)"] in skips
-    assert "evaluate.seed" in text and "numpy" in text and "3.6 cm" in text and "(rule: top_mean)" in text
+    assert "evaluate.seed" in text and "numpy" in text and "3.61 cm" in text and "(rule: top_mean)" in text
     assert "scans Home_001_1, Home_002_1" in text  # the subtitle names every scan tracks came from
 
 

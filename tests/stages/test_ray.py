@@ -53,10 +53,12 @@ def _slow_square(shared, i):
 
 
 def _seeded(shared, item):
-    """Randomness from the item's identity only: the same on any worker, in any order."""
+    """Randomness from the item's identity only (a named stream, ``pipeline.infra.seeds``): the
+    same on any worker, in any order."""
+    from pipeline.infra import seeds
     from pipeline.infra.device import available_cores
 
-    return float(np.random.default_rng([shared, item]).normal()), task_cpus(), available_cores()
+    return float(seeds.stream(shared, "item", item).normal()), task_cpus(), available_cores()
 
 
 def _flaky(folder, item):

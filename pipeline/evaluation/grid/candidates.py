@@ -22,13 +22,13 @@ Rule ``explicit`` keeps the components it names.
 """
 from __future__ import annotations
 
-import zlib
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from pipeline.method.components import choose_components
 from pipeline.scene.folds import FOLD_SEP, fold_of  # noqa: F401 - public here
+from pipeline.infra import seeds
 
 
 def nearest_classes(target: str, others: Sequence[str], class_means: Mapping[str, np.ndarray],
@@ -85,7 +85,7 @@ def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: in
             if candidates == "hard":
                 out[t] = sorted([t, *nearest_classes(t, others, class_means, n_candidates - 1)])
                 continue
-            rng = np.random.default_rng([seed, zlib.crc32(t.encode())])
+            rng = seeds.stream(seed, t)
             picked = [others[i] for i in rng.choice(len(others), n_candidates - 1, replace=False)]
         else:
             unknown = [c for c in candidates if c not in pool]

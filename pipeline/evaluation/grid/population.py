@@ -9,7 +9,6 @@ grid is split or scheduled, and an ablation variant sees the same noise as the d
 from __future__ import annotations
 
 import math
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +19,7 @@ from pipeline.method.dirichlet import DirichletModels
 from pipeline.scene.location import InconsistentRays, locate
 from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
+from pipeline.infra import seeds
 
 
 DEFAULT = "default"   # the model-bank variant without an ablation override
@@ -168,7 +168,7 @@ def plan_tracks(det: pd.DataFrame, target: str, n_tracks: int, k: int, seed: int
             cam = d[["cam_x", "cam_y"]].to_numpy(float)
             err = facing_error(cam, d["heading"].to_numpy(float), obj)
             gid = None if grid_points is None else view_grid_ids(d["image"], grid_points[scan], scan)
-            plans = select_tracks(cam, obj, err, k, want, seed=[seed, zlib.crc32(f"{scan}/{target}".encode())],
+            plans = select_tracks(cam, obj, err, k, want, seed=seeds.key(seed, f"{scan}/{target}"),
                                   grid_step=grid_steps[scan], grid_id=gid)
         except TrackError as e:
             errors.append(f"{scan}: {e}")
@@ -236,7 +236,7 @@ def method_rng(seed: int, target: str, track: int, method: str) -> np.random.Gen
     """A pose-free method's own stream (the Dirichlet cloud's subsampling): from the cell's
     identity and the method's key only (not the variant or the setting: such a method ignores
     both), so Ray and local runs draw the same points and one method's draws never move another's."""
-    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, zlib.crc32(method.encode())])
+    return seeds.stream(seed, target, track, method)
 
 
 def pose_free_track(cell: Cell, models) -> tuple[E.Posteriors, dict]:
@@ -248,8 +248,7 @@ def pose_free_track(cell: Cell, models) -> tuple[E.Posteriors, dict]:
 
 
 def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.Generator:
-    key = zlib.crc32(f"{setting.experiment}/{setting.label}".encode())
-    return np.random.default_rng([seed, zlib.crc32(target.encode()), track, key])
+    return seeds.stream(seed, target, track, f"{setting.experiment}/{setting.label}")
 
 
 def run_cell(banks, cell: Cell) -> dict:

@@ -43,6 +43,7 @@ from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.methods.simple_bayes import to_simplex  # noqa: F401 (re-exported)
 from pipeline.evaluation.metrics.results import result_block
 from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY  # noqa: F401 (re-exported)
+from pipeline.infra import seeds
 
 
 
@@ -178,7 +179,7 @@ class Draws:
 
 def realization_rng(seed: int, scenario: str, r: int) -> np.random.Generator:
     """One generator per (scenario, realization): results do not depend on the batch size."""
-    return np.random.default_rng(np.random.SeedSequence([int(seed), SCENARIOS.index(scenario), int(r)]))
+    return seeds.stream(seed, SCENARIOS.index(scenario), r)   # the scenario by its place: numbers kept
 
 
 def draw_realization(scenario: str, sim: SimulateConfig, mu: np.ndarray, cov: np.ndarray,

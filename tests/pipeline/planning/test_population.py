@@ -42,6 +42,24 @@ def test_steps_to_decision_and_step_metrics():
     assert wrong["confident_error"].tolist() == [0, 0, 1, 1]
 
 
+def test_planning_and_the_grid_give_the_same_values_for_the_same_posterior():
+    """One episode's posteriors (K, C) through planning's step table and through the grid's route
+    (the spec's step values reduced by its all-steps metrics, as ``cell_reduce`` does): equal."""
+    from pipeline.evaluation.metrics import spec as M
+    from pipeline.planning.summary import SPEC_OF, STEP_METRICS
+
+    rng = np.random.default_rng(4)
+    lp = np.log(rng.dirichlet([0.3] * 4, size=9))                   # some confident, some wrong
+    lp[2] = np.log([0.91, 0.03, 0.03, 0.03])                        # a confident error (truth 1)
+    key = {"target": "t", "scan": "s", "start": 0, "setting": "biased", "planner": "p"}
+    rows = step_rows(key, lp, np.ones(9, bool), list("abcdefghi"), 1, 0.9)
+    grid = M.posterior_metrics(lp[None], 1, params=M.Params(0.9, 10), is_log=True)
+    assert rows["confident_error"].sum() >= 1
+    for m, spec_key in SPEC_OF.items():
+        assert rows[m].mean() == pytest.approx(grid[spec_key], rel=1e-12, abs=1e-12), m
+        assert STEP_METRICS[m][1] == M.higher_is_better(spec_key)
+
+
 def test_population_block_pools_over_targets_with_cis_and_verdicts():
     ts = tasks()
     results = [run_task(banks(), t) for t in ts]
