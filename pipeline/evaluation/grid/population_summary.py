@@ -130,6 +130,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         "cells": cell_rows,
         "tracks": [t.as_dict() for t in tracks],
         "ablations": ablations,
+        "by_category": blocks.get("by_category") or {},
         "domain_fit": domain_fit or {},
         "skipped_targets": skipped,
     }
