@@ -17,7 +17,7 @@ from pipeline.scene.folds import category_of
 
 ATTRIBUTION_KEY = "attribution"
 INSTANCE_KEY = "instance_term"
-# The per-category breakdown's metrics: the goal of the instance term (issue 46) is stated in these.
+# The per-category breakdown's metrics: the goal of the instance term is stated in these.
 CATEGORY_METRICS = ("correct_final", "confident_error_final")
 BLOCK_KEYS = ("pooled", "paired", "records")
 

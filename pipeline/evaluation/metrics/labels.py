@@ -27,7 +27,7 @@ ATTRIBUTION_COMPARISONS = ((WU_POSES_ONLY, MODEL_BASED), (WU_DROPOUT_ONLY, MODEL
                            (WITH_UNCERTAINTY, WU_POSES_ONLY), (WITH_UNCERTAINTY, WU_DROPOUT_ONLY))
 
 
-# The instance term's attribution (issue 46): each method with the term against itself without it
+# The instance term's attribution: each method with the term against itself without it
 # (the term alone; the term under poses and dropout), and what poses and dropout add on top of it.
 INSTANCE_COMPARISONS = ((MB_INSTANCE, MODEL_BASED), (WU_INSTANCE, WITH_UNCERTAINTY), (WU_INSTANCE, MB_INSTANCE))
 INSTANCE_ATTRIBUTION = {(MB_INSTANCE, MODEL_BASED): "the instance term alone (no pose or dropout sampling)",
