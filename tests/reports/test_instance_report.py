@@ -1,11 +1,11 @@
 """The report's instance sections: the instance fits of a tiny bank fitted here (one class with three
 training instances that differ by a known offset, one with a single instance and so no term), and
 the instance term's attribution and per-category tables from a generated population."""
+import json
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
 from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
 from pipeline.method.gp_files import save_bank
@@ -13,7 +13,7 @@ from pipeline.method.gp_instance_fit import NO_TERM, fit_instance_models
 from pipeline.method.names import MB_INSTANCE, MODEL_BASED, WITH_UNCERTAINTY, WU_INSTANCE
 from reports.main.context import ReportContext
 from reports.main.instances import category_section, instance_attribution_section, instance_fits_section
-from reports.shared.artifacts import RunArtifacts, read_json
+from reports.shared.artifacts import RunArtifacts, load_run, read_json
 from reports.shared.html import HtmlReport
 from reports.shared.numbers import Estimate
 from tests.pipeline.evaluation.grid.test_instance_attribution import _blocks, _population
@@ -55,7 +55,11 @@ def _render(ctx, tmp_path):
 
 def test_the_fits_section_shows_the_instance_term_per_category_component_and_fit(tmp_path):
     index = _bank(tmp_path / "models" / "instance")
-    ctx = _ctx(tmp_path, instance=index)
+    (tmp_path / "evaluate").mkdir()
+    (tmp_path / "evaluate" / "summary.json").write_text(json.dumps({"population": {}}))
+    run = load_run(tmp_path)           # the run's reader finds the instance bank's index
+    assert run.instance == index and run.index is None
+    ctx = ReportContext(HtmlReport("t"), run)
     instance_fits_section(ctx)
     page = _render(ctx, tmp_path)
     assert ctx.sections == ["instance-fits"]
