@@ -12,8 +12,9 @@ from collections import defaultdict
 
 import numpy as np
 
-from pipeline.evaluation.metrics.labels import (INSTANCE_ATTRIBUTION, INSTANCE_COMPARISONS, comparison_key,
-                                                comparison_label, method_label, ordered_methods)
+from pipeline.evaluation.metrics.labels import (INSTANCE_ATTRIBUTION, INSTANCE_COMPARISONS, SIMPLE_BAYES, WU_INSTANCE,
+                                                comparison_key, comparison_label, instance_goal_comparisons,
+                                                method_label, ordered_methods)
 from pipeline.evaluation.metrics.spec import metric_label
 from pipeline.scene.folds import category_of
 from reports.main.context import ReportContext
@@ -150,6 +151,40 @@ def instance_attribution_section(ctx: ReportContext) -> None:
                        "(CIs resample as the verdict does; NLL as the median over targets). Each instance method's "
                        "pooled values, ECE and reliability diagram are in the calibration section.")
     page.bullets(sentences(records_of(block), KEYS), cls="verdict instance-attribution")
+    goal = instance_goal_comparisons(block.get("methods") or [])
+    if not goal:
+        return
+    rows = [[method_label(b, short=True)] + [Estimate.of((paired.get(comparison_key(a, b)) or {}).get(k), signed=True)
+                                             for k in CATEGORY_KEYS] for a, b in goal]
+    page.table(["baseline"] + [f"{method_label(WU_INSTANCE, short=True)} − baseline: {metric_label(k, short=True)}"
+                               for k in CATEGORY_KEYS], rows, cls="instance-goal",
+               caption="The instance term's goal, pooled: paired differences [95 % CI over the design's clusters, "
+                       "unadjusted] of With Uncertainty + instance against every baseline.")
+    page.paragraph(goal_sentence(paired, goal), cls="instance-goal-verdict")
+
+
+def goal_misses(paired: dict, goal) -> list[str]:
+    """Where the goal fails (empty: met): a baseline whose confident-error difference's CI does not
+    lie below 0, and a correct-ratio difference to Simple Bayes whose CI lies below 0."""
+    out = []
+    for a, b in goal:
+        per = paired.get(comparison_key(a, b)) or {}
+        e = Estimate.of(per.get("confident_error_final"), signed=True)
+        if e.value is None or e.high is None or not float(e.high) < 0:
+            out.append(f"confident errors not fewer than {method_label(b, short=True)}'s ({e.text()})")
+        if b == SIMPLE_BAYES:
+            c = Estimate.of(per.get("correct_final"), signed=True)
+            if c.value is None or (c.high is not None and float(c.high) < 0):
+                out.append(f"correct ratio below Simple Bayes's ({c.text()})")
+    return out
+
+
+def goal_sentence(paired: dict, goal) -> str:
+    misses = goal_misses(paired, goal)
+    head = ("Goal of the instance term (fewer confident errors than every baseline, each 95 % CI below 0; a correct "
+            "ratio not worse than Simple Bayes's): ")
+    return head + ("met." if not misses else "missed: " + "; ".join(misses) + " (differences of With Uncertainty + "
+                   "instance − baseline).")
 
 
 def category_section(ctx: ReportContext) -> None:
@@ -180,6 +215,14 @@ def category_section(ctx: ReportContext) -> None:
                caption="The instance term's paired differences per category [95 % CI over the category's targets, "
                        "then tracks]: exploratory, unadjusted.")
     page.bullets(category_findings(by, pairs), cls="by-category-findings")
+    goal = instance_goal_comparisons(methods)
+    if goal:
+        rows = [[cat, "met" if not goal_misses(b_.get("paired") or {}, goal) else "missed",
+                 "; ".join(goal_misses(b_.get("paired") or {}, goal)) or "—"] for cat, b_ in sorted(by.items())]
+        page.table(["category", "goal", "where it misses (With Uncertainty + instance − baseline [95 % CI])"], rows,
+                   cls="by-category instance-goal-category",
+                   caption="The instance term's goal per category, each difference's CI over that category's targets, "
+                           "then tracks: exploratory, unadjusted.")
 
 
 def category_findings(by: dict, pairs) -> list[str]:

@@ -110,3 +110,37 @@ def test_attribution_and_category_tables_read_the_engine_blocks(tmp_path):
             "unadjusted).") in page.verdict
     assert any(s.startswith(f"{wu}, correct answers: more in cat0;") for s in page.verdict)
     assert len(page.table("instance-paired")["rows"][0]) == 1 + 3 * 2
+
+
+def test_the_goal_is_read_off_the_intervals_pooled_and_per_category(tmp_path):
+    out = _blocks(*_population(np.random.default_rng(6)))
+    ctx = _ctx(tmp_path, pop={"ablations": out["ablations"], "by_category": out["by_category"]})
+    instance_attribution_section(ctx)
+    category_section(ctx)
+    page = _render(ctx, tmp_path)
+    goal = {r[0]: r for r in page.table("instance-goal")["rows"][1:]}
+    assert sorted(goal) == ["Model Based", "Simple Bayes"]
+    text = (tmp_path / "index.html").read_text()
+    # pooled: one category of four gains in every cell, the others tie: every CI lies below 0
+    assert "a correct ratio not worse than Simple Bayes&#x27;s): met." in text
+    per = {r[0]: r[1:] for r in page.table("instance-goal-category")["rows"][1:]}
+    assert per["cat0"] == ["met", "—"]
+    assert per["cat2"][0] == "missed" and "confident errors not fewer than Simple Bayes" in per["cat2"][1]
+
+
+def test_goal_misses_name_each_failing_baseline():
+    from reports.main.instances import goal_misses, goal_sentence
+
+    def est(v, lo, hi):
+        return {"value": v, "ci_low": lo, "ci_high": hi}
+
+    goal = ((WU_INSTANCE, MODEL_BASED), (WU_INSTANCE, "simple_bayes"))
+    paired = {comparison_key(WU_INSTANCE, MODEL_BASED): {"confident_error_final": est(-0.05, -0.08, -0.01)},
+              comparison_key(WU_INSTANCE, "simple_bayes"): {"confident_error_final": est(0.09, 0.01, 0.17),
+                                                            "correct_final": est(-0.16, -0.3, -0.02)}}
+    misses = goal_misses(paired, goal)
+    assert len(misses) == 2 and misses[0].startswith("confident errors not fewer than Simple Bayes")
+    assert misses[1].startswith("correct ratio below Simple Bayes")
+    paired[comparison_key(WU_INSTANCE, "simple_bayes")] = {"confident_error_final": est(-0.02, -0.04, -0.001),
+                                                           "correct_final": est(-0.05, -0.2, 0.1)}
+    assert goal_misses(paired, goal) == [] and goal_sentence(paired, goal).endswith("met.")

@@ -8,7 +8,8 @@ from __future__ import annotations
 import pandas as pd
 
 from pipeline.evaluation.metrics.labels import (ATTRIBUTION, ATTRIBUTION_COMPARISONS, INSTANCE_COMPARISONS, MB_INSTANCE,
-                                                MODEL_BASED, WITH_UNCERTAINTY, WU_INSTANCE, comparisons, methods)
+                                                MODEL_BASED, WITH_UNCERTAINTY, WU_INSTANCE, comparisons,
+                                                instance_goal_comparisons, methods)
 from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.pooled_calibration import track_sums
@@ -44,11 +45,12 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
                                 "override": {"with_uncertainty_poses_only": "dropout samples replaced by their mean",
                                              "with_uncertainty_dropout_only": "no pose sampling (sigma = 0, N_x = 1)"},
                                 **{k: b[k] for k in BLOCK_KEYS}}
-    inst = [m for m in (WITH_UNCERTAINTY, MODEL_BASED, WU_INSTANCE, MB_INSTANCE) if m in set(dtab["method"])]
-    if any(a in inst and b in inst for a, b in INSTANCE_COMPARISONS):
-        b = population_block(dtab[dtab["method"].isin(inst)], inst, metrics, INSTANCE_COMPARISONS, ev.bootstrap,
+    if any(a in main and b in main for a, b in INSTANCE_COMPARISONS):
+        # exploratory records (outside the primary family: no Holm adjustment), on the main block's draws
+        pairs = INSTANCE_COMPARISONS + instance_goal_comparisons(main)
+        b = population_block(dtab[dtab["method"].isin(main)], main, metrics, pairs, ev.bootstrap,
                              ev.seed, primary=prim, ece={"sums": sums}, per_target=False, cluster=cl)
-        abl[INSTANCE_KEY] = {"kind": "attribution", "methods": inst,
+        abl[INSTANCE_KEY] = {"kind": "attribution", "methods": main,
                              "override": {WU_INSTANCE: "class models with an instance term",
                                           MB_INSTANCE: "class models with an instance term"},
                              **{k: b[k] for k in BLOCK_KEYS}}
@@ -79,12 +81,12 @@ def categories(targets) -> dict[str, list[str]] | None:
 
 def category_blocks(table: pd.DataFrame, methods_: list[str], n_boot: int, seed) -> dict:
     """Per category: every method's correct ratio and confident-error rate and the paired
-    differences (the primary comparisons and the instance term's), 95 % CIs over that category's
+    differences (the primary comparisons, the instance term's and its goal's), 95 % CIs over that category's
     targets, then their tracks. Exploratory: no verdict records, no multiplicity adjustment."""
     cats = categories(table["target"]) if len(table) else None
     if not cats:
         return {}
-    pairs = tuple(dict.fromkeys((*comparisons(), *INSTANCE_COMPARISONS)))
+    pairs = tuple(dict.fromkeys((*comparisons(), *INSTANCE_COMPARISONS, *instance_goal_comparisons(methods_))))
     out = {}
     for cat, targets in cats.items():
         b = population_block(table[table["target"].isin(targets)], methods_, list(CATEGORY_METRICS), pairs, n_boot,

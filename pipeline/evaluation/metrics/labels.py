@@ -35,6 +35,15 @@ INSTANCE_ATTRIBUTION = {(MB_INSTANCE, MODEL_BASED): "the instance term alone (no
                         (WU_INSTANCE, MB_INSTANCE): "pose and dropout sampling with the instance term"}
 
 
+def instance_goal_comparisons(present) -> tuple[tuple[str, str], ...]:
+    """With Uncertainty + instance against every baseline among ``present`` (method keys): the
+    instance term's goal is stated against each (fewer confident errors, a correct ratio not worse
+    than Simple Bayes's). With Uncertainty and Model Based + instance are in
+    ``INSTANCE_COMPARISONS`` already."""
+    skip = {WU_INSTANCE, MB_INSTANCE, WITH_UNCERTAINTY}
+    return tuple((WU_INSTANCE, m) for m in present if m not in skip) if WU_INSTANCE in present else ()
+
+
 def comparison_key(method: str, baseline: str) -> str:
     return f"{method}-{baseline}"
 
