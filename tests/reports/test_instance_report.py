@@ -6,6 +6,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from pipeline.evaluation.metrics.labels import comparison_key, comparison_label
 from pipeline.method.gp_files import save_bank
@@ -144,3 +145,27 @@ def test_goal_misses_name_each_failing_baseline():
     paired[comparison_key(WU_INSTANCE, "simple_bayes")] = {"confident_error_final": est(-0.02, -0.04, -0.001),
                                                            "correct_final": est(-0.05, -0.2, 0.1)}
     assert goal_misses(paired, goal) == [] and goal_sentence(paired, goal).endswith("met.")
+
+
+@pytest.mark.slow   # builds the whole page of a fake run (tests/support/report_fixtures.py)
+def test_the_whole_page_carries_the_instance_sections(tmp_path, monkeypatch):
+    from reports.main.page import build_main_report
+    from tests.support.report_fixtures import only_figures, write_fake_run
+
+    only_figures(monkeypatch)
+    facts = write_fake_run(tmp_path / "run", K=4, R=5, ablation=False)
+    _bank(tmp_path / "run" / "models" / "instance")
+    path = tmp_path / "run" / "evaluate" / "summary.json"
+    summary = json.loads(path.read_text())
+    out = _blocks(*_population(np.random.default_rng(7)))
+    summary["population"]["ablations"] = {**(summary["population"].get("ablations") or {}),
+                                          "instance_term": out["ablations"]["instance_term"]}
+    summary["population"]["by_category"] = out["by_category"]
+    path.write_text(json.dumps(summary))
+    res = build_main_report(facts["run"], tmp_path / "out", run_name="fake", dpi=40, progress=False, n_boot=100,
+                            config={"data": {"source": "synthetic"}}, timings={})
+    page = parse(res.index)
+    for anchor in ("instance-fits", "instance-attribution", "by-category"):
+        assert anchor in page.sections
+    assert page.sections.index("diagnostics") < page.sections.index("instance-fits")
+    assert page.table("instance-goal")["section"] == "instance-attribution"
