@@ -65,6 +65,10 @@ def test_the_instance_block_pairs_each_method_with_itself_without_the_term():
     assert not any("p_holm" in r for r in block["records"])
     # the main block's comparisons are untouched: the reference against every other method
     assert comparison_key(MB_INSTANCE, MODEL_BASED) not in out["main"]["paired"]
+    # the final posterior's calibration covers the instance methods: pooled ECE and reliability counts
+    for m in (WU_INSTANCE, MB_INSTANCE):
+        ece = out["main"]["pooled"][m]["ece_final"]
+        assert ece["ci_low"] <= ece["value"] <= ece["ci_high"] and m in out["main"]["reliability"]
 
 
 def test_the_per_category_breakdown_says_where_the_term_helps():
