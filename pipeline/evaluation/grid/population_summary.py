@@ -124,13 +124,13 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         "cluster": cluster,
         **block,
         "by_setting": by_setting,
+        "by_category": blocks.get("by_category") or {},
         "difficulty": {"tracks": difficulty, "summary": spread,
                        "meaning": "share of a track's views whose single-view posterior at the true pose ranks "
                                   "the target first"},
         "cells": cell_rows,
         "tracks": [t.as_dict() for t in tracks],
         "ablations": ablations,
-        "by_category": blocks.get("by_category") or {},
         "domain_fit": domain_fit or {},
         "skipped_targets": skipped,
     }
