@@ -119,6 +119,9 @@ class OnInstanceModels:
     def single_view(self, t: TrackInput) -> np.ndarray:
         return super().single_view(replace(t, gp=t.gp_instance))
 
+    def fuse_tracks(self, t: TrackInput) -> np.ndarray:
+        return super().fuse_tracks(replace(t, gp=t.gp_instance))
+
 
 def register(cls: type[FusionMethod]) -> type[FusionMethod]:
     """Class decorator: add a method under ``cls.key`` (a key registered twice is an error)."""

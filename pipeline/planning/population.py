@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.evaluation.grid.population import TrackInfo, track_samples
+from pipeline.evaluation.grid.population import INSTANCE_BANK, TrackInfo, track_samples
+from pipeline.method import registry
 from pipeline.method.registry import REFERENCE
 from pipeline.planning.belief import Belief
 from pipeline.planning.eig import RingTable, standard_draws
@@ -89,8 +90,11 @@ def build_tasks(cells, tracks, avd, scores, moves: dict, ev, plan) -> list[Task]
     return tasks
 
 
-def models_for(banks, world: World):
-    models = banks["default"].subset(world.classes, world.components)
+def models_for(banks, world: World, bank: str = "default"):
+    """The world's candidates and components of ``banks[bank]``, with its test-domain variance."""
+    if bank not in banks:
+        raise ValueError(f"planning: no {bank!r} model bank (the instance bank needs models.instance_term = true)")
+    models = banks[bank].subset(world.classes, world.components)
     if world.test_variance is not None:
         models = models.with_test_variance(np.asarray(world.test_variance, float)[None, :])
     return models
@@ -116,13 +120,16 @@ def ring_table(models, world: World) -> RingTable | None:
 def run_task(banks, task: Task) -> list[tuple[str, str, Episode]]:
     """Every (setting, planner) episode of one task: [(setting name, planner, Episode)]."""
     models = models_for(banks, task.world)
+    method = registry.get(task.method)
+    inst = models_for(banks, task.world, INSTANCE_BANK) if method is not None and "gp_instance" in method.needs else None
     eps = standard_draws(task.eig_samples, len(task.world.components), seeds.key(task.seed, "eig"))
     table = ring_table(models, task.world)
     out = []
     for s in task.settings:
         for name in task.planners:
             belief = Belief(models, task.world, bias=s.bias, est_sigma=s.est_sigma, sigma=s.sigma, n_x=s.n_x,
-                            var_floor=task.var_floor, key=(task.seed, task.start, s.name), method=task.method)
+                            var_floor=task.var_floor, key=(task.seed, task.start, s.name), method=task.method,
+                            instance_models=inst)
             rng = seeds.stream(task.seed, task.world.target, task.world.scan, task.start, s.name, name)
             ep = run_episode(belief, make_planner(name, eps, table), task.world.track[0], budget=task.budget,
                              confidence=task.confidence, horizon=task.horizon, rng=rng)

@@ -18,6 +18,7 @@ from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL
 from pipeline.infra.outputs import path as out_path
 from reports.main import calibration as calibration_sections
 from reports.main import findings
+from reports.main import instances as instance_sections
 from reports.main import planning as planning_sections
 from reports.main import power as power_sections
 from reports.main.calibration import CALIBRATED
@@ -48,7 +49,9 @@ SECTIONS = (verdict_sections.verdict_section, methods_section, limitations_secti
             calibration_sections.calibration_section, verdict_sections.population_section,
             power_sections.power_section, contrast_section,
             verdict_sections.diagnostics_section, calibration_sections.domain_section, uncertainty_source_section,
-            calibration_sections.attribution_section, planning_sections.planning_section, showcase_section,
+            calibration_sections.attribution_section, instance_sections.instance_fits_section,
+            instance_sections.instance_attribution_section, instance_sections.category_section,
+            planning_sections.planning_section, showcase_section,
             track_sections.track_section, track_sections.randomized_section,
             track_sections.sensitivity_section, track_sections.bias_maps_section, track_sections.gp_section,
             glossary_section, reproduce_section, track_sections.details_section)

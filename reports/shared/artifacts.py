@@ -218,6 +218,7 @@ class RunArtifacts:
     card: dict | None = None           # classifier/card.json
     manifests: dict[str, dict] = field(default_factory=dict)
     dirichlet: dict | None = None      # models/dirichlet/index.json
+    instance: dict | None = None       # models/instance/index.json (models.instance_term)
 
     def skipped(self) -> dict[str, Any]:
         """{stage: manifest["extra"]["skipped"]} for the stages that recorded skips."""
@@ -238,9 +239,10 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
             if isinstance(m, dict):
                 manifests[s] = m
     dj = out_path(d / "models" / out_name("models", "dirichlet"), "models", "index")
+    ij = out_path(d / "models" / out_name("models", "instance"), "models", "index")
     return RunArtifacts(d, ev, read_json(idx) if idx.is_file() else None,
                         read_json(card) if card.is_file() else None, manifests,
-                        read_json(dj) if dj.is_file() else None)
+                        read_json(dj) if dj.is_file() else None, read_json(ij) if ij.is_file() else None)
 
 
 # -- the simulate stage's outputs --------------------------------------------------------------

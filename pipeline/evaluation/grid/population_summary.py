@@ -125,6 +125,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         "cluster": cluster,
         **block,
         "by_setting": by_setting,
+        "by_category": blocks.get("by_category") or {},
         "difficulty": {"tracks": difficulty, "summary": spread,
                        "meaning": "share of a track's views whose single-view posterior at the true pose ranks "
                                   "the target first"},

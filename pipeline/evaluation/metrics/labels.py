@@ -8,8 +8,8 @@ hues that no method uses, so a method and a class never share a colour on one pa
 from __future__ import annotations
 
 from pipeline.method import registry
-from pipeline.method.names import (ATTRIBUTION, DIRICHLET, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY,  # noqa: F401
-                                   WU_DROPOUT_ONLY, WU_POSES_ONLY)
+from pipeline.method.names import (ATTRIBUTION, DIRICHLET, MB_INSTANCE, MODEL_BASED, SIMPLE_BAYES,  # noqa: F401
+                                   WITH_UNCERTAINTY, WU_DROPOUT_ONLY, WU_INSTANCE, WU_POSES_ONLY)
 
 
 def methods() -> tuple[str, ...]:
@@ -25,6 +25,23 @@ def comparisons() -> tuple[tuple[str, str], ...]:
 # Attribution: each ingredient alone against Model Based, and what the full method adds to each.
 ATTRIBUTION_COMPARISONS = ((WU_POSES_ONLY, MODEL_BASED), (WU_DROPOUT_ONLY, MODEL_BASED),
                            (WITH_UNCERTAINTY, WU_POSES_ONLY), (WITH_UNCERTAINTY, WU_DROPOUT_ONLY))
+
+
+# The instance term's attribution: each method with the term against itself without it
+# (the term alone; the term under poses and dropout), and what poses and dropout add on top of it.
+INSTANCE_COMPARISONS = ((MB_INSTANCE, MODEL_BASED), (WU_INSTANCE, WITH_UNCERTAINTY), (WU_INSTANCE, MB_INSTANCE))
+INSTANCE_ATTRIBUTION = {(MB_INSTANCE, MODEL_BASED): "the instance term alone (no pose or dropout sampling)",
+                        (WU_INSTANCE, WITH_UNCERTAINTY): "the instance term with pose and dropout sampling",
+                        (WU_INSTANCE, MB_INSTANCE): "pose and dropout sampling with the instance term"}
+
+
+def instance_goal_comparisons(present) -> tuple[tuple[str, str], ...]:
+    """With Uncertainty + instance against every baseline among ``present`` (method keys): the
+    instance term's goal is stated against each (fewer confident errors, a correct ratio not worse
+    than Simple Bayes's). With Uncertainty and Model Based + instance are in
+    ``INSTANCE_COMPARISONS`` already."""
+    skip = {WU_INSTANCE, MB_INSTANCE, WITH_UNCERTAINTY}
+    return tuple((WU_INSTANCE, m) for m in present if m not in skip) if WU_INSTANCE in present else ()
 
 
 def comparison_key(method: str, baseline: str) -> str:

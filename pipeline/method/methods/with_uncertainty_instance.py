@@ -2,7 +2,8 @@
 the same recursion over pose and dropout samples, where an unseen instance's deviation from its
 class is one draw shared by every view of the track instead of independent noise per view. Applies
 where the cell carries the instance bank (``TrackInput.gp_instance``); on classes of one training
-instance it is With Uncertainty bit for bit."""
+instance it is With Uncertainty bit for bit. Planning's belief may keep it (``Belief(...,
+instance_models=...)``)."""
 from __future__ import annotations
 
 from pipeline.method.method_base import OnInstanceModels, register
@@ -18,5 +19,4 @@ class WithUncertaintyInstance(OnInstanceModels, WithUncertainty):
     color = "#004488"   # not a class colour (metrics.labels.CLASS_COLORS)
     note = ("With Uncertainty whose class models add a deviation of the unseen object from its class, shared by "
             "every view of the track (fitted on the training instances)")
-    planning = False
 
