@@ -11,7 +11,10 @@ constant offset, λ at its upper bound, are both answers the data may give). Sta
 with its noise split in half between σ² and b (λ = ℓ, and λ long), then ``restarts`` draws
 log-uniform in the bounds. The record adds b, λ, b / a, the plain (pooled) fit it started from, and a
 95 % Laplace interval of b (from the curvature of the log objective in t at the optimum: over
-training sets drawn from the fitted model, to the Laplace approximation's accuracy).
+training sets drawn from the fitted model, to the Laplace approximation's accuracy; none where the
+curvature is not positive or the interval overflows). The joint fits run all at once by default
+(``pipeline/method/gp_instance_batch.py``); one at a time (``instance_route = "per_fit"``) is the
+reference.
 """
 from __future__ import annotations
 
@@ -157,8 +160,7 @@ def fit_instance_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[n
             pooled={n: d[n] for n in ("amplitude", "length_scale", "noise", "log_marginal_likelihood")},
             **{n: float(v) for n, v in zip(NAMES, np.exp(t))},
             instance_ratio=float(b[c, f] / amp[c, f]),
-            instance_amplitude_ci=None if sd is None else [float(np.exp(t[3] - Z95 * sd[3])),
-                                                           float(np.exp(t[3] + Z95 * sd[3]))],
+            instance_amplitude_ci=_laplace_ci(t[3], sd),
             instance_ci_over="training sets from the fitted model (Laplace, log scale)",
             log_marginal_likelihood=lml,
             log_prior=float(sum(p(t[i])[0] for i, p in obj.priors.items())) if obj.priors else None,
@@ -168,6 +170,16 @@ def fit_instance_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[n
                                    instances=labels, instance_amplitude=b, instance_length_scale=lam,
                                    component_names=plain.component_names, meta=plain.meta)
     return models, diags
+
+
+def _laplace_ci(t3: float, sd: np.ndarray | None) -> list[float] | None:
+    """The 95 % Laplace interval of b, or None where there is none: a Hessian that is not positive
+    definite, or a curvature so flat in log b that the interval overflows (no finite bound to write)."""
+    if sd is None:
+        return None
+    with np.errstate(over="ignore"):
+        ci = np.exp([t3 - Z95 * sd[3], t3 + Z95 * sd[3]])
+    return [float(v) for v in ci] if np.all(np.isfinite(ci)) else None
 
 
 def _starts(plain, c: int, f: int, bounds, restarts: int, seed: int) -> np.ndarray:
