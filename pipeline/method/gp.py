@@ -185,21 +185,30 @@ class GPClassModels:
                 alpha = np.empty((F, N))
                 Ls = []
                 for f in range(F):
-                    a, ell, sn2 = self.amplitude[c, f], self.length_scale[c, f], self.noise[c, f]
-                    Ktt = a * np.exp(-D2 / (2.0 * ell * ell))
-                    Ktt[np.diag_indices(N)] += sn2
+                    Ktt = self._train_cov(c, f, D2)
+                    Ktt[np.diag_indices(N)] += self.noise[c, f]
                     try:
                         L = np.linalg.cholesky(Ktt)
                     except np.linalg.LinAlgError:
                         raise ValueError(
                             f"GP of class {self.classes[c]!r}, component {self.components[f]}: training "
-                            f"covariance is not positive definite (amplitude {a:g}, length scale {ell:g}, "
-                            f"noise {sn2:g}); raise the noise lower bound") from None
+                            f"covariance is not positive definite ({self._describe(c, f)}); raise the noise "
+                            f"lower bound") from None
                     alpha[f] = cho_solve((L, True), y[f] - self.mean[c, f])
                     Ls.append(np.asfortranarray(L))
                 out.append(_ClassFactors(center, T, np.einsum("ij,ij->i", T, T), alpha, Ls))
             self._factors = out
         return self._factors
+
+    def _train_cov(self, c: int, f: int, D2: np.ndarray) -> np.ndarray:
+        """GP (c, f)'s noise-free training covariance from the squared distances of class c's
+        training inputs (a subclass adds its terms here, so ``factors`` factorises each GP once)."""
+        ell = self.length_scale[c, f]
+        return self.amplitude[c, f] * np.exp(-D2 / (2.0 * ell * ell))
+
+    def _describe(self, c: int, f: int) -> str:
+        return (f"amplitude {self.amplitude[c, f]:g}, length scale {self.length_scale[c, f]:g}, "
+                f"noise {self.noise[c, f]:g}")
 
     def _sqdist_train(self, c: int, flat: np.ndarray) -> np.ndarray:
         """‖x - x_T‖² for test rows (n, d) against class c's training inputs: one GEMM."""

@@ -65,6 +65,7 @@ class Result:
     lml: float
     log_prior: float
     runs: list[dict]
+    start: int = -1     # the start whose run was chosen (then polished)
 
 
 def sq_dists(X: np.ndarray) -> np.ndarray:
@@ -100,7 +101,7 @@ def objective(D: np.ndarray, w: np.ndarray, z: np.ndarray, ssw: np.ndarray, n: n
     M[:, np.arange(u), np.arange(u)] += s[:, 0]
     lml = np.full(B, -np.inf)
     grad = np.zeros((B, 3))
-    Minv, half_logdet, ok = _inverses(M)
+    Minv, half_logdet, ok = cholesky_inverses(M)
     if ok.any():
         k = slice(None) if ok.all() else ok   # views, not copies, when every M factorised
         Minv, A, Dl, zz, s1 = Minv[k], A[k], Dl[k], z[k], s[k, 0, 0]
@@ -120,7 +121,14 @@ def objective(D: np.ndarray, w: np.ndarray, z: np.ndarray, ssw: np.ndarray, n: n
         g_ok[:, 2] = 0.5 * (ssw_ / s1 + s1 * np.einsum("bi,bi->b", q, q) - (n_ - u)
                             - s1 * np.trace(Minv, axis1=1, axis2=2))
         grad[k] = g_ok
-    lp = np.zeros(B)
+    return lml, add_log_prior(prior, theta, grad), grad
+
+
+def add_log_prior(prior: np.ndarray, theta: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """The log hyperpriors (B,) of stacked fits, their slopes added to ``grad`` (B, p) in place:
+    ``prior`` (B, 2, 2) rows (alpha, beta) of the inverse-gamma laws of theta[:, 1] (the length
+    scale) and theta[:, 2] (the noise), NaN where none."""
+    lp = np.zeros(len(theta))
     for j, i in ((0, 1), (1, 2)):   # prior row j acts on theta[i]
         has = np.isfinite(prior[:, j, 0])
         if has.any():
@@ -128,10 +136,10 @@ def objective(D: np.ndarray, w: np.ndarray, z: np.ndarray, ssw: np.ndarray, n: n
             e = be * np.exp(-t)
             lp[has] += -al * t - e
             grad[has, i] += -al + e
-    return lml, lp, grad
+    return lp
 
 
-def _inverses(K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cholesky_inverses(K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """K^-1 (B, n, n), half log det K (B,) and which K are positive definite, from one LAPACK
     Cholesky (potrf) and inverse-from-Cholesky (potri) per matrix: half the work of a general
     inverse, and a failed factorisation flags its matrix instead of raising for the stack."""
@@ -322,12 +330,16 @@ def fit_problems(problems: list[Problem], *, polish: bool = True, lockstep: bool
         # One BLAS thread: the parallel axis is the stack of small matrices, and BLAS threads on
         # (n <= a few hundred) matrices only spin against each other on a loaded machine.
         with threadpool_limits(1, user_api="blas"):
-            _fit_new(todo, polish, lockstep, cache)
+            cache.update(zip((p.key for p in todo), fit_stack(_Stack(todo), polish, lockstep)))
     return [cache[p.key] for p in problems]
 
 
-def _fit_new(todo: list[Problem], polish: bool, lockstep: bool, cache: dict) -> None:
-    stack = _Stack(todo)
+def fit_stack(stack, polish: bool, lockstep: bool) -> list[Result]:
+    """Every start of every problem of ``stack`` in one lock-step set of L-BFGS-B runs, the best
+    start per problem polished. ``stack``: ``problems`` (each with ``starts`` (S, p) and
+    ``log_bounds`` (p, 2)) and ``evaluate(which, theta) -> (LML, log prior, gradient of their sum)``
+    (the instance term's fit, ``pipeline/method/gp_instance_batch.py``, brings its own)."""
+    todo = stack.problems
     owner = np.concatenate([np.full(len(p.starts), i) for i, p in enumerate(todo)])
     x0 = np.concatenate([p.starts for p in todo])
     runs = _run_all(stack, owner, x0, DEFAULTS, lockstep)
@@ -345,9 +357,13 @@ def _fit_new(todo: list[Problem], polish: bool, lockstep: bool, cache: dict) -> 
         better = np.isfinite(l2) & (l2 + p2 >= obj[best])
         theta = np.where(better[:, None], cand, theta)
     lml, lp, _ = stack.evaluate(np.arange(len(todo)), theta)
-    for i, p in enumerate(todo):
+    first = np.searchsorted(owner, np.arange(len(todo)))
+    out = []
+    for i in range(len(todo)):
         mine = [{k: r[k] for k in ("status", "message", "nit", "nfev")} for r, o in zip(runs, owner) if o == i]
-        cache[p.key] = Result(theta[i].copy(), float(lml[i] + lp[i]), float(lml[i]), float(lp[i]), mine)
+        out.append(Result(theta[i].copy(), float(lml[i] + lp[i]), float(lml[i]), float(lp[i]), mine,
+                          int(best[i] - first[i])))
+    return out
 
 
 def starts_for(theta0: np.ndarray, log_bounds: np.ndarray, restarts: int, random_state: int) -> np.ndarray:

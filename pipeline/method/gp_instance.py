@@ -91,32 +91,15 @@ class InstanceGPClassModels(GPClassModels):
         return InstanceGPClassModels.from_plain(plain, [self.instances[i] for i in idx],
                                                 self.instance_amplitude[sel], self.instance_length_scale[sel])
 
-    def factors(self):
-        if self._factors is None:
-            from scipy.linalg import cho_solve
+    def _train_cov(self, c: int, f: int, D2: np.ndarray) -> np.ndarray:
+        # The plain factorisation's loop, each GP factorised once with its instance term in K.
+        K = super()._train_cov(c, f, D2)
+        if self.has_instance(c, f):
+            K += same_instance(self.instances[c]) * self.instance_kernel(c, f, D2)
+        return K
 
-            # The plain factors of a plain copy, GPs with an instance term redone, and only then
-            # published: a worker thread must never see the plain factors under this object.
-            out = GPClassModels._copy(self, slice(None), slice(None)).factors()
-            for c, fc in enumerate(out):
-                B = same_instance(self.instances[c])
-                D2 = np.sum((fc.T[:, None, :] - fc.T[None, :, :]) ** 2, axis=-1)
-                for f in range(self.n_components):
-                    if not self.has_instance(c, f):
-                        continue
-                    K = self.kernel(c, f, fc.T, fc.T) + B * self.instance_kernel(c, f, D2)
-                    K[np.diag_indices(len(K))] += self.noise[c, f]
-                    try:
-                        L = np.linalg.cholesky(K)
-                    except np.linalg.LinAlgError:
-                        raise ValueError(
-                            f"GP of class {self.classes[c]!r}, component {self.components[f]}: training "
-                            f"covariance with the instance term is not positive definite (instance amplitude "
-                            f"{self.instance_amplitude[c, f]:g}, noise {self.noise[c, f]:g})") from None
-                    fc.alpha[f] = cho_solve((L, True), self.Y[c][f] - self.mean[c, f])
-                    fc.L[f] = np.asfortranarray(L)
-            self._factors = out
-        return self._factors
+    def _describe(self, c: int, f: int) -> str:
+        return f"{super()._describe(c, f)}, instance amplitude {self.instance_amplitude[c, f]:g}"
 
     def predict(self, Xs):
         mu, cov = super().predict(Xs)

@@ -137,6 +137,24 @@ def test_zero_instance_term_is_the_plain_model_bit_for_bit():
                           fuse_model_based(plain, samples[0], dropout.mean(1), return_log=True, progress=False))
 
 
+def test_factors_are_each_joint_covariance_factorised_once():
+    """Every GP's training factor is the Cholesky of its covariance with the instance term (where it
+    has one, the plain one where not) to 1e-12, and alpha solves it; the plain bank's are untouched."""
+    models, _, _ = instance_case(8)
+    plain = GPClassModels(models.classes, models.components, models.X, models.Y, models.mean, models.amplitude,
+                          models.length_scale, models.noise)
+    for c, (fc, fp) in enumerate(zip(models.factors(), plain.factors())):
+        T, lab = fc.T, models.instances[c]
+        for f in range(models.n_components):
+            K = (_k(T, T, models.amplitude[c, f], models.length_scale[c, f])
+                 + (lab[:, None] == lab[None, :]) * _k(T, T, models.instance_amplitude[c, f],
+                                                       models.instance_length_scale[c, f])
+                 + models.noise[c, f] * np.eye(len(T)))
+            np.testing.assert_allclose(fc.L[f], np.linalg.cholesky(K), rtol=0, atol=1e-12)
+            np.testing.assert_allclose(K @ fc.alpha[f], models.Y[c][f] - models.mean[c, f], rtol=0, atol=1e-12)
+            assert np.array_equal(fc.L[f], fp.L[f]) == (not models.has_instance(c, f))
+
+
 def test_subset_keeps_the_instance_term_and_bad_labels_raise():
     models, _, _ = instance_case(7)
     sub = models.subset(["k1", "k0"], [1])
