@@ -40,7 +40,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from loaders.avd import KINECT_SIZE
 from loaders.errors import BadInputError
 from loaders.eth80 import STEP_DEG, Eth80Folder, class_object
 from loaders.pbm import encode_pbm
@@ -216,7 +215,7 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
     scans = {scan: locate(avd_root, scan, ri.max_difficulty, ri.max_ray_residual_m, skips) for scan in cfg.data.scans}
     placed = assign_targets({scan: sorted(loc.loc) for scan, loc in scans.items()}, sorted(targets), ri.pairing_seed)
     frames = Frames(nearest=nearest_azimuth, item=lambda scan, image, p, photo, box: _item(ri, scan, image, p, photo, box),
-                    render=lambda scan, name, items: _render(cfg, backgrounds, scan, name, items),
+                    render=lambda scan, name, items, size: _render(cfg, backgrounds, scan, name, items, size),
                     jpeg_quality=ri.jpeg_quality, used_key="azimuths_used", max_key="max_view_offset_deg")
     truth, counts = write_scans(avd_root, avd_out, {scan: (loc, _place(ri, loc, placed[scan], targets, test, ids))
                                                     for scan, loc in scans.items()}, frames, ri.frames,
@@ -272,9 +271,9 @@ def _item(ri, scan: str, image: str, p: Placed, photo: tuple, box) -> tuple:
     return (rgb, mask, alpha, box), bg_rng
 
 
-def _render(cfg, backgrounds, scan: str, name: str, items: list) -> np.ndarray:
+def _render(cfg, backgrounds, scan: str, name: str, items: list, size: tuple[int, int]) -> np.ndarray:
     ri = cfg.data.real_imagery
     rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
     its = [it for it, _ in items]
-    return render_category_frame(KINECT_SIZE, its, backgrounds, ri.noise_std, ri.blur_sigma_px, rng,
+    return render_category_frame(size, its, backgrounds, ri.noise_std, ri.blur_sigma_px, rng,
                                  [g for _, g in items])

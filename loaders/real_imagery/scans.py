@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from loaders.avd import KINECT_SIZE, AVDScan
+from loaders.avd import AVDScan
 from loaders.errors import BadInputError
 from loaders.files import plain_name
 from loaders.real_imagery.frames import fit_in_box, object_bearing_deg, view_error_deg
@@ -49,11 +49,11 @@ class Placed:
 @dataclass(frozen=True)
 class Frames:
     """How a source draws its frames: ``nearest(bearing, photos)`` the angle shown; ``item(scan,
-    image, placed, photo, box)`` what one framed box contributes; ``render(scan, image, items)``
-    the frame; the truth record's names of the angles used and of the largest view error."""
+    image, placed, photo, box)`` what one framed box contributes; ``render(scan, image, items,
+    (width, height))`` the frame; the truth record's names of the angles used and of the largest view error."""
     nearest: Callable[[float, dict], Any]
     item: Callable[[str, str, Placed, tuple, tuple], Any]
-    render: Callable[[str, str, list], np.ndarray]
+    render: Callable[[str, str, list, tuple[int, int]], np.ndarray]
     jpeg_quality: int
     used_key: str = "heldout_views_used"
     max_key: str = "view_error_deg_max"
@@ -69,7 +69,10 @@ class Located:
 
 
 def locate(avd_root: Path, scan: str, max_difficulty: int, max_ray_residual_m: float, skips) -> Located:
-    s = AVDScan(avd_root, scan, skip=skips.log("avd", "AVD entry"), frames=False)
+    """The real metadata copy (no ``jpg_rgb/``) reads as 1920x1080 images; a scan with its frames
+    (e.g. the synthetic source's) at their own size."""
+    frames = (Path(avd_root) / scan / "jpg_rgb").is_dir()
+    s = AVDScan(avd_root, scan, skip=skips.log("avd", "AVD entry"), frames=frames)
     K = s.intrinsics()
     rows = box_rows(s, max_difficulty)
     loc, refused = located_xy(rows, float(K[0, 0]), float(K[0, 2]), max_ray_residual_m, scan)
@@ -80,13 +83,17 @@ def write_scans(avd_root: Path, avd_out: Path, scans: dict[str, tuple[Located, l
                 mode: str, max_view_error_deg: float) -> tuple[dict, dict]:
     """Every scan of ``scans`` = {scan: (located, its placements in instance order)}: (truth per
     scan, counts per scan)."""
-    placeholder = avd_out / ".placeholder.jpg"
-    write_bytes(placeholder, encode_jpeg(np.zeros((KINECT_SIZE[1], KINECT_SIZE[0], 3), np.uint8), 50))
+    placeholders: dict[tuple[int, int], Path] = {}   # one black frame per image size, linked for every unframed image
     truth, counts = {}, {}
     for scan, (located, placed) in scans.items():
+        size = located.scan.image_size
+        if size not in placeholders:
+            placeholders[size] = avd_out / f".placeholder-{size[0]}x{size[1]}.jpg"
+            write_bytes(placeholders[size], encode_jpeg(np.zeros((size[1], size[0], 3), np.uint8), 50))
         truth[scan], counts[scan] = _write_scan(avd_root, avd_out, located, placed, frames, mode,
-                                                max_view_error_deg, placeholder)
-    placeholder.unlink()
+                                                max_view_error_deg, placeholders[size])
+    for p in placeholders.values():
+        p.unlink()
     return truth, counts
 
 
@@ -121,7 +128,7 @@ def _write_scan(avd_root, avd_out, located: Located, placed: list[Placed], frame
     folder = avd_out / scan
     jpg = confined_dir(folder / "jpg_rgb")
     for name in sorted(items):
-        write_bytes(jpg / name, encode_jpeg(frames.render(scan, name, items[name]), frames.jpeg_quality))
+        write_bytes(jpg / name, encode_jpeg(frames.render(scan, name, items[name], s.image_size), frames.jpeg_quality))
     write_scan_files(avd_root, folder, scan, boxes, placeholder, sorted(record))
     unpaired = sorted(set(located.loc) - {p.instance for p in placed})
     info = {"instances": record, "refused": located.refused, "unpaired": unpaired}
@@ -214,4 +221,6 @@ def write_scan_files(avd_root: Path, folder: Path, scan: str, boxes: dict, place
             link_file(placeholder, jpg / name)
     write_json(folder / "annotations.json", ann)
     copy_file(avd_root / scan / "image_structs.mat", folder / "image_structs.mat")
+    if (avd_root / scan / "cameras.txt").is_file():   # a scan with its own intrinsics (the real copy has none)
+        copy_file(avd_root / scan / "cameras.txt", folder / "cameras.txt")
     write_bytes(folder / "present_instance_names.txt", "".join(f"{n}\n" for n in present).encode())

@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 
-from loaders.avd import KINECT_SIZE
 from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
 from loaders.real_imagery.frames import heldout_angles, nearest_view, render_frame
@@ -74,9 +73,9 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
     write_bytes(avd_out / "instance_id_map.txt",
                 "".join(f"{object_name(k)} {k}\n" for k in sorted(heldout)).encode())
     located = {scan: locate(avd_root, scan, ri.max_difficulty, ri.max_ray_residual_m, skips) for scan in cfg.data.scans}
-    placed = {scan: (loc, place_pairs(scan, loc, heldout, ri)) for scan, loc in located.items()}
-    frames = Frames(nearest=lambda b, views: nearest_view(b, views), item=lambda scan, image, p, photo, box: (*photo, box),
-                    render=lambda scan, name, items: _render(cfg, scan, name, items), jpeg_quality=ri.jpeg_quality)
+    placed = {scan: (loc, place_pairs(scan, loc, heldout, ri, lambda k: {"name": object_name(k), "coil_object": k}))
+              for scan, loc in located.items()}
+    frames = plain_frames(cfg.data.seed, ri)
     truth, counts = write_scans(avd_root, avd_out, placed, frames, ri.frames, ri.max_view_error_deg)
     view_error, box_fit = summaries(truth, ri.max_view_error_deg, "real imagery", "held-out view")
     write_json(truth_path, {"source": "real_imagery", "pairing": "synthetic: seeded "
@@ -94,16 +93,22 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
                    f"({extra['training_views']} views); {per_scan} (pairing synthetic, seeded)")
 
 
-def place_pairs(scan: str, located: Located, heldout: dict, ri) -> list[Placed]:
-    """The seeded pairing of the scan's located instances with COIL objects (``pairing.pair_scan``)."""
-    pairs, _ = pair_scan(scan, located.loc, sorted(heldout), ri.pairing_seed, ri.yaws_seed)
+def place_pairs(scan: str, located: Located, heldout: dict[int, dict], s, own) -> list[Placed]:
+    """The seeded pairing of the scan's located instances with the objects (ids) of ``heldout``
+    (``pairing.pair_scan``, ``s``: the section with ``pairing_seed`` and ``yaws_seed``); ``own(id)``:
+    the object's truth fields (its ``name`` in the instance map among them)."""
+    pairs, _ = pair_scan(scan, located.loc, sorted(heldout), s.pairing_seed, s.yaws_seed)
     return [Placed(p.instance, np.asarray(p.xy), p.yaw_deg, p.object_id, heldout[p.object_id],
-                   {"name": object_name(p.object_id), "position": list(p.xy), "yaw_deg": p.yaw_deg,
-                    "avd_instance": p.instance, "coil_object": p.object_id, "residual_m": round(p.residual_m, 4)})
+                   {**own(p.object_id), "position": list(p.xy), "yaw_deg": p.yaw_deg, "avd_instance": p.instance,
+                    "residual_m": round(p.residual_m, 4)})
             for p in pairs]
 
 
-def _render(cfg, scan: str, name: str, items: list) -> np.ndarray:
-    ri = cfg.data.real_imagery
-    rng = np.random.default_rng([cfg.data.seed, zlib.crc32(f"{scan}/{name}".encode())])
-    return render_frame(KINECT_SIZE, items, ri.noise_std, ri.blur_sigma_px, rng)
+def plain_frames(data_seed: int, s) -> Frames:
+    """Frames of photographs on black (COIL-100, a turntable source): the held-out view nearest the
+    bearing, pasted and passed through the sensor model of ``s`` (noise, blur, JPEG quality)."""
+    def render(scan: str, name: str, items: list, size: tuple[int, int]) -> np.ndarray:
+        rng = np.random.default_rng([data_seed, zlib.crc32(f"{scan}/{name}".encode())])
+        return render_frame(size, items, s.noise_std, s.blur_sigma_px, rng)
+    return Frames(nearest=nearest_view, item=lambda scan, image, p, photo, box: (*photo, box), render=render,
+                  jpeg_quality=s.jpeg_quality)

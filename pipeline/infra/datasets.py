@@ -100,6 +100,11 @@ def unregister_dataset(name: str) -> None:
     SOURCES.remove(name)
 
 
+def names() -> list[str]:
+    """The registered sources: the built-ins, then the others in registration order."""
+    return list(SOURCES)
+
+
 def dataset_source(name: str, where: str = "config") -> DatasetSource:
     """The source ``data.source`` names, or a ConfigError listing the registered ones."""
     if name not in SOURCES:
