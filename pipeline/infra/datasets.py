@@ -15,7 +15,6 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.registry import Registry
 
 ENTRY_POINT_GROUP = "viewfuse.datasets"
@@ -62,6 +61,8 @@ class DatasetSource:
 
     def path(self, cfg, key: str) -> Path:
         """The path setting ``data.<name>.<key>`` resolved against the config's project root."""
+        from pipeline.infra.config.fields import ConfigError
+
         value = getattr(self.options(cfg), key)
         if not value:
             raise ConfigError(f"{cfg.source_path or 'config'}: 'data.{self.name}.{key}' must be set")
@@ -107,6 +108,8 @@ def names() -> list[str]:
 
 def dataset_source(name: str, where: str = "config") -> DatasetSource:
     """The source ``data.source`` names, or a ConfigError listing the registered ones."""
+    from pipeline.infra.config.fields import ConfigError   # here: the config package imports this module
+
     if name not in SOURCES:
         raise ConfigError(f"{where}: 'data.source' = {name!r} is not a registered dataset source (registered: "
                           f"{', '.join(SOURCES)}; add one with vf.register_dataset or a viewfuse.datasets entry point)")
@@ -125,5 +128,7 @@ def own_section(table: dict, where: str) -> tuple[dict, type | None, dict | None
         return table, None, None
     sub = data.get(name, {})
     if not isinstance(sub, dict):
+        from pipeline.infra.config.fields import ConfigError
+
         raise ConfigError(f"{where}: 'data.{name}' must be a table")
     return {**table, "data": {k: v for k, v in data.items() if k != name}}, src.config, sub
