@@ -1,6 +1,6 @@
 """viewfuse's public Python API: the names a researcher uses to fit class models on their own
-data, fuse their own track with any registered method, add a method, classifier, planner or metric
-of their own (docs/extending.md), and evaluate a population. Everything else in the project (the
+data, fuse their own track with any registered method, add a method, classifier, planner, metric
+or dataset of their own (docs/extending.md), and evaluate a population. Everything else in the project (the
 top-level ``pipeline``, ``loaders``, ``reports`` and ``stages`` packages) is internal and may change; import from here (docs/api.md).
 
     import viewfuse as vf
@@ -21,9 +21,13 @@ from pipeline.planning.planners import Planner, register_planner, unregister_pla
 from pipeline.scoring.classifiers import Classifier, register_classifier, unregister_classifier  # noqa: E402
 from pipeline.scoring.classifiers import names as classifiers  # noqa: E402
 from viewfuse.scoring import mc_dropout_scores  # noqa: E402
+from pipeline.infra.datasets import DatasetSource, register_dataset, unregister_dataset  # noqa: E402
+from pipeline.infra.datasets import names as datasets  # noqa: E402
+from loaders.real_imagery.turntable import TurntableConfig, TurntableSource  # noqa: E402
 from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
 
 __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "method", "comparisons",
            "GPClassModels", "DirichletModels", "fit_models", "fuse", "track_metrics", "evaluate_population",
            "Classifier", "classifiers", "register_classifier", "unregister_classifier", "Planner", "register_planner",
-           "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores"]
+           "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores",
+           "DatasetSource", "datasets", "register_dataset", "unregister_dataset", "TurntableSource", "TurntableConfig"]

@@ -6,7 +6,10 @@ in the BigBIRD and AVD formats the other stages read (docs/real_data.md).
 - ``frames``: pure functions from a real camera pose to the held-out COIL view it sees, resampled
   to the real box and passed through the sensor model;
 - ``training``: the COIL training views as BigBIRD object folders;
-- ``write``: the data stage's writer for this source (both sides, truth.json);
+- ``scans``: the one scan writer every turntable source shares (frames at located instances, the
+  AVD scan files, the view-error and box-fit summaries);
+- ``write``: the COIL-100 writer (its reader, training folders and pairing; truth.json);
+- ``turntable``: a source of your own made of its reader alone (docs/extending.md, A dataset);
 - ``category`` and ``clutter``: ``dataset = "eth80"``, category classes with instance folds and
   the test objects cut out over black or real AVD clutter.
 """

@@ -34,28 +34,23 @@ its box (``frames.fit_in_box``), cut out by its map over black or real clutter (
 """
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from loaders.avd import KINECT_SIZE, AVDScan
 from loaders.errors import BadInputError
 from loaders.eth80 import STEP_DEG, Eth80Folder, class_object
 from loaders.pbm import encode_pbm
 from loaders.real_imagery.clutter import read_backgrounds, render_category_frame, training_view
-from loaders.real_imagery.frames import object_bearing_deg, view_error_deg
-from loaders.real_imagery.pairing import box_rows, located_xy
+from loaders.real_imagery.scans import Frames, Placed, locate, summaries, write_scans
 from loaders.real_imagery.training import modellable
-from loaders.real_imagery.write import fit_summary, frame_fit, frame_views, view_error_summary, write_scan_files
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
 from pipeline.scene.folds import category_of, fold_class, fold_of
 from pipeline.infra.cache import write_bytes, write_json
 from pipeline.infra import seeds
 
 
-log = logging.getLogger("viewfuse.loaders")
 
 
 def view_code(instance: int, azimuth: float) -> int:
@@ -227,29 +222,15 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
     avd_out.mkdir(parents=True, exist_ok=True)
     write_bytes(avd_out / "instance_id_map.txt", "".join(f"{t} {ids[t]}\n" for t in sorted(ids)).encode())
     backgrounds = backgrounds if ri.background == "avd_frames" else None
-    scans, located = {}, {}
-    for scan in cfg.data.scans:
-        s = AVDScan(avd_root, scan, skip=skips.log("avd", "AVD entry"), frames=False)
-        K = s.intrinsics()
-        rows = box_rows(s, ri.max_difficulty)
-        loc, refused = located_xy(rows, float(K[0, 0]), float(K[0, 2]), ri.max_ray_residual_m, scan)
-        scans[scan] = (s, rows, loc, refused)
-        located[scan] = sorted(loc)
-    placed = assign_targets(located, sorted(targets), ri.pairing_seed)
-    placeholder = avd_out / ".placeholder.jpg"
-    write_bytes(placeholder, encode_jpeg(np.zeros((KINECT_SIZE[1], KINECT_SIZE[0], 3), np.uint8), 50))
-    truth, counts = {}, {}
-    for scan, (s, rows, loc, refused) in scans.items():
-        truth[scan], counts[scan] = _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed[scan],
-                                                targets, test, ids, backgrounds, placeholder)
-    placeholder.unlink()
-    errors = [e for sc in truth.values() for r in sc["instances"].values() for e in r.pop("_errors")]
-    view_error = view_error_summary(errors, ri.max_view_error_deg)
-    if view_error["refused"]:
-        log.warning("real imagery (ETH-80): %d of %d frames refused: the nearest frame azimuth is more than "
-                    "data.real_imagery.max_view_error_deg = %g degrees from the bearing", view_error["refused"],
-                    view_error["frames"], ri.max_view_error_deg)
-    box_fit = fit_summary([f for sc in truth.values() for r in sc["instances"].values() for f in r["frame_fit"]])
+    scans = {scan: locate(avd_root, scan, ri.max_difficulty, ri.max_ray_residual_m, skips) for scan in cfg.data.scans}
+    placed = assign_targets({scan: sorted(loc.loc) for scan, loc in scans.items()}, sorted(targets), ri.pairing_seed)
+    frames = Frames(nearest=nearest_azimuth, item=lambda scan, image, p, photo, box: _item(ri, scan, image, p, photo, box),
+                    render=lambda scan, name, items, size: _render(cfg, backgrounds, scan, name, items, size),
+                    jpeg_quality=ri.jpeg_quality, used_key="azimuths_used", max_key="max_view_offset_deg")
+    truth, counts = write_scans(avd_root, avd_out, {scan: (loc, _place(ri, loc, placed[scan], targets, test, ids))
+                                                    for scan, loc in scans.items()}, frames, ri.frames,
+                                ri.max_view_error_deg)
+    view_error, box_fit = summaries(truth, ri.max_view_error_deg, "real imagery (ETH-80)", "frame azimuth")
     times = {t: sum(1 for p in placed.values() if t in p.values()) for t in targets}
     left_out = sorted(class_object(c, i) for c in ri.categories for i in ri.instances if (c, i) not in train)
     background = {"frames": ri.background, "training": train_bg}
@@ -278,51 +259,31 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
                    f"{view_error['refused']} frames beyond the view-error bound (pairing synthetic, seeded)")
 
 
-def _write_scan(cfg, avd_root, avd_out, s, rows, loc, refused, placed, targets, views, ids, backgrounds, placeholder):
-    ri = cfg.data.real_imagery
-    scan = s.scan
-    grid = s.grid_points()
-    items: dict[str, list] = {}
-    boxes: dict[str, list] = {}
-    record = {}
+def _place(ri, located, placed: dict[str, str], targets: dict, photos: dict, ids: dict) -> list[Placed]:
+    """The scan's placements (``assign_targets``'s {AVD instance: target}) in instance order, each
+    with its seeded yaw."""
+    out = []
     for inst in sorted(placed):
         t = placed[inst]
-        xy = loc[inst][0]
-        yaw = round(float(seeds.stream(ri.yaws_seed, "yaw", scan, inst).uniform(0.0, 360.0)), 6)
-        d = frame_views(rows[rows["instance"] == inst], xy, grid, ri.frames)
-        bear = object_bearing_deg(d[["cam_x", "cam_y"]].to_numpy(float), xy, yaw)
-        photos = views[targets[t]]
-        used, gaps, fits = [], [], []
-        for r, b in zip(d.itertuples(index=False), bear):
-            a = nearest_azimuth(float(b), photos)
-            gap = float(view_error_deg(b, a))
-            gaps.append(gap)
-            if gap > ri.max_view_error_deg:  # no frame: the photograph would not show this viewpoint
-                continue
-            rgb, mask, alpha = photos[a]
-            box, fit = frame_fit(r.image, (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1)), mask)
-            bg_rng = seeds.stream(ri.background_seed, "background", scan, r.image, inst)
-            items.setdefault(r.image, []).append(((rgb, mask, alpha, box), bg_rng))
-            boxes.setdefault(r.image, []).append([*box, ids[t], int(r.difficulty)])
-            used.append(a)
-            fits.append(fit)
+        xy = located.loc[inst][0]
+        yaw = round(float(seeds.stream(ri.yaws_seed, "yaw", located.scan.scan, inst).uniform(0.0, 360.0)), 6)
         c, i = targets[t]
-        record[t] = {"position": [float(xy[0]), float(xy[1])], "yaw_deg": yaw, "avd_instance": inst,
-                     "category": c, "eth80_instance": i, "residual_m": round(float(loc[inst][1]), 4),
-                     "frames": len(used), "azimuths_used": sorted(set(used)),
-                     "frames_refused_view_error": len(gaps) - len(used),
-                     "max_view_offset_deg": round(max(gaps), 3) if gaps else None,
-                     "frame_fit": fits, "_errors": gaps}
-    folder = avd_out / scan
-    jpg = folder / "jpg_rgb"
-    jpg.mkdir(parents=True, exist_ok=True)
-    for name in sorted(items):
-        rng = seeds.stream(cfg.data.seed, f"{scan}/{name}")
-        its = [it for it, _ in items[name]]
-        frame = render_category_frame(KINECT_SIZE, its, backgrounds, ri.noise_std, ri.blur_sigma_px, rng,
-                                      [g for _, g in items[name]])
-        write_bytes(jpg / name, encode_jpeg(frame, ri.jpeg_quality))
-    write_scan_files(avd_root, folder, scan, boxes, placeholder, sorted(record))
-    unpaired = sorted(set(loc) - set(placed))
-    info = {"instances": record, "refused": refused, "unpaired": unpaired}
-    return info, {"paired": len(placed), "refused": len(refused), "unpaired": len(unpaired), "frames": len(items)}
+        out.append(Placed(inst, xy, yaw, ids[t], photos[targets[t]],
+                          {"name": t, "position": [float(xy[0]), float(xy[1])], "yaw_deg": yaw, "avd_instance": inst,
+                           "category": c, "eth80_instance": i, "residual_m": round(float(located.loc[inst][1]), 4)}))
+    return out
+
+
+def _item(ri, scan: str, image: str, p: Placed, photo: tuple, box) -> tuple:
+    """One framed box: the photograph cut out at ``box`` and its background's own generator."""
+    rgb, mask, alpha = photo
+    bg_rng = seeds.stream(ri.background_seed, "background", scan, image, p.instance)
+    return (rgb, mask, alpha, box), bg_rng
+
+
+def _render(cfg, backgrounds, scan: str, name: str, items: list, size: tuple[int, int]) -> np.ndarray:
+    ri = cfg.data.real_imagery
+    rng = seeds.stream(cfg.data.seed, f"{scan}/{name}")
+    its = [it for it, _ in items]
+    return render_category_frame(size, its, backgrounds, ri.noise_std, ri.blur_sigma_px, rng,
+                                 [g for _, g in items])

@@ -13,12 +13,14 @@ KINDS = {
     "classifiers": ("pipeline.scoring.classifiers", "REGISTRY", ("classifier",), lambda cfg: {cfg.classifier.arch}),
     "planners": ("pipeline.planning.planners", "PLANNERS", ("evaluate",), lambda cfg: None),
     "metrics": ("pipeline.evaluation.metrics.spec", "METRICS", ("evaluate", "simulate"), lambda cfg: None),
+    "datasets": ("pipeline.infra.datasets", "SOURCES", ("data",), lambda cfg: {cfg.data.source}),
 }
 
 
 def outside_parts(cfg, stage: str) -> dict[str, str]:
     """``{kind: fingerprint}`` of the kinds with outside entries that change ``stage`` (a
-    classifier only when ``classifier.arch`` names it: every planner and metric runs)."""
+    classifier only when ``classifier.arch`` names it, a dataset source only when ``data.source``
+    does: every planner and metric runs)."""
     out = {}
     for kind, (module, attr, stages, used) in KINDS.items():
         if stage in stages:

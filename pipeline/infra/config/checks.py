@@ -11,9 +11,9 @@ import re
 
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.evaluation import ABLATION_KEYS
-from pipeline.infra.config.inputs import AVD_INSTANCES
 from pipeline.infra.config.root import Config
 from pipeline.infra.config.simulate import SimulateConfig
+from pipeline.infra.datasets import dataset_source
 
 # A run name is one folder name: nothing that could climb out of the artifacts folder (separators,
 # "..", a leading dot that would hide it among the runner's temporary folders) or that the file
@@ -26,32 +26,6 @@ SIM_CLASSES = 3  # the simulation scenarios' three classes (pipeline/evaluation/
 # checks, are the classifier registry's (pipeline/scoring/classifiers/registry.py check_config,
 # run by the CLI after loading and by the classifier stage): the config does not import the networks.
 ARCH_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_.-]*(:[A-Za-z][A-Za-z0-9_.-]*)?")
-
-
-def _check_eth80(cfg: Config, need) -> None:
-    """data.real_imagery.dataset = 'eth80': category classes, folds by instance."""
-    ri = cfg.data.real_imagery
-    need(bool(cfg.data.eth80_root), "'data.eth80_root' must be set when data.real_imagery.dataset = 'eth80'")
-    need(len(set(ri.categories)) == len(ri.categories) and len(ri.categories) >= 2,
-         "'data.real_imagery.categories' must list at least two distinct categories")
-    need(len(set(ri.instances)) == len(ri.instances) and len(ri.instances) >= 2,
-         "'data.real_imagery.instances' must list at least two distinct instances (one fold each)")
-    for key in ("background", "train_background"):
-        need(getattr(ri, key) != "avd_frames" or bool(cfg.data.avd_frames_root),
-             f"'data.real_imagery.{key}' = 'avd_frames' needs 'data.avd_frames_root'")
-    need(ri.class_level != "instance" or ri.view_split == "alternate",
-         "'data.real_imagery.class_level' = 'instance' needs 'data.real_imagery.view_split' = 'alternate' (an "
-         "instance's class is fitted on its training azimuths; the frames show the held-out ones)")
-    need(not ri.contrast or (ri.class_level == "category" and ri.view_split == "alternate"),
-         "'data.real_imagery.contrast' = true needs 'class_level' = 'category' (the first arm; the instance arm is "
-         "the second) and 'view_split' = 'alternate' (no frame shows an azimuth an instance class was fitted on)")
-    need(not ri.contrast or cfg.evaluate.test_domain_variance == "none",
-         "'data.real_imagery.contrast' = true needs 'evaluate.test_domain_variance' = 'none' (the calibrated "
-         "likelihood is fitted against the category arm's models only)")
-    need(cfg.evaluate.candidate_folds, "data.real_imagery.dataset = 'eth80' needs 'evaluate.candidate_folds' = true "
-                                       "(a target's candidates are its own fold's classes)")
-    need(cfg.evaluate.candidates not in ("sampled", "hard") or cfg.evaluate.n_candidates <= len(ri.categories),
-         f"'evaluate.n_candidates' = {cfg.evaluate.n_candidates} exceeds the {len(ri.categories)} categories of a fold")
 
 
 def bounds_problem(b) -> str | None:
@@ -79,19 +53,15 @@ def modelled_classes(cfg: Config) -> tuple[str, ...] | None:
     and models.classes = 'all': the dataset decides, and the stages name a missing target)."""
     if not isinstance(cfg.models.classes, str):
         return tuple(cfg.models.classes)
-    if cfg.data.source == "synthetic":
-        return tuple(cfg.features.bigbird_objects or cfg.data.synthetic.instances)
-    if cfg.data.source == "real_imagery":  # at most these (the data stage may leave some out)
-        return tuple(f"coil_obj{int(k):03d}" for k in cfg.data.real_imagery.objects)
-    return None
+    return dataset_source(cfg.data.source).classes(cfg)
 
 
 def _modelled_words(cfg: Config) -> str:
-    if isinstance(cfg.models.classes, str) and cfg.data.source == "real_imagery":
-        return "'models.classes' = 'all': at most the objects of 'data.real_imagery.objects'"
-    return ("'models.classes'" if not isinstance(cfg.models.classes, str)
-            else "'models.classes' = 'all': the objects of 'features.bigbird_objects' or, when empty, "
-                 "'data.synthetic.instances'")
+    if not isinstance(cfg.models.classes, str):
+        return "'models.classes'"
+    return (dataset_source(cfg.data.source).classes_words(cfg)
+            or "'models.classes' = 'all': the objects of 'features.bigbird_objects' or, when empty, "
+               "'data.synthetic.instances'")
 
 
 def cross_checks(cfg: Config, where: str) -> None:
@@ -116,52 +86,14 @@ def cross_checks(cfg: Config, where: str) -> None:
     need(len(s.room_size_m) == 2 and min(s.room_size_m) > 0, "'data.synthetic.room_size_m' must be two positive numbers")
     need(len(set(s.instances)) == len(s.instances) and len(s.instances) >= 2,
          "'data.synthetic.instances' must list at least two distinct instance names")
-    if cfg.data.source == "synthetic":  # the stand-ins are drawn and labelled by their AVD names
-        unknown = [n for n in s.instances if n not in AVD_INSTANCES or n == "background"]
-        need(not unknown, f"'data.synthetic.instances' names {(unknown or [''])[0]!r}, which is not an instance of "
-                          "the AVD instance map (docs/formats/avd_instance_id_map.txt; e.g. "
-                          f"{AVD_INSTANCES[2]!r})")
     scans = cfg.data.scans
     need(len(scans) >= 1 and len(set(scans)) == len(scans), "'data.scans' must list at least one scan, each once")
     for sc in scans:  # each becomes a folder name under the data stage's output
         need(bool(RUN_NAME.fullmatch(sc)) and sc.strip(".") != "",
              f"'data.scans' names {sc!r}: a scan is one plain folder name (no '/', '\\', '..' or NUL)")
-    if cfg.data.source == "synthetic" and 0 < s.instances_per_scan < len(s.instances):
-        need(s.instances_per_scan * len(scans) >= len(s.instances),
-             f"'data.synthetic.instances_per_scan' = {s.instances_per_scan} x {len(scans)} scan(s) leaves some of "
-             f"the {len(s.instances)} 'data.synthetic.instances' in no scan")
     need(all(1 <= c <= 5 for c in cfg.features.bigbird_cameras) and cfg.features.bigbird_cameras,
          "'features.bigbird_cameras' must list cameras among 1..5")
-    if cfg.data.source == "real_imagery":
-        ri = cfg.data.real_imagery
-        need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real_imagery'")
-        if ri.dataset == "eth80":
-            _check_eth80(cfg, need)
-        else:
-            need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
-            need(ri.background == "black" and ri.train_background in ("same", "original", "black"),
-                 f"'data.real_imagery.background' = {ri.background!r}, 'train_background' = {ri.train_background!r}: "
-                 "COIL-100 photographs are on black on both sides (clutter needs data.real_imagery.dataset = 'eth80')")
-            need(ri.class_level == "category" and ri.view_split == "none" and not ri.contrast,
-                 "'data.real_imagery.class_level', 'view_split' and 'contrast' are for dataset = 'eth80' (COIL classes are "
-                 "instances, split by data.real_imagery.train_step_deg)")
-            need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
-                 f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
-            need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
-                 "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
-            n_views = 360 // ri.train_step_deg if ri.train_step_deg and 360 % ri.train_step_deg == 0 else 0
-            need(n_views >= cfg.models.min_views,
-                 f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} gives each object {n_views} training "
-                 f"views, fewer than 'models.min_views' = {cfg.models.min_views}: no class could be modelled (a "
-                 f"step of at most {360 // cfg.models.min_views} degrees reaches it)")
-    if cfg.data.source == "real":
-        need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
-        need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real'")
-    elif not isinstance(cfg.models.classes, str) and cfg.data.source == "synthetic":
-        for c in cfg.models.classes:
-            need(c in s.instances, f"'models.classes' names {c!r}, which is not in 'data.synthetic.instances'")
-        need(cfg.models.camera in s.bigbird_cameras,
-             f"'models.camera' = {cfg.models.camera} is not among 'data.synthetic.bigbird_cameras'")
+    dataset_source(cfg.data.source, where).check(cfg, need)   # the source's own checks
     need(cfg.models.camera in cfg.features.bigbird_cameras,
          f"'models.camera' = {cfg.models.camera} is not among 'features.bigbird_cameras'")
     need(cfg.models.dirichlet.entries <= cfg.models.n_components,

@@ -2,7 +2,8 @@
 stand-ins or real dataset roots)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
 
@@ -202,9 +203,10 @@ class RealImageryConfig:
 
 @dataclass(frozen=True)
 class DataConfig:
-    source: str = _f("synthetic", choices=("synthetic", "real", "real_imagery"),
-                     doc="synthetic stand-ins | real BigBIRD + AVD roots | real_imagery: COIL-100 photographs "
-                         "on real AVD scans' geometry (docs/real_data.md)")
+    source: str = _f("synthetic",
+                     doc="a registered dataset source (pipeline/infra/datasets.py): synthetic stand-ins | real "
+                         "BigBIRD + AVD roots | real_imagery: COIL-100 photographs on real AVD scans' geometry "
+                         "(docs/real_data.md) | one of your own (docs/extending.md), with its [data.<name>] section")
     coil_root: str = _f("", doc="real_imagery: folder of COIL-100 obj<k>__<deg>.png files")
     eth80_root: str = _f("", doc="real_imagery, dataset eth80: ETH-80 root (<category><n>/ instance folders)")
     avd_frames_root: str = _f("", doc="real_imagery, background avd_frames: folder of real AVD frames (*.png, *.jpg)")
@@ -220,3 +222,7 @@ class DataConfig:
                                          "(real BigBIRD views are 1.3 MP, AVD images 2.1 MP)")
     synthetic: SyntheticDataConfig = _f(factory=SyntheticDataConfig)
     real_imagery: RealImageryConfig = _f(factory=RealImageryConfig)
+    # The [data.<source>] section of a source that declares one (its own dataclass, built at load);
+    # not in to_dict: the data stage's key takes it (stages/data.py extra_key), so keys of the
+    # built-in sources are as they were.
+    options: Any = field(default=None, metadata={"internal": True})

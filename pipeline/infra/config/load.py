@@ -23,6 +23,7 @@ from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.learning import ModelsConfig
 from pipeline.infra.config.evaluation import ABLATION_KEYS
 from pipeline.infra.config.root import PATH_KEYS, Config, project_root, to_dict
+from pipeline.infra.datasets import own_section
 from pipeline.infra.nesting import depth
 
 # Limits on what a config file may do, so a hostile or broken one is a named error, never a
@@ -135,7 +136,11 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
         # a --set path counts as written in the file --config names
         set_in.update({k: path for k in PATH_KEYS if k.split(".")[1] in (overrides.get(k.split(".")[0]) or {})})
     try:
+        table, own_cls, own = own_section(table, where)   # [data.<source>]: the source's own dataclass
         cfg = _build(Config, table, where, "")
+        if own_cls is not None:
+            cfg = dataclasses.replace(cfg, data=dataclasses.replace(
+                cfg.data, options=_build(own_cls, own, where, f"data.{cfg.data.source}.")))
         roots = tuple((k, str(project_root(set_in[k]))) for k in PATH_KEYS if k in set_in)
         cfg = dataclasses.replace(cfg, source_path=str(path.resolve()), path_roots=roots)
         cross_checks(cfg, where)

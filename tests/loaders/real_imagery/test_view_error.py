@@ -21,7 +21,7 @@ def test_view_error_is_circular(bearing, angle, err):
 
 
 def test_summary_counts_the_frames_beyond_the_bound():
-    from loaders.real_imagery.write import view_error_summary
+    from loaders.real_imagery.scans import view_error_summary
 
     e = [0.5, 1.0, 2.6, 4.9, 5.1, 8.7]
     s = view_error_summary(e, 5.0)

@@ -93,7 +93,7 @@ def test_the_one_json_number_reader():
 # Where JSON text may be parsed outside the catalog's one reader: strings inside Parquet metadata,
 # the compare command's size-bounded reader of runs it did not write, and the datasets' own files.
 JSON_PARSERS = {"pipeline/infra/outputs.py", "pipeline/banks/model_bank.py", "reports/shared/artifacts.py",
-                "reports/compare/read.py", "loaders/avd.py", "loaders/real_imagery/write.py"}
+                "reports/compare/read.py", "loaders/avd.py", "loaders/real_imagery/scans.py"}
 
 
 def test_artifacts_are_read_through_the_catalog_only():

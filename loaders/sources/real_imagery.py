@@ -1,0 +1,88 @@
+"""Built-in source ``real_imagery``: real photographs on real AVD robot geometry
+(``loaders.real_imagery``, docs/real_data.md): COIL-100 objects (``data.real_imagery.dataset =
+"coil"``, ``loaders.real_imagery.write``) or ETH-80 category folds (``"eth80"``,
+``loaders.real_imagery.category``), written as BigBIRD object folders, AVD scans and ``truth.json``."""
+from __future__ import annotations
+
+import time
+
+from pipeline.infra.cache import write_json
+from pipeline.infra.datasets import DatasetSource, register_dataset
+from pipeline.infra.outputs import name as out_name
+
+
+@register_dataset
+class RealImagery(DatasetSource):
+    name = "real_imagery"
+    doc = "COIL-100 or ETH-80 photographs on real AVD scans' geometry ([data.real_imagery])"
+
+    def check(self, cfg, need) -> None:
+        ri = cfg.data.real_imagery
+        need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real_imagery'")
+        if ri.dataset == "eth80":
+            check_eth80(cfg, need)
+        else:
+            need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
+            need(ri.background == "black" and ri.train_background in ("same", "original", "black"),
+                 f"'data.real_imagery.background' = {ri.background!r}, 'train_background' = {ri.train_background!r}: "
+                 "COIL-100 photographs are on black on both sides (clutter needs data.real_imagery.dataset = 'eth80')")
+            need(ri.class_level == "category" and ri.view_split == "none" and not ri.contrast,
+                 "'data.real_imagery.class_level', 'view_split' and 'contrast' are for dataset = 'eth80' (COIL classes are "
+                 "instances, split by data.real_imagery.train_step_deg)")
+            need(ri.train_step_deg % 5 == 0 and 360 % ri.train_step_deg == 0,
+                 f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} must be a multiple of 5 that divides 360")
+            need(len(set(ri.objects)) == len(ri.objects) and len(ri.objects) >= 2,
+                 "'data.real_imagery.objects' must list at least two distinct COIL object numbers")
+            n_views = 360 // ri.train_step_deg if ri.train_step_deg and 360 % ri.train_step_deg == 0 else 0
+            need(n_views >= cfg.models.min_views,
+                 f"'data.real_imagery.train_step_deg' = {ri.train_step_deg} gives each object {n_views} training "
+                 f"views, fewer than 'models.min_views' = {cfg.models.min_views}: no class could be modelled (a "
+                 f"step of at most {360 // cfg.models.min_views} degrees reaches it)")
+
+    def classes(self, cfg):
+        # at most these (the data stage may leave some out)
+        return tuple(f"coil_obj{int(k):03d}" for k in cfg.data.real_imagery.objects)
+
+    def classes_words(self, cfg):
+        return "'models.classes' = 'all': at most the objects of 'data.real_imagery.objects'"
+
+    def write(self, ctx) -> str:
+        """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""
+        from loaders.real_imagery.category import write_real_category
+        from loaders.real_imagery.write import write_real_imagery
+
+        cfg = ctx.cfg
+        t0 = time.perf_counter()
+        writer = write_real_category if cfg.data.real_imagery.dataset == "eth80" else write_real_imagery
+        extra, summary = writer(cfg, ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd"),
+                                ctx.out / out_name("data", "truth"), ctx.skips)
+        write_json(ctx.out / out_name("data", "roots"), {"source": "real_imagery", "bigbird_root": "bigbird",
+                                                         "avd_root": "avd", "scans": list(cfg.data.scans)})
+        ctx.extra.update({**extra, "seconds": round(time.perf_counter() - t0, 2)})
+        return f"{summary} in {time.perf_counter() - t0:.0f} s"
+
+
+def check_eth80(cfg, need) -> None:
+    """data.real_imagery.dataset = 'eth80': category classes, folds by instance."""
+    ri = cfg.data.real_imagery
+    need(bool(cfg.data.eth80_root), "'data.eth80_root' must be set when data.real_imagery.dataset = 'eth80'")
+    need(len(set(ri.categories)) == len(ri.categories) and len(ri.categories) >= 2,
+         "'data.real_imagery.categories' must list at least two distinct categories")
+    need(len(set(ri.instances)) == len(ri.instances) and len(ri.instances) >= 2,
+         "'data.real_imagery.instances' must list at least two distinct instances (one fold each)")
+    for key in ("background", "train_background"):
+        need(getattr(ri, key) != "avd_frames" or bool(cfg.data.avd_frames_root),
+             f"'data.real_imagery.{key}' = 'avd_frames' needs 'data.avd_frames_root'")
+    need(ri.class_level != "instance" or ri.view_split == "alternate",
+         "'data.real_imagery.class_level' = 'instance' needs 'data.real_imagery.view_split' = 'alternate' (an "
+         "instance's class is fitted on its training azimuths; the frames show the held-out ones)")
+    need(not ri.contrast or (ri.class_level == "category" and ri.view_split == "alternate"),
+         "'data.real_imagery.contrast' = true needs 'class_level' = 'category' (the first arm; the instance arm is "
+         "the second) and 'view_split' = 'alternate' (no frame shows an azimuth an instance class was fitted on)")
+    need(not ri.contrast or cfg.evaluate.test_domain_variance == "none",
+         "'data.real_imagery.contrast' = true needs 'evaluate.test_domain_variance' = 'none' (the calibrated "
+         "likelihood is fitted against the category arm's models only)")
+    need(cfg.evaluate.candidate_folds, "data.real_imagery.dataset = 'eth80' needs 'evaluate.candidate_folds' = true "
+                                       "(a target's candidates are its own fold's classes)")
+    need(cfg.evaluate.candidates not in ("sampled", "hard") or cfg.evaluate.n_candidates <= len(ri.categories),
+         f"'evaluate.n_candidates' = {cfg.evaluate.n_candidates} exceeds the {len(ri.categories)} categories of a fold")

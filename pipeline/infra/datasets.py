@@ -1,0 +1,134 @@
+"""Dataset sources: what ``data.source`` names. A source is one ``DatasetSource`` in the registry
+(``pipeline.infra.registry``): the built-ins of ``loaders/sources/`` (a new file there registers),
+then ``vf.register_dataset`` calls and the ``viewfuse.datasets`` entry points of installed packages.
+
+A source declares its config (``config``: the dataclass of its own ``[data.<name>]`` section, read
+and range-checked by the loader like every section; ``check``: its cross-key checks), what it gives
+the models stage (``classes``), and the data stage's work (``write``: its reader and how it writes
+the BigBIRD/AVD-format run data under the stage folder, or, with ``writes = False``, a check of
+roots read in place). Config validation asks the registry: an unknown name is an error listing the
+registered ones.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from pipeline.infra.registry import Registry
+
+ENTRY_POINT_GROUP = "viewfuse.datasets"
+BUILTIN = "loaders.sources"
+# The built-in sources' modules: the data stage imports them by name, so its code key covers them
+# and everything they import; any other source enters the key through stages/framework/outside.py.
+STATIC = tuple(f"{BUILTIN}.{m}" for m in ("synthetic", "real", "real_imagery"))
+
+
+class DatasetSource:
+    """One value of ``data.source``. Subclass, set ``name`` (and ``config`` for keys of your own),
+    implement ``write``; register with ``@vf.register_dataset``."""
+
+    name: str = ""
+    doc: str = ""
+    config: type | None = None   # a frozen dataclass of ``setting`` fields: the [data.<name>] section
+    writes: bool = True          # False: the BigBIRD/AVD roots are read in place (data.bigbird_root, avd_root)
+
+    def check(self, cfg, need) -> None:
+        """Cross-key checks: ``need(ok, message)`` raises a ConfigError naming the file."""
+
+    def classes(self, cfg) -> tuple[str, ...] | None:
+        """The classes ``models.classes = 'all'`` models, at most, when the config alone says."""
+        return None
+
+    def classes_words(self, cfg) -> str | None:
+        """How the config error names where those classes come from (None: the default wording)."""
+        return None
+
+    def input_key(self, cfg) -> str:
+        """A fingerprint of inputs the data stage does not read through its own writes (e.g. roots
+        read in place by later stages); '' when every input file it reads is recorded."""
+        return ""
+
+    def write(self, ctx) -> str:
+        """The data stage: write ``bigbird/``, ``avd/``, ``truth.json`` and ``roots.json`` under
+        ``ctx.out`` (``ctx.cfg``, ``ctx.skips``, ``ctx.extra`` for the manifest); returns the summary."""
+        raise NotImplementedError(f"dataset source {self.name!r} has no write")
+
+    # -- helpers for a source's own section --------------------------------------------------------
+    def options(self, cfg) -> Any:
+        """The source's own section (an instance of ``config``)."""
+        return cfg.data.options
+
+    def path(self, cfg, key: str) -> Path:
+        """The path setting ``data.<name>.<key>`` resolved against the config's project root."""
+        from pipeline.infra.config.fields import ConfigError
+
+        value = getattr(self.options(cfg), key)
+        if not value:
+            raise ConfigError(f"{cfg.source_path or 'config'}: 'data.{self.name}.{key}' must be set")
+        return cfg.resolve(value)
+
+
+def _adopt(name: str, obj, module: str) -> None:
+    if isinstance(obj, DatasetSource) or (isinstance(obj, type) and issubclass(obj, DatasetSource)):
+        register_dataset(obj, _module=module)
+    else:
+        raise TypeError(f"entry point {name!r} of {ENTRY_POINT_GROUP!r} names {obj!r}: not a module or a DatasetSource")
+
+
+SOURCES: Registry[DatasetSource] = Registry("dataset source", ENTRY_POINT_GROUP, BUILTIN, static=STATIC,
+                                            adopt=_adopt)
+
+
+def register_dataset(entry, *, _module: str | None = None):
+    """Register a ``DatasetSource`` subclass (usable as a class decorator) or instance under its name."""
+    inst = entry() if isinstance(entry, type) else entry
+    if not isinstance(inst, DatasetSource):
+        raise TypeError(f"{entry!r} is not a DatasetSource")
+    if not inst.name.isidentifier():
+        raise ValueError(f"dataset source name {inst.name!r} must be an identifier (it names [data.<name>])")
+    if inst.config is not None and not dataclasses.is_dataclass(inst.config):
+        raise TypeError(f"dataset source {inst.name!r}: config must be a dataclass")
+    module = _module or type(inst).__module__
+    old = SOURCES.peek(inst.name)
+    SOURCES.add(inst.name, inst, module=module,
+                replace=old is not None and type(old).__qualname__ == type(inst).__qualname__
+                and SOURCES.module_of(inst.name) == module)
+    return entry
+
+
+def unregister_dataset(name: str) -> None:
+    SOURCES.remove(name)
+
+
+def names() -> list[str]:
+    """The registered sources: the built-ins, then the others in registration order."""
+    return list(SOURCES)
+
+
+def dataset_source(name: str, where: str = "config") -> DatasetSource:
+    """The source ``data.source`` names, or a ConfigError listing the registered ones."""
+    from pipeline.infra.config.fields import ConfigError   # here: the config package imports this module
+
+    if name not in SOURCES:
+        raise ConfigError(f"{where}: 'data.source' = {name!r} is not a registered dataset source (registered: "
+                          f"{', '.join(SOURCES)}; add one with vf.register_dataset or a viewfuse.datasets entry point)")
+    return SOURCES[name]
+
+
+def own_section(table: dict, where: str) -> tuple[dict, type | None, dict | None]:
+    """Split the source's own ``[data.<name>]`` table off a config table: (the rest, the source's
+    config class, its table) — (table, None, None) for a source without one."""
+    data = table.get("data")
+    name = data.get("source", "synthetic") if isinstance(data, dict) else "synthetic"
+    if not isinstance(name, str):
+        return table, None, None   # the loader names the wrong type
+    src = dataset_source(name, where)
+    if src.config is None:
+        return table, None, None
+    sub = data.get(name, {})
+    if not isinstance(sub, dict):
+        from pipeline.infra.config.fields import ConfigError
+
+        raise ConfigError(f"{where}: 'data.{name}' must be a table")
+    return {**table, "data": {k: v for k, v in data.items() if k != name}}, src.config, sub
