@@ -26,13 +26,12 @@ from pipeline.evaluation.grid import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config, ConfigError, is_model_ablation
 from pipeline.scoring.features import read_features
-from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import read as read_artifact
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
-from pipeline.evaluation.grid.population_summary import cell_table, check_primary, dirichlet_summary, population_summary
+from pipeline.evaluation.grid.population_summary import cell_table, check_primary, method_blocks, population_summary
 from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
 from pipeline.evaluation.metrics.spec import Params
 from pipeline.evaluation.domain.target_domain import TargetDomain, target_variances
@@ -177,6 +176,13 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     return seconds
 
 
+def load_provided(models_dir: Path, cfg: Config) -> dict:
+    """{provider key: its models} of every provider the registered methods need (``models/<key>/``)."""
+    from pipeline.method.registry import model_providers
+
+    return {p.key: p.load(models_dir / p.key, cfg) for p in model_providers()}
+
+
 def fusion_device(ctx, executor) -> tuple[str, bool]:
     """(device for the fusion engine in each cell, whether tasks ask the executor for a GPU).
     In this process: run.device resolved here (auto -> cuda when torch sees a GPU). On Ray: each
@@ -198,7 +204,7 @@ def run(ctx) -> str:
     t_start = time.perf_counter()
     check_primary(ev.primary_metrics)   # a config error before any cell runs
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
-    dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
+    provided = load_provided(ctx.input("models"), cfg)
     avd_path = ctx.input("features") / out_name("features", "avd")
     avd, scores, meta = read_features(avd_path, "avd", AVD_COLUMNS)
     if avd.empty:
@@ -206,7 +212,7 @@ def run(ctx) -> str:
     scans = sorted(avd["scan"].unique())
     intr, steps, grids, moves = scan_geometry(cfg, scans, avd, ctx.skips)
     truth = read_artifact(ctx.input("data"), "data", "truth", missing=None)
-    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids)
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, provided, grids)
     per_target = Counter(i.target for i in tracks)
     check_budget(cfg, len(per_target), max(per_target.values(), default=1), list(per_target.values()))
     for sk in skipped:
@@ -270,7 +276,7 @@ def run(ctx) -> str:
         t0 = time.perf_counter()
         table = cell_table(kept)
         population = population_summary(cfg, table, cells, kept, tracks, skipped, domain_fit)
-        population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, kept)
+        population.update(method_blocks(cfg, cells, kept, population))
         # measured seconds stay out of the population block (a rerun gives the same bytes); the
         # report prices the projection from timings_s["chain_total"]
         population["power"] = power_block(population["records"])

@@ -5,8 +5,8 @@ checks, training sets, candidate plan, noise floor and fits) and writes one mode
 ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``):
 every modelled class x every component that some target's candidate set uses, with the plan in
 the index (``candidate_sets``). Each ``evaluate.ablations`` entry gets its own bank under
-``models/ablations/``. Beside the bank, the Dirichlet method's class models (``models/dirichlet/``:
-``index.json`` + ``theta.npz``, ``pipeline.method.dirichlet``), fitted on ``models.dirichlet.passes``.
+``models/ablations/``. Beside the bank, the models of every provider a registered method needs
+(``pipeline.method.provider``), each in ``models/<provider key>/``.
 With ``models.instance_term``, the same plan's bank with an instance term (``models/instance/``,
 ``pipeline.method.gp_instance``), fitted on each class's member objects.
 """
@@ -15,7 +15,8 @@ from __future__ import annotations
 import logging
 
 from loaders.real_imagery.category import class_members
-from pipeline.banks.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
+from pipeline.banks.model_bank import ablation_dir, fit_from_features, training_views
+from pipeline.method.registry import model_providers
 from pipeline.method.gp_files import save_bank
 from pipeline.infra.config import ablation_config, is_model_ablation
 from pipeline.infra.outputs import name as out_name
@@ -43,9 +44,7 @@ def run(ctx) -> str:
         save_bank(im, ctx.out / out_name("models", "instance"), extra=iextra)
         with_term = sum(d["instance_term"] for d in iextra["diagnostics"])
         ctx.extra["instance_fits"] = {"with_term": with_term, "without": len(iextra["diagnostics"]) - with_term}
-    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes, extra["candidate_sets"],
-                                              class_members=members)
-    dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
+    provided = fit_providers(ctx, feats, models.classes, extra["candidate_sets"], members)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)
         log.info("ablation %s: fitting its model bank", a)
@@ -55,13 +54,26 @@ def run(ctx) -> str:
                       "component_names": models.component_names,
                       "candidate_sets": len(extra["candidate_sets"]),
                       "fits_with_warnings": extra["fits_with_warnings"],
-                      "varying_fits_at_bound": extra["varying_fits_at_bound"],
-                      "dirichlet_fingerprint": dmodels.fingerprint(),
-                      "dirichlet_not_converged": dextra["fits_not_converged"]})
+                      "varying_fits_at_bound": extra["varying_fits_at_bound"]})
     return (f"{models.n_classes} classes x {models.n_components} components for "
             f"{len(extra['candidate_sets'])} candidate sets ({cfg.models.component_rule}) fitted on "
             f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
             f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
             + (f"; {len(model_ablations)} ablation bank(s)" if model_ablations else "")
-            + f"; {len(dmodels.classes)} Dirichlet class models ({cfg.models.dirichlet.passes} passes, "
-              f"{dextra['fits_not_converged']} not converged)")
+            + "".join(f"; {p}" for p in provided))
+
+
+def fit_providers(ctx, feats, classes, plan: dict, members) -> list[str]:
+    """Fit and save every provider's models (``models/<key>/``), recording each one's digest and
+    record in the stage's extras; returns their summary clauses."""
+    views, out = None, []
+    for p in model_providers():
+        if views is None:   # one read of the training views for every provider
+            views = training_views(feats, ctx.cfg.models.camera, classes, plan, class_members=members)
+        log.info("fitting the %s", p.label or f"{p.key} models")
+        pm, pextra = p.fit(views, ctx.cfg)
+        p.save(pm, ctx.out / p.key, pextra)
+        ctx.extra[f"{p.key}_fingerprint"] = p.digest(pm)
+        ctx.extra.update({f"{p.key}_{k}": v for k, v in p.record(pm, pextra).items()})
+        out.append(p.summary(pm, pextra, ctx.cfg))
+    return out

@@ -13,6 +13,8 @@ KINDS = {
     "classifiers": ("pipeline.scoring.classifiers", "REGISTRY", ("classifier",), lambda cfg: {cfg.classifier.arch}),
     "planners": ("pipeline.planning.planners", "PLANNERS", ("evaluate",), lambda cfg: None),
     "metrics": ("pipeline.evaluation.metrics.spec", "METRICS", ("evaluate", "simulate"), lambda cfg: None),
+    # a method's own model (pipeline.method.provider): fitted by models, loaded and used by evaluate
+    "providers": ("pipeline.method.provider", "PROVIDERS", ("models", "evaluate"), lambda cfg: None),
 }
 
 
