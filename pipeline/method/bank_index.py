@@ -1,5 +1,5 @@
-"""The JSON index of a model bank folder (GP banks: ``gp_files.py``; Dirichlet banks:
-``dirichlet.py``): one reader that checks it before anything trusts it, one writer that merges a
+"""The JSON index of a model bank folder (GP banks: ``gp_files.py``; the banks of methods'
+own models that use it): one reader that checks it before anything trusts it, one writer that merges a
 caller's extra keys without letting them overwrite the bank's own."""
 from __future__ import annotations
 

@@ -86,6 +86,12 @@ class FusionMethod:
         no block."""
         return None
 
+    def report_note(self, block: dict | None) -> tuple[str, dict]:
+        """The report's note on the method beside the paired comparisons, from its summary.json
+        block (``population_block``): a ``str.format`` template and the values it names (the
+        report formats the numbers); ("", {}) = none."""
+        return "", {}
+
     def single_view(self, t: TrackInput) -> np.ndarray | None:
         """Each view alone at the true pose (``t.estimates`` (1, K, 2) true positions): log
         posteriors (K, C), or None when the method has no single-view reading."""

@@ -13,7 +13,7 @@ module as (or one imported by) the method that needs them, so the method's entry
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar
 
@@ -46,13 +46,17 @@ class TrainingViews:
 
 @dataclass(frozen=True)
 class Section:
-    """What the report shows of one provider's models (``ModelProvider.section``): a title, one
-    paragraph, a table (column names, rows of strings) and its caption."""
-    title: str
+    """What the report shows of one provider's models (``ModelProvider.section``): a paragraph
+    (``text``, a ``str.format`` template whose fields ``values`` fills: the report formats the
+    numbers), a table (``columns``, ``rows`` of values, numbers formatted by the report) shown
+    collapsed behind ``collapsed``, its ``caption`` and its HTML class ``cls``."""
     text: str
+    values: dict = field(default_factory=dict)
     columns: tuple[str, ...] = ()
-    rows: tuple[tuple[str, ...], ...] = ()
+    rows: tuple[tuple, ...] = ()
     caption: str = ""
+    collapsed: str = ""
+    cls: str = ""
 
 
 class ModelProvider:
@@ -90,12 +94,9 @@ class ModelProvider:
         the cell's score vectors. A mismatch is a ValueError."""
         return models
 
-    def index(self, folder: Path) -> dict | None:
-        """What the report reads of the saved models (their index), None when absent."""
-        return None
-
     def section(self, index: dict) -> Section | None:
-        """The report's section on the models from their ``index``."""
+        """The report's section on the models from their ``index`` (``models/<key>/index.json``, the
+        file the report reads; None when the provider writes none)."""
         return None
 
 
@@ -107,6 +108,12 @@ def register_provider(cls: type[ModelProvider]) -> type[ModelProvider]:
     if not isinstance(key, str) or not key.isidentifier():
         raise ValueError(f"{cls.__name__}: a model provider needs a key that is a name (a folder and a needs "
                          f"entry), got {key!r}")
+    from pipeline.infra.outputs import CATALOG
+
+    taken = {a.name for a in CATALOG["models"].values() if not a.pattern}
+    if key in taken:   # its folder models/<key>/ would be another output's
+        raise ValueError(f"{cls.__name__}: a model provider's key names its folder under models/, and "
+                         f"{key!r} is taken ({', '.join(sorted(taken))})")
     old = PROVIDERS.peek(key)
     if old is not None and type(old).__qualname__ != cls.__qualname__:
         raise ValueError(f"model provider {key!r} is registered twice ({type(old).__name__}, {cls.__name__})")

@@ -48,8 +48,8 @@ from pipeline.evaluation.metrics.labels import MODEL_BASED, SIMPLE_BAYES, WITH_U
 
 def methods() -> tuple[str, ...]:
     """The registered methods that apply to the simulation (``FusionMethod.simulation``): its
-    measurements are synthetic GP scores, so e.g. the Dirichlet method (which models the whole
-    softmax vector) does not."""
+    measurements are synthetic GP scores, so a method that models the classifier's whole output
+    vector does not."""
     return tuple(m.key for m in registry.methods(attribution=False) if m.simulation)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")

@@ -11,9 +11,10 @@ import numpy as np
 from pipeline.infra.config import to_dict
 from pipeline.method import dirichlet as D
 from pipeline.method import dirichlet_fusion as DF
-from pipeline.method.names import DIRICHLET
 from pipeline.method.method_base import FusionMethod, TrackInput, register
-from pipeline.method.provider import ModelProvider, register_provider
+from pipeline.method.provider import ModelProvider, Section, register_provider
+
+DIRICHLET = "dirichlet"   # the method's and its provider's key (stored in results; models/dirichlet/)
 
 
 @register_provider
@@ -55,6 +56,24 @@ class DirichletProvider(ModelProvider):
     def summary(self, models, extra, cfg) -> str:
         return (f"{len(models.classes)} Dirichlet class models ({cfg.models.dirichlet.passes} passes, "
                 f"{extra['fits_not_converged']} not converged)")
+
+    def section(self, index: dict) -> Section | None:
+        """One row per class model (models/dirichlet/index.json)."""
+        if not isinstance(index, dict) or not index.get("diagnostics"):
+            return None
+        fit, diags = index.get("fit") or {}, index["diagnostics"]
+        text = ("{label}: {n} class models Dir(γ; θ_c) over the {dim} classifier outputs, fitted on the {passes} "
+                "pass(es) of each class's BigBIRD views by maximum likelihood ({how}, tolerance {tol}); {bad} did "
+                "not converge within {max_iter} steps. Entries below {floor} are raised to it.")
+        values = {"label": Dirichlet.label, "n": len(diags), "dim": index.get("dim", "?"),
+                  "passes": fit.get("passes", "?"), "how": fit.get("method", "fixed point"), "tol": fit.get("tol"),
+                  "bad": sum(1 for d in diags if not d.get("converged")), "max_iter": fit.get("max_iter", "?"),
+                  "floor": index.get("floor")}
+        rows = tuple((d.get("class"), d.get("n"), d.get("precision"), d.get("iterations"),
+                      "yes" if d.get("converged") else "no", d.get("log_likelihood")) for d in diags)
+        return Section(text, values, ("class", "vectors", "precision Σθ", "fixed-point steps", "converged",
+                                      "log likelihood"), rows, caption="Dirichlet class models from "
+                       "models/dirichlet/index.json.", collapsed=f"All {len(rows)} Dirichlet fits", cls="dirichlet-fits")
 
     def for_cell(self, models, target, classes, dim):
         dm = models.for_set(target, classes)   # models.dirichlet.entries: the set's reduced models
@@ -100,3 +119,18 @@ class Dirichlet(FusionMethod):
                                     "n_cells": int(len(final))},
                 "first_track": {"target": c0.target, "track": c0.track, "classes": list(c0.classes),
                                 "mean": x0["posterior0"].tolist(), "std": x0["std"].tolist()}}
+
+    def report_note(self, block: dict | None) -> tuple[str, dict]:
+        """What the comparison with it isolates, and how wide its posterior cloud is."""
+        text = ("{short} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the classifier's whole "
+                "probability vector (every output, where the GP methods model their few chosen score components) "
+                "and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple Bayes it ignores the "
+                "poses: its posterior is the same for every localization realization and setting of a track, so "
+                "With Uncertainty − Dirichlet measures what the viewpoint-dependent models (with the pose handling) "
+                "add over a view-independent model that also accounts for model uncertainty.")
+        spread = (block or {}).get("truth_std_final") or {}
+        if spread:
+            text += (" Its posterior cloud ({n_ss} points) has a median std of P(truth) at the final step of {median} "
+                     "(quartiles {q25}–{q75}, max {max}) over {n_cells} tracks.")
+        return text, {"short": self.short, "n_ss": (block or {}).get("n_ss"),
+                      **{k: spread.get(k) for k in ("median", "q25", "q75", "max", "n_cells")}}

@@ -13,7 +13,7 @@ from pipeline.evaluation.grid import experiments as E
 from pipeline.evaluation.grid import population as P
 from pipeline.method import dirichlet_fusion as DF
 from pipeline.method.dirichlet import DirichletModels, prepare
-from pipeline.method.names import DIRICHLET
+from pipeline.method.methods.dirichlet import DIRICHLET
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
 
 D = 5

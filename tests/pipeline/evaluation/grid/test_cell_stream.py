@@ -14,7 +14,8 @@ from pipeline.evaluation.metrics.results import (
     write_results,
 )
 from pipeline.evaluation.statistics.pooled_calibration import cell_sums, track_sums
-from pipeline.method.names import DIRICHLET, WU_DROPOUT_ONLY, WU_POSES_ONLY
+from pipeline.method.methods.dirichlet import DIRICHLET
+from pipeline.method.names import WU_DROPOUT_ONLY, WU_POSES_ONLY
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
 from tests.pipeline.method.test_dirichlet_fusion import D
 from tests.pipeline.method.test_dirichlet_fusion import models as dirichlet_models
