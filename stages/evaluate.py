@@ -125,7 +125,8 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TargetDomain | 
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
                                  P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor,
-                                 fixed=fixed)
+                                 fixed=fixed, provided=first.models,
+                                 method_rng=P.method_streams(ev.seed, first.target, first.track, s))
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
