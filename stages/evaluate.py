@@ -26,14 +26,13 @@ from pipeline.evaluation.grid import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
 from pipeline.infra.config import Config, ConfigError, is_model_ablation
 from pipeline.scoring.features import read_features
-from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import read as read_artifact
 from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
 from pipeline.evaluation.grid.contrast import ARM as CONTRAST_ARM
-from pipeline.evaluation.grid.population_summary import cell_table, check_primary, dirichlet_summary, population_summary
+from pipeline.evaluation.grid.population_summary import cell_table, check_primary, method_blocks, population_summary
 from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
 from pipeline.evaluation.metrics.spec import Params
 from pipeline.evaluation.domain.target_domain import TargetDomain, target_variances
@@ -73,11 +72,11 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     return banks, indexes
 
 
-def variant_dirichlets(models_dir: Path) -> dict:
-    """{variant: its own Dirichlet models} where a variant's classes were fitted on another training
-    set (the contrast's instance arm, ``models/contrast/dirichlet/``)."""
-    d = models_dir / out_name("models", "contrast") / out_name("models", "dirichlet")
-    return {CONTRAST_ARM: DirichletModels.load(d)} if d.is_dir() else {}
+def variant_provided(models_dir: Path, cfg: Config) -> dict:
+    """{variant: {provider key: its models}} where a variant's classes were fitted on another
+    training set (the contrast's instance arm, ``models/contrast/<key>/``)."""
+    d = models_dir / out_name("models", "contrast")
+    return {CONTRAST_ARM: load_provided(d, cfg)} if d.is_dir() else {}
 
 
 def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict, dict]:
@@ -137,7 +136,8 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TargetDomain | 
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
                                  P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor,
-                                 fixed=fixed)
+                                 fixed=fixed, provided=first.models,
+                                 method_rng=P.method_streams(ev.seed, first.target, first.track, s))
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
                                        scan=first.scan, target=first.target, track=first.track,
@@ -188,6 +188,13 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     return seconds
 
 
+def load_provided(models_dir: Path, cfg: Config) -> dict:
+    """{provider key: its models} of every provider the registered methods need (``models/<key>/``)."""
+    from pipeline.method.registry import model_providers
+
+    return {p.key: p.load(models_dir / p.key, cfg) for p in model_providers()}
+
+
 def fusion_device(ctx, executor) -> tuple[str, bool]:
     """(device for the fusion engine in each cell, whether tasks ask the executor for a GPU).
     In this process: run.device resolved here (auto -> cuda when torch sees a GPU). On Ray: each
@@ -209,7 +216,7 @@ def run(ctx) -> str:
     t_start = time.perf_counter()
     check_primary(ev.primary_metrics)   # a config error before any cell runs
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
-    dirichlet = DirichletModels.load(ctx.input("models") / out_name("models", "dirichlet"))
+    provided = load_provided(ctx.input("models"), cfg)
     avd_path = ctx.input("features") / out_name("features", "avd")
     avd, scores, meta = read_features(avd_path, "avd", AVD_COLUMNS)
     if avd.empty:
@@ -217,8 +224,8 @@ def run(ctx) -> str:
     scans = sorted(avd["scan"].unique())
     intr, steps, grids, moves = scan_geometry(cfg, scans, avd, ctx.skips)
     truth = read_artifact(ctx.input("data"), "data", "truth", missing=None)
-    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, dirichlet, grids,
-                                           variant_dirichlets(ctx.input("models")))
+    cells, tracks, skipped = P.build_cells(ev, avd, scores, indexes, truth, intr, steps, provided, grids,
+                                           variant_provided(ctx.input("models"), cfg))
     per_target = Counter(i.target for i in tracks)
     check_budget(cfg, len(per_target), max(per_target.values(), default=1), list(per_target.values()))
     for sk in skipped:
@@ -282,7 +289,7 @@ def run(ctx) -> str:
         t0 = time.perf_counter()
         table = cell_table(kept)
         population = population_summary(cfg, table, cells, kept, tracks, skipped, domain_fit)
-        population["dirichlet"] = dirichlet_summary(cfg.evaluate, cells, kept)
+        population.update(method_blocks(cfg, cells, kept, population))
         # measured seconds stay out of the population block (a rerun gives the same bytes); the
         # report prices the projection from timings_s["chain_total"]
         population["power"] = power_block(population["records"])

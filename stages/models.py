@@ -5,19 +5,20 @@ checks, training sets, candidate plan, noise floor and fits) and writes one mode
 ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``):
 every modelled class x every component that some target's candidate set uses, with the plan in
 the index (``candidate_sets``). Each ``evaluate.ablations`` entry gets its own bank under
-``models/ablations/``. Beside the bank, the Dirichlet method's class models (``models/dirichlet/``:
-``index.json`` + ``theta.npz``, ``pipeline.method.dirichlet``), fitted on ``models.dirichlet.passes``.
+``models/ablations/``. Beside the bank, the models of every provider a registered method needs
+(``pipeline.method.provider``), each in ``models/<provider key>/``.
 With ``models.instance_term``, the same plan's bank with an instance term (``models/instance/``,
 ``pipeline.method.gp_instance``), fitted on each class's member objects. With
 ``data.real_imagery.contrast``, the contrast's instance arm (``models/contrast/``: a bank on the same
-plan keys and features, each class fitted on its own instance, and its Dirichlets).
+plan keys and features, each class fitted on its own instance, and its methods' own models).
 """
 from __future__ import annotations
 
 import logging
 
 from loaders.real_imagery.category import class_members, contrast_members
-from pipeline.banks.model_bank import ablation_dir, dirichlet_from_features, fit_from_features
+from pipeline.banks.model_bank import ablation_dir, fit_from_features, training_views
+from pipeline.method.registry import model_providers
 from pipeline.method.gp_files import save_bank
 from pipeline.infra.config import ablation_config, is_model_ablation
 from pipeline.infra.outputs import name as out_name
@@ -57,18 +58,15 @@ def run(ctx) -> str:
         save_bank(im, ctx.out / out_name("models", "instance"), extra=iextra)
         with_term = sum(d["instance_term"] for d in iextra["diagnostics"])
         ctx.extra["instance_fits"] = {"with_term": with_term, "without": len(iextra["diagnostics"]) - with_term}
-    dmodels, dextra = dirichlet_from_features(feats, cfg.models, models.classes, extra["candidate_sets"],
-                                              class_members=members)
-    dmodels.save(ctx.out / out_name("models", "dirichlet"), extra=dextra)
+    provided = fit_providers(ctx, feats, models.classes, extra["candidate_sets"], members)
     arm = contrast_members(cfg, truth)
     if arm is not None:   # data.real_imagery.contrast: the instance arm, same features and plan keys
-        log.info("the contrast's instance arm: fitting its model bank and Dirichlets")
+        log.info("the contrast's instance arm: fitting its model bank and its methods' own models")
         cm, cextra = fit_from_features(feats, cfg.models, **{**plan_keys, "class_members": arm})
         contrast_check(extra["candidate_sets"], cextra["candidate_sets"])
         cdir = ctx.out / out_name("models", "contrast")
         save_bank(cm, cdir, extra={**cextra, "class_members": arm})
-        cd, cdx = dirichlet_from_features(feats, cfg.models, cm.classes, cextra["candidate_sets"], class_members=arm)
-        cd.save(cdir / out_name("models", "dirichlet"), extra=cdx)
+        fit_providers(ctx, feats, cm.classes, cextra["candidate_sets"], arm, out=cdir, prefix="contrast_")
         ctx.extra["contrast_classes"] = len(arm)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)
@@ -79,13 +77,28 @@ def run(ctx) -> str:
                       "component_names": models.component_names,
                       "candidate_sets": len(extra["candidate_sets"]),
                       "fits_with_warnings": extra["fits_with_warnings"],
-                      "varying_fits_at_bound": extra["varying_fits_at_bound"],
-                      "dirichlet_fingerprint": dmodels.fingerprint(),
-                      "dirichlet_not_converged": dextra["fits_not_converged"]})
+                      "varying_fits_at_bound": extra["varying_fits_at_bound"]})
     return (f"{models.n_classes} classes x {models.n_components} components for "
             f"{len(extra['candidate_sets'])} candidate sets ({cfg.models.component_rule}) fitted on "
             f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
             f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
             + (f"; {len(model_ablations)} ablation bank(s)" if model_ablations else "")
-            + f"; {len(dmodels.classes)} Dirichlet class models ({cfg.models.dirichlet.passes} passes, "
-              f"{dextra['fits_not_converged']} not converged)")
+            + "".join(f"; {p}" for p in provided))
+
+
+def fit_providers(ctx, feats, classes, plan: dict, members, out=None, prefix: str = "") -> list[str]:
+    """Fit and save every provider's models (``<out>/<key>/``, by default ``models/<key>/``),
+    recording each one's digest and record in the stage's extras under ``prefix``; returns their
+    summary clauses."""
+    folder = ctx.out if out is None else out
+    views, out = None, []
+    for p in model_providers():
+        if views is None:   # one read of the training views for every provider
+            views = training_views(feats, ctx.cfg.models.camera, classes, plan, class_members=members)
+        log.info("fitting the %s", p.label or f"{p.key} models")
+        pm, pextra = p.fit(views, ctx.cfg)
+        p.save(pm, folder / p.key, pextra)
+        ctx.extra[f"{prefix}{p.key}_fingerprint"] = p.digest(pm)
+        ctx.extra.update({f"{prefix}{p.key}_{k}": v for k, v in p.record(pm, pextra).items()})
+        out.append(p.summary(pm, pextra, ctx.cfg))
+    return out

@@ -13,9 +13,10 @@ from viewfuse._check import check_install
 
 check_install()
 
-from pipeline.method.dirichlet import DirichletModels  # noqa: E402
 from pipeline.method.gp import GPClassModels  # noqa: E402
 from pipeline.method.registry import FusionMethod, TrackInput, comparisons, register, unregister  # noqa: E402
+from pipeline.method.provider import (ModelProvider, Section, TrainingViews, providers,  # noqa: E402
+                                      register_provider, unregister_provider)
 from pipeline.evaluation.metrics.spec import Metric, register_metric, unregister_metric  # noqa: E402
 from pipeline.planning.planners import Planner, register_planner, unregister_planner  # noqa: E402
 from pipeline.scoring.classifiers import Classifier, register_classifier, unregister_classifier  # noqa: E402
@@ -27,7 +28,8 @@ from loaders.real_imagery.turntable import TurntableConfig, TurntableSource  # n
 from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
 
 __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "method", "comparisons",
-           "GPClassModels", "DirichletModels", "fit_models", "fuse", "track_metrics", "evaluate_population",
+           "GPClassModels", "ModelProvider", "TrainingViews", "Section", "register_provider", "unregister_provider",
+           "providers", "fit_models", "fuse", "track_metrics", "evaluate_population",
            "Classifier", "classifiers", "register_classifier", "unregister_classifier", "Planner", "register_planner",
            "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores",
            "DatasetSource", "datasets", "register_dataset", "unregister_dataset", "TurntableSource", "TurntableConfig"]

@@ -12,10 +12,10 @@ from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.hierarchy import CLUSTERS
 from pipeline.method import registry
 from pipeline.method.geometry import relative_inputs, sample_localization
-from pipeline.method.dirichlet import DirichletModels
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.output_check import call_checked, problem
+from pipeline.method.provider import providers
 from viewfuse import _args as A
 from pipeline.method.gp_instance import InstanceGPClassModels
 from pipeline.method.gp_instance_fit import fit_instance_models
@@ -132,15 +132,16 @@ MAX_SECONDS = 60.0
 
 
 def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0.0, 0.0), object_yaw: float = 0.0,
-         dropout, own=None, probs=None, dirichlet=None, sigma: float = 0.0, n_x: int = 1, seed=0,
-         var_floor: float = 1e-6, n_ss: int = 100, max_seconds: float | None = MAX_SECONDS) -> np.ndarray:
+         dropout, own=None, probs=None, provided: dict | None = None, sigma: float = 0.0, n_x: int = 1, seed=0,
+         var_floor: float = 1e-6, max_seconds: float | None = MAX_SECONDS) -> np.ndarray:
     """Fuse one track with the registered method ``key``: log posteriors after every step.
 
     ``cameras``: pose estimates (K, 2), or (R, K, 2) for R realizations, ground frame;
     ``object_xy`` (2,) and ``object_yaw`` (rad) place the object; ``dropout`` (K, N_s, F): each
     view's MC-dropout scores at the models' components (N_s = 1 for a deterministic classifier).
-    ``own`` (K, N_s, C): each candidate's own score (Simple Bayes); ``probs`` (K, N_s, D) and
-    ``dirichlet`` (``DirichletModels``): the Dirichlet method. ``sigma`` and ``n_x``: the pose
+    ``own`` (K, N_s, C): each candidate's own score (Simple Bayes); ``probs`` (K, N_s, D) the whole
+    probability vectors; ``provided``: {provider key: models} for a method with a model of its own
+    (``vf.providers()``; ``TrackInput.models``). ``sigma`` and ``n_x``: the pose
     samples With Uncertainty averages over (N(estimate, sigma² I), drawn from ``seed``).
     ``models`` with an instance term (``fit_models(..., instances=...)``) also serve the
     ``*_instance`` methods. Returns (K, C), or (R, K, C) for (R, K, 2) cameras, checked as every method's output is
@@ -150,8 +151,12 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     m = method(key)
     if models is not None:
         A.instance(fn, "models", models, GPClassModels, "GPClassModels (from fit_models) or None")
-    if dirichlet is not None:
-        A.instance(fn, "dirichlet", dirichlet, DirichletModels, "DirichletModels or None")
+    if provided is not None:
+        A.instance(fn, "provided", provided, Mapping, "a mapping {provider key: models} or None")
+        for k in provided:
+            if k not in providers():
+                raise ValueError(f"fuse: provided names {k!r}, not a registered model provider "
+                                 f"(registered: {', '.join(providers()) or 'none'})")
     cams = A.array(fn, "cameras", cameras, ndim=(2, 3), shape=(None, 2), dims="(K, 2) or (R, K, 2)")
     single = cams.ndim == 2
     est = cams[None] if single else cams
@@ -171,7 +176,6 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     if seed is not None:
         A.integer(fn, "seed", seed, lo=0)
     var_floor = A.real(fn, "var_floor", var_floor, lo=0.0, open_lo=True)
-    n_ss = A.integer(fn, "n_ss", n_ss, lo=1)
     if max_seconds is not None:
         max_seconds = A.real(fn, "max_seconds", max_seconds, lo=0.0, open_lo=True)
     units = float(R) * n_x * K * (C or 1) * drop.shape[2]
@@ -179,9 +183,9 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
                  FUSE_SECONDS * units * K, max_seconds)
     t = registry.TrackInput(
         dropout=drop, gp=models, gp_instance=models if isinstance(models, InstanceGPClassModels) else None,
-        dirichlet=dirichlet, own=own, probs=probs, estimates=est,
+        models=dict(provided or {}), own=own, probs=probs, estimates=est,
         samples=sample_localization(est, sigma, n_x, np.random.default_rng(seed)),
-        inputs=lambda p: relative_inputs(p, obj, yaw, unit_circle=True), var_floor=var_floor, n_ss=n_ss,
+        inputs=lambda p: relative_inputs(p, obj, yaw, unit_circle=True), var_floor=var_floor,
         rng=np.random.default_rng(seed))
     if not m.applies(t):
         raise ValueError(f"fuse: {key!r} needs {sorted(m.needs)}; missing: {sorted(n for n in m.needs if not t.has(n))}")

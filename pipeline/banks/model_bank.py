@@ -6,8 +6,8 @@ of the view's MC-dropout passes (pass >= 0, ``models.targets``), else the determ
 checks it (``FeaturesError`` names the file and the problem), plans each target's candidate set
 and components (``pipeline.evaluation.grid.candidates``), sets the dropout noise floor where
 ``models.noise_floor = "dropout"``, fits every GP the plan needs (``pipeline.method.gp_fit``) and
-returns the bank with its index extras (the plan, diagnostics, fit settings); and the Dirichlet
-method's class models (``dirichlet_from_features``, ``pipeline.method.dirichlet``).
+returns the bank with its index extras (the plan, diagnostics, fit settings); and the training
+views a method's own model provider fits on (``training_views``, ``pipeline.method.provider``).
 """
 from __future__ import annotations
 
@@ -22,10 +22,10 @@ import numpy as np
 from pipeline.evaluation.grid.candidates import candidate_sets, own_components, plan_components
 from pipeline.infra.config import ModelsConfig, to_dict
 from pipeline.infra.outputs import name as out_name
-from pipeline.method.dirichlet import DirichletModels, fit_class_dirichlets, reduce_vectors
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.gp_instance_fit import fit_instance_models
+from pipeline.method.provider import TrainingViews
 
 log = logging.getLogger("viewfuse.models")
 
@@ -280,60 +280,15 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     return models, extra
 
 
-def dirichlet_from_features(path: str | Path, mcfg: ModelsConfig, classes: Sequence[str],
-                            plan: dict | None = None, class_members=None) -> tuple[DirichletModels, dict[str, Any]]:
-    """The Dirichlet method's class models: per class, Dir(γ; θ_c) fitted to the whole score
-    vectors of its training ring (``models.dirichlet.passes``), and the index extras. With
-    ``models.dirichlet.entries = n`` and the candidate ``plan`` ({target: {"classes", "components"}}),
-    also per candidate set each class's Dirichlet on its vectors reduced to the set's first n
-    components plus the rest mass (``DirichletModels.sets``)."""
+def training_views(path: str | Path, camera: int, classes: Sequence[str], plan: dict | None = None,
+                   class_members=None) -> TrainingViews:
+    """The training ring as the model providers read it (``pipeline.method.provider.TrainingViews``):
+    one read of the file; the dropout passes are assembled only for a provider that asks."""
     path = Path(path)
-    dcfg = mcfg.dirichlet
-    cols, scores, _, dropout = read_training_views(path, mcfg.camera, class_members)
-    objects = cols["object"].astype(str)
-    passes = dropout_passes(dropout, path) if dcfg.passes != "deterministic" else {}
-    vectors = {}
-    for cls in classes:
-        parts = []
-        if dcfg.passes in ("deterministic", "both"):
-            parts.append(scores[objects == cls])
-        if dcfg.passes in ("dropout", "both"):
-            if not passes.get(cls):
-                raise FeaturesError(path, f"models.dirichlet.passes = {dcfg.passes!r} needs MC-dropout passes of the "
-                                          f"BigBIRD views (features.bigbird_samples > 0); class {cls!r} has none")
-            parts.extend(passes[cls][a] for a in sorted(passes[cls]))
-        g = np.concatenate(parts) if parts else np.empty((0, scores.shape[1]))
-        if len(g) < 2:
-            raise FeaturesError(path, f"class {cls!r}: {len(g)} probability vector(s) for its Dirichlet fit")
-        dev = float(np.max(np.abs(g.sum(axis=1) - 1.0)))
-        if dev > 1e-3:
-            raise FeaturesError(path, f"class {cls!r}: score vectors sum to 1 only within {dev:.3g}: the Dirichlet "
-                                      "method needs probability vectors (softmax outputs)")
-        vectors[cls] = g
-    models, diags = fit_class_dirichlets(vectors, floor=dcfg.floor, tol=dcfg.tol, max_iter=dcfg.max_iter,
-                                         accelerate=dcfg.accelerate)
-    if dcfg.entries and plan:
-        models.sets, set_diags = reduced_sets(vectors, plan, dcfg, scores.shape[1])
-        diags = diags + set_diags
-    extra = {"fit": {"method": "Minka fixed point from the moment estimate"
-                               + (", SQUAREM-accelerated" if dcfg.accelerate else ""), "camera": mcfg.camera,
-                     **to_dict(dcfg)},
-             "diagnostics": diags, "fits_not_converged": sum(1 for d in diags if not d["converged"])}
-    return models, extra
-
-
-def reduced_sets(vectors: dict[str, np.ndarray], plan: dict, dcfg, dim: int
-                 ) -> tuple[dict[str, DirichletModels], list[dict[str, Any]]]:
-    """Per candidate set: its classes' Dirichlets on (first ``dcfg.entries`` chosen components, rest mass)."""
-    sets, diags = {}, []
-    for target in sorted(plan):
-        p = plan[target]
-        select = [int(i) for i in p["components"][:dcfg.entries]]
-        red, d = fit_class_dirichlets({c: reduce_vectors(vectors[c], select) for c in p["classes"]}, floor=dcfg.floor,
-                                      tol=dcfg.tol, max_iter=dcfg.max_iter, accelerate=dcfg.accelerate)
-        sets[target] = DirichletModels(red.classes, red.theta, floor=dcfg.floor, select=select, input_dim=dim)
-        diags.extend({**x, "candidate_set": target, "entries": select} for x in d)
-    return sets, diags
+    cols, scores, _, dropout = read_training_views(path, camera, class_members)
+    return TrainingViews(path=path, objects=cols["object"].astype(str), scores=scores,
+                         passes=lambda: dropout_passes(dropout, path), classes=tuple(classes), plan=dict(plan or {}),
+                         camera=camera, error=lambda problem: FeaturesError(path, problem))
 
 
 def ablation_dir(ablation: str) -> str:

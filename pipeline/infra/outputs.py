@@ -71,10 +71,10 @@ CATALOG: dict[str, dict[str, Artifact]] = {
                              "the class models with an instance term (models.instance_term)"),
         "contrast": Artifact("contrast", "folder", _BANK_W, _BANK_R,
                              "the instance arm of the class-level contrast (data.real_imagery.contrast): its "
-                             "model bank and dirichlet/"),
-        "dirichlet": Artifact("dirichlet", "folder", "pipeline.method.dirichlet:DirichletModels.save",
-                              "pipeline.method.dirichlet:DirichletModels.load",
-                              "the Dirichlet method's class models: index.json + theta.npz"),
+                             "model bank and its methods' own models"),
+        # one folder per model provider a registered method needs (pipeline/method/provider.py), named by its key
+        "provided": Artifact("*", "folder", "pipeline.method.provider:ModelProvider.save",
+                             "pipeline.method.provider:ModelProvider.load", "a method's own models, one folder each"),
     },
     "evaluate": {
         "results": Artifact("results.parquet", "parquet", _STREAM_W, _RESULTS_R,
@@ -149,8 +149,8 @@ def declared(stage: str, relpath: str) -> bool:
     top = relpath.split("/", 1)[0]
     for a in CATALOG.get(stage, {}).values():
         inside = "/" in relpath
-        if inside and a.format != "folder":
-            continue
+        if inside and a.format != "folder" or a.format == "folder" and a.pattern and not inside:
+            continue   # a file entry holds nothing; a family of folders declares no top-level file
         if fnmatch.fnmatchcase(top, a.name):
             return True
     return top == MANIFEST and "/" not in relpath

@@ -1,7 +1,7 @@
-"""The JSON index of a model bank folder (GP banks: ``gp_files.py``; Dirichlet banks:
-``dirichlet.py``): one reader that checks it before anything trusts it, one writer that merges a
-caller's extra keys without letting them overwrite the bank's own; and the one content digest of
-a bank or any part of one (``content_digest``)."""
+"""The JSON index of a model bank folder (GP banks: ``gp_files.py``; the banks of methods'
+own models that use it): one reader that checks it before anything trusts it, one writer that merges a
+caller's extra keys without letting them overwrite the bank's own; and the one content
+digest of a bank or any part of one (``content_digest``)."""
 from __future__ import annotations
 
 import hashlib
@@ -16,10 +16,10 @@ from pipeline.infra.outputs import ArtifactError, read_json
 
 
 def content_digest(*parts) -> str:
-    """The one content digest of model-bank contents (GP banks, one GP of one, Dirichlet banks):
+    """The one content digest of model-bank contents (GP banks, one GP of one, a method's own models):
     blake2b-128, hex, over the parts in order, an array by its dtype, shape and bytes, anything
     else by its canonical JSON. It keys the in-process caches that must not serve other models
-    under the same names and the Dirichlet index's check of its parameters."""
+    under the same names and a provider's check of its saved parameters."""
     h = hashlib.blake2b(digest_size=16)
     for p in parts:
         if isinstance(p, np.ndarray):

@@ -172,12 +172,13 @@ class DirichletModels:
 
     def __init__(self, classes: Sequence[str], theta, *, floor: float, meta: dict | None = None,
                  select: Sequence[int] | None = None, input_dim: int | None = None,
-                 sets: dict[str, "DirichletModels"] | None = None):
+                 sets: dict[str, "DirichletModels"] | None = None, n_ss: int = 100):
         # select: the input entries kept (the last theta column is then the rest mass), input_dim
         # the length of the vectors log_likelihood takes; None = the whole vector (theta's D).
         self.select = None if select is None else np.asarray(select, dtype=np.int64)
         self.input_dim = int(input_dim) if input_dim is not None else np.shape(theta)[-1]
         self.sets = dict(sets or {})   # candidate-set key (its target) -> reduced models of its classes
+        self.n_ss = int(n_ss)          # posterior-cloud size in fusion (evaluate.dirichlet.n_ss; not a parameter)
         self.classes = [str(c) for c in classes]
         self.theta = np.ascontiguousarray(theta, dtype=float)
         self.floor = float(floor)
@@ -208,7 +209,7 @@ class DirichletModels:
             raise KeyError(f"DirichletModels: no model for class(es) {missing} (modelled: {', '.join(self.classes)})")
         idx = [self.classes.index(c) for c in classes]
         return DirichletModels(classes, self.theta[idx], floor=self.floor, meta=self.meta, select=self.select,
-                               input_dim=self.input_dim)
+                               input_dim=self.input_dim, n_ss=self.n_ss)
 
     def log_likelihood(self, gamma: np.ndarray) -> np.ndarray:
         """ln Dir(γ; θ_c) for vectors (..., D): (..., C)."""
@@ -223,7 +224,9 @@ class DirichletModels:
         """The reduced models of candidate set ``key`` in the order ``classes``, else ``subset(classes)``."""
         if key not in self.sets:
             return self.subset(classes)
-        return self.sets[key].subset(classes)
+        out = self.sets[key].subset(classes)
+        out.n_ss = self.n_ss
+        return out
 
     def fingerprint(self) -> str:
         """The one content digest (``bank_index.content_digest``) of the parameters, classes and
@@ -298,3 +301,42 @@ def fit_class_dirichlets(vectors: dict[str, np.ndarray], *, floor: float, tol: f
         thetas.append(theta)
         diags.append({"class": cls, **d, "warnings": msgs})
     return DirichletModels(classes, np.stack(thetas), floor=floor), diags
+
+
+def class_vectors(views, dcfg) -> dict[str, np.ndarray]:
+    """Each modelled class's probability vectors (N_c, D) of its training ring
+    (``pipeline.method.provider.TrainingViews``): the passes ``dcfg.passes`` names."""
+    passes = views.passes() if dcfg.passes != "deterministic" else {}
+    vectors = {}
+    for cls in views.classes:
+        parts = []
+        if dcfg.passes in ("deterministic", "both"):
+            parts.append(views.scores[views.objects == cls])
+        if dcfg.passes in ("dropout", "both"):
+            if not passes.get(cls):
+                raise views.error(f"models.dirichlet.passes = {dcfg.passes!r} needs MC-dropout passes of the "
+                                  f"BigBIRD views (features.bigbird_samples > 0); class {cls!r} has none")
+            parts.extend(passes[cls][a] for a in sorted(passes[cls]))
+        g = np.concatenate(parts) if parts else np.empty((0, views.scores.shape[1]))
+        if len(g) < 2:
+            raise views.error(f"class {cls!r}: {len(g)} probability vector(s) for its Dirichlet fit")
+        dev = float(np.max(np.abs(g.sum(axis=1) - 1.0)))
+        if dev > 1e-3:
+            raise views.error(f"class {cls!r}: score vectors sum to 1 only within {dev:.3g}: the Dirichlet "
+                              "method needs probability vectors (softmax outputs)")
+        vectors[cls] = g
+    return vectors
+
+
+def reduced_sets(vectors: dict[str, np.ndarray], plan: dict, dcfg, dim: int
+                 ) -> tuple[dict[str, DirichletModels], list[dict[str, Any]]]:
+    """Per candidate set: its classes' Dirichlets on (first ``dcfg.entries`` chosen components, rest mass)."""
+    sets, diags = {}, []
+    for target in sorted(plan):
+        p = plan[target]
+        select = [int(i) for i in p["components"][:dcfg.entries]]
+        red, d = fit_class_dirichlets({c: reduce_vectors(vectors[c], select) for c in p["classes"]}, floor=dcfg.floor,
+                                      tol=dcfg.tol, max_iter=dcfg.max_iter, accelerate=dcfg.accelerate)
+        sets[target] = DirichletModels(red.classes, red.theta, floor=dcfg.floor, select=select, input_dim=dim)
+        diags.extend({**x, "candidate_set": target, "entries": select} for x in d)
+    return sets, diags

@@ -3,14 +3,17 @@
 built-ins and entry points and answers which methods there are (so the two never import each other)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Callable, ClassVar
+from dataclasses import dataclass, field, replace
+from typing import Callable, ClassVar, Mapping
 
 import numpy as np
 
 from pipeline.infra.registry import Registry
+from pipeline.method import provider as _provider
 
-NEEDS = frozenset({"gp", "gp_instance", "dirichlet", "scores", "probs"})
+# What the cell carries itself; a method may also need the models of a registered provider
+# (``pipeline.method.provider``: ``TrackInput.models``).
+NEEDS = frozenset({"gp", "gp_instance", "scores", "probs"})
 ENTRY_POINT_GROUP = "viewfuse.methods"
 # The method every other (non-attribution) method is paired against in the population.
 REFERENCE = "with_uncertainty"
@@ -23,20 +26,21 @@ class TrackInput:
 
     ``estimates`` (R, K, 2) and ``samples`` (R, N_x, K, 2) are ground-frame positions; ``inputs``
     maps positions (..., 2) to the GP inputs (unit circle, object frame). ``rng`` is the track's own
-    stream for methods that draw (seeded by the cell's identity, not by the setting)."""
+    stream for methods that draw (each method its own, keyed by its key: seeded by the cell's identity,
+    and for a pose-using method by the setting). ``models``: each provider's models of the candidates
+    ({provider key: models}, ``pipeline.method.provider``)."""
     dropout: np.ndarray                    # (K, N_s, F) MC-dropout scores of the GP components
     gp: object | None = None               # GPClassModels of the candidates
     gp_instance: object | None = None      # InstanceGPClassModels of the candidates (pipeline/method/gp_instance.py)
-    dirichlet: object | None = None        # DirichletModels of the candidates
     own: np.ndarray | None = None          # (K, N_s, C) each candidate's own score
     probs: np.ndarray | None = None        # (K, N_s, D) whole probability vectors
     estimates: np.ndarray | None = None    # (R, K, 2)
     samples: np.ndarray | None = None      # (R, N_x, K, 2)
     inputs: Callable[[np.ndarray], np.ndarray] | None = None
     var_floor: float = 1e-6
-    n_ss: int = 100                        # Dirichlet cloud size (evaluate.dirichlet.n_ss)
     rng: np.random.Generator | None = None
     threads: int | None = None             # engine threads (speed only); planning's workers use 1
+    models: Mapping[str, object] = field(default_factory=dict)
 
     @property
     def measurement(self) -> np.ndarray:
@@ -44,8 +48,8 @@ class TrackInput:
         return self.dropout.mean(axis=1)
 
     def has(self, need: str) -> bool:
-        return {"gp": self.gp, "gp_instance": self.gp_instance, "dirichlet": self.dirichlet, "scores": self.own,
-                "probs": self.probs}[need] is not None
+        own = {"gp": self.gp, "gp_instance": self.gp_instance, "scores": self.own, "probs": self.probs}
+        return (own[need] if need in own else self.models.get(need)) is not None
 
 
 class FusionMethod:
@@ -74,6 +78,19 @@ class FusionMethod:
         """``fuse`` plus what the method reports beside its posterior (kept per cell, e.g. a
         spread); a pose-free method is fused through this once per track."""
         return self.fuse(t), {}
+
+    def population_block(self, cfg, pairs: list) -> dict | None:
+        """summary.json's block under the method's key (beside the population's), from ``pairs``:
+        (cell, the extras ``fuse_with_extras`` returned there, plus ``posterior0``: the posterior
+        (K, C) of the cell's first setting, realization 0) over the default variant's cells; None =
+        no block."""
+        return None
+
+    def report_note(self, block: dict | None) -> tuple[str, dict]:
+        """The report's note on the method beside the paired comparisons, from its summary.json
+        block (``population_block``): a ``str.format`` template and the values it names (the
+        report formats the numbers); ("", {}) = none."""
+        return "", {}
 
     def single_view(self, t: TrackInput) -> np.ndarray | None:
         """Each view alone at the true pose (``t.estimates`` (1, K, 2) true positions): log
@@ -137,9 +154,10 @@ def register(cls: type[FusionMethod]) -> type[FusionMethod]:
     for flag, hook in (("simulation", "simulate"), ("planning", "fuse_tracks")):
         if getattr(cls, flag) and getattr(cls, hook) is getattr(FusionMethod, hook):
             raise ValueError(f"{cls.__name__}: {flag} = True needs {hook}() (optional otherwise)")
-    bad = set(cls.needs) - NEEDS
+    bad = {n for n in cls.needs if n not in NEEDS and not _provider.known(n)}
     if bad:
-        raise ValueError(f"{cls.__name__}: unknown needs {sorted(bad)} (known: {sorted(NEEDS)})")
+        raise ValueError(f"{cls.__name__}: unknown needs {sorted(bad)} (known: {sorted(NEEDS)} and the registered "
+                         "model providers; register a method's provider before the method)")
     old = _REGISTRY.peek(key)
     if old is not None and type(old) is not cls:
         raise ValueError(f"fusion method {key!r} is registered twice ({type(old).__name__}, {cls.__name__})")

@@ -1,5 +1,5 @@
 """The built-in methods' keys: the stable strings under which their results are stored, for code
-that names one of them (the simulation's claims, the Dirichlet's extras). Everything else about a
+that names one of them (the simulation's claims). Everything else about a
 method (label, colour, what it needs, how it fuses) is its class in ``pipeline.method.methods``;
 the list of methods is ``pipeline.method.registry.methods()``.
 """
@@ -10,7 +10,6 @@ MODEL_BASED = "model_based"
 SIMPLE_BAYES = "simple_bayes"
 WU_INSTANCE = "with_uncertainty_instance"   # the class models with an instance term (gp_instance.py)
 MB_INSTANCE = "model_based_instance"
-DIRICHLET = "dirichlet"  # Tchuiev & Indelman 2018 (pipeline/method/dirichlet_fusion.py)
 # Attribution variants of With Uncertainty (one ingredient each), evaluated beside the methods.
 WU_POSES_ONLY = "with_uncertainty_poses_only"       # dropout samples replaced by their mean
 WU_DROPOUT_ONLY = "with_uncertainty_dropout_only"   # no pose sampling: σ = 0, N_x = 1 inside the method

@@ -24,9 +24,9 @@ class MethodOutputError(ValueError):
 
 
 def n_classes(t) -> int | None:
-    """How many candidates a track input has: the GP bank's classes, else the Dirichlet models',
-    else the last axis of ``own`` (None when nothing says)."""
-    for models in (t.gp, t.dirichlet):
+    """How many candidates a track input has: the GP bank's classes, else a provider's models'
+    (their ``classes``), else the last axis of ``own`` (None when nothing says)."""
+    for models in (t.gp, *t.models.values()):
         classes = getattr(models, "classes", None)
         if classes is not None:
             return len(classes)

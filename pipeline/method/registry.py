@@ -3,9 +3,9 @@ subclass, registered with ``@register``. The population grid, the single-track e
 simulation, ``summary.json``, the report and ``compare`` iterate ``methods()``; nothing else names
 a method to run it.
 
-A method declares what it reads (``needs``: ``"gp"`` the candidates' GP bank, ``"dirichlet"`` their
-Dirichlet models, ``"scores"`` each candidate's own score, ``"probs"`` the whole probability
-vectors), whether it uses the pose samples (``uses_poses``; a pose-free method is fused once per
+A method declares what it reads (``needs``: ``"gp"`` the candidates' GP bank, ``"scores"`` each
+candidate's own score, ``"probs"`` the whole probability vectors, or the key of a model provider,
+``pipeline.method.provider``, whose models the models stage fits for it), whether it uses the pose samples (``uses_poses``; a pose-free method is fused once per
 track and its posterior repeated over the realizations, so the methods pair up realization by
 realization) and the dropout samples, and fuses one track batched over realizations (``fuse``).
 
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from pipeline.method.method_base import (ENTRY_POINT_GROUP, NEEDS, REFERENCE, FusionMethod,  # noqa: F401 - public here
                                          TrackInput, register, registered, unregister)
+from pipeline.method.provider import ModelProvider, providers
 
 
 def _load() -> None:
@@ -57,3 +58,22 @@ def outside_fingerprint() -> str:
     (the built-ins are in their code key already)."""
     _load()
     return registered().outside_fingerprint()
+
+
+def model_providers() -> list[ModelProvider]:
+    """The providers the registered methods need (``needs`` naming one), each once, in method order:
+    what the models stage fits and evaluate loads."""
+    _load()
+    out: dict[str, ModelProvider] = {}
+    for m in methods():
+        for n in sorted(m.needs):
+            if n in providers() and n not in out:
+                out[n] = providers()[n]
+    return list(out.values())
+
+
+def providers_fingerprint() -> str:
+    """Like ``outside_fingerprint``, for the providers the methods need: their source enters the
+    keys of the models and evaluate stages."""
+    _load()
+    return providers().outside_fingerprint({p.key for p in model_providers()})

@@ -3,7 +3,7 @@ then the diagnostics that drive it (GP fits at a bound, ablations). All numbers 
 ``summary.json``'s ``population`` object; each is shown with its 95 % CI."""
 from __future__ import annotations
 
-from pipeline.evaluation.metrics.labels import (DIRICHLET, comparisons, comparison_key, comparison_label, method_label,
+from pipeline.evaluation.metrics.labels import (comparisons, comparison_key, comparison_label, method_label,
                                        ordered_methods)
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
 from pipeline.evaluation.statistics.records import outcome
@@ -189,8 +189,7 @@ def population_section(ctx: ReportContext) -> None:
                           "the primary metrics) as one family, familywise 95 % (each interval widened to its Holm "
                           "step's level); the bottom line and the scorecard read these; '—': exploratory, "
                           "unadjusted." if fam else "No primary family: nothing is Holm-adjusted."))
-    note = dirichlet_note(pop)
-    if note:
+    for note in method_notes(pop):
         page.paragraph(note, cls="note")
     if pop.get("per_target"):
         ctx.figure("per_target.png", "Each method per target and pooled, 95 % bootstrap CIs over tracks.")
@@ -233,21 +232,23 @@ def _paired_rows(pop: dict) -> list[list]:
     return rows
 
 
-def dirichlet_note(pop: dict) -> str:
-    """What the Dirichlet comparison isolates, and how wide its posterior cloud is (summary.json)."""
-    if DIRICHLET not in (pop.get("methods") or ()):
-        return ""
-    d = pop.get("dirichlet") or {}
-    spread = d.get("truth_std_final") or {}
-    cloud = (f" Its posterior cloud ({d.get('n_ss')} points) has a median std of P(truth) at the final "
-             f"step of {fmt(spread.get('median'))} (quartiles {fmt(spread.get('q25'))}–{fmt(spread.get('q75'))}, "
-             f"max {fmt(spread.get('max'))}) over {spread.get('n_cells')} tracks." if spread else "")
-    return (f"{method_label(DIRICHLET, short=True)} (Tchuiev & Indelman 2018) fits one Dirichlet per class to the "
-            "classifier's whole probability vector (every output, where the GP methods model their few chosen score "
-            "components) and fuses the MC-dropout samples as a cloud of posterior vectors. Like Simple "
-            "Bayes it ignores the poses: its posterior is the same for every localization realization and setting "
-            "of a track, so With Uncertainty − Dirichlet measures what the viewpoint-dependent models (with the "
-            "pose handling) add over a view-independent model that also accounts for model uncertainty." + cloud)
+def method_notes(pop: dict) -> list[str]:
+    """Each run method's note beside the paired comparisons (``FusionMethod.report_note``, from its
+    summary.json block), its numbers formatted here."""
+    from pipeline.method.registry import get
+
+    out = []
+    for key in pop.get("methods") or ():
+        m = get(key)
+        text, values = m.report_note(pop.get(key)) if m is not None else ("", {})
+        if text:
+            out.append(_filled(text, values))
+    return out
+
+
+def _filled(template: str, values: dict) -> str:
+    """A method's or provider's template with its numbers formatted (``fmt``; counts as they are)."""
+    return template.format(**{k: fmt(v) if v is None or isinstance(v, float) else v for k, v in values.items()})
 
 
 def _outcome(d: dict, metric: str) -> str:
@@ -323,29 +324,24 @@ def diagnostics_section(ctx: ReportContext) -> None:
         if rows:
             page.table(header, rows, cls="hyperparameters", collapsed=f"All {len(rows)} fits (hyperparameters, "
                        "bound flags and optimizer messages)", caption="GP hyperparameters from models/index.json.")
-    _dirichlet_fits(ctx)
+    _provided(ctx)
     _ablations(ctx)
 
 
-def _dirichlet_fits(ctx: ReportContext) -> None:
-    """The Dirichlet method's class models (models/dirichlet/index.json): one row per class."""
-    dj = getattr(ctx.run, "dirichlet", None)
-    if not isinstance(dj, dict) or not dj.get("diagnostics"):
-        return
-    fit = dj.get("fit") or {}
-    diags = dj["diagnostics"]
-    bad = sum(1 for d in diags if not d.get("converged"))
-    ctx.page.paragraph(
-        f"{method_label(DIRICHLET)}: {len(diags)} class models Dir(γ; θ_c) over the {dj.get('dim', '?')} classifier "
-        f"outputs, fitted on the {fit.get('passes', '?')} pass(es) of each class's BigBIRD views by maximum "
-        f"likelihood ({fit.get('method', 'fixed point')}, tolerance {fmt(fit.get('tol'))}); {bad} did not converge "
-        f"within {fit.get('max_iter', '?')} steps. Entries below {fmt(dj.get('floor'))} are raised to it.",
-        cls="note")
-    rows = [[d.get("class"), d.get("n"), fmt(d.get("precision")), d.get("iterations"),
-             "yes" if d.get("converged") else "no", fmt(d.get("log_likelihood"))] for d in diags]
-    ctx.page.table(["class", "vectors", "precision Σθ", "fixed-point steps", "converged", "log likelihood"], rows,
-                   cls="dirichlet-fits", collapsed=f"All {len(rows)} Dirichlet fits",
-                   caption="Dirichlet class models from models/dirichlet/index.json.")
+def _provided(ctx: ReportContext) -> None:
+    """Each method's own models (``ModelProvider.section``, from models/<key>/index.json)."""
+    from pipeline.method.registry import model_providers
+
+    for p in model_providers():
+        index = (getattr(ctx.run, "provided", None) or {}).get(p.key)
+        sec = p.section(index) if index is not None else None
+        if sec is None:
+            continue
+        ctx.page.paragraph(_filled(sec.text, sec.values), cls="note")
+        if sec.rows:
+            rows = [[fmt(v) if isinstance(v, float) else v for v in r] for r in sec.rows]
+            ctx.page.table(list(sec.columns), rows, cls=sec.cls or f"{p.key}-models",
+                           collapsed=sec.collapsed, caption=sec.caption)
 
 
 def _ablations(ctx: ReportContext) -> None:

@@ -19,8 +19,8 @@ from loaders.errors import BadInputError
 from pipeline.infra.cache import NpzFileError, load_npz
 from pipeline.infra import outputs
 from pipeline.infra.outputs import MANIFEST
-from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import path as out_path
+from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.metrics.labels import ATTRIBUTION, methods
 from pipeline.evaluation.metrics.spec import STEP_COLUMNS
 
@@ -217,7 +217,7 @@ class RunArtifacts:
     index: dict | None = None          # models/index.json
     card: dict | None = None           # classifier/card.json
     manifests: dict[str, dict] = field(default_factory=dict)
-    dirichlet: dict | None = None      # models/dirichlet/index.json
+    provided: dict = field(default_factory=dict)   # {provider key: models/<key>/index.json}
     instance: dict | None = None       # models/instance/index.json (models.instance_term)
 
     def skipped(self) -> dict[str, Any]:
@@ -238,11 +238,22 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
             m = read_json(p)
             if isinstance(m, dict):
                 manifests[s] = m
-    dj = out_path(d / "models" / out_name("models", "dirichlet"), "models", "index")
     ij = out_path(d / "models" / out_name("models", "instance"), "models", "index")
     return RunArtifacts(d, ev, read_json(idx) if idx.is_file() else None,
-                        read_json(card) if card.is_file() else None, manifests,
-                        read_json(dj) if dj.is_file() else None, read_json(ij) if ij.is_file() else None)
+                        read_json(card) if card.is_file() else None, manifests, provided_indexes(d / "models"),
+                        read_json(ij) if ij.is_file() else None)
+
+
+def provided_indexes(models_dir: Path) -> dict[str, dict]:
+    """{provider key: its index.json} of every method's own models the run's models stage saved."""
+    from pipeline.method.registry import model_providers
+
+    out = {}
+    for p in model_providers():
+        f = out_path(models_dir / p.key, "models", "index")
+        if f.is_file():
+            out[p.key] = read_json(f)
+    return out
 
 
 # -- the simulate stage's outputs --------------------------------------------------------------

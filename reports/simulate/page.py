@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.evaluation.metrics.labels import (DIRICHLET, MODEL_BASED, SIMPLE_BAYES, class_colors, method_color,
+from pipeline.evaluation.metrics.labels import (MODEL_BASED, SIMPLE_BAYES, class_colors, method_color,
                                                 method_label, ordered_methods)
 from pipeline.method.gp_files import load_bank
 from pipeline.evaluation.metrics.spec import MGR_AXIS_LABEL, metric_label
@@ -262,8 +262,7 @@ def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
         f"'{method_label(OURS)}' gets N_s samples and, under the bias, pose samples; '{method_label(MODEL_BASED)}' "
         f"trusts the one measurement and the pose estimate; '{method_label(SIMPLE_BAYES)}' multiplies the scores "
         "(clipped to a small floor and renormalised, since a Gaussian measurement can leave the simplex). "
-        f"'{method_label(DIRICHLET)}' does not apply here: it models the classifier's whole probability vector, and "
-        "these measurements are synthetic GP scores, not classifier outputs. "
+        + _own_model_methods() +
         f"{MGR_AXIS_LABEL}: 0 when the truth is the most likely class; its 95th percentile measures confident "
         "misclassification.")
     if "class_maps.png" in written:
@@ -271,6 +270,16 @@ def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
                     "vector favours at that position (paler = more ambiguous). Class 2 (the truth) looks like "
                     "class 1 from the south (the inverse view); class 3 has that look a little further west, so a "
                     "westward pose bias can alias class 2 into class 3.")
+
+
+def _own_model_methods() -> str:
+    """The methods left out because they read a model of their own (``pipeline.method.provider``)."""
+    from pipeline.method.registry import methods, model_providers
+
+    own = {p.key for p in model_providers()}
+    return "".join(f"'{m.label}' does not apply here: it reads its own model of the classifier's outputs, and "
+                   "these measurements are synthetic GP scores, not classifier outputs. "
+                   for m in methods(attribution=False) if not m.simulation and own & set(m.needs))
 
 
 def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int,

@@ -14,6 +14,8 @@ KINDS = {
     "planners": ("pipeline.planning.planners", "PLANNERS", ("evaluate",), lambda cfg: None),
     "metrics": ("pipeline.evaluation.metrics.spec", "METRICS", ("evaluate", "simulate"), lambda cfg: None),
     "datasets": ("pipeline.infra.datasets", "SOURCES", ("data",), lambda cfg: {cfg.data.source}),
+    # a method's own model (pipeline.method.provider): fitted by models, loaded and used by evaluate
+    "providers": ("pipeline.method.provider", "PROVIDERS", ("models", "evaluate"), lambda cfg: None),
 }
 
 

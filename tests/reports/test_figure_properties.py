@@ -18,7 +18,8 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from pipeline.evaluation.metrics.labels import comparison_key, comparisons
-from pipeline.method.names import DIRICHLET, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
+from pipeline.method.methods.dirichlet import DIRICHLET
+from pipeline.method.names import MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY
 from reports.shared.checks import figure_text_problems
 from reports.shared.layout import finish_figure
 from reports.shared.numbers import Estimate

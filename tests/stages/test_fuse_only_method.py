@@ -6,16 +6,12 @@ on the path (a dist-info written here; this one also leaves out label, short, co
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
 
-from tests.conftest import ROOT
 from tests.support.outside_package import write_package
-from tests.support.shared_upstream import DEVICE, SMOKE, copy_upstream, smoke_upstream
+from tests.support.shared_upstream import copy_upstream, run_evaluate, smoke_upstream
 
 pytestmark = pytest.mark.slow  # runs the evaluate and report stages on the smoke upstream
 
@@ -76,15 +72,7 @@ def _plant(tmp_path):
 def test_a_fuse_only_method_runs_through_evaluate_from_the_launcher_and_an_entry_point(tmp_path_factory, tmp_path):
     art = copy_upstream(smoke_upstream(tmp_path_factory), tmp_path / "artifacts")
     launcher, dist = _plant(tmp_path)
-    sets = {"run.artifacts": str(art), "evaluate.ablations": "[]", "evaluate.attribution": "false",
-            "evaluate.tracks_per_target": "1", "evaluate.bootstrap": "100", "evaluate.randomized.sigmas_m": "[0.3]",
-            "plan.enabled": "false"}
-    cmd = [sys.executable, str(launcher), "evaluate", "--config", str(SMOKE), "--device", DEVICE, "--progress", "off"]
-    for k, v in sets.items():
-        cmd += ["--set", f"{k}={v}"]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(dist)]),
-           "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
-    r = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500)
+    r = run_evaluate(art, [str(launcher)], dist)
     assert r.returncode == 0, r.stderr[-3000:]
     run = art / "smoke"
     pop = json.loads((run / "evaluate" / "summary.json").read_text())["population"]

@@ -10,7 +10,8 @@ import contextlib
 from pathlib import Path
 from unittest import mock
 
-from pipeline.method.names import (DIRICHLET, MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY,
+from pipeline.method.methods.dirichlet import DIRICHLET
+from pipeline.method.names import (MODEL_BASED, SIMPLE_BAYES, WITH_UNCERTAINTY, WU_DROPOUT_ONLY,
                                    WU_POSES_ONLY)
 from tests.support import report_fixtures as rf
 from tests.support import report_population as rp

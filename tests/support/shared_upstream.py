@@ -56,3 +56,22 @@ def copy_upstream(src: Path, dst: Path) -> Path:
         for stage in UPSTREAM:
             shutil.copytree(run / stage, dst / run.name / stage)
     return dst
+
+
+# A small evaluate on the smoke upstream: one track per target, one randomized setting, no planning.
+SMALL_EVALUATE = {"evaluate.ablations": "[]", "evaluate.attribution": "false", "evaluate.tracks_per_target": "1",
+                  "evaluate.bootstrap": "100", "evaluate.randomized.sigmas_m": "[0.3]", "plan.enabled": "false"}
+
+
+def run_evaluate(artifacts: Path, launcher: list[str], site: Path):
+    """``<launcher> evaluate`` on the smoke config with ``SMALL_EVALUATE`` in a fresh interpreter,
+    with ``site`` (an outside package, tests/support/outside_package.py) on its PYTHONPATH."""
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, *launcher, "evaluate", "--config", str(SMOKE), "--device", DEVICE, "--progress", "off"]
+    for k, v in {"run.artifacts": str(artifacts), **SMALL_EVALUATE}.items():
+        cmd += ["--set", f"{k}={v}"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(site)]),
+           "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500)

@@ -5,7 +5,7 @@ about 2 MB per cell at paper grade (configs/paper_grade.toml) and ten times that
 ``reduce_cell`` turns it, as soon as the cell is done, into its cell-table rows (metrics over the
 realizations, at the run's ``spec.Params``), its calibration bin sums (``pooled_calibration.cell_sums``), the single-track
 tables the showcase needs (``experiments.summarize``, default variant only), the difficulty and
-the Dirichlet extras, and its results-file blocks, which the stage writes at once. Each
+the methods' extras, and its results-file blocks, which the stage writes at once. Each
 ``metrics.step_values`` is computed once and serves the rows, the metrics and the tables.
 """
 from __future__ import annotations
@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.evaluation.metrics import spec as M
-from pipeline.evaluation.metrics.labels import DIRICHLET
 from pipeline.evaluation.statistics.pooled_calibration import cell_sums
 from pipeline.evaluation.metrics.results import cell_metrics, result_block
 
@@ -22,9 +21,9 @@ def reduce_cell(cell, res: dict, params: M.Params, *, tables: bool = False) -> t
     """(the kept summary of ``run_cell``'s result ``res``, its result blocks in setting order).
 
     The summary: ``rows`` (one dict per (setting, method): the cell's identity and
-    ``results.cell_metrics``), ``calibration`` (``cell_sums``), ``difficulty``, and where present
-    ``dirichlet_std`` and ``dirichlet_mean0`` (the Dirichlet's posterior (K, C) of the cell's first
-    setting, realization 0); with ``tables``, ``tables``: {(experiment, label): the
+    ``results.cell_metrics``), ``calibration`` (``cell_sums``), ``difficulty``, ``extras``: {method:
+    the extras it returned, with ``posterior0``, its posterior (K, C) of the cell's first setting,
+    realization 0} for the methods that returned any; with ``tables``, ``tables``: {(experiment, label): the
     ``experiments.summarize`` tables}."""
     by_label = {(s.experiment, s.label): s for s in cell.settings}
     rows, blocks, summaries = [], [], {}
@@ -46,8 +45,7 @@ def reduce_cell(cell, res: dict, params: M.Params, *, tables: bool = False) -> t
     kept = {"rows": rows, "calibration": cell_sums(res["posts"], cell.truth, params.ece_bins), "difficulty": res["difficulty"]}
     if tables:
         kept["tables"] = summaries
-    if "dirichlet_std" in res:
-        kept["dirichlet_std"] = res["dirichlet_std"]
-        first = next(iter(res["posts"].values()))
-        kept["dirichlet_mean0"] = np.exp(first[DIRICHLET][0])
+    first = next(iter(res["posts"].values()), {})
+    kept["extras"] = {m: {**x, "posterior0": np.exp(first[m][0])} if m in first else dict(x)
+                      for m, x in res.get("extras", {}).items()}
     return kept, blocks

@@ -32,7 +32,7 @@ class TrackData:
     yaw: float               # object yaw (rad): object frame -> ground frame
     dropout: np.ndarray      # (K, N_s, F) MC-dropout scores of the chosen components
     own: np.ndarray | None = None  # (K, N_s, C) each candidate's own score component (Simple Bayes)
-    probs: np.ndarray | None = None  # (K, N_s, D) whole probability vectors of the dropout samples (Dirichlet)
+    probs: np.ndarray | None = None  # (K, N_s, D) whole probability vectors of the dropout samples
 
     @property
     def k(self) -> int:
@@ -72,38 +72,41 @@ def add_seconds(*parts: dict[str, float]) -> dict[str, float]:
 
 
 def track_input(models, track: TrackData, *, var_floor: float, estimates: np.ndarray | None = None,
-                samples: np.ndarray | None = None, dirichlet=None, n_ss: int = 100,
+                samples: np.ndarray | None = None, provided: dict | None = None,
                 rng: np.random.Generator | None = None, gp_instance=None) -> registry.TrackInput:
     """What the registered methods read of one track (``pipeline.method.registry.TrackInput``);
-    ``gp_instance``: the candidates' models with an instance term, where the run has them."""
-    return registry.TrackInput(dropout=track.dropout, gp=models, gp_instance=gp_instance, dirichlet=dirichlet,
+    ``gp_instance``: the candidates' models with an instance term, where the run has them;
+    ``provided``: {provider key: the candidates' models} (``TrackInput.models``)."""
+    return registry.TrackInput(dropout=track.dropout, gp=models, gp_instance=gp_instance, models=dict(provided or {}),
                                own=track.own, probs=track.probs,
                                estimates=estimates, samples=samples, inputs=track.inputs, var_floor=var_floor,
-                               n_ss=n_ss, rng=rng)
+                               rng=rng)
 
 
 def pose_free(t: registry.TrackInput, rng: Callable[[str], np.random.Generator] | None = None
               ) -> tuple[Posteriors, dict]:
     """The pose-free methods that apply to the track, fused once: ({method: log posteriors (K, C)}
-    with their ``seconds``, their extras, e.g. the Dirichlet cloud's spread ``dirichlet_std``).
-    ``rng(key)``: each method's own random stream."""
+    with their ``seconds``, {method: its extras} for the methods that return any, e.g. a posterior
+    cloud's spread). ``rng(key)``: each method's own random stream."""
     posts, extras, seconds = {}, {}, {}
     for m in registry.methods(attribution=False):
         if not m.uses_poses and m.applies(t):
             tm = t if rng is None else replace(t, rng=rng(m.key))
             (posts[m.key], more), seconds[m.key] = _timed(call_checked, m, "fuse_with_extras", tm)
-            extras.update(more)
+            if more:
+                extras[m.key] = more
     return Posteriors(posts, seconds), extras
 
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
-              fixed: dict[str, np.ndarray] | None = None, gp_instance=None) -> Posteriors:
+              fixed: dict[str, np.ndarray] | None = None, gp_instance=None, **methods_get) -> Posteriors:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
-    draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``."""
+    draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``
+    (``methods_get``: its ``provided`` and ``method_rng``)."""
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
     return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, fixed=fixed,
-                      gp_instance=gp_instance)
+                      gp_instance=gp_instance, **methods_get)
 
 
 def _timed(fn, *args, **kw):
@@ -115,7 +118,8 @@ def _timed(fn, *args, **kw):
 
 def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
                attribution: bool = False, fixed: dict[str, np.ndarray] | None = None,
-               gp_instance=None) -> Posteriors:
+               gp_instance=None, provided: dict | None = None,
+               method_rng: Callable[[str], np.random.Generator] | None = None) -> Posteriors:
     """Every registered method that applies on realizations of pose estimates (R, K, 2) and their
     localization samples (R, N_x, K, 2) -> log posteriors (R, K, C) each, in registry order.
 
@@ -133,20 +137,23 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
     methods' results do not change.
 
     The result's ``seconds``: wall seconds per method fused here (a ``fixed`` posterior's were
-    counted where it was fused).
+    counted where it was fused). ``provided``: the providers' models (``TrackInput.models``);
+    ``method_rng(key)``: each method's own stream (``TrackInput.rng``).
     """
     r, seconds = len(estimates), {}
-    t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples, gp_instance=gp_instance)
+    t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples, gp_instance=gp_instance,
+                    provided=provided)
     out = {}
     for m in registry.methods(attribution=attribution):
+        tm = t if method_rng is None else replace(t, rng=method_rng(m.key))
         if m.uses_poses:
             if m.applies(t):
-                out[m.key], seconds[m.key] = _timed(call_checked, m, "fuse", t)
+                out[m.key], seconds[m.key] = _timed(call_checked, m, "fuse", tm)
             continue
         if fixed is not None:
             one = fixed.get(m.key)
         elif m.applies(t):
-            one, seconds[m.key] = _timed(call_checked, m, "fuse", t)
+            one, seconds[m.key] = _timed(call_checked, m, "fuse", tm)
         else:
             one = None
         if one is not None:
@@ -156,11 +163,11 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
            *, var_floor: float, attribution: bool = False, fixed: dict[str, np.ndarray] | None = None,
-           gp_instance=None) -> Posteriors:
+           gp_instance=None, **methods_get) -> Posteriors:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
     return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, fixed=fixed,
-                     gp_instance=gp_instance)
+                     gp_instance=gp_instance, **methods_get)
 
 
 # With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
@@ -172,14 +179,15 @@ BATCH_TRAJECTORIES = 100_000
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
                progress: Callable[[int], None] | None = None, attribution: bool = False,
-               fixed: dict[str, np.ndarray] | None = None, gp_instance=None) -> Posteriors:
+               fixed: dict[str, np.ndarray] | None = None, gp_instance=None, **methods_get) -> Posteriors:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
 
     The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
     localization samples, which fixes the random stream; ``batch`` realizations (default: as many
     as make ``BATCH_TRAJECTORIES`` trajectories) are fused per call, which changes speed and
     memory only. ``progress`` is told the realizations of each fused batch; ``fixed`` as in
-    ``fuse_track``; the result's ``seconds`` sum its batches'."""
+    ``fuse_track`` (as ``methods_get``: ``provided``, ``method_rng``, one stream per method across
+    the batches); the result's ``seconds`` sum its batches'."""
     per_call = int(batch) if batch else max(1, BATCH_TRAJECTORIES // max(int(n_x), 1))
     out: dict[str, list[np.ndarray]] = {}
     est_parts: list[np.ndarray] = []
@@ -191,7 +199,7 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
         est_parts.clear()
         smp_parts.clear()
         fused = fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution, fixed=fixed,
-                           gp_instance=gp_instance)
+                           gp_instance=gp_instance, **methods_get)
         for m, v in fused.items():
             out.setdefault(m, []).append(v)
         seconds.append(fused.seconds)
@@ -263,11 +271,11 @@ def gp_rasters(models, *, grid_n: int = 61, extent: float = 1.5, ring_n: int = 1
 
 
 def single_view_first(models, track: TrackData, truth: int, *, var_floor: float = 1e-6,
-                      dirichlet=None, gp_instance=None) -> dict[str, float]:
+                      provided: dict | None = None, gp_instance=None) -> dict[str, float]:
     """How hard a track is: per method, the share of its views whose posterior from that view
     alone, at the true pose, ranks the truth first (1 = every view alone is enough). A method
     without a single-view reading (``single_view`` returns None, the default) has no entry."""
-    t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], dirichlet=dirichlet,
+    t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], provided=provided,
                     gp_instance=gp_instance)
     out = {}
     for m in registry.methods(attribution=False):

@@ -15,7 +15,6 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.grid import experiments as E
-from pipeline.method.dirichlet import DirichletModels
 from pipeline.scene.location import InconsistentRays, locate
 from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
@@ -227,23 +226,37 @@ class Cell:
     difficulty: bool = True
     attribution: bool = False                       # add the With Uncertainty attribution variants
     test_variance: tuple[float, ...] | None = None  # δ² per component: the calibrated likelihood
-    dirichlet: DirichletModels | None = None   # the candidates' Dirichlet models (needs data.probs)
-    n_ss: int = 100                            # evaluate.dirichlet.n_ss
+    models: dict | None = None  # {provider key: the candidates' models} (pipeline.method.provider)
     device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
 
 
 def method_rng(seed: int, target: str, track: int, method: str) -> np.random.Generator:
-    """A pose-free method's own stream (the Dirichlet cloud's subsampling): from the cell's
+    """A pose-free method's own stream (e.g. a posterior cloud's subsampling): from the cell's
     identity and the method's key only (not the variant or the setting: such a method ignores
     both), so Ray and local runs draw the same points and one method's draws never move another's."""
     return seeds.stream(seed, target, track, method)
+
+
+def method_streams(seed: int, target: str, track: int, setting: Setting):
+    """A pose-using method's own stream in one setting, by its key (one generator per method for
+    the whole setting, so its batches continue one stream): the cell's identity, the setting and the
+    key; apart from the setting's localization draws, so a method that draws moves no other's numbers."""
+    made: dict[str, np.random.Generator] = {}
+    skey = zlib.crc32(f"{setting.experiment}/{setting.label}".encode())
+
+    def rng(method: str) -> np.random.Generator:
+        if method not in made:
+            made[method] = np.random.default_rng([seed, zlib.crc32(target.encode()), track, skey,
+                                                  zlib.crc32(method.encode())])
+        return made[method]
+    return rng
 
 
 def pose_free_track(cell: Cell, models) -> tuple[E.Posteriors, dict]:
     """The pose-free methods on the cell's track, fused once (``experiments.pose_free``): their
     (K, C) log posteriors (with their seconds), repeated over every setting's realizations, and
     their extras."""
-    t = E.track_input(models, cell.data, var_floor=cell.var_floor, dirichlet=cell.dirichlet, n_ss=cell.n_ss)
+    t = E.track_input(models, cell.data, var_floor=cell.var_floor, provided=cell.models)
     return E.pose_free(t, rng=lambda key: method_rng(cell.seed, cell.target, cell.track, key))
 
 
@@ -254,7 +267,7 @@ def cell_rng(seed: int, target: str, track: int, setting: Setting) -> np.random.
 def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None, "seconds":
-    {method: wall seconds in its fusion calls}, and the pose-free methods' extras}."""
+    {method: wall seconds in its fusion calls}, "extras": {method: the pose-free methods' extras}}."""
     from pipeline.method.fusion import engine_device
 
     with engine_device(cell.device):
@@ -273,18 +286,17 @@ def _run_cell(banks, cell: Cell) -> dict:
     posts: dict = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
+        own = dict(var_floor=cell.var_floor, attribution=cell.attribution, fixed=fixed, gp_instance=inst,
+                   provided=cell.models, method_rng=method_streams(cell.seed, cell.target, cell.track, s))
         if s.experiment == "biased":
-            posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng,
-                                                      var_floor=cell.var_floor, attribution=cell.attribution,
-                                                      fixed=fixed, gp_instance=inst)
+            posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng, **own)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
-                                                          rng, var_floor=cell.var_floor, attribution=cell.attribution,
-                                                          fixed=fixed, gp_instance=inst)
-    diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, dirichlet=cell.dirichlet,
+                                                          rng, **own)
+    diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, provided=cell.models,
                                 gp_instance=inst) if cell.difficulty else None)
     seconds = E.add_seconds(fixed.seconds, *(p.seconds for p in posts.values()))
-    return {"posts": posts, "difficulty": diff, "seconds": seconds, **extras}
+    return {"posts": posts, "difficulty": diff, "seconds": seconds, "extras": extras}
 
 
 def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
@@ -301,19 +313,29 @@ def choose_targets(ev, avd: pd.DataFrame, plan: dict) -> list[str]:
 
 
 def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth: dict | None,
-                intr: dict, steps: dict, dirichlet=None, grid_points: dict | None = None,
-                variant_dirichlets: dict | None = None) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
+                intr: dict, steps: dict, provided: dict | None = None, grid_points: dict | None = None,
+                variant_provided: dict | None = None) -> tuple[list["Cell"], list[TrackInfo], list[dict]]:
     """Every (variant, target, track) cell of the ``evaluate`` section ``ev``: ``indexes`` maps
     variant -> its model bank's index (the plan), ``intr``/``steps``/``grid_points`` the scans'
     (fx, cx), grid steps and {image: grid point}. Targets without a usable track are skipped with
     a reason (returned), and so is each (target, scan) whose rays do not meet (with its scan and
-    residual_m; the target keeps its other scans' tracks). With
-    ``dirichlet`` models (``pipeline.method.dirichlet.DirichletModels``), every cell also carries
-    the candidates' Dirichlets and the views' whole probability vectors (the fourth method);
-    ``variant_dirichlets`` ({variant: DirichletModels}): a variant fitted on another training set
-    (the class-level contrast's instance arm) takes its own, as it takes its own index's
-    ``own_components`` (Simple Bayes' score per class) where it has them. Every variant's cell of a (target,
-    track) shares the track, its seed and so its localization draws: the variants pair."""
+    residual_m; the target keeps its other scans' tracks). Every cell carries the views' whole
+    probability vectors and, of each provider's models in ``provided`` ({key: models},
+    ``pipeline.method.provider``), those of its candidates (``ModelProvider.for_cell``).
+    ``variant_provided`` ({variant: {key: models}}): a variant fitted on another training set (the
+    class-level contrast's instance arm) takes its own, as it takes its own index's
+    ``own_components`` (Simple Bayes' score per class) where it has them. Every variant's cell of a
+    (target, track) shares the track, its seed and so its localization draws: the variants pair."""
+    from pipeline.method.provider import providers
+
+    def for_cell(prov: dict | None, target, classes, dim) -> dict:
+        mine = {}
+        for key, pm in (prov or {}).items():
+            try:
+                mine[key] = providers()[key].for_cell(pm, target, tuple(classes), dim)
+            except ValueError as e:
+                raise ValueError(f"avd.parquet, target {target!r}, the {key!r} models: {e}") from None
+        return mine
     plan = indexes[DEFAULT]["candidate_sets"]
     own = indexes[DEFAULT]["own_components"]
     settings = tuple(population_settings(ev))
@@ -332,20 +354,18 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
         for info in infos:
             yaw = yaw_for(target, info.scan, truth, ev.yaw_source, ev.yaw_deg, ev.targets, ev.yaws_deg)
             full = track_samples(avd, scores, info, ev.max_difficulty)
-            dm = None if dirichlet is None else dirichlet.for_set(target, classes)  # models.dirichlet.entries
-            if dm is not None and full.shape[-1] != dm.dim:
-                raise ValueError(f"avd.parquet has {full.shape[-1]} scores per crop, the Dirichlet models {dm.dim}")
+            mine = for_cell(provided, target, classes, full.shape[-1])
             for variant, index in indexes.items():
                 comps = index["candidate_sets"][target]["components"]
-                vdm = dm if variant not in (variant_dirichlets or {}) else \
-                    variant_dirichlets[variant].for_set(target, classes)
+                vmine = mine if variant not in (variant_provided or {}) else \
+                    for_cell(variant_provided[variant], target, classes, full.shape[-1])
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
                                    dropout=full[:, :, list(comps)],
                                    own=full[:, :, [index.get("own_components", own)[c] for c in classes]],
-                                   probs=None if vdm is None else full)
+                                   probs=full)
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),
                                   classes.index(target), data, settings, ev.seed, ev.variance_floor,
-                                  difficulty=variant == DEFAULT, dirichlet=vdm, n_ss=ev.dirichlet.n_ss,
+                                  difficulty=variant == DEFAULT, models=vmine,
                                   attribution=ev.attribution and variant == DEFAULT))
             tracks.append(info)
     if not cells:

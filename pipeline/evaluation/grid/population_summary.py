@@ -138,19 +138,19 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     }
 
 
-def dirichlet_summary(ev, cells: list[P.Cell], results: list[dict]) -> dict | None:
-    """What the Dirichlet's posterior cloud says besides its mean: the spread (std of λ) of the
-    truth's probability at the final step over the default cells, and the first cell's per-step
-    E[λ] and std. ``results``: the cells' ``reduce_cell`` summaries."""
-    pairs = [(c, r) for c, r in zip(cells, results) if c.variant == DEFAULT and "dirichlet_std" in r]
-    if not pairs:
-        return None
-    final = np.array([r["dirichlet_std"][-1, c.truth] for c, r in pairs])
-    c0, r0 = pairs[0]
-    mean0 = r0["dirichlet_mean0"]
-    return {"n_ss": ev.dirichlet.n_ss, "poses": "ignored: the same posterior for every realization",
-            "truth_std_final": {"median": float(np.median(final)), "q25": float(percentile(final, 25)),
-                                "q75": float(percentile(final, 75)), "max": float(final.max()),
-                                "n_cells": int(len(final))},
-            "first_track": {"target": c0.target, "track": c0.track, "classes": list(c0.classes),
-                            "mean": mean0.tolist(), "std": r0["dirichlet_std"].tolist()}}
+def method_blocks(cfg, cells: list[P.Cell], results: list[dict], population: dict) -> dict:
+    """summary.json's block of each method that reports one beside its posterior
+    (``FusionMethod.population_block``), from its extras in the default cells' ``reduce_cell``
+    summaries ``results``; keyed by the method."""
+    from pipeline.method.registry import methods
+
+    out = {}
+    for m in methods():
+        pairs = [(c, r["extras"][m.key]) for c, r in zip(cells, results)
+                 if c.variant == DEFAULT and m.key in r.get("extras", {})]
+        block = m.population_block(cfg, pairs) if pairs else None
+        if block is not None:
+            if m.key in population:
+                raise ValueError(f"method {m.key!r}: its summary block would replace the population's {m.key!r}")
+            out[m.key] = block
+    return out

@@ -8,7 +8,7 @@ hues that no method uses, so a method and a class never share a colour on one pa
 from __future__ import annotations
 
 from pipeline.method import registry
-from pipeline.method.names import (ATTRIBUTION, DIRICHLET, MB_INSTANCE, MODEL_BASED, SIMPLE_BAYES,  # noqa: F401
+from pipeline.method.names import (ATTRIBUTION, MB_INSTANCE, MODEL_BASED, SIMPLE_BAYES,  # noqa: F401
                                    WITH_UNCERTAINTY, WU_DROPOUT_ONLY, WU_INSTANCE, WU_POSES_ONLY)
 
 

@@ -49,8 +49,8 @@ from pipeline.infra import seeds
 
 def methods() -> tuple[str, ...]:
     """The registered methods that apply to the simulation (``FusionMethod.simulation``): its
-    measurements are synthetic GP scores, so e.g. the Dirichlet method (which models the whole
-    softmax vector) does not."""
+    measurements are synthetic GP scores, so a method that models the classifier's whole output
+    vector does not."""
     return tuple(m.key for m in registry.methods(attribution=False) if m.simulation)
 
 SCENARIOS = ("model_uncertainty", "localization_bias")

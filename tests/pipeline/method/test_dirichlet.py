@@ -108,7 +108,10 @@ def test_subset_orders_classes_and_save_load_round_trip(tmp_path):
 
 # -- the models stage ------------------------------------------------------------------------------
 def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
-    from pipeline.banks.model_bank import FeaturesError, dirichlet_from_features
+    import dataclasses
+
+    from pipeline.banks.model_bank import FeaturesError, training_views
+    from pipeline.method.registry import providers
     from stages.framework.registry import STAGES
     from stages.framework.runner import read_manifest, run_stage, stage_key, stale_reason
     from tests.stages.test_models_stage import CLASSES, mcfg, write_features
@@ -138,7 +141,12 @@ def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
     other = tmp_config({"models": {"classes": CLASSES, "n_components": 2, "restarts": 0, "dirichlet": {"floor": 1e-5}},
                         "evaluate": {"n_candidates": 3, "targets": [CLASSES[0]]}})
     assert stage_key(other, STAGES["models"], {"features": "x"})[0] != stage_key(cfg, STAGES["models"], {"features": "x"})[0]
-    # passes = "both": the deterministic pass and every dropout pass of the ring (camera 1 only)
+    # passes = "both": the deterministic pass and every dropout pass of the ring (camera 1 only),
+    # through the method's provider as the stage calls it
+    def dirichlet_from_features(path, models_cfg, classes):
+        return providers()["dirichlet"].fit(training_views(path, models_cfg.camera, classes),
+                                            dataclasses.replace(cfg, models=models_cfg))
+
     import pyarrow.parquet as pq
     both, extra = dirichlet_from_features(feat / "bigbird.parquet",
                                           mcfg(dirichlet=type(cfg.models.dirichlet)(passes="both")), CLASSES)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.stats import dirichlet as sp_dirichlet
 
-from pipeline.banks.model_bank import reduced_sets
+from pipeline.method.dirichlet import reduced_sets
 from pipeline.infra.config.learning import DirichletFitConfig
 from pipeline.method.dirichlet import DirichletModels, fit_dirichlet, reduce_vectors
 

@@ -13,7 +13,7 @@ from pipeline.evaluation.grid import experiments as E
 from pipeline.evaluation.grid import population as P
 from pipeline.method import dirichlet_fusion as DF
 from pipeline.method.dirichlet import DirichletModels, prepare
-from pipeline.method.names import DIRICHLET
+from pipeline.method.methods.dirichlet import DIRICHLET
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
 
 D = 5
@@ -93,8 +93,9 @@ def test_single_view_is_one_step_of_the_recursion():
 def _cell(track, dm, seed=0, variant="default"):
     settings = (P.Setting("biased", "b", 0.1, (0.05, 0.0), 1, 3),
                 P.Setting("randomized", "r", 0.2, (0.0, 0.0), 4, 3))
+    dm.n_ss = 7
     return P.Cell(variant, "c1", 2, "scan", ("c0", "c1", "c2"), (0, 1), 1, track, settings, seed, 1e-6,
-                  dirichlet=dm, n_ss=7)
+                  models={DIRICHLET: dm})
 
 
 def test_cell_adds_the_dirichlet_same_for_every_realization_setting_and_variant():
@@ -111,7 +112,7 @@ def test_cell_adds_the_dirichlet_same_for_every_realization_setting_and_variant(
         assert lp.shape == posts[E.WITH_UNCERTAINTY].shape
         for r in range(lp.shape[0]):
             np.testing.assert_array_equal(lp[r], want)
-    np.testing.assert_array_equal(res["dirichlet_std"], std)
+    np.testing.assert_array_equal(res["extras"][DIRICHLET]["std"], std)
     assert 0.0 <= res["difficulty"][DIRICHLET] <= 1.0
     # an ablation variant of the same cell sees the same Dirichlet (the method has no GP)
     other = P.run_cell(banks, _cell(track, dm, variant="abl"))

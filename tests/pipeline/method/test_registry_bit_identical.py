@@ -33,9 +33,9 @@ def _cell(seed: int) -> P.Cell:
     own = rng.dirichlet(np.ones(3), size=(base.k, 4))
     probs = rng.dirichlet(np.ones(4), size=(base.k, 4))
     data = E.TrackData(base.images, base.cam_xy, base.obj_xy, base.yaw, base.dropout, own=own, probs=probs)
-    dm = DirichletModels(models.classes, rng.uniform(0.5, 4.0, size=(3, 4)), floor=1e-5)
+    dm = DirichletModels(models.classes, rng.uniform(0.5, 4.0, size=(3, 4)), floor=1e-5, n_ss=20)
     return P.Cell("default", f"target{seed}", seed, "s1", tuple(models.classes), tuple(models.components), 1, data,
-                  SETTINGS, seed=11 + seed, var_floor=1e-6, dirichlet=dm, n_ss=20)
+                  SETTINGS, seed=11 + seed, var_floor=1e-6, models={"dirichlet": dm})
 
 
 def _fused(models, track: E.TrackData, est, smp, var_floor, dirichlet_log):
@@ -54,7 +54,8 @@ def _fused(models, track: E.TrackData, est, smp, var_floor, dirichlet_log):
 def _reference(models, cell: P.Cell) -> dict:
     track = cell.data
     drng = np.random.default_rng([cell.seed, zlib.crc32(cell.target.encode()), cell.track, zlib.crc32(b"dirichlet")])
-    d_log, d_std = DF.fuse_dirichlet(cell.dirichlet, track.probs, n_ss=cell.n_ss, rng=drng)
+    dm = cell.models["dirichlet"]
+    d_log, d_std = DF.fuse_dirichlet(dm, track.probs, n_ss=dm.n_ss, rng=drng)
     posts = {}
     for s in cell.settings:
         rng = P.cell_rng(cell.seed, cell.target, cell.track, s)
@@ -76,7 +77,7 @@ def _reference(models, cell: P.Cell) -> dict:
            "model_based": fuse_model_based(models, track.inputs(track.cam_xy[:, None, :]), track.measurement[:, None, :],
                                            return_log=True, progress=False)[:, 0],
            "simple_bayes": simple_bayes(track.own.mean(axis=1)[:, None, :], return_log=True)[:, 0],
-           "dirichlet": DF.single_view(cell.dirichlet, track.probs)}
+           "dirichlet": DF.single_view(dm, track.probs)}
     diff = {m: float(np.mean(M.correct(p, cell.truth, is_log=True))) for m, p in one.items()} | {"views": track.k}
     return {"posts": posts, "difficulty": diff, "dirichlet_std": d_std}
 
@@ -95,6 +96,6 @@ def test_the_registered_methods_equal_the_direct_engine_calls_bit_for_bit(seed):
         assert set(got["posts"][key]) - set(per) == {"view_independent"}, key
         for m, p in per.items():
             assert got["posts"][key][m].shape == p.shape and np.array_equal(got["posts"][key][m], p), (key, m)
-    assert np.array_equal(got["dirichlet_std"], want["dirichlet_std"])
+    assert np.array_equal(got["extras"]["dirichlet"]["std"], want["dirichlet_std"])
     assert {k: v for k, v in got["difficulty"].items() if k != "view_independent"} == want["difficulty"]
     assert set(got["seconds"]) == {"with_uncertainty", "model_based", "simple_bayes", "dirichlet", "view_independent"}

@@ -14,7 +14,8 @@ from pipeline.evaluation.metrics.results import (
     write_results,
 )
 from pipeline.evaluation.statistics.pooled_calibration import cell_sums, track_sums
-from pipeline.method.names import DIRICHLET, WU_DROPOUT_ONLY, WU_POSES_ONLY
+from pipeline.method.methods.dirichlet import DIRICHLET
+from pipeline.method.names import WU_DROPOUT_ONLY, WU_POSES_ONLY
 from tests.pipeline.evaluation.grid.test_experiments import make_track, ring_models
 from tests.pipeline.method.test_dirichlet_fusion import D
 from tests.pipeline.method.test_dirichlet_fusion import models as dirichlet_models
@@ -30,6 +31,7 @@ def population():
     """Three tracks x two variants of small cells (the default with a Dirichlet and attribution)."""
     gp = ring_models()
     dm = dirichlet_models(C=3)
+    dm.n_ss = 5
     cells = []
     for track in range(3):
         base = make_track(gp, truth=track % 3, K=4, seed=track)
@@ -38,7 +40,7 @@ def population():
         for variant in ("default", "abl"):
             cells.append(P.Cell(variant, "t", track, "s1", tuple(gp.classes), tuple(gp.components), track % 3, data,
                                 SETTINGS, seed=3, var_floor=1e-6, difficulty=variant == "default",
-                                attribution=variant == "default", dirichlet=dm, n_ss=5))
+                                attribution=variant == "default", models={DIRICHLET: dm}))
     banks = {"default": gp, "abl": gp}
     return banks, cells, [P.run_cell(banks, c) for c in cells]
 
@@ -85,8 +87,9 @@ def test_streamed_results_file_and_kept_values_equal_the_all_at_once_ones(tmp_pa
         assert a.keys() == b.keys() and all(np.array_equal(a[key], b[key]) for key in a)
     for c, r, k in zip(cells, results, kept):
         assert k["difficulty"] == r["difficulty"]
-        np.testing.assert_array_equal(k["dirichlet_std"], r["dirichlet_std"])
-        np.testing.assert_array_equal(k["dirichlet_mean0"], np.exp(r["posts"][("biased", "b")][DIRICHLET][0]))
+        np.testing.assert_array_equal(k["extras"][DIRICHLET]["std"], r["extras"][DIRICHLET]["std"])
+        np.testing.assert_array_equal(k["extras"][DIRICHLET]["posterior0"],
+                                      np.exp(r["posts"][("biased", "b")][DIRICHLET][0]))
         assert ("tables" in k) == (c.variant == "default")
 
 
