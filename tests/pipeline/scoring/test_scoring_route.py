@@ -77,3 +77,20 @@ def test_the_executor_task_scores_like_the_plain_route():
         forget_scorers()
     np.testing.assert_allclose(det1, det0.numpy(), rtol=0, atol=TOL)
     np.testing.assert_allclose(mc1, mc0.numpy(), rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("size", [160, 97])
+def test_efficientnet_scoring_path_equals_the_training_forward(size):
+    """Without gradients EfficientNet-Lite0 pads evenly-padded convolutions inside the convolution
+    and applies ReLU6 in place; its scores equal the graph-building forward's (explicit F.pad, ReLU6
+    copies) to 1e-6, at an even and an odd input size (odd sizes pad asymmetrically after stride 2)."""
+    from pipeline.scoring.classifiers import classifier
+
+    net = _randomised(classifier("efficientnet_lite0").build(7, 0.2, 0.0)).eval()
+    x = to_tensor(np.random.default_rng(5).integers(0, 256, (3, size, size, 3), dtype=np.uint8))
+    with torch.enable_grad():
+        slow = torch.softmax(net(x.requires_grad_(True)), -1).detach()
+    with torch.inference_mode():
+        fast = torch.softmax(net(x.detach()), -1)
+    assert float(slow.std(dim=0).max()) > 1e-3          # the crops do score differently
+    assert float((slow - fast).abs().max()) <= TOL
