@@ -88,6 +88,11 @@ HEAD_ROWS = 2048
 # images per trunk call when drop-connect makes every sample run the trunk (224 px EfficientNet-Lite0
 # activations are ~5 MB an image at their largest)
 TRUNK_ROWS = 32
+# images per trunk call when scoring: a batch of 64 at 160 px makes EfficientNet-Lite0 activations of
+# ~150 MB, which glibc maps and unmaps afresh for every layer (page faults: sys time about equal to
+# the trunk's own user time on this machine); 16 keeps them near the heap's mmap threshold and gave
+# bit-identical features (tests/pipeline/scoring/test_scoring_route.py bounds them by 1e-6)
+TRUNK_CHUNK = 16
 
 
 class MCDropoutScorer:
@@ -125,7 +130,9 @@ class MCDropoutScorer:
 
     @torch.inference_mode()
     def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        return self._trunk(self._input(x))
+        if x.shape[0] <= TRUNK_CHUNK:
+            return self._trunk(self._input(x))
+        return torch.cat([self._trunk(self._input(x[a:a + TRUNK_CHUNK])) for a in range(0, x.shape[0], TRUNK_CHUNK)])
 
     @torch.inference_mode()
     def head_eval(self, f: torch.Tensor) -> torch.Tensor:
