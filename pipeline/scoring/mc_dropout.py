@@ -130,9 +130,13 @@ class MCDropoutScorer:
 
     @torch.inference_mode()
     def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        if x.shape[0] <= TRUNK_CHUNK:
+        n = x.shape[0]
+        if n < 2 * TRUNK_CHUNK:
             return self._trunk(self._input(x))
-        return torch.cat([self._trunk(self._input(x[a:a + TRUNK_CHUNK])) for a in range(0, x.shape[0], TRUNK_CHUNK)])
+        # the last chunk takes the remainder: no call gets fewer than TRUNK_CHUNK images (oneDNN
+        # takes another convolution path below ~10 images, which moves features by ~5e-6)
+        cuts = [a for a in range(0, n, TRUNK_CHUNK) if n - a >= TRUNK_CHUNK] + [n]
+        return torch.cat([self._trunk(self._input(x[a:b])) for a, b in zip(cuts, cuts[1:])])
 
     @torch.inference_mode()
     def head_eval(self, f: torch.Tensor) -> torch.Tensor:

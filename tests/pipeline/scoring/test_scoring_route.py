@@ -98,18 +98,23 @@ def test_efficientnet_scoring_path_equals_the_training_forward(size):
 
 @pytest.mark.parametrize("name,net,size", list(_nets())[:2], ids=lambda v: v if isinstance(v, str) else "")
 def test_trunk_in_chunks_scores_like_one_call(name, net, size):
-    """The scorer runs the trunk TRUNK_CHUNK images at a time (memory, not results): a batch larger
-    than that scores as the whole batch in one trunk call does, to 1e-6."""
+    """The scorer runs the trunk TRUNK_CHUNK images at a time, the last call taking the remainder
+    (memory, not results): a batch of 2 chunks and 3 scores as one trunk call on it does, to 1e-6."""
     from pipeline.scoring.mc_dropout import TRUNK_CHUNK
 
     crops = np.random.default_rng(6).integers(0, 256, (2 * TRUNK_CHUNK + 3, size, size, 3), dtype=np.uint8)
     x = to_tensor(crops)
     seeds = [crop_seed(0, f"chunk/{i}") for i in range(len(crops))]
     sc = MCDropoutScorer(copy.deepcopy(net))
-    det, mc = sc.score(x, seeds, 3)
-    with torch.inference_mode():
-        whole = sc._trunk(sc._input(x))
-        det1 = torch.softmax(sc.head_eval(whole), -1)
-        mc1 = torch.softmax(sc.head_samples(whole, sc.draw_masks(seeds, 3)), -1)
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)   # one thread: where oneDNN picks a batch-size-dependent path
+    try:
+        det, mc = sc.score(x, seeds, 3)
+        with torch.inference_mode():
+            whole = sc._trunk(sc._input(x))
+            det1 = torch.softmax(sc.head_eval(whole), -1)
+            mc1 = torch.softmax(sc.head_samples(whole, sc.draw_masks(seeds, 3)), -1)
+    finally:
+        torch.set_num_threads(before)
     assert float((det - det1).abs().max()) <= TOL
     assert float((mc - mc1).abs().max()) <= TOL
