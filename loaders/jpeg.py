@@ -22,7 +22,9 @@ def decode_jpeg(data: bytes, path: str | Path) -> np.ndarray:
     bgr = decode_image(data, path, cv2.IMREAD_COLOR, expect=("JPEG",))
     if bgr.ndim != 3 or bgr.shape[2] != 3:
         raise BadInputError(path, f"corrupt JPEG: decoded to shape {bgr.shape}, not colour")
-    return np.ascontiguousarray(bgr[:, :, ::-1])  # OpenCV gives BGR
+    # OpenCV gives BGR; its channel swap is exact and ~8x cheaper than numpy's reversed-stride copy
+    # of a full frame (the features stage decodes one per AVD frame)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def read_rgb(path: str | Path, root: str | Path | None = None) -> np.ndarray:

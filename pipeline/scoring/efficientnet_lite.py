@@ -61,9 +61,18 @@ class SameConv2d(nn.Conv2d):
         k, s = self.kernel_size[0], self.stride[0]
         ph = max((math.ceil(ih / s) - 1) * s + k - ih, 0)
         pw = max((math.ceil(iw / s) - 1) * s + k - iw, 0)
+        if not torch.is_grad_enabled() and ph % 2 == 0 and pw % 2 == 0:
+            # scoring: even padding is the convolution's own (no padded copy of the input; the same
+            # scores bit for bit, tests/pipeline/scoring/test_scoring_route.py); training keeps F.pad
+            return F.conv2d(x, self.weight, self.bias, self.stride, (ph // 2, pw // 2), self.dilation, self.groups)
         if ph or pw:
             x = F.pad(x, [pw // 2, pw - pw // 2, ph // 2, ph - ph // 2])
         return super().forward(x)
+
+
+def _relu6(x: torch.Tensor) -> torch.Tensor:
+    """ReLU6, in place when no gradient is taken (scoring: one activation copy less per layer)."""
+    return F.relu6(x, inplace=not torch.is_grad_enabled())
 
 
 def _bn(c: int) -> nn.BatchNorm2d:
@@ -91,8 +100,8 @@ class MBConv(nn.Module):
         """``keep``: optional per-sample factor (N,) of the residual branch (0 or 1/(1-rate))."""
         h = x
         if self.expand != 1:
-            h = F.relu6(self._bn0(self._expand_conv(h)))
-        h = F.relu6(self._bn1(self._depthwise_conv(h)))
+            h = _relu6(self._bn0(self._expand_conv(h)))
+        h = _relu6(self._bn1(self._depthwise_conv(h)))
         h = self._bn2(self._project_conv(h))
         if not self.skip:
             return h
@@ -130,10 +139,10 @@ class EfficientNetLite0(nn.Module):
         """Everything before the head dropout: (B, 3, H, W) -> pooled (B, 1280). ``keep``: (B, K)
         drop-connect factors, one column per ``drop_blocks`` entry (None = none dropped)."""
         cols = {i: k for k, (i, _) in enumerate(self.drop_blocks)} if keep is not None else {}
-        h = F.relu6(self._bn0(self._conv_stem(x)))
+        h = _relu6(self._bn0(self._conv_stem(x)))
         for i, b in enumerate(self._blocks):
             h = b(h, keep[:, cols[i]] if i in cols else None)
-        h = F.relu6(self._bn1(self._conv_head(h)))
+        h = _relu6(self._bn1(self._conv_head(h)))
         return torch.flatten(self._avg_pooling(h), 1)
 
     def head_layers(self) -> list[nn.Module]:

@@ -83,6 +83,11 @@ HEAD_ROWS = 2048
 # images per trunk call when drop-connect makes every sample run the trunk (224 px EfficientNet-Lite0
 # activations are ~5 MB an image at their largest)
 TRUNK_ROWS = 32
+# images per trunk call when scoring: a batch of 64 at 160 px makes EfficientNet-Lite0 activations of
+# ~150 MB, which glibc maps and unmaps afresh for every layer (page faults: sys time about equal to
+# the trunk's own user time on this machine); 16 keeps them near the heap's mmap threshold and gave
+# bit-identical features (tests/pipeline/scoring/test_scoring_route.py bounds them by 1e-6)
+TRUNK_CHUNK = 16
 
 
 class MCDropoutScorer:
@@ -120,7 +125,13 @@ class MCDropoutScorer:
 
     @torch.inference_mode()
     def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        return self._trunk(self._input(x))
+        n = x.shape[0]
+        if n < 2 * TRUNK_CHUNK:
+            return self._trunk(self._input(x))
+        # the last chunk takes the remainder: no call gets fewer than TRUNK_CHUNK images (oneDNN
+        # takes another convolution path below ~10 images, which moves features by ~5e-6)
+        cuts = [a for a in range(0, n, TRUNK_CHUNK) if n - a >= TRUNK_CHUNK] + [n]
+        return torch.cat([self._trunk(self._input(x[a:b])) for a, b in zip(cuts, cuts[1:])])
 
     @torch.inference_mode()
     def head_eval(self, f: torch.Tensor) -> torch.Tensor:

@@ -419,3 +419,21 @@ def test_mutated_headers_end_in_an_image_or_a_named_error(tmp_path, monkeypatch,
         assert img.shape[0] * img.shape[1] <= 10000
         outcomes["decoded"] += 1
     assert outcomes["refused"] > 0, outcomes
+
+
+def test_jpeg_decodes_to_contiguous_rgb_in_the_file_s_channel_order(tmp_path):
+    """decode_jpeg swaps OpenCV's BGR with cv2.cvtColor: red stays red, and the array is contiguous
+    (torch.from_numpy and the crop path need it)."""
+    import cv2
+
+    from loaders.jpeg import decode_jpeg
+
+    bgr = np.zeros((32, 48, 3), np.uint8)
+    bgr[:, :16, 2] = 250   # red on the left, green in the middle, blue on the right (BGR order)
+    bgr[:, 16:32, 1] = 250
+    bgr[:, 32:, 0] = 250
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    rgb = decode_jpeg(buf.tobytes(), tmp_path / "x.jpg")
+    assert rgb.flags.c_contiguous and rgb.dtype == np.uint8 and rgb.shape == (32, 48, 3)
+    assert np.array_equal(rgb, cv2.imdecode(buf, cv2.IMREAD_COLOR)[:, :, ::-1])
+    assert rgb[16, 4].argmax() == 0 and rgb[16, 24].argmax() == 1 and rgb[16, 40].argmax() == 2

@@ -77,3 +77,44 @@ def test_the_executor_task_scores_like_the_plain_route():
         forget_scorers()
     np.testing.assert_allclose(det1, det0.numpy(), rtol=0, atol=TOL)
     np.testing.assert_allclose(mc1, mc0.numpy(), rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("size", [160, 97])
+def test_efficientnet_scoring_path_equals_the_training_forward(size):
+    """Without gradients EfficientNet-Lite0 pads evenly-padded convolutions inside the convolution
+    and applies ReLU6 in place; its scores equal the graph-building forward's (explicit F.pad, ReLU6
+    copies) to 1e-6, at an even and an odd input size (odd sizes pad asymmetrically after stride 2)."""
+    from pipeline.scoring.classifiers import classifier
+
+    net = _randomised(classifier("efficientnet_lite0").build(7, 0.2, 0.0)).eval()
+    x = to_tensor(np.random.default_rng(5).integers(0, 256, (3, size, size, 3), dtype=np.uint8))
+    with torch.enable_grad():
+        slow = torch.softmax(net(x.requires_grad_(True)), -1).detach()
+    with torch.inference_mode():
+        fast = torch.softmax(net(x.detach()), -1)
+    assert float(slow.std(dim=0).max()) > 1e-3          # the crops do score differently
+    assert float((slow - fast).abs().max()) <= TOL
+
+
+@pytest.mark.parametrize("name,net,size", list(_nets())[:2], ids=lambda v: v if isinstance(v, str) else "")
+def test_trunk_in_chunks_scores_like_one_call(name, net, size):
+    """The scorer runs the trunk TRUNK_CHUNK images at a time, the last call taking the remainder
+    (memory, not results): a batch of 2 chunks and 3 scores as one trunk call on it does, to 1e-6."""
+    from pipeline.scoring.mc_dropout import TRUNK_CHUNK
+
+    crops = np.random.default_rng(6).integers(0, 256, (2 * TRUNK_CHUNK + 3, size, size, 3), dtype=np.uint8)
+    x = to_tensor(crops)
+    seeds = [crop_seed(0, f"chunk/{i}") for i in range(len(crops))]
+    sc = MCDropoutScorer(copy.deepcopy(net))
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)   # one thread: where oneDNN picks a batch-size-dependent path
+    try:
+        det, mc = sc.score(x, seeds, 3)
+        with torch.inference_mode():
+            whole = sc._trunk(sc._input(x))
+            det1 = torch.softmax(sc.head_eval(whole), -1)
+            mc1 = torch.softmax(sc.head_samples(whole, sc.draw_masks(seeds, 3)), -1)
+    finally:
+        torch.set_num_threads(before)
+    assert float((det - det1).abs().max()) <= TOL
+    assert float((mc - mc1).abs().max()) <= TOL
