@@ -242,12 +242,11 @@ def method_streams(seed: int, target: str, track: int, setting: Setting):
     the whole setting, so its batches continue one stream): the cell's identity, the setting and the
     key; apart from the setting's localization draws, so a method that draws moves no other's numbers."""
     made: dict[str, np.random.Generator] = {}
-    skey = zlib.crc32(f"{setting.experiment}/{setting.label}".encode())
+    skey = f"{setting.experiment}/{setting.label}"
 
     def rng(method: str) -> np.random.Generator:
         if method not in made:
-            made[method] = np.random.default_rng([seed, zlib.crc32(target.encode()), track, skey,
-                                                  zlib.crc32(method.encode())])
+            made[method] = seeds.stream(seed, target, track, skey, method)
         return made[method]
     return rng
 
