@@ -300,7 +300,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads,
                        skips=SkipPolicy.from_config(cfg))
     echo(f"[{spec.name}] running: {spec.help}")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     try:
         mark_owned(tmp)  # inside: a full disk here too names the folder and removes it
         with recording_inputs() as rec, pid_file(paths.workers), confined_writes(tmp):
@@ -332,6 +332,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         "key": key,
         "parts": parts,
         "seconds": round(elapsed, 3),
+        "cpu_seconds": round(cpu_seconds() - c0, 3),
         "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "summary": summary,
         "device": ctx._device,
@@ -346,6 +347,14 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
         echo(f"[{spec.name}] {ctx.skips.count} bad entr{'y' if ctx.skips.count == 1 else 'ies'} skipped "
              f"(data.skip_bad_views); see {final / MANIFEST} 'extra.skipped'")
     return manifest
+
+
+def cpu_seconds() -> float:
+    """User + system CPU seconds of this process and its reaped children (worker processes)."""
+    import resource
+
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
 def _fmt(s: float) -> str:

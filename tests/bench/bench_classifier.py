@@ -68,10 +68,11 @@ def main() -> None:
     from pipeline.infra.memory import reuse_freed_memory
     from pipeline.scoring.training import resolve_precision
 
+    size = load_config(ROOT / "configs" / "synthetic.toml").classifier.input_size
     with reuse_freed_memory():
-        st = precision_steps()
+        st = precision_steps(size=size)
     old = "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
-    print(f"bench_classifier: a training step (batch 128, 112 px, {torch.get_num_threads()} threads) on "
+    print(f"bench_classifier: a training step (batch 128, {size} px, {torch.get_num_threads()} threads) on "
           f"{cpu_model()} (native bf16: {'yes' if {'avx512_bf16', 'amx_bf16'} & cpu_flags() else 'no'}), "
           f"load average {os.getloadavg()[0]:.1f}: bf16 {st['bf16'][0]:.2f} s wall / {st['bf16'][1]:.2f} CPU s, "
           f"fp32 {st['fp32'][0]:.2f} s / {st['fp32'][1]:.2f} CPU s; auto picked {old} before, picks "

@@ -170,7 +170,7 @@ def path_split(size: int = 112, repeats: int = 5) -> dict:
     return out
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--crops", type=int, default=64)
     ap.add_argument("--samples", type=int, default=10)
@@ -209,6 +209,9 @@ def main(argv: list[str] | None = None) -> None:
           f"CPU {rc['before_cpu_ms'] / rc['now_cpu_ms']:.2f}x")
     split = path_split()
     print("  one crop's path, CPU ms at 1 thread: " + ", ".join(f"{k} {v:.2f}" for k, v in split.items()))
+    return {"route": "scoring a crop: channels-last trunk, free-core threads against contiguous, a thread per core",
+            "unit": "ms", "previous_s": rc["before_wall_ms"], "current_s": rc["now_wall_ms"],
+            "previous_cpu_s": rc["before_cpu_ms"], "current_cpu_s": rc["now_cpu_ms"]}
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ def jackknife(h, v, pool="mean", higher=True) -> dict:
                          rs.draws(v, pool, slots=rs.shape[1] - 1), higher)
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--targets", type=int, default=75)
     ap.add_argument("--boot", type=int, default=2000)
@@ -60,6 +60,8 @@ def main(argv=None) -> None:
           f"from the draws made {t_new:.3f} s, ratio {t_old / max(t_new, 1e-9):.0f}x; left-out range differs by "
           f"{dv:.1e}; flips {len(old['loto_flips'])} (old) / {len(new['loto_flips'])} (new); load average "
           f"{load0:.1f} -> {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    return {"route": f"leave-one-target-out, {args.targets} targets: jackknife-after-bootstrap against re-resampling",
+            "previous_s": t_old, "current_s": t_new}
 
 
 if __name__ == "__main__":

@@ -17,32 +17,15 @@ from __future__ import annotations
 
 import json
 import os
-import re
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_chains import run_chain  # noqa: E402  (also when run alone)
 
 ROOT = Path(__file__).resolve().parents[2]
 GOAL_S, GOAL_GB = 600.0, 4.0
-STAGE_RE = re.compile(r"^\[(\w+)\] done in ([0-9.]+) s")
-
-
-def run_chain(config: Path, artifacts: Path, extra: list[str] = ()) -> dict:
-    """Run data .. evaluate on ``config`` into ``artifacts``: stage seconds, wall, peak RSS (GB)."""
-    cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "stages.commands.cli", "evaluate", "--config", str(config),
-           "--set", f"run.artifacts={artifacts}", *extra]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    t0 = time.perf_counter()
-    p = subprocess.run(cmd, check=False, cwd=ROOT, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    if p.returncode:
-        raise RuntimeError(f"chain failed ({p.returncode}):\n{p.stderr[-3000:]}")
-    text = p.stdout + p.stderr
-    stages = {m.group(1): float(m.group(2)) for m in map(STAGE_RE.match, text.splitlines()) if m}
-    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", text)
-    return {"stages": stages, "wall_s": wall, "peak_gb": int(rss.group(1)) / 2**20 if rss else float("nan")}
 
 
 def split(run_dir: Path) -> list[str]:

@@ -63,6 +63,24 @@ def test_runs_upstream_then_skips(tmp_config, fake_stages, capsys):
     assert "up to date" in capsys.readouterr().out
 
 
+def test_the_manifest_records_the_stage_cpu_seconds(tmp_config, fake_stages, monkeypatch):
+    _, make = fake_stages
+    mod = make("a")
+    plain = mod.run
+
+    def busy(ctx):  # about 0.2 CPU s of work inside the stage
+        import time
+        c0 = time.process_time()
+        while time.process_time() - c0 < 0.2:
+            pass
+        return plain(ctx)
+    monkeypatch.setattr(mod, "run", busy)
+    cfg = tmp_config()
+    runner.ensure(cfg, "a")
+    m = runner.read_manifest(cfg, "a")
+    assert 0.2 <= m["cpu_seconds"] < 0.2 + m["seconds"] * 4 + 1
+
+
 def test_section_change_reruns_only_dependents(tmp_config, fake_stages):
     calls, _ = fake_stages
     runner.ensure(tmp_config(), "b")
