@@ -31,7 +31,8 @@ def install(monkeypatch, graph: dict[str, tuple[str, ...]], behaviour: dict | No
         monkeypatch.setitem(sys.modules, mod.__name__, mod)
         specs[name] = StageSpec(name, mod.__name__, tuple(ups), ("features",))
         # whatever a fake stage writes is declared in the catalog (the runner refuses the rest)
-        monkeypatch.setitem(outputs.CATALOG, name, {"any": outputs.Artifact("*", "folder", "tests.support.stage_fakes:install", None)})
+        monkeypatch.setitem(outputs.CATALOG, name, {"any": outputs.Artifact("*", "folder", "tests.support.stage_fakes:install", None),
+                                                    "files": outputs.Artifact("*", "text", "tests.support.stage_fakes:install", None)})
     for target in (runner, registry, cli):
         monkeypatch.setattr(target, "STAGES", specs)
     monkeypatch.setattr(cli, "ORDER", tuple(specs))
