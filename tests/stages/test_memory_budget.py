@@ -84,7 +84,7 @@ def test_data_workers_are_capped_by_the_cores(tmp_path, monkeypatch, caplog):
     import json
     import logging
 
-    import stages.data
+    import loaders.sources.synthetic
     from pipeline.infra.budget import cores
     from tests.support.tiny_world import TINY
     asked = []
@@ -94,7 +94,7 @@ def test_data_workers_are_capped_by_the_cores(tmp_path, monkeypatch, caplog):
         asked.append(n)
         raise RuntimeError("stopped by the test")
         yield
-    monkeypatch.setattr(stages.data, "worker_pool", no_pool)
+    monkeypatch.setattr(loaders.sources.synthetic, "worker_pool", no_pool)
     args = ["data", "--set", f"run.artifacts={tmp_path}", "--set", f"data.scans={json.dumps(TINY['data']['scans'])}",
             "--set", "data.synthetic.instances_per_scan=0", "--set", "data.synthetic.workers=64"]
     with caplog.at_level(logging.WARNING, "viewfuse"):
