@@ -10,6 +10,9 @@ when it comes from outside the project, enters the keys of ``models`` and ``eval
 (``stages/framework/outside.py``). ``summary`` is the models stage's one line about it, ``section``
 what the report shows of its index. Providers register with ``@register_provider`` in the same
 module as (or one imported by) the method that needs them, so the method's entry point brings both.
+Its config sections (``sections``), their checks (``check``) and its cost terms (``cost``) go to the
+infra floor's registries (``pipeline.infra.config.own``, ``pipeline.infra.cost``), which load the
+methods' package and entry points before a config is parsed, in every process.
 """
 from __future__ import annotations
 

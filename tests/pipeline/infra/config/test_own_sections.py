@@ -178,3 +178,15 @@ def test_a_dataset_sources_section_is_in_the_recorded_config_and_the_data_hash(t
         assert "with_section_test" not in to_dict(tmp_config())["data"]       # another source: no section
     finally:
         unregister_dataset("with_section_test")
+
+
+def test_the_providers_cost_term_joins_the_evaluate_estimate_through_the_hook(tmp_config):
+    from pipeline.infra.cost import evaluate_terms
+
+    def clouds(n_ss):
+        terms = [t for t in evaluate_terms(tmp_config({"evaluate": {"dirichlet": {"n_ss": n_ss}}}))
+                 if t.keys == ("evaluate.dirichlet.n_ss",)]
+        assert len(terms) == 1
+        return terms[0].seconds
+
+    assert clouds(40) == pytest.approx(2 * clouds(20)) and clouds(20) > 0   # linear in N_ss
