@@ -11,12 +11,9 @@ what the readers need and writes ``roots.json``. A source of your own writes the
 """
 from __future__ import annotations
 
-import hashlib
-
 # The built-in sources, named so that this stage's code key covers them and what they import (a
 # source from outside enters the key through stages/framework/outside.py).
 from loaders.sources import real, real_imagery, synthetic  # noqa: F401
-from pipeline.infra.config.root import canonical_json, to_dict
 from pipeline.infra.datasets import dataset_source
 from stages.framework.roots import data_roots  # noqa: F401 - the stage's public helper
 
@@ -25,13 +22,9 @@ DIGEST_MEMO = real.DIGEST_MEMO
 
 def extra_key(cfg) -> str:
     """The source's fingerprint of inputs read in place (``real``: the roots' content, so edits to
-    them rerun the pipeline and a moved or copied dataset does not) and, for a source with its own
-    ``[data.<name>]`` section, that section. '' for the other built-ins, as before sources."""
-    key = dataset_source(cfg.data.source).input_key(cfg)
-    if cfg.data.options is not None:
-        own = canonical_json(to_dict(cfg.data.options))
-        key = hashlib.sha256(f"{key}\n{cfg.data.source}:{own}".encode()).hexdigest()
-    return key
+    them rerun the pipeline and a moved or copied dataset does not); '' for the other built-ins. A
+    source's own ``[data.<name>]`` section is in the ``data`` section's hash like every key."""
+    return dataset_source(cfg.data.source).input_key(cfg)
 
 
 def run(ctx) -> str:

@@ -122,3 +122,32 @@ def test_tools_holds_no_one_off_migration_scripts():
     # tools/ keeps reusable helpers; a script written for one migration lives in the git history
     assert sorted(p.name for p in (ROOT / "tools").iterdir() if not p.name.startswith((".", "__"))) == \
         ["hard_failures.py", "peak_rss.py", "uv_flags.py"]
+
+
+# The Dirichlet method lives behind its model provider: its name is in its own files and in the
+# built-in methods' listing only; everything else (config, cost, grid, banks, stages, reports)
+# reaches it through the method and provider registries.
+DIRICHLET_OWN = {"pipeline/method/dirichlet.py", "pipeline/method/dirichlet_fusion.py",
+                 "pipeline/method/methods/dirichlet.py", "pipeline/method/methods/__init__.py"}
+
+
+def named_outside(word: str, own: set[str], root: Path = ROOT) -> list[str]:
+    """``.py`` files of the product (and ``viewfuse/``, ``tools/``) outside ``own`` naming ``word``, any case."""
+    bad = []
+    for d in ("viewfuse", *PRODUCT, "tools"):
+        for path in sorted((root / d).rglob("*.py")):
+            rel = path.relative_to(root).as_posix()
+            if rel not in own and word in path.read_text().lower():
+                bad.append(rel)
+    return bad
+
+
+def test_the_dirichlet_is_named_only_in_its_own_files(tmp_path):
+    bad = named_outside("dirichlet", DIRICHLET_OWN)
+    assert not bad, "the Dirichlet named outside its own files (declare it on its provider instead):\n" + "\n".join(bad)
+    for d in ("viewfuse", *PRODUCT, "tools"):
+        (tmp_path / d).mkdir()
+    (tmp_path / "pipeline" / "own.py").write_text("x = 'dirichlet'\n")
+    (tmp_path / "stages" / "cost.py").write_text("# the DIRICHLET posterior clouds\n")
+    (tmp_path / "reports" / "page.py").write_text("x = 1\n")
+    assert named_outside("dirichlet", {"pipeline/own.py"}, tmp_path) == ["stages/cost.py"]

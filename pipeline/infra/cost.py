@@ -26,6 +26,7 @@ from pipeline.infra import footprints
 from pipeline.infra.budget import GIB, MemoryBudgetError, address_space_left, budget, budget_words, gib
 from pipeline.infra.config.checks import modelled_classes
 from pipeline.infra.config.fields import ConfigError
+from pipeline.infra.registry import Registry
 
 # --- per-unit seconds ---------------------------------------------------------------------------
 # One With Uncertainty trajectory of K = 9 steps over C = 4 candidates: 32,000 trajectories/s in the
@@ -101,6 +102,17 @@ class Estimate:
     @property
     def peak(self) -> float:
         return self.base + max((t.bytes for t in self.terms), default=0.0)
+
+
+# --- terms a method with a model of its own adds (pipeline/method/provider.py) -------------------
+# name -> fn(cfg, rows) -> [Term], rows = the population grid's (cell, realization, step) rows,
+# each ROW_S seconds for the methods measured together; loaded like the methods, in every process.
+EXTRA_TERMS: Registry = Registry("cost term", "viewfuse.methods", "pipeline.method.methods")
+
+
+def register_terms(name: str, fn, *, module: str) -> None:
+    EXTRA_TERMS.add(name, fn, module=module, replace=EXTRA_TERMS.peek(name) is not None
+                    and EXTRA_TERMS.module_of(name) == module)
 
 
 # --- counts the config implies -------------------------------------------------------------------
@@ -187,9 +199,8 @@ def evaluate_terms(cfg, counts: Counts = Counts()) -> list[Term]:
                          "evaluate.biased.n_loc_samples", "evaluate.randomized.n_loc_samples"),
                         seconds=episodes * plan.budget * PLAN_STEP_S * (n_x / 37.5) * (plan.budget / 10) ** 1.5 * C / 4
                         + decisions * PLAN_DECISION_S * (plan.eig_samples / 64) * C / 4))
-    if ev.dirichlet.n_ss > 0:   # not measured apart: one method's share (1/6) of ROW_S at N_ss = 100, linear in N_ss
-        out.append(Term("the Dirichlet method's posterior clouds", ("evaluate.dirichlet.n_ss",),
-                        seconds=cells * reals * K * ROW_S * ev.dirichlet.n_ss / 100 / 6))
+    for terms in EXTRA_TERMS.values():   # what each method's own model adds (ModelProvider.cost)
+        out += terms(cfg, cells * reals * K)
     out.append(Term(f"the two-level bootstrap over {T} targets x up to {tracks} tracks", ("evaluate.bootstrap",),
                     bytes=footprints.bootstrap(ev.bootstrap, T, tracks)))
     return out

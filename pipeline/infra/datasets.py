@@ -116,19 +116,11 @@ def dataset_source(name: str, where: str = "config") -> DatasetSource:
     return SOURCES[name]
 
 
-def own_section(table: dict, where: str) -> tuple[dict, type | None, dict | None]:
-    """Split the source's own ``[data.<name>]`` table off a config table: (the rest, the source's
-    config class, its table) — (table, None, None) for a source without one."""
-    data = table.get("data")
-    name = data.get("source", "synthetic") if isinstance(data, dict) else "synthetic"
+def source_config(data: dict, where: str) -> tuple[str, type | None]:
+    """The source a ``[data]`` table names and the dataclass of its own ``[data.<name>]`` section
+    (None for a source without one, or a ``source`` of the wrong type: the loader names it);
+    the loader builds it like the methods' sections (``pipeline.infra.config.own``)."""
+    name = data.get("source", "synthetic")
     if not isinstance(name, str):
-        return table, None, None   # the loader names the wrong type
-    src = dataset_source(name, where)
-    if src.config is None:
-        return table, None, None
-    sub = data.get(name, {})
-    if not isinstance(sub, dict):
-        from pipeline.infra.config.fields import ConfigError
-
-        raise ConfigError(f"{where}: 'data.{name}' must be a table")
-    return {**table, "data": {k: v for k, v in data.items() if k != name}}, src.config, sub
+        return "", None
+    return name, dataset_source(name, where).config

@@ -10,6 +10,9 @@ when it comes from outside the project, enters the keys of ``models`` and ``eval
 (``stages/framework/outside.py``). ``summary`` is the models stage's one line about it, ``section``
 what the report shows of its index. Providers register with ``@register_provider`` in the same
 module as (or one imported by) the method that needs them, so the method's entry point brings both.
+Its config sections (``sections``), their checks (``check``) and its cost terms (``cost``) go to the
+infra floor's registries (``pipeline.infra.config.own``, ``pipeline.infra.cost``), which load the
+methods' package and entry points before a config is parsed, in every process.
 """
 from __future__ import annotations
 
@@ -19,6 +22,8 @@ from typing import Any, Callable, ClassVar
 
 import numpy as np
 
+from pipeline.infra.config.own import register_sections, unregister_sections
+from pipeline.infra.cost import EXTRA_TERMS, register_terms
 from pipeline.infra.registry import Registry
 
 # Built-ins register from the method files (``pipeline.method.methods``); outside providers come
@@ -62,9 +67,22 @@ class Section:
 class ModelProvider:
     """One kind of model a method needs. ``key`` is the name in the method's ``needs``, the
     folder ``models/<key>/`` and the key of ``TrackInput.models``; the config sections of its
-    settings are the provider's own to read (``cfg.models.<key>``, ``cfg.evaluate.<key>``)."""
+    settings are its own (``sections``), as are their checks (``check``) and its cost (``cost``)."""
     key: ClassVar[str]
     label: ClassVar[str] = ""
+    # Its config sections: dotted TOML table -> frozen dataclass of ``setting`` fields, e.g.
+    # {"models.<key>": ..., "evaluate.<key>": ...}, read as ``cfg.models.<key>``; loaded, range-checked
+    # and hashed into the stage keys like every section (pipeline/infra/config/own.py).
+    sections: ClassVar[dict[str, type]] = {}
+
+    def check(self, cfg, need) -> None:
+        """Cross-key checks of its sections, run at config load: ``need(ok, message)`` raises a
+        ConfigError naming the file (the message names the keys)."""
+
+    def cost(self, cfg, rows: float) -> list:
+        """The evaluate stage's work on these models (``pipeline.infra.cost.Term`` s), ``rows`` being
+        the population grid's (cell, realization, step) rows; [] when it is negligible."""
+        return []
 
     def fit(self, views: TrainingViews, cfg) -> tuple[Any, dict]:
         """(the models, the extras written beside them in their index)."""
@@ -117,12 +135,17 @@ def register_provider(cls: type[ModelProvider]) -> type[ModelProvider]:
     old = PROVIDERS.peek(key)
     if old is not None and type(old).__qualname__ != cls.__qualname__:
         raise ValueError(f"model provider {key!r} is registered twice ({type(old).__name__}, {cls.__name__})")
-    PROVIDERS.add(key, cls(), module=cls.__module__, replace=True)
+    inst = PROVIDERS.add(key, cls(), module=cls.__module__, replace=True)
+    # the infra floor's hooks (it never imports the method): config sections and the cost model
+    register_sections(key, cls.sections, check=inst.check, module=cls.__module__)
+    register_terms(key, inst.cost, module=cls.__module__)
     return cls
 
 
 def unregister_provider(key: str) -> None:
     PROVIDERS.pop(key, None)
+    unregister_sections(key)
+    EXTRA_TERMS.remove(key)
 
 
 def known(key: str) -> bool:

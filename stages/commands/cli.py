@@ -15,6 +15,7 @@ import traceback
 from concurrent.futures.process import BrokenProcessPool
 
 from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
+from pipeline.infra.config.own import own_items
 from stages.framework.registry import ORDER, STAGES
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
@@ -55,6 +56,8 @@ def config_keys_help(section: str) -> str:
                 walk(value, f"{prefix}{f.name}.")
             else:
                 lines.append(line(f, value, prefix + f.name))
+        for name, value in own_items(obj):   # the sections extensions declared under this one
+            walk(value, f"{prefix}{name}.")
 
     parent_path, _, last = section.rpartition(".")
     parent = Config().section(parent_path) if parent_path else Config()

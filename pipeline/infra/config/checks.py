@@ -11,6 +11,7 @@ import re
 
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.evaluation import ABLATION_KEYS
+from pipeline.infra.config.own import checks as own_checks
 from pipeline.infra.config.root import Config
 from pipeline.infra.config.simulate import SimulateConfig
 from pipeline.infra.datasets import dataset_source
@@ -96,9 +97,8 @@ def cross_checks(cfg: Config, where: str) -> None:
     dataset_source(cfg.data.source, where).check(cfg, need)   # the source's own checks
     need(cfg.models.camera in cfg.features.bigbird_cameras,
          f"'models.camera' = {cfg.models.camera} is not among 'features.bigbird_cameras'")
-    need(cfg.models.dirichlet.entries <= cfg.models.n_components,
-         f"'models.dirichlet.entries' = {cfg.models.dirichlet.entries} exceeds 'models.n_components' = "
-         f"{cfg.models.n_components}: it keeps that many of the chosen components")
+    for check in own_checks():   # the checks of the sections extensions declared (config/own.py)
+        check(cfg, need)
     if cfg.classifier.weights == "path":
         need(bool(cfg.classifier.path), "'classifier.path' must be set when classifier.weights = 'path'")
     need(len(cfg.classifier.mean) == 3 and len(cfg.classifier.std) == 3,
@@ -112,9 +112,6 @@ def cross_checks(cfg: Config, where: str) -> None:
     if cfg.models.component_rule == "explicit":
         need(len(cfg.models.components) == cfg.models.n_components,
              "'models.components' must list exactly 'models.n_components' indices for rule 'explicit'")
-    need(cfg.models.dirichlet.passes == "deterministic" or cfg.features.bigbird_samples > 0,
-         f"'models.dirichlet.passes' = {cfg.models.dirichlet.passes!r} needs MC-dropout passes of the BigBIRD views "
-         "('features.bigbird_samples' > 0)")
     need(cfg.models.targets != "dropout_mean" or cfg.features.bigbird_samples > 0,
          "'models.targets' = 'dropout_mean' needs MC-dropout passes of the BigBIRD views: set "
          "'features.bigbird_samples' > 0 or 'models.targets' = 'deterministic'")

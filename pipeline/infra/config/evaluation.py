@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
+from pipeline.infra.config.own import Extendable, Own, own_field
 
 
 @dataclass(frozen=True)
@@ -49,11 +50,6 @@ class BiasMapsConfig:
 
 
 @dataclass(frozen=True)
-class DirichletEvalConfig:
-    n_ss: int = _f(100, lo=1, hi=1000000, doc="N_ss: posterior-cloud points kept after each step (Dirichlet method)")
-
-
-@dataclass(frozen=True)
 class StatisticsConfig:
     cluster: str = _f("target", choices=("target", "scan", "category", "crossed"),
                       doc="the design's independent unit, the top level of every pooled CI: target = targets, "
@@ -72,7 +68,7 @@ def cluster_of(ev) -> str:
 
 
 @dataclass(frozen=True)
-class EvaluateConfig:
+class EvaluateConfig(Extendable):
     targets: tuple[str, ...] = _f("all", words=("all",),
                                   doc="'all' = every modelled instance present in the scanned AVD features, "
                                       "or a list of instance names")
@@ -132,7 +128,8 @@ class EvaluateConfig:
     biased_randomized: BiasedRandomizedConfig = _f(factory=BiasedRandomizedConfig)
     sensitivity: SensitivityConfig = _f(factory=SensitivityConfig)
     bias_maps: BiasMapsConfig = _f(factory=BiasMapsConfig)
-    dirichlet: DirichletEvalConfig = _f(factory=DirichletEvalConfig)
+    # [evaluate.<key>] of a method's model provider (pipeline/method/provider.py): config/own.py
+    own: Own = own_field("evaluate")
 
 
 @dataclass(frozen=True)

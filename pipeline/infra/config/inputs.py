@@ -2,10 +2,11 @@
 stand-ins or real dataset roots)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
+from pipeline.infra.config.own import Extendable, Own, own_field
 
 
 # The real AVD instance map (docs/formats/avd_instance_id_map.txt): its names in id order (the
@@ -202,7 +203,7 @@ class RealImageryConfig:
 
 
 @dataclass(frozen=True)
-class DataConfig:
+class DataConfig(Extendable):
     source: str = _f("synthetic",
                      doc="a registered dataset source (pipeline/infra/datasets.py): synthetic stand-ins | real "
                          "BigBIRD + AVD roots | real_imagery: COIL-100 photographs on real AVD scans' geometry "
@@ -222,7 +223,12 @@ class DataConfig:
                                          "(real BigBIRD views are 1.3 MP, AVD images 2.1 MP)")
     synthetic: SyntheticDataConfig = _f(factory=SyntheticDataConfig)
     real_imagery: RealImageryConfig = _f(factory=RealImageryConfig)
-    # The [data.<source>] section of a source that declares one (its own dataclass, built at load);
-    # not in to_dict: the data stage's key takes it (stages/data.py extra_key), so keys of the
-    # built-in sources are as they were.
-    options: Any = field(default=None, metadata={"internal": True})
+    # The [data.<source>] section of a source that declares one (its own dataclass, built at load
+    # like the methods' sections: config/own.py); to_dict writes it, so the data section's hash
+    # and the recorded config hold it.
+    own: Own = own_field("data")
+
+    @property
+    def options(self) -> Any:
+        """The section of the source ``source`` names (None: it declares none)."""
+        return self.own.built(self.source)

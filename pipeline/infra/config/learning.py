@@ -1,10 +1,12 @@
 """The sections of the scorer and the class models: ``[classifier]`` (and its training),
-``[features]`` (crops, MC dropout) and ``[models]`` (components, GP and Dirichlet fits)."""
+``[features]`` (crops, MC dropout) and ``[models]`` (components, GP fits; the sections of the
+methods' own models are theirs: ``pipeline.infra.config.own``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
+from pipeline.infra.config.own import Extendable, Own, own_field
 
 
 @dataclass(frozen=True)
@@ -87,26 +89,7 @@ class FeaturesConfig:
 
 
 @dataclass(frozen=True)
-class DirichletFitConfig:
-    passes: str = _f("deterministic", choices=("deterministic", "dropout", "both"),
-                     doc="BigBIRD passes each class's Dirichlet is fitted on: the deterministic pass (as Tchuiev & "
-                         "Indelman did), the MC-dropout passes (features.bigbird_samples > 0), or both")
-    floor: float = _f(1e-6, lo=1e-300, hi=1e-2,
-                      doc="every probability entry is raised to at least this and the vector renormalised before "
-                          "the log (fit and likelihood): a softmax entry that underflowed to 0 would veto a class")
-    tol: float = _f(1e-10, lo=0.0, hi=1e-2, doc="fixed point stops when no theta_j changes by more than this, relatively")
-    max_iter: int = _f(20000, lo=1, hi=10000000, doc="cap on steps of the fixed-point map; a fit that reaches it is "
-                                                      "logged as a warning and marked in models/dirichlet/index.json")
-    accelerate: bool = _f(True, doc="SQUAREM extrapolation of the same fixed-point map (nearly alike vectors need "
-                                    "tens of thousands of plain steps); false = the plain iteration")
-    entries: int = _f(0, lo=0, hi=1000,
-                      doc="0 = the Dirichlet models the whole score vector; n > 0 = per candidate set, each "
-                          "class's Dirichlet is fitted on (the set's first n chosen components, the rest mass) and "
-                          "the evaluate stage uses those (for 1000-way ImageNet outputs)")
-
-
-@dataclass(frozen=True)
-class ModelsConfig:
+class ModelsConfig(Extendable):
     classes: tuple[str, ...] = _f("all", words=("all",),
                                   doc="modelled classes, the candidate pool: 'all' = every BigBIRD object "
                                       "in the features, or a list of object names")
@@ -144,4 +127,5 @@ class ModelsConfig:
     noise_bounds: tuple[float, ...] = _f(factory=lambda: (1e-6, 1.0), lo=1e-12, hi=1e3)
     seed: int = _f(0, lo=0, hi=SEED_MAX)
     min_views: int = _f(8, lo=2, hi=100000, doc="fail when a class has fewer training views than this")
-    dirichlet: DirichletFitConfig = _f(factory=DirichletFitConfig)
+    # [models.<key>] of a method's model provider (pipeline/method/provider.py): config/own.py
+    own: Own = own_field("models")

@@ -21,9 +21,9 @@ except ModuleNotFoundError:  # pragma: no cover - 3.10
 from pipeline.infra.config.checks import cross_checks
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.learning import ModelsConfig
+from pipeline.infra.config.own import Extendable, Own, sections
 from pipeline.infra.config.evaluation import ABLATION_KEYS
 from pipeline.infra.config.root import PATH_KEYS, Config, project_root, to_dict
-from pipeline.infra.datasets import own_section
 from pipeline.infra.nesting import depth
 
 # Limits on what a config file may do, so a hostile or broken one is a named error, never a
@@ -59,11 +59,21 @@ def _check_scalar(value: Any, tp: Any, key: str, where: str) -> Any:
 def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
+    kwargs: dict[str, Any] = {}
+    if issubclass(cls, Extendable):   # the sections extensions declared under this one (config/own.py)
+        own = sections(prefix[:-1], table, where)
+        clash = sorted(set(own) & set(fields))
+        if clash:
+            raise ConfigError(f"{where}: an extension declares the section '{prefix}{clash[0]}', already a key of "
+                              f"[{prefix[:-1]}]")
+        kwargs["own"] = Own(prefix[:-1], {name: _build(sub, _table(table.get(name, {}), where, prefix + name),
+                                                       where, f"{prefix}{name}.") for name, sub in own.items()})
+        fields = {**fields, **dict.fromkeys(own)}
+        table = {k: v for k, v in table.items() if k not in own}
     unknown = sorted(set(table) - set(fields))
     if unknown:
         allowed = ", ".join(sorted(fields))
         raise ConfigError(f"{where}: unknown key '{prefix}{unknown[0]}' (allowed here: {allowed})")
-    kwargs = {}
     for name, f in fields.items():
         if name not in table:
             continue
@@ -71,9 +81,7 @@ def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
         tp = hints[name]
         value = table[name]
         if dataclasses.is_dataclass(tp):
-            if not isinstance(value, dict):
-                raise ConfigError(f"{where}: '{key}' must be a table")
-            kwargs[name] = _build(tp, value, where, key + ".")
+            kwargs[name] = _build(tp, _table(value, where, key), where, key + ".")
             continue
         if typing.get_origin(tp) is tuple:
             inner = typing.get_args(tp)[0]
@@ -95,6 +103,12 @@ def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
         _check_range(value, f, key, where)
         kwargs[name] = value
     return cls(**kwargs)
+
+
+def _table(value: Any, where: str, key: str) -> dict:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}: '{key}' must be a table")
+    return value
 
 
 def _check_range(value: Any, f: dataclasses.Field, key: str, where: str) -> None:
@@ -136,11 +150,7 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
         # a --set path counts as written in the file --config names
         set_in.update({k: path for k in PATH_KEYS if k.split(".")[1] in (overrides.get(k.split(".")[0]) or {})})
     try:
-        table, own_cls, own = own_section(table, where)   # [data.<source>]: the source's own dataclass
         cfg = _build(Config, table, where, "")
-        if own_cls is not None:
-            cfg = dataclasses.replace(cfg, data=dataclasses.replace(
-                cfg.data, options=_build(own_cls, own, where, f"data.{cfg.data.source}.")))
         roots = tuple((k, str(project_root(set_in[k]))) for k in PATH_KEYS if k in set_in)
         cfg = dataclasses.replace(cfg, source_path=str(path.resolve()), path_roots=roots)
         cross_checks(cfg, where)

@@ -15,6 +15,7 @@ from pipeline.infra.config.evaluation import TEST_DOMAIN_MODES, EvaluateConfig, 
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.inputs import DataConfig, RunConfig
 from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, ModelsConfig
+from pipeline.infra.config.own import own_items
 from pipeline.infra.config.plan import PlanConfig
 from pipeline.infra.config.simulate import SimulateConfig
 
@@ -114,8 +115,10 @@ def domain_variance_mode(cfg: Config, ablation: str | None) -> str:
 def to_dict(obj: Any) -> Any:
     """Plain (JSON-able) form of a config or section."""
     if dataclasses.is_dataclass(obj):
-        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)
-                if not f.metadata.get("internal")}
+        out = {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+               if not f.metadata.get("internal")}
+        out.update((k, to_dict(v)) for k, v in own_items(obj))   # extensions' sections, where the TOML has them
+        return out
     if isinstance(obj, (tuple, list)):
         return [to_dict(v) for v in obj]
     return obj

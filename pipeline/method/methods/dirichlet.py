@@ -6,9 +6,13 @@ are GP scores, not probability vectors. Its class models are its own (``Dirichle
 settings ``models.dirichlet.*``, loaded by evaluate with ``evaluate.dirichlet.n_ss``."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from pipeline.infra.config import to_dict
+from pipeline.infra.config.fields import setting as _f
+from pipeline.infra.cost import ROW_S, Term
 from pipeline.method import dirichlet as D
 from pipeline.method import dirichlet_fusion as DF
 from pipeline.method.method_base import FusionMethod, TrackInput, register
@@ -17,10 +21,51 @@ from pipeline.method.provider import ModelProvider, Section, register_provider
 DIRICHLET = "dirichlet"   # the method's and its provider's key (stored in results; models/dirichlet/)
 
 
+# -- its config sections: [models.dirichlet] and [evaluate.dirichlet] ------------------------------
+@dataclass(frozen=True)
+class DirichletFitConfig:
+    passes: str = _f("deterministic", choices=("deterministic", "dropout", "both"),
+                     doc="BigBIRD passes each class's Dirichlet is fitted on: the deterministic pass (as Tchuiev & "
+                         "Indelman did), the MC-dropout passes (features.bigbird_samples > 0), or both")
+    floor: float = _f(1e-6, lo=1e-300, hi=1e-2,
+                      doc="every probability entry is raised to at least this and the vector renormalised before "
+                          "the log (fit and likelihood): a softmax entry that underflowed to 0 would veto a class")
+    tol: float = _f(1e-10, lo=0.0, hi=1e-2, doc="fixed point stops when no theta_j changes by more than this, relatively")
+    max_iter: int = _f(20000, lo=1, hi=10000000, doc="cap on steps of the fixed-point map; a fit that reaches it is "
+                                                      "logged as a warning and marked in models/dirichlet/index.json")
+    accelerate: bool = _f(True, doc="SQUAREM extrapolation of the same fixed-point map (nearly alike vectors need "
+                                    "tens of thousands of plain steps); false = the plain iteration")
+    entries: int = _f(0, lo=0, hi=1000,
+                      doc="0 = the Dirichlet models the whole score vector; n > 0 = per candidate set, each "
+                          "class's Dirichlet is fitted on (the set's first n chosen components, the rest mass) and "
+                          "the evaluate stage uses those (for 1000-way ImageNet outputs)")
+
+
+@dataclass(frozen=True)
+class DirichletEvalConfig:
+    n_ss: int = _f(100, lo=1, hi=1000000, doc="N_ss: posterior-cloud points kept after each step (Dirichlet method)")
+
+
 @register_provider
 class DirichletProvider(ModelProvider):
     key = DIRICHLET
     label = "Dirichlet class models"
+    sections = {"models.dirichlet": DirichletFitConfig, "evaluate.dirichlet": DirichletEvalConfig}
+
+    def check(self, cfg, need) -> None:
+        d = cfg.models.dirichlet
+        need(d.entries <= cfg.models.n_components,
+             f"'models.dirichlet.entries' = {d.entries} exceeds 'models.n_components' = "
+             f"{cfg.models.n_components}: it keeps that many of the chosen components")
+        need(d.passes == "deterministic" or cfg.features.bigbird_samples > 0,
+             f"'models.dirichlet.passes' = {d.passes!r} needs MC-dropout passes of the BigBIRD views "
+             "('features.bigbird_samples' > 0)")
+
+    def cost(self, cfg, rows: float) -> list:
+        """Not measured apart: one method's share (1/6) of ROW_S at N_ss = 100, linear in N_ss."""
+        n_ss = cfg.evaluate.dirichlet.n_ss
+        return [Term("the Dirichlet method's posterior clouds", ("evaluate.dirichlet.n_ss",),
+                     seconds=rows * ROW_S * n_ss / 100 / 6)] if n_ss > 0 else []
 
     def fit(self, views, cfg):
         """Per class, Dir(γ; θ_c) on the whole score vectors of its training ring

@@ -111,6 +111,7 @@ def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
     import dataclasses
 
     from pipeline.banks.model_bank import FeaturesError, training_views
+    from pipeline.infra.config.own import with_own
     from pipeline.method.registry import providers
     from stages.framework.registry import STAGES
     from stages.framework.runner import read_manifest, run_stage, stage_key, stale_reason
@@ -149,7 +150,7 @@ def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
 
     import pyarrow.parquet as pq
     both, extra = dirichlet_from_features(feat / "bigbird.parquet",
-                                          mcfg(dirichlet=type(cfg.models.dirichlet)(passes="both")), CLASSES)
+                                          with_own(mcfg(), dirichlet=type(cfg.models.dirichlet)(passes="both")), CLASSES)
     t = pq.read_table(feat / "bigbird.parquet").to_pandas()
     for c, cls in enumerate(both.classes):
         rows = t[(t["object"] == cls) & (t["camera"] == 1)]
@@ -159,5 +160,5 @@ def test_models_stage_fits_saves_and_tracks_the_dirichlets(tmp_config):
     assert not np.allclose(both.theta, dm.theta)
     with pytest.raises(FeaturesError, match="has none"):
         write_features(feat / "nodrop.parquet", dropout=False)
-        dirichlet_from_features(feat / "nodrop.parquet", mcfg(dirichlet=type(cfg.models.dirichlet)(passes="dropout")),
+        dirichlet_from_features(feat / "nodrop.parquet", with_own(mcfg(), dirichlet=type(cfg.models.dirichlet)(passes="dropout")),
                                 CLASSES)

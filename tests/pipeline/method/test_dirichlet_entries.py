@@ -6,7 +6,7 @@ import pytest
 from scipy.stats import dirichlet as sp_dirichlet
 
 from pipeline.method.dirichlet import reduced_sets
-from pipeline.infra.config.learning import DirichletFitConfig
+from pipeline.method.methods.dirichlet import DirichletFitConfig
 from pipeline.method.dirichlet import DirichletModels, fit_dirichlet, reduce_vectors
 
 
