@@ -49,15 +49,16 @@ class RealImagery(DatasetSource):
     def work(self, cfg) -> Work:
         ri = cfg.data.real_imagery
         if ri.dataset == "eth80":   # the ring's 16 azimuths 22.5 degrees apart; 'alternate' trains on every other
-            views = len(ri.categories) * len(ri.instances) * len(ri.elevations) * (8 if ri.view_split == "alternate" else 16)
+            ring = 8 if ri.view_split == "alternate" else 16
+            views = len(ri.categories) * len(ri.instances) * len(ri.elevations) * ring
             view_keys = ("data.real_imagery.categories", "data.real_imagery.instances", "data.real_imagery.elevations",
                          "data.real_imagery.view_split")
         else:
             views = len(ri.objects) * (360 // ri.train_step_deg)
             view_keys = ("data.real_imagery.objects", "data.real_imagery.train_step_deg")
         crops = len(cfg.data.scans) * frames_per_scan(ri.frames, ri.max_difficulty)
-        return Work(views, crops, view_keys, ("data.scans", "data.real_imagery.frames", "data.real_imagery.max_difficulty"),
-                    written=views + crops)
+        crop_keys = ("data.scans", "data.real_imagery.frames", "data.real_imagery.max_difficulty")
+        return Work(views, crops, view_keys, crop_keys, written=views + crops)
 
     def write(self, ctx) -> str:
         """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""

@@ -54,8 +54,9 @@ class Synthetic(DatasetSource):
         return Work(scored, None, ("data.synthetic.instances", "data.synthetic.angle_step_deg",
                                    "features.bigbird_cameras", "data.synthetic.bigbird_cameras"),
                     ("data.scans", "features.max_difficulty"),
-                    data_keys=("data.synthetic.instances", "data.synthetic.bigbird_cameras", "data.synthetic.angle_step_deg",
-                               "data.synthetic.bigbird_width", "data.synthetic.bigbird_height"),
+                    data_keys=("data.synthetic.instances", "data.synthetic.bigbird_cameras",
+                               "data.synthetic.angle_step_deg", "data.synthetic.bigbird_width",
+                               "data.synthetic.bigbird_height"),
                     rendered_megapixels=rendered * s.bigbird_width * s.bigbird_height / 1e6,
                     render_workers=max(1, min(s.workers, cores())))
 

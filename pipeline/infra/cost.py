@@ -285,11 +285,11 @@ def features_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     # the boxes found in the data (the stage's own check) over the source's count from its config
     crops = counts.avd_crops or (work.test_crops if work else None)
     if crops is None:
-        out.append(_not_estimated(cfg, "features", "scoring the AVD boxes (the stage checks again with those it finds)"))
+        out.append(_not_estimated(cfg, "features", "scoring the AVD boxes (the stage checks again with those found)"))
     else:
-        keys = ("features.n_samples", *(work.crop_keys if work and not counts.avd_crops else ("features.max_difficulty",
-                                                                                            "data.scans")))
-        out.append(Term(f"scoring {crops} AVD boxes x (1 + {f.n_samples} MC-dropout passes)", tuple(dict.fromkeys(keys)),
+        behind = work.crop_keys if work and not counts.avd_crops else ("features.max_difficulty", "data.scans")
+        out.append(Term(f"scoring {crops} AVD boxes x (1 + {f.n_samples} MC-dropout passes)",
+                        tuple(dict.fromkeys(("features.n_samples", *behind))),
                         seconds=crops * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.n_samples))))
     return out
 
