@@ -14,8 +14,10 @@ The per-unit constants below are seconds of one unit of work on the development 
 cores, AMD EPYC), each with where it was measured. They are meant to be right within a small
 factor: a faster machine takes less, a loaded one more, so a refusal says "about". Where a
 count is unknown before the data exists (real data with ``targets = 'all'``), the estimate takes
-the smallest count (one), so it never refuses what might fit. ``tests/bench/bench_cost.py``
-re-measures the constants on the machine it runs on.
+the smallest count (one), so it never refuses what might fit. The data and features counts are
+the dataset source's (``DatasetSource.work``: views and crops from its config); a part a source
+does not declare is a term of 0 seconds that says "not estimated", logged once.
+``tests/bench/bench_cost.py`` re-measures the constants on the machine it runs on.
 """
 from __future__ import annotations
 
@@ -265,9 +267,7 @@ def _not_estimated(cfg, stage: str, what: str) -> Term:
 
 def _bigbird_views(cfg) -> int:
     """BigBIRD views the config implies (synthetic data; 0 when the dataset decides)."""
-    if cfg.data.source != "synthetic":
-        return 0
-    return source_work(cfg).training_views
+    return source_work(cfg).training_views if cfg.data.source == "synthetic" else 0
 
 
 def features_terms(cfg, counts: Counts = Counts()) -> list[Term]:
