@@ -11,61 +11,24 @@ import json
 import pytest
 
 from tests.support.outside_package import run_with, write_package
-
-MODULE = '''
-import re
-import cv2
-import numpy as np
-import viewfuse as vf
-
-NAME = re.compile(r"([a-z]+)_(\\d{3})\\.png")
-
-
-class Folder(vf.TurntableSource):       # no decorator: the entry point names the class
-    name = "outside_turntable"
-
-    def read(self, cfg, skips):
-        out = {}
-        for p in sorted(self.path(cfg, "root").glob("*.png")):
-            m = NAME.fullmatch(p.name)
-            rgb = np.ascontiguousarray(cv2.imread(str(p))[:, :, ::-1])
-            out.setdefault(m[1], {})[int(m[2])] = (rgb, rgb.max(axis=2) > 16)
-        return out
-'''
+from tests.support.turntable_world import ENTRY_POINTS, PACKAGE, SOURCE_MODULE
 
 PROBE = '''
 import json, sys
 from pathlib import Path
-import cv2
-import numpy as np
 import viewfuse as vf
 from pipeline.infra.config import ConfigError, load_config
 from stages.framework.outside import outside_parts
 from stages.framework.runner import ensure, stage_key
 from stages.framework.registry import STAGES
 
+from tests.support.turntable_world import render_geometry, source_overrides, write_photos
+
 tmp = Path(sys.argv[1]) if len(sys.argv) > 1 else Path.cwd()
 out = {"sources": vf.datasets()}
-photos = tmp / "photos"
-photos.mkdir()
-for name, colour in {"mug": (200, 60, 40), "bowl": (40, 160, 200), "can": (90, 200, 70)}.items():
-    for a in range(0, 360, 15):
-        img = np.zeros((64, 64, 3), np.uint8)
-        cv2.rectangle(img, (16, 10), (48, 56), colour, -1)
-        cv2.circle(img, (int(32 + 12 * np.sin(np.radians(a))), 30), 5, (255, 255, 255), -1)
-        cv2.imwrite(str(photos / f"{name}_{a:03d}.png"), img)
-root = Path.cwd().resolve()
-syn = {"run": {"artifacts": str(tmp / "art"), "name": "geometry"}, "evaluate": {"n_candidates": 3},
-       "data": {"scans": ["Home_001_1"], "synthetic": {
-           "instances": ["red_bull", "pringles_bbq", "pepto_bismol"], "angle_step_deg": 120, "bigbird_width": 64,
-           "bigbird_height": 64, "room_size_m": [2.4, 2.4], "grid_step_m": 0.5,
-           "distractors": 1, "occluders": 1, "workers": 1}}}
-cfg = load_config(REPO / "configs" / "synthetic.toml", syn)
-ensure(cfg, "data", device="cpu")
-mine = {"run": {"artifacts": str(tmp / "art"), "name": "photos"}, "evaluate": {"n_candidates": 3},
-        "data": {"source": "outside_turntable", "scans": ["Home_001_1"],
-                 "avd_root": str(cfg.stage_dir("data") / "avd"),
-                 "outside_turntable": {"root": str(photos), "max_view_error_deg": 16.0, "max_difficulty": 5}}}
+photos = write_photos(tmp / "photos")
+cfg = render_geometry(REPO, tmp / "art")
+mine = source_overrides(tmp / "art", photos, cfg.stage_dir("data") / "avd", max_view_error_deg=16.0, max_difficulty=5)
 cfg2 = load_config(REPO / "configs" / "synthetic.toml", mine)
 out["options"] = [type(cfg2.data.options).__name__, cfg2.data.options.train_step_deg]
 ensure(cfg2, "data", device="cpu")
@@ -112,8 +75,7 @@ def outside(tmp_path_factory) -> dict:
     from tests.conftest import ROOT
 
     tmp = tmp_path_factory.mktemp("outside_data")
-    site = write_package(tmp / "site", "vf_outside_data", MODULE,
-                         {"viewfuse.datasets": {"outside_turntable": "vf_outside_data:Folder"}})
+    site = write_package(tmp / "site", PACKAGE, SOURCE_MODULE, ENTRY_POINTS)
     r = run_with(site, f"REPO = __import__('pathlib').Path({str(ROOT)!r})\n" + PROBE, tmp)
     assert r.returncode == 0, r.stderr[-3000:]
     return json.loads(next(line for line in r.stdout.splitlines() if line.startswith("PROBE "))[6:])

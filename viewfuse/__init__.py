@@ -22,7 +22,7 @@ from pipeline.planning.planners import Planner, register_planner, unregister_pla
 from pipeline.scoring.classifiers import Classifier, register_classifier, unregister_classifier  # noqa: E402
 from pipeline.scoring.classifiers import names as classifiers  # noqa: E402
 from viewfuse.scoring import mc_dropout_scores  # noqa: E402
-from pipeline.infra.datasets import DatasetSource, register_dataset, unregister_dataset  # noqa: E402
+from pipeline.infra.datasets import DatasetSource, Work, register_dataset, unregister_dataset  # noqa: E402
 from pipeline.infra.datasets import names as datasets  # noqa: E402
 from loaders.real_imagery.turntable import TurntableConfig, TurntableSource  # noqa: E402
 from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
@@ -32,4 +32,5 @@ __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "m
            "providers", "fit_models", "fuse", "track_metrics", "evaluate_population",
            "Classifier", "classifiers", "register_classifier", "unregister_classifier", "Planner", "register_planner",
            "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores",
-           "DatasetSource", "datasets", "register_dataset", "unregister_dataset", "TurntableSource", "TurntableConfig"]
+           "DatasetSource", "Work", "datasets", "register_dataset", "unregister_dataset", "TurntableSource",
+           "TurntableConfig"]

@@ -25,7 +25,7 @@ from loaders.real_imagery.training import modellable
 from loaders.real_imagery.write import place_pairs, plain_frames
 from pipeline.infra.cache import write_bytes, write_json
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
-from pipeline.infra.datasets import DatasetSource
+from pipeline.infra.datasets import DatasetSource, Work, frames_per_scan
 from pipeline.infra.outputs import name as out_name
 
 
@@ -63,6 +63,14 @@ class TurntableSource(DatasetSource):
         o = self.options(cfg)
         need(bool(o.root), f"'data.{self.name}.root' must be set (the folder of photographs)")
         need(360 % o.train_step_deg == 0, f"'data.{self.name}.train_step_deg' = {o.train_step_deg} must divide 360")
+
+    def work(self, cfg) -> Work:
+        """The frames follow the scans as COIL's do; how many photographs train is the reader's (not
+        estimated unless a subclass says, e.g. from its folder)."""
+        o = self.options(cfg)
+        crops = len(cfg.data.scans) * frames_per_scan(o.frames, o.max_difficulty)
+        return Work(None, crops, (), ("data.scans", f"data.{self.name}.frames", f"data.{self.name}.max_difficulty"),
+                    written=crops)
 
     def write(self, ctx) -> str:
         t0 = time.perf_counter()

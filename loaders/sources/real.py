@@ -8,7 +8,7 @@ from pathlib import Path
 
 from loaders.errors import BadInputError
 from pipeline.infra.cache import load_memo, memo_record, save_memo, tree_digest, write_json
-from pipeline.infra.datasets import DatasetSource, register_dataset
+from pipeline.infra.datasets import AVD_BOXES_PER_SCAN, DatasetSource, Work, register_dataset
 from pipeline.infra.outputs import name as out_name
 
 DIGEST_MEMO = ".data.digests.json"  # in <artifacts>/<run>/: per-file sha256 by size, mtime, ctime, inode
@@ -26,6 +26,15 @@ class Real(DatasetSource):
 
     def input_key(self, cfg) -> str:
         return input_key(cfg)
+
+    def work(self, cfg) -> Work:
+        # BigBIRD: 120 turntable angles a camera; the objects are the root's unless features names them
+        objects = cfg.features.bigbird_objects
+        views = len(objects) * len(cfg.features.bigbird_cameras) * 120 if objects else None
+        # every box of a modelled instance up to features.max_difficulty: at most all of a typical scan's
+        crops = len(cfg.data.scans) * AVD_BOXES_PER_SCAN[cfg.features.max_difficulty]
+        return Work(views, crops, ("features.bigbird_objects", "features.bigbird_cameras"),
+                    ("data.scans", "features.max_difficulty"))
 
     def write(self, ctx) -> str:
         return check_roots(ctx)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 
 from pipeline.infra.cache import write_json
-from pipeline.infra.datasets import DatasetSource, register_dataset
+from pipeline.infra.datasets import DatasetSource, Work, frames_per_scan, register_dataset
 from pipeline.infra.outputs import name as out_name
 
 
@@ -45,6 +45,20 @@ class RealImagery(DatasetSource):
 
     def classes_words(self, cfg):
         return "'models.classes' = 'all': at most the objects of 'data.real_imagery.objects'"
+
+    def work(self, cfg) -> Work:
+        ri = cfg.data.real_imagery
+        if ri.dataset == "eth80":   # the ring's 16 azimuths 22.5 degrees apart; 'alternate' trains on every other
+            ring = 8 if ri.view_split == "alternate" else 16
+            views = len(ri.categories) * len(ri.instances) * len(ri.elevations) * ring
+            view_keys = ("data.real_imagery.categories", "data.real_imagery.instances", "data.real_imagery.elevations",
+                         "data.real_imagery.view_split")
+        else:
+            views = len(ri.objects) * (360 // ri.train_step_deg)
+            view_keys = ("data.real_imagery.objects", "data.real_imagery.train_step_deg")
+        crops = len(cfg.data.scans) * frames_per_scan(ri.frames, ri.max_difficulty)
+        crop_keys = ("data.scans", "data.real_imagery.frames", "data.real_imagery.max_difficulty")
+        return Work(views, crops, view_keys, crop_keys, written=views + crops)
 
     def write(self, ctx) -> str:
         """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""

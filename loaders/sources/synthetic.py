@@ -8,10 +8,10 @@ import time
 from pathlib import Path
 
 from pipeline.infra import footprints
-from pipeline.infra.budget import budget, cap_workers
+from pipeline.infra.budget import budget, cap_workers, cores
 from pipeline.infra.cache import write_json
 from pipeline.infra.config.inputs import AVD_INSTANCES
-from pipeline.infra.datasets import DatasetSource, register_dataset
+from pipeline.infra.datasets import DatasetSource, Work, register_dataset
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
 from pipeline.infra.workers import worker_pool
@@ -44,6 +44,21 @@ class Synthetic(DatasetSource):
 
     def classes(self, cfg):
         return tuple(cfg.features.bigbird_objects or cfg.data.synthetic.instances)
+
+    def work(self, cfg) -> Work:
+        s = cfg.data.synthetic
+        rendered = len(s.instances) * len(s.bigbird_cameras) * (360 // s.angle_step_deg)
+        objects = len(cfg.features.bigbird_objects or s.instances)
+        scored = objects * len(set(cfg.features.bigbird_cameras) & set(s.bigbird_cameras)) * (360 // s.angle_step_deg)
+        # the AVD boxes depend on the rendered scans' plans: not known before the data stage
+        return Work(scored, None, ("data.synthetic.instances", "data.synthetic.angle_step_deg",
+                                   "features.bigbird_cameras", "data.synthetic.bigbird_cameras"),
+                    ("data.scans", "features.max_difficulty"),
+                    data_keys=("data.synthetic.instances", "data.synthetic.bigbird_cameras",
+                               "data.synthetic.angle_step_deg", "data.synthetic.bigbird_width",
+                               "data.synthetic.bigbird_height"),
+                    rendered_megapixels=rendered * s.bigbird_width * s.bigbird_height / 1e6,
+                    render_workers=max(1, min(s.workers, cores())))
 
     def write(self, ctx) -> str:
         return write_synthetic(ctx)

@@ -14,11 +14,14 @@ The per-unit constants below are seconds of one unit of work on the development 
 cores, AMD EPYC), each with where it was measured. They are meant to be right within a small
 factor: a faster machine takes less, a loaded one more, so a refusal says "about". Where a
 count is unknown before the data exists (real data with ``targets = 'all'``), the estimate takes
-the smallest count (one), so it never refuses what might fit. ``tests/bench/bench_cost.py``
-re-measures the constants on the machine it runs on.
+the smallest count (one), so it never refuses what might fit. The data and features counts are
+the dataset source's (``DatasetSource.work``: views and crops from its config); a part a source
+does not declare is a term of 0 seconds that says "not estimated", logged once.
+``tests/bench/bench_cost.py`` re-measures the constants on the machine it runs on.
 """
 from __future__ import annotations
 
+import logging
 import resource
 from dataclasses import dataclass
 
@@ -27,6 +30,8 @@ from pipeline.infra.budget import GIB, MemoryBudgetError, address_space_left, bu
 from pipeline.infra.config.checks import modelled_classes
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.registry import Registry
+
+log = logging.getLogger("viewfuse")
 
 # --- per-unit seconds ---------------------------------------------------------------------------
 # One With Uncertainty trajectory of K = 9 steps over C = 4 candidates: 32,000 trajectories/s in the
@@ -64,6 +69,9 @@ HEAD_ROW_S, BACKBONE_CROP_S = 1.5e-3, 9.4e-3
 # The data stage: 115 CPU s for the default synthetic world (docs/benchmarks.md "Data stage"),
 # counted against its 1887 BigBIRD megapixels (AVD frames included in that time).
 RENDER_MP_S = 115 / (12 * 120 * 1280 * 1024 / 1e6)
+# The data stage of photographs on real AVD geometry (real_imagery, turntable sources): 4.3 min for
+# 2,830 training views + 12,452 frames read, pasted, degraded and encoded (real_full, docs/results.md).
+WRITE_IMAGE_S = 258 / (2_830 + 12_452)
 # The models stage: 8-10 s a seed for 12 classes x 120 views x (5 restarts + 1) (make study); a
 # GP fit's cost grows with the cube of its views.
 MODEL_FIT_S = 9 / (12 * 6)
@@ -248,41 +256,72 @@ def classifier_terms(cfg, counts: Counts = Counts()) -> list[Term]:
                  bytes=footprints.classifier_training(c))]
 
 
+def source_work(cfg):
+    """What ``data.source`` declares it will write and score (``DatasetSource.work``), or None."""
+    from pipeline.infra.datasets import dataset_source
+
+    return dataset_source(cfg.data.source).work(cfg)
+
+
+_UNESTIMATED: set = set()   # (source, stage, what): logged once a process, not on every check
+
+
+def _not_estimated(cfg, stage: str, what: str) -> Term:
+    """A part of a stage's work the source does not declare: logged, and a term of 0 seconds that
+    says so (never a silent 0)."""
+    words = f"{what}: not estimated (data.source = {cfg.data.source!r} does not say it from the config)"
+    if (cfg.data.source, stage, what) not in _UNESTIMATED:
+        _UNESTIMATED.add((cfg.data.source, stage, what))
+        log.info("%s stage: %s", stage, words)
+    return Term(words, ("data.source",))
+
+
 def _bigbird_views(cfg) -> int:
     """BigBIRD views the config implies (synthetic data; 0 when the dataset decides)."""
-    s = cfg.data.synthetic
-    if cfg.data.source != "synthetic":
-        return 0
-    objects = len(cfg.features.bigbird_objects or s.instances)
-    cams = len(set(cfg.features.bigbird_cameras) & set(s.bigbird_cameras))
-    return objects * cams * (360 // s.angle_step_deg)
+    return source_work(cfg).training_views if cfg.data.source == "synthetic" else 0
 
 
 def features_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     f = cfg.features
-    views = _bigbird_views(cfg)
+    work = source_work(cfg)
     size = (cfg.classifier.input_size / 112) ** 2
-    return [Term(f"scoring {views} BigBIRD views x (1 + {f.bigbird_samples} MC-dropout passes)",
-                 ("features.bigbird_samples", "data.synthetic.instances", "data.synthetic.angle_step_deg",
-                  "features.bigbird_cameras"),
-                 seconds=views * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.bigbird_samples))),
-            Term(f"scoring {counts.avd_crops} AVD boxes x (1 + {f.n_samples} MC-dropout passes)",
-                 ("features.n_samples", "features.max_difficulty", "data.scans"),
-                 seconds=counts.avd_crops * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.n_samples)))]
+    out = []
+    views = work.training_views if work else None
+    if views is None:
+        out.append(_not_estimated(cfg, "features", "scoring the BigBIRD views"))
+    else:
+        out.append(Term(f"scoring {views} BigBIRD views x (1 + {f.bigbird_samples} MC-dropout passes)",
+                        ("features.bigbird_samples", *work.view_keys),
+                        seconds=views * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.bigbird_samples))))
+    # the boxes found in the data (the stage's own check) over the source's count from its config
+    crops = counts.avd_crops or (work.test_crops if work else None)
+    if crops is None:
+        out.append(_not_estimated(cfg, "features", "scoring the AVD boxes (the stage checks again with those found)"))
+    else:
+        behind = work.crop_keys if work and not counts.avd_crops else ("features.max_difficulty", "data.scans")
+        out.append(Term(f"scoring {crops} AVD boxes x (1 + {f.n_samples} MC-dropout passes)",
+                        tuple(dict.fromkeys(("features.n_samples", *behind))),
+                        seconds=crops * (BACKBONE_CROP_S * size + HEAD_ROW_S * (1 + f.n_samples))))
+    return out
 
 
 def data_terms(cfg, counts: Counts = Counts()) -> list[Term]:
-    s = cfg.data.synthetic
-    if cfg.data.source != "synthetic":
-        return []
-    views = len(s.instances) * len(s.bigbird_cameras) * (360 // s.angle_step_deg)
-    mp = views * s.bigbird_width * s.bigbird_height / 1e6
-    from pipeline.infra.budget import cores
-    workers = max(1, min(s.workers, cores()))
-    return [Term(f"rendering {views} BigBIRD views ({mp:.0f} megapixels) on {workers} worker(s)",
-                 ("data.synthetic.instances", "data.synthetic.bigbird_cameras", "data.synthetic.angle_step_deg",
-                  "data.synthetic.bigbird_width", "data.synthetic.bigbird_height"),
-                 seconds=mp * RENDER_MP_S / workers)]
+    work = source_work(cfg)
+    if work is None:
+        return [_not_estimated(cfg, "data", "writing the run data")]
+    out = []
+    if work.rendered_megapixels:
+        mp = work.rendered_megapixels
+        out.append(Term(f"rendering {mp:.0f} megapixels of BigBIRD views on {work.render_workers} worker(s)",
+                        work.data_keys,
+                        seconds=mp * RENDER_MP_S / work.render_workers))
+    if work.training_views is None and work.written:
+        out.append(_not_estimated(cfg, "data", "writing the training views"))
+    if work.written:
+        out.append(Term(f"writing {work.written} images (training views and AVD frames)",
+                        tuple(dict.fromkeys((*work.view_keys, *work.crop_keys, *work.data_keys))),
+                        seconds=work.written * WRITE_IMAGE_S))
+    return out
 
 
 def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:

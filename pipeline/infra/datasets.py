@@ -6,12 +6,14 @@ A source declares its config (``config``: the dataclass of its own ``[data.<name
 and range-checked by the loader like every section; ``check``: its cross-key checks), what it gives
 the models stage (``classes``), and the data stage's work (``write``: its reader and how it writes
 the BigBIRD/AVD-format run data under the stage folder, or, with ``writes = False``, a check of
-roots read in place). Config validation asks the registry: an unknown name is an error listing the
-registered ones.
+roots read in place), and how much of it there will be (``work``: the views and crops it writes,
+from its config, for the cost model ``pipeline.infra.cost``). Config validation asks the registry:
+an unknown name is an error listing the registered ones.
 """
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +24,37 @@ BUILTIN = "loaders.sources"
 # The built-in sources' modules: the data stage imports them by name, so its code key covers them
 # and everything they import; any other source enters the key through stages/framework/outside.py.
 STATIC = tuple(f"{BUILTIN}.{m}" for m in ("synthetic", "real", "real_imagery"))
+
+
+# AVD boxes a real scan holds, on average over the 15 scans of ../shared/realdata/avd (annotations.json),
+# at difficulty <= 1..5: what frames = 'all' (every box of a located instance) and the real source's
+# scoring reach at most.
+AVD_BOXES_PER_SCAN = {1: 87, 2: 288, 3: 1112, 4: 2226, 5: 3322}
+# Frames a scan gets with frames = 'viewpoints' (per grid point the view facing a located instance
+# best), measured: real_full 12,440 AVD crops on 15 scans (COIL) and real_category 3,801 on 3 scans
+# (ETH-80), docs/results.md. Scans differ by about 2x (their located instances): a typical figure.
+VIEWPOINT_FRAMES_PER_SCAN = (12_440 + 3_801) // (15 + 3)
+
+
+@dataclass(frozen=True)
+class Work:
+    """What a source's data stage writes and the features stage scores, from its config alone (the
+    counts ``pipeline.infra.cost`` turns into seconds). None: not known before the data exists (the
+    cost model logs "not estimated"; the features stage checks again with the boxes it finds)."""
+    training_views: int | None          # BigBIRD views written (or read in place) and scored
+    test_crops: int | None              # AVD boxes the features stage scores
+    view_keys: tuple[str, ...] = ()     # the settings that multiply each count
+    crop_keys: tuple[str, ...] = ()
+    data_keys: tuple[str, ...] = ()     # settings that multiply the data stage's rendering (or its writing, with those)
+    written: int = 0                    # images the data stage decodes, pastes and encodes (0: none)
+    rendered_megapixels: float = 0.0    # pixels the data stage renders (synthetic stand-ins)
+    render_workers: int = 1
+
+
+def frames_per_scan(frames: str, max_difficulty: int) -> int:
+    """Typical frames (crops) the scan writer gives one real AVD scan (``frames``: 'viewpoints' | 'all')."""
+    boxes = AVD_BOXES_PER_SCAN[max(1, min(5, int(max_difficulty)))]
+    return boxes if frames == "all" else min(VIEWPOINT_FRAMES_PER_SCAN, boxes)
 
 
 class DatasetSource:
@@ -48,6 +81,11 @@ class DatasetSource:
         """A fingerprint of inputs the data stage does not read through its own writes (e.g. roots
         read in place by later stages); '' when every input file it reads is recorded."""
         return ""
+
+    def work(self, cfg) -> Work | None:
+        """The views and crops this config makes the data and features stages handle; None (the
+        default): not declared, so those stages are not estimated (logged) before they run."""
+        return None
 
     def write(self, ctx) -> str:
         """The data stage: write ``bigbird/``, ``avd/``, ``truth.json`` and ``roots.json`` under
