@@ -33,7 +33,8 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     the wall seconds spent in each part of the loop (augment, forward, backward, optimizer).
     The first ``early_epochs`` epochs see the batches shrunk to ``early_size`` (``shrink``): a step
     costs about two thirds at 80 px of one at 112 (docs/benchmarks.md), and the later epochs at full
-    size learn the fine texture periods that the small images blur.
+    size learn the fine texture periods that the small images blur. The last epoch always runs at
+    full size, and an ``early_size`` not below the images' side shrinks nothing.
     """
     from pipeline.infra.memory import reuse_freed_memory
     from pipeline.infra.progress import bar as progress_bar
@@ -46,6 +47,9 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     kw = {"fused": True} if device in ("cpu", "cuda") else {}
     opt = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay, **kw)
     n = len(images)
+    if not early_size or early_size >= images.shape[1]:
+        early_epochs = 0
+    early_epochs = max(0, min(early_epochs, epochs - 1))
     steps_per_epoch = math.ceil(n / batch_size)
     total = epochs * steps_per_epoch
     step = 0
@@ -62,7 +66,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
                 clock.start()
                 idx = np.sort(order[b * batch_size:(b + 1) * batch_size])
                 x = augment(images[idx], gen, mean, std).to(device)
-                if ep < early_epochs and early_size:
+                if ep < early_epochs:
                     x = shrink(x, early_size)
                 y = torch.from_numpy(labels[idx]).to(device)
                 clock.lap("augment_s")

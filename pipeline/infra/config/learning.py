@@ -23,7 +23,8 @@ class TrainingConfig:
     early_epochs: int = _f(0, lo=0, hi=199,
                            doc="progressive resizing: the first this many epochs train on the images shrunk to "
                                "early_size (cheaper steps; AlexNet pools adaptively), the rest at input_size; "
-                               "0 = every epoch at input_size")
+                               "the last epoch is always at input_size, and an early_size not below it shrinks "
+                               "nothing; 0 = every epoch at input_size")
     early_size: int = _f(80, lo=63, hi=512, doc="input side of the early epochs, pixels")
     precision: str = _f("auto", choices=("auto", "fp32", "bf16"),
                         doc="training arithmetic; auto = bf16 autocast where the hardware has it")

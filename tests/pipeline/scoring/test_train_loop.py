@@ -105,12 +105,14 @@ def test_shrink_resizes_a_batch_and_keeps_it_channels_last():
 
 def test_early_epochs_train_on_shrunk_batches_then_on_full_ones():
     """Progressive resizing: the network sees early_size inputs in the first early_epochs epochs
-    and the rendered size after; early_epochs = 0 leaves every step at the rendered size."""
+    and the rendered size after; the last epoch is always at the rendered size, and early_epochs = 0
+    or an early_size not below the rendered one leaves every step there."""
     x, y = render_set(24, 80, 12, seed=1, stream=TRAIN_STREAM)
-    for early, expect in ((2, [64, 64, 64, 64, 80, 80]), (0, [80] * 6)):
+    for early, size, expect in ((2, 64, [64, 64, 64, 64, 80, 80]), (9, 64, [64, 64, 64, 64, 80, 80]),
+                                (0, 64, [80] * 6), (2, 96, [80] * 6)):
         m = init_for_training(build_alexnet(12, 0.5), 3)
         seen = []
         m.features[0].register_forward_pre_hook(lambda mod, inp: seen.append(inp[0].shape[-1]))
         train_classifier(m, x, y, epochs=3, batch_size=12, lr=1e-4, weight_decay=0.0, warmup_steps=1,
-                         seed=3, mean=MEAN, std=STD, progress=False, early_epochs=early, early_size=64)
+                         seed=3, mean=MEAN, std=STD, progress=False, early_epochs=early, early_size=size)
         assert seen == expect
