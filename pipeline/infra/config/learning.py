@@ -22,6 +22,12 @@ class TrainingConfig:
                              doc="fail the stage below this held-out top-1 (a broken run; the quality goal is "
                                  "0.90, checked by tests/bench/bench_classifier.py)")
     warmup_steps: int = _f(30, lo=0, hi=100000, doc="linear LR warmup steps before the cosine decay")
+    early_epochs: int = _f(0, lo=0, hi=199,
+                           doc="progressive resizing: the first this many epochs train on the images shrunk to "
+                               "early_size (cheaper steps; AlexNet pools adaptively), the rest at input_size; "
+                               "the last epoch is always at input_size, and an early_size not below it shrinks "
+                               "nothing; 0 = every epoch at input_size")
+    early_size: int = _f(80, lo=63, hi=512, doc="input side of the early epochs, pixels")
     precision: str = _f("auto", choices=("auto", "fp32", "bf16"),
                         doc="training arithmetic; auto = bf16 autocast where the hardware has it")
     render_workers: int = _f(2, lo=1, hi=64,

@@ -14,7 +14,7 @@ import scipy.io
 from loaders.avd import AVDScan, difficulty, read_instance_map
 from loaders.synthetic.avd_writer import (CLUSTER, MIN_VISIBLE_PX, STRUCT_FIELDS, Nuisance, capture,
                                           jitter_boxes, name_prefix, plan_scan, render_shot,
-                                          write_avd_scan)
+                                          visible_boxes, write_avd_scan)
 from loaders.synthetic.bigbird_writer import object_meshes
 from loaders.synthetic.objects import AVD_INSTANCE_MAP_TEXT, make_instance, rot_z
 from loaders.synthetic.render import Camera, Light, render
@@ -284,3 +284,24 @@ def test_box_jitter_keeps_boxes_valid():
             assert 0 <= x0 < x1 <= 192 and 0 <= y0 < y1 <= 108 and x1 - x0 >= 2 and y1 - y0 >= 2
             assert d == difficulty(x0, y0, x1, y1)
     assert jitter_boxes(boxes, 0, 192, 108, rng) == boxes
+
+
+def test_visible_boxes_equal_the_extent_of_each_label():
+    """The boxes from label counts and mask projections are each instance's pixel extent, as the
+    plain coordinate search gives it; too few pixels, an absent id or an empty buffer give none."""
+    rng = np.random.default_rng(3)
+    for trial in range(30):
+        ids = np.zeros((rng.integers(1, 40), rng.integers(1, 50)), np.int32)
+        for label in rng.integers(1, 12, 5):
+            y, x = rng.integers(0, ids.shape[0]), rng.integers(0, ids.shape[1])
+            ids[y:y + rng.integers(1, 20), x:x + rng.integers(1, 25)] = label
+        ids[rng.random(ids.shape) < 0.05] = 3  # scattered pixels: a label split in pieces
+        wanted = [3, 5, 7, 11, 40]
+        expect = []
+        for iid in wanted:
+            ys, xs = np.nonzero(ids == iid)
+            if len(xs) >= MIN_VISIBLE_PX:
+                x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+                expect.append([x0, y0, x1, y1, iid, difficulty(x0, y0, x1, y1)])
+        assert visible_boxes(ids, wanted) == expect
+    assert visible_boxes(np.zeros((0, 0), np.int32), [1]) == []

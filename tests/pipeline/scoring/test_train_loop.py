@@ -8,7 +8,7 @@ import torch
 from loaders.synthetic.source_domain import TRAIN_STREAM, render_set
 from pipeline.infra import memory
 from pipeline.scoring.alexnet import build_alexnet, init_for_training
-from pipeline.scoring.training import augment, train_classifier
+from pipeline.scoring.training import augment, shrink, train_classifier
 from pipeline.scoring.crops import to_tensor
 
 pytestmark = pytest.mark.slow  # runs real stages (make test-fast skips it)
@@ -90,3 +90,29 @@ def test_freed_memory_setting_is_restored_and_does_not_change_the_weights(monkey
     with memory.reuse_freed_memory() as ok:
         assert ok and not own_mmap()
     assert own_mmap()
+
+
+def test_shrink_resizes_a_batch_and_keeps_it_channels_last():
+    x = augment(np.random.default_rng(0).integers(0, 256, (4, 32, 32, 3), dtype=np.uint8),
+                np.random.default_rng(1), MEAN, STD)
+    y = shrink(x, 20)
+    assert y.shape == (4, 3, 20, 20) and y.is_contiguous(memory_format=torch.channels_last)
+    # an area-like filter: a flat image stays flat, and a batch of the size asked is returned as is
+    flat = torch.full((2, 3, 32, 32), 0.7).contiguous(memory_format=torch.channels_last)
+    assert torch.allclose(shrink(flat, 20), torch.tensor(0.7), atol=1e-6)
+    assert shrink(x, 32) is x
+
+
+def test_early_epochs_train_on_shrunk_batches_then_on_full_ones():
+    """Progressive resizing: the network sees early_size inputs in the first early_epochs epochs
+    and the rendered size after; the last epoch is always at the rendered size, and early_epochs = 0
+    or an early_size not below the rendered one leaves every step there."""
+    x, y = render_set(24, 80, 12, seed=1, stream=TRAIN_STREAM)
+    for early, size, expect in ((2, 64, [64, 64, 64, 64, 80, 80]), (9, 64, [64, 64, 64, 64, 80, 80]),
+                                (0, 64, [80] * 6), (2, 96, [80] * 6)):
+        m = init_for_training(build_alexnet(12, 0.5), 3)
+        seen = []
+        m.features[0].register_forward_pre_hook(lambda mod, inp: seen.append(inp[0].shape[-1]))
+        train_classifier(m, x, y, epochs=3, batch_size=12, lr=1e-4, weight_decay=0.0, warmup_steps=1,
+                         seed=3, mean=MEAN, std=STD, progress=False, early_epochs=early, early_size=size)
+        assert seen == expect
