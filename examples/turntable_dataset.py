@@ -30,10 +30,9 @@ class PhotoFolder(vf.TurntableSource):
         photos = {}
         for path in sorted(self.path(cfg, "root").glob("*.png")):
             m = NAME.fullmatch(path.name)
-            bgr = cv2.imread(str(path)) if m else None
-            if bgr is None:
+            if m is None:
                 raise ValueError(f"{path}: not an <object>_<angle>.png photograph")
-            rgb = np.ascontiguousarray(bgr[:, :, ::-1])
+            rgb = vf.read_image(path)          # checked before decoding; a bad file names itself
             photos.setdefault(m[1], {})[int(m[2])] = (rgb, rgb.max(axis=2) > 16)   # the object: not black
         return photos
 
@@ -87,7 +86,7 @@ if __name__ == "__main__":
         centre = {}
         for c in classes:
             views = sorted((data / "bigbird" / c).glob("NP1_*.jpg"))
-            centre[c] = np.mean([colour_scores(im := cv2.imread(str(v))[:, :, ::-1], im.max(axis=2) > 16)
+            centre[c] = np.mean([colour_scores(im := vf.read_image(v), im.max(axis=2) > 16)
                                  for v in views], axis=0)
         scan = data / "avd" / "Home_001_1"
         ann = json.loads((scan / "annotations.json").read_text())
@@ -97,7 +96,7 @@ if __name__ == "__main__":
         for image, entry in sorted(ann.items()):
             for x0, y0, x1, y1, label, _ in entry["bounding_boxes"]:
                 if str(label) == ids[target]:
-                    crop = cv2.imread(str(scan / "jpg_rgb" / image))[y0:y1, x0:x1, ::-1]
+                    crop = vf.read_image(scan / "jpg_rgb" / image)[y0:y1, x0:x1]
                     s = colour_scores(crop, crop.max(axis=2) > 16)
                     d = np.array([np.sum((s - centre[c]) ** 2) for c in classes])
                     own.append(np.exp(-d / 0.002) / np.exp(-d / 0.002).sum())

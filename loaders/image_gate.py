@@ -98,6 +98,18 @@ def decode_image(data: bytes, path: str | Path, flag: int = cv2.IMREAD_COLOR,
     return img
 
 
+def read_rgb(path: str | Path) -> np.ndarray:
+    """An image file as a contiguous RGB array, through the gate (format and declared size checked
+    before decoding); an unreadable or corrupt file is a BadInputError naming it. For code outside
+    the stages that reads images (a dataset source's reader, an example)."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise BadInputError(path, f"cannot be read ({e.strerror or e})") from None
+    return np.ascontiguousarray(decode_image(data, path)[:, :, ::-1])
+
+
 def check_jpeg_complete(data: bytes, path: str | Path) -> None:
     """OpenCV decodes a truncated JPEG into a grey-padded image with only a warning, so check the
     markers ourselves: SOI first, and an EOI after the first scan (SOS). Entropy-coded data
