@@ -33,12 +33,21 @@ def start(tmp_path: Path, stage: str = "data") -> subprocess.Popen:
     return subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+def _cmdline(p: psutil.Process) -> list[str]:
+    """A child's command line, or none for one that exited (or became a zombie) while we looked:
+    a short-lived helper of the stage may end between ``children()`` and this call."""
+    try:
+        return p.cmdline()
+    except (psutil.ZombieProcess, psutil.NoSuchProcess, psutil.AccessDenied):
+        return []
+
+
 def workers_of(proc: subprocess.Popen, n: int = 2, timeout: float = 60.0) -> list[psutil.Process]:
     """The pool workers (and the resource tracker) once ``n`` workers run."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         kids = psutil.Process(proc.pid).children(recursive=True)
-        if sum("spawn_main" in " ".join(k.cmdline()) for k in kids) >= n:
+        if sum("spawn_main" in " ".join(_cmdline(k)) for k in kids) >= n:
             return kids
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.05)
