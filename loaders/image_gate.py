@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from loaders.errors import BadInputError
-from loaders.files import max_megapixels
+from loaders.files import max_megapixels, read_checked
 from loaders.image_format import HeaderError, declared_size, signatures
 
 
@@ -103,11 +103,8 @@ def read_rgb(path: str | Path) -> np.ndarray:
     before decoding); an unreadable or corrupt file is a BadInputError naming it. For code outside
     the stages that reads images (a dataset source's reader, an example)."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise BadInputError(path, f"cannot be read ({e.strerror or e})") from None
-    return np.ascontiguousarray(decode_image(data, path)[:, :, ::-1])
+    data = read_checked(path, None, "image file")
+    return cv2.cvtColor(decode_image(data, path), cv2.COLOR_BGR2RGB)
 
 
 def check_jpeg_complete(data: bytes, path: str | Path) -> None:
