@@ -66,7 +66,7 @@ def run(ctx) -> str:
         contrast_check(extra["candidate_sets"], cextra["candidate_sets"])
         cdir = ctx.out / out_name("models", "contrast")
         save_bank(cm, cdir, extra={**cextra, "class_members": arm})
-        fit_providers(ctx, feats, cm.classes, cextra["candidate_sets"], arm, out=cdir, prefix="contrast_")
+        fit_providers(ctx, feats, cm.classes, cextra["candidate_sets"], arm, folder=cdir, prefix="contrast_")
         ctx.extra["contrast_classes"] = len(arm)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)
@@ -86,11 +86,11 @@ def run(ctx) -> str:
             + "".join(f"; {p}" for p in provided))
 
 
-def fit_providers(ctx, feats, classes, plan: dict, members, out=None, prefix: str = "") -> list[str]:
-    """Fit and save every provider's models (``<out>/<key>/``, by default ``models/<key>/``),
+def fit_providers(ctx, feats, classes, plan: dict, members, folder=None, prefix: str = "") -> list[str]:
+    """Fit and save every provider's models (``<folder>/<key>/``, by default ``models/<key>/``),
     recording each one's digest and record in the stage's extras under ``prefix``; returns their
     summary clauses."""
-    folder = ctx.out if out is None else out
+    folder = ctx.out if folder is None else folder
     views, out = None, []
     for p in model_providers():
         if views is None:   # one read of the training views for every provider
