@@ -15,7 +15,7 @@ from reports.main.bottom_line import counts
 from reports.main.context import ReportContext
 from reports.shared.figures import MGR_SATURATION
 from reports.shared.numbers import plain
-from reports.shared.records import design_over
+from reports.shared.records import varies_text
 
 BACKGROUNDS = {"black": "cut out onto black", "avd_frames": "cut out onto real AVD clutter",
                "original": "on the photographs' own background (ETH-80's blue cloth)"}
@@ -95,7 +95,7 @@ def limitations(ctx: ReportContext) -> list[str]:
                        f"{'its' if one else 'their'} own and {'weighs' if one else 'weigh'} on the pooled value like "
                        "the others.")
         out.append(f"The evidence covers {c['n_targets']} targets in {len(scans) or '?'} "
-                   f"scan{'s' if len(scans) != 1 else ''}: the intervals vary over {design_over(pop)} of these "
+                   f"scan{'s' if len(scans) != 1 else ''}: the intervals vary over {varies_text(pop)} of these "
                    "scans, not over other homes or other objects.")
     gone = [s for s in pop.get("skipped_targets") or [] if isinstance(s, dict) and not s.get("scan")]
     if gone:

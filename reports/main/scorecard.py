@@ -28,7 +28,7 @@ from reports.main.calibration import paired_value
 from reports.main.context import ReportContext
 from reports.shared.checks import outcome_of
 from reports.shared.numbers import Estimate, plain
-from reports.shared.records import design_over
+from reports.shared.records import varies_text
 
 CLAIM_WORDS = ("holds", "fails", "inconclusive")
 EQUIVALENCE_WORDS = {"equivalent": "holds", "different": "fails", "not distinguishable": "inconclusive"}
@@ -165,7 +165,7 @@ def scorecard(ctx: ReportContext) -> None:
                 "familywise 95 %, as the paired table shows); the 'similar' test "
                 f"{yes} when the whole 95 % CI lies within ±{plain(margin)} (report.equivalence_margin_correct), {no} "
                 "when it lies wholly outside, else is inconclusive. The CIs vary over "
-                f"{design_over(pop)}, not over classifier training runs.")
+                f"{varies_text(pop)}, not over classifier training runs.")
     ctx.page.paragraph(f"This run's setting: {setting_label(setting)} (from its config). A claim is the paper's "
                        "only where the paper made it (simulation §5.3, rendered scenes §5.4, real images §5.5 with "
                        "localization uncertainty only and instance classes); tested elsewhere it is a question "

@@ -78,16 +78,6 @@ def over_text(rec: Mapping) -> str:
     return " × ".join(parts) if parts else " and ".join(over)
 
 
-def design_over(pop: Mapping) -> str:
-    """What the run's primary intervals vary over, in words (their first primary record's units:
-    targets and tracks, categories, or objects crossed with scans); "targets and tracks" for a
-    summary without records."""
-    for r in pop.get("records") or []:
-        if isinstance(r, Mapping) and r.get("primary") and r.get("n"):
-            return over_text(r)
-    return "targets and tracks"
-
-
 def sides(rec: Mapping, name: Callable[[str], str] | None = None) -> tuple[str, str]:
     """The record's method and baseline in words (``name``: another family's; by default the
     methods' short labels). An older summary's row has only ``comparison``: its two keys."""
