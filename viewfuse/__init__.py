@@ -26,6 +26,8 @@ from pipeline.infra.datasets import DatasetSource, Work, register_dataset, unreg
 from pipeline.infra.datasets import names as datasets  # noqa: E402
 from loaders.real_imagery.turntable import TurntableConfig, TurntableSource  # noqa: E402
 from loaders.image_gate import read_rgb as read_image  # noqa: E402
+from pipeline.infra.config.fields import setting  # noqa: E402
+from pipeline.infra.cost import Term  # noqa: E402
 from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
 
 __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "method", "comparisons",
@@ -34,4 +36,4 @@ __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "m
            "Classifier", "classifiers", "register_classifier", "unregister_classifier", "Planner", "register_planner",
            "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores",
            "DatasetSource", "Work", "datasets", "register_dataset", "unregister_dataset", "TurntableSource",
-           "TurntableConfig", "read_image"]
+           "TurntableConfig", "read_image", "setting", "Term"]

@@ -82,27 +82,26 @@ def test_the_providers_keys_change_the_models_and_evaluate_keys(tmp_config):
 
 OUTSIDE = '''
 import dataclasses
+import viewfuse as vf        # the provider's side: the public names only (docs/extending.md)
 from pipeline.infra.config import ConfigError, load_config, to_dict
-from pipeline.infra.config.fields import setting
-from pipeline.infra.cost import Term, evaluate_terms
-from pipeline.method.provider import ModelProvider, register_provider, unregister_provider
+from pipeline.infra.cost import evaluate_terms
 
 @dataclasses.dataclass(frozen=True)
 class Fit:
-    width: int = setting(3, lo=1, hi=9, doc="how wide")
+    width: int = vf.setting(3, lo=1, hi=9, doc="how wide")
 
 @dataclasses.dataclass(frozen=True)
 class Use:
-    draws: int = setting(5, lo=1, hi=100)
+    draws: int = vf.setting(5, lo=1, hi=100)
 
-@register_provider
-class Mine(ModelProvider):
+@vf.register_provider
+class Mine(vf.ModelProvider):
     key = "mine_test"
     sections = {"models.mine_test": Fit, "evaluate.mine_test": Use}
     def check(self, cfg, need):
         need(cfg.models.mine_test.width <= cfg.models.n_components, "'models.mine_test.width' exceeds n_components")
     def cost(self, cfg, rows):
-        return [Term("mine", ("evaluate.mine_test.draws",), seconds=rows * cfg.evaluate.mine_test.draws)]
+        return [vf.Term("mine", ("evaluate.mine_test.draws",), seconds=rows * cfg.evaluate.mine_test.draws)]
 
 smoke = SMOKE_PATH
 cfg = load_config(smoke)
@@ -118,11 +117,11 @@ for bad in ({"models": {"mine_test": {"width": 10}}}, {"models": {"mine_test": {
         print("refused", str(e).split(": ", 1)[1])
 terms = [t for t in evaluate_terms(cfg) if t.what == "mine"]
 print("cost", len(terms), terms[0].seconds > 0)
-unregister_provider("mine_test")
+vf.unregister_provider("mine_test")
 cfg = load_config(smoke)
 print("gone", "mine_test" in to_dict(cfg)["models"], [t.what for t in evaluate_terms(cfg) if t.what == "mine"])
-@register_provider
-class Clash(ModelProvider):
+@vf.register_provider
+class Clash(vf.ModelProvider):
     key = "clash_test"
     sections = {"models.seed": Fit}
 try:
