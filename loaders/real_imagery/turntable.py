@@ -66,11 +66,12 @@ class TurntableSource(DatasetSource):
 
     def work(self, cfg) -> Work:
         """The frames follow the scans as COIL's do; how many photographs train is the reader's (not
-        estimated unless a subclass says, e.g. from its folder)."""
+        estimated unless a subclass says, e.g. from its folder); a class is fitted on at most one
+        photograph per multiple of ``train_step_deg``."""
         o = self.options(cfg)
         crops = len(cfg.data.scans) * frames_per_scan(o.frames, o.max_difficulty)
         return Work(None, crops, (), ("data.scans", f"data.{self.name}.frames", f"data.{self.name}.max_difficulty"),
-                    written=crops)
+                    written=crops, views_per_class=360 // o.train_step_deg)
 
     def write(self, ctx) -> str:
         t0 = time.perf_counter()

@@ -19,6 +19,7 @@ class Real(DatasetSource):
     name = "real"
     doc = "real BigBIRD + AVD roots, read in place (data.bigbird_root, data.avd_root)"
     writes = False
+    label = "real data (BigBIRD + AVD)"
 
     def check(self, cfg, need) -> None:
         need(bool(cfg.data.bigbird_root), "'data.bigbird_root' must be set when data.source = 'real'")
@@ -34,7 +35,7 @@ class Real(DatasetSource):
         # every box of a modelled instance up to features.max_difficulty: at most all of a typical scan's
         crops = len(cfg.data.scans) * AVD_BOXES_PER_SCAN[cfg.features.max_difficulty]
         return Work(views, crops, ("features.bigbird_objects", "features.bigbird_cameras"),
-                    ("data.scans", "features.max_difficulty"))
+                    ("data.scans", "features.max_difficulty"), views_per_class=120)
 
     def write(self, ctx) -> str:
         return check_roots(ctx)

@@ -15,6 +15,29 @@ from pipeline.infra.outputs import name as out_name
 class RealImagery(DatasetSource):
     name = "real_imagery"
     doc = "COIL-100 or ETH-80 photographs on real AVD scans' geometry ([data.real_imagery])"
+    badge = "real images, synthetic pairing"
+
+    def describe(self, data: dict, extra: dict) -> str:
+        ri = data.get("real_imagery") or {}
+        if ri.get("dataset") != "eth80":
+            what = ("real imagery: COIL-100 photographs along real AVD robot paths (real poses, boxes and move graph); "
+                    "which COIL object stands at each AVD instance, and its yaw, is a synthetic seeded pairing "
+                    "(docs/real_data.md)")
+        else:
+            alt = ri.get("view_split") == "alternate"
+            fit = ("each class is fitted on the target instance's own even azimuths (instance level)"
+                   if ri.get("class_level") == "instance" else
+                   "each class is a category fitted on the other instances of its fold, so every scored frame shows "
+                   "an object no class model has seen")
+            what = (f"real imagery, {ri.get('class_level', 'category')}-level classes: ETH-80 photographs along real "
+                    f"AVD robot paths; {fit}; a frame shows the held-out photograph whose azimuth is nearest the real "
+                    f"bearing, up to {'22.5° away (the 8 odd azimuths)' if alt else '11.25° away (16 azimuths)'}; "
+                    "which instance stands at each AVD instance, and its yaw, is a synthetic seeded pairing "
+                    "(docs/real_data.md)")
+        return f"{what}; {backgrounds(ri, extra)}"
+
+    def category_targets(self, data: dict) -> bool:
+        return (data.get("real_imagery") or {}).get("dataset") == "eth80"
 
     def check(self, cfg, need) -> None:
         ri = cfg.data.real_imagery
@@ -53,12 +76,16 @@ class RealImagery(DatasetSource):
             views = len(ri.categories) * len(ri.instances) * len(ri.elevations) * ring
             view_keys = ("data.real_imagery.categories", "data.real_imagery.instances", "data.real_imagery.elevations",
                          "data.real_imagery.view_split")
+            # a category class is fitted on its fold's other instances, an instance class on its own
+            members = len(ri.instances) - 1 if ri.class_level == "category" else 1
+            per_class = max(members, 1) * len(ri.elevations) * ring
         else:
             views = len(ri.objects) * (360 // ri.train_step_deg)
             view_keys = ("data.real_imagery.objects", "data.real_imagery.train_step_deg")
+            per_class = 360 // ri.train_step_deg
         crops = len(cfg.data.scans) * frames_per_scan(ri.frames, ri.max_difficulty)
         crop_keys = ("data.scans", "data.real_imagery.frames", "data.real_imagery.max_difficulty")
-        return Work(views, crops, view_keys, crop_keys, written=views + crops)
+        return Work(views, crops, view_keys, crop_keys, written=views + crops, views_per_class=per_class)
 
     def write(self, ctx) -> str:
         """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""
@@ -74,6 +101,23 @@ class RealImagery(DatasetSource):
                                                          "avd_root": "avd", "scans": list(cfg.data.scans)})
         ctx.extra.update({**extra, "seconds": round(time.perf_counter() - t0, 2)})
         return f"{summary} in {time.perf_counter() - t0:.0f} s"
+
+
+BACKGROUNDS = {"black": "cut out onto black", "avd_frames": "cut out onto real AVD clutter",
+               "original": "on the photographs' own background (ETH-80's blue cloth)"}
+
+
+def backgrounds(ri: dict, extra: dict) -> str:
+    """The background of each side, from the data stage's record (``extra``), else the config's keys."""
+    if ri.get("dataset") != "eth80":
+        return "backgrounds: COIL-100's own black on both sides"
+    bg = extra.get("background") or {}
+    frames = bg.get("frames") or ri.get("background", "black")
+    train = bg.get("training") or (frames if ri.get("train_background", "same") == "same" else ri["train_background"])
+    if frames == train:
+        return f"backgrounds: frames and training views alike {BACKGROUNDS.get(frames, frames)}"
+    return (f"backgrounds: frames {BACKGROUNDS.get(frames, frames)}, training views {BACKGROUNDS.get(train, train)} "
+            "(a deliberate mismatch, data.real_imagery.train_background)")
 
 
 def check_eth80(cfg, need) -> None:

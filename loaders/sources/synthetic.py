@@ -23,6 +23,9 @@ CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
 class Synthetic(DatasetSource):
     name = "synthetic"
     doc = "synthetic stand-ins of BigBIRD objects and AVD scans ([data.synthetic])"
+    label = "synthetic data (stand-ins rendered in the BigBIRD and AVD formats, not real images)"
+    badge = "synthetic data"
+    rendered = True
 
     def check(self, cfg, need) -> None:
         s = cfg.data.synthetic
@@ -58,7 +61,8 @@ class Synthetic(DatasetSource):
                                "data.synthetic.angle_step_deg", "data.synthetic.bigbird_width",
                                "data.synthetic.bigbird_height"),
                     rendered_megapixels=rendered * s.bigbird_width * s.bigbird_height / 1e6,
-                    render_workers=max(1, min(s.workers, cores())))
+                    render_workers=max(1, min(s.workers, cores())),
+                    views_per_class=scored / max(objects, 1) / max(len(cfg.features.bigbird_cameras), 1))
 
     def write(self, ctx) -> str:
         return write_synthetic(ctx)

@@ -15,8 +15,9 @@ cores, AMD EPYC), each with where it was measured. They are meant to be right wi
 factor: a faster machine takes less, a loaded one more, so a refusal says "about". Where a
 count is unknown before the data exists (real data with ``targets = 'all'``), the estimate takes
 the smallest count (one), so it never refuses what might fit. The data and features counts are
-the dataset source's (``DatasetSource.work``: views and crops from its config); a part a source
-does not declare is a term of 0 seconds that says "not estimated", logged once.
+the dataset source's (``DatasetSource.work``: views and crops from its config), and so are the
+views a class model is fitted on (``Work.views_per_class``; BigBIRD's 120 where not said); a part
+a source does not declare is a term of 0 seconds that says "not estimated", logged once.
 ``tests/bench/bench_cost.py`` re-measures the constants on the machine it runs on.
 """
 from __future__ import annotations
@@ -276,11 +277,6 @@ def _not_estimated(cfg, stage: str, what: str) -> Term:
     return Term(words, ("data.source",))
 
 
-def _bigbird_views(cfg) -> int:
-    """BigBIRD views the config implies (synthetic data; 0 when the dataset decides)."""
-    return source_work(cfg).training_views if cfg.data.source == "synthetic" else 0
-
-
 def features_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     f = cfg.features
     work = source_work(cfg)
@@ -327,10 +323,10 @@ def data_terms(cfg, counts: Counts = Counts()) -> list[Term]:
 def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     m = cfg.models
     classes = len(modelled_classes(cfg) or ()) or 1
-    views = _bigbird_views(cfg) / max(len(cfg.features.bigbird_objects or cfg.data.synthetic.instances), 1) \
-        if cfg.data.source == "synthetic" else 120
-    cams = max(len(cfg.features.bigbird_cameras), 1)
-    per_class = max(views / cams, 1)
+    work = source_work(cfg)
+    # what the source declares a class is fitted on; undeclared: a BigBIRD ring's 120 angles
+    declared = work.views_per_class if work is not None else None
+    per_class = max(declared if declared is not None else 120, 1)
     variants = 1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
     return [Term(f"the GP fits ({classes} classes x {per_class:.0f} views x {m.restarts + 1} starts x {variants} bank(s))",
                  ("models.restarts", "models.classes", "evaluate.ablations"),

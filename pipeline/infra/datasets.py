@@ -49,6 +49,9 @@ class Work:
     written: int = 0                    # images the data stage decodes, pastes and encodes (0: none)
     rendered_megapixels: float = 0.0    # pixels the data stage renders (synthetic stand-ins)
     render_workers: int = 1
+    # the training views one class model is fitted on (one camera's ring; a category's, all its
+    # members'): the models stage's GP fits grow with its cube. None: BigBIRD's 120 angles
+    views_per_class: float | None = None
 
 
 def frames_per_scan(frames: str, max_difficulty: int) -> int:
@@ -65,6 +68,11 @@ class DatasetSource:
     doc: str = ""
     config: type | None = None   # a frozen dataclass of ``setting`` fields: the [data.<name>] section
     writes: bool = True          # False: the BigBIRD/AVD roots are read in place (data.bigbird_root, avd_root)
+    # What the report says of the data, so that a source of its own gets its own wording:
+    label: str = ""              # the report's "What was evaluated" (default: the doc, else the name)
+    badge: str = ""              # a short tag beside the report's title ('' none)
+    rendered: bool = False       # images rendered by the project, not photographs: the report says the paper's
+    #                              numbers are not expected, and the scorecard compares with §5.3/§5.4
 
     def check(self, cfg, need) -> None:
         """Cross-key checks: ``need(ok, message)`` raises a ConfigError naming the file."""
@@ -76,6 +84,16 @@ class DatasetSource:
     def classes_words(self, cfg) -> str | None:
         """How the config error names where those classes come from (None: the default wording)."""
         return None
+
+    def describe(self, data: dict, extra: dict) -> str:
+        """The report's wording of the data, from the run's resolved ``[data]`` table and the data
+        stage's manifest extras (a run read back later: not the live config)."""
+        return self.label or self.doc or f"data source '{self.name}'"
+
+    def category_targets(self, data: dict) -> bool:
+        """Targets are categories whose every scored object is unseen (the paper tested none such;
+        ``evaluate.statistics.cluster = 'category'`` needs them), from the resolved ``[data]`` table."""
+        return False
 
     def input_key(self, cfg) -> str:
         """A fingerprint of inputs the data stage does not read through its own writes (e.g. roots
@@ -152,6 +170,16 @@ def dataset_source(name: str, where: str = "config") -> DatasetSource:
         raise ConfigError(f"{where}: 'data.source' = {name!r} is not a registered dataset source (registered: "
                           f"{', '.join(SOURCES)}; add one with vf.register_dataset or a viewfuse.datasets entry point)")
     return SOURCES[name]
+
+
+def described(name: str) -> DatasetSource:
+    """The registered source of that name, or, for one not registered in this process (a run read
+    back after its package was removed, or 'unknown'), a plain source that names it."""
+    if name in SOURCES:
+        return SOURCES[name]
+    plain = DatasetSource()
+    plain.name = name
+    return plain
 
 
 def source_config(data: dict, where: str) -> tuple[str, type | None]:

@@ -49,6 +49,14 @@ class ReportContext:
             src = _find(parts, "source")
         return str(src or "unknown")
 
+    @property
+    def source(self):
+        """The registered ``DatasetSource`` of ``data_source``: what the page says of the data (its
+        ``describe``, ``badge``, ``rendered``) is the source's own, so one from outside gets its wording."""
+        from pipeline.infra.datasets import described
+
+        return described(self.data_source)
+
     def section(self, title: str, anchor: str) -> None:
         self.page.section(title, anchor=anchor)
         self.sections.append(anchor)

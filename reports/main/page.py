@@ -237,10 +237,8 @@ def build_main_report(run_dir: str | Path, out_dir: str | Path, *, title: str = 
             ctx.notes.append(f"{name}: tick labels overlap ({'; '.join(chk.overlaps[:3])})")
     ctx.figures = set(written)
     ctx.page.subtitle = _subtitle(ctx)
-    if ctx.data_source == "synthetic":
-        ctx.page.badge = "synthetic data"
-    elif ctx.data_source == "real_imagery":
-        ctx.page.badge = "real images, synthetic pairing"
+    if ctx.source.badge:
+        ctx.page.badge = ctx.source.badge
     for section in SECTIONS:
         section(ctx)
     for n in ctx.notes:

@@ -17,29 +17,9 @@ from reports.shared.figures import MGR_SATURATION
 from reports.shared.numbers import plain
 from reports.shared.records import varies_text
 
-BACKGROUNDS = {"black": "cut out onto black", "avd_frames": "cut out onto real AVD clutter",
-               "original": "on the photographs' own background (ETH-80's blue cloth)"}
-
-
 def data_extra(ctx: ReportContext) -> dict:
     """The data stage manifest's extras (what the real-imagery writer measured), or {}."""
     return (((getattr(ctx.run, "manifests", None) or {}).get("data") or {}).get("extra") or {})
-
-
-def background_text(ctx: ReportContext) -> str:
-    """The background of each side of a real-imagery run, from the data stage's record."""
-    if ctx.data_source != "real_imagery":
-        return ""
-    ri = (ctx.config.get("data") or {}).get("real_imagery") or {}
-    if ri.get("dataset") != "eth80":
-        return "backgrounds: COIL-100's own black on both sides"
-    bg = data_extra(ctx).get("background") or {}
-    frames = bg.get("frames") or ri.get("background", "black")
-    train = bg.get("training") or (frames if ri.get("train_background", "same") == "same" else ri["train_background"])
-    if frames == train:
-        return f"backgrounds: frames and training views alike {BACKGROUNDS.get(frames, frames)}"
-    return (f"backgrounds: frames {BACKGROUNDS.get(frames, frames)}, training views {BACKGROUNDS.get(train, train)} "
-            "(a deliberate mismatch, data.real_imagery.train_background)")
 
 
 def box_fit_text(ctx: ReportContext) -> str | None:
@@ -108,7 +88,7 @@ def limitations(ctx: ReportContext) -> list[str]:
         out.append(f"Each frame shows the held-out photograph nearest the camera's bearing, not the bearing itself: "
                    f"over {ve['frames']} candidate frames the viewpoint error has median {ve.get('median')}°, "
                    f"90th percentile {ve.get('p90')}°, maximum {ve.get('max')}°; {ve.get('refused', 0)} beyond "
-                   f"data.real_imagery.max_view_error_deg = {ve.get('bound')}° got no frame.")
+                   f"data.{ctx.data_source}.max_view_error_deg = {ve.get('bound')}° got no frame.")
     fit = box_fit_text(ctx)
     if fit:
         out.append(fit)
@@ -126,7 +106,7 @@ def limitations(ctx: ReportContext) -> list[str]:
                    f"({', '.join(sat[:6])}{', …' if len(sat) > 6 else ''}): numerical saturation (see the "
                    "glossary), so means of log10 MGR are dominated by them; the pooled log10 MGR is a median over "
                    "targets for that reason.")
-    if ctx.data_source == "synthetic":
+    if ctx.source.rendered:
         out.append("The images are synthetic stand-ins rendered in the datasets' formats, not the real BigBIRD "
                    "and AVD photographs, so the paper's numbers are not expected to be reproduced.")
     return out

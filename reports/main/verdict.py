@@ -15,7 +15,7 @@ from reports.shared.numbers import Estimate, fmt, percent
 from reports.shared.records import (find, holm_text, outcome_clauses, records_of, select, sentence,
                                     sentences as render)
 from reports.main.calibration import paired_value, pooled_value
-from reports.main.reviewer import background_text
+from reports.main.reviewer import data_extra
 from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
 
@@ -52,26 +52,7 @@ def classifier_text(card: dict | None) -> str:
 
 
 def context_sentence(ctx: ReportContext) -> str:
-    src = ctx.data_source
-    what = ("synthetic data (stand-ins rendered in the BigBIRD and AVD formats, not real images)" if src == "synthetic"
-            else "real data (BigBIRD + AVD)" if src == "real"
-            else ("real imagery: COIL-100 photographs along real AVD robot paths (real poses, boxes and move graph); "
-                  "which COIL object stands at each AVD instance, and its yaw, is a synthetic seeded pairing "
-                  "(docs/real_data.md)") if src == "real_imagery" else f"data source '{src}'")
-    ri = ((ctx.config.get("data") or {}).get("real_imagery") or {})
-    if src == "real_imagery" and ri.get("dataset") == "eth80":
-        alt = ri.get("view_split") == "alternate"
-        fit = ("each class is fitted on the target instance's own even azimuths (instance level)"
-               if ri.get("class_level") == "instance" else
-               "each class is a category fitted on the other instances of its fold, so every scored frame shows an "
-               "object no class model has seen")
-        what = (f"real imagery, {ri.get('class_level', 'category')}-level classes: ETH-80 photographs along real AVD "
-                f"robot paths; {fit}; a frame shows the held-out photograph whose azimuth is nearest the real "
-                f"bearing, up to {'22.5° away (the 8 odd azimuths)' if alt else '11.25° away (16 azimuths)'}; "
-                "which instance stands at each AVD instance, and its yaw, is a synthetic seeded pairing "
-                "(docs/real_data.md)")
-    if src == "real_imagery":
-        what += f"; {background_text(ctx)}"
+    what = ctx.source.describe(ctx.config.get("data") or {}, data_extra(ctx))
     pop = ctx.population
     if pop:
         c = counts(pop)

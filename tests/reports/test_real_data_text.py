@@ -4,13 +4,19 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from reports.main.reviewer import background_text, box_fit_text
+from loaders.sources.real_imagery import backgrounds
+from reports.main.reviewer import box_fit_text
+from reports.main.verdict import context_sentence
 
 
 def _ctx(dataset="eth80", extra=None, **ri):
     return SimpleNamespace(data_source="real_imagery",
                            config={"data": {"real_imagery": {"dataset": dataset, **ri}}},
                            run=SimpleNamespace(manifests={"data": {"extra": extra or {}}}))
+
+
+def background_text(ctx) -> str:
+    return backgrounds(ctx.config["data"]["real_imagery"], ctx.run.manifests["data"]["extra"])
 
 
 def test_each_side_background_is_named_and_a_mismatch_said():
@@ -21,7 +27,25 @@ def test_each_side_background_is_named_and_a_mismatch_said():
     assert "frames cut out onto black" in cloth and "blue cloth" in cloth and "deliberate mismatch" in cloth
     # an older manifest without the record: the config's keys
     assert "alike cut out onto black" in background_text(_ctx(background="black", train_background="same"))
-    assert background_text(SimpleNamespace(data_source="synthetic", config={}, run=None)) == ""
+
+
+def _sentence(source: str, **data) -> str:
+    from reports.main.context import ReportContext
+
+    ctx = ReportContext(page=None, run=SimpleNamespace(manifests={"data": {"extra": {}}}, card=None,
+                                                       evaluate=SimpleNamespace(population=None, target="t")),
+                        config={"data": {"source": source, **data}})
+    return context_sentence(ctx)
+
+
+def test_what_was_evaluated_is_the_sources_own_wording():
+    coil = _sentence("real_imagery", real_imagery={"dataset": "coil"})
+    assert "COIL-100 photographs" in coil and coil.count("backgrounds: COIL-100's own black") == 1
+    eth = _sentence("real_imagery", real_imagery={"dataset": "eth80", "class_level": "category"})
+    assert "ETH-80 photographs" in eth and "no class model has seen" in eth and "backgrounds: frames" in eth
+    assert "stand-ins rendered in the BigBIRD and AVD formats" in _sentence("synthetic")
+    assert "backgrounds" not in _sentence("synthetic") and "real data (BigBIRD + AVD)" in _sentence("real")
+    assert "data source 'gone'" in _sentence("gone")       # a source not registered here: named
 
 
 def test_box_fit_line_reads_the_measured_distribution():

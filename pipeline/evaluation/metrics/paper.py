@@ -103,16 +103,17 @@ SETTINGS = {
 
 
 def run_setting(config: dict | None) -> str:
-    """The setting of a run from its resolved config: ``data.source`` real_imagery with
-    ``data.real_imagery.dataset`` eth80 is category level, any other real source instance level
-    (COIL-100 objects, BigBIRD instances on AVD), else synthetic."""
+    """The setting of a run from its resolved config, as ``data.source``'s registered source declares
+    it: rendered images are synthetic; photographs with category targets (real_imagery's ETH-80)
+    category level; any other photographs (COIL-100 objects, BigBIRD instances on AVD, a source
+    of one's own that declares neither) instance level."""
+    from pipeline.infra.datasets import described
+
     data = (config or {}).get("data") or {}
-    source = data.get("source") or "synthetic"
-    if source == "synthetic":
+    source = described(data.get("source") or "synthetic")
+    if source.rendered:
         return "synthetic"
-    if source == "real_imagery" and ((data.get("real_imagery") or {}).get("dataset") == "eth80"):
-        return "real_category"
-    return "real_instance"
+    return "real_category" if source.category_targets(data) else "real_instance"
 
 
 def setting_label(setting: str) -> str:

@@ -12,7 +12,7 @@ import re
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.evaluation import ABLATION_KEYS
 from pipeline.infra.config.own import checks as own_checks
-from pipeline.infra.config.root import Config
+from pipeline.infra.config.root import Config, to_dict
 from pipeline.infra.config.simulate import SimulateConfig
 from pipeline.infra.datasets import dataset_source
 
@@ -76,9 +76,9 @@ def cross_checks(cfg: Config, where: str) -> None:
     need(not cfg.evaluate.resample_scans or cl in ("target", "scan"),
          f"'evaluate.resample_scans' = true asks for scans on top, but 'evaluate.statistics.cluster' = {cl!r}: "
          "set only the cluster")
-    need(cl != "category" or (cfg.data.source == "real_imagery" and cfg.data.real_imagery.dataset == "eth80"),
+    need(cl != "category" or dataset_source(cfg.data.source, where).category_targets(to_dict(cfg.data)),
          "'evaluate.statistics.cluster' = 'category' needs category targets (data.source = 'real_imagery' "
-         "with data.real_imagery.dataset = 'eth80')")
+         "with data.real_imagery.dataset = 'eth80', or a source that declares them)")
     s = cfg.data.synthetic
     need(s.angle_step_deg % 3 == 0, f"'data.synthetic.angle_step_deg' = {s.angle_step_deg} must be a multiple of 3 (BigBIRD angles are 0, 3, ..., 357)")
     need(360 % s.angle_step_deg == 0, f"'data.synthetic.angle_step_deg' = {s.angle_step_deg} must divide 360")

@@ -101,3 +101,37 @@ def test_a_source_that_says_nothing_is_logged_not_estimated(caplog):
         assert any(t.what.startswith("scoring 500 AVD boxes") and t.seconds > 0 for t in found.terms)
     finally:
         unregister_dataset("quiet_source")
+
+
+def test_the_models_estimate_follows_the_views_a_source_fits_a_class_on():
+    import viewfuse as vf
+    from pipeline.infra.datasets import unregister_dataset
+
+    class Declared(vf.DatasetSource):
+        name = "views_per_class_source"
+        per_class = None                 # set below; None: work() says nothing at all
+
+        def work(self, cfg):
+            return None if self.per_class is None else vf.Work(None, None, views_per_class=self.per_class)
+
+    source = Declared()
+    vf.register_dataset(source)
+    try:
+        cfg = load_config(ROOT / "configs" / "synthetic.toml", {"data": {"source": "views_per_class_source"}})
+
+        def fit(per_class):
+            source.per_class = per_class
+            (term,) = cost.models_terms(cfg)
+            return term
+
+        sixteen, thirty_two, undeclared = fit(16), fit(32), fit(None)
+        assert " x 16 views x " in sixteen.what and " x 120 views x " in undeclared.what   # BigBIRD's ring
+        # a GP fit grows with the cube of its views: 16 views a class cost (16/120)^3 of BigBIRD's 120
+        assert thirty_two.seconds == pytest.approx(8 * sixteen.seconds)
+        assert sixteen.seconds == pytest.approx(undeclared.seconds * (16 / 120) ** 3) and sixteen.seconds > 0
+    finally:
+        unregister_dataset("views_per_class_source")
+    # the built-ins declare theirs: COIL every 10 degrees trains 36 views a class, the stand-ins their ring
+    assert " x 36 views x " in cost.models_terms(load_config(ROOT / "configs" / "real.toml"))[0].what
+    syn = load_config(ROOT / "configs" / "synthetic.toml")
+    assert f" x {360 // syn.data.synthetic.angle_step_deg} views x " in cost.models_terms(syn)[0].what
