@@ -40,20 +40,20 @@ def smoke_config(artifacts: Path, overrides: dict | None = None):
     return load_config(SMOKE, merge({"run": {"artifacts": str(artifacts), "device": DEVICE}}, overrides or {}))
 
 
-def smoke_upstream(tmp_path_factory) -> Path:
-    """The shared artifacts folder with the smoke run's upstream stages done (built here, or by
-    the process that got there first)."""
+def smoke_upstream(tmp_path_factory, upto: str = UPSTREAM[-1]) -> Path:
+    """The shared artifacts folder with the smoke run's upstream stages done up to ``upto`` (built
+    here, or by the process that got there first)."""
     from stages.framework.runner import ensure
 
     art = smoke_artifacts(tmp_path_factory)
-    ensure(smoke_config(art), UPSTREAM[-1], device=DEVICE)
+    ensure(smoke_config(art), upto, device=DEVICE)
     return art
 
 
-def copy_upstream(src: Path, dst: Path) -> Path:
-    """Copy the finished upstream stage folders of every run in artifacts folder ``src`` to ``dst``."""
+def copy_upstream(src: Path, dst: Path, stages: tuple[str, ...] = UPSTREAM) -> Path:
+    """Copy the finished upstream stage folders (``stages``) of every run in artifacts folder ``src`` to ``dst``."""
     for run in (p for p in src.iterdir() if p.is_dir()):
-        for stage in UPSTREAM:
+        for stage in stages:
             shutil.copytree(run / stage, dst / run.name / stage)
     return dst
 
@@ -63,14 +63,15 @@ SMALL_EVALUATE = {"evaluate.ablations": "[]", "evaluate.attribution": "false", "
                   "evaluate.bootstrap": "100", "evaluate.randomized.sigmas_m": "[0.3]", "plan.enabled": "false"}
 
 
-def run_evaluate(artifacts: Path, launcher: list[str], site: Path):
-    """``<launcher> evaluate`` on the smoke config with ``SMALL_EVALUATE`` in a fresh interpreter,
-    with ``site`` (an outside package, tests/support/outside_package.py) on its PYTHONPATH."""
+def run_evaluate(artifacts: Path, launcher: list[str], site: Path, sets: dict[str, str] | None = None):
+    """``<launcher> evaluate`` on the smoke config with ``SMALL_EVALUATE`` (and ``sets`` over it) in
+    a fresh interpreter, with ``site`` (an outside package, tests/support/outside_package.py) on its
+    PYTHONPATH."""
     import subprocess
     import sys
 
     cmd = [sys.executable, *launcher, "evaluate", "--config", str(SMOKE), "--device", DEVICE, "--progress", "off"]
-    for k, v in {"run.artifacts": str(artifacts), **SMALL_EVALUATE}.items():
+    for k, v in {"run.artifacts": str(artifacts), **SMALL_EVALUATE, **(sets or {})}.items():
         cmd += ["--set", f"{k}={v}"]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(site)]),
            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
