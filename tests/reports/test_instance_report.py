@@ -157,7 +157,7 @@ def test_the_whole_page_carries_the_instance_sections(tmp_path, monkeypatch):
 
     only_figures(monkeypatch)
     facts = write_fake_run(tmp_path / "run", K=4, R=5, ablation=False)
-    _bank(tmp_path / "run" / "models" / "instance")
+    _bank(tmp_path / "run" / "models" / INSTANCE_TERM)
     path = tmp_path / "run" / "evaluate" / "summary.json"
     summary = json.loads(path.read_text())
     out = _blocks(*_population(np.random.default_rng(7)))
@@ -171,4 +171,5 @@ def test_the_whole_page_carries_the_instance_sections(tmp_path, monkeypatch):
     for anchor in ("instance-fits", "instance-attribution", "by-category"):
         assert anchor in page.sections
     assert page.sections.index("diagnostics") < page.sections.index("instance-fits")
+    assert page.table("instance-fits-category")["section"] == "instance-fits"
     assert page.table("instance-goal")["section"] == "instance-attribution"
