@@ -29,6 +29,7 @@ from pipeline.method.method_base import TrackInput
 from pipeline.method.provider import Interval, ModelProvider, Section, Spread, register_provider
 
 INSTANCE_TERM = "instance_term"   # the provider's key: TrackInput.models, models/instance_term/, [models] key
+FITTED = "instance_term"          # a fit record's flag: the class fitted a term (gp_instance_fit)
 
 
 @dataclass(frozen=True)
@@ -82,11 +83,10 @@ class InstanceTermProvider(ModelProvider):
         if not isinstance(models, InstanceGPClassModels):
             raise ValueError(f"{folder}: not a bank with an instance term (rerun the models stage)")
         plan = index.get("candidate_sets") or {}
-        default = (read_bank_index(folder.parent).get("candidate_sets") or {}) if (folder.parent / INDEX).is_file() \
-            else plan
-        differ = sorted(t for t in set(plan) | set(default) if (plan.get(t) or {}).get("classes") !=
-                        (default.get(t) or {}).get("classes") or (plan.get(t) or {}).get("components") !=
-                        (default.get(t) or {}).get("components"))
+        mine = _sets(plan)
+        default = _sets(read_bank_index(folder.parent).get("candidate_sets") or {}) \
+            if (folder.parent / INDEX).is_file() else mine
+        differ = sorted(t for t in set(mine) | set(default) if mine.get(t) != default.get(t))
         if differ:
             raise ValueError(f"{folder}: the instance bank's candidate sets differ from the default bank's for "
                              f"{len(differ)} target(s) (first: {differ[0]}; rerun the models stage)")
@@ -96,7 +96,7 @@ class InstanceTermProvider(ModelProvider):
         return models.digest()
 
     def record(self, models, extra: dict) -> dict:
-        with_term = sum(bool(d[INSTANCE_TERM]) for d in extra["diagnostics"])
+        with_term = sum(bool(d[FITTED]) for d in extra["diagnostics"])
         return {"with_term": with_term, "without": len(extra["diagnostics"]) - with_term}
 
     def summary(self, models, extra: dict, cfg) -> str:
@@ -167,6 +167,11 @@ class InstanceTermProvider(ModelProvider):
         return tuple(out)
 
 
+def _sets(plan: dict) -> dict:
+    """{target: (candidate classes, components)} of a candidate plan."""
+    return {t: ((p or {}).get("classes"), (p or {}).get("components")) for t, p in plan.items()}
+
+
 GROUP_HEADER = ("fits", "with a term fitted", "instance amplitude at its lower bound", "instance amplitude b",
                 "instance length scale λ", "b / class amplitude a")
 
@@ -183,11 +188,11 @@ def fit_summary(fits: list[dict]) -> dict:
     """The instance fits' records: ``fitted`` (a term fitted), ``at_floor`` (fitted, amplitude at its
     lower bound: no term in effect), ``both_at_floor`` (the class amplitude too), ``active`` (the
     others), ``no_term`` ({class: why}: too few training instances)."""
-    fitted = [d for d in fits if d.get(INSTANCE_TERM)]
+    fitted = [d for d in fits if d.get(FITTED)]
     at_floor = [d for d in fitted if _at_lower(d, "instance_amplitude")]
     no_term: dict[str, str] = {}
     for d in fits:
-        if not d.get(INSTANCE_TERM):
+        if not d.get(FITTED):
             no_term.setdefault(str(d.get("class")), d.get("instance_note") or "no instance term")
     return {"fitted": fitted, "active": [d for d in fitted if d not in at_floor], "at_floor": at_floor,
             "both_at_floor": [d for d in at_floor if _at_lower(d, "amplitude")], "no_term": no_term}
