@@ -45,8 +45,8 @@ AVD_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_x1", "c
 
 
 def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
-    """{variant: model bank} and {variant: models/index.json} for the default and every ablation; with
-    ``models/instance/``, also the default plan's bank with an instance term under ``P.INSTANCE_BANK``."""
+    """{variant: model bank} and {variant: models/index.json} for the default and every ablation (an
+    evaluate.* ablation shares the default's bank and index: the same objects) and the contrast's arm."""
     index = read_bank_index(models_dir)
     banks, indexes = {DEFAULT: load_bank(models_dir)}, {DEFAULT: index}
     for a in ablations:
@@ -59,13 +59,6 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
                              "(rerun the models stage)")
         banks[a] = load_bank(models_dir / sub)
         indexes[a] = read_bank_index(models_dir / sub)
-    inst_dir = models_dir / out_name("models", "instance")
-    if inst_dir.is_dir():   # models.instance_term: the same plan's models with an instance term
-        inst = load_bank(inst_dir)
-        if (inst.classes, inst.components) != (banks[DEFAULT].classes, banks[DEFAULT].components):
-            raise ValueError(f"{inst_dir}: the instance bank's classes or components differ from the default "
-                             "bank's (rerun the models stage)")
-        banks[P.INSTANCE_BANK] = inst
     arm = models_dir / out_name("models", "contrast")
     if arm.is_dir():   # data.real_imagery.contrast: the instance arm runs as one more variant on the same tracks
         banks[CONTRAST_ARM], indexes[CONTRAST_ARM] = load_bank(arm), read_bank_index(arm)
@@ -74,9 +67,10 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
 
 def variant_provided(models_dir: Path, cfg: Config) -> dict:
     """{variant: {provider key: its models}} where a variant's classes were fitted on another
-    training set (the contrast's instance arm, ``models/contrast/<key>/``)."""
+    training set (the contrast's instance arm, ``models/contrast/<key>/``; a provider that follows
+    the default bank only has none there)."""
     d = models_dir / out_name("models", "contrast")
-    return {CONTRAST_ARM: load_provided(d, cfg)} if d.is_dir() else {}
+    return {CONTRAST_ARM: load_provided(d, cfg, variant=True)} if d.is_dir() else {}
 
 
 def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict, dict]:
@@ -132,11 +126,11 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TargetDomain | 
         timings["gp_models"] = time.perf_counter() - t0
     if "sensitivity" in ev.experiments:
         t0 = time.perf_counter()
-        fixed, _ = P.pose_free_track(first, models)
+        fixed, _ = P.pose_free_track(first, models, P.calibrated(first.models, first.test_variance))
         for s in P.sensitivity_settings(ev):
             posts = E.randomized(models, first.data, s.bias, s.sigma, s.realizations, s.n_x,
                                  P.cell_rng(ev.seed, first.target, first.track, s), var_floor=ev.variance_floor,
-                                 fixed=fixed, provided=first.models,
+                                 fixed=fixed, provided=P.calibrated(first.models, first.test_variance),
                                  method_rng=P.method_streams(ev.seed, first.target, first.track, s))
             blocks.append(result_block(posts, first.truth, variant=DEFAULT, experiment=s.experiment, setting=s.label,
                                        sigma_m=float(s.sigma), bias_x=float(s.bias[0]), bias_y=float(s.bias[1]),
@@ -188,11 +182,13 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     return seconds
 
 
-def load_provided(models_dir: Path, cfg: Config) -> dict:
-    """{provider key: its models} of every provider the registered methods need (``models/<key>/``)."""
+def load_provided(models_dir: Path, cfg: Config, variant: bool = False) -> dict:
+    """{provider key: its models} of every provider the registered methods need and the config
+    enables (``models/<key>/``); of a ``variant``'s folder, without those that follow the default
+    bank only."""
     from pipeline.method.registry import model_providers
 
-    return {p.key: p.load(models_dir / p.key, cfg) for p in model_providers()}
+    return {p.key: p.load(models_dir / p.key, cfg) for p in model_providers(cfg) if not (variant and p.default_only)}
 
 
 def fusion_device(ctx, executor) -> tuple[str, bool]:

@@ -6,11 +6,10 @@ checks, training sets, candidate plan, noise floor and fits) and writes one mode
 every modelled class x every component that some target's candidate set uses, with the plan in
 the index (``candidate_sets``). Each ``evaluate.ablations`` entry gets its own bank under
 ``models/ablations/``. Beside the bank, the models of every provider a registered method needs
-(``pipeline.method.provider``), each in ``models/<provider key>/``.
-With ``models.instance_term``, the same plan's bank with an instance term (``models/instance/``,
-``pipeline.method.gp_instance``), fitted on each class's member objects. With
+(``pipeline.method.provider``; those the config enables), each in ``models/<provider key>/``. With
 ``data.real_imagery.contrast``, the contrast's instance arm (``models/contrast/``: a bank on the same
-plan keys and features, each class fitted on its own instance, and its methods' own models).
+plan keys and features, each class fitted on its own instance, and its methods' own models but
+those that follow the default bank only, ``ModelProvider.default_only``).
 """
 from __future__ import annotations
 
@@ -52,13 +51,7 @@ def run(ctx) -> str:
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
     save_bank(models, ctx.out, extra=extra)
-    if cfg.models.instance_term:
-        log.info("fitting the class models with an instance term")
-        im, iextra = fit_from_features(feats, cfg.models, **plan_keys, instance_term=True)
-        save_bank(im, ctx.out / out_name("models", "instance"), extra=iextra)
-        with_term = sum(d["instance_term"] for d in iextra["diagnostics"])
-        ctx.extra["instance_fits"] = {"with_term": with_term, "without": len(iextra["diagnostics"]) - with_term}
-    provided = fit_providers(ctx, feats, models.classes, extra["candidate_sets"], members)
+    provided = fit_providers(ctx, feats, models.classes, extra["candidate_sets"], members, plan_keys)
     arm = contrast_members(cfg, truth)
     if arm is not None:   # data.real_imagery.contrast: the instance arm, same features and plan keys
         log.info("the contrast's instance arm: fitting its model bank and its methods' own models")
@@ -66,7 +59,8 @@ def run(ctx) -> str:
         contrast_check(extra["candidate_sets"], cextra["candidate_sets"])
         cdir = ctx.out / out_name("models", "contrast")
         save_bank(cm, cdir, extra={**cextra, "class_members": arm})
-        fit_providers(ctx, feats, cm.classes, cextra["candidate_sets"], arm, folder=cdir, prefix="contrast_")
+        fit_providers(ctx, feats, cm.classes, cextra["candidate_sets"], arm, {**plan_keys, "class_members": arm},
+                      folder=cdir, prefix="contrast_")
         ctx.extra["contrast_classes"] = len(arm)
     for a in model_ablations:
         vcfg = ablation_config(cfg, a)
@@ -86,15 +80,22 @@ def run(ctx) -> str:
             + "".join(f"; {p}" for p in provided))
 
 
-def fit_providers(ctx, feats, classes, plan: dict, members, folder=None, prefix: str = "") -> list[str]:
-    """Fit and save every provider's models (``<folder>/<key>/``, by default ``models/<key>/``),
-    recording each one's digest and record in the stage's extras under ``prefix``; returns their
-    summary clauses."""
+def fit_providers(ctx, feats, classes, plan: dict, members, plan_keys: dict, folder=None,
+                  prefix: str = "") -> list[str]:
+    """Fit and save every enabled provider's models (``<folder>/<key>/``, by default
+    ``models/<key>/``), recording each one's digest and record in the stage's extras under
+    ``prefix``; returns their summary clauses. ``plan_keys``: ``fit_from_features``' for a
+    provider's bank-like model (``TrainingViews.fit_bank``). Another folder is a variant's
+    (``prefix``): a provider that follows the default bank only is not fitted there."""
     folder = ctx.out if folder is None else folder
     views, out = None, []
-    for p in model_providers():
+    for p in model_providers(ctx.cfg):
+        if prefix and p.default_only:
+            log.info("%s: fitted for the default model bank only, not in %s", p.label or p.key, folder.name)
+            continue
         if views is None:   # one read of the training views for every provider
-            views = training_views(feats, ctx.cfg.models.camera, classes, plan, class_members=members)
+            views = training_views(feats, ctx.cfg.models.camera, classes, plan, class_members=members,
+                                   fit_bank=lambda fit: fit_from_features(feats, ctx.cfg.models, **plan_keys, fit=fit))
         log.info("fitting the %s", p.label or f"{p.key} models")
         pm, pextra = p.fit(views, ctx.cfg)
         p.save(pm, folder / p.key, pextra)

@@ -151,3 +151,30 @@ def test_the_dirichlet_is_named_only_in_its_own_files(tmp_path):
     (tmp_path / "stages" / "cost.py").write_text("# the DIRICHLET posterior clouds\n")
     (tmp_path / "reports" / "page.py").write_text("x = 1\n")
     assert named_outside("dirichlet", {"pipeline/own.py"}, tmp_path) == ["stages/cost.py"]
+
+
+# The class models with an instance term live behind their model provider too: the stages, the grid,
+# planning, the banks, the config and the report reach them through the provider registry. Their
+# identifiers stay in their own files, the methods' listing and keys, the GP layer that reads such a
+# bank as one GP bank (its files and the fusion engines) and the public fit_models(instances=).
+INSTANCE_WORDS = ("gp_instance", "instance_term", "instance_bank", "instance_models", "instancegpclassmodels",
+                  "fit_instance_models")
+INSTANCE_OWN = {"pipeline/method/gp_instance.py", "pipeline/method/gp_instance_fit.py",
+                "pipeline/method/gp_instance_batch.py", "pipeline/method/methods/instance_term.py",
+                "pipeline/method/methods/with_uncertainty_instance.py",
+                "pipeline/method/methods/model_based_instance.py", "pipeline/method/methods/__init__.py",
+                "pipeline/method/names.py",
+                "pipeline/method/gp_files.py", "pipeline/method/engine.py", "pipeline/method/engine_torch.py",
+                "viewfuse/api.py"}
+
+
+def test_the_instance_term_is_named_only_in_its_own_files(tmp_path):
+    bad = {w: named_outside(w, INSTANCE_OWN) for w in INSTANCE_WORDS}
+    bad = {w: files for w, files in bad.items() if files}
+    assert not bad, "the instance term named outside its own files (reach it through its provider):\n" + \
+        "\n".join(f"{w}: {', '.join(files)}" for w, files in bad.items())
+    for d in ("viewfuse", *PRODUCT, "tools"):
+        (tmp_path / d).mkdir()
+    (tmp_path / "stages" / "evaluate.py").write_text("banks[INSTANCE_BANK] = load_bank(d)\n")
+    (tmp_path / "pipeline" / "grid.py").write_text("# the plain bank only\n")
+    assert named_outside("instance_bank", set(), tmp_path) == ["stages/evaluate.py"]

@@ -17,7 +17,6 @@ from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.output_check import call_checked, problem
 from pipeline.method.provider import providers
 from viewfuse import _args as A
-from pipeline.method.gp_instance import InstanceGPClassModels
 from pipeline.method.gp_instance_fit import fit_instance_models
 
 # The evaluate stage's defaults (configs/synthetic.toml [evaluate]): confident error at max P >= 0.99, 15 ECE bins.
@@ -181,9 +180,10 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     units = float(R) * n_x * K * (C or 1) * drop.shape[2]
     A.affordable(fn, "n_x and cameras", 8.0 * R * n_x * K * (2 + 2 * (C or 1) * drop.shape[2]),
                  FUSE_SECONDS * units * K, max_seconds)
+    # a bank that is also a provider's model (``ModelProvider.serves``: one with an instance term) serves it too
+    served = {p.key: models for p in providers().values() if models is not None and p.serves(models)}
     t = registry.TrackInput(
-        dropout=drop, gp=models, gp_instance=models if isinstance(models, InstanceGPClassModels) else None,
-        models=dict(provided or {}), own=own, probs=probs, estimates=est,
+        dropout=drop, gp=models, models={**served, **(provided or {})}, own=own, probs=probs, estimates=est,
         samples=sample_localization(est, sigma, n_x, np.random.default_rng(seed)),
         inputs=lambda p: relative_inputs(p, obj, yaw, unit_circle=True), var_floor=var_floor,
         rng=np.random.default_rng(seed))

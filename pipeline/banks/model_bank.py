@@ -15,7 +15,7 @@ import json
 import logging
 import re
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -24,7 +24,6 @@ from pipeline.infra.config import ModelsConfig, to_dict
 from pipeline.infra.outputs import name as out_name
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
-from pipeline.method.gp_instance_fit import fit_instance_models
 from pipeline.method.provider import TrainingViews
 
 log = logging.getLogger("viewfuse.models")
@@ -47,8 +46,8 @@ def assemble_classes(table, members, path: Path):
     """The rows of each class's member objects under the class's name (``members`` = {class:
     [object folders]}): a category class is the views of several objects; an object may serve
     several classes (its rows repeat), and objects of no class are left out. The object folder of
-    each row stays as the column ``member``: the instance labels of the instance term
-    (``pipeline/method/gp_instance_fit.py``)."""
+    each row stays as the column ``member``: the instance labels a bank-like model may fit on
+    (``fit_from_features``' ``fit``)."""
     import pyarrow as pa
 
     objects = table.column("object").to_numpy(zero_copy_only=False).astype(str)
@@ -212,7 +211,7 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
                       n_candidates: int = 4, candidates: str | Sequence[str] = "all", candidate_seed: int = 0,
                       progress: bool = True, candidate_folds: bool = False, class_members=None,
                       fit_cache: dict | None = None, route: str = "batch",
-                      instance_term: bool = False) -> tuple[GPClassModels, dict[str, Any]]:
+                      fit: Callable | None = None) -> tuple[GPClassModels, dict[str, Any]]:
     """The models stage's pure function: features Parquet + [models] config + the candidate plan -> one
     model bank (every modelled class x every component any candidate set uses) and index extras.
 
@@ -221,9 +220,9 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     the evaluate stage takes its models from the bank with ``GPClassModels.subset``.
     ``fit_cache`` (shared by the banks of one stage run) and ``route``: ``fit_class_models``'s
     ``cache`` and ``route``.
-    ``instance_term``: fit the class models with an instance term on each class's member objects
-    (``pipeline.method.gp_instance_fit``; a class of one object gets none): an
-    ``InstanceGPClassModels`` bank, its records extended, ``instances`` in the extras.
+    ``fit``: another bank's fit in place of ``fit_class_models``, with its arguments plus ``members``
+    (each class's member object per training view): a model provider's bank-like model
+    (``TrainingViews.fit_bank``, ``pipeline.method.provider``).
     """
     path = Path(path)
     pool, X_by, S_by, angles, names, meta, passes, means, members_by = _training_sets(path, mcfg, class_members)
@@ -241,10 +240,9 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         p["component_names"] = None if names is None else [str(names[i]) for i in p["components"]]
     comp_names = None if names is None else [str(names[i]) for i in comps]
     floor = dropout_noise_floor(path, passes, pool, comps, mcfg.noise_bounds) if mcfg.noise_floor == "dropout" else None
-    fit, by_instance = ((fit_instance_models, {"instances_by_class": [members_by[c] for c in pool]}) if instance_term
-                        else (fit_class_models, {}))
+    fit, members = (fit_class_models, {}) if fit is None else (fit, {"members": [members_by[c] for c in pool]})
     models, diags = fit(
-        [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], classes=pool, components=comps, **by_instance,
+        [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], classes=pool, components=comps, **members,
         restarts=mcfg.restarts,
         amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
         noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
@@ -275,20 +273,19 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         "varying_fits_at_bound": sum(1 for d in varying if d["at_bound"]),
         "varying_std_threshold": VARYING_STD,
     }
-    if instance_term:
-        extra["instances"] = {c: sorted(set(members_by[c])) for c in pool}
     return models, extra
 
 
 def training_views(path: str | Path, camera: int, classes: Sequence[str], plan: dict | None = None,
-                   class_members=None) -> TrainingViews:
+                   class_members=None, fit_bank: Callable | None = None) -> TrainingViews:
     """The training ring as the model providers read it (``pipeline.method.provider.TrainingViews``):
-    one read of the file; the dropout passes are assembled only for a provider that asks."""
+    one read of the file; the dropout passes are assembled only for a provider that asks.
+    ``fit_bank(fit)``: ``fit_from_features`` with the stage's settings and plan keys and ``fit``."""
     path = Path(path)
     cols, scores, _, dropout = read_training_views(path, camera, class_members)
     return TrainingViews(path=path, objects=cols["object"].astype(str), scores=scores,
                          passes=lambda: dropout_passes(dropout, path), classes=tuple(classes), plan=dict(plan or {}),
-                         camera=camera, error=lambda problem: FeaturesError(path, problem))
+                         camera=camera, error=lambda problem: FeaturesError(path, problem), fit_bank=fit_bank)
 
 
 def ablation_dir(ablation: str) -> str:

@@ -67,8 +67,6 @@ CATALOG: dict[str, dict[str, Artifact]] = {
         "index": Artifact("index.json", "json", _BANK_W, _BANK_R, "a model bank's index"),
         "bank": Artifact("*.npz", "npz", _BANK_W, _BANK_R, "one GP class model per file"),
         "ablations": Artifact("ablations", "folder", _BANK_W, _BANK_R, "one model bank per ablation"),
-        "instance": Artifact("instance", "folder", _BANK_W, _BANK_R,
-                             "the class models with an instance term (models.instance_term)"),
         "contrast": Artifact("contrast", "folder", _BANK_W, _BANK_R,
                              "the instance arm of the class-level contrast (data.real_imagery.contrast): its "
                              "model bank and its methods' own models"),

@@ -338,7 +338,7 @@ def fit_stack(stack, polish: bool, lockstep: bool) -> list[Result]:
     """Every start of every problem of ``stack`` in one lock-step set of L-BFGS-B runs, the best
     start per problem polished. ``stack``: ``problems`` (each with ``starts`` (S, p) and
     ``log_bounds`` (p, 2)) and ``evaluate(which, theta) -> (LML, log prior, gradient of their sum)``
-    (the instance term's fit, ``pipeline/method/gp_instance_batch.py``, brings its own)."""
+    (the fit with an instance term brings its own)."""
     todo = stack.problems
     owner = np.concatenate([np.full(len(p.starts), i) for i, p in enumerate(todo)])
     x0 = np.concatenate([p.starts for p in todo])

@@ -3,7 +3,7 @@
 built-ins and entry points and answers which methods there are (so the two never import each other)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable, ClassVar, Mapping
 
 import numpy as np
@@ -13,7 +13,7 @@ from pipeline.method import provider as _provider
 
 # What the cell carries itself; a method may also need the models of a registered provider
 # (``pipeline.method.provider``: ``TrackInput.models``).
-NEEDS = frozenset({"gp", "gp_instance", "scores", "probs"})
+NEEDS = frozenset({"gp", "scores", "probs"})
 ENTRY_POINT_GROUP = "viewfuse.methods"
 # The method every other (non-attribution) method is paired against in the population.
 REFERENCE = "with_uncertainty"
@@ -31,7 +31,6 @@ class TrackInput:
     ({provider key: models}, ``pipeline.method.provider``)."""
     dropout: np.ndarray                    # (K, N_s, F) MC-dropout scores of the GP components
     gp: object | None = None               # GPClassModels of the candidates
-    gp_instance: object | None = None      # InstanceGPClassModels of the candidates (pipeline/method/gp_instance.py)
     own: np.ndarray | None = None          # (K, N_s, C) each candidate's own score
     probs: np.ndarray | None = None        # (K, N_s, D) whole probability vectors
     estimates: np.ndarray | None = None    # (R, K, 2)
@@ -48,7 +47,7 @@ class TrackInput:
         return self.dropout.mean(axis=1)
 
     def has(self, need: str) -> bool:
-        own = {"gp": self.gp, "gp_instance": self.gp_instance, "scores": self.own, "probs": self.probs}
+        own = {"gp": self.gp, "scores": self.own, "probs": self.probs}
         return (own[need] if need in own else self.models.get(need)) is not None
 
 
@@ -121,23 +120,6 @@ def _adopt(name: str, obj, module: str) -> None:
 # theirs, whatever was imported first; loads the built-ins and entry points on first use.
 _REGISTRY: Registry[FusionMethod] = Registry("fusion method", ENTRY_POINT_GROUP, "pipeline.method.methods",
                                              adopt=_adopt)
-
-
-class OnInstanceModels:
-    """Put before a method's class (``class X(OnInstanceModels, ModelBased)``): the same method on
-    the class models with an instance term (``TrackInput.gp_instance``, ``pipeline/method/gp_instance.py``)
-    in place of ``gp``; it applies only where the cell carries that bank."""
-    needs = frozenset({"gp_instance"})
-    simulation = False
-
-    def fuse(self, t: TrackInput) -> np.ndarray:
-        return super().fuse(replace(t, gp=t.gp_instance))
-
-    def single_view(self, t: TrackInput) -> np.ndarray:
-        return super().single_view(replace(t, gp=t.gp_instance))
-
-    def fuse_tracks(self, t: TrackInput) -> np.ndarray:
-        return super().fuse_tracks(replace(t, gp=t.gp_instance))
 
 
 def register(cls: type[FusionMethod]) -> type[FusionMethod]:

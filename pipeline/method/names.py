@@ -8,8 +8,10 @@ from __future__ import annotations
 WITH_UNCERTAINTY = "with_uncertainty"
 MODEL_BASED = "model_based"
 SIMPLE_BAYES = "simple_bayes"
-WU_INSTANCE = "with_uncertainty_instance"   # the class models with an instance term (gp_instance.py)
+WU_INSTANCE = "with_uncertainty_instance"   # on the class models with an instance term (their provider's)
 MB_INSTANCE = "model_based_instance"
+# summary.json's block of the two against themselves without the term (population's ablations)
+INSTANCE_BLOCK = "instance_term"
 # Attribution variants of With Uncertainty (one ingredient each), evaluated beside the methods.
 WU_POSES_ONLY = "with_uncertainty_poses_only"       # dropout samples replaced by their mean
 WU_DROPOUT_ONLY = "with_uncertainty_dropout_only"   # no pose sampling: σ = 0, N_x = 1 inside the method

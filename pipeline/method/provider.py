@@ -13,12 +13,17 @@ module as (or one imported by) the method that needs them, so the method's entry
 Its config sections (``sections``), their checks (``check``) and its cost terms (``cost``) go to the
 infra floor's registries (``pipeline.infra.config.own``, ``pipeline.infra.cost``), which load the
 methods' package and entry points before a config is parsed, in every process.
+
+A provider may also serve a model shaped like the GP bank (the built-in class models with an
+instance term are one): ``TrainingViews.fit_bank`` fits the candidate plan's
+bank with another fit, ``calibrated`` follows the cell's test-domain variance, ``enabled`` puts it
+behind a setting, and ``default_only`` says its models hold for the default model bank only.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, ClassVar
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
@@ -38,7 +43,10 @@ class TrainingViews:
     deterministic pass, ``passes()`` the MC-dropout passes {class: {angle: (S, D)}} (read on first
     call: a provider that needs none pays nothing), ``classes`` the modelled classes and ``plan``
     the candidate sets {target: {"classes", "components"}}; ``error(problem)`` the exception to
-    raise about the file."""
+    raise about the file. ``fit_bank(fit)``: the GP bank of the same candidate plan, training sets,
+    settings and fit cache as the models stage's own, fitted with ``fit`` in place of
+    ``pipeline.method.gp_fit.fit_class_models`` (same arguments, plus ``members``: each class's
+    member object per training view) -> (the bank, its index extras); for a bank-like model."""
     path: Path
     objects: np.ndarray
     scores: np.ndarray
@@ -47,14 +55,46 @@ class TrainingViews:
     plan: dict
     camera: int
     error: Callable[[str], Exception]
+    fit_bank: Callable[[Callable], tuple[Any, dict]] | None = None
+
+
+@dataclass(frozen=True)
+class Spread:
+    """Median and quartiles of fitted values (descriptive, not an interval), which the report shows
+    as 'median (q25–q75)'; ``of(values)`` skips None and is None for no value."""
+    median: float
+    q25: float
+    q75: float
+
+    @classmethod
+    def of(cls, values) -> Spread | None:
+        v = np.asarray([x for x in values if x is not None], float)
+        if not v.size:
+            return None
+        q25, q50, q75 = np.percentile(v, [25, 50, 75])
+        return cls(float(q50), float(q25), float(q75))
+
+
+@dataclass(frozen=True)
+class Interval:
+    """An interval [lo, hi] for the report to show; ``of(pair)`` is None unless it is two numbers."""
+    lo: float
+    hi: float
+
+    @classmethod
+    def of(cls, pair) -> Interval | None:
+        return cls(*pair) if isinstance(pair, (list, tuple)) and len(pair) == 2 else None
 
 
 @dataclass(frozen=True)
 class Section:
     """What the report shows of one provider's models (``ModelProvider.section``): a paragraph
     (``text``, a ``str.format`` template whose fields ``values`` fills: the report formats the
-    numbers), a table (``columns``, ``rows`` of values, numbers formatted by the report) shown
-    collapsed behind ``collapsed``, its ``caption`` and its HTML class ``cls``."""
+    numbers, ``Spread`` and ``Interval`` too; shown as a note unless ``note`` is False), a table
+    (``columns``, ``rows`` of values, formatted alike) shown collapsed behind ``collapsed``, its
+    ``caption`` and its HTML class ``cls``. With a ``title`` (and ``anchor``) it opens a section of
+    the report of its own, which the sections after it in ``ModelProvider.section``'s tuple join;
+    without, it is a note of the report's diagnostics section."""
     text: str
     values: dict = field(default_factory=dict)
     columns: tuple[str, ...] = ()
@@ -62,6 +102,9 @@ class Section:
     caption: str = ""
     collapsed: str = ""
     cls: str = ""
+    title: str = ""
+    anchor: str = ""
+    note: bool = True
 
 
 class ModelProvider:
@@ -73,7 +116,15 @@ class ModelProvider:
     # Its config sections: dotted TOML table -> frozen dataclass of ``setting`` fields, e.g.
     # {"models.<key>": ..., "evaluate.<key>": ...}, read as ``cfg.models.<key>``; loaded, range-checked
     # and hashed into the stage keys like every section (pipeline/infra/config/own.py).
-    sections: ClassVar[dict[str, type]] = {}
+    sections: ClassVar[dict[str, Any]] = {}
+    # True: its models are fitted on the default model bank's plan and [models] settings only, so a
+    # variant with a bank of its own (a models.* ablation, the contrast's instance arm) runs without
+    # them (the methods that need them skip there; evaluate logs it).
+    default_only: ClassVar[bool] = False
+
+    def enabled(self, cfg) -> bool:
+        """Whether this run fits and loads its models (a provider behind a setting of its own)."""
+        return True
 
     def check(self, cfg, need) -> None:
         """Cross-key checks of its sections, run at config load: ``need(ok, message)`` raises a
@@ -112,9 +163,21 @@ class ModelProvider:
         the cell's score vectors. A mismatch is a ValueError."""
         return models
 
-    def section(self, index: dict) -> Section | None:
-        """The report's section on the models from their ``index`` (``models/<key>/index.json``, the
-        file the report reads; None when the provider writes none)."""
+    def calibrated(self, models, variance: np.ndarray):
+        """One cell's models under its test-domain variance (``evaluate.test_domain_variance``:
+        ``variance``, one δ² per component), for models that share the GP bank's likelihood; the
+        models unchanged by default."""
+        return models
+
+    def serves(self, models) -> bool:
+        """Whether a GP bank handed to ``vf.fuse`` as its ``models`` is also this provider's."""
+        return False
+
+    def section(self, index: dict) -> Section | tuple[Section, ...] | None:
+        """The report's section (or sections, in order) on the models from their ``index``
+        (``models/<key>/index.json``, the file the report reads; None when the provider writes
+        none), to which the report adds ``categories``: {class: its category} (a fold class
+        '<category>__f<k>''s category, any other class its own)."""
         return None
 
 
@@ -146,6 +209,15 @@ def unregister_provider(key: str) -> None:
     PROVIDERS.pop(key, None)
     unregister_sections(key)
     EXTRA_TERMS.remove(key)
+
+
+def calibrated(provided: Mapping[str, Any] | None, variance) -> dict:
+    """{provider key: models} of one cell under its test-domain variance (None: as they are)."""
+    provided = dict(provided or {})
+    if variance is None:
+        return provided
+    v = np.asarray(variance, float)
+    return {k: PROVIDERS[k].calibrated(m, v) for k, m in provided.items()}
 
 
 def known(key: str) -> bool:

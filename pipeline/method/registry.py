@@ -60,14 +60,15 @@ def outside_fingerprint() -> str:
     return registered().outside_fingerprint()
 
 
-def model_providers() -> list[ModelProvider]:
+def model_providers(cfg=None) -> list[ModelProvider]:
     """The providers the registered methods need (``needs`` naming one), each once, in method order:
-    what the models stage fits and evaluate loads."""
+    what the models stage fits and evaluate loads (with ``cfg``, those it enables:
+    ``ModelProvider.enabled``)."""
     _load()
     out: dict[str, ModelProvider] = {}
     for m in methods():
         for n in sorted(m.needs):
-            if n in providers() and n not in out:
+            if n in providers() and n not in out and (cfg is None or providers()[n].enabled(cfg)):
                 out[n] = providers()[n]
     return list(out.values())
 

@@ -1,7 +1,7 @@
 """The robot's belief: the class posterior of a registered fusion method (With Uncertainty by
-default) and its localization samples. A method on the class models with an instance term (With
-Uncertainty + instance) takes them as ``instance_models``; the planners' lookahead
-(``pipeline.planning.eig``) predicts with ``models``.
+default) and its localization samples. A method with a model of its own (With Uncertainty +
+instance) finds it in ``provided`` ({provider key: models}, ``TrackInput.models``); the planners'
+lookahead (``pipeline.planning.eig``) predicts with ``models``.
 
 The belief is updated by the method's own ``fuse_tracks`` (``pipeline.method.registry``: any
 method that declares ``planning``) on the real scores recorded at the visited nodes; nothing of
@@ -19,6 +19,7 @@ import numpy as np
 
 from pipeline.method import registry
 from pipeline.method.fusion import log_prior
+from pipeline.method.provider import providers
 from pipeline.planning.world import World
 from pipeline.infra import seeds
 
@@ -26,7 +27,7 @@ from pipeline.infra import seeds
 class Belief:
     def __init__(self, models, world: World, *, bias=(0.0, 0.0), est_sigma: float = 0.0, sigma: float = 0.0,
                  n_x: int = 1, var_floor: float = 1e-6, key=(0,), method: str = registry.REFERENCE,
-                 instance_models=None):
+                 provided=None):
         if n_x < 1 or sigma < 0 or est_sigma < 0:
             raise ValueError(f"Belief: need n_x >= 1 and sigmas >= 0, got n_x={n_x}, sigma={sigma}, "
                              f"est_sigma={est_sigma}")
@@ -35,10 +36,12 @@ class Belief:
             able = [m.key for m in registry.methods() if m.planning]
             raise ValueError(f"Belief: method {method!r} is not a registered method that applies to planning "
                              f"(those that do: {able})")
-        if "gp_instance" in self.method.needs and instance_models is None:
-            raise ValueError(f"Belief: method {method!r} fuses on the class models with an instance term: pass "
-                             "instance_models (the bank of models.instance_term)")
-        self.models, self.world, self.instance_models = models, world, instance_models
+        self.provided = dict(provided or {})
+        missing = sorted(n for n in self.method.needs if n in providers() and n not in self.provided)
+        if missing:
+            raise ValueError(f"Belief: method {method!r} needs the models of {missing}: pass provided={{key: models}} "
+                             "(the cell's models of those providers)")
+        self.models, self.world = models, world
         self.bias = np.asarray(bias, float)
         self.est_sigma, self.sigma, self.n_x, self.var_floor = float(est_sigma), float(sigma), int(n_x), var_floor
         self.key = (*key, world.target, world.scan)   # (seed, names...): seeds.stream
@@ -81,7 +84,7 @@ class Belief:
         Z = np.stack([np.stack([self.world.dropout[n] for n in t]) for t in tracks])      # (R, K, N_s, F)
         est = np.stack([np.stack([self.estimate(n) for n in t]) for t in tracks])         # (R, K, 2)
         t = registry.TrackInput(dropout=Z, gp=self.models, estimates=est, samples=X, inputs=self.world.inputs,
-                                var_floor=self.var_floor, threads=1, gp_instance=self.instance_models)
+                                var_floor=self.var_floor, threads=1, models=self.provided)
         return self.method.fuse_tracks(t)[:, -1]
 
     def update(self, node: str) -> np.ndarray:

@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.evaluation.grid.population import INSTANCE_BANK, TrackInfo, track_samples
+from pipeline.evaluation.grid.population import TrackInfo, track_samples
 from pipeline.method import registry
+from pipeline.method.provider import calibrated
 from pipeline.method.registry import REFERENCE
 from pipeline.planning.belief import Belief
 from pipeline.planning.eig import RingTable, standard_draws
@@ -70,7 +71,7 @@ def build_world(cell, info: TrackInfo, avd, scores, moves: dict, max_difficulty:
     return World(cell.target, info.scan, tuple(cell.classes), tuple(cell.components), cell.truth, graph,
                  {n: xy[i] for i, n in enumerate(images)}, {n: drop[i] for i, n in enumerate(images)},
                  np.asarray(cell.data.obj_xy, float), float(cell.data.yaw), tuple(info.images),
-                 cell.test_variance)
+                 cell.test_variance, dict(cell.models or {}))
 
 
 def build_tasks(cells, tracks, avd, scores, moves: dict, ev, plan) -> list[Task]:
@@ -90,11 +91,9 @@ def build_tasks(cells, tracks, avd, scores, moves: dict, ev, plan) -> list[Task]
     return tasks
 
 
-def models_for(banks, world: World, bank: str = "default"):
-    """The world's candidates and components of ``banks[bank]``, with its test-domain variance."""
-    if bank not in banks:
-        raise ValueError(f"planning: no {bank!r} model bank (the instance bank needs models.instance_term = true)")
-    models = banks[bank].subset(world.classes, world.components)
+def models_for(banks, world: World):
+    """The world's candidates and components of the default bank, with its test-domain variance."""
+    models = banks["default"].subset(world.classes, world.components)
     if world.test_variance is not None:
         models = models.with_test_variance(np.asarray(world.test_variance, float)[None, :])
     return models
@@ -120,8 +119,7 @@ def ring_table(models, world: World) -> RingTable | None:
 def run_task(banks, task: Task) -> list[tuple[str, str, Episode]]:
     """Every (setting, planner) episode of one task: [(setting name, planner, Episode)]."""
     models = models_for(banks, task.world)
-    method = registry.get(task.method)
-    inst = models_for(banks, task.world, INSTANCE_BANK) if method is not None and "gp_instance" in method.needs else None
+    provided = calibrated(task.world.provided, task.world.test_variance)   # the methods' own models, like the bank
     eps = standard_draws(task.eig_samples, len(task.world.components), seeds.key(task.seed, "eig"))
     table = ring_table(models, task.world)
     out = []
@@ -129,7 +127,7 @@ def run_task(banks, task: Task) -> list[tuple[str, str, Episode]]:
         for name in task.planners:
             belief = Belief(models, task.world, bias=s.bias, est_sigma=s.est_sigma, sigma=s.sigma, n_x=s.n_x,
                             var_floor=task.var_floor, key=(task.seed, task.start, s.name), method=task.method,
-                            instance_models=inst)
+                            provided=provided)
             rng = seeds.stream(task.seed, task.world.target, task.world.scan, task.start, s.name, name)
             ep = run_episode(belief, make_planner(name, eps, table), task.world.track[0], budget=task.budget,
                              confidence=task.confidence, horizon=task.horizon, rng=rng)

@@ -3,7 +3,7 @@
 yaw, the candidate classes and the scan's fixed track from that start."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,6 +25,7 @@ class World:
     yaw: float                       # object yaw (rad)
     track: tuple[str, ...] = ()      # the existing fixed track (its first view is the start)
     test_variance: tuple[float, ...] | None = None
+    provided: dict = field(default_factory=dict)   # {provider key: the candidates' models} (the cell's)
 
     @property
     def visible(self) -> frozenset[str]:

@@ -1,28 +1,22 @@
-"""Report sections on the class models with an instance term (``models.instance_term``;
-docs/design.md §5, "Instances differ"): what the instance fits found (amplitude b, length scale λ
-and b over the class amplitude a, per category and per component, every fit in a collapsed table,
-and which classes got no term and why), what the term changes (each method against itself
-without it: ``ablations.instance_term``), and the per-category breakdown (``by_category``) that
-says where a method gains or loses. Every number is read from models/instance/index.json or
-evaluate/summary.json; nothing is recomputed but quartiles of the fitted hyperparameters.
+"""Report sections on the methods with an instance term (docs/design.md §5, "Instances differ"):
+what the term changes (each method against itself without it: its block of the ablations), and
+the per-category breakdown (``by_category``) that says where a method gains or loses. Every number
+is read from evaluate/summary.json. What the instance fits found is their provider's section
+(shown by ``reports.main.provided``).
 """
 from __future__ import annotations
-
-from collections import defaultdict
-
-import numpy as np
 
 from pipeline.evaluation.metrics.labels import (INSTANCE_ATTRIBUTION, INSTANCE_COMPARISONS, SIMPLE_BAYES, WU_INSTANCE,
                                                 comparison_key, comparison_label, instance_goal_comparisons,
                                                 method_label, ordered_methods)
+from pipeline.evaluation.grid.population_calibration import INSTANCE_KEY
 from pipeline.evaluation.metrics.spec import metric_label
 from pipeline.scene.folds import category_of
 from reports.main.context import ReportContext
-from reports.shared.numbers import Estimate, fmt
+from reports.shared.numbers import Estimate
 from reports.shared.records import records_of, sentences
-from reports.shared.tables import fit_diagnostics
 
-INSTANCE = "instance_term"      # the block's key in summary.json's ablations (population_calibration)
+INSTANCE = INSTANCE_KEY      # the block's key in summary.json's ablations
 KEYS = ("correct_final", "confident_error_final", "ece_final", "nll_final")
 CATEGORY_KEYS = ("correct_final", "confident_error_final")
 
@@ -33,103 +27,6 @@ def category(name: str) -> str:
         return category_of(name)
     except ValueError:
         return str(name)
-
-
-def _at_lower(d: dict, name: str) -> bool:
-    return f"{name} at lower bound" in (d.get("at_bound") or [])
-
-
-def _spread(values) -> str:
-    """Median (q25–q75) of fitted values; '—' for none. Descriptive: fits, not draws."""
-    v = np.asarray([x for x in values if x is not None], float)
-    if not v.size:
-        return "—"
-    q25, q50, q75 = np.percentile(v, [25, 50, 75])
-    return f"{fmt(q50)} ({fmt(q25)}–{fmt(q75)})"
-
-
-def instance_fit_summary(index: dict) -> dict:
-    """The instance fits of models/instance/index.json: ``fits`` (every record), ``active`` (a term
-    whose amplitude left its lower bound), ``at_floor`` (fitted, amplitude at its lower bound: no
-    term in effect), ``no_term`` ({class: why}: too few training instances)."""
-    fits = fit_diagnostics(index)
-    fitted = [d for d in fits if d.get("instance_term")]
-    at_floor = [d for d in fitted if _at_lower(d, "instance_amplitude")]
-    no_term = {}
-    for d in fits:
-        if not d.get("instance_term"):
-            no_term.setdefault(str(d.get("class")), (d.get("n_instances"), d.get("instance_note") or "no instance term"))
-    return {"fits": fits, "fitted": fitted, "active": [d for d in fitted if d not in at_floor], "at_floor": at_floor,
-            "both_at_floor": [d for d in at_floor if _at_lower(d, "amplitude")], "no_term": no_term}
-
-
-def _group_rows(groups: dict[str, list[dict]], n_fits: dict[str, int]) -> list[list]:
-    """One row per group (every group with a fit, a term fitted or not)."""
-    rows = []
-    for name in sorted(n_fits):
-        fits = groups.get(name, [])
-        on = [d for d in fits if not _at_lower(d, "instance_amplitude")]
-        rows.append([name, n_fits[name], len(fits), len(fits) - len(on),
-                     _spread(d.get("instance_amplitude") for d in on),
-                     _spread(d.get("instance_length_scale") for d in on),
-                     _spread(d.get("instance_ratio") for d in on)])
-    return rows
-
-
-GROUP_HEADER = ["fits", "with a term fitted", "instance amplitude at its lower bound",
-                "instance amplitude b", "instance length scale λ", "b / class amplitude a"]
-
-
-def _component(d: dict) -> str:
-    return str(d.get("component_name") or d.get("component"))
-
-
-def instance_fits_section(ctx: ReportContext) -> None:
-    index = getattr(ctx.run, "instance", None)
-    if not isinstance(index, dict) or not fit_diagnostics(index):
-        return
-    ctx.section("Class models with an instance term: what the fits found", "instance-fits")
-    page, s = ctx.page, instance_fit_summary(index)
-    n, fitted = len(s["fits"]), len(s["fitted"])
-    page.paragraph(
-        f"Each class and component: s_i(θ) = m + g(θ) + h_i(θ) + ε, the instance deviation h_i with amplitude b and "
-        f"length scale λ, fitted on the class's training instances (models/instance/index.json). Of the {n} fits "
-        f"(class × component), {fitted} have two or more training instances and fit a term; in "
-        f"{len(s['at_floor'])} of them b sits at its lower bound (no term in effect; {len(s['both_at_floor'])} of "
-        f"those with the class amplitude a at its lower bound too: a component that barely varies for that "
-        f"class). In the other {len(s['active'])}, b / a has median (quartiles) {_spread(d.get('instance_ratio') for d in s['active'])}"
-        f" and λ {_spread(d.get('instance_length_scale') for d in s['active'])} (a long λ: a constant offset per "
-        "instance; a ratio far above 1: the held-out instance's own deviation dominates its predictive).")
-    if s["no_term"]:
-        page.paragraph("No instance term: " + "; ".join(f"{c} ({why})" for c, (_, why) in sorted(s["no_term"].items()))
-                       + ".", cls="note")
-    by_cat, by_comp = defaultdict(list), defaultdict(list)
-    fits_in_cat, fits_in_comp = defaultdict(int), defaultdict(int)
-    for d in s["fits"]:
-        fits_in_cat[category(str(d.get("class")))] += 1
-        fits_in_comp[_component(d)] += 1
-    for d in s["fitted"]:
-        by_cat[category(str(d.get("class")))].append(d)
-        by_comp[_component(d)].append(d)
-    note = ("Median (25–75 % quartiles) over the fits whose instance amplitude left its lower bound: descriptive "
-            "spreads of fitted values, not confidence intervals (each fit's Laplace 95 % interval of b is in the "
-            "per-fit table).")
-    page.table(["category"] + GROUP_HEADER, _group_rows(by_cat, fits_in_cat), cls="instance-fits-category",
-               caption="Instance fits per category (its fold classes together). " + note)
-    page.table(["component"] + GROUP_HEADER, _group_rows(by_comp, fits_in_comp), cls="instance-fits-component",
-               caption="Instance fits per score component, over the classes. " + note)
-    rows = [[d.get("class"), _component(d), d.get("n_instances"), d.get("amplitude"), d.get("instance_amplitude"),
-             _laplace(d.get("instance_amplitude_ci")), d.get("instance_length_scale"), d.get("instance_ratio"),
-             "; ".join(d.get("at_bound") or []) or (d.get("instance_note") or "—")] for d in s["fits"]]
-    page.table(["class", "component", "training instances", "class amplitude a", "instance amplitude b",
-                "b: 95 % interval (Laplace)", "instance length scale λ", "b / a", "at a bound / note"], rows,
-               cls="instance-fits", collapsed=f"All {len(rows)} instance fits",
-               caption="Per (class, component), from models/instance/index.json. The interval of b varies over "
-                       "training sets drawn from the fitted model (Laplace approximation on the log scale).")
-
-
-def _laplace(ci) -> str:
-    return f"[{fmt(ci[0])}, {fmt(ci[1])}]" if isinstance(ci, (list, tuple)) and len(ci) == 2 else "—"
 
 
 def instance_attribution_section(ctx: ReportContext) -> None:

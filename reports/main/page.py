@@ -21,6 +21,7 @@ from reports.main import findings
 from reports.main import instances as instance_sections
 from reports.main import planning as planning_sections
 from reports.main import power as power_sections
+from reports.main import provided as provided_sections
 from reports.main.calibration import CALIBRATED
 from reports.main import track as track_sections
 from reports.main import verdict as verdict_sections
@@ -49,7 +50,7 @@ SECTIONS = (verdict_sections.verdict_section, methods_section, limitations_secti
             calibration_sections.calibration_section, verdict_sections.population_section,
             power_sections.power_section, contrast_section,
             verdict_sections.diagnostics_section, calibration_sections.domain_section, uncertainty_source_section,
-            calibration_sections.attribution_section, instance_sections.instance_fits_section,
+            calibration_sections.attribution_section, provided_sections.sections,
             instance_sections.instance_attribution_section, instance_sections.category_section,
             planning_sections.planning_section, showcase_section,
             track_sections.track_section, track_sections.randomized_section,

@@ -11,6 +11,7 @@ from pipeline.evaluation.statistics.resampler import wilson_interval
 from pipeline.scoring.classifiers import describe_card, display_of
 from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_text
 from reports.main.context import ReportContext
+from reports.main.provided import filled, notes as provided_notes
 from reports.shared.numbers import Estimate, fmt, percent
 from reports.shared.records import (find, holm_text, outcome_clauses, records_of, select, sentence,
                                     sentences as render)
@@ -223,13 +224,8 @@ def method_notes(pop: dict) -> list[str]:
         m = get(key)
         text, values = m.report_note(pop.get(key)) if m is not None else ("", {})
         if text:
-            out.append(_filled(text, values))
+            out.append(filled(text, values))
     return out
-
-
-def _filled(template: str, values: dict) -> str:
-    """A method's or provider's template with its numbers formatted (``fmt``; counts as they are)."""
-    return template.format(**{k: fmt(v) if v is None or isinstance(v, float) else v for k, v in values.items()})
 
 
 def _outcome(d: dict, metric: str) -> str:
@@ -305,24 +301,8 @@ def diagnostics_section(ctx: ReportContext) -> None:
         if rows:
             page.table(header, rows, cls="hyperparameters", collapsed=f"All {len(rows)} fits (hyperparameters, "
                        "bound flags and optimizer messages)", caption="GP hyperparameters from models/index.json.")
-    _provided(ctx)
+    provided_notes(ctx)
     _ablations(ctx)
-
-
-def _provided(ctx: ReportContext) -> None:
-    """Each method's own models (``ModelProvider.section``, from models/<key>/index.json)."""
-    from pipeline.method.registry import model_providers
-
-    for p in model_providers():
-        index = (getattr(ctx.run, "provided", None) or {}).get(p.key)
-        sec = p.section(index) if index is not None else None
-        if sec is None:
-            continue
-        ctx.page.paragraph(_filled(sec.text, sec.values), cls="note")
-        if sec.rows:
-            rows = [[fmt(v) if isinstance(v, float) else v for v in r] for r in sec.rows]
-            ctx.page.table(list(sec.columns), rows, cls=sec.cls or f"{p.key}-models",
-                           collapsed=sec.collapsed, caption=sec.caption)
 
 
 def _ablations(ctx: ReportContext) -> None:

@@ -20,7 +20,6 @@ from pipeline.infra.cache import NpzFileError, load_npz
 from pipeline.infra import outputs
 from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import path as out_path
-from pipeline.infra.outputs import name as out_name
 from pipeline.evaluation.metrics.labels import ATTRIBUTION, methods
 from pipeline.evaluation.metrics.spec import STEP_COLUMNS
 
@@ -218,7 +217,6 @@ class RunArtifacts:
     card: dict | None = None           # classifier/card.json
     manifests: dict[str, dict] = field(default_factory=dict)
     provided: dict = field(default_factory=dict)   # {provider key: models/<key>/index.json}
-    instance: dict | None = None       # models/instance/index.json (models.instance_term)
 
     def skipped(self) -> dict[str, Any]:
         """{stage: manifest["extra"]["skipped"]} for the stages that recorded skips."""
@@ -238,10 +236,8 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
             m = read_json(p)
             if isinstance(m, dict):
                 manifests[s] = m
-    ij = out_path(d / "models" / out_name("models", "instance"), "models", "index")
     return RunArtifacts(d, ev, read_json(idx) if idx.is_file() else None,
-                        read_json(card) if card.is_file() else None, manifests, provided_indexes(d / "models"),
-                        read_json(ij) if ij.is_file() else None)
+                        read_json(card) if card.is_file() else None, manifests, provided_indexes(d / "models"))
 
 
 def provided_indexes(models_dir: Path) -> dict[str, dict]:

@@ -15,7 +15,7 @@ import traceback
 from concurrent.futures.process import BrokenProcessPool
 
 from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
-from pipeline.infra.config.own import own_items
+from pipeline.infra.config.own import own_items, registered as own_key_of
 from stages.framework.registry import ORDER, STAGES
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
@@ -56,8 +56,11 @@ def config_keys_help(section: str) -> str:
                 walk(value, f"{prefix}{f.name}.")
             else:
                 lines.append(line(f, value, prefix + f.name))
-        for name, value in own_items(obj):   # the sections extensions declared under this one
-            walk(value, f"{prefix}{name}.")
+        for name, value in own_items(obj):   # the sections (and keys) extensions declared under this one
+            if dataclasses.is_dataclass(value):
+                walk(value, f"{prefix}{name}.")
+            else:
+                lines.append(line(own_key_of(prefix[:-1])[name].field, value, prefix + name))
 
     parent_path, _, last = section.rpartition(".")
     parent = Config().section(parent_path) if parent_path else Config()
@@ -65,8 +68,8 @@ def config_keys_help(section: str) -> str:
     if dataclasses.is_dataclass(value):
         walk(value, f"{section}.")
     else:
-        f = next(f for f in dataclasses.fields(parent) if f.name == last)
-        lines.append(line(f, value, section))
+        f = next((f for f in dataclasses.fields(parent) if f.name == last), None)
+        lines.append(line(f if f is not None else own_key_of(parent_path)[last].field, value, section))
     return "\n".join(lines)
 
 

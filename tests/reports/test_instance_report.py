@@ -1,6 +1,7 @@
 """The report's instance sections: the instance fits of a tiny bank fitted here (one class with three
-training instances that differ by a known offset, one with a single instance and so no term), and
-the instance term's attribution and per-category tables from a generated population."""
+training instances that differ by a known offset, one with a single instance and so no term), shown
+through their provider's section (``reports.main.provided``), and the instance term's attribution and
+per-category tables from a generated population."""
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -13,7 +14,9 @@ from pipeline.method.gp_files import save_bank
 from pipeline.method.gp_instance_fit import NO_TERM, fit_instance_models
 from pipeline.method.names import MB_INSTANCE, MODEL_BASED, WITH_UNCERTAINTY, WU_INSTANCE
 from reports.main.context import ReportContext
-from reports.main.instances import category_section, instance_attribution_section, instance_fits_section
+from pipeline.method.methods.instance_term import INSTANCE_TERM
+from reports.main.instances import category_section, instance_attribution_section
+from reports.main.provided import sections as provided_sections
 from reports.shared.artifacts import RunArtifacts, load_run, read_json
 from reports.shared.html import HtmlReport
 from reports.shared.numbers import Estimate
@@ -44,8 +47,8 @@ def _bank(folder: Path) -> dict:
     return read_json(folder / "index.json")
 
 
-def _ctx(tmp_path, pop=None, instance=None) -> ReportContext:
-    run = RunArtifacts(tmp_path, SimpleNamespace(population=pop), instance=instance)
+def _ctx(tmp_path, pop=None) -> ReportContext:
+    run = RunArtifacts(tmp_path, SimpleNamespace(population=pop))
     return ReportContext(HtmlReport("t"), run)
 
 
@@ -55,13 +58,13 @@ def _render(ctx, tmp_path):
 
 
 def test_the_fits_section_shows_the_instance_term_per_category_component_and_fit(tmp_path):
-    index = _bank(tmp_path / "models" / "instance")
+    index = _bank(tmp_path / "models" / INSTANCE_TERM)
     (tmp_path / "evaluate").mkdir()
     (tmp_path / "evaluate" / "summary.json").write_text(json.dumps({"population": {}}))
     run = load_run(tmp_path)           # the run's reader finds the instance bank's index
-    assert run.instance == index and run.index is None
+    assert run.provided[INSTANCE_TERM] == index and run.index is None
     ctx = ReportContext(HtmlReport("t"), run)
-    instance_fits_section(ctx)
+    provided_sections(ctx)
     page = _render(ctx, tmp_path)
     assert ctx.sections == ["instance-fits"]
     header, *rows = page.table("instance-fits-category")["rows"]
@@ -84,7 +87,7 @@ def test_the_fits_section_shows_the_instance_term_per_category_component_and_fit
 
 def test_no_instance_bank_no_section(tmp_path):
     ctx = _ctx(tmp_path, pop={})
-    instance_fits_section(ctx)
+    provided_sections(ctx)
     instance_attribution_section(ctx)
     category_section(ctx)
     assert ctx.sections == []
@@ -154,7 +157,7 @@ def test_the_whole_page_carries_the_instance_sections(tmp_path, monkeypatch):
 
     only_figures(monkeypatch)
     facts = write_fake_run(tmp_path / "run", K=4, R=5, ablation=False)
-    _bank(tmp_path / "run" / "models" / "instance")
+    _bank(tmp_path / "run" / "models" / INSTANCE_TERM)
     path = tmp_path / "run" / "evaluate" / "summary.json"
     summary = json.loads(path.read_text())
     out = _blocks(*_population(np.random.default_rng(7)))
@@ -168,4 +171,5 @@ def test_the_whole_page_carries_the_instance_sections(tmp_path, monkeypatch):
     for anchor in ("instance-fits", "instance-attribution", "by-category"):
         assert anchor in page.sections
     assert page.sections.index("diagnostics") < page.sections.index("instance-fits")
+    assert page.table("instance-fits-category")["section"] == "instance-fits"
     assert page.table("instance-goal")["section"] == "instance-attribution"

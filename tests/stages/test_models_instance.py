@@ -1,15 +1,17 @@
-"""models.instance_term: the models stage writes the instance bank beside the default one (here
-every class is one object, so no class gets a term and the records say why), and the evaluate
-stage's loader puts it under ``INSTANCE_BANK``."""
+"""models.instance_term: the models stage fits the instance term's provider beside the default bank
+(``models/instance_term/``; here every class is one object, so no class gets a term and the
+records say why) and records its digest; the evaluate stage's loader hands it over as that
+provider's models, on the default bank's plan, and the contrast arm's folder gets none."""
 import json
 
 import numpy as np
 import pytest
 
-from pipeline.evaluation.grid.population import DEFAULT, INSTANCE_BANK
+from pipeline.method.gp_files import load_bank
 from pipeline.method.gp_instance import InstanceGPClassModels
 from pipeline.method.gp_instance_fit import NO_TERM
-from stages.evaluate import load_banks
+from pipeline.method.methods.instance_term import INSTANCE_TERM
+from stages.evaluate import load_provided
 from stages.framework.registry import STAGES
 from stages.framework.runner import run_stage
 from tests.stages.test_models_stage import CLASSES, write_features
@@ -25,11 +27,16 @@ def test_models_stage_writes_the_instance_bank(tmp_config):
     (feat / "manifest.json").write_text(json.dumps({"stage": "features", "key": "fake"}))
     run_stage(cfg, STAGES["models"], "k", {}, device="cpu", threads=1)
     out = cfg.stage_dir("models")
-    index = json.loads((out / "instance" / "index.json").read_text())
+    index = json.loads((out / INSTANCE_TERM / "index.json").read_text())
     assert all(d["instance_note"] == NO_TERM for d in index["diagnostics"]) and index["instances"] == {
         c: [c] for c in CLASSES}
-    banks, _ = load_banks(out, ())
-    inst, plain = banks[INSTANCE_BANK], banks[DEFAULT]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["extra"][f"{INSTANCE_TERM}_without"] == len(index["diagnostics"])
+    assert manifest["extra"][f"{INSTANCE_TERM}_with_term"] == 0
+    provided = load_provided(out, cfg)
+    assert set(load_provided(out, cfg, variant=True)) == set(provided) - {INSTANCE_TERM}
+    inst, plain = provided[INSTANCE_TERM].models, load_bank(out)
     assert isinstance(inst, InstanceGPClassModels) and not np.any(inst.instance_amplitude)
+    assert manifest["extra"][f"{INSTANCE_TERM}_fingerprint"] == inst.digest()
     for name in ("amplitude", "length_scale", "noise", "mean"):
         assert np.array_equal(getattr(inst, name), getattr(plain, name))

@@ -73,11 +73,10 @@ def add_seconds(*parts: dict[str, float]) -> dict[str, float]:
 
 def track_input(models, track: TrackData, *, var_floor: float, estimates: np.ndarray | None = None,
                 samples: np.ndarray | None = None, provided: dict | None = None,
-                rng: np.random.Generator | None = None, gp_instance=None) -> registry.TrackInput:
+                rng: np.random.Generator | None = None) -> registry.TrackInput:
     """What the registered methods read of one track (``pipeline.method.registry.TrackInput``);
-    ``gp_instance``: the candidates' models with an instance term, where the run has them;
     ``provided``: {provider key: the candidates' models} (``TrackInput.models``)."""
-    return registry.TrackInput(dropout=track.dropout, gp=models, gp_instance=gp_instance, models=dict(provided or {}),
+    return registry.TrackInput(dropout=track.dropout, gp=models, models=dict(provided or {}),
                                own=track.own, probs=track.probs,
                                estimates=estimates, samples=samples, inputs=track.inputs, var_floor=var_floor,
                                rng=rng)
@@ -100,13 +99,13 @@ def pose_free(t: registry.TrackInput, rng: Callable[[str], np.random.Generator] 
 
 def run_track(models, track: TrackData, estimates: np.ndarray, sigma: float, n_x: int,
               rng: np.random.Generator, *, var_floor: float, attribution: bool = False,
-              fixed: dict[str, np.ndarray] | None = None, gp_instance=None, **methods_get) -> Posteriors:
+              fixed: dict[str, np.ndarray] | None = None, **methods_get) -> Posteriors:
     """The methods on realizations of pose estimates (R, K, 2) -> log posteriors (R, K, C) each:
     draws the N_x localization samples around the estimates from ``rng``, then ``fuse_track``
     (``methods_get``: its ``provided`` and ``method_rng``)."""
     samples = sample_localization(estimates, sigma, n_x, rng)          # (R, N_x, K, 2)
     return fuse_track(models, track, estimates, samples, var_floor=var_floor, attribution=attribution, fixed=fixed,
-                      gp_instance=gp_instance, **methods_get)
+                      **methods_get)
 
 
 def _timed(fn, *args, **kw):
@@ -118,7 +117,7 @@ def _timed(fn, *args, **kw):
 
 def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndarray, *, var_floor: float,
                attribution: bool = False, fixed: dict[str, np.ndarray] | None = None,
-               gp_instance=None, provided: dict | None = None,
+               provided: dict | None = None,
                method_rng: Callable[[str], np.random.Generator] | None = None) -> Posteriors:
     """Every registered method that applies on realizations of pose estimates (R, K, 2) and their
     localization samples (R, N_x, K, 2) -> log posteriors (R, K, C) each, in registry order.
@@ -141,8 +140,7 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
     ``method_rng(key)``: each method's own stream (``TrackInput.rng``).
     """
     r, seconds = len(estimates), {}
-    t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples, gp_instance=gp_instance,
-                    provided=provided)
+    t = track_input(models, track, var_floor=var_floor, estimates=estimates, samples=samples, provided=provided)
     out = {}
     for m in registry.methods(attribution=attribution):
         tm = t if method_rng is None else replace(t, rng=method_rng(m.key))
@@ -163,11 +161,11 @@ def fuse_track(models, track: TrackData, estimates: np.ndarray, samples: np.ndar
 
 def biased(models, track: TrackData, bias, sigma: float, n_x: int, rng: np.random.Generator,
            *, var_floor: float, attribution: bool = False, fixed: dict[str, np.ndarray] | None = None,
-           gp_instance=None, **methods_get) -> Posteriors:
+           **methods_get) -> Posteriors:
     """Every estimate shifted by the same bias (one realization): log posteriors (1, K, C)."""
     est = (track.cam_xy + np.asarray(bias, float))[None]
     return run_track(models, track, est, sigma, n_x, rng, var_floor=var_floor, attribution=attribution, fixed=fixed,
-                     gp_instance=gp_instance, **methods_get)
+                     **methods_get)
 
 
 # With Uncertainty trajectories fused per engine call by ``randomized`` (about 15 MB of sample
@@ -179,7 +177,7 @@ BATCH_TRAJECTORIES = 100_000
 def randomized(models, track: TrackData, bias, sigma: float, realizations: int, n_x: int,
                rng: np.random.Generator, *, var_floor: float, chunk: int = 25, batch: int | None = None,
                progress: Callable[[int], None] | None = None, attribution: bool = False,
-               fixed: dict[str, np.ndarray] | None = None, gp_instance=None, **methods_get) -> Posteriors:
+               fixed: dict[str, np.ndarray] | None = None, **methods_get) -> Posteriors:
     """estimate = truth + bias + N(0, σ² I) per pose, over many realizations: log posteriors (R, K, C).
 
     The noise is drawn ``chunk`` realizations at a time, the estimates' errors and then their
@@ -199,7 +197,7 @@ def randomized(models, track: TrackData, bias, sigma: float, realizations: int, 
         est_parts.clear()
         smp_parts.clear()
         fused = fuse_track(models, track, est, smp, var_floor=var_floor, attribution=attribution, fixed=fixed,
-                           gp_instance=gp_instance, **methods_get)
+                           **methods_get)
         for m, v in fused.items():
             out.setdefault(m, []).append(v)
         seconds.append(fused.seconds)
@@ -271,12 +269,11 @@ def gp_rasters(models, *, grid_n: int = 61, extent: float = 1.5, ring_n: int = 1
 
 
 def single_view_first(models, track: TrackData, truth: int, *, var_floor: float = 1e-6,
-                      provided: dict | None = None, gp_instance=None) -> dict[str, float]:
+                      provided: dict | None = None) -> dict[str, float]:
     """How hard a track is: per method, the share of its views whose posterior from that view
     alone, at the true pose, ranks the truth first (1 = every view alone is enough). A method
     without a single-view reading (``single_view`` returns None, the default) has no entry."""
-    t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], provided=provided,
-                    gp_instance=gp_instance)
+    t = track_input(models, track, var_floor=var_floor, estimates=track.cam_xy[None], provided=provided)
     out = {}
     for m in registry.methods(attribution=False):
         one = call_checked(m, "single_view", t) if m.applies(t) else None

@@ -8,6 +8,7 @@ grid is split or scheduled, and an ablation variant sees the same noise as the d
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -19,11 +20,11 @@ from pipeline.scene.location import InconsistentRays, locate
 from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
 from pipeline.infra import seeds
+from pipeline.method.provider import calibrated, providers
 
+log = logging.getLogger("viewfuse.evaluate")
 
 DEFAULT = "default"   # the model-bank variant without an ablation override
-# The banks' key of the default plan's models with an instance term (models.instance_term), when fitted.
-INSTANCE_BANK = "instance_term"
 
 
 @dataclass(frozen=True)
@@ -251,11 +252,12 @@ def method_streams(seed: int, target: str, track: int, setting: Setting):
     return rng
 
 
-def pose_free_track(cell: Cell, models) -> tuple[E.Posteriors, dict]:
+def pose_free_track(cell: Cell, models, provided: dict | None = None) -> tuple[E.Posteriors, dict]:
     """The pose-free methods on the cell's track, fused once (``experiments.pose_free``): their
     (K, C) log posteriors (with their seconds), repeated over every setting's realizations, and
-    their extras."""
-    t = E.track_input(models, cell.data, var_floor=cell.var_floor, provided=cell.models)
+    their extras. ``provided``: the cell's providers' models (default ``cell.models``)."""
+    t = E.track_input(models, cell.data, var_floor=cell.var_floor,
+                      provided=cell.models if provided is None else provided)
     return E.pose_free(t, rng=lambda key: method_rng(cell.seed, cell.target, cell.track, key))
 
 
@@ -275,25 +277,22 @@ def run_cell(banks, cell: Cell) -> dict:
 
 def _run_cell(banks, cell: Cell) -> dict:
     models = banks[cell.variant].subset(cell.classes, cell.components)
-    # The instance bank was fitted with the default [models]: a variant with other models has none.
-    inst = banks.get(INSTANCE_BANK) if banks[cell.variant] is banks[DEFAULT] else None
-    inst = None if inst is None else inst.subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
-        inst = None if inst is None else inst.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
-    fixed, extras = pose_free_track(cell, models)
+    provided = calibrated(cell.models, cell.test_variance)   # the providers' models, like the bank's
+    fixed, extras = pose_free_track(cell, models, provided)
     posts: dict = {}
     for s in cell.settings:
         rng = cell_rng(cell.seed, cell.target, cell.track, s)
-        own = dict(var_floor=cell.var_floor, attribution=cell.attribution, fixed=fixed, gp_instance=inst,
-                   provided=cell.models, method_rng=method_streams(cell.seed, cell.target, cell.track, s))
+        own = dict(var_floor=cell.var_floor, attribution=cell.attribution, fixed=fixed, provided=provided,
+                   method_rng=method_streams(cell.seed, cell.target, cell.track, s))
         if s.experiment == "biased":
             posts[(s.experiment, s.label)] = E.biased(models, cell.data, s.bias, s.sigma, s.n_x, rng, **own)
         else:
             posts[(s.experiment, s.label)] = E.randomized(models, cell.data, s.bias, s.sigma, s.realizations, s.n_x,
                                                           rng, **own)
-    diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, provided=cell.models,
-                                gp_instance=inst) if cell.difficulty else None)
+    diff = (E.single_view_first(models, cell.data, cell.truth, var_floor=cell.var_floor, provided=provided)
+            if cell.difficulty else None)
     seconds = E.add_seconds(fixed.seconds, *(p.seconds for p in posts.values()))
     return {"posts": posts, "difficulty": diff, "seconds": seconds, "extras": extras}
 
@@ -323,10 +322,11 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
     ``pipeline.method.provider``), those of its candidates (``ModelProvider.for_cell``).
     ``variant_provided`` ({variant: {key: models}}): a variant fitted on another training set (the
     class-level contrast's instance arm) takes its own, as it takes its own index's
-    ``own_components`` (Simple Bayes' score per class) where it has them. Every variant's cell of a
-    (target, track) shares the track, its seed and so its localization draws: the variants pair."""
-    from pipeline.method.provider import providers
-
+    ``own_components`` (Simple Bayes' score per class) where it has them. A variant with a model
+    bank of its own (its index not the default's object: a models.* ablation, the contrast's arm)
+    gets no models of a provider that follows the default bank only (``default_only``; logged).
+    Every variant's cell of a (target, track) shares the track, its seed and so its localization
+    draws: the variants pair."""
     def for_cell(prov: dict | None, target, classes, dim) -> dict:
         mine = {}
         for key, pm in (prov or {}).items():
@@ -337,6 +337,12 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
         return mine
     plan = indexes[DEFAULT]["candidate_sets"]
     own = indexes[DEFAULT]["own_components"]
+    default_only = {k for k in (provided or {}) if providers()[k].default_only}
+    apart = [v for v, index in indexes.items() if index is not indexes[DEFAULT]]
+    if default_only and apart:
+        log.info("%s: fitted for the default model bank only; variant(s) %s have a bank of their own and run "
+                 "without them (the methods that need them skip there)", ", ".join(sorted(default_only)),
+                 ", ".join(apart))
     settings = tuple(population_settings(ev))
     cells, tracks, skipped = [], [], []
     for target in choose_targets(ev, avd, plan):
@@ -358,6 +364,8 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                 comps = index["candidate_sets"][target]["components"]
                 vmine = mine if variant not in (variant_provided or {}) else \
                     for_cell(variant_provided[variant], target, classes, full.shape[-1])
+                if index is not indexes[DEFAULT]:
+                    vmine = {k: m for k, m in vmine.items() if k not in default_only}
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
                                    dropout=full[:, :, list(comps)],
                                    own=full[:, :, [index.get("own_components", own)[c] for c in classes]],

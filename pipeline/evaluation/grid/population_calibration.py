@@ -1,6 +1,6 @@
 """The population blocks with calibration metrics and verdict records, and the attribution variants:
-the main block, ``ablations.attribution``, ``ablations.instance_term`` (the instance term's
-attribution, ``INSTANCE_COMPARISONS``), one block per ``evaluate.ablations`` entry, and on a
+the main block, ``ablations.attribution``, the instance term's attribution (``INSTANCE_KEY``,
+``INSTANCE_COMPARISONS``), one block per ``evaluate.ablations`` entry, and on a
 category benchmark one block per category (``by_category``)
 (``pipeline.evaluation.statistics.engine.population_block``; ECE from ``pooled_calibration``)."""
 from __future__ import annotations
@@ -10,6 +10,7 @@ import pandas as pd
 from pipeline.evaluation.metrics.labels import (ATTRIBUTION, ATTRIBUTION_COMPARISONS, INSTANCE_COMPARISONS, MB_INSTANCE,
                                                 MODEL_BASED, WITH_UNCERTAINTY, WU_INSTANCE, comparisons,
                                                 instance_goal_comparisons, methods)
+from pipeline.method.names import INSTANCE_BLOCK
 from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.pooled_calibration import track_sums
@@ -17,7 +18,7 @@ from pipeline.infra.config.evaluation import cluster_of
 from pipeline.scene.folds import category_of
 
 ATTRIBUTION_KEY = "attribution"
-INSTANCE_KEY = "instance_term"
+INSTANCE_KEY = INSTANCE_BLOCK
 # The per-category breakdown's metrics: the goal of the instance term is stated in these.
 CATEGORY_METRICS = ("correct_final", "confident_error_final")
 BLOCK_KEYS = ("pooled", "paired", "records")

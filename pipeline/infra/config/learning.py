@@ -121,9 +121,6 @@ class ModelsConfig(Extendable):
     noise_prior: tuple[float, ...] = _f(factory=lambda: (1e-5, 0.1), lo=1e-12, hi=1e3,
                                         doc="noise variance range holding 98 % of its prior (hyperprior = inverse_gamma)")
     camera: int = _f(1, lo=1, hi=5, doc="BigBIRD camera ring used for training")
-    instance_term: bool = _f(False, doc="also fit class models with an instance term on each class's member objects "
-                                        "(models/instance/; pipeline/method/gp_instance.py): the methods "
-                                        "with_uncertainty_instance and model_based_instance read them")
     restarts: int = _f(5, lo=0, hi=100)
     # 1e-6 (a std of 0.001): components whose scores vary by ~0.01 over the views have a signal
     # variance just under 1e-4, and a 1e-4 floor pinned them there (tests/support/world_checks.py)
@@ -133,5 +130,5 @@ class ModelsConfig(Extendable):
     noise_bounds: tuple[float, ...] = _f(factory=lambda: (1e-6, 1.0), lo=1e-12, hi=1e3)
     seed: int = _f(0, lo=0, hi=SEED_MAX)
     min_views: int = _f(8, lo=2, hi=100000, doc="fail when a class has fewer training views than this")
-    # [models.<key>] of a method's model provider (pipeline/method/provider.py): config/own.py
+    # [models.<key>] (or a key of [models]) of a method's model provider (pipeline/method/provider.py): config/own.py
     own: Own = own_field("models")

@@ -21,7 +21,7 @@ except ModuleNotFoundError:  # pragma: no cover - 3.10
 from pipeline.infra.config.checks import cross_checks
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.learning import ModelsConfig
-from pipeline.infra.config.own import Extendable, Own, sections
+from pipeline.infra.config.own import Extendable, Key, Own, sections
 from pipeline.infra.config.evaluation import ABLATION_KEYS
 from pipeline.infra.config.root import PATH_KEYS, Config, project_root, to_dict
 from pipeline.infra.nesting import depth
@@ -66,8 +66,9 @@ def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
         if clash:
             raise ConfigError(f"{where}: an extension declares the section '{prefix}{clash[0]}', already a key of "
                               f"[{prefix[:-1]}]")
-        kwargs["own"] = Own(prefix[:-1], {name: _build(sub, _table(table.get(name, {}), where, prefix + name),
-                                                       where, f"{prefix}{name}.") for name, sub in own.items()})
+        kwargs["own"] = Own(prefix[:-1], {name: _own_key(sub, table, name, where, prefix) if isinstance(sub, Key) else
+                                          _build(sub, _table(table.get(name, {}), where, prefix + name), where,
+                                                 f"{prefix}{name}.") for name, sub in own.items()})
         fields = {**fields, **dict.fromkeys(own)}
         table = {k: v for k, v in table.items() if k not in own}
     unknown = sorted(set(table) - set(fields))
@@ -103,6 +104,15 @@ def _build(cls: type, table: dict, where: str, prefix: str) -> Any:
         _check_range(value, f, key, where)
         kwargs[name] = value
     return cls(**kwargs)
+
+
+def _own_key(declared: Key, table: dict, name: str, where: str, prefix: str) -> Any:
+    """An extension's key of the parent section (``own.Key``), checked like a built-in key."""
+    if name not in table:
+        return declared.default()
+    value = _check_scalar(table[name], declared.type, prefix + name, where)
+    _check_range(value, declared.field, prefix + name, where)
+    return value
 
 
 def _table(value: Any, where: str, key: str) -> dict:

@@ -10,6 +10,10 @@ The registered sections (``SECTIONS``) load like the methods (``pipeline.infra.r
 built-in methods' package, then the ``viewfuse.methods`` entry points, on first use in every
 process, so a config is never parsed before the methods declared theirs. A dataset source's
 section is the one of the source ``data.source`` names, present only then.
+
+An extension may also add one key to the parent section itself (``[models] <name> = true``), where
+a table would be too much: declared as a ``Key`` (its type and its ``setting`` field), read as
+``cfg.models.<name>`` and written by ``to_dict`` as a key of the parent, like a built-in one.
 """
 from __future__ import annotations
 
@@ -25,9 +29,27 @@ PARENTS = ("data", "models", "evaluate")
 
 
 @dataclass(frozen=True)
+class Key:
+    """One key an extension adds to its parent section (``[<parent>] <name> = <value>``): its
+    ``type`` (bool, int, float or str) and its ``setting`` field (default, range, choices, doc)."""
+    type: type
+    field: dataclasses.Field
+
+    def default(self) -> Any:
+        f = self.field
+        return f.default_factory() if f.default is dataclasses.MISSING else f.default
+
+
+def default_of(declared: Any) -> Any:
+    """A declared section's or key's default value (an own section or key not in the TOML)."""
+    return declared.default() if isinstance(declared, Key) else declared()
+
+
+@dataclass(frozen=True)
 class Declared:
     """What one extension (a model provider, by its key) declares: ``sections``, dotted TOML table
-    -> its frozen dataclass of ``setting`` fields (``{"models.<key>": ..., "evaluate.<key>": ...}``);
+    -> its frozen dataclass of ``setting`` fields (``{"models.<key>": ..., "evaluate.<key>": ...}``),
+    or dotted key -> a ``Key`` (one key of the parent section);
     ``check(cfg, need)``, its cross-key checks (``need(ok, message)`` raises a ConfigError naming
     the file), run with every section's at load."""
     owner: str
@@ -46,8 +68,12 @@ def register_sections(owner: str, sections: dict[str, type], *, check: Callable 
         if parent not in PARENTS or not name.isidentifier():
             raise ValueError(f"{owner}: config section {path!r} must be <parent>.<name> with parent one of "
                              f"{', '.join(PARENTS)}")
-        if not (dataclasses.is_dataclass(config) and isinstance(config, type)):
-            raise TypeError(f"{owner}: config section {path!r} must be a dataclass, got {config!r:.80}")
+        if isinstance(config, Key):
+            if config.type not in (bool, int, float, str) or not isinstance(config.field, dataclasses.Field):
+                raise TypeError(f"{owner}: config key {path!r} must be a Key of bool, int, float or str with a "
+                                f"setting field, got {config!r:.80}")
+        elif not (dataclasses.is_dataclass(config) and isinstance(config, type)):
+            raise TypeError(f"{owner}: config section {path!r} must be a dataclass or a Key, got {config!r:.80}")
     old = SECTIONS.peek(owner)
     SECTIONS.add(owner, Declared(owner, dict(sections), check), module=module,
                  replace=old is not None and SECTIONS.module_of(owner) == module)
@@ -57,8 +83,9 @@ def unregister_sections(owner: str) -> None:
     SECTIONS.remove(owner)
 
 
-def registered(parent: str) -> dict[str, type]:
-    """The registered sections under ``[parent]``: name -> dataclass (two owners of one is an error)."""
+def registered(parent: str) -> dict[str, Any]:
+    """The registered sections under ``[parent]``: name -> dataclass or ``Key`` (two owners of one
+    is an error)."""
     out: dict[str, type] = {}
     owners: dict[str, str] = {}
     for d in SECTIONS.values():
@@ -97,7 +124,8 @@ class Own(Mapping):
         self._parent, self._items = parent, dict(items or {})
 
     def _all(self) -> dict[str, Any]:
-        return {**{n: c() for n, c in registered(self._parent).items() if n not in self._items}, **self._items}
+        return {**{n: default_of(c) for n, c in registered(self._parent).items() if n not in self._items},
+                **self._items}
 
     def __getitem__(self, name: str) -> Any:
         if name in self._items:

@@ -4,7 +4,8 @@ instance's deviation is shared by every view of the track. With the With Uncerta
 attributes a gain to the instance term alone (both with and without pose and dropout sampling)."""
 from __future__ import annotations
 
-from pipeline.method.method_base import OnInstanceModels, register
+from pipeline.method.method_base import register
+from pipeline.method.methods.instance_term import OnInstanceModels
 from pipeline.method.methods.model_based import ModelBased
 from pipeline.method.names import MB_INSTANCE
 

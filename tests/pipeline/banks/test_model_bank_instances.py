@@ -1,12 +1,14 @@
 """Instance labels from the features table: a class made of several object folders (ETH-80's
-category folds) keeps each view's folder as its instance, and ``fit_from_features(instance_term=
-True)`` fits the instance term on exactly the fold's member objects."""
+category folds) keeps each view's folder as its instance, and the bank-like fit of the instance
+term's provider (``fit_from_features(fit=...)`` through ``fit_with_term``) fits the term on exactly
+the fold's member objects."""
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.banks.model_bank import fit_from_features, read_training_views
 from pipeline.method.gp_instance import InstanceGPClassModels
+from pipeline.method.methods.instance_term import fit_with_term
 from tests.stages.test_models_stage import mcfg, write_features
 
 OBJECTS = ["eth80_cup1", "eth80_cup2", "eth80_cup3", "eth80_dog1", "eth80_dog2", "eth80_dog3"]
@@ -37,8 +39,9 @@ def test_views_keep_their_object_folder(tmp_path):
 
 def test_instance_bank_fits_on_the_fold_members_only(tmp_path):
     write(tmp_path / "bigbird.parquet")
-    models, extra = fit_from_features(tmp_path / "bigbird.parquet", mcfg(classes="all", restarts=0), progress=False,
-                                      class_members=MEMBERS, instance_term=True)
+    models, extra = fit_with_term(lambda fit: fit_from_features(tmp_path / "bigbird.parquet", mcfg(classes="all",
+                                                                restarts=0), progress=False, class_members=MEMBERS,
+                                                                fit=fit))
     assert isinstance(models, InstanceGPClassModels)
     assert extra["instances"] == {c: sorted(m) for c, m in MEMBERS.items()}
     by_class = {}

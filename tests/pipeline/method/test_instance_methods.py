@@ -1,6 +1,6 @@
 """The two registered methods with the instance term: on one instance per class (COIL) they are
 With Uncertainty and Model Based bit for bit, fit included; with several instances they differ; a
-cell without the instance bank skips them."""
+cell without the instance models (their provider's) skips them."""
 import numpy as np
 import pytest
 
@@ -8,6 +8,7 @@ from pipeline.method import registry
 from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.gp_instance_fit import fit_instance_models
+from pipeline.method.methods.instance_term import INSTANCE_TERM
 from pipeline.method.names import MB_INSTANCE, MODEL_BASED, WITH_UNCERTAINTY, WU_INSTANCE
 from tests.pipeline.method.test_gp_instance_fit import hierarchical
 
@@ -38,7 +39,8 @@ def track_input(plain, inst, seed=1, K=4, R=2, n_x=3, n_s=5):
     est = np.c_[np.cos(np.linspace(0, 1.5, K)), np.sin(np.linspace(0, 1.5, K))][None] * 2.0
     est = est + 0.05 * rng.standard_normal((R, K, 2))
     dropout = 0.3 + 0.05 * rng.standard_normal((K, n_s, plain.n_components))
-    return registry.TrackInput(dropout=dropout, gp=plain, gp_instance=inst, estimates=est,
+    return registry.TrackInput(dropout=dropout, gp=plain, models={} if inst is None else {INSTANCE_TERM: inst},
+                               estimates=est,
                                samples=sample_localization(est, 0.1, n_x, rng),
                                inputs=lambda p: relative_inputs(p, np.zeros(2), 0.0, unit_circle=True))
 
