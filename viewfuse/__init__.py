@@ -15,8 +15,8 @@ check_install()
 
 from pipeline.method.gp import GPClassModels  # noqa: E402
 from pipeline.method.registry import FusionMethod, TrackInput, comparisons, register, unregister  # noqa: E402
-from pipeline.method.provider import (ModelProvider, Section, TrainingViews, providers,  # noqa: E402
-                                      register_provider, unregister_provider)
+from pipeline.method.provider import (Interval, ModelProvider, Section, Spread, TrainingViews,  # noqa: E402
+                                      providers, register_provider, unregister_provider)
 from pipeline.evaluation.metrics.spec import Metric, register_metric, unregister_metric  # noqa: E402
 from pipeline.planning.planners import Planner, register_planner, unregister_planner  # noqa: E402
 from pipeline.scoring.classifiers import Classifier, register_classifier, unregister_classifier  # noqa: E402
@@ -31,7 +31,8 @@ from pipeline.infra.cost import Term  # noqa: E402
 from viewfuse.api import evaluate_population, fit_models, fuse, method, methods, track_metrics  # noqa: E402
 
 __all__ = ["FusionMethod", "TrackInput", "register", "unregister", "methods", "method", "comparisons",
-           "GPClassModels", "ModelProvider", "TrainingViews", "Section", "register_provider", "unregister_provider",
+           "GPClassModels", "ModelProvider", "TrainingViews", "Section", "Spread", "Interval",
+           "register_provider", "unregister_provider",
            "providers", "fit_models", "fuse", "track_metrics", "evaluate_population",
            "Classifier", "classifiers", "register_classifier", "unregister_classifier", "Planner", "register_planner",
            "unregister_planner", "Metric", "register_metric", "unregister_metric", "mc_dropout_scores",
