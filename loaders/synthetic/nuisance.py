@@ -53,6 +53,9 @@ def object_pose(nz: RigNuisance, seed: int, name: str, angle: int) -> tuple[np.n
     return rot_z(yaw), off + np.array([dxy[0], dxy[1], 0.0])
 
 
+SENSOR_ROWS = 32   # rows per band of the sensor noise (about 0.5 MB of float32 temporaries)
+
+
 @lru_cache(maxsize=2)
 def _normal_bank(seed: int, size: int) -> np.ndarray:
     """Standard normals drawn once per process; each image takes a slice at a random offset
@@ -74,11 +77,16 @@ def sensor(rgb: np.ndarray, nz: RigNuisance, seed: int, rng: np.random.Generator
     if nz.read_noise <= 0 and nz.shot_noise <= 0:
         return img
     sd_lut = np.sqrt(nz.read_noise ** 2 + nz.shot_noise * levels).astype(np.float32)
-    sd = cv2.LUT(img, sd_lut)
     n = img.size
     off = int(rng.integers(0, n))
-    noise = cv2.multiply(_normal_bank(seed, n)[off:off + n].reshape(img.shape), sd)
-    return cv2.add(img, noise, dtype=cv2.CV_8U)
+    bank = _normal_bank(seed, n)[off:off + n].reshape(img.shape)
+    # The noise in bands of rows: the float32 temporaries of a band stay in the cache (a whole
+    # view's are 16 MB each); every pixel's arithmetic is the one of the whole-image calls.
+    for r0 in range(0, img.shape[0], SENSOR_ROWS):
+        band = img[r0:r0 + SENSOR_ROWS]
+        noise = cv2.multiply(bank[r0:r0 + SENSOR_ROWS], cv2.LUT(band, sd_lut))
+        cv2.add(band, noise, dst=band, dtype=cv2.CV_8U)
+    return img
 
 
 def bounding_box(mask: np.ndarray) -> tuple[int, int, int, int]:

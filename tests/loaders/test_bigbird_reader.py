@@ -1,6 +1,7 @@
 """BigBIRD reader on a tiny hand-made object folder (tests/support/readers_fixtures.py)."""
 from __future__ import annotations
 
+import cv2
 import h5py
 import numpy as np
 import pytest
@@ -92,6 +93,43 @@ def test_object_box_ignores_speck_and_exclusive_ends(obj):
     # a bigger second component wins over a smaller one
     m[25:45, 2:30] = True
     assert o.object_box(m) == (2, 25, 30, 45)
+
+
+def _box_of_whole_image(mask, k):
+    """The largest component's box, labelled over the whole image (the reader's route before it
+    labelled only the rectangle of what survives the opening)."""
+    opened = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    n, _, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
+    if n <= 1:
+        return None
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    x0, y0, w, h = (int(v) for v in stats[best, :4])
+    return x0, y0, x0 + w, y0 + h
+
+
+def test_object_box_equals_labelling_the_whole_image_ties_included():
+    from loaders.bigbird import mask_box
+
+    rng = np.random.default_rng(0)
+    ties = 0
+    for _ in range(400):
+        H, W = (int(v) for v in rng.integers(20, 90, 2))
+        m = np.zeros((H, W), bool)
+        s = int(rng.integers(3, 9))
+        n_sq = int(rng.integers(1, 5))
+        for _ in range(n_sq):          # equally large squares: which one wins is the labels' order
+            y, x = int(rng.integers(0, H - s)), int(rng.integers(0, W - s))
+            m[y:y + s, x:x + s] = True
+        m[rng.integers(0, H, 15), rng.integers(0, W, 15)] = True   # specks
+        k = int(rng.integers(1, 5))
+        want = _box_of_whole_image(m, k)
+        if want is None:
+            with pytest.raises(BadInputError, match="only specks"):
+                mask_box(m, k)
+            continue
+        ties += n_sq > 1
+        assert mask_box(m, k) == want
+    assert ties > 100
 
 
 def test_jpeg_size_matches_decode(obj):

@@ -45,10 +45,18 @@ def paired_cells(cells: pd.DataFrame, a: str, b: str, metrics: Sequence[str]) ->
     return d
 
 
-def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str) -> tuple[int, int]:
-    """(cells where both methods sit at the metric's best value, cells where both sit at its worst)."""
-    x = diff_src[diff_src["method"] == a].set_index(KEYS)[metric]
-    y = diff_src[diff_src["method"] == b].set_index(KEYS)[metric].reindex(x.index)
+def aligned_cells(cells: pd.DataFrame, a: str, b: str) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The cells of ``a`` and of ``b`` indexed by KEYS, ``b``'s in ``a``'s order."""
+    x = cells[cells["method"] == a].set_index(KEYS)
+    return x, cells[cells["method"] == b].set_index(KEYS).reindex(x.index)
+
+
+def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str,
+               aligned: tuple[pd.DataFrame, pd.DataFrame] | None = None) -> tuple[int, int]:
+    """(cells where both methods sit at the metric's best value, cells where both sit at its worst).
+    ``aligned``: ``aligned_cells(diff_src, a, b)`` made once for every metric of the pair."""
+    xf, yf = aligned if aligned is not None else aligned_cells(diff_src, a, b)
+    x, y = xf[metric], yf[metric]
     m = M.METRICS[metric]
     at = (lambda v: ((np.abs(x - v) < 1e-12) & (np.abs(y - v) < 1e-12)).sum())
     return (int(at(m.best)) if m.best is not None else 0), (int(at(m.worst)) if m.worst is not None else 0)
@@ -94,6 +102,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         key = comparison_key(a, b)
         dfs = [paired_cells(f, a, b, metrics) for f in frames.values()]
         dtv = [track_values(d, metrics) for d in dfs]
+        pair = aligned_cells(next(iter(frames.values())), a, b) if single else None
         for k in metrics:
             higher = M.higher_is_better(k)
             v = h.pad(dtv, k)
@@ -114,7 +123,8 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             if loto and single:
                 extra = _loto(h, vt, pool, higher)
                 est.update(extra)
-            top, bottom = (saturation(next(iter(frames.values())), a, b, k) if single and k in M.METRICS else (0, 0))
+            top, bottom = (saturation(next(iter(frames.values())), a, b, k, pair) if single and k in M.METRICS
+                           else (0, 0))
             out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=over,
                                              cluster=h.cluster, n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
                                              losses=est["losses"], unit="cells", ceiling_cells=top,

@@ -147,3 +147,45 @@ def test_transform_faces_moves_textures_with_the_geometry(yaw):
         assert np.allclose(b.normal, R @ a.normal)
         if a.origin is not None:
             assert np.allclose(b.origin, R @ a.origin + t)
+
+
+def _paste_by_boolean_index(dst, patch, draw):
+    dst[draw] = patch[draw]
+
+
+@pytest.mark.parametrize("face_labels", [False, True])
+def test_masked_paste_writes_what_boolean_assignment_writes(monkeypatch, face_labels):
+    # A room-like shell, a textured face and colour boxes that occlude one another, rendered with
+    # OpenCV's masked copy (the renderer's) and with numpy's boolean assignment: the same bytes.
+    import loaders.synthetic.render as R
+
+    tex = np.random.default_rng(3).integers(0, 256, (40, 60, 3), dtype=np.uint8)
+    tl = np.array([0.25, -0.45, 0.5])    # in front of part of the grey box
+    u, v = np.array([0.0, 0.5, 0.0]), np.array([0.0, 0.0, -0.4])
+    poster = Face(np.array([tl + v, tl + u + v, tl + u, tl]), np.array([1.0, 0, 0]), texture=tex,
+                  origin=tl, u_axis=u, v_axis=v)
+    floor = box(-2.0, -2.0, 2.0, 2.0, -0.05, 0.0, color=(0.3, 0.6, 0.2))
+    meshes = [Mesh(floor, 0, shell=True), Mesh((poster,), 3), Mesh(box(-0.1, -0.1, 0.1, 0.1, 0.0, 0.3), 7),
+              Mesh(box(-0.3, 0.05, -0.15, 0.2, 0.0, 0.5, color=(0.9, 0.1, 0.4)), 9)]
+    cam = Camera.look_at([1.3, 0.6, 0.8], [0.0, 0.0, 0.15], K, 160, 120)
+    light = Light((0.3, 0.2, 1.0), ambient=0.6, diffuse=0.5)
+    fast = render(cam, meshes, light, (20, 30, 40), face_labels=face_labels, want_depth=True)
+    monkeypatch.setattr(R, "_paste", _paste_by_boolean_index)
+    slow = render(cam, meshes, light, (20, 30, 40), face_labels=face_labels, want_depth=True)
+    assert face_labels or len(np.unique(fast.ids)) == 4   # every mesh shows
+    np.testing.assert_array_equal(fast.rgb, slow.rgb)
+    np.testing.assert_array_equal(fast.ids, slow.ids)
+    np.testing.assert_array_equal(fast.depth, slow.depth)
+
+
+def test_masked_paste_writes_into_a_view_of_the_image():
+    from loaders.synthetic.render import _paste
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (50, 70, 3), dtype=np.uint8)
+    want = img.copy()
+    patch = rng.integers(0, 256, (20, 31, 3), dtype=np.uint8)
+    draw = rng.random((20, 31)) < 0.4
+    _paste(img[7:27, 13:44], patch, draw)
+    _paste_by_boolean_index(want[7:27, 13:44], patch, draw)
+    np.testing.assert_array_equal(img, want)

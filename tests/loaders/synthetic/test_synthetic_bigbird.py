@@ -189,3 +189,26 @@ def test_object_is_decentred_once_and_wobbles_per_angle():
     (_, a), (_, b) = object_pose(nz, 0, NAME, 0), object_pose(nz, 0, NAME, 3)
     assert 0 < np.linalg.norm(a - b) < 0.01
     assert np.allclose(object_pose(nz, 0, NAME, 3)[1], b)  # the same for every camera at an angle
+
+
+def test_sensor_noise_in_bands_equals_the_whole_image_arithmetic():
+    # The noise is added in bands of rows; each pixel must get exactly the whole-image result
+    # (the formula literally, on a height that is not a multiple of the band).
+    import cv2
+
+    from loaders.synthetic.nuisance import SENSOR_ROWS, _normal_bank
+
+    nz = RigNuisance(read_noise=1.5, shot_noise=0.04, exposure=0.04, white_balance=0.02)
+    rgb = np.random.default_rng(5).integers(0, 256, (3 * SENSOR_ROWS + 7, 90, 3), dtype=np.uint8)
+    got = sensor(rgb, nz, 11, np.random.default_rng(2))
+    rng = np.random.default_rng(2)
+    gain = np.exp(rng.normal(0.0, nz.exposure) + rng.normal(0.0, nz.white_balance, 3))
+    levels = np.arange(256, dtype=np.float32)
+    lut = np.clip(levels[:, None] * gain[None, :].astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
+    img = cv2.LUT(rgb, lut.reshape(256, 1, 3))
+    sd = cv2.LUT(img, np.sqrt(nz.read_noise ** 2 + nz.shot_noise * levels).astype(np.float32))
+    off = int(rng.integers(0, img.size))
+    noise = cv2.multiply(_normal_bank(11, img.size)[off:off + img.size].reshape(img.shape), sd)
+    want = cv2.add(img, noise, dtype=cv2.CV_8U)
+    assert not np.array_equal(want, img)
+    np.testing.assert_array_equal(got, want)

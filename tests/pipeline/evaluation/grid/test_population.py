@@ -97,6 +97,25 @@ def test_scores_are_gathered_per_view_in_pass_order():
         P.track_samples(missing, scores, info, 4)
 
 
+def test_scores_of_a_view_with_two_boxes_of_the_target_keep_the_row_filter_order():
+    # Two boxes of the target in one image repeat its passes: the rows then come in the order the
+    # filter-and-sort of each view gave them (pandas' sort of the passes), not interleaved otherwise.
+    df, scores = scene(scans=("s1",), n_s=12, D=4)
+    det = P.target_views(df, "t", 4)
+    (info,) = P.plan_tracks(det, "t", 1, 4, 0, {"s1": (FX, CX)}, {"s1": 0.3})
+    second = df[(df["image"] == info.images[1]) & (df["pass"] >= 0)]
+    df2 = pd.concat([df, second.assign(box_x0=second["box_x0"] + 5)], ignore_index=True)
+    scores2 = np.concatenate([scores, scores[second.index] + 0.5])
+    df2 = df2.sample(frac=1.0, random_state=3)
+    rows = df2[(df2["instance"] == "t") & (df2["scan"] == "s1") & (df2["pass"] >= 0) & (df2["difficulty"] <= 4)]
+    want = [scores2[rows[rows["image"] == n].sort_values("pass").index.to_numpy()] for n in info.images]
+    assert len(want[1]) == 24 and len(want[0]) == 12
+    with pytest.raises(TrackError, match="different numbers of dropout samples"):
+        P.track_samples(df2, scores2, info, 4)
+    doubled = dataclasses.replace(info, images=(info.images[1],))
+    np.testing.assert_array_equal(P.track_samples(df2, scores2, doubled, 4)[0], want[1])
+
+
 def _cell(variant="default", track=0, settings=None):
     models = ring_models()
     data = make_track(models, truth=1, K=4)

@@ -217,3 +217,23 @@ def test_over_members_and_wilson():
     lo, hi = wilson_interval(8, 10)          # textbook value: [0.490, 0.943]
     assert lo == pytest.approx(0.490, abs=1e-3) and hi == pytest.approx(0.943, abs=1e-3)
     assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
+
+
+def test_saturation_counts_cells_where_both_methods_sit_at_an_extreme_in_any_row_order():
+    # 'b' lists its cells in another order than 'a': the counts pair cell with cell, with the pair
+    # aligned once for every metric or per call.
+    from pipeline.evaluation.statistics.engine import aligned_cells, saturation
+
+    metric = next(k for k, m in M.METRICS.items() if m.best is not None and m.worst is not None)
+    best, worst = M.METRICS[metric].best, M.METRICS[metric].worst
+    keys = [(f"t{t}", j, "s0") for t in range(3) for j in range(4)]
+    a = [best, best, worst, worst, best, 0.5, worst, 0.5, best, worst, best, worst]
+    b = [best, worst, worst, best, best, best, worst, 0.5, 0.5, worst, best, best]
+    rows = [dict(zip(["target", "track", "setting"], k), method=m, **{metric: v})
+            for m, vals in (("a", a), ("b", b)) for k, v in zip(keys, vals)]
+    cells = pd.DataFrame(rows)
+    cells = pd.concat([cells[cells["method"] == "a"], cells[cells["method"] == "b"].iloc[::-1]])
+    want = (sum(x == y == best for x, y in zip(a, b)), sum(x == y == worst for x, y in zip(a, b)))
+    assert want == (3, 3)
+    assert saturation(cells, "a", "b", metric) == want
+    assert saturation(cells, "a", "b", metric, aligned_cells(cells, "a", "b")) == want
