@@ -48,13 +48,14 @@ def test_every_scan_failing_names_each():
 def test_a_skipped_target_is_named_in_the_limitations(tmp_path):
     from types import SimpleNamespace
 
+    from pipeline.infra.datasets import described
     from reports.main.reviewer import limitations
 
     pop = {"skipped_targets": [{"target": "coil_obj006", "reason": "no usable track of 'coil_obj006': s1: 2 view(s)"},
                                {"target": "coil_obj007", "scan": "s2", "reason": "s2: rays", "residual_m": 0.4}],
            "tracks": [], "per_target": {}}
     ctx = SimpleNamespace(population=pop, config={"evaluate": {}}, run=SimpleNamespace(card={}, run_dir=str(tmp_path)),
-                          data_source="real_imagery")
+                          data_source="real_imagery", source=described("real_imagery"))
     items = limitations(ctx)
     hit = [i for i in items if "skipped for want of a usable track" in i]
     assert len(hit) == 1 and hit[0].startswith("1 target was skipped") and "coil_obj006" in hit[0]
