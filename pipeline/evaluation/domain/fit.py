@@ -39,7 +39,8 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
     comps = list(models.components)
     key = rows["scan"].astype(str) + "\x00" + rows["instance"].astype(str) + "\x00" + rows["image"].astype(str)
     code, uniq = pd.factorize(key, sort=True)
-    s = np.asarray(scores, float)[rows.index.to_numpy()][:, comps]
+    # the used rows and components only, then float64: the whole table in float64 is twice its size
+    s = np.asarray(scores)[np.ix_(rows.index.to_numpy(), comps)].astype(float)
     n = np.bincount(code).astype(float)
     G, F = len(uniq), len(comps)
     s1, s2 = np.zeros((G, F)), np.zeros((G, F))
