@@ -99,3 +99,17 @@ def test_integer_poses_are_accepted_as_floats(tmp_path):
     path = _write(tmp_path, "avd", _replace("heading", list(range(ROWS))))
     df, _, _ = read_features(path)
     assert df["heading"].tolist() == list(range(ROWS))
+
+
+def test_released_batches_give_the_same_arrays_and_keep_their_count():
+    from pipeline.scoring.features import Scored
+
+    rng = np.random.default_rng(3)
+    det = [rng.random((b, 4), dtype=np.float32) for b in (3, 2)]
+    mc = [rng.random((b, 5, 4), dtype=np.float32) for b in (3, 2)]
+    kept, released = Scored(det=list(det), mc=list(mc)), Scored(det=list(det), mc=list(mc))
+    d0, m0 = kept.arrays(4, 5)
+    d1, m1 = released.arrays(4, 5, release=True)
+    assert np.array_equal(d0, d1) and np.array_equal(m0, m1)
+    assert released.det == [] and released.mc == [] and released.n == kept.n == 5
+    assert Scored(det=list(det)).arrays(4, 0, release=True)[1] is None
