@@ -85,12 +85,14 @@ def write_table(table, path: str | Path) -> None:
 
 
 def read_features_table(path: str | Path, kind: str | None = None, required: Iterable[str] = (),
-                        error: Callable[[Path, str], Exception] | None = None) -> tuple["Any", dict[str, str]]:
+                        error: Callable[[Path, str], Exception] | None = None,
+                        with_scores: bool = True) -> tuple["Any", dict[str, str]]:
     """The one reader of a features Parquet: (its pyarrow table, its ``viewfuse.*`` metadata as
     strings), the file checked readable, with ``scores`` and the ``kind`` table's contract (bigbird
     or avd; default: from the file name; ``required``: the columns the caller uses,
     ``table_checks.check_table``). Problems raise ``error(path, problem)`` (default: ValueError
-    naming the file; a missing file: FileNotFoundError)."""
+    naming the file; a missing file: FileNotFoundError). ``with_scores=False``: every column but
+    ``scores`` (which the file must still have; ``read_scores`` streams it)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -102,36 +104,65 @@ def read_features_table(path: str | Path, kind: str | None = None, required: Ite
         msg = "features file not found (run the 'features' stage)"
         raise FileNotFoundError(f"{path}: {msg}") if error is None else error(path, msg)
     try:
-        table = pq.read_table(path)
+        if with_scores:
+            table = pq.read_table(path)
+            names = table.column_names
+        else:
+            names = pq.read_schema(path).names
+            table = pq.read_table(path, columns=[n for n in names if n != "scores"])
     except (pa.ArrowInvalid, OSError) as e:
         raise fail(path, f"not a readable Parquet file ({e})") from None
-    if "scores" not in table.column_names:
+    if "scores" not in names:
         raise fail(path, "missing column(s) scores")
-    check_table(table, kind or kind_of(path, table.column_names), path, fail, required)
+    check_table(table, kind or kind_of(path, names), path, fail, required)
     meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
             if k.decode().startswith("viewfuse.")}
     return table, meta
 
 
+# rows of ``scores`` decoded at a time: reading the column whole (one row group) peaked at about
+# four times its size (2.5 GB for real_full's 0.55 GB of AVD scores)
+READ_ROWS = 8192
+
+
+def read_scores(path: str | Path, n: int) -> np.ndarray:
+    """The ``scores`` column of a features Parquet of ``n`` rows as (n, D) float32, decoded in
+    batches of ``READ_ROWS`` rows into one array; ValueError naming the file for another type or
+    rows without scores."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    f = pq.ParquetFile(path)
+    t = f.schema_arrow.field("scores").type
+    if not pa.types.is_fixed_size_list(t):
+        raise ValueError(f"{path}: 'scores' is {t}, expected fixed_size_list<float32>")
+    D = t.list_size
+    out = np.empty((n, D), np.float32)
+    a = nulls = 0
+    for batch in f.iter_batches(batch_size=READ_ROWS, columns=["scores"]):
+        col = batch.column(0)
+        nulls += col.null_count
+        if not col.null_count:
+            out[a:a + len(col)] = col.flatten().to_numpy(zero_copy_only=False).reshape(len(col), D)
+        a += len(col)
+    if nulls:
+        raise ValueError(f"{path}: {nulls} row(s) have no scores")
+    if a != n:
+        raise ValueError(f"{path}: {a} rows of scores for {n} rows")
+    return out
+
+
 def read_features(path: str | Path, kind: str | None = None,
                   required: Iterable[str] = ()) -> tuple["Any", np.ndarray, dict[str, str]]:
     """(DataFrame of every column but ``scores`` (RangeIndex = row number), scores (n, D) float32,
-    ``viewfuse.*`` metadata as strings), read by ``read_features_table``."""
-    import pyarrow as pa
-
-    table, meta = read_features_table(path, kind, required)
-    col = table.column("scores").combine_chunks()
-    if not pa.types.is_fixed_size_list(col.type):
-        raise ValueError(f"{path}: 'scores' is {col.type}, expected fixed_size_list<float32>")
-    if col.null_count:
-        raise ValueError(f"{path}: {col.null_count} row(s) have no scores")
-    D = col.type.list_size
-    scores = col.flatten().to_numpy(zero_copy_only=False).astype(np.float32, copy=False).reshape(len(col), D)
+    ``viewfuse.*`` metadata as strings), read by ``read_features_table`` and ``read_scores``."""
+    table, meta = read_features_table(path, kind, required, with_scores=False)
+    scores = read_scores(path, table.num_rows)
+    D = scores.shape[1]
     if "viewfuse.score_dim" in meta and int(meta["viewfuse.score_dim"]) != D:
         raise ValueError(f"{path}: metadata score_dim {meta['viewfuse.score_dim']} != scores width {D}")
     check_scores(scores, path)
-    df = table.drop_columns(["scores"]).to_pandas()
-    return df, scores, meta
+    return table.to_pandas(), scores, meta
 
 
 SUM_TOLERANCE = 1e-3  # softmax rows stored as float32: sums are within ~1e-6 of 1
@@ -314,6 +345,7 @@ def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_s
 
     for job in jobs:
         crop, cb = policy.crop(job.image, job.box)
+        job.image = None   # the frame goes once its crops are cut (a batch would hold up to 64 of them)
         pending.append((job, crop, cb))
         if len(pending) >= batch_size:
             yield batch()

@@ -113,3 +113,24 @@ def test_released_batches_give_the_same_arrays_and_keep_their_count():
     assert np.array_equal(d0, d1) and np.array_equal(m0, m1)
     assert released.det == [] and released.mc == [] and released.n == kept.n == 5
     assert Scored(det=list(det)).arrays(4, 0, release=True)[1] is None
+
+
+def test_scores_are_read_in_batches_across_row_groups(tmp_path, monkeypatch):
+    from pipeline.scoring import features as F
+
+    t = _table("avd")                                   # N crops x (1 + NS) passes = 12 rows
+    path = tmp_path / "avd.parquet"
+    pq.write_table(t, path, row_group_size=5)           # batches that straddle the row groups
+    monkeypatch.setattr(F, "READ_ROWS", 4)
+    df, scores, meta = read_features(path, "avd")
+    whole = t.column("scores").combine_chunks()
+    assert np.array_equal(scores, whole.flatten().to_numpy().reshape(len(t), D))
+    assert scores.dtype == np.float32 and len(df) == len(t) and "scores" not in df.columns
+    assert meta["viewfuse.score_dim"] == str(D)
+    with pytest.raises(ValueError, match=r"avd.parquet: 12 rows of scores for 13 rows"):
+        F.read_scores(path, 13)
+    i = t.schema.get_field_index("scores")
+    holes = pa.array([None if r in (2, 9) else v for r, v in enumerate(whole.to_pylist())], whole.type)
+    pq.write_table(t.set_column(i, pa.field("scores", whole.type), holes), path, row_group_size=5)
+    with pytest.raises(ValueError, match=r"avd.parquet: 2 row\(s\) have no scores"):
+        read_features(path, "avd")
