@@ -345,7 +345,6 @@ def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_s
 
     for job in jobs:
         crop, cb = policy.crop(job.image, job.box)
-        job.image = None   # the frame goes once its crops are cut (a batch would hold up to 64 of them)
         pending.append((job, crop, cb))
         if len(pending) >= batch_size:
             yield batch()
