@@ -226,8 +226,9 @@ def run(ctx) -> str:
         with progress_bar(desc="features: BigBIRD views", unit="view") as bar:
             bb = score_jobs(bigbird_jobs(cfg, bb_root, skips, bar), sm, policy, ex, what="BigBIRD",
                             n_samples=f.bigbird_samples, **common)
-        det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples)
+        det_bb, mc_bb = bb.arrays(dim, f.bigbird_samples, release=True)
         write_table(build_table("bigbird", bb.columns, det_bb, mc_bb, md), ctx.out / out_name("features", "bigbird"))
+        del mc_bb
         timings["bigbird_s"] = round(time.perf_counter() - t1, 2)
 
         # AVD: deterministic pass + N_s dropout samples per box, every scan of data.scans in turn.
@@ -238,8 +239,9 @@ def run(ctx) -> str:
                     bar.set_description(f"features: AVD {scan.scan}")
                     yield from avd_jobs(cfg, scan, skips, bar)
             av = score_jobs(jobs(), sm, policy, ex, what="AVD", n_samples=f.n_samples, **common)
-        det_av, mc_av = av.arrays(dim, f.n_samples)
-        write_table(build_table("avd", av.columns, det_av, mc_av, md), ctx.out / out_name("features", "avd"))
+        # the arrays only as arguments: the table is their one other copy while it is written
+        write_table(build_table("avd", av.columns, *av.arrays(dim, f.n_samples, release=True), md),
+                    ctx.out / out_name("features", "avd"))
         timings["avd_s"] = round(time.perf_counter() - t2, 2)
     if av.n == 0:
         log.warning("no AVD box up to difficulty %d in scans %s: avd.parquet is empty", f.max_difficulty,

@@ -43,7 +43,7 @@ from loaders.errors import BadInputError
 from loaders.eth80 import STEP_DEG, Eth80Folder, class_object
 from loaders.pbm import encode_pbm
 from loaders.real_imagery.clutter import read_backgrounds, render_category_frame, training_view
-from loaders.real_imagery.scans import Frames, Placed, locate, summaries, write_scans
+from loaders.real_imagery.scans import Frames, Placed, locate, summaries, write_scans, writer_count
 from loaders.real_imagery.training import modellable
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
 from pipeline.scene.folds import category_of, fold_class, fold_of
@@ -229,7 +229,7 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
                     jpeg_quality=ri.jpeg_quality, used_key="azimuths_used", max_key="max_view_offset_deg")
     truth, counts = write_scans(avd_root, avd_out, {scan: (loc, _place(ri, loc, placed[scan], targets, test, ids))
                                                     for scan, loc in scans.items()}, frames, ri.frames,
-                                ri.max_view_error_deg)
+                                ri.max_view_error_deg, writer_count(cfg, "data.real_imagery.workers", ri.workers))
     view_error, box_fit = summaries(truth, ri.max_view_error_deg, "real imagery (ETH-80)", "frame azimuth")
     times = {t: sum(1 for p in placed.values() if t in p.values()) for t in targets}
     left_out = sorted(class_object(c, i) for c in ri.categories for i in ri.instances if (c, i) not in train)

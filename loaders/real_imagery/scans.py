@@ -14,6 +14,7 @@ gives the view-error and box-fit distributions over all scans.
 """
 from __future__ import annotations
 
+import gc
 import json
 import logging
 from collections.abc import Callable
@@ -30,6 +31,7 @@ from loaders.real_imagery.frames import fit_in_box, object_bearing_deg, view_err
 from loaders.real_imagery.pairing import box_rows, located_xy
 from loaders.synthetic.bigbird_writer import encode_jpeg
 from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
+from pipeline.infra.workers import can_fork
 from pipeline.scene.rays import facing_error
 
 log = logging.getLogger("viewfuse.loaders")
@@ -80,26 +82,70 @@ def locate(avd_root: Path, scan: str, max_difficulty: int, max_ray_residual_m: f
 
 
 def write_scans(avd_root: Path, avd_out: Path, scans: dict[str, tuple[Located, list[Placed]]], frames: Frames,
-                mode: str, max_view_error_deg: float) -> tuple[dict, dict]:
+                mode: str, max_view_error_deg: float, workers: int = 1) -> tuple[dict, dict]:
     """Every scan of ``scans`` = {scan: (located, its placements in instance order)}: (truth per
-    scan, counts per scan)."""
+    scan, counts per scan). ``workers`` > 1: the scans are written by that many forked processes, a
+    scan each (every frame draws its noise from its own stream, so the files do not depend on it)."""
     placeholders: dict[tuple[int, int], Path] = {}   # one black frame per image size, linked for every unframed image
-    truth, counts = {}, {}
-    for scan, (located, placed) in scans.items():
+    for located, _ in scans.values():
         size = located.scan.image_size
         if size not in placeholders:
             placeholders[size] = avd_out / f".placeholder-{size[0]}x{size[1]}.jpg"
             write_bytes(placeholders[size], encode_jpeg(np.zeros((size[1], size[0], 3), np.uint8), 50))
-        truth[scan], counts[scan] = _write_scan(avd_root, avd_out, located, placed, frames, mode,
-                                                max_view_error_deg, placeholders[size])
+    args = (avd_root, avd_out, frames, mode, max_view_error_deg, placeholders)
+    if workers > 1 and len(scans) > 1 and can_fork():
+        done = _write_parallel(scans, args, workers)
+    else:
+        done = {scan: _write_scan(scans[scan], *args) for scan in scans}
     for p in placeholders.values():
         p.unlink()
-    return truth, counts
+    return {s: done[s][0] for s in scans}, {s: done[s][1] for s in scans}
 
 
-def _write_scan(avd_root, avd_out, located: Located, placed: list[Placed], frames: Frames, mode: str,
-                max_view_error_deg: float, placeholder: Path):
+# what the forked writers read: set just before the pool forks them, so each inherits the scans
+# (photographs, located rows) and the frame drawer (closures) instead of receiving them pickled
+_WORKER: dict[str, Any] = {}
+
+
+def _write_named(scan: str):
+    import cv2
+    cv2.setNumThreads(1)   # one process per core already
+    return _write_scan(_WORKER["scans"][scan], *_WORKER["args"])
+
+
+def _write_parallel(scans: dict, args: tuple, workers: int) -> dict:
+    from pipeline.infra.workers import worker_pool
+
+    _WORKER.update(scans=scans, args=args)
+    gc.freeze()   # the inherited objects out of the collector's reach: it would touch (so copy) their pages
+    try:
+        with worker_pool(min(workers, len(scans)), start_method="fork") as pool:
+            # the scans with the most boxes first: the last ones to finish are short
+            order = sorted(scans, key=lambda s: -len(scans[s][0].rows))
+            futures = {s: pool.submit(_write_named, s) for s in order}
+            return {s: futures[s].result() for s in order}
+    finally:
+        gc.unfreeze()
+        _WORKER.clear()
+
+
+def writer_count(cfg, key: str, requested: int) -> int:
+    """``requested`` scan writers (the config's ``key``), capped by the cores and the memory budget:
+    each a forked process that draws one full frame at a time (~10 frame-sized buffers)."""
+    import psutil
+
+    from pipeline.infra.budget import budget, cap_workers
+    from pipeline.infra.footprints import PROCESS
+
+    rss = float(psutil.Process().memory_info().rss)
+    return cap_workers(key, requested, PROCESS + 10 * 3 * 1920 * 1080, budget(cfg), parent=rss)
+
+
+def _write_scan(job: tuple[Located, list[Placed]], avd_root, avd_out, frames: Frames, mode: str,
+                max_view_error_deg: float, placeholders: dict):
+    located, placed = job
     s, rows = located.scan, located.rows
+    placeholder = placeholders[s.image_size]
     scan = s.scan
     grid = s.grid_points()
     items: dict[str, list] = {}
@@ -121,8 +167,8 @@ def _write_scan(avd_root, avd_out, located: Located, placed: list[Placed], frame
             boxes.setdefault(r.image, []).append([*box, p.label, int(r.difficulty)])
             used.append(a)
             fits.append(fit)
-        name = p.record.pop("name")
-        record[name] = {**p.record, "frames": len(used), frames.used_key: sorted(set(used)),
+        name = p.record["name"]
+        record[name] = {**{k: v for k, v in p.record.items() if k != "name"}, "frames": len(used), frames.used_key: sorted(set(used)),
                         "frames_refused_view_error": len(errs) - len(used),
                         frames.max_key: round(max(errs), 3) if errs else None, "frame_fit": fits, "_errors": errs}
     folder = avd_out / scan

@@ -30,7 +30,7 @@ from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
 from loaders.real_imagery.frames import heldout_angles, nearest_view, render_frame
 from loaders.real_imagery.pairing import pair_scan
-from loaders.real_imagery.scans import Frames, Located, Placed, locate, summaries, write_scans
+from loaders.real_imagery.scans import Frames, Located, Placed, locate, summaries, write_scans, writer_count
 from loaders.real_imagery.training import modellable, write_training_object
 from pipeline.infra.cache import write_bytes, write_json
 from pipeline.infra import seeds
@@ -76,7 +76,8 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
     placed = {scan: (loc, place_pairs(scan, loc, heldout, ri, lambda k: {"name": object_name(k), "coil_object": k}))
               for scan, loc in located.items()}
     frames = plain_frames(cfg.data.seed, ri)
-    truth, counts = write_scans(avd_root, avd_out, placed, frames, ri.frames, ri.max_view_error_deg)
+    truth, counts = write_scans(avd_root, avd_out, placed, frames, ri.frames, ri.max_view_error_deg,
+                                writer_count(cfg, "data.real_imagery.workers", ri.workers))
     view_error, box_fit = summaries(truth, ri.max_view_error_deg, "real imagery", "held-out view")
     write_json(truth_path, {"source": "real_imagery", "pairing": "synthetic: seeded "
                                     "(data.real_imagery.pairing_seed, yaws_seed)", "scans": truth,

@@ -87,6 +87,11 @@ def _start(parent: int, pids: str, root: str | None, initializer: Callable | Non
         initializer(*initargs)
 
 
+def can_fork() -> bool:
+    """Whether this platform can fork workers (``worker_pool(start_method="fork")``)."""
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
 @contextlib.contextmanager
 def worker_pool(workers: int, initializer: Callable | None = None, initargs: tuple = (),
                 start_method: str = "spawn") -> Iterator[ProcessPoolExecutor]:

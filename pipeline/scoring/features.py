@@ -85,12 +85,14 @@ def write_table(table, path: str | Path) -> None:
 
 
 def read_features_table(path: str | Path, kind: str | None = None, required: Iterable[str] = (),
-                        error: Callable[[Path, str], Exception] | None = None) -> tuple["Any", dict[str, str]]:
+                        error: Callable[[Path, str], Exception] | None = None,
+                        with_scores: bool = True) -> tuple["Any", dict[str, str]]:
     """The one reader of a features Parquet: (its pyarrow table, its ``viewfuse.*`` metadata as
     strings), the file checked readable, with ``scores`` and the ``kind`` table's contract (bigbird
     or avd; default: from the file name; ``required``: the columns the caller uses,
     ``table_checks.check_table``). Problems raise ``error(path, problem)`` (default: ValueError
-    naming the file; a missing file: FileNotFoundError)."""
+    naming the file; a missing file: FileNotFoundError). ``with_scores=False``: every column but
+    ``scores`` (which the file must still have; ``read_scores`` streams it)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -102,51 +104,87 @@ def read_features_table(path: str | Path, kind: str | None = None, required: Ite
         msg = "features file not found (run the 'features' stage)"
         raise FileNotFoundError(f"{path}: {msg}") if error is None else error(path, msg)
     try:
-        table = pq.read_table(path)
+        if with_scores:
+            table = pq.read_table(path)
+            names = table.column_names
+        else:
+            names = pq.read_schema(path).names
+            table = pq.read_table(path, columns=[n for n in names if n != "scores"])
     except (pa.ArrowInvalid, OSError) as e:
         raise fail(path, f"not a readable Parquet file ({e})") from None
-    if "scores" not in table.column_names:
+    if "scores" not in names:
         raise fail(path, "missing column(s) scores")
-    check_table(table, kind or kind_of(path, table.column_names), path, fail, required)
+    check_table(table, kind or kind_of(path, names), path, fail, required)
     meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()
             if k.decode().startswith("viewfuse.")}
     return table, meta
 
 
+# rows of ``scores`` decoded at a time: reading the column whole (one row group) peaked at about
+# four times its size (2.5 GB for real_full's 0.55 GB of AVD scores)
+READ_ROWS = 8192
+
+
+def read_scores(path: str | Path, n: int) -> np.ndarray:
+    """The ``scores`` column of a features Parquet of ``n`` rows as (n, D) float32, decoded in
+    batches of ``READ_ROWS`` rows into one array; ValueError naming the file for another type or
+    rows without scores."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    f = pq.ParquetFile(path)
+    t = f.schema_arrow.field("scores").type
+    if not pa.types.is_fixed_size_list(t):
+        raise ValueError(f"{path}: 'scores' is {t}, expected fixed_size_list<float32>")
+    D = t.list_size
+    out = np.empty((n, D), np.float32)
+    a = nulls = 0
+    for batch in f.iter_batches(batch_size=READ_ROWS, columns=["scores"]):
+        col = batch.column(0)
+        nulls += col.null_count
+        if not col.null_count:
+            out[a:a + len(col)] = col.flatten().to_numpy(zero_copy_only=False).reshape(len(col), D)
+        a += len(col)
+    if nulls:
+        raise ValueError(f"{path}: {nulls} row(s) have no scores")
+    if a != n:
+        raise ValueError(f"{path}: {a} rows of scores for {n} rows")
+    return out
+
+
 def read_features(path: str | Path, kind: str | None = None,
                   required: Iterable[str] = ()) -> tuple["Any", np.ndarray, dict[str, str]]:
     """(DataFrame of every column but ``scores`` (RangeIndex = row number), scores (n, D) float32,
-    ``viewfuse.*`` metadata as strings), read by ``read_features_table``."""
-    import pyarrow as pa
-
-    table, meta = read_features_table(path, kind, required)
-    col = table.column("scores").combine_chunks()
-    if not pa.types.is_fixed_size_list(col.type):
-        raise ValueError(f"{path}: 'scores' is {col.type}, expected fixed_size_list<float32>")
-    if col.null_count:
-        raise ValueError(f"{path}: {col.null_count} row(s) have no scores")
-    D = col.type.list_size
-    scores = col.flatten().to_numpy(zero_copy_only=False).astype(np.float32, copy=False).reshape(len(col), D)
+    ``viewfuse.*`` metadata as strings), read by ``read_features_table`` and ``read_scores``."""
+    table, meta = read_features_table(path, kind, required, with_scores=False)
+    scores = read_scores(path, table.num_rows)
+    D = scores.shape[1]
     if "viewfuse.score_dim" in meta and int(meta["viewfuse.score_dim"]) != D:
         raise ValueError(f"{path}: metadata score_dim {meta['viewfuse.score_dim']} != scores width {D}")
     check_scores(scores, path)
-    df = table.drop_columns(["scores"]).to_pandas()
-    return df, scores, meta
+    return table.to_pandas(), scores, meta
 
 
 SUM_TOLERANCE = 1e-3  # softmax rows stored as float32: sums are within ~1e-6 of 1
+CHECK_ROWS = 8192     # rows checked at a time (8192 x 1000 float64: 66 MB)
 
 
 def check_scores(scores: np.ndarray, path: str | Path, rows: np.ndarray | None = None) -> None:
     """Scores read from a features file must be probabilities: finite, in [0, 1], each row summing
     to 1 within ``SUM_TOLERANCE``. ValueError naming the file and the first bad row (its row number
     in the file: ``rows[i]`` when the scores are a subset of the file's rows)."""
-    s = np.asarray(scores, dtype=np.float64)
-    if s.size == 0:
+    scores = np.asarray(scores)
+    if scores.size == 0:
         return
-    finite = np.isfinite(s).all(axis=1)
-    in_range = finite & (s >= 0).all(axis=1) & (s <= 1).all(axis=1)
-    sums = np.where(finite, s.sum(axis=1), np.nan)
+    n = len(scores)
+    finite, in_range, sums = np.empty(n, bool), np.empty(n, bool), np.empty(n)
+    # in blocks of rows: a float64 copy of a full-scale table would be twice its size (1.1 GB)
+    for a in range(0, n, CHECK_ROWS):
+        s = scores[a:a + CHECK_ROWS].astype(np.float64)
+        fin = np.isfinite(s).all(axis=1)
+        finite[a:a + len(s)] = fin
+        in_range[a:a + len(s)] = fin & (s >= 0).all(axis=1) & (s <= 1).all(axis=1)
+        sums[a:a + len(s)] = np.where(fin, s.sum(axis=1), np.nan)
     ok = in_range & (np.abs(sums - 1.0) <= SUM_TOLERANCE)
     if ok.all():
         return
@@ -155,7 +193,8 @@ def check_scores(scores: np.ndarray, path: str | Path, rows: np.ndarray | None =
     if not finite[i]:
         why = "non-finite scores"
     elif not in_range[i]:
-        bad = s[i][(s[i] < 0) | (s[i] > 1)]
+        first = scores[i].astype(np.float64)
+        bad = first[(first < 0) | (first > 1)]
         why = f"a score outside [0, 1] ({bad[0]:.6g})"
     else:
         why = f"scores summing to {sums[i]:.6g}, not 1"
@@ -264,15 +303,21 @@ class Scored:
     det: list[np.ndarray] = field(default_factory=list)
     mc: list[np.ndarray] = field(default_factory=list)
 
+    released: int = 0   # crops whose arrays ``arrays(release=True)`` handed over
+
     @property
     def n(self) -> int:
-        return sum(len(d) for d in self.det)
+        return self.released + sum(len(d) for d in self.det)
 
-    def arrays(self, dim: int, n_samples: int) -> tuple[np.ndarray, np.ndarray | None]:
+    def arrays(self, dim: int, n_samples: int, release: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """(det (n, D), dropout samples (n, N_s, D) or None); ``release``: the batches' own arrays go
+        (``n`` stays), so the scores are held once, not twice (0.55 GB each at real_full's scale)."""
         det = np.concatenate(self.det) if self.det else np.zeros((0, dim), np.float32)
-        if not n_samples:
-            return det, None
-        mc = np.concatenate(self.mc) if self.mc else np.zeros((0, n_samples, dim), np.float32)
+        mc = (np.concatenate(self.mc) if self.mc else np.zeros((0, n_samples, dim), np.float32)) if n_samples else None
+        if release:
+            self.released = self.n
+            self.det.clear()
+            self.mc.clear()
         return det, mc
 
 

@@ -11,7 +11,6 @@ drawn in this process.
 from __future__ import annotations
 
 import gc
-import multiprocessing
 from pathlib import Path
 from typing import Any, Callable
 
@@ -20,7 +19,7 @@ import psutil
 from pipeline.infra.budget import AUTO_SHARE, cap_workers, machine_memory
 from pipeline.infra.device import free_cores
 from pipeline.infra.progress import bar as progress_bar
-from pipeline.infra.workers import worker_pool
+from pipeline.infra.workers import can_fork, worker_pool
 from reports.shared.figures import FigureCheck, save
 
 Plan = list[tuple[str, Callable[[], Any]]]
@@ -57,10 +56,6 @@ _WORKER: dict[str, Any] = {}
 
 def _draw_named(name: str, out: str, dpi: int) -> Drawn:
     return draw_one(name, _WORKER["plan"][name], Path(out), dpi, _WORKER["clipped"])
-
-
-def can_fork() -> bool:
-    return "fork" in multiprocessing.get_all_start_methods()
 
 
 def draw_parallel(plan: Plan, out: Path, dpi: int, workers: int, clipped: dict, progress: bool) -> list[Drawn]:

@@ -39,7 +39,8 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
     comps = list(models.components)
     key = rows["scan"].astype(str) + "\x00" + rows["instance"].astype(str) + "\x00" + rows["image"].astype(str)
     code, uniq = pd.factorize(key, sort=True)
-    s = np.asarray(scores, float)[rows.index.to_numpy()][:, comps]
+    # the used rows and components only, then float64: the whole table in float64 is twice its size
+    s = np.asarray(scores)[np.ix_(rows.index.to_numpy(), comps)].astype(float)
     n = np.bincount(code).astype(float)
     G, F = len(uniq), len(comps)
     s1, s2 = np.zeros((G, F)), np.zeros((G, F))
@@ -48,17 +49,21 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
     obs = s1 / n[:, None]
     v_z = np.maximum(s2 / n[:, None] - obs * obs, var_floor)
     first = rows.groupby(code, sort=True).first()
-    out = []
+    out: dict[str, list] = {c: [] for c in cols}   # the columns' pieces, one DataFrame at the end
     for (scan, inst), g in first.groupby(["scan", "instance"], sort=True):
         obj, yaw = poses[(scan, inst)]
         x = relative_inputs(g[["cam_x", "cam_y"]].to_numpy(float), np.asarray(obj, float), float(yaw), unit_circle=True)
         mu, var = models.select([inst]).marginal(x)                      # (n, 1, F)
         idx = g.index.to_numpy()
+        n, image = len(idx), g["image"].to_numpy(object)
+        # component-major within the (scan, instance): every crop for the first component, then the next
         for f, comp in enumerate(comps):
-            out.append(pd.DataFrame({"scan": scan, "instance": inst, "image": g["image"].to_numpy(),
-                                     "component": comp, "obs": obs[idx, f], "v_z": v_z[idx, f],
-                                     "mu": mu[:, 0, f], "var": var[:, 0, f], "x0": x[:, 0], "x1": x[:, 1]}))
-    return pd.concat(out, ignore_index=True)[cols]
+            for name, v in (("scan", np.full(n, scan, object)), ("instance", np.full(n, inst, object)),
+                            ("image", image), ("component", np.full(n, comp, np.int64)), ("obs", obs[idx, f]),
+                            ("v_z", v_z[idx, f]), ("mu", mu[:, 0, f]), ("var", var[:, 0, f]), ("x0", x[:, 0]),
+                            ("x1", x[:, 1])):
+                out[name].append(v)
+    return pd.DataFrame({c: np.concatenate(out[c]) for c in cols})
 
 
 def fit_summary(z: np.ndarray, pit_bins: int = PIT_BINS) -> dict:
@@ -96,12 +101,10 @@ def standardized(table: pd.DataFrame, kind: str, delta: np.ndarray | None = None
 def summarize(table: pd.DataFrame, z_by_kind: Mapping[str, np.ndarray]) -> dict:
     """{kind: {"overall": summary, "per_class": {class: {component: summary}}}} for every kind."""
     out = {}
-    inst = table["instance"].to_numpy()
-    comp = table["component"].to_numpy()
+    rows: dict = {}   # class -> component -> its rows (ascending, as a mask over the table gives them)
+    for (c, f), idx in table.groupby(["instance", "component"], sort=False).indices.items():
+        rows.setdefault(c, {})[f] = idx
     for kind, z in z_by_kind.items():
-        per = {}
-        for c in sorted(set(inst)):
-            mc = inst == c
-            per[str(c)] = {str(f): fit_summary(z[mc & (comp == f)]) for f in sorted(set(comp[mc]))}
+        per = {str(c): {str(f): fit_summary(z[rows[c][f]]) for f in sorted(rows[c])} for c in sorted(rows)}
         out[kind] = {"overall": fit_summary(z), "per_class": per}
     return out

@@ -38,6 +38,7 @@ class CrossedResampler:
         B = self.n_boot
         self.m_obj = _multiplicities(rng, B, T)                            # (B, T)
         self.m_scan = _multiplicities(rng, B, S)                           # (B, S)
+        self._drawn: tuple | None = None
 
     def spread(self) -> bool:
         return self.shape[1] > 1 or self.n_scans > 1
@@ -47,20 +48,30 @@ class CrossedResampler:
         w = np.where(self.leaves, m_scan[..., np.maximum(self.scan_of, 0)], 0.0)
         return w, np.where(w.sum(axis=-1) > 0, m_obj, 0.0)
 
-    def _stat(self, values: np.ndarray, m_obj: np.ndarray, m_scan: np.ndarray, pool: str) -> np.ndarray:
-        v = np.asarray(values, float)[0, :, : self.shape[2]]                # (T, W)
+    def _prepared(self, m_obj: np.ndarray, m_scan: np.ndarray) -> tuple:
+        """What every statistic of these multiplicities shares: (track weights, which are drawn,
+        their sums per target, the targets' weights)."""
         w, wt = self._weights(m_obj, m_scan)
-        real_nan = (np.isnan(v) & (w > 0)).any(axis=-1)
+        return w, w > 0, w.sum(axis=-1), wt
+
+    def _stat(self, values: np.ndarray, prepared: tuple, pool: str) -> np.ndarray:
+        v = np.asarray(values, float)[0, :, : self.shape[2]]                # (T, W)
+        w, used, wsum, wt = prepared
         with np.errstate(invalid="ignore", divide="ignore"):
-            tm = np.where(w > 0, w * v, 0.0).sum(axis=-1) / w.sum(axis=-1)    # (..., T)
-        tm = np.where(real_nan, np.nan, tm)
+            tm = np.where(used, w * v, 0.0).sum(axis=-1) / wsum               # (..., T)
+        nan = np.isnan(v)
+        if nan.any():
+            tm = np.where((nan & used).any(axis=-1), np.nan, tm)
         return weighted_pool(tm, wt, pool)
 
     def point(self, values: np.ndarray, pool: str) -> float:
-        return float(self._stat(values, np.ones(self.shape[1]), np.ones(self.n_scans), pool))
+        return float(self._stat(values, self._prepared(np.ones(self.shape[1]), np.ones(self.n_scans)), pool))
 
     def draws(self, values: np.ndarray, pool: str) -> np.ndarray:
-        return self._stat(values, self.m_obj.astype(float), self.m_scan.astype(float), pool)
+        # the draws' weights once per resampler (shared by every metric, method and difference)
+        if self._drawn is None:
+            self._drawn = self._prepared(self.m_obj.astype(float), self.m_scan.astype(float))
+        return self._stat(values, self._drawn, pool)
 
     def estimate(self, values: np.ndarray, pool: str) -> dict[str, float]:
         return estimate(self.point(values, pool), self.draws(values, pool) if self.spread() else None)

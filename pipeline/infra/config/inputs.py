@@ -200,6 +200,7 @@ class RealImageryConfig:
                              "'alternate' = training on 0, 45, ..., 315, frames on 22.5, 67.5, ... (held out, "
                              "as COIL's 5-degree views)")
     background_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="eth80, background = avd_frames: which frame and region")
+    workers: int = _f(2, lo=1, hi=64, doc="processes writing the scans' frames, a scan each; the files do not depend on it")
 
 
 @dataclass(frozen=True)

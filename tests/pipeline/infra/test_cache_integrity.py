@@ -124,3 +124,17 @@ def test_the_training_views_reader_names_file_and_row_of_bad_scores(tmp_path):
     with pytest.raises(FeaturesError, match=r"row 3 has scores summing to 1.5") as e:
         read_training_views(p, 1)
     assert e.value.path == str(p)
+
+
+def test_scores_are_checked_in_blocks_and_the_first_bad_row_is_named(monkeypatch):
+    from pipeline.scoring import features as F
+
+    monkeypatch.setattr(F, "CHECK_ROWS", 3)           # blocks of 3 rows: the bad rows lie in later blocks
+    rows = np.array(GOOD * 3, np.float32)
+    F.check_scores(rows, "avd.parquet")
+    rows[7] = [0.2, 0.2, 0.2]
+    rows[10] = [np.nan, 0.5, 0.5]
+    with pytest.raises(ValueError, match=r"^avd.parquet: row 7 has scores summing to 0.6.* \(2 bad row\(s\) in all\)"):
+        F.check_scores(rows, "avd.parquet")
+    with pytest.raises(ValueError, match=r"row 17 has scores summing to 0.6"):
+        F.check_scores(rows, "avd.parquet", rows=np.arange(10, 22))

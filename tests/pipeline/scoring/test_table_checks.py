@@ -99,3 +99,38 @@ def test_integer_poses_are_accepted_as_floats(tmp_path):
     path = _write(tmp_path, "avd", _replace("heading", list(range(ROWS))))
     df, _, _ = read_features(path)
     assert df["heading"].tolist() == list(range(ROWS))
+
+
+def test_released_batches_give_the_same_arrays_and_keep_their_count():
+    from pipeline.scoring.features import Scored
+
+    rng = np.random.default_rng(3)
+    det = [rng.random((b, 4), dtype=np.float32) for b in (3, 2)]
+    mc = [rng.random((b, 5, 4), dtype=np.float32) for b in (3, 2)]
+    kept, released = Scored(det=list(det), mc=list(mc)), Scored(det=list(det), mc=list(mc))
+    d0, m0 = kept.arrays(4, 5)
+    d1, m1 = released.arrays(4, 5, release=True)
+    assert np.array_equal(d0, d1) and np.array_equal(m0, m1)
+    assert released.det == [] and released.mc == [] and released.n == kept.n == 5
+    assert Scored(det=list(det)).arrays(4, 0, release=True)[1] is None
+
+
+def test_scores_are_read_in_batches_across_row_groups(tmp_path, monkeypatch):
+    from pipeline.scoring import features as F
+
+    t = _table("avd")                                   # N crops x (1 + NS) passes = 12 rows
+    path = tmp_path / "avd.parquet"
+    pq.write_table(t, path, row_group_size=5)           # batches that straddle the row groups
+    monkeypatch.setattr(F, "READ_ROWS", 4)
+    df, scores, meta = read_features(path, "avd")
+    whole = t.column("scores").combine_chunks()
+    assert np.array_equal(scores, whole.flatten().to_numpy().reshape(len(t), D))
+    assert scores.dtype == np.float32 and len(df) == len(t) and "scores" not in df.columns
+    assert meta["viewfuse.score_dim"] == str(D)
+    with pytest.raises(ValueError, match=r"avd.parquet: 12 rows of scores for 13 rows"):
+        F.read_scores(path, 13)
+    i = t.schema.get_field_index("scores")
+    holes = pa.array([None if r in (2, 9) else v for r, v in enumerate(whole.to_pylist())], whole.type)
+    pq.write_table(t.set_column(i, pa.field("scores", whole.type), holes), path, row_group_size=5)
+    with pytest.raises(ValueError, match=r"avd.parquet: 2 row\(s\) have no scores"):
+        read_features(path, "avd")

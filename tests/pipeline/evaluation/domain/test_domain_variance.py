@@ -133,3 +133,37 @@ def test_the_fusion_engine_carries_the_test_domain_variance():
     assert np.allclose(mu_e, mu_g, atol=1e-9) and np.allclose(cov_e, cov_g, atol=1e-9)
     _, cov0 = engine.predictive(m, X)
     assert np.allclose(cov_e - cov0, np.einsum("cf,kl->cfkl", [[0.1, 0.2]], np.eye(4))[None], atol=1e-9)
+
+
+def test_summaries_per_class_and_component_are_those_of_their_own_rows():
+    rng = np.random.default_rng(11)
+    n = 400
+    table = pd.DataFrame({"instance": rng.choice(["b", "a", "c"], n), "component": rng.choice([7, 2, 30], n)})
+    table = table[~((table["instance"] == "c") & (table["component"] == 30))]   # a class without one component
+    z = {"gp": rng.normal(size=len(table)), "gp_calibrated": rng.standard_t(3, size=len(table))}
+    out = D.summarize(table, z)
+    inst, comp = table["instance"].to_numpy(), table["component"].to_numpy()
+    for kind, zk in z.items():
+        assert out[kind]["overall"] == D.fit_summary(zk)
+        per = out[kind]["per_class"]
+        assert list(per) == ["a", "b", "c"] and list(per["a"]) == ["2", "7", "30"] and list(per["c"]) == ["2", "7"]
+        for c, by in per.items():
+            for f, s in by.items():
+                assert s == D.fit_summary(zk[(inst == c) & (comp == int(f))])   # the rows in table order
+
+
+def test_crop_residual_rows_run_component_major_within_each_scan_and_instance():
+    m = _models()
+    rows, scores = [], []
+    rng = np.random.default_rng(2)
+    for scan, inst, img, cam in (("S", "a", "i1", (2.0, 0.0)), ("S", "a", "i2", (0.0, 3.0)), ("R", "a", "j", (1.0, 3.0))):
+        for p in (-1, 0, 1):
+            rows.append({"scan": scan, "instance": inst, "image": img, "pass": p, "difficulty": 1,
+                         "cam_x": cam[0], "cam_y": cam[1]})
+            scores.append(rng.uniform(0, 1, 4))
+    poses = {("S", "a"): (np.zeros(2), 0.0), ("R", "a"): (np.ones(2), 0.5)}
+    tab = D.crop_residuals(pd.DataFrame(rows), np.array(scores, np.float32), m, poses, max_difficulty=4, var_floor=1e-6)
+    assert list(zip(tab["scan"], tab["image"], tab["component"])) == [
+        ("R", "j", 0), ("R", "j", 1), ("S", "i1", 0), ("S", "i2", 0), ("S", "i1", 1), ("S", "i2", 1)]
+    assert tab["component"].dtype == np.int64 and tab["obs"].dtype == np.float64
+    assert tab["obs"].iloc[3] == np.float64(np.array(scores, np.float32)[[4, 5], 0].astype(float).mean())

@@ -116,3 +116,21 @@ def test_the_weighted_median_is_the_median_of_the_repeated_values(seed):
     assert np.allclose(weighted_pool(x, w, "mean"), [np.mean(np.repeat(x[i], w[i])) for i in range(50)])
     x[0, 0] = np.nan
     assert np.isnan(weighted_pool(x, w, "median")[0])
+
+
+def test_crossed_draws_share_their_weights_across_statistics():
+    from pipeline.evaluation.statistics.crossed import CrossedResampler
+
+    rng = np.random.default_rng(5)
+    scan_of = rng.integers(0, 4, (6, 3))
+    scan_of[2, 1:] = -1
+    rs = CrossedResampler(scan_of, 300, [1])
+    for pool in ("mean", "median", "mean"):
+        v = rng.random((1, 6, 3))
+        v[0, 4, 0] = np.nan            # a real NaN: the draws holding that track give NaN
+        v[0, 2, 2] = np.nan            # a padded slot's NaN: never read
+        got = rs.draws(v, pool)
+        fresh = rs._stat(v, rs._prepared(rs.m_obj.astype(float), rs.m_scan.astype(float)), pool)
+        assert np.array_equal(got, fresh, equal_nan=True)
+        w, _ = rs._weights(rs.m_obj.astype(float), rs.m_scan.astype(float))
+        assert np.array_equal(np.isnan(got), w[:, 4, 0] * rs.m_obj[:, 4] > 0)
