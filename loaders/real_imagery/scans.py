@@ -108,16 +108,22 @@ _WORKER: dict[str, Any] = {}
 
 
 def _write_named(scan: str):
-    import cv2
-    cv2.setNumThreads(1)   # one process per core already
+    # No cv2.setNumThreads here: in a forked child it tears down the pool inherited without its
+    # threads and waits on them for ever. The parent set one thread before forking.
     return _write_scan(_WORKER["scans"][scan], *_WORKER["args"])
 
 
 def _write_parallel(scans: dict, args: tuple, workers: int) -> dict:
+    import cv2
+
     from pipeline.infra.workers import worker_pool
 
     _WORKER.update(scans=scans, args=args)
     gc.freeze()   # the inherited objects out of the collector's reach: it would touch (so copy) their pages
+    # One OpenCV thread while the writers run (one process per core already): set here, where the
+    # pool's threads exist, so the forked children run OpenCV serially and never touch its pool.
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
     try:
         with worker_pool(min(workers, len(scans)), start_method="fork") as pool:
             # the scans with the most boxes first: the last ones to finish are short
@@ -125,6 +131,7 @@ def _write_parallel(scans: dict, args: tuple, workers: int) -> dict:
             futures = {s: pool.submit(_write_named, s) for s in order}
             return {s: futures[s].result() for s in order}
     finally:
+        cv2.setNumThreads(cv_threads)
         gc.unfreeze()
         _WORKER.clear()
 

@@ -33,7 +33,18 @@ def _written(tmp: Path, workers: int, monkeypatch) -> dict[str, str]:
             for p in sorted(tmp.rglob("*")) if p.is_file() and "artifacts" not in p.parts}
 
 
+def _start_cv2_pool() -> None:
+    """OpenCV's worker threads running in this process, as after any earlier stage or test that
+    resized an image: a forked writer must not touch the pool it inherits without its threads."""
+    import cv2
+    import numpy as np
+
+    cv2.setNumThreads(2)
+    cv2.resize(np.zeros((2000, 2000, 3), np.uint8), (1000, 1000), interpolation=cv2.INTER_AREA)
+
+
 def test_forked_scan_writers_write_the_same_bytes(tmp_path, monkeypatch):
+    _start_cv2_pool()
     one = _written(tmp_path / "one", 1, monkeypatch)
     two = _written(tmp_path / "two", 2, monkeypatch)
     frames = [k for k in one if "/jpg_rgb/" in k]
