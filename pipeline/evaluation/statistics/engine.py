@@ -34,21 +34,24 @@ def track_values(cells: pd.DataFrame, metrics: Sequence[str]) -> pd.DataFrame:
     return cells.groupby(["method", "target", "track"], sort=True)[list(metrics)].mean().reset_index()
 
 
-def paired_cells(cells: pd.DataFrame, a: str, b: str, metrics: Sequence[str]) -> pd.DataFrame:
-    """``a - b`` on the same cells (method "diff")."""
+def aligned_cells(cells: pd.DataFrame, a: str, b: str) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The cells of ``a`` and of ``b`` indexed by KEYS, both in the index's order; ValueError unless
+    the two methods were run on the same cells."""
     x = cells[cells["method"] == a].set_index(KEYS).sort_index()
     y = cells[cells["method"] == b].set_index(KEYS).sort_index()
     if not x.index.equals(y.index):
         raise ValueError(f"paired differences: {a} and {b} were not run on the same cells")
+    return x, y
+
+
+def paired_cells(cells: pd.DataFrame, a: str, b: str, metrics: Sequence[str],
+                 aligned: tuple[pd.DataFrame, pd.DataFrame] | None = None) -> pd.DataFrame:
+    """``a - b`` on the same cells (method "diff"); ``aligned``: ``aligned_cells(cells, a, b)``
+    when the caller has it."""
+    x, y = aligned if aligned is not None else aligned_cells(cells, a, b)
     d = (x[list(metrics)] - y[list(metrics)]).reset_index()
     d["method"] = "diff"
     return d
-
-
-def aligned_cells(cells: pd.DataFrame, a: str, b: str) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The cells of ``a`` and of ``b`` indexed by KEYS, ``b``'s in ``a``'s order."""
-    x = cells[cells["method"] == a].set_index(KEYS)
-    return x, cells[cells["method"] == b].set_index(KEYS).reindex(x.index)
 
 
 def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str,
@@ -100,9 +103,10 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         if a not in methods or b not in methods:
             continue
         key = comparison_key(a, b)
-        dfs = [paired_cells(f, a, b, metrics) for f in frames.values()]
+        # each frame's two methods aligned once: for the differences and every metric's saturation
+        pairs = [aligned_cells(f, a, b) for f in frames.values()]
+        dfs = [paired_cells(f, a, b, metrics, p) for f, p in zip(frames.values(), pairs)]
         dtv = [track_values(d, metrics) for d in dfs]
-        pair = aligned_cells(next(iter(frames.values())), a, b) if single else None
         for k in metrics:
             higher = M.higher_is_better(k)
             v = h.pad(dtv, k)
@@ -123,7 +127,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             if loto and single:
                 extra = _loto(h, vt, pool, higher)
                 est.update(extra)
-            top, bottom = (saturation(next(iter(frames.values())), a, b, k, pair) if single and k in M.METRICS
+            top, bottom = (saturation(next(iter(frames.values())), a, b, k, pairs[0]) if single and k in M.METRICS
                            else (0, 0))
             out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=over,
                                              cluster=h.cluster, n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
