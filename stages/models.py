@@ -38,6 +38,17 @@ def contrast_check(first: dict, second: dict) -> None:
 
 
 def run(ctx) -> str:
+    from pipeline.infra.budget import budget
+    from pipeline.infra.device import free_cores
+    from pipeline.method.gp_workers import fit_workers
+
+    # the GP fits go to worker processes: run.threads of them, or (0) as many as cores are free
+    # now; the models do not depend on the count (pipeline/method/gp_workers.py)
+    with fit_workers(ctx.threads or free_cores(), budget(ctx.cfg)):
+        return _run(ctx)
+
+
+def _run(ctx) -> str:
     cfg = ctx.cfg
     ev = cfg.evaluate
     feats = ctx.input("features") / out_name("features", "bigbird")

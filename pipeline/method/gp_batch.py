@@ -147,7 +147,7 @@ def cholesky_inverses(K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
     B, n, _ = K.shape
     inv, half_logdet, ok = np.empty_like(K), np.zeros(B), np.ones(B, bool)
-    lower = np.tril_indices(n, -1)
+    upper = np.triu(np.ones((n, n), bool), 1)
     for b in range(B):
         c, info = lapack.dpotrf(K[b], lower=1, clean=0)
         if info != 0:
@@ -158,7 +158,7 @@ def cholesky_inverses(K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         if info != 0:
             ok[b] = False
             continue
-        ci[lower[1], lower[0]] = ci[lower]   # potri fills the lower triangle: mirror it
+        np.copyto(ci, ci.T, where=upper)   # potri fills the lower triangle: mirror it (a third of fancy indexing's time)
         inv[b] = ci
     return inv, half_logdet, ok
 
@@ -265,7 +265,7 @@ def reduce_targets(y: np.ndarray, inv: np.ndarray, w: np.ndarray) -> tuple[np.nd
     return sums / np.sqrt(w), float(((y - (sums / w)[inv]) ** 2).sum())
 
 
-class _Stack:
+class Stack:
     """The runs' data: each problem's reduced targets, the distinct input sets' reductions."""
 
     def __init__(self, problems: list[Problem]):
@@ -290,22 +290,30 @@ class _Stack:
         """(LML, log prior, gradient of their sum) of problems ``which`` at ``theta``: grouped by
         the number of distinct inputs and stacked ``BLOCK`` at a time."""
         lml, lp, grad = np.empty(len(which)), np.empty(len(which)), np.empty((len(which), 3))
-        sizes = self.u[which]
-        for u in np.unique(sizes):
-            rows = np.nonzero(sizes == u)[0]
-            for s in range(0, len(rows), BLOCK):
-                r = rows[s:s + BLOCK]
-                idx = which[r]
-                D = np.stack([self.sets[self.xset[i]][0] for i in idx])
-                w = np.stack([self.sets[self.xset[i]][1] for i in idx])
-                z = np.stack([self.z[i] for i in idx])
-                prior = np.stack([self.problems[i].prior for i in idx])
-                with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
-                    lml[r], lp[r], grad[r] = objective(D, w, z, self.ssw[idx], self.n[idx], theta[r], prior)
+        for r in self.blocks(which):
+            lml[r], lp[r], grad[r] = self.block(which[r], theta[r])
         return lml, lp, grad
 
+    def blocks(self, which: np.ndarray) -> list[np.ndarray]:
+        """The positions in ``which`` stacked together: by number of distinct inputs, ``BLOCK`` at a time."""
+        sizes = self.u[which]
+        out = []
+        for u in np.unique(sizes):
+            rows = np.nonzero(sizes == u)[0]
+            out.extend(rows[s:s + BLOCK] for s in range(0, len(rows), BLOCK))
+        return out
 
-def _run_all(stack: _Stack, owner: np.ndarray, x0: np.ndarray, options: dict, lockstep: bool) -> list[dict]:
+    def block(self, idx: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``objective`` of problems ``idx`` (the same number of distinct inputs) stacked at ``theta``."""
+        D = np.stack([self.sets[self.xset[i]][0] for i in idx])
+        w = np.stack([self.sets[self.xset[i]][1] for i in idx])
+        z = np.stack([self.z[i] for i in idx])
+        prior = np.stack([self.problems[i].prior for i in idx])
+        with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
+            return objective(D, w, z, self.ssw[idx], self.n[idx], theta, prior)
+
+
+def _run_all(stack: Stack, owner: np.ndarray, x0: np.ndarray, options: dict, lockstep: bool) -> list[dict]:
     lo = np.stack([stack.problems[i].log_bounds[:, 0] for i in owner])
     hi = np.stack([stack.problems[i].log_bounds[:, 1] for i in owner])
 
@@ -327,10 +335,13 @@ def fit_problems(problems: list[Problem], *, polish: bool = True, lockstep: bool
     if todo:
         from threadpoolctl import threadpool_limits
 
-        # One BLAS thread: the parallel axis is the stack of small matrices, and BLAS threads on
-        # (n <= a few hundred) matrices only spin against each other on a loaded machine.
-        with threadpool_limits(1, user_api="blas"):
-            cache.update(zip((p.key for p in todo), fit_stack(_Stack(todo), polish, lockstep)))
+        from pipeline.method.gp_workers import shared
+
+        # One BLAS thread: the parallel axis is the stack of small matrices (its evaluations shared
+        # out over processes: gp_workers), and BLAS threads on (n <= a few hundred) matrices only
+        # spin against each other on a loaded machine.
+        with threadpool_limits(1, user_api="blas"), shared(Stack(todo), BLOCK) as stack:
+            cache.update(zip((p.key for p in todo), fit_stack(stack, polish, lockstep)))
     return [cache[p.key] for p in problems]
 
 

@@ -157,6 +157,35 @@ def test_fit_is_deterministic(tmp_path):
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
 
 
+def test_the_stage_writes_the_same_bytes_for_one_and_two_fit_processes(tmp_config, monkeypatch):
+    """run.threads sets the GP fit's processes (pipeline/method/gp_workers.py): the bank's files
+    are the same bytes for 1 and 2."""
+    import hashlib
+
+    import pipeline.method.gp_workers as gw
+    from pipeline.infra.budget import cores
+    from pipeline.infra.workers import can_fork
+
+    shared = []
+    real = gw.SplitStack.evaluate
+    monkeypatch.setattr(gw.SplitStack, "evaluate", lambda self, *a: shared.append(self.n) or real(self, *a))
+    got = {}
+    for threads in (1, 2):
+        cfg = tmp_config({"run": {"name": f"t{threads}", "threads": threads},
+                          "models": {"classes": CLASSES, "n_components": 2, "restarts": 2},
+                          "evaluate": {"n_candidates": 3, "targets": [CLASSES[0]]}})
+        feat = cfg.stage_dir("features")
+        write_features(feat / "bigbird.parquet", n_angles=36)
+        (feat / "manifest.json").write_text(json.dumps({"stage": "features", "key": "fake"}))
+        run_stage(cfg, STAGES["models"], "k", {}, device="cpu", threads=threads)
+        out = cfg.stage_dir("models")
+        got[threads] = {p.relative_to(out).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+                        for p in sorted(out.rglob("*")) if p.is_file() and p.name != "manifest.json"}
+    assert got[1] and got[1] == got[2]
+    if can_fork() and cores() >= 2:
+        assert set(shared) == {2}   # the second run's fits did go to two processes
+
+
 def test_bad_features_are_clear_errors(tmp_path):
     p = tmp_path / "bigbird.parquet"
     with pytest.raises(FeaturesError, match="bigbird.parquet: features file not found"):

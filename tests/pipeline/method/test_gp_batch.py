@@ -59,7 +59,7 @@ def test_objective_and_gradient_match_scikit_learn():
         theta = np.c_[rng.uniform(-3, 1, 5), rng.uniform(-2.5, 1.5, 5), rng.uniform(-9, -1, 5)]
         priors = {1: LogInverseGamma.between(*input_range(X)), 2: LogInverseGamma.between(1e-5, 0.1)} if hyperprior else {}
         lb = np.log([[1e-6, 1e2], [0.05, 10.0], [1e-6, 1.0]])
-        stack = gb._Stack([gb.Problem(X, y, lb, gb.prior_rows(priors, 1, 2), np.zeros((1, 3)))])
+        stack = gb.Stack([gb.Problem(X, y, lb, gb.prior_rows(priors, 1, 2), np.zeros((1, 3)))])
         assert stack.u[0] == n
         lml, lp, grad = stack.evaluate(np.zeros(5, int), theta)
         for b in range(5):
@@ -92,7 +92,7 @@ def test_lock_step_runs_are_scipys_runs():
         problems.append(gb.Problem(X, y - y.mean(), lb, np.full((2, 2), np.nan), gb.starts_for(np.zeros(3), lb, 3, n)))
     if not gb.setulb_available():
         pytest.skip("this scipy's L-BFGS-B has another reverse-communication signature: the fit runs sequentially")
-    stack = gb._Stack(problems)
+    stack = gb.Stack(problems)
     owner = np.repeat(np.arange(4), 4)
     x0 = np.concatenate([p.starts for p in problems])
     together = gb._run_all(stack, owner, x0, gb.DEFAULTS, lockstep=True)
@@ -199,13 +199,13 @@ def test_identical_fits_are_made_once(monkeypatch):
     X = _circle(rng, 12)
     Y = _targets(rng, X, 2)
     evaluated = []
-    real = gb._Stack.evaluate
+    real = gb.Stack.evaluate
 
     def counting(self, which, theta):
         evaluated.append(len(which))
         return real(self, which, theta)
 
-    monkeypatch.setattr(gb._Stack, "evaluate", counting)
+    monkeypatch.setattr(gb.Stack, "evaluate", counting)
     cache: dict = {}
     a, da = fit_class_models([X, X], [Y, Y], ["a", "b"], [0, 1], restarts=1, progress=False, cache=cache)
     first = sum(evaluated)
