@@ -5,7 +5,8 @@ its statistics and verdict, and the single-track figures for the showcase track
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
 experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.grid.population``,
 ``pipeline.evaluation.grid.experiments``, ``pipeline.evaluation.metrics.spec``, ``pipeline.evaluation.statistics.engine``
-and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor``.
+and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor`` (local: in
+forked worker processes, ``local_processes``).
 """
 from __future__ import annotations
 
