@@ -217,6 +217,8 @@ def local_processes(ctx) -> int:
     from pipeline.infra.budget import budget, cap_workers, cores
     from pipeline.infra.device import free_cores
 
+    if ctx.device_request != "cpu" and ctx.device != "cpu":
+        return 1   # the cells fuse on the GPU: its context does not survive a fork, and it is one device
     want = min(int(ctx.threads or ctx.cfg.run.threads or free_cores()), cores())
     if want <= 1:
         return 1

@@ -45,6 +45,16 @@ def _run(fn: Callable[[Any, Any], Any], item: Any, cpus: int, inherited: int | N
     return out
 
 
+def _init_worker(cpus: int) -> None:
+    """A worker's BLAS gets its share of the cores, as its tasks' own thread pools do: more
+    threads than cores spin against the other workers."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - installed with scikit-learn
+        return
+    threadpool_limits(limits=cpus, user_api="blas")
+
+
 class ForkPool:
     """``processes`` forked workers, made on the first call and kept for calls with the same
     ``shared`` object."""
@@ -70,7 +80,7 @@ class ForkPool:
         # the objects built so far move out of the collector's reach while the pool lives: a
         # worker's collections would otherwise write to (and so copy) every page it inherited
         gc.freeze()
-        self._context = worker_pool(self.processes, start_method="fork")
+        self._context = worker_pool(self.processes, _init_worker, (self.cpus,), start_method="fork")
         self._pool = self._context.__enter__()
         return self._pool
 

@@ -1,4 +1,4 @@
-"""The evaluate stage gives the same files whether its cells and planning episodes run in this
+"""How many workers the evaluate stage's cells get; and the stage gives the same files whether its cells and planning episodes run in this
 process (run.threads = 1) or in two forked workers (run.threads = 2, ``LocalPool``), on the smoke
 run's upstream: results.parquet, planning.parquet, the arrays and the summary (less its timings)
 byte for byte."""
@@ -11,7 +11,29 @@ import pytest
 
 from tests.support.shared_upstream import DEVICE, copy_upstream, smoke_config, smoke_upstream
 
-pytestmark = pytest.mark.slow  # builds (or reuses) the smoke upstream, then two evaluate runs
+
+def _ctx(threads=0, run_threads=0, device="cpu"):
+    from types import SimpleNamespace
+
+    from pipeline.infra.config import load_config
+    from tests.conftest import DEFAULT_CONFIG
+
+    cfg = load_config(DEFAULT_CONFIG, {"run": {"threads": run_threads}})
+    return SimpleNamespace(cfg=cfg, threads=threads, device_request=device, device=device)
+
+
+def test_worker_count_follows_the_threads_the_free_cores_and_the_device(monkeypatch):
+    import pipeline.infra.budget as budget
+    import pipeline.infra.device as device
+    from stages.evaluate import local_processes
+
+    monkeypatch.setattr(budget, "cores", lambda: 4)
+    monkeypatch.setattr(device, "free_cores", lambda: 3)
+    assert local_processes(_ctx()) == 3                      # run.threads = 0: the free cores
+    assert local_processes(_ctx(run_threads=2)) == 2
+    assert local_processes(_ctx(threads=1, run_threads=2)) == 1   # --threads first
+    assert local_processes(_ctx(run_threads=16)) == 4       # never more than the cores
+    assert local_processes(_ctx(run_threads=2, device="cuda")) == 1   # a GPU context does not fork
 
 
 def _evaluate(tmp_path_factory, threads: int):
@@ -25,6 +47,7 @@ def _evaluate(tmp_path_factory, threads: int):
     return cfg.stage_dir("evaluate"), [dict(r) for r in tasks.STATS]
 
 
+@pytest.mark.slow  # builds (or reuses) the smoke upstream, then two evaluate runs
 def test_one_and_two_worker_processes_write_the_same_files(tmp_path_factory):
     one, stats_one = _evaluate(tmp_path_factory, 1)
     two, stats_two = _evaluate(tmp_path_factory, 2)
