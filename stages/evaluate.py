@@ -5,7 +5,8 @@ its statistics and verdict, and the single-track figures for the showcase track
 I/O at the edges: read the model banks, the AVD features and the scans' geometry; the grid, the
 experiments, the metrics and the statistics are pure functions in ``pipeline.evaluation.grid.population``,
 ``pipeline.evaluation.grid.experiments``, ``pipeline.evaluation.metrics.spec``, ``pipeline.evaluation.statistics.engine``
-and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor``.
+and ``pipeline.evaluation.grid.population_summary``; cells run on ``run.executor`` (local: in
+forked worker processes, ``local_processes``).
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import logging
 import time
 from collections import Counter
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -204,8 +206,40 @@ def fusion_device(ctx, executor) -> tuple[str, bool]:
     return device, device != "cpu"
 
 
+def local_processes(ctx) -> int:
+    """Worker processes for the local executor's cells and planning episodes: the stage's threads
+    where set (--threads, run.threads), else the cores free now (``free_cores``, as the features
+    stage's scoring threads and the report's figure workers), as many as the memory budget holds
+    beside this process (a forked worker's pages are this process's until it writes to them: at
+    most about this process's size). The outputs do not depend on the count."""
+    import psutil
+
+    from pipeline.infra.budget import budget, cap_workers, cores
+    from pipeline.infra.device import free_cores
+
+    if ctx.device_request != "cpu" and ctx.device != "cpu":
+        return 1   # the cells fuse on the GPU: its context does not survive a fork, and it is one device
+    want = min(int(ctx.threads or ctx.cfg.run.threads or free_cores()), cores())
+    if want <= 1:
+        return 1
+    rss = float(psutil.Process().memory_info().rss)
+    return cap_workers("run.threads", want, rss, budget(ctx.cfg), parent=rss)
+
+
+def population_statistics(cfg: Config, kept: list[dict], cells, tracks, skipped, domain_fit) -> tuple:
+    """(the cells' table, the summary's population block): its CIs, verdicts and power."""
+    table = cell_table(kept)
+    population = population_summary(cfg, table, cells, kept, tracks, skipped, domain_fit)
+    population.update(method_blocks(cfg, cells, kept, population))
+    # measured seconds stay out of the population block (a rerun gives the same bytes); the
+    # report prices the projection from timings_s["chain_total"]
+    population["power"] = power_block(population["records"])
+    return table, population
+
+
 def run(ctx) -> str:
     from pipeline.infra.executor import executor_for
+    from pipeline.infra.executor_pool import LocalPool
 
     cfg: Config = ctx.cfg
     ev = cfg.evaluate
@@ -247,10 +281,20 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     writer = ResultsWriter(ctx.out / out_name("evaluate", "results"))
     with writer:
-        executor = executor_for(cfg)
+        processes = local_processes(ctx) if cfg.run.executor == "local" else 1
+        executor = LocalPool(processes) if processes > 1 else executor_for(cfg)
         try:
             device, gpu = fusion_device(ctx, executor)
             cells = [dataclasses.replace(c, device=device) for c in cells]
+            plan_tasks, t_plan = None, 0.0
+            if cfg.plan.enabled:   # built before the workers fork, so that they inherit them
+                from pipeline.planning.population import build_tasks
+
+                t1 = time.perf_counter()
+                plan_tasks = build_tasks(cells, tracks, avd, scores, moves, ev, cfg.plan)
+                t_plan = time.perf_counter() - t1
+            if isinstance(executor, LocalPool):
+                executor.inherit(cells, plan_tasks or [])
             done = executor.imap(P.run_cell, cells, shared=banks, desc="evaluate: cells", unit="cell",
                                  total=len(cells), gpu=gpu)
             for i, res in enumerate(done):   # to its end: the executor records its tasks there
@@ -265,31 +309,36 @@ def run(ctx) -> str:
                 kept.append(k)
                 t_reduce += t2 - t1
                 t_write += time.perf_counter() - t2
-            planning = None
-            if cfg.plan.enabled:
-                from pipeline.planning.evaluation import run_planning
+            timings["population"] = time.perf_counter() - t0 - t_reduce - t_write
+            timings.update({f"population_{m}": sec for m, sec in fusion.items()})
+            timings["cell_reduce"] = t_reduce
+            log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
+                     len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
+            planning, plan_times, job = None, {}, None
+            # With worker processes the planning episodes run there while this process does the
+            # population's statistics (a thread waits on them): the two share no state, and each
+            # gives the same bytes either way.
+            with ThreadPoolExecutor(1) as beside:
+                if cfg.plan.enabled:
+                    from pipeline.planning.evaluation import run_planning
 
+                    def plan_part():
+                        t1 = time.perf_counter()
+                        out = run_planning(cfg, cells, tracks, avd, scores, moves, banks, executor,
+                                           ctx.out / out_name("evaluate", "planning"), tasks=plan_tasks)
+                        return out, time.perf_counter() - t1 + t_plan
+                    if isinstance(executor, LocalPool):
+                        job = beside.submit(plan_part)
+                    else:
+                        (planning, plan_times), timings["planning"] = plan_part()
                 t1 = time.perf_counter()
-                planning, plan_times = run_planning(cfg, cells, tracks, avd, scores, moves, banks, executor,
-                                                    ctx.out / out_name("evaluate", "planning"))
-                timings["planning"] = time.perf_counter() - t1
+                table, population = population_statistics(cfg, kept, cells, tracks, skipped, domain_fit)
+                timings["statistics"] = time.perf_counter() - t1
+                if job is not None:
+                    (planning, plan_times), timings["planning"] = job.result()
                 timings.update(plan_times)
         finally:
             executor.close()
-        timings["population"] = time.perf_counter() - t0 - t_reduce - t_write - timings.get("planning", 0.0)
-        timings.update({f"population_{m}": sec for m, sec in fusion.items()})
-        timings["cell_reduce"] = t_reduce
-        log.info("population: %d cells (%d targets x %d tracks x %d variant(s)) in %.1f s", len(cells),
-                 len({c.target for c in cells}), len(tracks), len(indexes), timings["population"])
-
-        t0 = time.perf_counter()
-        table = cell_table(kept)
-        population = population_summary(cfg, table, cells, kept, tracks, skipped, domain_fit)
-        population.update(method_blocks(cfg, cells, kept, population))
-        # measured seconds stay out of the population block (a rerun gives the same bytes); the
-        # report prices the projection from timings_s["chain_total"]
-        population["power"] = power_block(population["records"])
-        timings["statistics"] = time.perf_counter() - t0
         timings["chain_total"] = _chain_seconds(cfg) + time.perf_counter() - t_start
 
         # The showcase track (pipeline/evaluation/grid/showcase.py: where the methods disagree most): its
