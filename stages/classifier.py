@@ -226,7 +226,8 @@ def _train_synthetic(ctx, device: str) -> str:
                                weight_decay=t.weight_decay, warmup_steps=t.warmup_steps, seed=c.seed,
                                mean=c.mean, std=c.std, device=device, precision=precision,
                                log=log.info, split=split, early_epochs=t.early_epochs,
-                               early_size=t.early_size)
+                               early_size=t.early_size, early_mode=t.early_mode,
+                               early_forward=entry.early_forward() if t.early_head == "compact" else None)
     timings["train_s"], cpu["train_s"] = round(time.perf_counter() - t1, 2), round(_cpu_s() - c1, 2)
 
     t2, c2 = time.perf_counter(), _cpu_s()

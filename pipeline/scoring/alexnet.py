@@ -42,6 +42,28 @@ def init_for_training(model: nn.Module, seed: int) -> nn.Module:
     return model
 
 
+def compact_forward(model: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """AlexNet's logits with the head's first Dropout off, its first Linear layer computed once per
+    distinct trunk output. AdaptiveAvgPool2d((6, 6)) only repeats a trunk map whose sides divide 6
+    (1x1 at 80 px inputs: 36 copies; 3x3 at 112 px: 4), so the layer equals a Linear layer on the
+    unrepeated map whose weights are the sums of the copies' columns: exactly the full head without
+    that Dropout (autograd hands every copy the same gradient), at a 36th (4th) of its multiply-adds.
+    Other map sizes take the full layers, the first Dropout still off. Used by the early epochs of
+    training (``classifier.training.early_head``); the MC-dropout network keeps both Dropouts."""
+    head = model.classifier
+    fc1 = head[1]
+    f = model.features(x)
+    c, h, w = f.shape[1:]
+    out_h, out_w = model.avgpool.output_size
+    if out_h % h or out_w % w or c * out_h * out_w != fc1.in_features:
+        z = fc1(torch.flatten(model.avgpool(f), 1))
+    else:
+        # flatten order of (C, 6, 6) is c*36 + row*6 + col; row = i*(6/h) + r repeats map row i
+        weight = fc1.weight.view(fc1.out_features, c, h, out_h // h, w, out_w // w).sum((3, 5))
+        z = nn.functional.linear(torch.flatten(f, 1), weight.reshape(fc1.out_features, -1), fc1.bias)
+    return head[3:](head[2](z))
+
+
 def imagenet_dir() -> Path:
     return Path(torch.hub.get_dir()) / "checkpoints"
 

@@ -24,17 +24,21 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
                      batch_size: int, lr: float, weight_decay: float, warmup_steps: int, seed: int,
                      mean, std, device: str = "cpu", precision: str = "auto", progress: bool = True,
                      log: Callable[[str], None] | None = None, split: dict | None = None,
-                     early_epochs: int = 0, early_size: int | None = None) -> list[dict]:
+                     early_epochs: int = 0, early_size: int | None = None, early_mode: str = "shrink",
+                     early_forward: Callable | None = None) -> list[dict]:
     """Adam + warmup/cosine on uint8 images, ``augment``ed per batch. Returns per-epoch history.
 
     ``precision`` "bf16" = autocast mixed precision (fp32 master weights), several times faster on
     CPUs with native bf16 and slower where oneDNN emulates it; "auto" picks it only where the
     hardware has it (``resolve_precision``). ``split``, if given, receives
     the wall seconds spent in each part of the loop (augment, forward, backward, optimizer).
-    The first ``early_epochs`` epochs see the batches shrunk to ``early_size`` (``shrink``): a step
-    costs about two thirds at 80 px of one at 112 (docs/benchmarks.md), and the later epochs at full
-    size learn the fine texture periods that the small images blur. The last epoch always runs at
-    full size, and an ``early_size`` not below the images' side shrinks nothing.
+    The first ``early_epochs`` epochs see ``early_size`` inputs, cheaper steps: ``early_mode``
+    "crop" cuts one random ``early_size`` square from each batch (``crop``: the texture periods keep
+    the scale they have at full size), "shrink" resizes the batch (``shrink``: it blurs the fine
+    periods). ``early_forward(model, x)``, where given, replaces ``model(x)`` in those epochs (the
+    AlexNet entry's compact head: ``pipeline.scoring.alexnet.compact_forward``). The last epoch always
+    runs at full size with the model's own forward, and an ``early_size`` not below the images' side
+    changes nothing.
     """
     from pipeline.infra.memory import reuse_freed_memory
     from pipeline.infra.progress import bar as progress_bar
@@ -47,6 +51,8 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     kw = {"fused": True} if device in ("cpu", "cuda") else {}
     opt = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay, **kw)
     n = len(images)
+    if early_mode not in ("crop", "shrink"):
+        raise ValueError(f"early_mode must be crop or shrink, got {early_mode!r}")
     if not early_size or early_size >= images.shape[1]:
         early_epochs = 0
     early_epochs = max(0, min(early_epochs, epochs - 1))
@@ -66,12 +72,13 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
                 clock.start()
                 idx = np.sort(order[b * batch_size:(b + 1) * batch_size])
                 x = augment(images[idx], gen, mean, std).to(device)
-                if ep < early_epochs:
-                    x = shrink(x, early_size)
+                early = ep < early_epochs
+                if early:
+                    x = crop(x, early_size, gen) if early_mode == "crop" else shrink(x, early_size)
                 y = torch.from_numpy(labels[idx]).to(device)
                 clock.lap("augment_s")
                 with torch.autocast(device_type=device, dtype=torch.bfloat16, enabled=use_bf16):
-                    out = model(x)
+                    out = early_forward(model, x) if early and early_forward else model(x)
                 loss = F.cross_entropy(out.float(), y)
                 clock.lap("forward_s")
                 opt.zero_grad(set_to_none=True)
@@ -104,6 +111,18 @@ def shrink(x: torch.Tensor, size: int) -> torch.Tensor:
         return x
     y = F.interpolate(x, size=(size, size), mode="bilinear", antialias=True, align_corners=False)
     return y.contiguous(memory_format=torch.channels_last)
+
+
+def crop(x: torch.Tensor, size: int, gen: np.random.Generator) -> torch.Tensor:
+    """One random ``size`` x ``size`` square of a batch (N, 3, H, W), the same place in every image
+    (one draw of ``gen`` per batch), kept channels_last. Unchanged when it already has that size."""
+    h, w = x.shape[-2:]
+    if (h, w) == (size, size):
+        return x
+    if size > min(h, w):
+        raise ValueError(f"crop side {size} exceeds the batch's {h}x{w} images")
+    top, left = (int(v) for v in gen.integers(0, [h - size + 1, w - size + 1]))
+    return x[:, :, top:top + size, left:left + size].contiguous(memory_format=torch.channels_last)
 
 
 class _PartClock:

@@ -14,20 +14,29 @@ class TrainingConfig:
     categories: int = _f(12, lo=2, hi=12, doc="synthetic source-domain categories (texture families)")
     train_images: int = _f(6400, lo=10, hi=10_000_000)
     val_images: int = _f(1200, lo=10, hi=10_000_000)
-    epochs: int = _f(7, lo=1, hi=200)
-    batch_size: int = _f(128, lo=1, hi=4096)
+    epochs: int = _f(4, lo=1, hi=200)
+    batch_size: int = _f(64, lo=1, hi=4096)
     lr: float = _f(5e-4, lo=0.0, hi=1.0)
     weight_decay: float = _f(1e-4, lo=0.0, hi=1.0)
     min_accuracy: float = _f(0.85, lo=0.0, hi=1.0,
                              doc="fail the stage below this held-out top-1 (a broken run; the quality goal is "
                                  "0.90, checked by tests/bench/bench_classifier.py)")
-    warmup_steps: int = _f(30, lo=0, hi=100000, doc="linear LR warmup steps before the cosine decay")
-    early_epochs: int = _f(0, lo=0, hi=199,
-                           doc="progressive resizing: the first this many epochs train on the images shrunk to "
-                               "early_size (cheaper steps; AlexNet pools adaptively), the rest at input_size; "
+    warmup_steps: int = _f(60, lo=0, hi=100000, doc="linear LR warmup steps before the cosine decay")
+    early_epochs: int = _f(3, lo=0, hi=199,
+                           doc="progressive resizing: the first this many epochs train on early_size inputs "
+                               "(early_mode; cheaper steps, AlexNet pools adaptively), the rest at input_size; "
                                "the last epoch is always at input_size, and an early_size not below it shrinks "
                                "nothing; 0 = every epoch at input_size")
     early_size: int = _f(80, lo=63, hi=512, doc="input side of the early epochs, pixels")
+    early_mode: str = _f("crop", choices=("crop", "shrink"),
+                         doc="how the early epochs get early_size inputs: crop = one random early_size square "
+                             "of each batch (the textures keep their full-size scale), shrink = the batch "
+                             "resized (antialiased bilinear; blurs the fine periods)")
+    early_head: str = _f("compact", choices=("compact", "full"),
+                         doc="the head in the early epochs: compact = the first Dropout off and AlexNet's first "
+                             "Linear layer computed once per distinct trunk output (exact: the adaptive pooling "
+                             "only repeats a small map), full = the network as it is scored; the later epochs "
+                             "always train the full head with both Dropouts")
     precision: str = _f("auto", choices=("auto", "fp32", "bf16"),
                         doc="training arithmetic; auto = bf16 autocast where the hardware has it")
     render_workers: int = _f(2, lo=1, hi=64,

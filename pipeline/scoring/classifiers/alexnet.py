@@ -30,6 +30,11 @@ class AlexNet(Classifier):
 
         return init_for_training(build_alexnet(num_classes, dropout), seed)
 
+    def early_forward(self):
+        from pipeline.scoring.alexnet import compact_forward
+
+        return compact_forward
+
     def imagenet_location(self):
         from pipeline.scoring.alexnet import IMAGENET_FILE, imagenet_dir
 

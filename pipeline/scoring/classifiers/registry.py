@@ -74,6 +74,11 @@ class Classifier:
         """The network initialised for training on the source domain (entries with ``trains``)."""
         raise NotImplementedError(f"{self.display} is not trained here")
 
+    def early_forward(self):
+        """A forward ``f(model, x)`` for the cheap early epochs of training with ``early_head`` =
+        "compact" (AlexNet's compact head), or None: the network's own forward."""
+        return None
+
     def imagenet_location(self) -> Path:
         """Where the ImageNet weights file is (it may be missing; raises when not even that is known)."""
         raise NotImplementedError(f"{self.display} has no ImageNet weights file here")

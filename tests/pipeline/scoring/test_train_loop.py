@@ -116,3 +116,26 @@ def test_early_epochs_train_on_shrunk_batches_then_on_full_ones():
         train_classifier(m, x, y, epochs=3, batch_size=12, lr=1e-4, weight_decay=0.0, warmup_steps=1,
                          seed=3, mean=MEAN, std=STD, progress=False, early_epochs=early, early_size=size)
         assert seen == expect
+
+
+def test_early_epochs_crop_and_take_the_early_forward_then_the_full_network():
+    """early_mode = "crop": the early epochs see early_size squares and run early_forward (the
+    compact head), the last epochs the rendered size through the network's own forward."""
+    from pipeline.scoring.alexnet import compact_forward
+
+    x, y = render_set(24, 80, 12, seed=1, stream=TRAIN_STREAM)
+    m = init_for_training(build_alexnet(12, 0.5), 3)
+    seen, early_calls = [], []
+    m.features[0].register_forward_pre_hook(lambda mod, inp: seen.append(inp[0].shape[-1]))
+
+    def counted(model, xb):
+        early_calls.append(xb.shape[-1])
+        return compact_forward(model, xb)
+
+    train_classifier(m, x, y, epochs=3, batch_size=12, lr=1e-4, weight_decay=0.0, warmup_steps=1, seed=3,
+                     mean=MEAN, std=STD, progress=False, early_epochs=2, early_size=64, early_mode="crop",
+                     early_forward=counted)
+    assert seen == [64, 64, 64, 64, 80, 80] and early_calls == [64] * 4
+    with pytest.raises(ValueError, match="early_mode"):
+        train_classifier(m, x, y, epochs=1, batch_size=12, lr=1e-4, weight_decay=0.0, warmup_steps=1,
+                         seed=3, mean=MEAN, std=STD, progress=False, early_mode="zoom")
