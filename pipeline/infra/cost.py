@@ -61,9 +61,12 @@ PLAN_MOVES = 6  # moves from an AVD node (forward, backward, left, right, rotate
 # and 200 under load 9: linear in them); the GP fits 4.0 s per (restarts + 1); a sweep point 0.5 s
 # on top of its realizations (the small sweep's 20 s, docs/benchmarks.md).
 SIM_MU_S, SIM_MU_SAMPLE_S, SIM_LB_SAMPLE_S, SIM_FIT_S, SIM_SWEEP_POINT_S = 1.2e-3, 1.2e-5, 3.4e-4, 4.0, 0.5
-# The classifier: 134-141 s a seed for 6400 training + 1200 validation images x 7 epochs at 112 px,
-# rendering included (make study, docs/benchmarks.md "Seed study"), AlexNet.
-CLASSIFIER_IMAGE_EPOCH_S = 137 / ((6400 + 1200) * 7)
+# The classifier (AlexNet, `viewfuse classifier`, idle Xeon 2.8 GHz, 2 cores, docs/benchmarks.md):
+# 19 s to render 7600 source images; an epoch of 6400 images at 112 px and batch 64, 44 s; an early
+# epoch (80 px crops, the compact head) 26 s, scaled by the area of their sides.
+CLASSIFIER_RENDER_IMAGE_S = 19 / 7600
+CLASSIFIER_IMAGE_EPOCH_S = 44 / 6400
+CLASSIFIER_EARLY_EPOCH_SHARE = 26 / 44
 # The features stage's MC-dropout head: 1.5 ms a (crop, sample) row, and the backbone 9.4 ms a
 # 112 px crop (bench_cost.py: AlexNet, load 6 on 2 cores; 4.3 and 34 ms under load 9).
 HEAD_ROW_S, BACKBONE_CROP_S = 1.5e-3, 9.4e-3
@@ -250,10 +253,15 @@ def classifier_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     t = c.training
     if c.weights != "synthetic":
         return []
-    return [Term(f"training ({t.train_images} + {t.val_images} images x {t.epochs} epochs at {c.input_size} px)",
+    early = min(t.early_epochs, t.epochs - 1) if t.early_size < c.input_size else 0
+    epochs = (t.epochs - early) + early * CLASSIFIER_EARLY_EPOCH_SHARE * (t.early_size / 80) ** 2 / (c.input_size / 112) ** 2
+    return [Term(f"training ({t.train_images} + {t.val_images} images x {t.epochs} epochs at {c.input_size} px, "
+                 f"{early} of them at {t.early_size} px)",
                  ("classifier.training.train_images", "classifier.training.val_images",
-                  "classifier.training.epochs", "classifier.input_size"),
-                 seconds=(t.train_images + t.val_images) * t.epochs * CLASSIFIER_IMAGE_EPOCH_S * (c.input_size / 112) ** 2,
+                  "classifier.training.epochs", "classifier.input_size", "classifier.training.early_epochs",
+                  "classifier.training.early_size"),
+                 seconds=(t.train_images + t.val_images) * CLASSIFIER_RENDER_IMAGE_S
+                 + t.train_images * epochs * CLASSIFIER_IMAGE_EPOCH_S * (c.input_size / 112) ** 2,
                  bytes=footprints.classifier_training(c))]
 
 
