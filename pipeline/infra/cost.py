@@ -30,6 +30,7 @@ from pipeline.infra import footprints
 from pipeline.infra.budget import GIB, MemoryBudgetError, address_space_left, budget, budget_words, gib
 from pipeline.infra.config.checks import modelled_classes
 from pipeline.infra.config.fields import ConfigError
+from pipeline.infra.config.learning import early_epochs_run
 from pipeline.infra.registry import Registry
 
 log = logging.getLogger("viewfuse")
@@ -253,7 +254,7 @@ def classifier_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     t = c.training
     if c.weights != "synthetic":
         return []
-    early = min(t.early_epochs, t.epochs - 1) if t.early_size < c.input_size else 0
+    early = early_epochs_run(t.epochs, t.early_epochs, t.early_size, c.input_size)
     epochs = (t.epochs - early) + early * CLASSIFIER_EARLY_EPOCH_SHARE * (t.early_size / 80) ** 2 / (c.input_size / 112) ** 2
     return [Term(f"training ({t.train_images} + {t.val_images} images x {t.epochs} epochs at {c.input_size} px, "
                  f"{early} of them at {t.early_size} px)",

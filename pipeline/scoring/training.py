@@ -11,6 +11,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from pipeline.infra.config.learning import early_epochs_run
+
 
 def lr_at(step: int, total: int, base: float, warmup: int) -> float:
     """Linear warmup, then cosine decay to zero (AlexNet has no batch norm: warmup keeps Adam calm)."""
@@ -53,9 +55,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     n = len(images)
     if early_mode not in ("crop", "shrink"):
         raise ValueError(f"early_mode must be crop or shrink, got {early_mode!r}")
-    if not early_size or early_size >= images.shape[1]:
-        early_epochs = 0
-    early_epochs = max(0, min(early_epochs, epochs - 1))
+    early_epochs = early_epochs_run(epochs, early_epochs, early_size, images.shape[1])
     steps_per_epoch = math.ceil(n / batch_size)
     total = epochs * steps_per_epoch
     step = 0

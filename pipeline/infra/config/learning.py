@@ -44,6 +44,15 @@ class TrainingConfig:
                                  "depend on it)")
 
 
+def early_epochs_run(epochs: int, early_epochs: int, early_size: int | None, side: int) -> int:
+    """How many of ``epochs`` train on ``early_size`` inputs when the images' side is ``side``: the
+    last epoch is always at full size, and an ``early_size`` not below ``side`` changes nothing.
+    One rule for the training loop and the cost model."""
+    if not early_size or early_size >= side:
+        return 0
+    return max(0, min(early_epochs, epochs - 1))
+
+
 @dataclass(frozen=True)
 class EfficientNetConfig:
     dropout: float = _f(0.2, lo=0.0, hi=0.99,
