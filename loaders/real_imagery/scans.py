@@ -14,7 +14,6 @@ gives the view-error and box-fit distributions over all scans.
 """
 from __future__ import annotations
 
-import gc
 import json
 import logging
 from collections.abc import Callable
@@ -31,7 +30,7 @@ from loaders.real_imagery.frames import fit_in_box, object_bearing_deg, view_err
 from loaders.real_imagery.pairing import box_rows, located_xy
 from loaders.synthetic.bigbird_writer import encode_jpeg
 from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
-from pipeline.infra.workers import can_fork
+from pipeline.infra.workers import can_fork, forked_pool, inherited
 from pipeline.scene.rays import facing_error
 
 log = logging.getLogger("viewfuse.loaders")
@@ -102,38 +101,29 @@ def write_scans(avd_root: Path, avd_out: Path, scans: dict[str, tuple[Located, l
     return {s: done[s][0] for s in scans}, {s: done[s][1] for s in scans}
 
 
-# what the forked writers read: set just before the pool forks them, so each inherits the scans
-# (photographs, located rows) and the frame drawer (closures) instead of receiving them pickled
-_WORKER: dict[str, Any] = {}
-
-
 def _write_named(scan: str):
     # No cv2.setNumThreads here: in a forked child it tears down the pool inherited without its
     # threads and waits on them for ever. The parent set one thread before forking.
-    return _write_scan(_WORKER["scans"][scan], *_WORKER["args"])
+    return _write_scan(inherited("scan_rows")[scan], *inherited("scan_args"))
 
 
 def _write_parallel(scans: dict, args: tuple, workers: int) -> dict:
     import cv2
 
-    from pipeline.infra.workers import worker_pool
-
-    _WORKER.update(scans=scans, args=args)
-    gc.freeze()   # the inherited objects out of the collector's reach: it would touch (so copy) their pages
     # One OpenCV thread while the writers run (one process per core already): set here, where the
     # pool's threads exist, so the forked children run OpenCV serially and never touch its pool.
     cv_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        with worker_pool(min(workers, len(scans)), start_method="fork") as pool:
+        # each writer inherits the scans (photographs, located rows) and the frame drawer (closures)
+        # instead of receiving them pickled
+        with forked_pool(min(workers, len(scans)), {"scan_rows": scans, "scan_args": args}) as pool:
             # the scans with the most boxes first: the last ones to finish are short
             order = sorted(scans, key=lambda s: -len(scans[s][0].rows))
             futures = {s: pool.submit(_write_named, s) for s in order}
             return {s: futures[s].result() for s in order}
     finally:
         cv2.setNumThreads(cv_threads)
-        gc.unfreeze()
-        _WORKER.clear()
 
 
 def writer_count(cfg, key: str, requested: int) -> int:

@@ -18,30 +18,26 @@ Workers die with this process (``pipeline.infra.workers``).
 """
 from __future__ import annotations
 
-import gc
 import time
 from collections.abc import Sequence
 from collections import deque
 from typing import Any, Callable, Iterable, Iterator
 
 from pipeline.infra.tasks import record
-from pipeline.infra.workers import can_fork, worker_pool
+from pipeline.infra.workers import can_fork, forked_pool, inherited
 
-# The payload the workers read: set in this process just before the pool forks them.
-_SHARED: dict[str, Any] = {}
-
-
-def _run(fn: Callable[[Any, Any], Any], item: Any, cpus: int, inherited: int | None) -> list[tuple[Any, float]]:
+def _run(fn: Callable[[Any, Any], Any], item: Any, cpus: int, which: int | None) -> list[tuple[Any, float]]:
     """In a worker: [(``fn(shared, item)``, its seconds)], with ``task_cpus()`` = ``cpus``; where
-    ``inherited`` is not None, ``item`` is a range of that inherited list and each of its items runs."""
+    ``which`` is not None, ``item`` is a range of that inherited list and each of its items runs."""
     import pipeline.infra.device as dev
 
     dev._TASK_CPUS = cpus
-    items = [item] if inherited is None else [_SHARED["lists"][inherited][i] for i in item]
+    items = [item] if which is None else [inherited("pool_lists")[which][i] for i in item]
+    shared = inherited("pool_shared")
     out = []
     for one in items:
         t0 = time.perf_counter()
-        out.append((fn(_SHARED["value"], one), time.perf_counter() - t0))
+        out.append((fn(shared, one), time.perf_counter() - t0))
     return out
 
 
@@ -75,12 +71,9 @@ class ForkPool:
         if self._pool is not None and self._shared is shared:
             return self._pool
         self.close()
-        _SHARED.update(value=shared, lists=self.lists)
         self._shared = shared
-        # the objects built so far move out of the collector's reach while the pool lives: a
-        # worker's collections would otherwise write to (and so copy) every page it inherited
-        gc.freeze()
-        self._context = worker_pool(self.processes, _init_worker, (self.cpus,), start_method="fork")
+        self._context = forked_pool(self.processes, {"pool_shared": shared, "pool_lists": self.lists},
+                                    _init_worker, (self.cpus,))
         self._pool = self._context.__enter__()
         return self._pool
 
@@ -141,9 +134,6 @@ class ForkPool:
                     context.__exit__(None, None, None)
             except RuntimeError:
                 pass
-            finally:
-                gc.unfreeze()
-        _SHARED.clear()
         self._shared = None
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import gc
 import ctypes.util
 import logging
 import multiprocessing
@@ -22,7 +23,7 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import psutil
 
@@ -114,6 +115,33 @@ def worker_pool(workers: int, initializer: Callable | None = None, initargs: tup
                 p.join(5)
         raise
     pool.shutdown(wait=True)
+
+
+# What forked workers read: set by ``forked_pool`` just before its pool forks them, so each worker
+# inherits these objects (copy-on-write) instead of receiving them pickled.
+_INHERITED: dict[str, Any] = {}
+
+
+def inherited(key: str) -> Any:
+    """In a ``forked_pool`` worker (or its parent while the pool lives): the object set under ``key``."""
+    return _INHERITED[key]
+
+
+@contextlib.contextmanager
+def forked_pool(workers: int, inherit: dict[str, Any], initializer: Callable | None = None,
+                initargs: tuple = ()) -> Iterator[ProcessPoolExecutor]:
+    """``worker_pool(..., start_method="fork")`` whose workers inherit ``inherit`` (read with
+    ``inherited(key)``). While it lives, the objects built so far are out of the collector's reach:
+    a worker's collections would otherwise write to (and so copy) every page it inherited."""
+    _INHERITED.update(inherit)
+    gc.freeze()
+    try:
+        with worker_pool(workers, initializer, initargs, start_method="fork") as pool:
+            yield pool
+    finally:
+        gc.unfreeze()
+        for key in inherit:
+            _INHERITED.pop(key, None)
 
 
 def _start_mark(pid: int) -> str:

@@ -17,13 +17,11 @@ its ``run.threads``, else the cores free now, capped by the memory budget); outs
 from __future__ import annotations
 
 import contextlib
-import gc
 from typing import Iterator
 
 import numpy as np
 
 _WORKERS = [1, 0]   # worker count, memory budget in bytes (0: AUTO_SHARE of the machine's)
-_SHARED: dict = {}   # the stack, set just before the pool forks: the workers evaluate its rows
 # bytes a worker holds beyond what it shares with this process: the stacked (BLOCK, u, u) arrays
 # of ``objective`` (about a dozen at once) and the interpreter's own pages it writes to
 _PER_MATRIX_COPIES = 12
@@ -59,7 +57,9 @@ def parts(rows: np.ndarray, n: int) -> list[np.ndarray]:
 
 
 def _block(idx: np.ndarray, theta: np.ndarray):
-    return _SHARED["stack"].block(idx, theta)
+    from pipeline.infra.workers import inherited
+
+    return inherited("gp_stack").block(idx, theta)
 
 
 class SplitStack:
@@ -89,7 +89,7 @@ def shared(stack, block: int, workers: int | None = None) -> Iterator:
     ``workers`` processes (this one and forked ones; default ``current_workers()``) within the
     block. Call it with one BLAS thread set (``threadpoolctl``), as the workers run with: a
     threaded product may sum in another order (other bits)."""
-    from pipeline.infra.workers import can_fork, worker_pool
+    from pipeline.infra.workers import can_fork, forked_pool
 
     runs = sum(len(p.starts) for p in stack.problems)
     n = min(current_workers() if workers is None else max(1, int(workers)), max(runs // 2, 1))
@@ -104,14 +104,9 @@ def shared(stack, block: int, workers: int | None = None) -> Iterator:
     if n <= 1 or not can_fork():
         yield stack
         return
-    _SHARED["stack"] = stack
-    gc.freeze()   # the workers' collections would otherwise write to (and copy) every inherited page
-    try:
-        with worker_pool(n - 1, initializer=_one_blas_thread, start_method="fork") as pool:
-            yield SplitStack(stack, pool, n)
-    finally:
-        gc.unfreeze()
-        _SHARED.clear()
+    # the workers inherit the stack and evaluate its rows
+    with forked_pool(n - 1, {"gp_stack": stack}, initializer=_one_blas_thread) as pool:
+        yield SplitStack(stack, pool, n)
 
 
 def _one_blas_thread() -> None:

@@ -10,7 +10,6 @@ drawn in this process.
 """
 from __future__ import annotations
 
-import gc
 from pathlib import Path
 from typing import Any, Callable
 
@@ -19,7 +18,7 @@ import psutil
 from pipeline.infra.budget import AUTO_SHARE, cap_workers, machine_memory
 from pipeline.infra.device import free_cores
 from pipeline.infra.progress import bar as progress_bar
-from pipeline.infra.workers import can_fork, worker_pool
+from pipeline.infra.workers import can_fork, forked_pool, inherited
 from reports.shared.figures import FigureCheck, save
 
 Plan = list[tuple[str, Callable[[], Any]]]
@@ -49,26 +48,14 @@ def draw_one(name: str, build: Callable[[], Any], out: Path, dpi: int, clipped: 
     return name, chk, clipped.get(name)
 
 
-# the plan the workers draw from: set in this process just before the pool forks them, so each
-# worker inherits the built plan (the run loaded, the summaries made) instead of rebuilding it
-_WORKER: dict[str, Any] = {}
-
-
 def _draw_named(name: str, out: str, dpi: int) -> Drawn:
-    return draw_one(name, _WORKER["plan"][name], Path(out), dpi, _WORKER["clipped"])
+    return draw_one(name, inherited("figure_plan")[name], Path(out), dpi, inherited("figure_clipped"))
 
 
 def draw_parallel(plan: Plan, out: Path, dpi: int, workers: int, clipped: dict, progress: bool) -> list[Drawn]:
     """Draw ``plan``'s figures in ``workers`` forked processes; the builders record into ``clipped``
     in the workers, so what they recorded comes back with each figure."""
-    _WORKER.update(plan=dict(plan), clipped=clipped)
-    # the objects built so far move out of the collector's reach: a worker's collections would
-    # otherwise write to (and so copy) every page it inherited
-    gc.freeze()
-    try:
-        with worker_pool(workers, start_method="fork") as pool:
-            futures = [pool.submit(_draw_named, name, str(out), dpi) for name, _ in plan]
-            return [f.result() for f in progress_bar(futures, desc="report figures", unit="fig", enabled=progress)]
-    finally:
-        gc.unfreeze()
-        _WORKER.clear()
+    # each worker inherits the built plan (the run loaded, the summaries made) instead of rebuilding it
+    with forked_pool(workers, {"figure_plan": dict(plan), "figure_clipped": clipped}) as pool:
+        futures = [pool.submit(_draw_named, name, str(out), dpi) for name, _ in plan]
+        return [f.result() for f in progress_bar(futures, desc="report figures", unit="fig", enabled=progress)]
