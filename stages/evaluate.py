@@ -324,8 +324,7 @@ def run(ctx) -> str:
 
                     def plan_part():
                         t1 = time.perf_counter()
-                        out = run_planning(cfg, cells, tracks, avd, scores, moves, banks, executor,
-                                           ctx.out / out_name("evaluate", "planning"), tasks=plan_tasks)
+                        out = run_planning(cfg, plan_tasks, banks, executor, ctx.out / out_name("evaluate", "planning"))
                         return out, time.perf_counter() - t1 + t_plan
                     if isinstance(executor, LocalPool):
                         job = beside.submit(plan_part)

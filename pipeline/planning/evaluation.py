@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.infra.cache import atomic_path
-from pipeline.planning.population import build_tasks, run_task
+from pipeline.planning.population import run_task
 from pipeline.planning.summary import planning_block, step_rows
 
 
@@ -51,12 +51,12 @@ def read_table(path) -> pd.DataFrame:
     return pd.read_parquet(path)
 
 
-def run_planning(cfg, cells, tracks, avd, scores, moves: dict, banks, executor, out_path, tasks=None) -> dict:
-    """Every planning episode of the run (``tasks``: those ``build_tasks`` made already); writes
-    the table to ``out_path``, returns the block."""
+def run_planning(cfg, tasks: list, banks, executor, out_path) -> dict:
+    """Every planning episode of the run (``tasks``, from ``population.build_tasks``, made before an
+    executor's workers fork so that they inherit them); writes the table to ``out_path``, returns
+    the block."""
     ev, plan = cfg.evaluate, cfg.plan
     t0 = time.perf_counter()
-    tasks = build_tasks(cells, tracks, avd, scores, moves, ev, plan) if tasks is None else tasks
     if not tasks:
         return {"skipped": "no target has a start node"}, {}
     results = list(executor.imap(run_task, tasks, shared=banks, desc="evaluate: planning", unit="start",
