@@ -9,7 +9,7 @@ ARGS    ?=
 , := ,
 STAGES  := data classifier features models evaluate report simulate
 
-.PHONY: help venv venv-ray $(STAGES) study test test-fast bench clean distclean
+.PHONY: help venv venv-ray $(STAGES) study test test-fast test-install bench clean distclean
 
 help:
 	@echo "make features models evaluate   run the main job on CONFIG (default $(CONFIG))"
@@ -18,6 +18,7 @@ help:
 	@echo "make venv-ray                   add the optional Ray extra (run.executor = \"ray\" / --executor ray)"
 	@echo "make test                       every test (real stages included; CI runs this)"
 	@echo "make test-fast                  the unit tests only (no test marked slow), about 2-3 min"
+	@echo "make test-install               pip install . (no extras) into a fresh venv, then the smoke chain"
 	@echo "make bench | clean | distclean"
 
 # Installs go through uv where it can be had (pip install uv, then uv pip install: it unpacks
@@ -92,6 +93,10 @@ test: $(VENV)/.installed
 
 test-fast: $(VENV)/.installed
 	$(BIN)/python -m pytest -q -m 'not slow' $(XDIST) $(PYTEST_ARGS)
+
+# Not in `make test`: it downloads and unpacks torch into a fresh venv (minutes, GB).
+test-install: $(VENV)/.installed
+	VIEWFUSE_TEST_INSTALL=1 $(BIN)/python -m pytest -q -s tests/test_runtime_dependencies.py $(PYTEST_ARGS)
 
 bench: $(VENV)/.installed
 	$(BIN)/python tests/bench/run_all.py $(BENCH_ARGS)
