@@ -240,7 +240,9 @@ def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto",
             why = stale_reason(cfg, name, key, parts, verify=hashes)
             if why is None:
                 echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
-                keys[name] = digest(read_manifest(cfg, name) or {})
+                m = read_manifest(cfg, name) or {}
+                stage_cache.publish(cfg, name, m, final)   # a run finished before the cache existed
+                keys[name] = digest(m)
                 return keys[name]
             if not why.startswith("missing"):
                 echo(f"[{name}] stale: {why}")
