@@ -70,24 +70,25 @@ def test_the_card_names_the_machine_the_numbers_came_from(smoke):
     assert fp["cpu_model"] in html and card["weights_sha256"] in html
 
 
-def test_a_second_run_name_trains_nothing_scores_nothing_and_gives_the_same_bytes(smoke):
+def test_a_second_run_name_trains_nothing_scores_nothing_and_gives_the_same_bytes(smoke, tmp_path):
     """The stage cache (stages/framework/stage_cache.py): the smoke chain again under another
-    run.name reuses every shared stage of the first; only the report (its page names the run) runs."""
+    run.name reuses every shared stage of the first; only the report (its page names the run) runs.
+    It runs in an artifacts folder of its own holding the shared folder's cache (hard links: the
+    same entries), so the chain tests that copy every run of the shared folder never see it."""
     run, _ = smoke
-    again = run.parent / "smoke_again"
-    try:
-        p = _viewfuse("evaluate", "--set", "run.name=smoke_again", artifacts=run.parent)
-        assert p.returncode == 0, p.stderr[-4000:]
-        for stage in ("data", "classifier", "features", "models", "evaluate"):
-            assert f"[{stage}] reused from run 'smoke'" in p.stdout, (stage, p.stdout[-3000:])
-            assert f"[{stage}] running" not in p.stdout
-            m = json.loads((again / stage / "manifest.json").read_text())
-            assert m["reused"]["run"] == "smoke"
-            for rel in m["outputs"]:
-                assert (again / stage / rel).read_bytes() == (run / stage / rel).read_bytes(), (stage, rel)
-        assert (again / "report" / "index.html").is_file()
-    finally:
-        shutil.rmtree(again, ignore_errors=True)   # the chain tests copy every run of this folder
+    art = tmp_path / "artifacts"
+    shutil.copytree(run.parent / ".stage-cache", art / ".stage-cache", copy_function=os.link)
+    again = art / "smoke_again"
+    p = _viewfuse("evaluate", "--set", "run.name=smoke_again", artifacts=art)
+    assert p.returncode == 0, p.stderr[-4000:]
+    for stage in ("data", "classifier", "features", "models", "evaluate"):
+        assert f"[{stage}] reused from run 'smoke'" in p.stdout, (stage, p.stdout[-3000:])
+        assert f"[{stage}] running" not in p.stdout
+        m = json.loads((again / stage / "manifest.json").read_text())
+        assert m["reused"]["run"] == "smoke"
+        for rel in m["outputs"]:
+            assert (again / stage / rel).read_bytes() == (run / stage / rel).read_bytes(), (stage, rel)
+    assert (again / "report" / "index.html").is_file()
 
 
 def test_each_stage_estimate_is_within_a_factor_of_two_of_what_it_took(smoke):
