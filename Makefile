@@ -101,9 +101,12 @@ test-install: $(VENV)/.installed
 bench: $(VENV)/.installed
 	$(BIN)/python tests/bench/run_all.py $(BENCH_ARGS)
 
+# clean removes the runs and keeps the stage cache shared across run names (artifacts/.stage-cache:
+# run.stage_cache_gb, docs/usage.md); distclean empties it too.
 clean:
-	rm -rf artifacts .pytest_cache .hypothesis
+	if [ -d artifacts ]; then find artifacts -mindepth 1 -maxdepth 1 ! -name .stage-cache -exec rm -rf {} +; fi
+	rm -rf .pytest_cache .hypothesis
 	find . -name __pycache__ -type d -prune -not -path './$(VENV)/*' -exec rm -rf {} +
 
 distclean: clean
-	rm -rf $(VENV) *.egg-info
+	rm -rf artifacts $(VENV) *.egg-info

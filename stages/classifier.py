@@ -184,6 +184,19 @@ def _render_sets(c, t) -> tuple:
     return xtr, ytr, xva, yva
 
 
+def _following_cores(ctx, device: str):
+    """Training and validation on the CPU with threads left at 0 ("all cores"): the torch
+    threads re-chosen once a second from the cores free then (``pipeline.infra.threads``)."""
+    import contextlib
+
+    from pipeline.infra.device import available_cores
+    from pipeline.infra.threads import torch_following
+
+    if device != "cpu" or ctx.threads or ctx.cfg.run.threads:
+        return contextlib.nullcontext()
+    return torch_following(available_cores())
+
+
 def _split_text(split: dict) -> str:
     """'augment 5 s, forward 30 s, ...' from train_classifier's split."""
     return ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in split.items())
@@ -222,16 +235,17 @@ def _train_synthetic(ctx, device: str) -> str:
     model = entry.for_training(t.categories, entry.head_dropout(c), c.seed)
     precision = resolve_precision(t.precision, device)
     split: dict = {}
-    history = train_classifier(model, xtr, ytr, epochs=t.epochs, batch_size=t.batch_size, lr=t.lr,
-                               weight_decay=t.weight_decay, warmup_steps=t.warmup_steps, seed=c.seed,
-                               mean=c.mean, std=c.std, device=device, precision=precision,
-                               log=log.info, split=split, early_epochs=t.early_epochs,
-                               early_size=t.early_size, early_mode=t.early_mode,
-                               early_forward=entry.early_forward() if t.early_head == "compact" else None)
-    timings["train_s"], cpu["train_s"] = round(time.perf_counter() - t1, 2), round(_cpu_s() - c1, 2)
+    with _following_cores(ctx, device):
+        history = train_classifier(model, xtr, ytr, epochs=t.epochs, batch_size=t.batch_size, lr=t.lr,
+                                   weight_decay=t.weight_decay, warmup_steps=t.warmup_steps, seed=c.seed,
+                                   mean=c.mean, std=c.std, device=device, precision=precision,
+                                   log=log.info, split=split, early_epochs=t.early_epochs,
+                                   early_size=t.early_size, early_mode=t.early_mode,
+                                   early_forward=entry.early_forward() if t.early_head == "compact" else None)
+        timings["train_s"], cpu["train_s"] = round(time.perf_counter() - t1, 2), round(_cpu_s() - c1, 2)
 
-    t2, c2 = time.perf_counter(), _cpu_s()
-    logits = predict(model, xva, mean=c.mean, std=c.std, device=device, progress=True)
+        t2, c2 = time.perf_counter(), _cpu_s()
+        logits = predict(model, xva, mean=c.mean, std=c.std, device=device, progress=True)
     pred = logits.argmax(1)
     acc = float(np.mean(pred == yva))
     acc_ci = wilson_interval(int(np.sum(pred == yva)), len(yva))  # over the held-out images drawn

@@ -146,10 +146,12 @@ def _scorer_released():
 @contextmanager
 def _threads_for_scoring(ctx, executor):
     """Local scoring with threads left at 0 ("all cores"): as many torch threads as cores are
-    free now (``pipeline.infra.device.free_of``), the count restored after. Yields the count used."""
+    free now (``pipeline.infra.device.free_of``), then re-chosen once a second as the batches are
+    scored (``pipeline.infra.threads``), the count restored after. Yields the starting count."""
     import torch
 
     from pipeline.infra.device import available_cores, free_of, runnable_others
+    from pipeline.infra.threads import INTERVAL_S, torch_following
 
     auto = executor.name == "local" and ctx.device == "cpu" and not (ctx.threads or ctx.cfg.run.threads)
     before = torch.get_num_threads()   # after ctx.device has configured the stage's threads
@@ -158,10 +160,13 @@ def _threads_for_scoring(ctx, executor):
         return
     cores, others = available_cores(), runnable_others()
     n = free_of(cores, others)
-    log.info("scoring with %d torch thread(s): %d core(s), %.0f other runnable thread(s)", n, cores, others)
+    log.info("scoring with %d torch thread(s) to start: %d core(s), %.0f other runnable thread(s); "
+             "re-chosen every %.0f s from the cores free then", n, cores, others, INTERVAL_S)
     torch.set_num_threads(n)
     try:
-        yield n
+        with torch_following(cores) as watch:
+            watch.n = n
+            yield n
     finally:
         torch.set_num_threads(before)
 

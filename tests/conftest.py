@@ -42,7 +42,9 @@ def tmp_config(tmp_path):
 
     def make(overrides: dict | None = None):
         # tests hold the report to every self-check (a layout slip fails too)
-        over = merge({"run": {"artifacts": str(tmp_path / "artifacts")}, "report": {"strict": "all"}},
+        # the stage cache off: a test that edits or removes an output expects the stage to run
+        # again (tests/stages/framework/test_stage_cache.py turns it on)
+        over = merge({"run": {"artifacts": str(tmp_path / "artifacts"), "stage_cache_gb": 0}, "report": {"strict": "all"}},
                      overrides or {})
         return load_config(DEFAULT_CONFIG, over)
 

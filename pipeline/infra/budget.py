@@ -52,9 +52,13 @@ def memory_limits() -> dict[str, int]:
             out["the cgroup limit"] = min(int(v), out.get("the cgroup limit", int(v)))
     left = address_space_left()
     if left is not None:
+        # What the process may hold at its peak, in the terms the estimates use (resident bytes,
+        # the process's own included): what it holds now plus what it may still map. Counting the
+        # limit less everything mapped and then the process's own bytes again counted them twice.
         soft = resource.getrlimit(resource.RLIMIT_AS)[0]
-        out[f"the address-space limit (ulimit -v, RLIMIT_AS) of {gib(soft)} less the {gib(soft - left)} "
-            "mapped now"] = left
+        rss = int(psutil.Process().memory_info().rss)
+        out[f"the address-space limit (ulimit -v, RLIMIT_AS) of {gib(soft)}: the {gib(rss)} this process holds "
+            f"and the {gib(left)} it may still map"] = rss + left
     return out
 
 
@@ -99,12 +103,25 @@ def budget_words() -> str:
     return f"run.memory_gb; 0 = {AUTO_SHARE:.0%} of the {gib(have)} this process may use: {what}"
 
 
+def more_memory(need: float) -> str:
+    """Advice that works for ``need`` bytes: raise run.memory_gb where what bounds this process
+    allows that much (a setting above it is lowered to it: ``budget``), else lift that bound."""
+    what, have = min(memory_limits().items(), key=lambda kv: kv[1])
+    if need <= have:
+        return f"raise run.memory_gb to at least {need / GIB:.2f}"
+    if what.startswith("the address-space limit"):
+        return f"raise the address-space limit (ulimit -v) by at least {gib(need - have)}"
+    if what == "the cgroup limit":
+        return f"raise the cgroup's memory limit by at least {gib(need - have)}"
+    return f"run on a machine with at least {gib(need)} of memory"
+
+
 def require(key: str, value, estimate: float, limit: int, what: str) -> None:
     """Refuse (``MemoryBudgetError`` naming ``key``) when ``estimate`` bytes exceed ``limit``."""
     if estimate > limit:
         raise MemoryBudgetError(
             f"'{key}' = {value}: {what} needs about {gib(estimate)}, over the memory budget of {gib(limit)} "
-            f"({budget_words()}); lower '{key}' or raise run.memory_gb")
+            f"({budget_words()}); lower '{key}' or {more_memory(estimate)}")
 
 
 def cores() -> int:

@@ -291,8 +291,10 @@ def _scorer(model: ScoringModel):
 
 def score_batch(model: ScoringModel, batch: CropBatch) -> tuple[np.ndarray, np.ndarray | None]:
     """Executor task: (det (B, D), dropout samples (B, N_s, D) or None) as float32 arrays."""
+    from pipeline.infra.threads import pace
     from pipeline.scoring.crops import to_tensor
 
+    pace()   # the torch threads the free cores allow now (where the stage follows them)
     det, mc = _scorer(model).score(to_tensor(batch.crops, model.mean, model.std), batch.seeds, batch.n_samples)
     return det.float().cpu().numpy(), (None if mc is None else mc.float().cpu().numpy())
 

@@ -12,6 +12,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from pipeline.infra.config.learning import early_epochs_run
+from pipeline.infra.threads import pace
 
 
 def lr_at(step: int, total: int, base: float, warmup: int) -> float:
@@ -69,6 +70,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
             order = gen.permutation(n)
             loss_sum, correct, seen = 0.0, 0, 0
             for b in range(steps_per_epoch):
+                pace()   # the torch threads the free cores allow now (where the stage follows them)
                 clock.start()
                 idx = np.sort(order[b * batch_size:(b + 1) * batch_size])
                 x = augment(images[idx], gen, mean, std).to(device)
@@ -212,6 +214,7 @@ def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int 
     model.eval().to(device)
     outs = []
     for s in progress_bar(range(0, len(images), batch_size), desc="validate", unit="batch", enabled=progress, leave=False):
+        pace()
         outs.append(model(to_tensor(images[s:s + batch_size], mean, std).to(device)).float().cpu())
     return torch.cat(outs).numpy()
 

@@ -189,12 +189,25 @@ def status(cfg: Config) -> int:
     for name in ORDER:
         try:
             s = plan(cfg, name, memo)
-            line = s["state"] + (f": {s['why']}" if s["state"] == "stale" else "")
+            line = s["state"] + (f": {s['why']}" if s["state"] == "stale" else "") + _cache_words(cfg, name, s)
         except (OSError, ValueError) as e:
             line = f"unknown: {describe(e)}"
             rc = 1
         print(f"{name:<{width}}  {line}")
     return rc
+
+
+def _cache_words(cfg: Config, name: str, s: dict) -> str:
+    """What the stage cache says of a stage: the run an up-to-date stage's outputs came from, or
+    the run whose outputs a stale or missing stage will reuse."""
+    from stages.framework import stage_cache
+    from stages.framework.runner import read_manifest
+
+    if s["state"] == "up to date":
+        r = (read_manifest(cfg, name) or {}).get("reused")
+        return f" (reused from run {r['run']!r} through the stage cache)" if r else ""
+    hit = stage_cache.find(cfg, name, s["key"]) if s.get("key") else None
+    return f" (the stage cache holds it from run {hit['run']!r}: it will be reused)" if hit else ""
 
 
 # errno -> what it means for a run, in words

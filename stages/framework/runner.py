@@ -31,6 +31,7 @@ from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.outputs import read_manifest as outputs_manifest
 from pipeline.infra.progress import echo
 from pipeline.infra.workers import pid_file, stop_leftovers
+from stages.framework import stage_cache
 from stages.framework.outside import outside_parts
 from stages.framework.registry import STAGES, StageSpec, code_version, defines
 from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
@@ -208,6 +209,7 @@ def plan(cfg: Config, name: str, _memo: dict | None = None) -> dict:
         res = {"state": "stale", "why": why}
     else:
         res = {"state": "up to date", "why": None}
+    res["key"] = key
     res["digest"] = digest(m) if res["state"] == "up to date" else hash_json({"planned": key})
     memo[name] = res
     return res
@@ -238,11 +240,18 @@ def ensure(cfg: Config, name: str, *, force: bool = False, device: str = "auto",
             why = stale_reason(cfg, name, key, parts, verify=hashes)
             if why is None:
                 echo(f"[{name}] up to date ({final}); skipped (use --force to rerun)")
-                keys[name] = digest(read_manifest(cfg, name) or {})
+                m = read_manifest(cfg, name) or {}
+                stage_cache.publish(cfg, name, m, final)   # a run finished before the cache existed
+                keys[name] = digest(m)
                 return keys[name]
             if not why.startswith("missing"):
                 echo(f"[{name}] stale: {why}")
+            manifest = stage_cache.adopt(cfg, name, key, input_path)
+            if manifest is not None:
+                keys[name] = digest(manifest)
+                return keys[name]
         manifest = run_stage(cfg, spec, key, parts, device=device, threads=threads)
+        stage_cache.publish(cfg, name, manifest, final)
     keys[name] = digest(manifest)
     return keys[name]
 

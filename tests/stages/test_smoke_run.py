@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -67,3 +68,45 @@ def test_the_card_names_the_machine_the_numbers_came_from(smoke):
     assert "cpu_capability" in fp and ("torch_blas_info" in fp["blas"] or "torch_error" in fp["blas"])
     html = (run / "report" / "index.html").read_text()
     assert fp["cpu_model"] in html and card["weights_sha256"] in html
+
+
+def test_a_second_run_name_trains_nothing_scores_nothing_and_gives_the_same_bytes(smoke, tmp_path):
+    """The stage cache (stages/framework/stage_cache.py): the smoke chain again under another
+    run.name reuses every shared stage of the first; only the report (its page names the run) runs.
+    It runs in an artifacts folder of its own holding the shared folder's cache (hard links: the
+    same entries), so the chain tests that copy every run of the shared folder never see it."""
+    run, _ = smoke
+    art = tmp_path / "artifacts"
+    shutil.copytree(run.parent / ".stage-cache", art / ".stage-cache", copy_function=os.link)
+    again = art / "smoke_again"
+    p = _viewfuse("evaluate", "--set", "run.name=smoke_again", artifacts=art)
+    assert p.returncode == 0, p.stderr[-4000:]
+    for stage in ("data", "classifier", "features", "models", "evaluate"):
+        assert f"[{stage}] reused from run 'smoke'" in p.stdout, (stage, p.stdout[-3000:])
+        assert f"[{stage}] running" not in p.stdout
+        m = json.loads((again / stage / "manifest.json").read_text())
+        assert m["reused"]["run"] == "smoke"
+        for rel in m["outputs"]:
+            assert (again / stage / rel).read_bytes() == (run / stage / rel).read_bytes(), (stage, rel)
+    assert (again / "report" / "index.html").is_file()
+
+
+def test_each_stage_estimate_is_within_a_factor_of_two_of_what_it_took(smoke):
+    """pipeline/infra/cost.py against the seconds the smoke chain's manifests recorded. The idle
+    wall time the estimates stand for lies between the stage's CPU seconds over the cores (all
+    cores busy all along) and the wall seconds recorded (equal idle, longer under load), so the
+    check holds on any machine and load: estimate <= 2 x wall, and estimate >= CPU / cores / 2."""
+    from pipeline.infra.cost import estimate
+    from pipeline.infra.device import available_cores
+    from tests.support.shared_upstream import smoke_config
+
+    run, _ = smoke
+    cfg = smoke_config(run.parent)
+    cores = available_cores()
+    for stage in ("data", "classifier", "features", "models", "evaluate", "report", "simulate"):
+        m = json.loads((run / stage / "manifest.json").read_text())
+        if m.get("reused"):
+            continue   # brought from the stage cache: its seconds are the link's, not the work's
+        est = estimate(cfg, stage).seconds
+        assert est <= 2 * m["seconds"], (stage, est, m["seconds"])
+        assert est >= m["cpu_seconds"] / cores / 2, (stage, est, m["cpu_seconds"], cores)

@@ -52,7 +52,7 @@ def smoke_upstream(tmp_path_factory, upto: str = UPSTREAM[-1]) -> Path:
 
 def copy_upstream(src: Path, dst: Path, stages: tuple[str, ...] = UPSTREAM) -> Path:
     """Copy the finished upstream stage folders (``stages``) of every run in artifacts folder ``src`` to ``dst``."""
-    for run in (p for p in src.iterdir() if p.is_dir()):
+    for run in (p for p in src.iterdir() if p.is_dir() and not p.name.startswith(".")):   # not .stage-cache
         for stage in stages:
             shutil.copytree(run / stage, dst / run.name / stage)
     return dst

@@ -196,6 +196,9 @@ def test_the_audits_cases_by_name():
     # the audit's n_x = 10**7 took 63 s on a 5-view track; this 3-view one needs 10**8 to pass 60 s
     refused(lambda: vf.fuse("with_uncertainty", models, **{**track, "n_x": 10**8}), "n_x")
     refused(lambda: vf.evaluate_population(table, n_boot=10**10), "n_boot")
+    # its time too: a timed small draw, scaled, against max_seconds
+    with pytest.raises(ValueError, match=r"n_boot.*would take about"):
+        vf.evaluate_population(table, n_boot=200_000, max_seconds=1e-6)
     refused(lambda: vf.track_metrics(np.full((K, C), 5.0), 0), "log_posteriors")
     # the bounds are estimates, not walls: max_seconds=None lifts the time bound
     assert vf.fuse("with_uncertainty", models, **{**track, "n_x": 50}, max_seconds=None).shape == (K, C)

@@ -88,6 +88,11 @@ class RunConfig:
                                       doc="evaluate refuses, before its grid, an evaluate.bootstrap whose intervals it "
                                           "estimates (a timed small draw, scaled) to take longer than this; 0 = no "
                                           "limit (the estimate is still said). Not part of any stage's key")
+    stage_cache_gb: float = _f(20.0, lo=0.0, hi=1e6,
+                               doc="the stage cache shared across run names (<artifacts>/.stage-cache/): a stage "
+                                   "whose key matches one any run finished reuses its outputs (hard links, "
+                                   "verified by sha256); at most this many GiB, least recently used entries "
+                                   "removed first; 0 = off. Not part of any stage's key")
     max_minutes: float = _f(120.0, lo=0.0, hi=1e6,
                             doc="a stage whose estimate (pipeline/infra/cost.py: every setting that multiplies its "
                                 "work, per-unit seconds measured on a 2-core machine) is longer than this is refused "

@@ -188,6 +188,26 @@ def test_an_explicit_budget_above_the_address_space_limit_is_lowered_with_a_warn
     assert "run.memory_gb = 100 is more than this process may use" in out.stderr and "RLIMIT_AS" in out.stderr
 
 
+def test_under_ulimit_v_each_byte_counts_once_and_the_advice_works():
+    # the process's own bytes are in what it may hold (held now + may still map), not taken off
+    # the limit and then added again by each estimate; the advice for a need it can meet raises
+    # run.memory_gb (and that setting then gives a budget that holds it), beyond it the limit
+    code = ("import dataclasses, math, psutil, resource; from pipeline.infra import budget as B; "
+            "from pipeline.infra.config import Config; p = psutil.Process().memory_info(); "
+            "soft = resource.getrlimit(resource.RLIMIT_AS)[0]; have = B.machine_memory(); "
+            "need = 0.9 * have; c = Config(); "
+            "cfg = dataclasses.replace(c, run=dataclasses.replace(c.run, memory_gb=math.ceil(need / B.GIB * 100) / 100)); "
+            "print(have, soft - p.vms, p.rss, B.budget(cfg) >= need); print(B.more_memory(need)); "
+            "print(B.more_memory(have + B.GIB))")
+    out = _under_limit(["-c", code], 3)
+    assert out.returncode == 0, out.stderr
+    first, small, big = out.stdout.splitlines()
+    have, left, rss, fits = first.split()
+    assert int(have) == pytest.approx(int(left) + int(rss), abs=64 << 20) and fits == "True"
+    assert small.startswith("raise run.memory_gb to at least")
+    assert big.startswith("raise the address-space limit (ulimit -v) by at least")
+
+
 def test_a_stage_whose_libraries_do_not_fit_the_address_space_is_refused():
     # the features stage's own work is small; torch's mappings are not
     out = _under_limit(["-c", "from pipeline.infra import cost; from pipeline.infra.config import Config\n"
