@@ -40,6 +40,7 @@ from pipeline.evaluation.metrics.spec import Params
 from pipeline.evaluation.domain.target_domain import TargetDomain, target_variances
 from pipeline.scene.rays import TrackError, grid_step
 from pipeline.evaluation.statistics.power import power_block
+from pipeline.evaluation.grid.paper55 import paper_block
 from pipeline.evaluation.grid.primary import check_declared, declared_block, paired_table
 
 log = logging.getLogger("viewfuse.evaluate")
@@ -237,6 +238,7 @@ def population_statistics(cfg: Config, kept: list[dict], cells, tracks, skipped,
     p = population["primary"] = declared_block(cfg.evaluate, table)   # evaluate.primary, read first by the report
     diffs = paired_table(table, p["method"], p["baseline"], p["metric"], p["settings"])
     population["power"] = power_block(diffs, p, available=available, tracks_per_target=cfg.evaluate.tracks_per_target)
+    population["paper_55"] = paper_block(cfg.evaluate, table, cells, kept)   # the paper's §5.5 test, as it ran it
     return table, population
 
 

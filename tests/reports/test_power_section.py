@@ -7,6 +7,7 @@ import numpy as np
 
 from pipeline.evaluation.statistics.power import power_block
 from reports.main.power import paper_setting, power_section
+from reports.shared.checks import Ledger
 from tests.pipeline.evaluation.statistics.test_power import crossed
 
 
@@ -83,8 +84,21 @@ def test_the_paper_setting_table_sits_beside_the_papers_figure_and_only_when_run
     assert sections == ["The paper's §5.5 setting"]
     _, header, rows, caption = ctx.page.items[0]
     assert [r[0].split(" (")[0] for r in rows] == ["With Uncertainty", "Model Based"]
-    assert rows[1][2].value == 0.25 and "around 10 % of runs" in caption and "over scans, targets and tracks" in caption
+    assert rows[1][3].value == 0.25 and "around 10 % of runs" in caption and "over scans, targets and tracks" in caption
     assert "N(0, 0.3 m) per axis" in caption and "told σ = 0.3 m" in caption
+    assert header[2] == "wrong ≥ 10× truth, final" and "ln MGR ≥ 2.30" in caption   # the paper's event, its scale
+    # the MGR percentiles over every track, with no verdict where the difference's CI spans decades
+    pop["paper_55"] = {"mgr": {"biased_randomized": {
+        "n_targets": 12, "n_values": {"with_uncertainty": 480, "model_based": 480},
+        "methods": {m: {"p75": est(0.2), "p95": est(v)} for m, v in (("with_uncertainty", 1.0), ("model_based", 3.0))},
+        "paired": {"with_uncertainty-model_based": {"p95": {"value": -2.0, "ci_low": -30.6, "ci_high": 0.0},
+                                                     "verdict": None, "no_verdict": "the 95 % CI spans 30.6 decades"}}}}}
+    ctx, _ = _ctx(pop)
+    ctx.ledger = Ledger()
+    paper_setting(ctx, pop)
+    _, header, rows, caption = ctx.page.items[1]
+    assert rows[2][3] == "no verdict: the 95 % CI spans 30.6 decades" and "every track and realization" in caption
+    assert not ctx.ledger.problems()
     pop["settings"] = pop["settings"][:1]
     ctx, sections = _ctx(pop)
     paper_setting(ctx, pop)

@@ -1,6 +1,6 @@
 """The one primary comparison declared before the run (``evaluate.primary``: a metric, a method
 against a baseline, a localization setting) and the paired comparisons read on one setting only
-(the paper's §5.5 test: ``pipeline.evaluation.grid.paper_test``).
+(the paper's §5.5 test: ``pipeline.evaluation.grid.paper55``).
 
 Each is one verdict record of the statistics engine (``population_block``), on the default
 variant's cells of the named setting(s), with the run's clustering and draws, and outside any
