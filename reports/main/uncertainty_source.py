@@ -62,6 +62,8 @@ def uncertainty_source_section(ctx: ReportContext) -> None:
                           if top2 is not None and top2 == top2 else "")
                        + ". Pooled across classes, a class whose model fails badly weighs on both statistics; "
                          "within each class it does not.", cls="note")
+    if w.get("auroc_note"):
+        page.paragraph(f"AUROC within class: {w['auroc_note']}.", cls="note")
     if src.get("auroc_note"):
         page.paragraph(f"AUROC (pooled across classes): {src['auroc_note']}.", cls="note")
     page.paragraph(f"Source of the MC samples: {src.get('source', '?')}. Drop-connect: {src.get('drop_connect', '?')}.",

@@ -142,7 +142,12 @@ def within_class(spread: np.ndarray, abs_z: np.ndarray, members: list[np.ndarray
         return {**out, "rho": estimate(rho, None), "auroc": estimate(auc, None), "n_boot": 0}
     rs = draws([[1] * k], n_boot, seed)
     bd = np.array([stratified(pc, np.bincount(rs.pt[b, 0], minlength=k).astype(float)) for b in range(rs.n_boot)])
-    return {**out, "rho": estimate(rho, bd[:, 0]), "auroc": estimate(auc, bd[:, 1]), "n_boot": int(rs.n_boot)}
+    out.update(rho=estimate(rho, bd[:, 0]), auroc=estimate(auc, bd[:, 1]), n_boot=int(rs.n_boot))
+    undefined = int(np.isnan(bd[:, 1]).sum())
+    if undefined:   # the engine's rule: an undefined draw leaves no interval; say why
+        out["auroc_note"] = (f"no CI: {undefined} of {rs.n_boot} resamples draw only classes without a crop on both "
+                             f"sides of |z| = {Z_FAR:g}")
+    return out
 
 
 def source_summary(crops: pd.DataFrame, n_boot: int, seed: int) -> dict:
