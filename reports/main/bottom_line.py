@@ -61,7 +61,7 @@ def realizations_text(c: dict) -> str:
 
 SETTING_WORDS = {"all": "pooled over every localization setting of the run",
                  "biased": "in the biased setting", "randomized": "in the randomized setting",
-                 "biased_randomized": "in the biased-plus-randomized setting (the paper's §5.5)"}
+                 "biased_randomized": "in the biased-plus-randomized setting, the paper's §5.5"}
 
 
 def primary_line(pop: dict) -> str:
@@ -75,7 +75,9 @@ def primary_line(pop: dict) -> str:
     if not rec:
         return (f"Primary comparison (declared before the run in evaluate.primary): {p.get('comparison')} on "
                 f"{metric_label(str(p.get('metric')))} {where}: not measured ({p.get('missing', 'no cells')}).")
-    return (f"Primary comparison (declared before the run in evaluate.primary, {where}): {sentence(rec)} "
+    # the record sits outside the primary_metrics family (no Holm): not "exploratory" here, it is the primary
+    return (f"Primary comparison (declared before the run in evaluate.primary, {where}): "
+            f"{sentence({**rec, 'primary': None})} "
             "Its verdict is read off its own 95 % CI, not adjusted: it is the one comparison declared.")
 
 
@@ -96,7 +98,7 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     if lead:   # a declared primary comparison: the primary_metrics family is exploratory, Holm-adjusted on its own
         holm = (f"; Holm-adjusted among the {fam} comparisons of that family, familywise 95 %, separately from the "
                 "primary comparison" if fam else "")
-        first = ("Exploratory, as is everything else on this page (per-category and subgroup results included)"
+        first = ("Exploratory, as is everything else on this page, per-category and subgroup results included"
                  + (f" (the metrics of evaluate.primary_metrics: {join_words(prim)}{holm})" if prim else "") + ". "
                  + " ".join(cl + "." for cl in clauses))
     else:      # a run from before evaluate.primary

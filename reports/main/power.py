@@ -23,7 +23,7 @@ SETTING_METRICS = ("correct_final", "wrong10_final", "confident_error_final", "l
 TERMS = (("object", "objects", "more objects (each with its scans)"),
          ("scan", "scans", "more scans (each with its objects)"),
          ("interaction", "cells", "more (object, scan) cells"),
-         ("track", "cells × tracks per cell", "more tracks (and realizations) per cell"))
+         ("track", "tracks (cells × tracks per cell)", "more tracks (and realizations) per cell"))
 
 
 def component_rows(power: dict) -> list[list]:
@@ -84,9 +84,9 @@ def power_section(ctx: ReportContext) -> None:
         paper_setting(ctx, pop)
         return
     ctx.page.paragraph(
-        f"Power of the primary comparison, {what}, to detect a true difference of ±{fmt(power['effect'])}: "
+        f"Power of the primary comparison, {what}, to detect a true difference of ±{plain(power['effect'])}: "
         f"{round(100 * power['power_now'])} % at this run's size (standard error {fmt(power['se_now'])}, two-sided "
-        f"test at {fmt(power['alpha'])}, not adjusted: the declared comparison alone); 80 % needs a standard error of "
+        f"test at {plain(power['alpha'])}, not adjusted: the declared comparison alone); 80 % needs a standard error of "
         f"{fmt(power['se_needed'])}. {reading_text(power)}", cls="context")
     ctx.page.table(["term", "variance", "divided by", "share of the variance now", "what shrinks it"],
                    component_rows(power), cls="power-components",
@@ -96,7 +96,7 @@ def power_section(ctx: ReportContext) -> None:
                            "The track term holds the localization realizations too." +
                            "".join(" " + n[:1].upper() + n[1:] + "." for n in power["components"].get("notes") or []))
     ctx.page.table(["lever", "this run", "for 80 % power (each alone, the rest as run)"], need_rows(power),
-                   cls="power", caption=f"What a true difference of ±{fmt(power['effect'])} needs at 80 % power, "
+                   cls="power", caption=f"What a true difference of ±{plain(power['effect'])} needs at 80 % power, "
                                         "two-sided 0.05.")
     paper_setting(ctx, pop)
 
