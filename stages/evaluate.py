@@ -40,6 +40,8 @@ from pipeline.evaluation.metrics.spec import Params
 from pipeline.evaluation.domain.target_domain import TargetDomain, target_variances
 from pipeline.scene.rays import TrackError, grid_step
 from pipeline.evaluation.statistics.power import power_block
+from pipeline.evaluation.grid.paper55 import paper_block
+from pipeline.evaluation.grid.primary import check_declared, declared_block, paired_table
 
 log = logging.getLogger("viewfuse.evaluate")
 # The avd.parquet columns evaluate uses (checked present and typed on read).
@@ -226,14 +228,17 @@ def local_processes(ctx) -> int:
     return cap_workers("run.threads", want, rss, budget(ctx.cfg), parent=rss)
 
 
-def population_statistics(cfg: Config, kept: list[dict], cells, tracks, skipped, domain_fit) -> tuple:
-    """(the cells' table, the summary's population block): its CIs, verdicts and power."""
+def population_statistics(cfg: Config, kept: list[dict], cells, tracks, skipped, domain_fit,
+                          available: dict | None = None) -> tuple:
+    """(the cells' table, the summary's population block): its CIs, verdicts and power
+    (``available``: the objects and scans the run's data holds)."""
     table = cell_table(kept)
     population = population_summary(cfg, table, cells, kept, tracks, skipped, domain_fit)
     population.update(method_blocks(cfg, cells, kept, population))
-    # measured seconds stay out of the population block (a rerun gives the same bytes); the
-    # report prices the projection from timings_s["chain_total"]
-    population["power"] = power_block(population["records"])
+    p = population["primary"] = declared_block(cfg.evaluate, table)   # evaluate.primary, read first by the report
+    diffs = paired_table(table, p["method"], p["baseline"], p["metric"], p["settings"])
+    population["power"] = power_block(diffs, p, available=available, tracks_per_target=cfg.evaluate.tracks_per_target)
+    population["paper_55"] = paper_block(cfg.evaluate, table, cells, kept)   # the paper's §5.5 test, as it ran it
     return table, population
 
 
@@ -245,6 +250,7 @@ def run(ctx) -> str:
     ev = cfg.evaluate
     t_start = time.perf_counter()
     check_primary(ev.primary_metrics)   # a config error before any cell runs
+    check_declared(ev)
     banks, indexes = load_banks(ctx.input("models"), tuple(ev.ablations))
     provided = load_provided(ctx.input("models"), cfg)
     avd_path = ctx.input("features") / out_name("features", "avd")
@@ -331,7 +337,8 @@ def run(ctx) -> str:
                     else:
                         (planning, plan_times), timings["planning"] = plan_part()
                 t1 = time.perf_counter()
-                table, population = population_statistics(cfg, kept, cells, tracks, skipped, domain_fit)
+                table, population = population_statistics(cfg, kept, cells, tracks, skipped, domain_fit, {
+                    "objects": int(avd["instance"].nunique()), "scans": len(scans)})
                 timings["statistics"] = time.perf_counter() - t1
                 if job is not None:
                     (planning, plan_times), timings["planning"] = job.result()

@@ -11,7 +11,7 @@ from collections import Counter
 
 from pipeline.evaluation.metrics.spec import higher_is_better as _higher, metric_label
 from pipeline.evaluation.statistics.multiplicity import adjusted
-from reports.shared.records import join_words, outcome_clauses, records_of, varies_text
+from reports.shared.records import join_words, outcome_clauses, records_of, sentence, varies_text
 
 
 def counts(pop: dict) -> dict:
@@ -59,22 +59,52 @@ def realizations_text(c: dict) -> str:
     return ", ".join(parts)
 
 
+SETTING_WORDS = {"all": "pooled over every localization setting of the run",
+                 "biased": "in the biased setting", "randomized": "in the randomized setting",
+                 "biased_randomized": "in the biased-plus-randomized setting, the paper's §5.5"}
+
+
+def primary_line(pop: dict) -> str:
+    """The declared primary comparison (``population.primary``, from ``evaluate.primary``) first:
+    its verdict read off its own 95 % CI, not adjusted (the one comparison declared before the run)."""
+    p = pop.get("primary") or {}
+    if not p:
+        return ""
+    where = SETTING_WORDS.get(str(p.get("setting")), f"in the {p.get('setting')} setting")
+    rec = p.get("record")
+    if not rec:
+        return (f"Primary comparison (declared before the run in evaluate.primary): {p.get('comparison')} on "
+                f"{metric_label(str(p.get('metric')))} {where}: not measured ({p.get('missing', 'no cells')}).")
+    # the record sits outside the primary_metrics family (no Holm): not "exploratory" here, it is the primary
+    return (f"Primary comparison (declared before the run in evaluate.primary, {where}): "
+            f"{sentence({**rec, 'primary': None})} "
+            "Its verdict is read off its own 95 % CI, not adjusted: it is the one comparison declared.")
+
+
 def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
-    """One or two sentences from the verdict records of the primary metrics
-    (``evaluate.primary_metrics``): per comparison what holds and what does not, then what the CIs
-    vary over."""
+    """The declared primary comparison's sentence first (``primary_line``), then the exploratory
+    verdicts of the primary metrics (``evaluate.primary_metrics``, Holm-adjusted among themselves,
+    separately from the primary comparison) per comparison, then what the CIs vary over."""
     recs = records_of(pop)
     table = [r for r in recs if r.get("primary")] or recs
     if not table:
         return []
-    # the primary family's verdicts as Holm-adjusted (familywise 95 %); unadjusted where a record has none
+    # the family's verdicts as Holm-adjusted (familywise 95 %); unadjusted where a record has none
     clauses = outcome_clauses([{**r, "outcome": adjusted(r)} for r in table])
     fam = next((r.get("family") for r in table if r.get("family")), None)
     c = counts(pop)
     prim = sorted({metric_label(r["metric"]) for r in table if r.get("primary")})
-    holm = (f"; Holm-adjusted over the {fam} primary comparisons, familywise 95 %" if fam else "")
-    first = ("Bottom line" + (f" (primary metrics: {join_words(prim)}; every other metric is exploratory{holm})"
-                              if prim else "") + ". " + " ".join(cl + "." for cl in clauses))
+    lead = primary_line(pop)
+    if lead:   # a declared primary comparison: the primary_metrics family is exploratory, Holm-adjusted on its own
+        holm = (f"; Holm-adjusted among the {fam} comparisons of that family, familywise 95 %, separately from the "
+                "primary comparison" if fam else "")
+        first = ("Exploratory, as is everything else on this page, per-category and subgroup results included"
+                 + (f" (the metrics of evaluate.primary_metrics: {join_words(prim)}{holm})" if prim else "") + ". "
+                 + " ".join(cl + "." for cl in clauses))
+    else:      # a run from before evaluate.primary
+        holm = (f"; Holm-adjusted over the {fam} primary comparisons, familywise 95 %" if fam else "")
+        first = ("Bottom line" + (f" (primary metrics: {join_words(prim)}; every other metric is exploratory{holm})"
+                                  if prim else "") + ". " + " ".join(cl + "." for cl in clauses))
     seeds = "one classifier training run" if (card or {}).get("weights") == "synthetic" else "one classifier"
     r0 = table[0]
     group = {"scan": "scans", "category": "categories", "crossed": "scans"}.get(str(r0.get("cluster")))
@@ -86,7 +116,7 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     second = (f"Each outcome is read off the 95 % CI of a paired difference over {scans}{c['n_targets']} targets and "
               f"{tracks_text(c)}; it varies over {levels} only, with {seeds} (the seed study, viewfuse study, repeats "
               "it over training seeds).")
-    return [first, second]
+    return [x for x in (lead, first, second) if x]
 
 
 def higher_is_better(metric: str) -> bool:

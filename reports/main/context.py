@@ -9,6 +9,10 @@ from reports.shared.checks import Ledger, caption_problem
 from reports.shared.html import HtmlReport
 
 
+# sections that report no result besides the declared primary comparison
+NOT_EXPLORATORY = frozenset({"verdict", "power", "methods", "limitations", "glossary", "reproduce", "details"})
+
+
 @dataclass
 class ReportContext:
     page: HtmlReport
@@ -58,6 +62,10 @@ class ReportContext:
         return described(self.data_source)
 
     def section(self, title: str, anchor: str) -> None:
+        # with a declared primary comparison (evaluate.primary) every result section but the verdict
+        # (which reads the primary first) and the power statement (about the primary) is exploratory
+        if anchor not in NOT_EXPLORATORY and (self.population or {}).get("primary"):
+            title += " (exploratory)"
         self.page.section(title, anchor=anchor)
         self.sections.append(anchor)
 

@@ -1,5 +1,6 @@
-"""Power, stated, and the paper's §5.5 setting: what the population's intervals can decide and what
-population would decide them (summary.json's ``population.power``, computed by the evaluate stage),
+"""Power from variance components, and the paper's §5.5 setting: the power of the declared primary
+comparison and what population would give it 80 % (summary.json's ``population.power``,
+``pipeline.evaluation.statistics.power``),
 and each method's pooled values in the ``biased_randomized`` setting beside the paper's figure.
 Nothing is recomputed here."""
 from __future__ import annotations
@@ -16,79 +17,87 @@ from reports.shared.records import varies_text
 # class at about 10 times the correct one's probability in around 10 % of runs.
 PAPER_55 = ("the paper (§5.5.2, one track, Fig. 17): Model Based ends with a wrong class about 10 times as "
             "probable as the truth in around 10 % of runs; With Uncertainty classifies correctly")
-SETTING_METRICS = ("correct_final", "confident_error_final", "log10_mgr95_final")
+SETTING_METRICS = ("correct_final", "wrong10_final", "confident_error_final", "log10_mgr95_final")
 
 
-def _cost(seconds) -> str:
-    if seconds is None or not math.isfinite(float(seconds)):
-        return "—"
-    s = float(seconds)
-    return f"{fmt(s / 3600, 2)} h" if s >= 3600 else f"{plain(round(s / 60))} min"
+TERMS = (("object", "objects", "more objects (each with its scans)"),
+         ("scan", "scans", "more scans (each with its objects)"),
+         ("interaction", "cells", "more (object, scan) cells"),
+         ("track", "tracks (cells × tracks per cell)", "more tracks (and realizations) per cell"))
 
 
-def power_rows(power: dict) -> list[list]:
+def component_rows(power: dict) -> list[list]:
+    """Term, its variance, its share of the pooled difference's variance now, what shrinks it."""
+    c = power["components"]
+    div = {"object": c["n_objects"], "scan": c["n_scans"], "interaction": c["n_cells"],
+           "track": c["n_cells"] * c["tracks_per_cell"]}
+    v_now = power["se_now"] ** 2
     rows = []
-    for e in power.get("comparisons") or []:
-        need = e.get("needed_units")
-        cross = e.get("crossed_with")   # a crossed design: both top levels, scaled together
-        now = f"{e.get('n_units')} {e.get('unit')}" + (f" × {e.get('n_scans')} {cross}" if cross else "")
-        want = "—" if need is None else f"{need} {e.get('unit')}" + (f" × {e.get('needed_scans')} {cross}" if cross else "")
-        rows.append([comparison_label(e["comparison"]), metric_label(e["metric"], short=True),
-                     fmt(e.get("half_width")), now, "reached" if e.get("reached") else want,
-                     "—" if e.get("needed_targets") is None else str(e["needed_targets"]),
-                     _cost(e.get("cost_s")) if not e.get("reached") else "—"])
+    for key, over, lever in TERMS:
+        v = c.get(key)
+        share = "—" if v is None or not v_now else f"{round(100 * v / div[key] / v_now)} %"
+        rows.append([key, "not estimable" if v is None else fmt(v), f"÷ {plain(round(div[key], 1))} {over}", share,
+                     lever])
     return rows
 
 
-def power_sentence(power: dict) -> str:
-    """The widest primary half-width and what would bring it to the goal, in one sentence."""
-    entries = [e for e in power.get("comparisons") or [] if e.get("half_width") is not None]
-    if not entries:
-        return ""
-    goal = power.get("goal")
-    open_ = [e for e in entries if not e.get("reached")]
-    if not open_:
-        return f"Every primary comparison's 95 % CI half-width is at most {fmt(goal)}."
-    worst = max(open_, key=lambda e: (e.get("needed_units") or math.inf))
-    need = worst.get("needed_units")
-    targets = "" if worst["unit"] == "targets" else f"{worst.get('needed_targets')} targets, "
-    crossed = bool(worst.get("crossed_with"))   # targets and scans scaled together
-    unit = worst["unit"] + (f" crossed with {worst.get('needed_scans')} scans" if crossed else "")
-    now = f" crossed with {worst.get('n_scans')} scans" if crossed else ""
-    tail = (f"about {need} {unit} ({targets}{_cost(worst.get('cost_s'))} at this run's measured cost) "
-            f"would bring it to {fmt(goal)}" if need is not None else
-            "its interval is unbounded, so no population size follows from it")
-    beyond = "".join(f" ({worst[k]})" for k in ("beyond", "caution") if worst.get(k))
-    return (f"{len(open_)} of {len(entries)} primary comparisons have a 95 % CI half-width above {fmt(goal)}; the "
-            f"widest, {comparison_label(worst['comparison'])} on {metric_label(worst['metric'], short=True)} "
-            f"(half-width {fmt(worst['half_width'])} over {worst['n_units']} {worst['unit']}{now}): {tail}{beyond}.")
+def need_rows(power: dict) -> list[list]:
+    c, need, avail = power["components"], power.get("needed") or {}, power.get("available") or {}
+    def cell(v, have=None):
+        if v is None:
+            return "none suffices (the other terms alone exceed the needed variance)"
+        return str(v) + (f" ({have} in this run's data)" if have else "")
+    return [["objects", str(c["n_objects"]), cell(need.get("objects"), avail.get("objects"))],
+            ["scans", str(c["n_scans"]), cell(need.get("scans"), avail.get("scans"))],
+            ["tracks per (object, scan) cell", fmt(c["tracks_per_cell"]), cell(need.get("tracks_per_cell"))]]
 
 
-def priced(power: dict, seconds: float | None) -> dict:
-    """``power`` with each projection's cost: the measured seconds of the chain times its scale
-    (the block itself holds no measured time, so reruns write the same summary)."""
-    if seconds is None or power.get("seconds_measured") is not None:
-        return power
-    comps = [{**e, "cost_s": None if e.get("scale") is None else float(seconds) * e["scale"]}
-             for e in power.get("comparisons") or []]
-    return {**power, "seconds_measured": float(seconds), "comparisons": comps}
+def reading_text(power: dict) -> str:
+    r = power.get("reading")
+    if r == "reached":
+        return "80 % power is reached at this run's size."
+    if r == "reachable by the config":
+        ch = power["change"]
+        now = f" (now {ch['now']})" if ch.get("now") else ""
+        return (f"Reachable with this data: evaluate.tracks_per_target = {ch['evaluate.tracks_per_target']}{now}, "
+                "if the scans hold that many distinct tracks per object (more realizations per cell shrink only the "
+                "localization-noise part of the track term).")
+    if r == "not reachable with this data":
+        return (f"Not reachable with this data: with every object and scan it holds and unlimited tracks the standard "
+                f"error cannot fall below {fmt(power['floor_se'])}, above the {fmt(power['se_needed'])} 80 % power "
+                "needs.")
+    return ("Reachable only with more objects or scans than this run evaluates (the needs above, each with the "
+            "other counts as run).")
 
 
 def power_section(ctx: ReportContext) -> None:
     pop = ctx.population or {}
     power = pop.get("power")
-    if power:
-        power = priced(power, ((ctx.ev.summary or {}).get("timings_s") or {}).get("chain_total"))
-        ctx.section("Power", "power")
-        ctx.page.paragraph(power_sentence(power), cls="context")
-        ctx.page.table(["comparison", "metric", "CI half-width", "units now", f"units for ≤ {fmt(power.get('goal'))}",
-                        "targets for it", "projected cost"], power_rows(power), cls="power",
-                       caption=f"Primary comparisons. The projection's unit is the intervals' top level "
-                               f"(evaluate.statistics.cluster = {pop.get('cluster', 'target')!r}: they resample "
-                               f"{varies_text(pop) if pop.get('cluster') else 'targets and tracks'}). "
-                               f"Projection: {power.get('assumption')}. Measured cost: "
-                               f"{_cost(power.get('seconds_measured'))} (data, features, models and this "
-                               "population's evaluation).")
+    if not power or "components" not in power:   # a summary from before the variance components: nothing stated
+        paper_setting(ctx, pop)
+        return
+    ctx.section("Power of the primary comparison", "power")
+    what = (f"{comparison_label(str(power['comparison']))} on {metric_label(str(power['metric']), short=True)} "
+            f"(setting: {power.get('setting')})")
+    if power.get("reading") == "not estimable":
+        ctx.page.paragraph(f"Power of the primary comparison, {what}: not estimable ({power.get('why')}).", cls="note")
+        paper_setting(ctx, pop)
+        return
+    ctx.page.paragraph(
+        f"Power of the primary comparison, {what}, to detect a true difference of ±{plain(power['effect'])}: "
+        f"{round(100 * power['power_now'])} % at this run's size (standard error {fmt(power['se_now'])}, two-sided "
+        f"test at {plain(power['alpha'])}, not adjusted: the declared comparison alone); 80 % needs a standard error of "
+        f"{fmt(power['se_needed'])}. {reading_text(power)}", cls="context")
+    ctx.page.table(["term", "variance", "divided by", "share of the variance now", "what shrinks it"],
+                   component_rows(power), cls="power-components",
+                   caption="Variance components of the primary comparison's paired differences (one per object, "
+                           "scan and track), moment estimators on the cell means (pipeline/evaluation/statistics/"
+                           "power.py): point estimates without a CI, so the projection is a plan, not a finding. "
+                           "The track term holds the localization realizations too." +
+                           "".join(" " + n[:1].upper() + n[1:] + "." for n in power["components"].get("notes") or []))
+    ctx.page.table(["lever", "this run", "for 80 % power (each alone, the rest as run)"], need_rows(power),
+                   cls="power", caption=f"What a true difference of ±{plain(power['effect'])} needs at 80 % power, "
+                                        "two-sided 0.05.")
     paper_setting(ctx, pop)
 
 
@@ -109,6 +118,31 @@ def paper_setting(ctx: ReportContext, pop: dict) -> None:
                        caption=(f"Every pose biased by ({plain(s['bias_m'][0], signed=True)}, {plain(s['bias_m'][1], signed=True)}) m, then N(0, "
                                 f"{plain(s['sigma_m'])} m) per axis around the biased estimate, With Uncertainty told σ = "
                                 f"{plain(s['sigma_m'])} m; {s['realizations']} realizations per (target, track); 95 % CIs "
-                                f"over {over}. Beside it, {PAPER_55}. A confident error here is max P ≥ "
-                                f"{fmt(pop.get('confident_threshold'))} on a wrong class, a stricter test than the "
-                                "paper's ten-to-one."))
+                                f"over {over}. Beside it, {PAPER_55}. The paper's event is the ten-to-one column (a "
+                                "wrong class at least 10 times the truth: log10 MGR ≥ 1, ln MGR ≥ 2.30 on the paper's "
+                                f"scale); a confident error is max P ≥ {fmt(pop.get('confident_threshold'))} on a "
+                                "wrong class, a stricter event than the paper's."))
+    mgr_over_tracks(ctx, ((pop.get("paper_55") or {}).get("mgr") or {}).get("biased_randomized") or {})
+
+
+def mgr_over_tracks(ctx: ReportContext, block: dict) -> None:
+    """The 75th and 95th percentiles of final log10 MGR over every track and realization of each
+    method in the §5.5 setting, and the paired differences of the 95th (no verdict past a decade)."""
+    if not block.get("methods"):
+        return
+    rows = [[method_label(m), Estimate.of(v.get("p75")), Estimate.of(v.get("p95")), "—"]
+            for m, v in block["methods"].items()]
+    for key, e in (block.get("paired") or {}).items():
+        d = e.get("p95") or {}
+        rows.append([f"{comparison_label(key)}: difference of the 95th percentiles", "—",
+                     Estimate.of(d, signed=True), e.get("verdict") or f"no verdict: {e.get('no_verdict')}"])
+        ctx.ledger.register(("over tracks", key, "log10_mgr95_final", "biased_randomized"), d.get("value"),
+                            d.get("ci_low"), d.get("ci_high"), label=e.get("verdict") or "",
+                            where="§5.5 setting, MGR over every track", higher_is_better=False)
+    ctx.page.table(["method", "log10 MGR 75th percentile", "log10 MGR 95th percentile", "verdict"],
+                   rows, cls="paper-setting-mgr",
+                   caption=f"Final-step log10 MGR over every track and realization of a method in this setting "
+                           f"({', '.join(str(n) for n in block.get('n_values', {}).values())} values), as the paper "
+                           f"reads its runs (not a median of per-cell percentiles); 95 % CIs over "
+                           f"{block.get('over', 'targets')}, {block.get('n_targets')} targets. A difference whose "
+                           "CI spans more than one decade gets no verdict.")

@@ -70,10 +70,13 @@ def context_sentence(ctx: ReportContext) -> str:
 def verdict_section(ctx: ReportContext) -> None:
     ctx.section("Verdict", "verdict")
     page, pop = ctx.page, ctx.population
-    for line in bottom_line(pop or {}, ctx.run.card)[:1]:
+    lines = bottom_line(pop or {}, ctx.run.card)
+    head = 2 if (pop or {}).get("primary") else 1   # the declared primary comparison, then the exploratory verdicts
+    register_primary(ctx, pop or {})
+    for line in lines[:head]:
         page.paragraph(line, cls="bottomline")
     scorecard(ctx)  # the paper's claims, checked: on the first screen, right under the bottom line
-    for line in bottom_line(pop or {}, ctx.run.card)[1:]:
+    for line in lines[head:]:
         page.paragraph(line, cls="context")
     page.paragraph(context_sentence(ctx), cls="context")
     if not pop:
@@ -117,6 +120,17 @@ def verdict_section(ctx: ReportContext) -> None:
     if ceiling:
         page.paragraph(ceiling, cls="note")
     page.paragraph(biased_rule(pop), cls="note")
+
+
+def register_primary(ctx: ReportContext, pop: dict) -> None:
+    """The declared primary comparison's number in the page's ledger (its label checked against
+    its interval, one statistic wherever it recurs)."""
+    p = pop.get("primary") or {}
+    r = p.get("record")
+    if r:
+        ctx.ledger.register(("primary", r["comparison"], r["metric"], str(p.get("setting"))), r.get("value"),
+                            r.get("lo"), r.get("hi"), label=r.get("outcome", ""), where="bottom line (primary)",
+                            higher_is_better=r.get("better") == "higher")
 
 
 def biased_rule(pop: dict) -> str:

@@ -1,9 +1,14 @@
-"""The report's Power section and the paper's §5.5 setting (reports/main/power.py), from a
-population's ``power`` block and ``by_setting`` entries (nothing recomputed)."""
+"""The report's Power section (variance components of the primary comparison) and the paper's §5.5
+setting (reports/main/power.py), from a population's ``power`` block and ``by_setting`` entries
+(nothing recomputed)."""
 from types import SimpleNamespace
 
+import numpy as np
+
 from pipeline.evaluation.statistics.power import power_block
-from reports.main.power import paper_setting, power_section, power_sentence, priced
+from reports.main.power import paper_setting, power_section
+from reports.shared.checks import Ledger
+from tests.pipeline.evaluation.statistics.test_power import crossed
 
 
 class Page:
@@ -25,31 +30,41 @@ def _ctx(pop, chain_s: float | None = None):
                            section=lambda title, anchor: sections.append(title)), sections
 
 
-def _records():
-    n = {"scans": 15, "targets": 250, "tracks": 990, "cells": 2970}
-    over = ["scans", "targets", "tracks"]
-    return [{"comparison": "with_uncertainty-model_based", "metric": "confident_error_final", "lo": -0.12,
-             "hi": 0.02, "primary": True, "over": over, "n": n},
-            {"comparison": "with_uncertainty-model_based", "metric": "correct_final", "lo": -0.03, "hi": 0.05,
-             "primary": True, "over": over, "n": n}]
+def _power(**kw):
+    d = crossed(np.random.default_rng(3), 100, 6, 2, 0.01, 0.005, 0.0, 1.2)
+    return power_block(d, {"comparison": "with_uncertainty-model_based", "metric": "confident_error_final",
+                           "setting": "all"}, **kw)
 
 
-def test_the_power_section_states_the_widest_half_width_and_the_population_it_needs():
-    power = power_block(_records(), available={"scans": 15})       # as evaluate writes it: no time
-    ctx, sections = _ctx({"power": power}, chain_s=3600.0)
+def test_the_power_section_states_power_components_and_the_config_change():
+    power = _power(available={"objects": 100, "scans": 6}, tracks_per_target=8)
+    ctx, sections = _ctx({"power": power})
     power_section(ctx)
-    assert sections == ["Power"]
+    assert sections == ["Power of the primary comparison"]
     text = ctx.page.items[0][1]
-    # half-width 0.07 over 15 scans: 15 * (0.07 / 0.05)^2 = 29.4 -> 30 scans, 500 targets, 2 h
-    assert "1 of 2 primary comparisons" in text and "0.07" in text and "30 scans" in text
-    assert "500 targets" in text and "2.0 h" in text and "30 scans needed, 15 exist" in text
-    rows = ctx.page.items[1][2]
-    assert rows[0][4] == "30 scans" and rows[1][4] == "reached"
+    assert f"{round(100 * power['power_now'])} % at this run's size" in text and "not adjusted" in text
+    assert f"evaluate.tracks_per_target = {power['change']['evaluate.tracks_per_target']} (now 8)" in text
+    comps, needs = ctx.page.items[1][2], ctx.page.items[2][2]
+    assert [r[0] for r in comps] == ["object", "scan", "interaction", "track"]
+    shares = [int(r[3].rstrip(" %")) for r in comps]
+    assert abs(sum(shares) - 100) <= 2                       # the four terms make up the variance now
+    assert needs[2][2] == str(power["needed"]["tracks_per_cell"]) and needs[0][2].endswith("(100 in this run's data)")
 
 
-def test_every_comparison_reached_is_said_so():
-    recs = [dict(r, lo=-0.01, hi=0.02) for r in _records()]
-    assert power_sentence(power_block(recs)).startswith("Every primary comparison")
+def test_a_population_beyond_the_data_reads_not_reachable():
+    d = crossed(np.random.default_rng(3), 12, 2, 4, 0.4, 0.05, 0.0, 0.1)
+    power = power_block(d, {"comparison": "with_uncertainty-model_based", "metric": "correct_final",
+                            "setting": "biased_randomized"}, available={"objects": 12, "scans": 2})
+    ctx, _ = _ctx({"power": power})
+    power_section(ctx)
+    assert "Not reachable with this data" in ctx.page.items[0][1]
+    assert "none suffices" in ctx.page.items[2][2][2][2]
+
+
+def test_a_summary_without_components_states_no_power():
+    ctx, sections = _ctx({"power": {"goal": 0.05, "comparisons": []}})
+    power_section(ctx)
+    assert sections == [] and ctx.page.items == []
 
 
 def test_the_paper_setting_table_sits_beside_the_papers_figure_and_only_when_run():
@@ -69,49 +84,22 @@ def test_the_paper_setting_table_sits_beside_the_papers_figure_and_only_when_run
     assert sections == ["The paper's §5.5 setting"]
     _, header, rows, caption = ctx.page.items[0]
     assert [r[0].split(" (")[0] for r in rows] == ["With Uncertainty", "Model Based"]
-    assert rows[1][2].value == 0.25 and "around 10 % of runs" in caption and "over scans, targets and tracks" in caption
+    assert rows[1][3].value == 0.25 and "around 10 % of runs" in caption and "over scans, targets and tracks" in caption
     assert "N(0, 0.3 m) per axis" in caption and "told σ = 0.3 m" in caption
+    assert header[2] == "wrong ≥ 10× truth, final" and "ln MGR ≥ 2.30" in caption   # the paper's event, its scale
+    # the MGR percentiles over every track, with no verdict where the difference's CI spans decades
+    pop["paper_55"] = {"mgr": {"biased_randomized": {
+        "n_targets": 12, "n_values": {"with_uncertainty": 480, "model_based": 480},
+        "methods": {m: {"p75": est(0.2), "p95": est(v)} for m, v in (("with_uncertainty", 1.0), ("model_based", 3.0))},
+        "paired": {"with_uncertainty-model_based": {"p95": {"value": -2.0, "ci_low": -30.6, "ci_high": 0.0},
+                                                     "verdict": None, "no_verdict": "the 95 % CI spans 30.6 decades"}}}}}
+    ctx, _ = _ctx(pop)
+    ctx.ledger = Ledger()
+    paper_setting(ctx, pop)
+    _, header, rows, caption = ctx.page.items[1]
+    assert rows[2][3] == "no verdict: the 95 % CI spans 30.6 decades" and "every track and realization" in caption
+    assert not ctx.ledger.problems()
     pop["settings"] = pop["settings"][:1]
     ctx, sections = _ctx(pop)
     paper_setting(ctx, pop)
     assert sections == [] and ctx.page.items == []
-
-
-def test_targets_as_the_unit_are_named_once():
-    recs = [dict(r, over=["targets", "tracks"], n={"targets": 12, "tracks": 35}) for r in _records()]
-    text = power_sentence(power_block(recs, seconds=600.0))
-    assert "about 24 targets (20 min" in text and "24 targets, " not in text   # 12 x (0.07 / 0.05)^2 = 23.5
-
-
-def test_the_summary_block_holds_no_measured_time_and_the_report_prices_it():
-    recs = [dict(r, over=["targets", "tracks"], n={"targets": 12, "tracks": 35}) for r in _records()]
-    block = power_block(recs)
-    assert block["seconds_measured"] is None and all(e["cost_s"] is None for e in block["comparisons"])
-    assert priced(block, 600.0) == power_block(recs, seconds=600.0)
-    assert priced(block, None) is block
-
-
-def test_a_crossed_design_projects_over_targets_and_scans_together():
-    # half-width 0.1 over 20 targets crossed with 6 scans: x4 both -> 80 targets x 24 scans
-    n = {"targets": 20, "scans": 6, "tracks": 40, "cells": 120}
-    rec = {"comparison": "with_uncertainty-model_based", "metric": "correct_final", "lo": -0.05, "hi": 0.15,
-           "primary": True, "over": ["targets", "scans"], "n": n, "cluster": "crossed"}
-    block = power_block([rec], seconds=600.0, available={"scans": 15})
-    (e,) = block["comparisons"]
-    assert e["unit"] == "targets" and e["needed_units"] == 80 and e["needed_scans"] == 24 and e["scale"] == 4.0
-    assert e["beyond"] == "24 scans needed, 15 exist" and "crossed" in block["assumption"]
-    assert "caution" not in e
-    few = power_block([dict(rec, n={**n, "scans": 3})])["comparisons"][0]
-    assert few["caution"].startswith("3 scans:")                  # the smaller top level is the coarse one
-    ctx, _ = _ctx({"power": block, "cluster": "crossed"}, chain_s=600.0)
-    power_section(ctx)
-    text, rows, caption = ctx.page.items[0][1], ctx.page.items[1][2], ctx.page.items[1][3]
-    assert "over 20 targets crossed with 6 scans" in text and "about 80 targets crossed with 24 scans" in text
-    assert rows[0][3] == "20 targets × 6 scans" and rows[0][4] == "80 targets × 24 scans"
-    assert "cluster = 'crossed'" in caption and "targets and scans, crossed" in caption
-    # a nested clustering projects over its own top level, named in the caption
-    cat = dict(rec, over=["categories", "targets", "tracks"], n={"categories": 8, "targets": 72, "tracks": 144},
-               cluster="category")
-    ctx, _ = _ctx({"power": power_block([cat]), "cluster": "category"})
-    power_section(ctx)
-    assert ctx.page.items[1][2][0][3] == "8 categories" and "categories, targets and tracks" in ctx.page.items[1][3]

@@ -111,7 +111,7 @@ class _Page:
         self.paragraphs.append(text)
 
 
-def _scorecard_on(config: dict):
+def _scorecard_on(config: dict, extra: dict | None = None):
     """The scorecard of a population whose every comparison is clearly against the claim."""
     from types import SimpleNamespace
 
@@ -127,7 +127,7 @@ def _scorecard_on(config: dict):
             {"comparison": "with_uncertainty-simple_bayes", "metric": "correct_final", "value": -0.2,
              "lo": -0.3, "hi": -0.1}]
     page = _Page()
-    ctx = SimpleNamespace(population={"records": recs}, config=config, ledger=Ledger(), page=page,
+    ctx = SimpleNamespace(population={"records": recs, **(extra or {})}, config=config, ledger=Ledger(), page=page,
                           run=SimpleNamespace(run_dir=None))
     scorecard(ctx)
     return page
@@ -153,7 +153,8 @@ def test_on_synthetic_data_the_paper_claims_fail_and_simple_bayes_is_a_question(
     ours, beyond = page.tables
     assert ours[0][0] == "claim of the paper (in our words)" and beyond[0][0] == "question beyond the paper"
     assert _verdicts(ours) == ["fails", "fails", "fails"]          # made in simulation / rendered scenes
-    assert _verdicts(beyond) == ["not supported in this setting"]   # Simple Bayes: no claim of the paper
+    assert _verdicts(beyond)[1] == "not supported in this setting"   # Simple Bayes: no claim of the paper
+    assert _verdicts(beyond)[0].startswith("not tested here")         # §5.5: no such test in this summary
     assert all("“" in r[1] and "§" in r[1] for r in ours[1])       # section and quote on every claim
 
 
@@ -161,8 +162,8 @@ def test_at_category_level_no_claim_of_the_paper_fails():
     page = _scorecard_on({"data": {"source": "real_imagery", "real_imagery": {"dataset": "eth80"}}})
     assert len(page.tables) == 1                                    # only questions beyond the paper
     header, rows, caption = page.tables[0]
-    assert header[0] == "question beyond the paper" and len(rows) == 4
-    assert set(_verdicts(page.tables[0])) == {"not supported in this setting"}
+    assert header[0] == "question beyond the paper" and len(rows) == 5
+    assert {v.split(" (")[0] for v in _verdicts(page.tables[0])} == {"not supported in this setting", "not tested here"}
     text = " ".join(str(c) for r in rows for c in r) + caption + " ".join(page.paragraphs)
     assert "fails" not in text and "category level" in text
     assert any("none was made in this run's setting" in p for p in page.paragraphs)
@@ -171,9 +172,40 @@ def test_at_category_level_no_claim_of_the_paper_fails():
 def test_on_real_instances_only_the_claims_made_on_real_images_are_the_papers():
     page = _scorecard_on({"data": {"source": "real_imagery", "real_imagery": {"dataset": "coil"}}})
     ours, beyond = page.tables
-    assert [r[0].split(" ")[0] for r in ours[1]] == ["Modelling", "It"]   # correct_similar, fewer_confident_errors
-    assert any("real model uncertainty" in r[1] for r in beyond[1])       # MGR: made in §5.4 only
+    assert [r[0].split(" ")[0] for r in ours[1]] == ["Modelling", "On"]   # correct_similar, paper_55
+    assert "§5.5.2" in ours[1][1][1] and "in most cases both methods eventually deduce" in ours[1][1][1]
+    assert "we validate our contribution" not in " ".join(str(c) for r in ours[1] for c in r)   # not the abstract
+    assert any("real model uncertainty" in r[1] for r in beyond[1])       # MGR, confident errors: made in §5.3-5.4
     assert all(v.endswith("in this setting") for v in _verdicts(beyond))
+
+
+def _paper_55(record=None, missing="", width=0.5):
+    rec = record
+    return {"paper_55": {"comparison": "with_uncertainty_poses_only-model_based", "metric": "wrong10_final",
+                         "setting": "biased_randomized", "record": rec, **({"missing": missing} if missing else {}),
+                         "mgr": {"all": {"paired": {"with_uncertainty-model_based": {
+                             "p95": {"value": -0.1, "ci_low": -0.1 - width / 2, "ci_high": -0.1 + width / 2},
+                             "verdict": None if width > 1 else "not distinguishable",
+                             **({"no_verdict": f"the 95 % CI spans {width:g} decades"} if width > 1 else {})}}}}}}
+
+
+def test_the_55_row_reads_poses_only_on_the_ten_times_event_in_its_setting():
+    coil = {"data": {"source": "real_imagery", "real_imagery": {"dataset": "coil"}}}
+    rec = {"comparison": "with_uncertainty_poses_only-model_based", "metric": "wrong10_final", "value": -0.08,
+           "lo": -0.12, "hi": -0.03, "n": {"targets": 75}, "over": ["targets", "scans"]}
+    ours, _ = _scorecard_on(coil, _paper_55(rec)).tables
+    row = ours[1][1]
+    assert row[4].value == -0.08 and row[-1] == "holds" and "poses-only variant − Model Based" in row[2]
+    missing = _scorecard_on(coil, _paper_55(None, "the run has no 'biased_randomized' setting")).tables[0][1][1]
+    assert missing[-1] == "not tested here (the run has no 'biased_randomized' setting)" and missing[4].value is None
+
+
+def test_an_mgr_interval_spanning_decades_gives_no_verdict():
+    ours, _ = _scorecard_on({"data": {"source": "synthetic"}}, _paper_55(width=30.6)).tables
+    mgr = ours[1][2]
+    assert mgr[-1] == "no verdict: the 95 % CI spans 30.6 decades" and mgr[4].value == -0.1
+    ours, _ = _scorecard_on({"data": {"source": "synthetic"}}, _paper_55(width=0.5)).tables
+    assert ours[1][2][-1] == "inconclusive"
 
 
 def test_one_declaration_serves_the_simulation_and_the_scorecard():

@@ -45,7 +45,11 @@ def test_the_section_shows_the_computed_numbers_and_the_sources():
     kinds = [o[0] for o in page.out]
     assert kinds[0] == "section" and "table" in kinds
     rows = next(o for o in page.out if o[0] == "table")[1]
-    assert rows[0][1].value == est["rho"]["value"] and rows[0][1].low == est["rho"]["ci_low"]
+    w = est["within"]
+    assert rows[0][1].value == w["rho"]["value"] and rows[0][1].low == w["rho"]["ci_low"]   # within-class first
+    assert "stratification" in rows[0][0] and "stratification" in rows[1][0]
+    assert rows[2][1].value == est["rho"]["value"] and "pooled across classes" in rows[2][0]   # labelled as such
+    assert "median" in rows[0][2] and f"{w['rho_spread']['n_classes']} classes" in rows[0][2]
     text = " ".join(o[1] for o in page.out if o[0] == "p")
     assert U.reading(est) in text and "MC dropout (p = 0.2)" in text and "Drop-connect: not scored" in text
 

@@ -71,7 +71,7 @@ def test_results_cover_the_population(run_all):
     # The contract of the population block.
     metrics = {"correct_final", "correct_overall", "prob_truth_final", "msde_final", "msde_overall", "log10_mgr75_final",
                "log10_mgr95_final", "log10_mgr75_overall", "log10_mgr95_overall", "nll_final", "nll_overall",
-               "confident_error_final", "confident_error_overall",
+               "confident_error_final", "confident_error_overall", "wrong10_final",
                "ece_final", "ece_overall"}
     assert pop["methods"] == ["with_uncertainty", "model_based", "simple_bayes", "dirichlet", "view_independent"]
     for m in pop["methods"]:
@@ -110,6 +110,13 @@ def test_results_cover_the_population(run_all):
         assert {"n", "share_gt2", "share_gt3", "coverage95", "pit"} <= set(one)
     assert dom["gp_plus_dropout"]["overall"]["coverage95"] >= dom["gp"]["overall"]["coverage95"]
     assert len(pop["difficulty"]["tracks"]) == pop["n_tracks"]
+    # the declared primary comparison (evaluate.primary), its power, the paper's §5.5 test (no such setting here)
+    prim = pop["primary"]
+    assert (prim["method"], prim["baseline"], prim["metric"]) == (*cfg.evaluate.primary.methods, cfg.evaluate.primary.metric)
+    assert consistent(prim["record"]) and prim["adjusted"] is False and "outcome_holm" not in prim["record"]
+    assert {"object", "scan", "interaction", "track"} <= set(pop["power"]["components"])
+    assert pop["paper_55"]["record"] is None and "biased_randomized" in pop["paper_55"]["missing"]
+    assert set(pop["paper_55"]["mgr"]) == {"all"}
     track = json.loads((ev / "track.json").read_text())
     assert len(track["images"]) == 4 and len(set(track["images"])) == 4
     assert track["localization_error_m"] < 0.05

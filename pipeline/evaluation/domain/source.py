@@ -9,6 +9,12 @@ and |z|, and the AUROC of the spread for a crop whose |z| exceeds 2 (0.5: the sp
 far-off crops first). Each with a 95 % percentile CI from the statistics engine's resampler, one
 level: the classes (the design's clusters: objects at instance level, categories at category
 level) drawn with replacement, each drawn class bringing all of its crops.
+
+Pooled across classes, both statistics also measure which classes fit badly (a class whose model
+fails puts most of its crops beyond |z| = 2 and may have a wide spread throughout), so the
+question "does the spread flag a bad crop?" is answered within each class (``within_class``): ρ
+and AUROC per class, pooled over classes by stratification, their spread over the classes, and
+95 % CIs from the same class bootstrap.
 """
 from __future__ import annotations
 
@@ -91,6 +97,59 @@ class WeightedStatistics:
         return rho, auc
 
 
+def per_class(spread: np.ndarray, abs_z: np.ndarray, members: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """Per class: crops n, ρ, AUROC (NaN where undefined: under 3 crops, a constant side, no crop on
+    one side of |z| = 2), the AUROC's pair count n_far x n_near, and the share of crops with |z| > 2."""
+    rho = np.array([spearman(spread[m], abs_z[m]) for m in members])
+    far = [abs_z[m] > Z_FAR for m in members]
+    auc = np.array([auroc(spread[m], f) for m, f in zip(members, far)])
+    pairs = np.array([float(f.sum() * (len(f) - f.sum())) for f in far])
+    return {"n": np.array([len(m) for m in members], float), "rho": rho, "auroc": auc, "pairs": pairs,
+            "far_share": np.array([float(f.mean()) for f in far])}
+
+
+def stratified(pc: dict[str, np.ndarray], w: np.ndarray) -> tuple[float, float]:
+    """The within-class statistics pooled over classes by stratification, each class counted ``w``
+    times: ρ as the crop-weighted mean of the classes' ρ, the AUROC over within-class pairs only
+    (the classes' AUROCs weighted by their pair counts; van Elteren's stratified Mann–Whitney)."""
+    ok_r, ok_a = ~np.isnan(pc["rho"]) & (w > 0), ~np.isnan(pc["auroc"]) & (w > 0)
+    wr, wa = (w * pc["n"])[ok_r], (w * pc["pairs"])[ok_a]
+    rho = float((wr * pc["rho"][ok_r]).sum() / wr.sum()) if wr.sum() > 0 else float("nan")
+    auc = float((wa * pc["auroc"][ok_a]).sum() / wa.sum()) if wa.sum() > 0 else float("nan")
+    return rho, auc
+
+
+def _spread_of(x: np.ndarray) -> dict:
+    v = x[~np.isnan(x)]
+    if not len(v):
+        return {"n_classes": 0}
+    return {"n_classes": int(len(v)), "min": float(v.min()), "median": float(np.median(v)), "max": float(v.max())}
+
+
+def within_class(spread: np.ndarray, abs_z: np.ndarray, members: list[np.ndarray], n_boot: int, seed: int) -> dict:
+    """ρ and AUROC within each class, pooled over classes by stratification, with their spread over
+    the classes and 95 % CIs from resampling classes (each drawn class with all its crops)."""
+    pc = per_class(spread, abs_z, members)
+    k = len(members)
+    rho, auc = stratified(pc, np.ones(k))
+    far = np.sort(pc["far_share"] * pc["n"])[::-1]
+    out = {"how": "per class, then pooled over classes by stratification: rho as the crop-weighted mean of the "
+                  "classes' rho, the AUROC over pairs of crops of the same class",
+           "over": "classes (each with all its crops)", "rho_spread": _spread_of(pc["rho"]),
+           "auroc_spread": _spread_of(pc["auroc"]), "max_class_far_share": float(np.max(pc["far_share"])),
+           "top2_far_share": float(far[:2].sum() / far.sum()) if far.sum() > 0 else float("nan")}
+    if k < 2:
+        return {**out, "rho": estimate(rho, None), "auroc": estimate(auc, None), "n_boot": 0}
+    rs = draws([[1] * k], n_boot, seed)
+    bd = np.array([stratified(pc, np.bincount(rs.pt[b, 0], minlength=k).astype(float)) for b in range(rs.n_boot)])
+    out.update(rho=estimate(rho, bd[:, 0]), auroc=estimate(auc, bd[:, 1]), n_boot=int(rs.n_boot))
+    undefined = int(np.isnan(bd[:, 1]).sum())
+    if undefined:   # the engine's rule: an undefined draw leaves no interval; say why
+        out["auroc_note"] = (f"no CI: {undefined} of {rs.n_boot} resamples draw only classes without a crop on both "
+                             f"sides of |z| = {Z_FAR:g}")
+    return out
+
+
 def source_summary(crops: pd.DataFrame, n_boot: int, seed: int) -> dict:
     """ρ and AUROC with their CIs over classes, the counts behind them (JSON-ready)."""
     n = len(crops)
@@ -103,7 +162,8 @@ def source_summary(crops: pd.DataFrame, n_boot: int, seed: int) -> dict:
     out = {"n_crops": n, "n_classes": len(classes), "far": f"|z| > {Z_FAR:g}",
            "far_share": float(np.mean(abs_z > Z_FAR)), "over": "classes (each with all its crops)"}
     if len(classes) < 2:
-        out.update(rho=estimate(rho, None), auroc=estimate(auc, None), n_boot=0)
+        out.update(rho=estimate(rho, None), auroc=estimate(auc, None), n_boot=0,
+                   within=within_class(spread, abs_z, members, n_boot, seed))
         return out
     # One level: the resampler's targets are the classes, each with one "track" (all its crops).
     rs = draws([[1] * len(classes)], n_boot, seed)
@@ -114,7 +174,8 @@ def source_summary(crops: pd.DataFrame, n_boot: int, seed: int) -> dict:
     bd = np.empty((rs.n_boot, 2))
     for b in range(rs.n_boot):
         bd[b] = stat(np.bincount(rs.pt[b, 0], minlength=len(classes))[of_crop].astype(float))
-    out.update(rho=estimate(rho, bd[:, 0]), auroc=estimate(auc, bd[:, 1]), n_boot=int(rs.n_boot))
+    out.update(rho=estimate(rho, bd[:, 0]), auroc=estimate(auc, bd[:, 1]), n_boot=int(rs.n_boot),
+               within=within_class(spread, abs_z, members, n_boot, seed))
     undefined = int(np.isnan(bd[:, 1]).sum())
     if undefined:   # the engine's rule: an undefined draw leaves no interval; say why
         out["auroc_note"] = (f"no CI: {undefined} of {rs.n_boot} resamples hold no crop with |z| > {Z_FAR:g} "
@@ -124,9 +185,10 @@ def source_summary(crops: pd.DataFrame, n_boot: int, seed: int) -> dict:
 
 def reading(summary: dict) -> str:
     """One line: what the numbers say about the spread as the model-uncertainty source (computed)."""
-    rho, auc = (summary.get("rho") or {}), (summary.get("auroc") or {})
+    within = summary.get("within") or summary   # within each class where measured, else the pooled figure
+    rho, auc = (within.get("rho") or {}), (within.get("auroc") or {})
     lo, hi = rho.get("ci_low"), rho.get("ci_high")
-    if not summary.get("rho") or lo is None or hi is None or not (np.isfinite(lo) and np.isfinite(hi)):
+    if not within.get("rho") or lo is None or hi is None or not (np.isfinite(lo) and np.isfinite(hi)):
         return "too few crops or classes to say whether the spread tracks the distance from the class model"
     if lo > 0:
         what = "the spread ranks crops far from their class model higher (ρ's 95 % CI above 0)"
@@ -139,4 +201,6 @@ def reading(summary: dict) -> str:
         what += ("; it flags |z| > 2 crops better than chance" if a_lo > 0.5 else
                  "; it flags |z| > 2 crops worse than chance" if a_hi < 0.5 else
                  "; it does not flag |z| > 2 crops better than chance (AUROC's CI contains 0.5)")
-    return what
+    scope = "within each class (pooled over classes by stratification): " if summary.get("within") else \
+        "pooled across classes: "
+    return scope + what

@@ -24,9 +24,10 @@ def reduce_cell(cell, res: dict, params: M.Params, *, tables: bool = False) -> t
     ``results.cell_metrics``), ``calibration`` (``cell_sums``), ``difficulty``, ``extras``: {method:
     the extras it returned, with ``posterior0``, its posterior (K, C) of the cell's first setting,
     realization 0} for the methods that returned any; with ``tables``, ``tables``: {(experiment, label): the
-    ``experiments.summarize`` tables}."""
+    ``experiments.summarize`` tables} and ``final_mgr``: {label: {method: final-step log10 MGR per
+    realization}}."""
     by_label = {(s.experiment, s.label): s for s in cell.settings}
-    rows, blocks, summaries = [], [], {}
+    rows, blocks, summaries, final_mgr = [], [], {}, {}
     for key, posts in res["posts"].items():
         experiment, label = key
         values = {m: M.step_values(lp, cell.truth, is_log=True) for m, lp in posts.items()}
@@ -37,6 +38,8 @@ def reduce_cell(cell, res: dict, params: M.Params, *, tables: bool = False) -> t
                          **cell_metrics(lp, cell.truth, params, base=base)})
             if tables:
                 summaries.setdefault(key, {})[method] = {**M.with_mgr_ratios(base), "n_realizations": int(lp.shape[0])}
+                # every realization's final log10 MGR: percentiles over every track (grid/paper55.py)
+                final_mgr.setdefault(label, {})[method] = np.asarray(values[method]["log10_mgr"][:, -1], float)
         s = by_label[key]
         blocks.append(result_block(posts, cell.truth, values=values, variant=cell.variant, experiment=s.experiment,
                                    setting=s.label, sigma_m=float(s.sigma), bias_x=float(s.bias[0]),
@@ -45,6 +48,7 @@ def reduce_cell(cell, res: dict, params: M.Params, *, tables: bool = False) -> t
     kept = {"rows": rows, "calibration": cell_sums(res["posts"], cell.truth, params.ece_bins), "difficulty": res["difficulty"]}
     if tables:
         kept["tables"] = summaries
+        kept["final_mgr"] = final_mgr
     first = next(iter(res["posts"].values()), {})
     kept["extras"] = {m: {**x, "posterior0": np.exp(first[m][0])} if m in first else dict(x)
                       for m, x in res.get("extras", {}).items()}

@@ -270,11 +270,28 @@ _BUILTIN = {
     "confident_error_final": Metric("confident-error rate, final step",
                                     "confident errors, final", False, ("confidence", "correct"), "final",
                                     lambda c, ok, params: confident_rate(c, ok, params), best=0.0, worst=1.0),
+    # The paper's §5.5.2 failure (Fig. 17): a wrong class at least 10 times as probable as the truth
+    # at the last step, i.e. log10 MGR >= 1 (ln MGR >= ln 10 on the paper's scale).
+    "wrong10_final": Metric("share with a wrong class ≥ 10× the truth (log10 MGR ≥ 1), final step",
+                            "wrong ≥ 10× truth, final", False, "log10_mgr", "final",
+                            lambda x, params=None: wrong_at_least(x, TEN_TIMES), best=0.0, worst=1.0),
     "confident_error_overall": Metric("confident-error rate, all steps",
                                       "confident errors, all steps", False, ("confidence", "correct"), "all",
                                       lambda c, ok, params: confident_rate(c, ok, params), best=0.0, worst=1.0),
 }
 POOLS = ("mean", "median")
+
+
+TEN_TIMES = 1.0   # log10 of the paper's "about 10 times the correct class's" probability (§5.5.2)
+# log10_mgr is ln(ratio) / ln 10: a ratio of exactly 10 can land a few ulps under 1.0, so the test
+# allows that rounding (1e-12 in log10 is a ratio 10 (1 - 2.3e-12))
+_ULPS = 1e-12
+
+
+def wrong_at_least(log10_mgr: np.ndarray, decades: float) -> np.ndarray:
+    """Share (last axis) of posteriors whose most likely wrong class is at least 10^``decades`` times
+    the truth (log10 MGR >= decades; the truth on top gives 0, never counted for decades > 0)."""
+    return (np.asarray(log10_mgr) >= float(decades) - _ULPS).mean(axis=-1)
 
 
 def confident_mask(conf: np.ndarray, ok: np.ndarray, threshold: float) -> np.ndarray:

@@ -143,6 +143,15 @@ def cross_checks(cfg: Config, where: str) -> None:
              f"({_modelled_words(cfg)}) that evaluate.candidates = {ev.candidates!r} draws from")
     dup = sorted({m for m in ev.primary_metrics if ev.primary_metrics.count(m) > 1})
     need(not dup, f"'evaluate.primary_metrics' lists {', '.join(map(repr, dup))} more than once")
+    pm = ev.primary
+    need(len(pm.methods) == 2 and pm.methods[0] != pm.methods[1],
+         f"'evaluate.primary.methods' = {list(pm.methods)!r} must be [method, baseline], two different method keys")
+    need(pm.setting == "all" or pm.setting in ("biased", "randomized", "biased_randomized") and pm.setting in ev.experiments,
+         f"'evaluate.primary.setting' = {pm.setting!r} must be 'all' or an experiment of 'evaluate.experiments' "
+         "with population settings (biased, randomized, biased_randomized)")
+    need(pm.setting != "randomized" or len(ev.randomized.sigmas_m) == 1,
+         "'evaluate.primary.setting' = 'randomized' names one setting only when 'evaluate.randomized.sigmas_m' "
+         "lists one sigma: declare 'all' or another experiment")
     for a in ev.ablations:
         key = a.split("=", 1)[0].strip()
         need("=" in a and key in ABLATION_KEYS,

@@ -60,6 +60,18 @@ class StatisticsConfig:
                           "recur across scans: configs/real_full.toml)")
 
 
+@dataclass(frozen=True)
+class PrimaryConfig:
+    """The one primary comparison, declared before the run: its verdict is read at its own 95 % (no
+    multiplicity adjustment: it is the only one declared); every other result is exploratory."""
+    metric: str = _f("confident_error_final", doc="a metric key of pipeline/evaluation/metrics/spec.py")
+    methods: tuple[str, ...] = _f(factory=lambda: ("with_uncertainty", "model_based"),
+                                  doc="[method, baseline]: two registered method keys, the difference is method - "
+                                      "baseline")
+    setting: str = _f("all", doc="'all' = pooled over every localization setting of the run; or one experiment "
+                                 "with one setting: 'biased', 'biased_randomized', 'randomized' (one sigma only)")
+
+
 def cluster_of(ev) -> str:
     """The clustering in force: ``evaluate.statistics.cluster``, or "scan" where only the former
     key ``evaluate.resample_scans`` asks for it."""
@@ -121,6 +133,7 @@ class EvaluateConfig(Extendable):
     primary_metrics: tuple[str, ...] = _f(factory=lambda: ("correct_final", "confident_error_final"),
                                           doc="the metrics the verdict's bottom line speaks of (keys of "
                                               "pipeline/evaluation/metrics/spec.py); every other is exploratory")
+    primary: PrimaryConfig = _f(factory=PrimaryConfig)
     attribution: bool = _f(True, doc="also evaluate With Uncertainty with poses only (dropout samples -> their "
                                      "mean) and with dropout only (no pose sampling), on the same population")
     biased: BiasedConfig = _f(factory=BiasedConfig)

@@ -148,3 +148,39 @@ def test_an_auroc_without_far_crops_in_some_resamples_says_why_it_has_no_ci():
     s = U.source_summary(crops, 200, 0)
     assert s["auroc"]["value"] is not None and np.isnan(s["auroc"]["ci_low"])
     assert s["auroc_note"].startswith("no CI:") and "resamples hold no crop" in s["auroc_note"]
+
+
+def _two_level_crops(rng, k=10, n=40):
+    """Classes that differ in both spread and |z| level (a badly fitting class has both high), with
+    no relation between the two within any class."""
+    lvl = np.linspace(0.5, 3.0, k)
+    rows = []
+    for c in range(k):
+        rows.append(pd.DataFrame({"instance": f"c{c}", "spread": lvl[c] + rng.uniform(0, 0.3, n),
+                                  "abs_z": lvl[c] * rng.uniform(0.5, 1.5, n)}))
+    return pd.concat(rows, ignore_index=True)
+
+
+def test_between_class_differences_raise_the_pooled_rho_but_not_the_within_class_one():
+    est = U.source_summary(_two_level_crops(np.random.default_rng(0)), 400, 0)
+    assert est["rho"]["ci_low"] > 0.5                                   # pooled: the classes' levels
+    w = est["within"]
+    assert w["rho"]["ci_low"] < 0 < w["rho"]["ci_high"]                 # within: nothing
+    assert w["rho_spread"]["n_classes"] == 10 and w["rho_spread"]["min"] <= w["rho"]["value"] <= w["rho_spread"]["max"]
+    assert "within each class" in U.reading(est)
+
+
+def test_the_stratified_statistics_are_the_within_class_pairs():
+    crops = _two_level_crops(np.random.default_rng(1), k=4, n=25)
+    spread, z = crops["spread"].to_numpy(), crops["abs_z"].to_numpy()
+    members = [np.flatnonzero(crops["instance"].to_numpy() == c) for c in sorted(set(crops["instance"]))]
+    rho, auc = U.stratified(U.per_class(spread, z, members), np.ones(len(members)))
+    # brute force: every (far, near) pair of crops of one class, ties half
+    wins = total = 0.0
+    for m in members:
+        far, near = spread[m][z[m] > 2], spread[m][z[m] <= 2]
+        wins += (far[:, None] > near[None, :]).sum() + 0.5 * (far[:, None] == near[None, :]).sum()
+        total += len(far) * len(near)
+    assert auc == pytest.approx(wins / total, abs=1e-12)
+    per = [U.spearman(spread[m], z[m]) for m in members]
+    assert rho == pytest.approx(np.average(per, weights=[len(m) for m in members]), abs=1e-12)

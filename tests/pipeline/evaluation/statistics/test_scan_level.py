@@ -1,5 +1,4 @@
-"""The scan level of the one resampler (scans -> targets -> tracks) and the power block (the
-population a primary comparison's interval would need)."""
+"""The scan level of the one resampler (scans -> targets -> tracks)."""
 import math
 
 import numpy as np
@@ -8,7 +7,6 @@ import pytest
 
 from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.statistics.engine import Hierarchy, population_block
-from pipeline.evaluation.statistics.power import needed_units, power_block
 
 AB = [("a", "b")]
 METRIC = "correct_final"
@@ -95,52 +93,3 @@ def test_a_target_split_over_scans_is_one_unit_per_scan():
     bad.loc[(bad["scan"] == "S001") & (bad["track"] == 2), "track"] = 0   # one (target, track) in two scans
     with pytest.raises(ValueError, match="more than one scan"):
         Hierarchy({"run": bad}, 200, 0, by_scan=True)
-
-
-def test_needed_units_scale_as_the_square_of_the_width_ratio():
-    assert needed_units(0.10, 10) == 40
-    assert needed_units(0.05, 10) == 10 and needed_units(0.01, 10) == 10
-    assert needed_units(math.inf, 10) is None and needed_units(math.nan, 10) is None
-
-
-def test_the_projected_population_reaches_the_goal_half_width():
-    # Observe a small population, project the scans that would make the difference's half-width
-    # 0.05, draw a population of that size from the same process: its half-width lands near 0.05.
-    gen = dict(targets=3, tracks=2, scan_sd=0.1, diff_scan_sd=0.15, effect=0.05)
-    small = scans_population(np.random.default_rng(5), n_scans=8, **gen)
-    b = population_block(small, ["a", "b"], [METRIC], AB, 1000, 0, primary=(METRIC,), per_target=False, loto=False,
-                         by_scan=True)
-    p = power_block(b["records"], seconds=10.0, available={"scans": 15})
-    (e,) = p["comparisons"]
-    assert e["unit"] == "scans" and e["n_units"] == 8 and not e["reached"]
-    assert e["needed_units"] == needed_units(e["half_width"], 8)
-    assert e["needed_targets"] == math.ceil(e["scale"] * 24) and e["cost_s"] == pytest.approx(10.0 * e["scale"])
-    assert e["beyond"].startswith(f"{e['needed_units']} scans needed")
-    big = scans_population(np.random.default_rng(6), n_scans=e["needed_units"], **gen)
-    bb = population_block(big, ["a", "b"], [METRIC], AB, 1000, 0, primary=(METRIC,), per_target=False, loto=False,
-                          by_scan=True)
-    w = (bb["records"][0]["hi"] - bb["records"][0]["lo"]) / 2
-    assert 0.03 < w < 0.075
-    assert power_block(bb["records"])["comparisons"][0]["needed_units"] <= 2 * e["needed_units"]
-
-
-def test_only_primary_records_get_a_power_entry_and_unbounded_ends_get_none():
-    recs = [{"comparison": "a-b", "metric": "x", "lo": -0.2, "hi": 0.1, "primary": True, "over": ["targets", "tracks"],
-             "n": {"targets": 12, "tracks": 35}},
-            {"comparison": "a-b", "metric": "y", "lo": None, "hi": 0.1, "primary": True, "over": ["targets", "tracks"],
-             "n": {"targets": 12, "tracks": 35}},
-            {"comparison": "a-b", "metric": "z", "lo": -0.2, "hi": 0.1, "primary": False, "over": ["targets"],
-             "n": {"targets": 12}}]
-    p = power_block(recs, seconds=None)["comparisons"]
-    assert [e["metric"] for e in p] == ["x", "y"]
-    assert p[0]["half_width"] == pytest.approx(0.15) and p[0]["needed_units"] == 108 and p[0]["cost_s"] is None
-    assert p[1]["needed_units"] is None and p[1]["half_width"] == math.inf
-
-
-def test_too_few_units_carry_a_caution():
-    rec = {"comparison": "a-b", "metric": "x", "lo": -0.2, "hi": 0.1, "primary": True,
-           "over": ["scans", "targets", "tracks"], "n": {"scans": 2, "targets": 6, "tracks": 8}}
-    (e,) = power_block([rec])["comparisons"]
-    assert e["unit"] == "scans" and "caution" in e
-    (e,) = power_block([dict(rec, n={"scans": 15, "targets": 60, "tracks": 200})])["comparisons"]
-    assert "caution" not in e
