@@ -288,10 +288,11 @@ def run(ctx) -> str:
             cells = [dataclasses.replace(c, device=device) for c in cells]
             plan_tasks, t_plan = None, 0.0
             if cfg.plan.enabled:   # built before the workers fork, so that they inherit them
+                from pipeline.method.score_space import of_models
                 from pipeline.planning.population import build_tasks
 
                 t1 = time.perf_counter()
-                plan_tasks = build_tasks(cells, tracks, avd, scores, moves, ev, cfg.plan)
+                plan_tasks = build_tasks(cells, tracks, avd, scores, moves, ev, cfg.plan, of_models(banks[DEFAULT]))
                 t_plan = time.perf_counter() - t1
             if isinstance(executor, LocalPool):
                 executor.inherit(cells, plan_tasks or [])

@@ -21,6 +21,7 @@ from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
 from pipeline.infra import seeds
 from pipeline.method.provider import calibrated, providers
+from pipeline.method.score_space import of_meta, to_space
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -374,8 +375,9 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                     for_cell(variant_provided[variant], target, classes, full.shape[-1])
                 if index is not indexes[DEFAULT]:
                     vmine = {k: m for k, m in vmine.items() if k not in default_only}
+                # the GP methods measure in their bank's score space; the own scores and whole vectors stay p
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
-                                   dropout=full[:, :, list(comps)],
+                                   dropout=to_space(full, *of_meta(index.get("meta")))[:, :, list(comps)],
                                    own=full[:, :, [index.get("own_components", own)[c] for c in classes]],
                                    probs=full)
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),

@@ -108,7 +108,7 @@ class EvaluateConfig(Extendable):
     ablations: tuple[str, ...] = _f(factory=lambda: ("evaluate.test_domain_variance=cross_fit",),
                                     doc="'models.KEY=VALUE' or 'evaluate.test_domain_variance=VALUE' variants "
                                         "evaluated on the same population (models KEY: component_rule, "
-                                        "noise_floor, n_components, informative_min)")
+                                        "noise_floor, n_components, informative_min, score_space)")
     test_domain_variance: str = _f("none", choices=("none", "cross_fit"),
                                    doc="likelihood of the GP-based methods: none = the paper's (GP predictive "
                                        "alone); cross_fit = plus a test-domain variance per score component, "
@@ -149,7 +149,7 @@ class ReportConfig:
 
 
 ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min",
-                 "evaluate.test_domain_variance")
+                 "models.score_space", "evaluate.test_domain_variance")
 TEST_DOMAIN_MODES = ("none", "cross_fit")
 
 
