@@ -115,9 +115,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TargetDomain | 
     summary: dict = {}
     timings: dict[str, float] = {}
     ev = cfg.evaluate
-    models = banks[DEFAULT].subset(first.classes, first.components)
-    if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
-        models = models.with_test_variance(np.asarray(first.test_variance, float)[None, :])
+    models = P.cell_models(banks, first)   # the population's likelihood (calibrated, Student-t) on the showcase
     if "gp_models" in ev.experiments:
         t0 = time.perf_counter()
         rasters = E.gp_rasters(models)

@@ -237,6 +237,7 @@ class Cell:
     attribution: bool = False                       # add the With Uncertainty attribution variants
     test_variance: tuple[float, ...] | None = None  # δ² per component: the calibrated likelihood
     models: dict | None = None  # {provider key: the candidates' models} (pipeline.method.provider)
+    tail_df: dict | None = None  # {heavy-tailed method key: ν} of the cell's fold (evaluate.likelihood_tail)
     device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
 
 
@@ -284,10 +285,17 @@ def run_cell(banks, cell: Cell) -> dict:
         return _run_cell(banks, cell)
 
 
-def _run_cell(banks, cell: Cell) -> dict:
+def cell_models(banks, cell: Cell):
+    """The cell's GP models: its variant's bank at its candidates and components, with its
+    test-domain variance (the calibrated likelihood) and its Student-t degrees of freedom."""
     models = banks[cell.variant].subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
+    return models.with_tail_df(cell.tail_df) if cell.tail_df else models
+
+
+def _run_cell(banks, cell: Cell) -> dict:
+    models = cell_models(banks, cell)
     provided = calibrated(cell.models, cell.test_variance)   # the providers' models, like the bank's
     fixed, extras = pose_free_track(cell, models, provided)
     posts: dict = {}

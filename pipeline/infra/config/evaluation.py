@@ -114,6 +114,11 @@ class EvaluateConfig(Extendable):
                                        "alone); cross_fit = plus a test-domain variance per score component, "
                                        "ML-estimated on labelled AVD crops of the other scans (one scan: of the "
                                        "other instances), never the evaluated cell's own")
+    likelihood_tail: str = _f("none", choices=("none", "student_t"),
+                              doc="student_t: also run with_uncertainty_t and model_based_t, each step's predictive "
+                                  "a Student-t whose degrees of freedom are ML-fitted per fold on the standardized "
+                                  "residuals of the other folds' labelled crops (as test_domain_variance's folds; "
+                                  "pipeline/evaluation/domain/tails.py); none: they do not run")
     confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
                                     doc="a confident error: max P >= this on a wrong class")
     ece_bins: int = _f(15, lo=2, hi=1000, doc="equal-width confidence bins of the top-label ECE and the reliability "
