@@ -117,9 +117,7 @@ def single_track(cfg: Config, ctx, banks, first: P.Cell, domain: TargetDomain | 
     summary: dict = {}
     timings: dict[str, float] = {}
     ev = cfg.evaluate
-    models = banks[DEFAULT].subset(first.classes, first.components)
-    if first.test_variance is not None:  # evaluate.test_domain_variance = cross_fit: the same likelihood
-        models = models.with_test_variance(np.asarray(first.test_variance, float)[None, :])
+    models = P.cell_models(banks, first)   # the population's likelihood (calibrated, Student-t) on the showcase
     if "gp_models" in ev.experiments:
         t0 = time.perf_counter()
         rasters = E.gp_rasters(models)
@@ -294,10 +292,11 @@ def run(ctx) -> str:
             cells = [dataclasses.replace(c, device=device) for c in cells]
             plan_tasks, t_plan = None, 0.0
             if cfg.plan.enabled:   # built before the workers fork, so that they inherit them
+                from pipeline.method.score_space import of_models
                 from pipeline.planning.population import build_tasks
 
                 t1 = time.perf_counter()
-                plan_tasks = build_tasks(cells, tracks, avd, scores, moves, ev, cfg.plan)
+                plan_tasks = build_tasks(cells, tracks, avd, scores, moves, ev, cfg.plan, of_models(banks[DEFAULT]))
                 t_plan = time.perf_counter() - t1
             if isinstance(executor, LocalPool):
                 executor.inherit(cells, plan_tasks or [])

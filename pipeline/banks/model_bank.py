@@ -22,6 +22,7 @@ import numpy as np
 from pipeline.evaluation.grid.candidates import candidate_sets, own_components, plan_components
 from pipeline.infra.config import ModelsConfig, to_dict
 from pipeline.infra.outputs import name as out_name
+from pipeline.method import score_space
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.provider import TrainingViews
@@ -160,6 +161,23 @@ def dropout_noise_floor(path: Path, passes: dict[str, dict[int, np.ndarray]], po
     return np.minimum(floor, 0.5 * noise_bounds[1])
 
 
+def fit_targets(path: Path, mcfg: ModelsConfig, S_by: dict, passes: dict, angles: dict, pool):
+    """The GP training targets per class (N, D) and the dropout passes in ``models.score_space``:
+    each MC-dropout pass is mapped before the mean over passes, as the fusion maps each sample
+    before it takes a step's mean (``pipeline.method.score_space``). The identity for 'probability'."""
+    space, floor = mcfg.score_space, mcfg.score_floor
+    if space == score_space.DEFAULT:
+        return S_by, passes
+    try:
+        passes = {obj: {a: score_space.to_space(s, space, floor) for a, s in views.items()}
+                  for obj, views in passes.items()}
+        if mcfg.targets == "dropout_mean":
+            return {cls: dropout_means(path, passes, cls, angles[cls]) for cls in pool}, passes
+        return {cls: score_space.to_space(S_by[cls], space, floor) for cls in pool}, passes
+    except ValueError as e:
+        raise FeaturesError(path, f"models.score_space = {space!r}: {e}") from None
+
+
 def _training_sets(path: Path, mcfg: ModelsConfig, members=None):
     """Per modelled class: GP inputs (N, 2), training scores (N, D) (``models.targets``), angles;
     plus output names, Parquet metadata, the dropout passes read (for the noise floor) and each
@@ -239,15 +257,18 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     for p in plan.values():
         p["component_names"] = None if names is None else [str(names[i]) for i in p["components"]]
     comp_names = None if names is None else [str(names[i]) for i in comps]
+    # the plan above reads the probabilities; the GPs model them in models.score_space
+    Y_by, passes = fit_targets(path, mcfg, S_by, passes, angles, pool)
     floor = dropout_noise_floor(path, passes, pool, comps, mcfg.noise_bounds) if mcfg.noise_floor == "dropout" else None
     fit, members = (fit_class_models, {}) if fit is None else (fit, {"members": [members_by[c] for c in pool]})
     models, diags = fit(
-        [X_by[c] for c in pool], [S_by[c][:, comps].T for c in pool], classes=pool, components=comps, **members,
+        [X_by[c] for c in pool], [Y_by[c][:, comps].T for c in pool], classes=pool, components=comps, **members,
         restarts=mcfg.restarts,
         amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
         noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
         noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=tuple(mcfg.noise_prior), route=route,
         cache=fit_cache)
+    models.meta[score_space.META_KEY] = score_space.record(mcfg.score_space, mcfg.score_floor)
     for d in diags:
         log.debug("GP %s / %s: a=%.4g l=%.4g noise=%.3g lml=%.2f%s", d["class"], d["component_name"] or d["component"],
                   d["amplitude"], d["length_scale"], d["noise"], d["log_marginal_likelihood"],
@@ -266,7 +287,8 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         "fit": {"restarts": mcfg.restarts, "amplitude_bounds": list(mcfg.amplitude_bounds),
                 "length_scale_bounds": list(mcfg.length_scale_bounds),
                 "noise_bounds": list(mcfg.noise_bounds), "noise_floor": mcfg.noise_floor, "seed": mcfg.seed,
-                "targets": mcfg.targets, "hyperprior": mcfg.hyperprior, "noise_prior": list(mcfg.noise_prior)},
+                "targets": mcfg.targets, "score_space": mcfg.score_space, "score_floor": mcfg.score_floor,
+                "hyperprior": mcfg.hyperprior, "noise_prior": list(mcfg.noise_prior)},
         "config": to_dict(mcfg),
         "diagnostics": diags,
         "fits_with_warnings": sum(1 for d in diags if d["warnings"] or d["at_bound"]),

@@ -146,7 +146,17 @@ def _recursion(ll, logp0):
     return out
 
 
-def mwu_block(models, device: str, X, mu_z, v_z, samples, logp0) -> np.ndarray:
+def _t_terms(resid2, nu: float):
+    """The Student-t's log density terms (``pipeline.method.student_t``: the part that replaces the
+    Gaussian's -resid2/2, with its constant) of squared standardized residuals ``resid2``."""
+    import torch
+
+    from pipeline.method.student_t import log_const
+
+    return -0.5 * (nu + 1.0) * torch.log1p(resid2 / nu) + log_const(nu)
+
+
+def mwu_block(models, device: str, X, mu_z, v_z, samples, logp0, nu: float = 0.0) -> np.ndarray:
     """As ``fusion._mwu_block`` followed by the logsumexp over localization samples: (r, K, C)."""
     tp = torch_plan(models, device)
     torch = tp.torch
@@ -167,12 +177,13 @@ def mwu_block(models, device: str, X, mu_z, v_z, samples, logp0) -> np.ndarray:
     cmean = mu_zt - Ld * y
     s = t(np.moveaxis(samples, -1, -3))[:, None, None]              # (r, 1, 1, F, K, S)
     resid = (s - cmean[..., None]) ** 2 / var[..., None]
-    ll = -0.5 * resid.sum(dim=-3) - 0.5 * torch.log(var).sum(dim=-2)[..., None]
+    terms = _t_terms(resid, nu).sum(dim=-3) if nu else -0.5 * resid.sum(dim=-3)
+    ll = terms - 0.5 * torch.log(var).sum(dim=-2)[..., None]
     out = _recursion(ll, t(logp0))                                   # (r, n, K, C)
     return torch.logsumexp(out, dim=1).cpu().numpy()
 
 
-def mb_block(models, device: str, X, Z, logp0) -> np.ndarray:
+def mb_block(models, device: str, X, Z, logp0, nu: float = 0.0) -> np.ndarray:
     """As the numpy Model Based block: X (b, K, d), measurements Z (b, K, F) -> (b, K, C)."""
     tp = torch_plan(models, device)
     torch = tp.torch
@@ -182,5 +193,5 @@ def mb_block(models, device: str, X, Z, logp0) -> np.ndarray:
     resid = t(np.swapaxes(Z, -1, -2))[:, None] - mu
     y = (M @ resid[..., None])[..., 0]
     Ld = torch.diagonal(L, dim1=-2, dim2=-1)
-    ll = (-0.5 * y * y - torch.log(Ld)).sum(dim=-2)
+    ll = ((_t_terms(y * y, nu) if nu else -0.5 * y * y) - torch.log(Ld)).sum(dim=-2)
     return _recursion(ll[..., None], t(logp0)).cpu().numpy()

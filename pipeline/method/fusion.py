@@ -98,6 +98,15 @@ def log_prior(prior, C: int) -> np.ndarray:
         return np.log(p / p.sum())
 
 
+def _check_nu(who: str, nu) -> float:
+    """ν as the kernels take it: 0.0 for the Gaussian (None), else a finite number > 0."""
+    if nu is None:
+        return 0.0
+    if not (isinstance(nu, (int, float, np.floating)) and math.isfinite(nu) and nu > 0):
+        raise ValueError(f"{who}: nu (Student-t degrees of freedom) must be a finite number > 0 or None, got {nu!r}")
+    return float(nu)
+
+
 def _dropout_stats(dropout: np.ndarray, var_floor: float):
     """Per step and component: mean and population variance (ddof 0) floored at var_floor."""
     mu_z = dropout.mean(axis=-2)                                   # (..., K, F)
@@ -107,7 +116,7 @@ def _dropout_stats(dropout: np.ndarray, var_floor: float):
 
 # -- Model with Uncertainty ----------------------------------------------------------------------
 def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.ndarray, samples: np.ndarray,
-               logp0: np.ndarray) -> np.ndarray:
+               logp0: np.ndarray, nu: float = 0.0) -> np.ndarray:
     """X (r, n, K, d) localization samples; per realization the dropout means and floored
     variances mu_z, v_z (r, K, F) and the samples (r, K, S, F) -> per realization the log of the
     summed posteriors over its n samples (r, K, C) (the caller subtracts log n).
@@ -127,14 +136,14 @@ def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.n
     ll = np.zeros((C, r * n, K, S))
     vprod = np.ones((C, r * n, K))
     for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X.reshape(r * n, K, d)):
-        if kernels.wu_loglik(cov, Zg, w, idx, val, add, mu, mz[f], vz[f], smp[f], n, ll[c], vprod[c]) >= 0:
+        if kernels.wu_loglik(cov, Zg, w, idx, val, add, mu, mz[f], vz[f], smp[f], n, ll[c], vprod[c], nu) >= 0:
             engine.not_positive_definite(models, [(c, f)])
     return kernels.recursion_mean(ll, vprod, logp0, n, np.empty((r, K, C)))
 
 
 def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None, var_floor: float = 1e-6,
                           return_log: bool = False, block: int = DEFAULT_BLOCK,
-                          threads: int | None = None, progress: bool = True) -> np.ndarray:
+                          threads: int | None = None, progress: bool = True, nu: float | None = None) -> np.ndarray:
     """Model with Uncertainty (the paper's Algorithm 1) after every step of the track.
 
     Parameters
@@ -148,6 +157,8 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
     return_log : return log posteriors (finite even where probabilities underflow).
     block, threads, progress : working-set size per block (array elements), worker threads
         (default: all cores), progress bar over blocks. They change speed, not results.
+    nu : None (the paper's Gaussian) or ν > 0: each step's conditional a Student-t with the same
+        location and squared scale (``pipeline.method.student_t``).
 
     Returns (K, C) or (R, K, C): P(c | H_k), the mean over localization samples of each sample's
     own recursion (Eq. 20, 42).
@@ -170,6 +181,7 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
         raise ValueError("fuse_with_uncertainty: inputs or dropout samples contain NaN or infinite values")
     if var_floor < 0:
         raise ValueError(f"fuse_with_uncertainty: var_floor must be >= 0, got {var_floor}")
+    nu = _check_nu("fuse_with_uncertainty", nu)
     logp0 = log_prior(prior, C)
     acc = np.full((R, K, C), -np.inf)
     spans = _blocks(R, Nx, _per_sample_cost(models, K, Z.shape[2]), block)
@@ -183,8 +195,8 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
         if device != "cpu":
             from pipeline.method import engine_torch
             return engine_torch.mwu_block(models, _torch_device(device), X[r0:r1, x0:x1], mu_z[r0:r1],
-                                          v_z[r0:r1], Z[r0:r1], logp0)
-        return _mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0)
+                                          v_z[r0:r1], Z[r0:r1], logp0, nu)
+        return _mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0, nu)
 
     for (r0, r1, _, _), lse in _run_blocks(models, work, spans, threads, progress, "With Uncertainty"):
         np.logaddexp(acc[r0:r1], lse, out=acc[r0:r1])
@@ -197,11 +209,12 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
 # -- Model Based ---------------------------------------------------------------------------------
 def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None, return_log: bool = False,
                      block: int = DEFAULT_BLOCK, threads: int | None = None,
-                     progress: bool = True) -> np.ndarray:
+                     progress: bool = True, nu: float | None = None) -> np.ndarray:
     """Model Based (Teacy et al.): one pose-estimate trajectory, one measurement per step.
 
     inputs (K, d) or (R, K, d); measurements (K, F) or (R, K, F) (e.g. the mean of each dropout
-    set). P(z_k | c, z_past) = Π_f N(z_k; μ_k + Ω(z_past - μ_past), Σ_{k|past}).
+    set). P(z_k | c, z_past) = Π_f N(z_k; μ_k + Ω(z_past - μ_past), Σ_{k|past}); with ``nu``, each
+    factor a Student-t of ν degrees of freedom with that location and squared scale.
     Returns (K, C) or (R, K, C).
     """
     X = np.asarray(inputs, dtype=float)
@@ -218,6 +231,7 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
                          f"got {np.shape(measurements)}")
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Z))):
         raise ValueError("fuse_model_based: inputs or measurements contain NaN or infinite values")
+    nu = _check_nu("fuse_model_based", nu)
     logp0 = log_prior(prior, C)
     out = np.empty((R, K, C))
 
@@ -228,14 +242,14 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         b = r1 - r0
         if device != "cpu":
             from pipeline.method import engine_torch
-            return engine_torch.mb_block(models, _torch_device(device), X[r0:r1], Z[r0:r1], logp0)
+            return engine_torch.mb_block(models, _torch_device(device), X[r0:r1], Z[r0:r1], logp0, nu)
         from pipeline.method import kernels
 
         z = np.ascontiguousarray(np.moveaxis(Z[r0:r1], -1, 0))      # (F, b, K)
         ll = np.zeros((C, b, K, 1))
         vprod = np.ones((C, b, K))
         for c, f, mu, cov, Zg, w, idx, val, add in engine.per_gp(models, X[r0:r1]):
-            if kernels.mb_loglik(cov, Zg, w, idx, val, add, mu, z[f], ll[c], vprod[c]) >= 0:
+            if kernels.mb_loglik(cov, Zg, w, idx, val, add, mu, z[f], ll[c], vprod[c], nu) >= 0:
                 engine.not_positive_definite(models, [(c, f)])
         return kernels.recursion_mean(ll, vprod, logp0, 1, np.empty((b, K, C)))
 

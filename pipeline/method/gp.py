@@ -95,6 +95,9 @@ class GPClassModels:
         self.meta = dict(meta or {})
         self._factors: list[_ClassFactors] | None = None
         self.test_variance = np.zeros((C, F))
+        # {method key: ν} of the heavy-tailed methods (pipeline/method/student_t.py), fitted per
+        # cross-fitting fold at evaluate (``with_tail_df``); empty: those methods do not apply
+        self.tail_df: dict[str, float] = {}
 
     @property
     def test_noise(self) -> np.ndarray:
@@ -112,6 +115,18 @@ class GPClassModels:
         out.test_variance = self.test_variance + d
         return out
 
+    def with_tail_df(self, nus: dict) -> "GPClassModels":
+        """These models with the Student-t degrees of freedom {method key: ν > 0} of the ``*_t``
+        methods; nothing else changes (arrays and factors shared)."""
+        bad = {k: v for k, v in dict(nus).items() if not (isinstance(v, (int, float)) and 0 < v < float("inf"))}
+        if bad:
+            raise ValueError(f"with_tail_df: degrees of freedom must be finite numbers > 0, got {bad}")
+        out = self._copy(slice(None), slice(None))
+        out._factors = self._factors
+        out.test_variance = self.test_variance.copy()
+        out.tail_df = {**self.tail_df, **{str(k): float(v) for k, v in dict(nus).items()}}
+        return out
+
     def _copy(self, ci, fi) -> "GPClassModels":
         idx = range(self.n_classes)[ci] if isinstance(ci, slice) else ci
         fidx = list(range(self.n_components)[fi]) if isinstance(fi, slice) else list(fi)
@@ -123,6 +138,7 @@ class GPClassModels:
                             self.length_scale[np.ix_(list(idx), fidx)], self.noise[np.ix_(list(idx), fidx)],
                             component_names=names, meta=self.meta)
         out.test_variance = self.test_variance[np.ix_(list(idx), fidx)].copy()
+        out.tail_df = dict(self.tail_df)
         return out
 
     @staticmethod

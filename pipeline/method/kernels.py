@@ -130,7 +130,14 @@ def _tile_factor(cov, Z, w, idx, val, b0, nt, diag_add, ws):
 
 
 @njit(**_NJIT)
-def wu_loglik(cov, Z, w, idx, val, diag_add, mu, mz, vz, smp, n_per, ll, vprod):
+def _t_const(nu):
+    """``student_t.log_const``: log t_ν's constant relative to the Gaussian's left-out -log(2π)/2."""
+    return (math.lgamma(0.5 * (nu + 1.0)) - math.lgamma(0.5 * nu) - 0.5 * math.log(nu * math.pi)
+            + 0.5 * math.log(2.0 * math.pi))
+
+
+@njit(**_NJIT)
+def wu_loglik(cov, Z, w, idx, val, diag_add, mu, mz, vz, smp, n_per, ll, vprod, nu=0.0):
     """Add one GP's term to ll (B, K, S) and vprod (B, K): for trajectory b (realization b // n_per),
     step k and dropout sample s, log N(s; μ_z,k - L_kk y_k, v) = -(s - mean)²/(2v) - log(v)/2 (up
     to -log(2π)/2): the first part goes to ll, v multiplies vprod (one log for all components later,
@@ -139,10 +146,16 @@ def wu_loglik(cov, Z, w, idx, val, diag_add, mu, mz, vz, smp, n_per, ll, vprod):
     The joint predictive covariance (cov, Z, w, idx, val) is described in ``engine.per_gp``, plus
     diag_add·I; mu (B, K) predictive means, mz / vz (r, K) past dropout means / floored
     variances, smp (r, K, S) the samples.
+    ``nu`` > 0: a Student-t of ν = nu degrees of freedom with the same location and squared scale
+    (``pipeline.method.student_t``): -(ν+1)/2 log(1 + (s - mean)²/(ν v)) plus its constant in ll;
+    0 (default): the Gaussian.
     Returns the index of a trajectory whose covariance is not positive definite, or -1.
     """
     B, K = mu.shape
     S = smp.shape[2]
+    heavy = nu > 0.0
+    a_t = -0.5 * (nu + 1.0)
+    c_t = _t_const(nu) if heavy else 0.0
     ws = _tile_scratch(K, idx.shape[0])
     M, Ld = ws[2], ws[3]
     d = np.empty((K, T))
@@ -174,9 +187,15 @@ def wu_loglik(cov, Z, w, idx, val, diag_add, mu, mz, vz, smp, n_per, ll, vprod):
                 var = lkk * lkk * (1.0 + q[t])
                 h = -0.5 / var
                 cm = mz[r, k] - lkk * y[t]
-                for s in range(S):
-                    e = smp[r, k, s] - cm
-                    ll[b, k, s] += h * e * e
+                if heavy:
+                    inv = 1.0 / (nu * var)
+                    for s in range(S):
+                        e = smp[r, k, s] - cm
+                        ll[b, k, s] += a_t * math.log1p(e * e * inv) + c_t
+                else:
+                    for s in range(S):
+                        e = smp[r, k, s] - cm
+                        ll[b, k, s] += h * e * e
                 _times_var(vprod, ll, b, k, var)
     return -1
 
@@ -195,12 +214,16 @@ def _times_var(vprod, ll, b, k, v):
 
 
 @njit(**_NJIT)
-def mb_loglik(cov, Z, w, idx, val, diag_add, mu, z, ll, vprod):
+def mb_loglik(cov, Z, w, idx, val, diag_add, mu, z, ll, vprod, nu=0.0):
     """Add one GP's term to ll (B, K, 1) and vprod (B, K): the chain rule of one Gaussian,
     -y_k²/2 - log L_kk with y = M (z - μ) (z (B, K) the measurements; covariance as in
-    ``wu_loglik``); L_kk² multiplies vprod as in ``wu_loglik``. Returns a failing trajectory's
-    index, or -1."""
+    ``wu_loglik``); L_kk² multiplies vprod as in ``wu_loglik``. ``nu`` > 0: each step's
+    conditional a Student-t instead, -(ν+1)/2 log(1 + y_k²/ν) plus its constant. Returns a failing
+    trajectory's index, or -1."""
     B, K = mu.shape
+    heavy = nu > 0.0
+    a_t = -0.5 * (nu + 1.0)
+    c_t = _t_const(nu) if heavy else 0.0
     ws = _tile_scratch(K, idx.shape[0])
     M, Ld = ws[2], ws[3]
     for b0 in range(0, B, T):
@@ -214,7 +237,10 @@ def mb_loglik(cov, Z, w, idx, val, diag_add, mu, z, ll, vprod):
                 y = 0.0
                 for j in range(k + 1):
                     y += M[k, j, t] * (z[b, j] - mu[b, j])
-                ll[b, k, 0] += -0.5 * y * y
+                if heavy:
+                    ll[b, k, 0] += a_t * math.log1p(y * y / nu) + c_t
+                else:
+                    ll[b, k, 0] += -0.5 * y * y
                 _times_var(vprod, ll, b, k, Ld[k, t] * Ld[k, t])
     return -1
 

@@ -16,3 +16,6 @@ INSTANCE_BLOCK = "instance_term"
 WU_POSES_ONLY = "with_uncertainty_poses_only"       # dropout samples replaced by their mean
 WU_DROPOUT_ONLY = "with_uncertainty_dropout_only"   # no pose sampling: σ = 0, N_x = 1 inside the method
 ATTRIBUTION = (WU_POSES_ONLY, WU_DROPOUT_ONLY)
+# The heavy-tailed variants (pipeline/method/student_t.py): a Student-t around the same predictive.
+WU_T = "with_uncertainty_t"
+MB_T = "model_based_t"

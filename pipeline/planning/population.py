@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.evaluation.grid.population import TrackInfo, track_samples
+from pipeline.method.score_space import DEFAULT as DEFAULT_SPACE, DEFAULT_FLOOR, to_space
 from pipeline.method import registry
 from pipeline.method.provider import calibrated
 from pipeline.method.registry import REFERENCE
@@ -56,9 +57,11 @@ class Task:
     method: str = REFERENCE      # the registered method whose belief the robot keeps (``planning``)
 
 
-def build_world(cell, info: TrackInfo, avd, scores, moves: dict, max_difficulty: int) -> World:
+def build_world(cell, info: TrackInfo, avd, scores, moves: dict, max_difficulty: int,
+                space: tuple = (DEFAULT_SPACE, DEFAULT_FLOOR)) -> World:
     """The world of one default-variant cell's target in its scan: every view that sees the target
-    (with its recorded dropout scores at the cell's components) and the move graph."""
+    (with its recorded dropout scores at the cell's components, in the bank's score space ``space``:
+    (space, floor), ``pipeline.method.score_space``) and the move graph."""
     rows = avd[(avd["instance"] == cell.target) & (avd["scan"] == info.scan) & (avd["pass"] == -1)
                & (avd["difficulty"] <= max_difficulty)].drop_duplicates("image")
     graph = MoveGraph.from_moves(moves)
@@ -67,15 +70,17 @@ def build_world(cell, info: TrackInfo, avd, scores, moves: dict, max_difficulty:
     xy = rows.set_index("image").loc[list(images), ["cam_x", "cam_y"]].to_numpy(float)
     full = track_samples(avd, scores, TrackInfo(cell.target, info.scan, 0, images, xy, np.zeros(len(images)),
                                                 info.obj_xy), max_difficulty)
-    drop = full[:, :, list(cell.components)]
+    drop = to_space(full, *space)[:, :, list(cell.components)]
     return World(cell.target, info.scan, tuple(cell.classes), tuple(cell.components), cell.truth, graph,
                  {n: xy[i] for i, n in enumerate(images)}, {n: drop[i] for i, n in enumerate(images)},
                  np.asarray(cell.data.obj_xy, float), float(cell.data.yaw), tuple(info.images),
                  cell.test_variance, dict(cell.models or {}))
 
 
-def build_tasks(cells, tracks, avd, scores, moves: dict, ev, plan) -> list[Task]:
-    """One task per (target, start): the default-variant cells' first ``plan.starts`` tracks."""
+def build_tasks(cells, tracks, avd, scores, moves: dict, ev, plan,
+                space: tuple = (DEFAULT_SPACE, DEFAULT_FLOOR)) -> list[Task]:
+    """One task per (target, start): the default-variant cells' first ``plan.starts`` tracks;
+    ``space``: the default bank's score space (``build_world``)."""
     settings = loc_settings(ev, plan)
     by_key = {(c.target, c.track): c for c in cells if c.variant == "default"}
     tasks, seen = [], {}
@@ -85,7 +90,7 @@ def build_tasks(cells, tracks, avd, scores, moves: dict, ev, plan) -> list[Task]
         if cell is None or i >= plan.starts:
             continue
         seen[info.target] = i + 1
-        world = build_world(cell, info, avd, scores, moves[info.scan], ev.max_difficulty)
+        world = build_world(cell, info, avd, scores, moves[info.scan], ev.max_difficulty, space)
         tasks.append(Task(world, i, settings, tuple(PLANNERS), plan.budget, plan.horizon, plan.confidence,
                           plan.eig_samples, plan.seed, ev.variance_floor))
     return tasks

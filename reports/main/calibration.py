@@ -98,14 +98,18 @@ def domain_section(ctx: ReportContext) -> None:
         "and 95 % inside its 95 % interval.")
     rows = []
     for k, title in (("gp", "GP predictive (Model Based)"), ("gp_plus_dropout", "+ dropout variance (With Uncertainty)"),
-                     ("gp_calibrated", "+ test-domain variance (calibrated, cross-fitted)")):
+                     ("gp_calibrated", "+ test-domain variance (calibrated, cross-fitted)"),
+                     ("gp_t", "GP predictive as a Student-t (ν cross-fitted)"),
+                     ("gp_plus_dropout_t", "+ dropout variance as a Student-t (ν cross-fitted)")):
         o = (dom.get(k) or {}).get("overall") or {}
         if o.get("n"):
             rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
                          fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
     page.table(["variance", "(crop, component)", "|z| > 2", "|z| > 3", "95 % coverage", "|z| p90", "|z| p99"], rows,
                cls="domain-fit", caption="Standardized residuals z = (score − GP mean) / sd, pooled over classes "
-                                         "and components (per class and component in the results file "
+                                         "and components, in the models' score space (a Student-t row: each "
+                                         "residual's t PIT on the Gaussian scale, so its coverage is the t's own "
+                                         "95 % interval; per class and component in the results file "
                                          "evaluate/summary.json).")
     per = (dom.get("gp") or {}).get("per_class") or {}
     crow = []

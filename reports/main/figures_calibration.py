@@ -11,7 +11,9 @@ from reports.shared.figures import new_subplots
 from reports.shared.numbers import fmt, percent, plain
 
 KIND_TITLES = {"gp": "GP predictive alone (Model Based)", "gp_plus_dropout": "GP + dropout variance (With Uncertainty)",
-               "gp_calibrated": "GP + cross-fitted test-domain variance"}
+               "gp_calibrated": "GP + cross-fitted test-domain variance",
+               "gp_t": "GP predictive, Student-t (Model Based, t)",
+               "gp_plus_dropout_t": "GP + dropout, Student-t (With Uncertainty, t)"}
 
 
 RELIABILITY_COLUMNS = 3   # methods per row, so panel titles keep apart
@@ -106,7 +108,7 @@ def fig_reliability(pop: dict, where: str = "final", counts: dict | None = None)
 def fig_pit(domain: dict) -> Any:
     """PIT histograms of the crops' standardized residuals, pooled over classes and components, per
     variance model; flat at the dashed line when the model describes the test domain."""
-    kinds = [k for k in ("gp", "gp_plus_dropout", "gp_calibrated") if (domain.get(k) or {}).get("overall")]
+    kinds = [k for k in KIND_TITLES if (domain.get(k) or {}).get("overall")]
     fig, axes = new_subplots(1, max(len(kinds), 1), w=0.8 + 3.0 * max(len(kinds), 1), h=3.0, sharey=True)
     for ax, k in zip(axes.flat, kinds):
         o = domain[k]["overall"]

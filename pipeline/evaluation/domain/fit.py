@@ -17,6 +17,7 @@ import pandas as pd
 from scipy.special import ndtr
 
 from pipeline.method.geometry import relative_inputs
+from pipeline.method.score_space import of_models, to_space
 
 Z95 = 1.959963984540054
 PIT_BINS = 10
@@ -27,7 +28,7 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
     """One row per (crop, component) of every modelled instance with a pose in ``poses``.
 
     ``poses`` maps (scan, instance) -> (object xy (2,), yaw rad). Columns: scan, instance, image,
-    component (score index), obs (mean dropout score), v_z (dropout variance, ddof 0, floored at
+    component (score index), obs (mean dropout score, in the bank's score space), v_z (dropout variance, ddof 0, floored at
     ``var_floor``), mu and var (the own-class GP predictive, σ_n² included), x0, x1 (the GP input:
     the viewing direction on the unit circle, object frame).
     """
@@ -40,7 +41,11 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
     key = rows["scan"].astype(str) + "\x00" + rows["instance"].astype(str) + "\x00" + rows["image"].astype(str)
     code, uniq = pd.factorize(key, sort=True)
     # the used rows and components only, then float64: the whole table in float64 is twice its size
-    s = np.asarray(scores)[np.ix_(rows.index.to_numpy(), comps)].astype(float)
+    # in the bank's score space (pipeline/method/score_space.py), each dropout pass before the mean
+    sp, floor = of_models(models)
+    at, whole = rows.index.to_numpy(), sp == "clr"    # clr reads the whole score vector
+    s = to_space(np.asarray(scores)[at] if whole else np.asarray(scores)[np.ix_(at, comps)], sp, floor)
+    s = s[:, comps] if whole else s
     n = np.bincount(code).astype(float)
     G, F = len(uniq), len(comps)
     s1, s2 = np.zeros((G, F)), np.zeros((G, F))

@@ -13,6 +13,7 @@ import pandas as pd
 
 from pipeline.evaluation.domain import fit as D
 from pipeline.evaluation.domain import source as U
+from pipeline.evaluation.domain import tails
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.domain import variance as V
 from pipeline.infra.config import domain_variance_mode
@@ -55,8 +56,17 @@ class TargetDomain:
         by = "scan" if len(scans) >= 2 else "instance"
         if self.table.empty:
             self.by, self.est, self.used = by, {str(k): {int(f): 0.0 for f in self.components} for k in keys}, {}
+            self.tails: dict[str, dict[str, float]] = {}
         else:
             self.by, self.est, self.used = V.cross_fit(self.table, self.components, by=by, keys=keys)
+            self.tails = tails.cross_fit_df(self.table, self._z(("gp", "gp_plus_dropout")), self.by, keys)
+
+    def _z(self, kinds, delta=None) -> dict:
+        return {kind: D.standardized(self.table, kind, delta if kind == "gp_calibrated" else None) for kind in kinds}
+
+    def cell_tail(self, scan: str, target: str) -> dict[str, float] | None:
+        """{heavy-tailed method key: ν} of the cell's fold (``domain.tails``), or None."""
+        return self.tails.get(str(V.cell_fold(self.by, scan, target))) or None
 
     def cell_variance(self, scan: str, target: str, components) -> tuple[float, ...]:
         est = self.est.get(str(V.cell_fold(self.by, scan, target)), {})
@@ -67,15 +77,19 @@ class TargetDomain:
         if t.empty:
             return {"n_crops": 0, "note": "no labelled AVD crop of a modelled class with a known pose"}
         delta = V.row_variances(t, self.by, self.est)
-        z = {kind: D.standardized(t, kind, delta if kind == "gp_calibrated" else None)
-             for kind in ("gp", "gp_plus_dropout", "gp_calibrated")}
+        z = self._z(("gp", "gp_plus_dropout", "gp_calibrated"), delta)
+        z.update(tails.t_kinds(t, z, self.by, self.tails))   # the Student-t likelihood, read on the Gaussian scale
         out = D.summarize(t, z)
         n_crops = int(t.groupby(["scan", "instance", "image"]).ngroups)
         return {**out, "n_crops": n_crops, "uncertainty_source": self.source_summary(), "pose_source": self.pose_source,
                 "observed": "mean of the crop's MC-dropout scores; z = (observed - GP mean) / sqrt(variance)",
                 "kinds": {"gp": "GP predictive variance (sigma_n^2 included): what Model Based uses",
                           "gp_plus_dropout": "plus the view's dropout variance: what With Uncertainty adds",
-                          "gp_calibrated": "plus the cross-fitted test-domain variance (each crop's own fold)"},
+                          "gp_calibrated": "plus the cross-fitted test-domain variance (each crop's own fold)",
+                          "gp_t": "GP predictive as a Student-t, nu of the crop's own fold (Phi^-1 of its t PIT)",
+                          "gp_plus_dropout_t": "plus the dropout variance as a Student-t, nu of the crop's own fold"},
+                "tail_df": {"per_fold": self.tails, "folds_by": self.by,
+                            "rule": "ML nu of a unit-scale t on the other folds' standardized residuals"},
                 "test_domain_variance": {
                     "unit": "one additive variance per score component, shared by every class",
                     "folds_by": self.by, "per_fold": {k: {str(f): v for f, v in e.items()} for k, e in self.est.items()},
@@ -122,7 +136,8 @@ def mc_sources(cfg) -> dict:
 
 
 def target_variances(cells: list[P.Cell], domain: TargetDomain, cfg) -> list[P.Cell]:
-    """Cells with their δ² where their variant's likelihood is the calibrated one."""
+    """Cells with their δ² where their variant's likelihood is the calibrated one, and their fold's
+    Student-t degrees of freedom with ``evaluate.likelihood_tail = "student_t"``."""
     import dataclasses
 
     out = []
@@ -130,5 +145,7 @@ def target_variances(cells: list[P.Cell], domain: TargetDomain, cfg) -> list[P.C
         mode = domain_variance_mode(cfg, None if c.variant == "default" else c.variant)
         if mode == "cross_fit":
             c = dataclasses.replace(c, test_variance=domain.cell_variance(c.scan, c.target, c.components))
+        if cfg.evaluate.likelihood_tail == "student_t":
+            c = dataclasses.replace(c, tail_df=domain.cell_tail(c.scan, c.target))
         out.append(c)
     return out

@@ -21,6 +21,7 @@ from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
 from pipeline.infra import seeds
 from pipeline.method.provider import calibrated, providers
+from pipeline.method.score_space import of_meta, to_space
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -236,6 +237,7 @@ class Cell:
     attribution: bool = False                       # add the With Uncertainty attribution variants
     test_variance: tuple[float, ...] | None = None  # δ² per component: the calibrated likelihood
     models: dict | None = None  # {provider key: the candidates' models} (pipeline.method.provider)
+    tail_df: dict | None = None  # {heavy-tailed method key: ν} of the cell's fold (evaluate.likelihood_tail)
     device: str = "cpu"      # fusion engine device (pipeline.method.fusion.engine_device); auto: cuda if the worker has one
 
 
@@ -283,10 +285,17 @@ def run_cell(banks, cell: Cell) -> dict:
         return _run_cell(banks, cell)
 
 
-def _run_cell(banks, cell: Cell) -> dict:
+def cell_models(banks, cell: Cell):
+    """The cell's GP models: its variant's bank at its candidates and components, with its
+    test-domain variance (the calibrated likelihood) and its Student-t degrees of freedom."""
     models = banks[cell.variant].subset(cell.classes, cell.components)
     if cell.test_variance is not None:
         models = models.with_test_variance(np.asarray(cell.test_variance, float)[None, :])
+    return models.with_tail_df(cell.tail_df) if cell.tail_df else models
+
+
+def _run_cell(banks, cell: Cell) -> dict:
+    models = cell_models(banks, cell)
     provided = calibrated(cell.models, cell.test_variance)   # the providers' models, like the bank's
     fixed, extras = pose_free_track(cell, models, provided)
     posts: dict = {}
@@ -374,8 +383,9 @@ def build_cells(ev, avd: pd.DataFrame, scores: np.ndarray, indexes: dict, truth:
                     for_cell(variant_provided[variant], target, classes, full.shape[-1])
                 if index is not indexes[DEFAULT]:
                     vmine = {k: m for k, m in vmine.items() if k not in default_only}
+                # the GP methods measure in their bank's score space; the own scores and whole vectors stay p
                 data = E.TrackData(images=info.images, cam_xy=info.cam_xy, obj_xy=info.obj_xy, yaw=yaw,
-                                   dropout=full[:, :, list(comps)],
+                                   dropout=to_space(full, *of_meta(index.get("meta")))[:, :, list(comps)],
                                    own=full[:, :, [index.get("own_components", own)[c] for c in classes]],
                                    probs=full)
                 cells.append(Cell(variant, target, info.track, info.scan, tuple(classes), tuple(comps),

@@ -120,12 +120,17 @@ class EvaluateConfig(Extendable):
     ablations: tuple[str, ...] = _f(factory=lambda: ("evaluate.test_domain_variance=cross_fit",),
                                     doc="'models.KEY=VALUE' or 'evaluate.test_domain_variance=VALUE' variants "
                                         "evaluated on the same population (models KEY: component_rule, "
-                                        "noise_floor, n_components, informative_min)")
+                                        "noise_floor, n_components, informative_min, score_space)")
     test_domain_variance: str = _f("none", choices=("none", "cross_fit"),
                                    doc="likelihood of the GP-based methods: none = the paper's (GP predictive "
                                        "alone); cross_fit = plus a test-domain variance per score component, "
                                        "ML-estimated on labelled AVD crops of the other scans (one scan: of the "
                                        "other instances), never the evaluated cell's own")
+    likelihood_tail: str = _f("none", choices=("none", "student_t"),
+                              doc="student_t: also run with_uncertainty_t and model_based_t, each step's predictive "
+                                  "a Student-t whose degrees of freedom are ML-fitted per fold on the standardized "
+                                  "residuals of the other folds' labelled crops (as test_domain_variance's folds; "
+                                  "pipeline/evaluation/domain/tails.py); none: they do not run")
     confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
                                     doc="a confident error: max P >= this on a wrong class")
     ece_bins: int = _f(15, lo=2, hi=1000, doc="equal-width confidence bins of the top-label ECE and the reliability "
@@ -162,7 +167,7 @@ class ReportConfig:
 
 
 ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min",
-                 "evaluate.test_domain_variance")
+                 "models.score_space", "evaluate.test_domain_variance")
 TEST_DOMAIN_MODES = ("none", "cross_fit")
 
 

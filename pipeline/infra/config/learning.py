@@ -132,6 +132,15 @@ class ModelsConfig(Extendable):
                       doc="GP training scores per view: 'dropout_mean' = mean of the MC-dropout passes "
                           "(features.bigbird_samples > 0; what Model Based measures on AVD), 'deterministic' = the "
                           "eval-mode pass")
+    score_space: str = _f("probability", choices=("probability", "log", "logit", "clr"),
+                          doc="what the GPs model of each softmax probability p (pipeline/method/score_space.py): "
+                              "'probability' = p (the paper), 'log' = log p, 'logit' = log-odds, 'clr' = centred "
+                              "log-ratio over the whole score vector; every GP method, the view-independent "
+                              "baseline and the instance term measure in it, the methods on whole probability vectors and Simple Bayes read p")
+    score_floor: float = _f(1e-6, lo=1e-12, hi=1e-2,
+                            doc="p is raised to at least this (and for logit held below 1 - it) before the log: "
+                                "float32 scores resolve 1 - p only to ~6e-8, and a 1000-way softmax's far outputs "
+                                "are rounding noise (pipeline/method/score_space.py)")
     hyperprior: str = _f("inverse_gamma", choices=("inverse_gamma", "none"),
                          doc="'inverse_gamma': fit by marginal likelihood x weak priors on the length scale (98 % "
                              "between the views' spacing and their largest distance) and the noise variance (98 % "

@@ -9,9 +9,10 @@ from pipeline.method.provider import providers
 from pipeline.method.methods import with_uncertainty, model_based, simple_bayes  # noqa: F401
 from pipeline.method.methods import attribution, dirichlet, view_independent  # noqa: F401
 from pipeline.method.methods import instance_term, with_uncertainty_instance, model_based_instance  # noqa: F401
+from pipeline.method.methods import student_t  # noqa: F401
 
 LISTED = ("with_uncertainty", "model_based", "simple_bayes", "attribution", "dirichlet", "view_independent",
-          "instance_term", "with_uncertainty_instance", "model_based_instance")
+          "instance_term", "with_uncertainty_instance", "model_based_instance", "student_t")
 # Discovered modules are not in the stages' static code key: registry.outside_fingerprint covers them.
 DISCOVERED = tuple(sorted(m.name for m in pkgutil.iter_modules(__path__) if m.name not in LISTED))
 # The listed files' model providers are in the stages' code key too (the providers' registry loads this package).
