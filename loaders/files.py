@@ -9,7 +9,9 @@ like any other bad entry.
 
 ``data.max_image_megapixels`` is held here; ``loaders.image_gate`` refuses an image whose header
 declares more pixels before it is decoded (a 30000 x 30000 JPEG header costs seconds and
-gigabytes to decode only to be skipped).
+gigabytes to decode only to be skipped). ``read_checked`` stats a file before it reads it and
+refuses one larger than any image within that limit can need (``max_file_bytes``): an 8 GB sparse
+file named like a view is a named bad entry, not a MemoryError.
 """
 from __future__ import annotations
 
@@ -17,19 +19,43 @@ import os
 from pathlib import Path
 
 from loaders.errors import BadInputError
+from pipeline.infra.config.fields import ConfigError
+from pipeline.infra.decoder_limits import ENV as CAP_ENV, cap_megapixels
 from pipeline.infra.filekind import not_regular
 
 DEFAULT_MAX_MEGAPIXELS = 64.0  # real BigBIRD views are 1.3 MP (1280x1024), AVD images 2.1 MP
 _limit = {"megapixels": DEFAULT_MAX_MEGAPIXELS}
 
 
+# The most bytes one pixel takes in any format the gate admits (4 channels of 64-bit floats, TIFF),
+# and what a file may hold beside its pixels (metadata: EXIF, ICC profiles, headers).
+BYTES_PER_PIXEL = 32
+METADATA_BYTES = 256 * 1024
+
+
 def set_max_megapixels(mp: float) -> None:
-    """The image size limit for this process (the runner sets ``data.max_image_megapixels``)."""
+    """The image size limit for this process (the runner sets ``data.max_image_megapixels``); a
+    limit above OpenCV's own, fixed when it was loaded (``pipeline.infra.decoder_limits``), is a
+    ConfigError: the decoder would refuse those images whatever the gate let through."""
+    if float(mp) > cap_megapixels():
+        raise ConfigError(f"data.max_image_megapixels = {mp:g} is above OpenCV's decoder limit for this process "
+                          f"({cap_megapixels():g} MP, set before OpenCV was loaded); run with {CAP_ENV}={mp:g} "
+                          f"in the environment to raise it")
     _limit["megapixels"] = float(mp)
 
 
 def max_megapixels() -> float:
     return _limit["megapixels"]
+
+
+def image_bytes_needed(pixels: float) -> int:
+    """The most bytes an image of ``pixels`` pixels can need in any admitted format."""
+    return int(pixels * BYTES_PER_PIXEL) + METADATA_BYTES
+
+
+def max_file_bytes() -> int:
+    """The largest dataset file read: what an image at ``data.max_image_megapixels`` can need."""
+    return image_bytes_needed(max_megapixels() * 1e6)
 
 
 def plain_name(name, source: str | Path, what: str = "name") -> str:
@@ -60,9 +86,20 @@ def checked_file(path: str | Path, root: str | Path | None = None, what: str = "
 
 
 def read_checked(path: str | Path, root: str | Path | None = None, what: str = "file") -> bytes:
-    """The bytes of a ``checked_file``; errors name the file."""
+    """The bytes of a ``checked_file``; errors name the file. Its size is read first: a file larger
+    than ``max_file_bytes`` is refused unread, and no more than its stat size (plus one byte, to
+    see it grow) is ever read."""
     path = checked_file(path, root, what)
+    cap = max_file_bytes()
     try:
-        return path.read_bytes()
+        size = path.stat().st_size
+        if size > cap:
+            raise BadInputError(path, f"{what} is {size} bytes, more than any dataset file within "
+                                      f"data.max_image_megapixels = {max_megapixels():g} can need ({cap} bytes); not read")
+        with open(path, "rb") as f:
+            data = f.read(size + 1)
     except OSError as e:
         raise BadInputError(path, f"cannot read {what} ({e.strerror or e})") from None
+    if len(data) > size:
+        raise BadInputError(path, f"{what} grew while it was read (stat said {size} bytes); refused")
+    return data

@@ -10,7 +10,12 @@ ever handed bytes whose size is known, whichever of its decoders would have reco
 ``decode_image`` then decodes and turns every decoder failure into a ``BadInputError`` naming the
 file (a counted skip under ``data.skip_bad_views``): a None return, a ``cv2.error``, libjpeg's
 corruption warnings (printed on the C-level stderr only, with grey pixels returned) and a decoded
-image larger than its header declared.
+image larger than its header declared. Two bounds do not depend on the gate reading the header as
+the decoder does: OpenCV's own size limits, set before it was loaded
+(``pipeline.infra.decoder_limits``; ``decoder_limits_active`` checks they hold), and the file's
+byte count against what its declared size can need (``loaders.files.image_bytes_needed``), which
+also bounds the decompression work a small declared image can ask for (a 1 x 1 PNG with a
+30000² IDAT stream).
 """
 from __future__ import annotations
 
@@ -20,6 +25,8 @@ import re
 import sys
 import tempfile
 import threading
+import warnings
+from functools import lru_cache
 from pathlib import Path
 from typing import Iterator
 
@@ -27,7 +34,8 @@ import cv2
 import numpy as np
 
 from loaders.errors import BadInputError
-from loaders.files import max_megapixels, read_checked
+from loaders.files import image_bytes_needed, max_megapixels, read_checked
+from pipeline.infra.decoder_limits import MAX_SIDE
 from loaders.image_format import HeaderError, declared_size, signatures
 
 
@@ -60,6 +68,11 @@ def checked_image(data: bytes, path: str | Path, expect: tuple[str, ...] | None 
     except HeaderError as e:
         raise BadInputError(path, f"corrupt {fmt}: {e}; not decoded") from None
     check_declared(w, h, path)
+    need = image_bytes_needed(w * h)
+    if len(data) > need:
+        raise BadInputError(path, f"{fmt} file holds {len(data)} bytes, more than the {w}x{h} pixels its header "
+                                  f"declares can need ({need} bytes); not decoded (a compressed stream that large "
+                                  f"would decompress far beyond the image)")
     if expect and fmt not in expect:
         raise BadInputError(path, f"not {_article(wanted)}: the content is {fmt}; refused")
     if fmt == "JPEG":
@@ -77,12 +90,19 @@ def decode_image(data: bytes, path: str | Path, flag: int = cv2.IMREAD_COLOR,
     ``checked_image``; every decoder failure is a BadInputError naming ``path``."""
     path = Path(path)
     fmt, w, h = checked_image(data, path, expect)
+    if not decoder_limits_active():
+        warnings.warn("OpenCV was loaded before viewfuse's pipeline package, so its decoder size limits "
+                      "(OPENCV_IO_MAX_IMAGE_PIXELS) are its defaults: import viewfuse (or pipeline) before cv2",
+                      RuntimeWarning, stacklevel=2)
     failure = None
     with c_stderr_captured(echo=False) as lines:
         try:
             img = cv2.imdecode(np.frombuffer(data, np.uint8), flag)
         except cv2.error as e:  # OpenCV asserts on some inputs instead of returning None
-            img, failure = None, f"OpenCV failed to decode it ({getattr(e, 'err', None) or e})"
+            said = getattr(e, "err", None) or str(e)
+            img, failure = None, (f"OpenCV's decoder reads a size above its limit ({said}), though the header as "
+                                  f"read before decoding declares {w}x{h}: the header is ambiguous" if
+                                  "CV_IO_MAX_IMAGE" in said else f"OpenCV failed to decode it ({said})")
     problem = _jpeg_problem(lines) if fmt == "JPEG" else None
     if problem is not None:
         raise BadInputError(path, f"corrupt JPEG: libjpeg reports {problem!r}")
@@ -96,6 +116,19 @@ def decode_image(data: bytes, path: str | Path, flag: int = cv2.IMREAD_COLOR,
         raise BadInputError(path, f"decoded {img.shape[1]}x{img.shape[0]} pixels, more than the "
                                   f"{w}x{h} its {fmt} header declares; refused")
     return img
+
+
+@lru_cache(maxsize=1)
+def decoder_limits_active() -> bool:
+    """Whether OpenCV refuses a size above ``decoder_limits.MAX_SIDE`` itself: a PGM header
+    declaring one row that wide (no pixel data; nothing is allocated when the limit holds)."""
+    probe = f"P5\n{MAX_SIDE + 1} 1\n255\n".encode()
+    with c_stderr_captured(echo=False):
+        try:
+            cv2.imdecode(np.frombuffer(probe, np.uint8), cv2.IMREAD_GRAYSCALE)
+        except cv2.error:
+            return True
+    return False
 
 
 def read_rgb(path: str | Path) -> np.ndarray:

@@ -8,6 +8,10 @@ from pathlib import Path
 
 import pytest
 
+# OpenCV's decoder limits are set when the project is imported, and OpenCV reads them once, when
+# it is loaded: import the project before any test module can import cv2, as the stages do.
+import pipeline.infra.decoder_limits  # noqa: F401,E402
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = ROOT / "configs" / "synthetic.toml"
 

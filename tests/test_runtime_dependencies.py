@@ -1,5 +1,5 @@
 """Everything the product code imports at module level is a runtime dependency: a module-level
-import of a package that only an extra declares (psutil was in [test] only, issue 56) makes
+import of a package that only an extra declares (psutil was once in [test] only) makes
 ``pip install viewfuse`` unable to import the stages. A code walk over the product packages'
 module-level imports (inside a module-level ``try``/``if`` too) against [project.dependencies];
 the standard library and the project's own packages are excluded, and a function-level import

@@ -8,6 +8,7 @@ top-level ``pipeline``, ``loaders``, ``reports`` and ``stages`` packages) is int
     log_post = vf.fuse("with_uncertainty", models, cameras=xy, object_xy=o, dropout=z, sigma=0.3, n_x=50)
 """
 from __future__ import annotations
+import pipeline.infra.decoder_limits  # noqa: F401,E402  OpenCV's decoder limits, set before any cv2 import
 
 from viewfuse._check import check_install
 

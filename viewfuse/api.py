@@ -13,7 +13,7 @@ from pipeline.evaluation.statistics.hierarchy import CLUSTERS
 from pipeline.method import registry
 from pipeline.method.geometry import relative_inputs, sample_localization
 from pipeline.method.gp import GPClassModels
-from pipeline.method.gp_fit import fit_class_models
+from pipeline.method.gp_fit import _DEFAULTS as FIT_DEFAULTS, fit_class_models
 from pipeline.method.output_check import call_checked, problem
 from pipeline.method.provider import providers
 from viewfuse import _args as A
@@ -100,6 +100,7 @@ def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, componen
             raise ValueError(f"fit_models: components has repeated indices: {comps}")
     A.integer(fn, "restarts", restarts, lo=0, hi=1000)
     A.integer(fn, "seed", seed, lo=0)
+    _spread_enough(fn, classes, X, fit.get("hyperprior", FIT_DEFAULTS.hyperprior) != "none")
     n_max = max(len(x) for x in X)
     A.affordable(fn, "samples", FIT_BYTES_PER_N2 * float(n_max) ** 2)
     Y = [y[comps] for y in Y]
@@ -122,12 +123,51 @@ def fit_models(samples: Mapping[str, tuple[np.ndarray, np.ndarray]], *, componen
     return models
 
 
+def _spread_enough(fn: str, classes: list[str], X: list[np.ndarray], prior: bool) -> None:
+    """Each class's views must make a GP fit: at least two views, from at least two directions,
+    and with the length-scale prior (``hyperprior``) at least two distinct distances between them
+    (the prior spans the smallest to the largest): named here as the argument, not as the
+    internal function that would fail (``input_range``, ``inverse_gamma_for``)."""
+    from pipeline.method.gp_prior import input_range
+
+    for c, x in zip(classes, X):
+        where = f"{fn}: samples[{c!r}] angles"
+        if len(x) < 2:
+            raise ValueError(f"{where}: {len(x)} view; a class needs at least 2")
+        dirs = len(np.unique(np.round(x, 9), axis=0))
+        if dirs < 2:
+            raise ValueError(f"{where}: all {len(x)} views are from one direction; a class needs at least 2")
+        if prior:
+            lo, hi = input_range(x)
+            if not lo < hi * (1 - 1e-9):
+                raise ValueError(f"{where}: every pair of the {dirs} directions is {lo:.3g} apart, so the "
+                                 "length-scale prior (hyperprior='inverse_gamma') has no range to span; "
+                                 "add a view from another direction, or pass hyperprior='none'")
+
+
 # fuse's cost: the localization samples and the per-sample predictive means and variances,
 # (R, N_x, K) x (2 + C F) float64; time about FUSE_SECONDS per (trajectory, step², class,
 # component), single core (With Uncertainty's joint predictive over the K steps; measured within
 # a small factor of it on the engine bench).
 FUSE_SECONDS = 1e-7
 MAX_SECONDS = 60.0
+
+
+def _within_arithmetic(fn: str, var_floor: float, **arrays) -> None:
+    """Finite but huge arguments overflow inside every method (a squared score difference over
+    ``var_floor``, a squared camera distance) and came out as the method's NaN output: refuse them
+    here, as the caller's. Scores must keep (2|x|)² / var_floor finite, positions (4|x|)²."""
+    big = np.finfo(float).max
+    for name, a in arrays.items():
+        if a is None or a.size == 0:
+            continue
+        pos = name in ("cameras", "object_xy")
+        bound = np.sqrt(big) / 4 if pos else np.sqrt(big * var_floor) / 2
+        worst = float(np.abs(a).max())
+        if worst > bound:
+            why = "a squared distance" if pos else f"a squared score difference over var_floor = {var_floor:g}"
+            raise ValueError(f"{fn}: {name} holds {worst:.3g}, too large for the fusion's arithmetic ({why} would "
+                             f"overflow float64; |values| must stay below {bound:.3g})")
 
 
 def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0.0, 0.0), object_yaw: float = 0.0,
@@ -177,6 +217,7 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     var_floor = A.real(fn, "var_floor", var_floor, lo=0.0, open_lo=True)
     if max_seconds is not None:
         max_seconds = A.real(fn, "max_seconds", max_seconds, lo=0.0, open_lo=True)
+    _within_arithmetic(fn, var_floor, cameras=est, object_xy=obj, dropout=drop, own=own, probs=probs)
     units = float(R) * n_x * K * (C or 1) * drop.shape[2]
     A.affordable(fn, "n_x and cameras", 8.0 * R * n_x * K * (2 + 2 * (C or 1) * drop.shape[2]),
                  FUSE_SECONDS * units * K, max_seconds)
@@ -271,6 +312,12 @@ def evaluate_population(results: pd.DataFrame, *, metrics: Sequence[str] | None 
     ident = ["target", "track", "setting", "method"]
     if cells[ident].isna().any().any():
         raise ValueError(f"{fn}: results has missing values in its {ident} columns")
+    track = pd.to_numeric(cells["track"], errors="coerce")
+    odd = track.isna() | (track != np.floor(track))
+    if odd.any():   # the resampling numbers tracks within a target; a label would fail deep inside it
+        raise ValueError(f"{fn}: results' 'track' column must hold integer track numbers (within each target), got "
+                         f"{cells.loc[odd, 'track'].iloc[0]!r:.40}; number text labels first, e.g. results['track'] = "
+                         "results.groupby('target')['track'].transform(lambda s: pd.factorize(s)[0])")
     dup = cells.duplicated(ident)
     if dup.any():
         first = cells.loc[dup, ident].iloc[0].to_dict()

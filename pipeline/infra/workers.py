@@ -22,6 +22,7 @@ import sys
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -100,11 +101,11 @@ def worker_pool(workers: int, initializer: Callable | None = None, initargs: tup
     exception (including SIGINT/SIGTERM) the workers are terminated at once. ``start_method``
     "fork": workers inherit this process's memory (for work that needs no new imports or loads)."""
     pids = str(_PID_FILE[0] or "")
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(start_method), initializer=_start,
-                               initargs=(os.getpid(), pids, write_root(), initializer, initargs))
+    pool = _Pool(workers, mp_context=multiprocessing.get_context(start_method), initializer=_start,
+                 initargs=(os.getpid(), pids, write_root(), initializer, initargs))
     try:
         yield pool
-    except BaseException:
+    except BaseException as e:
         procs = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
         for p in procs:
@@ -113,8 +114,45 @@ def worker_pool(workers: int, initializer: Callable | None = None, initargs: tup
         for p in procs:
             with contextlib.suppress(Exception):
                 p.join(5)
+        if isinstance(e, BrokenProcessPool):
+            why = worker_deaths(pool.spawned)
+            if why:
+                raise BrokenProcessPool(why) from e
         raise
     pool.shutdown(wait=True)
+
+
+class _Pool(ProcessPoolExecutor):
+    """A ProcessPoolExecutor that remembers every worker it started: a broken pool drops its
+    process table, and with it the exit codes that say how a worker died."""
+
+    def __init__(self, *args, **kwargs):
+        self.spawned: list = []
+        super().__init__(*args, **kwargs)
+
+    def _spawn_process(self):
+        super()._spawn_process()
+        self.spawned.extend(p for p in self._processes.values() if p not in self.spawned)
+
+
+def worker_deaths(procs) -> str:
+    """How the workers that ended on their own ended ('' when none did or none can say): a
+    signal by name (a kill -9, the kernel's out-of-memory killer), or an exit status."""
+    out = []
+    for p in procs:
+        code = getattr(p, "exitcode", None)
+        if code is None or code == 0:
+            continue
+        if code < 0:
+            try:
+                name = signal.Signals(-code).name
+            except ValueError:
+                name = f"signal {-code}"
+            hint = " (kill -9, or the kernel's out-of-memory killer)" if -code == signal.SIGKILL else ""
+            out.append(f"worker process {p.pid} was killed by {name}{hint}")
+        else:
+            out.append(f"worker process {p.pid} exited with status {code}")
+    return "; ".join(out)
 
 
 # What forked workers read: set by ``forked_pool`` just before its pool forks them, so each worker

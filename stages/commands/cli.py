@@ -317,9 +317,10 @@ def _boundary(args, where: str) -> int:
             return 2
         expected = isinstance(e, (OSError, ValueError, RuntimeError, KeyError))
         hint = "" if expected or args.debug else " (an internal error: rerun with --debug for the traceback)"
-        if isinstance(e, BrokenProcessPool):
-            hint = (" (a worker process ended early, its message is above; a launcher script must call "
-                    "main() under `if __name__ == \"__main__\":`, docs/api.md)")
+        if isinstance(e, BrokenProcessPool) and "killed by" not in str(e):
+            # a worker that exits on its own while starting is what a launcher without the guard makes
+            hint = (" (a worker process ended early: any message it printed is above; a launcher script "
+                    "must call main() under `if __name__ == \"__main__\":`, docs/api.md)")
         kind = "" if expected else f"{type(e).__name__}: "
         print(f"{where}: error: {kind}{describe(e)}{hint}", file=sys.stderr)
         return 1

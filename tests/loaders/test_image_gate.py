@@ -358,7 +358,7 @@ def test_peak_memory_stays_bounded_with_real_bombs(tmp_path):
         assert bombs[-1].stat().st_size < 4096
     small = tmp_path / "small.png"
     small.write_bytes(FIXTURES["PNG"])
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "VIEWFUSE_MAX_IMAGE_MEGAPIXELS": "100"}   # the control's limit
 
     def peak(limit_mp: float) -> dict:
         out = subprocess.run([sys.executable, "-c", _RSS_SCRIPT, str(limit_mp), str(small), *map(str, bombs)],

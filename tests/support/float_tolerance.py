@@ -2,8 +2,8 @@
 order of their operations (memory layout, chunking, oneDNN against BLAS kernels).
 
 Which order a kernel takes depends on the processor (vector width, oneDNN's dispatch), so a fixed
-bound such as 1e-6 sits at one machine's rounding noise and tips on another (issue 56: 1.25e-6 on
-an AMD EPYC). The worst-case bound (n·u·|W||x| per layer) is vacuous for a deep network (~1e9 for
+bound such as 1e-6 sits at one machine's rounding noise and tips on another (1.25e-6 on an AMD
+EPYC). The worst-case bound (n·u·|W||x| per layer) is vacuous for a deep network (~1e9 for
 AlexNet's weights), so the bound is read off the arithmetic instead: the same route evaluated in
 float64 gives the float32 route's own rounding error e on these inputs; another order's error has
 the same law, so two float32 routes differ by at most e₁ + e₂ ≈ 2e, doubled for the spread of a

@@ -24,12 +24,14 @@ from pipeline.infra.config.learning import ModelsConfig
 from pipeline.infra.config.own import Extendable, Key, Own, sections
 from pipeline.infra.config.evaluation import ABLATION_KEYS
 from pipeline.infra.config.root import PATH_KEYS, Config, project_root, to_dict
+from pipeline.infra.filekind import not_regular
 from pipeline.infra.nesting import depth
 
 # Limits on what a config file may do, so a hostile or broken one is a named error, never a
 # RecursionError: the shipped configs use one `extends` link and nest 3 tables deep.
 MAX_EXTENDS = 16   # files in one `extends` chain (the file itself included)
 MAX_NESTING = 16   # levels of tables and arrays in one file
+MAX_CONFIG_BYTES = 1 << 20   # real configs are a few kB
 
 
 def _check_scalar(value: Any, tp: Any, key: str, where: str) -> Any:
@@ -181,12 +183,19 @@ def _file_alone_loads(path: Path) -> bool:
 
 def _read_toml(path: Path) -> dict:
     where = str(path)
-    if not path.is_file():
-        raise ConfigError(f"{where}: config file not found")
+    problem = not_regular(path, "config file")
+    if problem is not None:   # /dev/zero, a FIFO, a folder: say what it is, never "not found"
+        kind, what = problem
+        raise ConfigError(f"{where}: config file not found" if kind == "missing" else
+                          f"{where}: {what}; a config is a regular TOML file")
     try:
-        data = path.read_bytes()
+        with open(path, "rb") as f:
+            data = f.read(MAX_CONFIG_BYTES + 1)
     except OSError as e:
         raise ConfigError(f"{where}: cannot read the config file ({e.strerror or e})") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{where}: more than {MAX_CONFIG_BYTES} bytes, too large for a config file "
+                          "(real ones are a few kB); not parsed")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:

@@ -69,8 +69,8 @@ def test_balanced_order_needs_the_same_inputs_in_every_instance():
 
 def test_a_covariance_that_is_not_positive_definite_scores_as_the_per_fit_objective():
     # Exactly singular, not nearly: whether a nearly singular K (near-equal inputs) factorises
-    # depends on the last bit of each route's rounding, which differs between processors (issue 56:
-    # 66.2 on an AMD EPYC). Here every input is equal (D² = 0), a = e⁰ = 1, the instance term
+    # depends on the last bit of each route's rounding, which differs between processors (66.2
+    # on an AMD EPYC). Here every input is equal (D² = 0), a = e⁰ = 1, the instance term
     # b = e⁻¹⁰⁰⁰ underflows to 0 and σ² = 1e-300 vanishes beside 1: K (and the balanced route's
     # P = m·A + Q) is a constant matrix of small integers, its second Cholesky pivot 1 − 1·1 = 0
     # exactly in any order of operations, so every route fails on every processor.

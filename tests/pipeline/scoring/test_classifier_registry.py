@@ -1,6 +1,7 @@
 """The classifier registry: a classifier registered from here (no product code edited) is built,
 loaded and scored like the built-in ones; ``torchvision:<model>`` runs any torchvision
 classification network from a pickle-free weights file with its MC-dropout site declared."""
+import copy
 import json
 
 import numpy as np
@@ -13,6 +14,7 @@ from pipeline.scoring.classifiers import (Classifier, UnknownClassifier, check_c
                                           register_classifier)
 from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed
 from pipeline.scoring.weight_files import save_state_dict_npz
+from tests.support.float_tolerance import rounding_tol
 
 
 class ToyNet(nn.Module):
@@ -105,9 +107,14 @@ def test_a_toy_classifier_registered_in_tests_is_carded_loaded_and_scored(tmp_pa
     sc = MCDropoutScorer(model, onednn=False)
     seeds = [crop_seed(0, f"c{i}") for i in range(3)]
     det, mc = sc.score(x, seeds, 5)
-    torch.testing.assert_close(det, torch.softmax(net.eval()(x), -1), rtol=0, atol=1e-6)
-    ref = _literal_samples(net, net.trunk(x), net.out, sc.draw_masks(seeds, 5)[0])
-    torch.testing.assert_close(mc, ref, rtol=0, atol=1e-6)
+    with torch.no_grad():
+        plain, n64, x64 = torch.softmax(net.eval()(x), -1), copy.deepcopy(net).double().eval(), x.double()
+        ref = _literal_samples(net, net.trunk(x), net.out, sc.draw_masks(seeds, 5)[0])
+        ref64 = _literal_samples(n64, n64.trunk(x64), n64.out, sc.draw_masks(seeds, 5)[0].double())
+        det64 = torch.softmax(n64(x64), -1)
+    # float32 rounding of the literal routes, read off their float64 evaluation (tests/support/float_tolerance.py)
+    torch.testing.assert_close(det, plain, rtol=0, atol=rounding_tol(plain, det64))
+    torch.testing.assert_close(mc, ref, rtol=0, atol=rounding_tol(ref, ref64))
     assert (mc - det[:, None]).abs().amax() > 1e-4
 
 

@@ -55,8 +55,11 @@ def test_channels_last_scores_equal_the_plain_route_where_the_registry_uses_it(n
     assert new.model.features[0].weight.is_contiguous(memory_format=torch.channels_last) if name == "alexnet" else True
     det0, mc0 = old.score(x, seeds, 4)
     det1, mc1 = new.score(x, seeds, 4)
-    det64, mc64 = _float64_scores(net, x, seeds, 4)
-    tol = max(rounding_tol(det0, det64), rounding_tol(mc0, mc64)) if derived else 1e-4
+    if derived:
+        det64, mc64 = _float64_scores(net, x, seeds, 4)
+        tol = max(rounding_tol(det0, det64), rounding_tol(mc0, mc64))
+    else:
+        tol = 1e-4
     assert mc0.shape == (5, 4, 7) and float(mc0.std(dim=1).max()) > 0   # the samples do differ
     assert float((det0 - det1).abs().max()) <= tol
     assert float((mc0 - mc1).abs().max()) <= tol
@@ -128,6 +131,8 @@ def test_trunk_in_chunks_scores_like_one_call(name, net, size):
             mc1 = torch.softmax(sc.head_samples(whole, sc.draw_masks(seeds, 3)), -1)
     finally:
         torch.set_num_threads(before)
-    det64, mc64 = _float64_scores(net, x, seeds, 3)
-    assert float((det - det1).abs().max()) <= rounding_tol(det1, det64)
-    assert float((mc - mc1).abs().max()) <= rounding_tol(mc1, mc64)
+    # the rounding error's scale read on 4 of the crops (same route, same law per crop): float64
+    # EfficientNet on all 35 costs more than the rest of the test
+    det64, mc64 = _float64_scores(net, x[:4], seeds[:4], 3)
+    assert float((det - det1).abs().max()) <= rounding_tol(det1[:4], det64)
+    assert float((mc - mc1).abs().max()) <= rounding_tol(mc1[:4], mc64)

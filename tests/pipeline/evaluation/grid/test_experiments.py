@@ -63,7 +63,7 @@ def test_view_independent_cannot_tell_classes_that_differ_only_in_viewpoint():
     """On the ring every class's targets are one cosine over a full turn at another phase: each
     class has mean 0.5 and the same variance, so the view-independent Gaussians are equal and the
     posterior is uniform; its argmax is the last bit of rounding (class 1 on one processor, 0 on
-    another, issue 56), so the uniform answer itself is asserted. Bound: the class means and
+    another), so the uniform answer itself is asserted. Bound: the class means and
     variances are sums of n = 24 targets (error <= n·eps·max|y|); each of the K·F log densities
     moves by at most (2|d|/v + d²/v² + 1/v) times that."""
     m = ring_models()
