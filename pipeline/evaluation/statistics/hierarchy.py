@@ -143,6 +143,8 @@ class Hierarchy:
             out["seeds"] = len(self.seeds)
         if self.cluster in ("scan", "crossed"):
             out["scans"] = len(self.groups)
+        elif self._first is not None and "scan" in self._first and self._first["scan"].nunique() > 1:
+            out["scans"] = int(self._first["scan"].nunique())     # the design interval counts them
         if self.cluster == "scan":
             out["scan_targets"] = sum(len(u) for u in self.group_units)
         if self.cluster == "category":
