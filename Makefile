@@ -9,7 +9,7 @@ ARGS    ?=
 , := ,
 STAGES  := data classifier features models evaluate report simulate
 
-.PHONY: help venv venv-ray $(STAGES) study test test-fast test-install bench clean distclean
+.PHONY: help venv venv-ray $(STAGES) study test test-fast test-install bench calibrate clean distclean
 
 help:
 	@echo "make features models evaluate   run the main job on CONFIG (default $(CONFIG))"
@@ -19,6 +19,7 @@ help:
 	@echo "make test                       every test (real stages included; CI runs this)"
 	@echo "make test-fast                  the unit tests only (no test marked slow), about 2-3 min"
 	@echo "make test-install               pip install . (no extras) into a fresh venv, then the smoke chain"
+	@echo "make calibrate                  the statistics engine's calibration suite: docs/calibration.md"
 	@echo "make bench | clean | distclean"
 
 # Installs go through uv where it can be had (pip install uv, then uv pip install: it unpacks
@@ -100,6 +101,10 @@ test-install: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(BIN)/python tests/bench/run_all.py $(BENCH_ARGS)
+
+# The whole calibration suite (about 5 min on one core): its table replaces the one in docs/calibration.md.
+calibrate: $(VENV)/.installed
+	$(BIN)/python tools/calibrate.py $(ARGS)
 
 # clean removes the runs and keeps the stage cache shared across run names (artifacts/.stage-cache:
 # run.stage_cache_gb, docs/usage.md); distclean empties it too.

@@ -59,7 +59,9 @@ for truth, target in enumerate(CLASSES):
 block = vf.evaluate_population(pd.DataFrame(rows), metrics=["correct_final", "prob_truth_final"], n_boot=500)
 for m, vals in block["pooled"].items():
     v = vals["correct_final"]
-    print(f"{m:18s} correct (final step) {v['value']:.2f}  95 % CI [{v['ci_low']:.2f}, {v['ci_high']:.2f}]")
+    # three targets are too few for a calibrated interval: the engine withholds it and says why
+    ci = f"95 % CI withheld ({v['withheld']})" if v.get("withheld") else f"95 % CI [{v['ci_low']:.2f}, {v['ci_high']:.2f}]"
+    print(f"{m:18s} correct (final step) {v['value']:.2f}  {ci}")
 for r in block["records"]:
     if r.get("comparison") == "with_uncertainty-majority_vote":
         print(f"with_uncertainty vs majority_vote on {r['metric']}: {r['outcome']}")

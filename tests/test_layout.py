@@ -30,6 +30,7 @@ EVALUATION_ROOMS = {
     "grid": {"metrics", "statistics"},
     "simulation": {"metrics", "statistics"},
     "domain": {"grid", "metrics", "statistics"},
+    "calibration": {"metrics", "statistics"},
 }
 REPORT_ROOMS = {"shared": set(), "main": {"shared"}, "simulate": {"shared"}, "compare": {"shared"},
                 "study": {"shared"}}

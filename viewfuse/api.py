@@ -283,9 +283,12 @@ def evaluate_population(results: pd.DataFrame, *, metrics: Sequence[str] | None 
     ``results``: one row per (target, track, setting, method) with a column per metric (e.g. from
     ``track_metrics``), or the evaluate stage's results table (one row per realization and step,
     with ``realization``, ``step``, ``posterior`` and ``truth``), reduced to those rows here.
-    CIs resample targets, then tracks within targets (``pipeline.evaluation.statistics``), or the
-    design's clusters on top: ``cluster`` = "scan" | "category" | "crossed" (``evaluate.statistics.cluster``;
-    "scan" and "crossed" need a ``scan`` column).
+    CIs of means are cluster-robust t intervals over the design's levels (``pipeline.evaluation.statistics.design``:
+    targets, the scans a ``scan`` column names, categories with ``cluster="category"``), withheld
+    (``withheld``: the reason; no verdict) where a level has fewer than 8 units; other statistics
+    resample targets, then tracks within targets, or the design's clusters on top: ``cluster`` =
+    "scan" | "category" | "crossed" (``evaluate.statistics.cluster``; "scan" and "crossed" need a
+    ``scan`` column). docs/calibration.md measures their coverage.
     ``comparisons``: (method, baseline) pairs (default: the registry's, of the methods present).
     Refused: an empty or duplicated table, an unknown metric or one without a value for some
     method, a comparison naming a method the table lacks, an unknown clustering, a bootstrap over

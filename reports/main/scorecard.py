@@ -45,7 +45,9 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
             hi = number(r.get("hi"), math.inf if unb else None, None)
             out = {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
                    "over": r.get("over") or ["targets", "tracks"]}
-            if r.get("outcome_holm"):   # a primary-family verdict: read off its Holm-widened interval
+            if r.get("outcome_holm") and r.get("withheld"):   # no calibrated interval: none to widen
+                out["holm"] = (None, None)
+            elif r.get("outcome_holm"):   # a primary-family verdict: read off its Holm-widened interval
                 out["holm"] = (number(r.get("lo_holm"), -math.inf, None), number(r.get("hi_holm"), math.inf, None))
             return out
     d = paired_value(pop, comparison, metric)

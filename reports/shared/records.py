@@ -32,6 +32,8 @@ SINGULAR = {"categories": "category", "seeds": "seed", "scans": "scan", "targets
 def varies_text(rec: Mapping) -> str:
     """'categories, targets and tracks': the levels a record's (or a summary's) interval resamples."""
     c = rec.get("cluster")
+    if c in ("target", "category") and "scans" in (rec.get("levels") or {}):   # the design interval counts the scans
+        return join_words(list(rec.get("over") or []))
     if c in VARIES:
         return VARIES[c]
     return join_words(list(rec.get("over") or ["targets", "tracks"]))
@@ -61,6 +63,10 @@ def _end(x: Any, side: int) -> str:
 
 
 def interval_text(rec: Mapping) -> str:
+    """'95 % CI [lo, hi]'; 'no CI' without one, with the reason where the engine withheld it (too
+    few clusters for a calibrated interval: no verdict follows)."""
+    if rec.get("withheld"):
+        return f"no CI, no verdict ({rec['withheld']})"
     lo, hi = rec.get("lo"), rec.get("hi")
     nan = lambda x: isinstance(x, float) and math.isnan(x)
     if (lo is None and hi is None and not rec.get("unbounded")) or nan(lo) or nan(hi):

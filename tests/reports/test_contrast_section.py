@@ -27,7 +27,7 @@ def test_the_section_shows_each_arm_the_difference_and_both_verdicts():
     assert "With Uncertainty" in text and "correct" in text and "instance level better" in text
     _, header, rows, caption = ctx.page.items[1]
     assert header[4].startswith("instance − category")
-    assert "categories, targets and tracks" in caption and "4 categories" in caption and "'category'" in caption
+    assert "categories, targets and tracks" in caption and "8 categories" in caption and "'category'" in caption
     assert len(rows) == 4                                  # 2 methods x 2 primary metrics
     wu = _row(block, "with_uncertainty", "correct_final")
     first = rows[0]

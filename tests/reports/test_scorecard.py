@@ -22,6 +22,16 @@ def test_records_come_first_and_a_null_end_is_unbounded():
     assert claim_status(e, "log10_mgr95_final") == "holds"          # lower is better, CI below 0
 
 
+def test_a_withheld_interval_has_no_holm_interval_and_no_verdict():
+    # too few clusters: the engine gives no interval (JSON null, not unbounded) and Holm none to widen
+    pop = {"records": [{"comparison": KEY, "metric": "correct_final", "value": 0.2, "lo": None, "hi": None,
+                        "unbounded": False, "withheld": "2 scans: ...", "outcome_holm": "not distinguishable",
+                        "lo_holm": None, "hi_holm": None}]}
+    e = verdict_entry(pop, KEY, "correct_final")
+    assert e["holm"] == (None, None) and (e["lo"], e["hi"]) == (None, None)
+    assert claim_status(e, "correct_final") == "inconclusive"
+
+
 def test_without_records_the_paired_entry_is_read():
     pop = {"paired": {KEY: {"nll_final": {"value": -2.0, "ci_low": -5.0, "ci_high": 0.5}}}}
     e = verdict_entry(pop, KEY, "nll_final")

@@ -73,6 +73,14 @@ class CrossedResampler:
             self._drawn = self._prepared(self.m_obj.astype(float), self.m_scan.astype(float))
         return self._stat(values, self._drawn, pool)
 
+    def leaf_weights(self) -> np.ndarray:
+        """(B, T, W): the weight of every (target, track) in each draw's mean statistic (each draw's
+        weights sum to 1): the draws of a mean are these weights times the values."""
+        w, _, wsum, wt = self._prepared(self.m_obj.astype(float), self.m_scan.astype(float))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per = np.where(wsum[..., None] > 0, w / wsum[..., None], 0.0) * wt[..., None]
+        return per / wt.sum(axis=-1)[:, None, None]
+
     def estimate(self, values: np.ndarray, pool: str) -> dict[str, float]:
         return estimate(self.point(values, pool), self.draws(values, pool) if self.spread() else None)
 

@@ -1,12 +1,16 @@
 """The statistics engine: every pooled value, paired difference, interval and verdict record.
 
 The population (evaluate), its settings and ablations, the seed pooling (study) and the compare
-page call ``block``; the single-track tables call ``over_realizations``. All of them resample
-with ``resampler.draws`` (one hierarchy: seeds -> targets -> tracks), take the percentile
-interval with its infinity rule, pool targets as the metric spec says (``spec.pool_of``: the
-mean, or the median over targets for unbounded metrics) and label with ``records.outcome``, so
-the number shown, its CI and its verdict are one statistic wherever they appear; the primary
-family's records also carry their Holm-adjusted verdicts (``multiplicity``).
+page call ``block``; the single-track tables call ``over_realizations``. A mean of one run's
+finite track values takes its interval from the design (``design``: the multiway cluster-robust t
+over targets, the scans the cells name and the categories it clusters on; withheld, with the
+reason, where a level has too few units); anything else (a median, an infinite value, a seed pool,
+the pooled ECE) resamples with ``resampler.draws`` (one hierarchy: seeds -> targets -> tracks) and
+takes the percentile interval with its infinity rule. Targets pool as the metric spec says
+(``spec.pool_of``: the mean, or the median over targets for unbounded metrics) and
+``records.outcome`` labels, so the number shown, its CI and its verdict are one statistic
+wherever they appear; the primary family's records also carry their Holm-adjusted verdicts
+(``multiplicity``, on the same statistic).
 
 Units: a cell is one (target, track, setting); a track's value is the mean over its settings of
 the cell values, a target's the mean over its tracks, a seed's the ``pool`` over its targets, the
@@ -22,6 +26,7 @@ import pandas as pd
 from pipeline.evaluation.metrics import spec as M
 from pipeline.evaluation.metrics.labels import comparison_key
 from pipeline.evaluation.statistics import records as REC
+from pipeline.evaluation.statistics.design import estimate as design_estimate
 from pipeline.evaluation.statistics.hierarchy import Hierarchy, leave_one_out
 from pipeline.evaluation.statistics.multiplicity import holm
 from pipeline.evaluation.statistics.resampler import draws, estimate, interval
@@ -65,6 +70,43 @@ def saturation(diff_src: pd.DataFrame, a: str, b: str, metric: str,
     return (int(at(m.best)) if m.best is not None else 0), (int(at(m.worst)) if m.worst is not None else 0)
 
 
+DESIGN_FIELDS = ("interval", "se", "df", "levels", "withheld")
+
+
+def _range(metric: str) -> tuple[float, float] | None:
+    """A bounded metric's range (a pooled value's interval stays inside it)."""
+    m = M.METRICS.get(metric)
+    if m is None or m.best is None or m.worst is None:
+        return None
+    return min(m.best, m.worst), max(m.best, m.worst)
+
+
+def _design_estimate(h: Hierarchy, v: np.ndarray, pool: str, clamp=None):
+    """(the estimate with its interval from the design, its ``design.TStat``) of padded values ``v``
+    where the statistic is a mean of finite track values of one run (``design``); None otherwise
+    (a median, an infinite value, a seed pool: the percentile interval of the shared draws)."""
+    lay = h.layout()
+    if lay is None or pool != "mean":
+        return None
+    pos, layout = lay
+    x = np.asarray(v, float).ravel()[pos]
+    if not np.isfinite(x).all():
+        return None
+    return design_estimate(x, layout, clamp)
+
+
+def _boot_estimate(est: dict) -> dict:
+    return {**est, "interval": "percentile bootstrap"}
+
+
+def over_of(a, over: list[str]) -> list[str]:
+    """What an interval varies over: the clustering's levels (``over``), and the scans where the
+    design interval counts them and the clustering does not name them (after the top level)."""
+    if a is None or "scans" not in a[0]["levels"] or "scans" in over:
+        return list(over)
+    return [over[0], "scans", *over[1:]]
+
+
 def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
     """Leave-one-target-out on targets -> tracks from the draws already made (``leave_one_out``)."""
     rs = h.target_rs
@@ -92,8 +134,10 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
     for m in methods:
         for k in metrics:
             v = h.pad(tvs[m], k)
-            out["pooled"].setdefault(m, {})[k] = {**h.rs.estimate(v, M.pool_of(k)), "pooling": M.pool_of(k),
-                                                  "over": over, "cluster": h.cluster, "n": n}
+            a = _design_estimate(h, v, M.pool_of(k), _range(k))
+            out["pooled"].setdefault(m, {})[k] = {**(a[0] if a else _boot_estimate(h.rs.estimate(v, M.pool_of(k)))),
+                                                  "pooling": M.pool_of(k), "over": over_of(a, over), "cluster": h.cluster,
+                                                  "n": n}
             if per_target and single:
                 vt = h.pad(tvs[m], k, flat=True) if h.nested else v
                 for ti, t in enumerate(h.targets):
@@ -114,10 +158,15 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             pool = M.pool_of(k)
             d = np.concatenate([x[k].to_numpy(float) for x in dfs])
             wins, losses = (d > 0, d < 0) if higher else (d < 0, d > 0)
-            boot[(key, k)] = h.rs.draws(v, pool) if h.rs.spread() else None
-            est = {**estimate(h.rs.point(v, pool), boot[(key, k)]), "wins": float(wins.mean()), "losses": float(losses.mean()),
+            a = _design_estimate(h, v, pool)
+            if a:
+                base, boot[(key, k)] = a
+            else:
+                boot[(key, k)] = h.rs.draws(v, pool) if h.rs.spread() else None
+                base = _boot_estimate(estimate(h.rs.point(v, pool), boot[(key, k)]))
+            est = {**base, "wins": float(wins.mean()), "losses": float(losses.mean()),
                    "n_cells": len(d), "unit": "cells", "better": "higher" if higher else "lower",
-                   "pooling": pool, "over": over, "cluster": h.cluster, "n": n}
+                   "pooling": pool, "over": over_of(a, over), "cluster": h.cluster, "n": n}
             out["paired"].setdefault(key, {})[k] = est
             extra = {}
             if per_target and single:
@@ -129,11 +178,12 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
                 est.update(extra)
             top, bottom = (saturation(next(iter(frames.values())), a, b, k, pairs[0]) if single and k in M.METRICS
                            else (0, 0))
-            out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=over,
+            out["records"].append(REC.record(key, k, est, pooling=pool, better=est["better"], over=est["over"],
                                              cluster=h.cluster, n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
                                              losses=est["losses"], unit="cells", ceiling_cells=top,
                                              floor_cells=bottom, **{x: extra[x] for x in ("loto_min", "loto_max",
-                                                                                           "loto_flips") if x in extra}))
+                                                                                           "loto_flips") if x in extra},
+                                             **{x: est[x] for x in DESIGN_FIELDS if x in est}))
     if ece is not None and single:
         from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
 

@@ -10,6 +10,7 @@ import pandas as pd
 
 from pipeline.evaluation.statistics import records as REC
 from pipeline.evaluation.statistics.crossed import crossed_draws
+from pipeline.evaluation.statistics.design import Layout
 from pipeline.evaluation.statistics.resampler import Resampler, draws, estimate
 from pipeline.scene.folds import category_of
 
@@ -56,6 +57,7 @@ class Hierarchy:
         self.cluster = cluster
         self.groups: list[str] = []
         self.rs = self.target_rs
+        self._first = first if len(self.seeds) == 1 else None
         if cluster in ("scan", "category"):
             self._nest(first, cluster, seed)
         elif cluster == "crossed":
@@ -91,6 +93,33 @@ class Hierarchy:
         self.rs = crossed_draws([[gi[sc[(t, tr)]] for tr in trs] for t, trs in self.units[0]], self.n_boot,
                                 [*np.atleast_1d(seed), 5])
 
+    def layout(self) -> tuple[np.ndarray, Layout] | None:
+        """(the leaves' flat positions in ``rs``'s padded values, their ``design.Layout``): the point
+        statistic's weights and each track's target, scan (a ``scan`` column) and, clustered so,
+        category. None for a seed pool (seeds on top: the draws keep them)."""
+        if self._first is None:
+            return None
+        if getattr(self, "_layout", None) is None:
+            f = self._first
+            scan = ({(str(t), int(tr)): str(s) for t, tr, s in zip(f["target"], f["track"], f["scan"])}
+                    if "scan" in f else {})
+            if self.nested:
+                tops = [(gi, ti, t, trs, len(u), len(self.group_units)) for gi, u in enumerate(self.group_units)
+                        for ti, (t, trs) in enumerate(u)]
+            else:
+                tops = [(0, ti, t, trs, len(self.units[0]), 1) for ti, (t, trs) in enumerate(self.units[0])]
+            pos, w, lab = [], [], {"targets": [], "scans": [], "categories": []}
+            for gi, ti, t, trs, n_t, n_g in tops:
+                for j, tr in enumerate(trs):
+                    pos.append(np.ravel_multi_index((gi, ti, j), self.rs.shape))
+                    w.append(1.0 / (n_g * n_t * len(trs)))
+                    lab["targets"].append(t)
+                    lab["scans"].append(self.groups[gi] if self.cluster == "scan" else scan.get((t, tr), ""))
+                    lab["categories"].append(self.groups[gi] if self.cluster == "category" else "")
+            labels = {k: np.unique(np.asarray(v), return_inverse=True)[1].ravel() for k, v in lab.items()}
+            self._layout = (np.asarray(pos, dtype=np.int64), Layout(np.asarray(w), labels))
+        return self._layout
+
     @property
     def by_scan(self) -> bool:
         return self.cluster == "scan"
@@ -114,6 +143,8 @@ class Hierarchy:
             out["seeds"] = len(self.seeds)
         if self.cluster in ("scan", "crossed"):
             out["scans"] = len(self.groups)
+        elif self._first is not None and "scan" in self._first and self._first["scan"].nunique() > 1:
+            out["scans"] = int(self._first["scan"].nunique())     # the design interval counts them
         if self.cluster == "scan":
             out["scan_targets"] = sum(len(u) for u in self.group_units)
         if self.cluster == "category":

@@ -1,16 +1,21 @@
 """Holm's step-down over the declared primary family (``metrics.labels.in_primary_family``),
-familywise 95 %, on the engine's own draws.
+familywise 95 %.
 
 The one interval rule decides every verdict, so Holm is done by widening intervals, step by step:
-with m records of the family still open, each one's percentile interval is taken at level
-1 - 0.05/m; if some exclude 0, the one with the smallest bootstrap p-value among them is
-rejected (its adjusted interval is that one) and m drops by one; when none does, every open record
-keeps its interval at that level and is "not distinguishable". Since percentile intervals nest as
-the level grows, this is Holm's procedure with each record's p-value the smallest level at which
-its interval excludes 0, and the adjusted outcome is ``records.outcome`` of the adjusted interval
-(never a label its interval contradicts). The bootstrap p-value (two-sided, from the draws,
-2 min(P(d <= 0), P(d >= 0)) with the +1 correction) orders ties and is written beside it, with its
-Holm adjustment, for the reader.
+with m records of the family still open, each one's interval is taken at level 1 - 0.05/m; if some
+exclude 0, the one with the smallest p-value among them is rejected (its adjusted interval is that
+one) and m drops by one; when none does, every open record keeps its interval at that level and is
+"not distinguishable". A record's interval and p-value are one statistic: a mean of one run's tracks
+carries its t statistic from the design (``design.TStat``: the t interval at any level, and
+p = 2 P(t_df > |value| / se), the smallest level whose interval excludes 0), so an adjusted verdict
+rests on the variance estimate, not on the few draws in a bootstrap's tails (at B = 2000 and m = 8,
+the 1 - 0.05/8 percentile interval reads about the 6th draw from each end). A statistic without one
+(a median, the pooled ECE, a seed pool) keeps the percentile interval of its draws and the
+bootstrap p-value (two-sided, 2 min(P(d <= 0), P(d >= 0)) with the +1 correction). Since both kinds
+of interval nest as the level grows, this is Holm's procedure, and the adjusted outcome is
+``records.outcome`` of the adjusted interval (never a label its interval contradicts). A record
+whose interval is withheld (too few clusters: ``design.withheld``) has p = 1 and no adjusted
+interval: it is never rejected.
 """
 from __future__ import annotations
 
@@ -21,6 +26,7 @@ import numpy as np
 
 from pipeline.evaluation.metrics.labels import in_primary_family
 from pipeline.evaluation.statistics import records as REC
+from pipeline.evaluation.statistics.design import TStat
 from pipeline.evaluation.statistics.resampler import LEVEL, estimate
 from pipeline.infra.outputs import number
 
@@ -59,13 +65,13 @@ def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None]
     if not fam:
         return
     d = [draws.get((r["comparison"], r["metric"])) for r in fam]
-    p = [bootstrap_p(x) for x in d]
+    p = [x.p() if isinstance(x, TStat) else bootstrap_p(x) for x in d]
     for r, pi, pa in zip(fam, p, holm_p(p)):
         r.update(p=pi, p_holm=pa, family=len(fam))
     open_ = list(range(len(fam)))
     while open_:
         level = 1.0 - ALPHA / len(open_)
-        ests = {i: estimate(number(fam[i]["value"]), d[i], level) if d[i] is not None else None for i in open_}
+        ests = {i: _at(number(fam[i]["value"]), d[i], level) for i in open_}
         out = {i: REC.outcome(e["ci_low"], e["ci_high"], fam[i]["better"] == "higher") if e else "not distinguishable"
                for i, e in ests.items()}
         firm = [i for i in open_ if out[i] != "not distinguishable"]
@@ -73,6 +79,15 @@ def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None]
         for i in done:
             _set(fam[i], level, ests[i], out[i])
             open_.remove(i)
+
+
+def _at(value: float, d, level: float) -> dict | None:
+    """The record's interval at ``level``: its t interval (a ``TStat``; none where withheld), or the
+    percentile interval of its draws; None without either."""
+    if isinstance(d, TStat):
+        e = d.estimate(level)
+        return None if math.isnan(e["ci_low"]) else e
+    return estimate(value, d, level) if d is not None else None
 
 
 def _set(rec: dict, level: float, est: Mapping | None, outcome: str) -> None:

@@ -13,10 +13,16 @@ A record is data, never prose: ``reports.shared.records`` renders the sentences.
   level ({"targets": 6, "tracks": 48, "cells": 192, ...});
 - ``better``: "higher" | "lower"; ``outcome``: ``outcome(lo, hi, better)``; ``primary``: the
   metric is one of ``evaluate.primary_metrics`` (the rest are exploratory);
+- ``interval``: how the interval was made: "cluster-robust t" (``design``: a mean of one run's
+  tracks; with ``se``, ``df`` and ``levels``, the units of each level it varies over) or
+  "percentile bootstrap" (a median, an infinite value, the pooled ECE, a seed pool); ``withheld``:
+  why there is no interval where a level has too few units for a calibrated one (no verdict:
+  ``outcome`` "not distinguishable", lo/hi NaN);
 - optional: ``wins``/``losses`` (shares of ``unit``: cells or targets), the leave-one-target-out
   range ``loto_min``/``loto_max`` and ``loto_flips``, ``ceiling_cells``/``floor_cells``;
 - the primary family only (``metrics.labels.in_primary_family``; ``multiplicity.holm``):
-  ``family`` (its size), ``p``/``p_holm`` (bootstrap p-value, Holm-adjusted), ``level_holm``,
+  ``family`` (its size), ``p``/``p_holm`` (the record's p-value: from its t statistic, else from
+  its draws; Holm-adjusted), ``level_holm``,
   ``lo_holm``/``hi_holm`` (the interval widened to its Holm step) and ``outcome_holm``.
 """
 from __future__ import annotations

@@ -51,12 +51,13 @@ def test_the_instance_arm_runs_on_the_default_arms_tracks_seeds_and_draws():
 
 
 def _table(shift: float, seed: int = 0) -> pd.DataFrame:
-    """A generated cell table: 4 categories x 3 folds x 3 tracks x 2 settings, two methods, both arms;
+    """A generated cell table: 8 categories x 3 folds x 3 tracks x 2 settings in one scan (fewer than 8
+    categories, or 2 scans, give no calibrated interval), two methods, both arms;
     the instance arm's With Uncertainty correct ratio is the category arm's + ``shift`` (clipped),
     Model Based the same in both arms up to small noise."""
     rng = np.random.default_rng(seed)
     rows = []
-    for c in ("apple", "car", "cow", "cup"):
+    for c in ("apple", "car", "cow", "cup", "dog", "horse", "pear", "tomato"):
         base_c = rng.uniform(0.3, 0.6)
         for f in (1, 2, 3):
             t = f"{c}__f{f}"
@@ -65,7 +66,7 @@ def _table(shift: float, seed: int = 0) -> pd.DataFrame:
                     for m in (WU, MB):
                         corr = float(np.clip(base_c + rng.normal(0, 0.1), 0, 1))
                         conf = float(np.clip(0.2 + rng.normal(0, 0.05), 0, 1))
-                        common = {"target": t, "track": tr, "scan": f"s{tr % 2}", "experiment": "randomized",
+                        common = {"target": t, "track": tr, "scan": "s0", "experiment": "randomized",
                                   "setting": s, "method": m}
                         rows.append({**common, "variant": P.DEFAULT, "correct_final": corr,
                                      "confident_error_final": conf, "log10_mgr95_final": rng.normal()})
@@ -87,7 +88,7 @@ def _row(block, method, metric):
 def test_a_planted_difference_is_detected_and_a_null_one_is_not():
     block = contrast_block(_ev(), _table(shift=0.3))
     assert block["methods"] == [WU, MB] and block["cluster"] == "category"
-    assert block["over"] == ["categories", "targets", "tracks"] and block["n"]["categories"] == 4
+    assert block["over"] == ["categories", "targets", "tracks"] and block["n"]["categories"] == 8
     wu = _row(block, WU, "correct_final")
     d = wu["difference"]
     assert d["outcome"] == "better" and d["outcome_holm"] == "better" and d["lo"] > 0.1

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.stats import t as student_t
 
 from pipeline.evaluation.statistics.crossed import weighted_pool
 from pipeline.evaluation.statistics.engine import Hierarchy, population_block
@@ -71,14 +72,16 @@ def crossed_population(rng, n_obj=20, n_scans=8, tracks=2, obj_sd=0.05, scan_sd=
 
 def test_the_crossed_bootstrap_counts_the_scans_that_every_object_shares():
     cells, oe, se = crossed_population(np.random.default_rng(2))
-    flat = population_block(cells, ["a", "b"], [METRIC], AB, 2000, 0, per_target=False, loto=False)
+    flat = population_block(cells.drop(columns="scan"), ["a", "b"], [METRIC], AB, 2000, 0, per_target=False,
+                            loto=False)
     crossed = population_block(cells, ["a", "b"], [METRIC], AB, 2000, 0, per_target=False, loto=False,
                                cluster="crossed")
     d_flat, d_x = flat["paired"]["a-b"][METRIC], crossed["paired"]["a-b"][METRIC]
     assert d_x["value"] == pytest.approx(d_flat["value"], abs=1e-12)        # the point value is the data's own
     # every object sees every scan: the target-level bootstrap cannot see the scan effect at all
     assert _width(d_x) > 2 * _width(d_flat)
-    want = 2 * 1.96 * math.sqrt(oe.var() / len(oe) + se.var() / len(se))   # two-way: sigma_o^2/O + sigma_s^2/S
+    # two-way: sigma_o^2/O + sigma_s^2/S, at t with min(O, S) - 1 = 7 degrees of freedom (design.t_interval)
+    want = 2 * student_t.ppf(0.975, 7) * math.sqrt(oe.var() / len(oe) + se.var() / len(se))
     assert 0.7 * want < _width(d_x) < 1.3 * want
     # common random numbers: the paired difference's draws are the difference of the methods' draws
     h = Hierarchy({"run": cells[cells["method"] == "a"]}, 2000, 0, cluster="crossed")

@@ -207,7 +207,8 @@ def test_seed_level_widens_the_ci_and_one_seed_equals_the_run():
     for m in meth:
         for k in ("correct_final", "nll_final"):
             x, y = one["pooled"][m][k], run["pooled"][m][k]
-            assert (x["value"], x["ci_low"], x["ci_high"]) == (y["value"], y["ci_low"], y["ci_high"])
+            assert np.array_equal([x["value"], x["ci_low"], x["ci_high"]], [y["value"], y["ci_low"], y["ci_high"]],
+                                  equal_nan=True)
 
 
 def test_over_members_and_wilson():

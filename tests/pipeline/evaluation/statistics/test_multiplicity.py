@@ -87,3 +87,42 @@ def test_the_engine_adjusts_the_primary_family_only():
     assert all(in_primary_family(r["comparison"], r["primary"]) for r in fam) and all(r["family"] == 2 for r in fam)
     others = [r for r in b["records"] if r not in fam]
     assert others and all(adjusted(r) == r["outcome"] for r in others)
+
+
+def test_design_t_statistics_step_down_on_their_own_p_values_at_full_resolution():
+    # records whose intervals come from the design (a t statistic): p from t, no bootstrap tail draws;
+    # each adjusted interval is the t interval at its Holm level, so the verdict and interval agree
+    from scipy.stats import t as student_t
+
+    from pipeline.evaluation.statistics.design import TStat
+
+    df, se = 9.0, 0.01
+    ps = [0.0004, 0.011, 0.02, 0.4]
+    recs, stats = [], {}
+    for (c, m), p in zip([(c, m) for c in (WU_MB, WU_SB) for m in ("correct_final", "prob_truth_final")], ps):
+        value = student_t.isf(p / 2, df) * se
+        ts = TStat(value, se, df)
+        assert ts.p() == pytest.approx(p, rel=1e-9)
+        e = ts.estimate()
+        recs.append(REC.record(c, m, e, pooling="mean", better="higher", over=["targets", "tracks"],
+                               n={"targets": 10}, primary=True))
+        stats[(c, m)] = ts
+    holm(recs, stats, family=lambda comp, primary: True)
+    # Holm: 4 x 0.0004 rejects, 3 x 0.011 = 0.033 rejects, 2 x 0.02 = 0.04 rejects, 0.4 stops
+    assert [r["outcome_holm"] for r in recs] == ["better"] * 3 + ["not distinguishable"]
+    assert [r["p_holm"] for r in recs] == pytest.approx(holm_p(ps), rel=1e-9)
+    for r, k in zip(recs, (4, 3, 2, 1)):
+        assert r["level_holm"] == pytest.approx(1 - 0.05 / k)
+        half = student_t.ppf(0.5 + r["level_holm"] / 2, df) * se
+        assert (r["lo_holm"], r["hi_holm"]) == pytest.approx((r["value"] - half, r["value"] + half), rel=1e-9)
+        assert r["outcome_holm"] == REC.outcome(r["lo_holm"], r["hi_holm"], True)
+
+
+def test_a_withheld_interval_is_never_rejected():
+    from pipeline.evaluation.statistics.design import TStat
+
+    e = {"value": 0.3, "ci_low": float("nan"), "ci_high": float("nan")}
+    rec = REC.record(WU_MB, "correct_final", e, pooling="mean", better="higher", over=["targets", "tracks"],
+                     n={"targets": 12, "scans": 2}, primary=True)
+    holm([rec], {(WU_MB, "correct_final"): TStat(0.3, 0.001, 1.0, withheld="2 scans")})
+    assert rec["outcome"] == rec["outcome_holm"] == "not distinguishable" and rec["p"] == 1.0

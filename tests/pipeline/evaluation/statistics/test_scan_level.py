@@ -55,22 +55,30 @@ def test_the_point_value_is_the_mean_over_scans_of_their_target_pools():
 def test_scans_that_differ_widen_the_interval_the_flat_bootstrap_understates():
     # Targets of one scan share its effect: resampling targets as if independent understates the
     # spread of the population mean; resampling scans first does not.
-    cells = scans_population(np.random.default_rng(1), n_scans=6, targets=5, scan_sd=0.2, target_sd=0.01)
+    cells = scans_population(np.random.default_rng(1), n_scans=8, targets=5, scan_sd=0.2, target_sd=0.01)
     by_scan = population_block(cells, ["a", "b"], [METRIC], AB, 1000, 0, per_target=False, loto=False, by_scan=True)
-    flat = population_block(cells, ["a", "b"], [METRIC], AB, 1000, 0, per_target=False, loto=False)
+    flat = population_block(cells.drop(columns="scan"), ["a", "b"], [METRIC], AB, 1000, 0, per_target=False,
+                            loto=False)
     w = lambda e: e["ci_high"] - e["ci_low"]
     assert w(_pooled(by_scan)) > 1.8 * w(flat["pooled"]["a"][METRIC])
+    # the target clustering of cells that name their scans counts them too (the design's interval)
+    named = population_block(cells, ["a", "b"], [METRIC], AB, 1000, 0, per_target=False, loto=False)
+    assert w(named["pooled"]["a"][METRIC]) > 1.8 * w(flat["pooled"]["a"][METRIC])
     # Sampling the population itself: the scan-level interval's width is the right size (the
-    # population mean's sd over repeated populations is about scan_sd / sqrt(6) = 0.082).
-    assert 0.5 * 2 * 1.96 * 0.2 / math.sqrt(6) < w(_pooled(by_scan)) < 1.5 * 2 * 1.96 * 0.2 / math.sqrt(6)
+    # population mean's sd over repeated populations is about scan_sd / sqrt(8) = 0.071).
+    assert 0.5 * 2 * 1.96 * 0.2 / math.sqrt(8) < w(_pooled(by_scan)) < 1.5 * 2 * 1.96 * 0.2 / math.sqrt(8)
 
 
-def test_without_a_scan_column_or_flag_nothing_changes():
-    cells = scans_population(np.random.default_rng(2))
+def test_a_scan_column_puts_the_scans_in_the_target_clusterings_interval():
+    # Before, the target clustering ignored the scans the cells name (real.toml: 55 % coverage with
+    # scan effects, docs/calibration.md); the design's interval now varies over them too.
+    cells = scans_population(np.random.default_rng(2), n_scans=8)
     plain = population_block(cells.drop(columns="scan"), ["a", "b"], [METRIC], AB, 300, 0)
-    off = population_block(cells, ["a", "b"], [METRIC], AB, 300, 0)
-    assert plain["pooled"] == off["pooled"] and plain["paired"] == off["paired"]
-    assert off["pooled"]["a"][METRIC]["over"] == ["targets", "tracks"]
+    named = population_block(cells, ["a", "b"], [METRIC], AB, 300, 0)
+    p, n = plain["pooled"]["a"][METRIC], named["pooled"]["a"][METRIC]
+    assert p["value"] == n["value"] and p["over"] == ["targets", "tracks"]
+    assert n["over"] == ["targets", "scans", "tracks"] and n["levels"] == {"targets": 24, "scans": 8}
+    assert n["ci_high"] - n["ci_low"] > p["ci_high"] - p["ci_low"]
 
 
 def test_per_target_values_and_leave_one_out_keep_targets_then_tracks():
