@@ -88,6 +88,10 @@ class RunConfig:
                                       doc="evaluate refuses, before its grid, an evaluate.bootstrap whose intervals it "
                                           "estimates (a timed small draw, scaled) to take longer than this; 0 = no "
                                           "limit (the estimate is still said). Not part of any stage's key")
+    method_seconds: float = _f(600.0, lo=0.0, hi=1e6,
+                               doc="a fusion method's call on one track still running after this many seconds is "
+                                   "stopped and named (evaluate's cells and planning, local executor); 0 = no "
+                                   "limit. Not part of any stage's key")
     max_minutes: float = _f(120.0, lo=0.0, hi=1e6,
                             doc="a stage whose estimate (pipeline/infra/cost.py: every setting that multiplies its "
                                 "work, per-unit seconds measured on a 2-core machine) is longer than this is refused "
