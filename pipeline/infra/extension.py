@@ -92,3 +92,15 @@ def raise_problems(kind: str, key, hook: str, problems) -> None:
     problems = [p for p in problems if p]
     if problems:
         raise ExtensionError.of(kind, key, hook, "; ".join(problems))
+
+
+def declared_key(cls) -> str:
+    """The most derived class's ``key`` (or its older spelling ``name``): a subclass of a built-in
+    that sets only ``name`` does not take the built-in's key."""
+    for c in (cls if isinstance(cls, type) else type(cls)).__mro__:
+        for attr in ("key", "name"):
+            if isinstance(vars(c).get(attr), str) and vars(c)[attr]:
+                return vars(c)[attr]
+    if not isinstance(cls, type):   # an instance's own attribute
+        return getattr(cls, "key", "") or getattr(cls, "name", "") or ""
+    return ""
