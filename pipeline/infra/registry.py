@@ -47,6 +47,9 @@ log = logging.getLogger("viewfuse")
 # (group, entry point name) -> why it does not load: each is tried and warned about once per process
 # (the registries that share a group, e.g. the methods' config sections and cost terms, see it once).
 FAILED: dict[tuple[str, str], str] = {}
+# What an entry point of each group is, in messages (whichever registry of the group loads it first).
+GROUP_KINDS = {"viewfuse.methods": "fusion method", "viewfuse.classifiers": "classifier",
+               "viewfuse.planners": "planner", "viewfuse.metrics": "metric", "viewfuse.datasets": "dataset source"}
 PIN = "VIEWFUSE_BUILTINS_ONLY"
 
 
@@ -151,8 +154,8 @@ class Registry(Mapping, Generic[T]):
             except BaseException as e:  # noqa: BLE001 - SystemExit too: contained, named, kept
                 for name in set(self._entries) - before:   # what it registered before failing goes too
                     self.remove(name)
-                why = (f"{self.kind} entry point {ep.name!r} = {ep.value!r} of group {self.group!r} does not "
-                       f"load: {type(e).__name__}: {e}")
+                why = (f"{GROUP_KINDS.get(self.group, self.kind)} entry point {ep.name!r} = {ep.value!r} of group "
+                       f"{self.group!r} does not load: {type(e).__name__}: {e}")
                 FAILED[(self.group, ep.name)] = why
                 log.warning("%s (skipped; the stages that use it refuse to run)", why)
                 continue
