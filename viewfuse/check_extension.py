@@ -216,7 +216,7 @@ def check_extension(obj, *, cfg=None) -> list[str]:
     kind, _ = _kind(obj)
     problems = {"fusion method": method_base.problems, "planner": planner_registry.problems,
                 "classifier": classifier_registry.problems, "metric": metric_spec.problems,
-                "dataset source": dataset_registry.problems}[kind]
+                "dataset source": lambda o: dataset_registry.problems(o, complete=True)}[kind]
     target = obj if kind != "fusion method" or isinstance(obj, type) else type(obj)
     key = obj.key if kind == "metric" else declared_key(obj)
     breaches = [f"{kind} {key!r} (register): {p}" for p in problems(target)]

@@ -54,8 +54,8 @@ class TrackInput:
 class FusionMethod:
     """One fusion method. Subclasses set the class attributes and implement ``fuse``."""
     key: ClassVar[str]                 # stored in every results row and summary.json
-    label: ClassVar[str]               # display name (tables, legends)
-    short: ClassVar[str]               # short display name
+    label: ClassVar[str]               # display name (tables, legends); default: the key
+    short: ClassVar[str]               # short display name; default: the label
     color: ClassVar[str] = "#555555"   # figures' colour
     note: ClassVar[str] = ""           # one line for the report's method table
     needs: ClassVar[frozenset] = frozenset({"gp"})
@@ -135,8 +135,8 @@ def problems(cls) -> list[str]:
                    f"got {key!r:.60}")
     else:
         out.append(X.plain_name_problem(key))
-    for attr in ("label", "short"):
-        out.append(X.text_problem(attr, getattr(cls, attr, None), empty=False))
+    for attr in ("label", "short"):     # default: the key, the label
+        out.append(X.text_problem(attr, getattr(cls, attr, None) or "x"))
     out.append(X.text_problem("note", getattr(cls, "note", None)))
     out.append(X.color_problem(getattr(cls, "color", None)))
     needs = getattr(cls, "needs", None)
@@ -176,6 +176,8 @@ def register(cls: type[FusionMethod]) -> type[FusionMethod]:
     if old is not None and type(old) is not cls:
         raise ExtensionError.of("fusion method", key, "register",
                                 f"registered twice ({type(old).__name__}, {cls.__name__})")
+    cls.label = getattr(cls, "label", None) or key
+    cls.short = getattr(cls, "short", None) or cls.label
     _REGISTRY.add(key, cls(), module=cls.__module__, replace=True)
     return cls
 
