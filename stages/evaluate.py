@@ -10,6 +10,7 @@ forked worker processes, ``local_processes``).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import time
@@ -22,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.grid import experiments as E
+from pipeline.method import call_guard
 from pipeline.method.gp_files import load_bank
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid import showcase as S
@@ -284,7 +286,11 @@ def run(ctx) -> str:
     t_reduce = t_write = 0.0
     t0 = time.perf_counter()
     writer = ResultsWriter(ctx.out / out_name("evaluate", "results"))
-    with writer:
+    # every method call in the cells and episodes (here, or in the workers forked below) is stopped
+    # and named after run.method_seconds
+    old_limit = call_guard.set_time_limit(cfg.run.method_seconds)
+    with writer, contextlib.ExitStack() as undo:
+        undo.callback(call_guard.set_time_limit, old_limit)
         processes = local_processes(ctx) if cfg.run.executor == "local" else 1
         executor = LocalPool(processes) if processes > 1 else executor_for(cfg)
         try:

@@ -21,12 +21,36 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 _NUMBA_CACHE: list[str] = []
 
 
+PIN = "VIEWFUSE_BUILTINS_ONLY"   # pipeline.infra.registry.PIN
+
+
+def _pin_registries(config) -> None:
+    """Every registry holds its built-ins only (``pipeline.infra.registry.pinned``) for the whole
+    session, fixtures of every scope and the interpreters tests start included (they inherit the
+    environment), so a plugin installed in a contributor's venv changes no test's method, planner,
+    metric, classifier or dataset list. A test that means to load entry points opts in with
+    ``@pytest.mark.plugins`` (the ``registries_pinned`` fixture lifts the pin for it), and the
+    helpers that start an interpreter with an outside package (tests/support/outside_package.py)
+    lift it there."""
+    os.environ[PIN] = "1"
+
+
+@pytest.fixture(autouse=True)
+def registries_pinned(request, monkeypatch):
+    """Built-ins only (``_pin_registries``), unless the test is marked ``plugins``."""
+    if request.node.get_closest_marker("plugins"):
+        monkeypatch.delenv(PIN, raising=False)
+    else:
+        monkeypatch.setenv(PIN, "1")
+
+
 def pytest_configure(config):
     """The fusion kernels compile once for the session, not once per process: the suite starts
     dozens (xdist workers, CLI runs, Ray workers, examples), each 10-30 s of numba compiling.
     NUMBA_CACHE_DIR (pipeline/method/kernels.py) points numba at a folder of the session's own,
     set here in the controlling process before any worker starts (they inherit it) and removed at
     the end. A user's own NUMBA_CACHE_DIR is left as it is."""
+    _pin_registries(config)
     if hasattr(config, "workerinput") or os.environ.get("NUMBA_CACHE_DIR"):
         return
     _NUMBA_CACHE.append(tempfile.mkdtemp(prefix="viewfuse-tests-numba-"))

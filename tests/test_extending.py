@@ -103,12 +103,17 @@ def test_a_metric_from_an_entry_point_lists_after_the_builtins_and_is_reported(o
 
 
 def test_an_entry_point_that_does_not_load_is_named(tmp_path):
+    """Contained (docs/extending.md): the built-ins work, a warning names it, and the stages that
+    would use the kind refuse with the same words."""
     site = write_package(tmp_path / "site", "vf_broken", "raise ImportError('missing dependency xyz')\n",
                          {"viewfuse.metrics": {"broken": "vf_broken:M"}})
-    code = "import numpy as np; import viewfuse as vf; vf.track_metrics(np.log(np.full((2, 2), 0.5)), 0)"
+    code = ("import numpy as np; import viewfuse as vf; vf.track_metrics(np.log(np.full((2, 2), 0.5)), 0); "
+            "print('used'); from types import SimpleNamespace as N; "
+            "from stages.framework.outside import check_loaded; check_loaded(N(), 'evaluate', True)")
     r = run_with(site, code, tmp_path)
-    assert r.returncode != 0
-    assert "entry point 'broken' = 'vf_broken:M' of group 'viewfuse.metrics' does not load" in r.stderr
+    assert r.returncode != 0 and r.stdout.strip() == "used"
+    why = "metric entry point 'broken' = 'vf_broken:M' of group 'viewfuse.metrics' does not load: ImportError"
+    assert r.stderr.count(why) == 2, r.stderr[-3000:]      # the warning, then the stage's refusal
     assert "missing dependency xyz" in r.stderr
 
 

@@ -151,6 +151,8 @@ def _spread_enough(fn: str, classes: list[str], X: list[np.ndarray], prior: bool
 # a small factor of it on the engine bench).
 FUSE_SECONDS = 1e-7
 MAX_SECONDS = 60.0
+# A method call still running after this long is stopped (the evaluate stage's run.method_seconds default).
+TIME_LIMIT = 600.0
 
 
 def _within_arithmetic(fn: str, var_floor: float, **arrays) -> None:
@@ -172,7 +174,8 @@ def _within_arithmetic(fn: str, var_floor: float, **arrays) -> None:
 
 def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0.0, 0.0), object_yaw: float = 0.0,
          dropout, own=None, probs=None, provided: dict | None = None, sigma: float = 0.0, n_x: int = 1, seed=0,
-         var_floor: float = 1e-6, max_seconds: float | None = MAX_SECONDS) -> np.ndarray:
+         var_floor: float = 1e-6, max_seconds: float | None = MAX_SECONDS,
+         time_limit: float | None = TIME_LIMIT) -> np.ndarray:
     """Fuse one track with the registered method ``key``: log posteriors after every step.
 
     ``cameras``: pose estimates (K, 2), or (R, K, 2) for R realizations, ground frame;
@@ -185,7 +188,9 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     ``models`` with an instance term (``fit_models(..., instances=...)``) also serve the
     ``*_instance`` methods. Returns (K, C), or (R, K, C) for (R, K, 2) cameras, checked as every method's output is
     (``pipeline.method.output_check``). A call estimated over the available memory or over
-    ``max_seconds`` (None: no bound) is refused before anything is drawn."""
+    ``max_seconds`` (None: no bound) is refused before anything is drawn; a method still running
+    after ``time_limit`` seconds (None: no limit; the main thread only) is stopped, named. The
+    method reads read-only views of the arrays: your arrays are never changed."""
     fn = "fuse"
     m = method(key)
     if models is not None:
@@ -218,6 +223,8 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     if max_seconds is not None:
         max_seconds = A.real(fn, "max_seconds", max_seconds, lo=0.0, open_lo=True)
     _within_arithmetic(fn, var_floor, cameras=est, object_xy=obj, dropout=drop, own=own, probs=probs)
+    if time_limit is not None:
+        time_limit = A.real(fn, "time_limit", time_limit, lo=0.0, open_lo=True)
     units = float(R) * n_x * K * (C or 1) * drop.shape[2]
     A.affordable(fn, "n_x and cameras", 8.0 * R * n_x * K * (2 + 2 * (C or 1) * drop.shape[2]),
                  FUSE_SECONDS * units * K, max_seconds)
@@ -230,7 +237,7 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
         rng=np.random.default_rng(seed))
     if not m.applies(t):
         raise ValueError(f"fuse: {key!r} needs {sorted(m.needs)}; missing: {sorted(n for n in m.needs if not t.has(n))}")
-    out = call_checked(m, "fuse", t)
+    out = call_checked(m, "fuse", t, seconds=time_limit or 0.0, setting="vf.fuse(time_limit=...)")
     if not m.uses_poses:
         out = np.broadcast_to(out, (len(est),) + out.shape).copy()
     return out[0] if single else out

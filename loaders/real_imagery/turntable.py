@@ -20,6 +20,7 @@ import numpy as np
 
 from loaders.errors import BadInputError
 from loaders.real_imagery.category import write_training_class
+from loaders.real_imagery.read_check import check_photos
 from loaders.real_imagery.scans import locate, summaries, write_scans
 from loaders.real_imagery.training import modellable
 from loaders.real_imagery.write import place_pairs, plain_frames
@@ -51,9 +52,11 @@ class TurntableSource(DatasetSource):
     """A source of turntable photographs on real AVD geometry: implement ``read``."""
 
     config = TurntableConfig
+    required_hooks = (("read", "read(cfg, skips)", 2),)
 
     def read(self, cfg, skips) -> dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]:
-        """{object name: {angle in whole degrees: (rgb uint8 (H, W, 3), mask bool (H, W))}}; a bad
+        """{object name (a plain name: it names a folder): {angle in whole degrees, [0, 360): (rgb
+        uint8 (H, W, 3), mask bool (H, W))}}, checked by ``read_check.check_photos``; a bad
         file is ``skips.handle(BadInputError(path, why), self.name, "photograph")`` (counted, or raised)."""
         raise NotImplementedError(f"dataset source {self.name!r} has no read")
 
@@ -77,7 +80,7 @@ class TurntableSource(DatasetSource):
         t0 = time.perf_counter()
         cfg, o, skips = ctx.cfg, self.options(ctx.cfg), ctx.skips
         root, avd_root = self.path(cfg, "root"), cfg.path("data.avd_root")
-        train, held = self._split(cfg, o, root, self.read(cfg, skips), skips)
+        train, held = self._split(cfg, o, root, check_photos(self.name, self.read(cfg, skips)), skips)
         bb_out, avd_out = ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd")
         n_views = sum(write_training_class(bb_out, n, {0: {a: (rgb, mask, None) for a, (rgb, mask) in v.items()}},
                                            o.train_jpeg_quality) for n, v in sorted(train.items()))

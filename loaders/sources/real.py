@@ -16,7 +16,7 @@ DIGEST_MEMO = ".data.digests.json"  # in <artifacts>/<run>/: per-file sha256 by 
 
 @register_dataset
 class Real(DatasetSource):
-    name = "real"
+    key = "real"
     doc = "real BigBIRD + AVD roots, read in place (data.bigbird_root, data.avd_root)"
     writes = False
     label = "real data (BigBIRD + AVD)"

@@ -13,7 +13,7 @@ from pipeline.infra.outputs import name as out_name
 
 @register_dataset
 class RealImagery(DatasetSource):
-    name = "real_imagery"
+    key = "real_imagery"
     doc = "COIL-100 or ETH-80 photographs on real AVD scans' geometry ([data.real_imagery])"
     badge = "real images, synthetic pairing"
 

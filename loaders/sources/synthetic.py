@@ -21,7 +21,7 @@ CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
 
 @register_dataset
 class Synthetic(DatasetSource):
-    name = "synthetic"
+    key = "synthetic"
     doc = "synthetic stand-ins of BigBIRD objects and AVD scans ([data.synthetic])"
     label = "synthetic data (stand-ins rendered in the BigBIRD and AVD formats, not real images)"
     badge = "synthetic data"

@@ -64,8 +64,13 @@ class DatasetSource:
     """One value of ``data.source``. Subclass, set ``name`` (and ``config`` for keys of your own),
     implement ``write``; register with ``@vf.register_dataset``."""
 
-    name: str = ""
+    key: str = ""                # the data.source value (the identifying attribute)
+    # (hook, how it is called, its arguments): what a source must implement itself
+    required_hooks: tuple = (("write", "write(ctx)", 1),)
+    name: str = ""               # its older spelling, kept equal to it at registration
     doc: str = ""
+    color: str = "#555555"       # where a figure draws it
+    note: str = ""               # one line on what it is
     config: type | None = None   # a frozen dataclass of ``setting`` fields: the [data.<name>] section
     writes: bool = True          # False: the BigBIRD/AVD roots are read in place (data.bigbird_root, avd_root)
     # What the report says of the data, so that a source of its own gets its own wording:
@@ -136,20 +141,50 @@ SOURCES: Registry[DatasetSource] = Registry("dataset source", ENTRY_POINT_GROUP,
                                             adopt=_adopt)
 
 
-def register_dataset(entry, *, _module: str | None = None):
-    """Register a ``DatasetSource`` subclass (usable as a class decorator) or instance under its name."""
-    inst = entry() if isinstance(entry, type) else entry
+def problems(entry, *, complete: bool = False) -> list[str]:
+    """Every breach of the dataset-source contract (empty: none): an identifier key (it names
+    ``[data.<key>]``), text labels, a colour, a dataclass ``config``, and its data: a turntable
+    source's ``read(cfg, skips)`` (``loaders.real_imagery.turntable``), any other's ``write(ctx)``,
+    with the right signature; missing only with ``complete`` (``vf.check_extension``: a source
+    registered for its report wording alone may leave them out, and the data stage names it)."""
+    from pipeline.infra import extension as X
+
+    inst = entry.__new__(entry) if isinstance(entry, type) and issubclass(entry, DatasetSource) else entry
     if not isinstance(inst, DatasetSource):
-        raise TypeError(f"{entry!r} is not a DatasetSource")
-    if not inst.name.isidentifier():
-        raise ValueError(f"dataset source name {inst.name!r} must be an identifier (it names [data.<name>])")
+        return [f"{entry!r:.60} is not a DatasetSource"]
+    key, cls = X.declared_key(inst), type(inst)
+    out = [None if isinstance(key, str) and key.isidentifier() else
+           f"dataset source key {key!r:.60} must be an identifier (it names [data.<key>])",
+           X.plain_name_problem(key) if key else None]
+    for attr in ("label", "badge", "doc", "note"):
+        out.append(X.text_problem(attr, getattr(inst, attr, "")))
+    out.append(X.color_problem(getattr(inst, "color", None)))
     if inst.config is not None and not dataclasses.is_dataclass(inst.config):
-        raise TypeError(f"dataset source {inst.name!r}: config must be a dataclass")
+        out.append("config must be a dataclass")
+    # the hooks a source must write itself: DatasetSource's write(ctx), a TurntableSource's read
+    decl = next(c for c in cls.__mro__ if "required_hooks" in vars(c))
+    for hook, call, n in cls.required_hooks:
+        if getattr(cls, hook, None) is getattr(decl, hook, None):
+            out.append(f"{call} is not implemented" if complete else None)
+        else:
+            out.append(X.signature_problem(getattr(cls, hook), hook, call, inst, *([None] * n)))
+    return [p for p in out if p]
+
+
+def register_dataset(entry, *, _module: str | None = None):
+    """Register a ``DatasetSource`` subclass (usable as a class decorator) or instance under its
+    key; every breach of the contract (``problems``) is one ``ExtensionError`` naming it."""
+    from pipeline.infra.extension import declared_key, raise_problems
+
+    key = declared_key(entry) if isinstance(entry, (type, DatasetSource)) else ""
+    raise_problems("dataset source", key or repr(entry)[:60], "register", problems(entry))
+    inst = entry() if isinstance(entry, type) else entry
+    inst.key = inst.name = key
     module = _module or type(inst).__module__
-    old = SOURCES.peek(inst.name)
-    SOURCES.add(inst.name, inst, module=module,
+    old = SOURCES.peek(key)
+    SOURCES.add(key, inst, module=module,
                 replace=old is not None and type(old).__qualname__ == type(inst).__qualname__
-                and SOURCES.module_of(inst.name) == module)
+                and SOURCES.module_of(key) == module)
     return entry
 
 

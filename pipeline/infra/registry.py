@@ -15,6 +15,15 @@ of the group in name order. An entry point names a module (importing it register
 (registered under the entry point's name, as defined in the entry point's module, when the import
 did not register it already).
 
+An entry point that does not load (any exception at its import or adoption, ``SystemExit``
+included; a key registered twice is one) is contained: the registry loads the rest, logs one
+warning per process naming the kind, the entry point and the cause, and keeps it in ``failures``;
+the stages that would use the kind refuse with that message (``stages.framework.outside``), and
+every other command (``--help``, ``status``, the stages that do not use it) runs. Only
+``KeyboardInterrupt`` goes through. ``VIEWFUSE_BUILTINS_ONLY=1`` in the environment (the test
+suite's default, tests/conftest.py) pins every registry to its built-ins and what the process
+registers itself: no entry point is loaded, and entries loaded from one before are hidden.
+
 ``outside_fingerprint`` hashes the source of every entry's module that the stages' static code key
 cannot see (not among ``static``), so the stages an outside entry affects rerun when it is added,
 removed or edited.
@@ -24,15 +33,32 @@ from __future__ import annotations
 import hashlib
 import importlib
 import inspect
+import logging
+import os
 import pkgutil
 import sys
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any, Generic, TypeVar
 
+from pipeline.infra.extension import ExtensionError
+
 T = TypeVar("T")
+log = logging.getLogger("viewfuse")
+# (group, entry point name) -> why it does not load: each is tried and warned about once per process
+# (the registries that share a group, e.g. the methods' config sections and cost terms, see it once).
+FAILED: dict[tuple[str, str], str] = {}
+# What an entry point of each group is, in messages (whichever registry of the group loads it first).
+GROUP_KINDS = {"viewfuse.methods": "fusion method", "viewfuse.classifiers": "classifier",
+               "viewfuse.planners": "planner", "viewfuse.metrics": "metric", "viewfuse.datasets": "dataset source"}
+PIN = "VIEWFUSE_BUILTINS_ONLY"
 
 
-class RegistryError(ValueError):
+def pinned() -> bool:
+    """Whether the registries hold their built-ins only (``VIEWFUSE_BUILTINS_ONLY`` = 1)."""
+    return os.environ.get(PIN, "") not in ("", "0")
+
+
+class RegistryError(ExtensionError):
     """An entry registered twice, or an entry point that does not load."""
 
 
@@ -54,14 +80,17 @@ class Registry(Mapping, Generic[T]):
         self._adopt = adopt
         self._entries: dict[str, T] = {}
         self._modules: dict[str, str] = {}
+        self._from_eps: set[str] = set()     # names an entry point's import registered
         self._loaded = False
+        self._eps_loaded = False
 
     # -- registering ------------------------------------------------------------------------------
     def add(self, name: str, entry: T, *, module: str, replace: bool = False) -> T:
         """Register ``entry`` under ``name``, defined in ``module`` (which decides built-in or not).
         The same name twice is an error unless ``replace`` (the same definition re-imported)."""
         if name in self._entries and not replace:
-            raise RegistryError(f"{self.kind} {name!r} is registered twice ({self._modules[name]}, {module})")
+            raise RegistryError(f"{self.kind} {name!r} is registered twice ({self._modules[name]}, {module})",
+                                kind=self.kind, key=name, hook="register", cause="registered twice")
         self._entries[name] = entry
         self._modules[name] = module
         return entry
@@ -69,6 +98,7 @@ class Registry(Mapping, Generic[T]):
     def remove(self, name: str) -> None:
         self._entries.pop(name, None)
         self._modules.pop(name, None)
+        self._from_eps.discard(name)
 
     def pop(self, name: str, default=None):
         """Remove ``name`` and return its entry (``default`` when there is none)."""
@@ -89,53 +119,86 @@ class Registry(Mapping, Generic[T]):
 
     # -- loading ----------------------------------------------------------------------------------
     def load(self) -> None:
-        """Built-ins, the built-in folder, then the entry points (once per process)."""
-        if self._loaded:
-            return
-        self._loaded = True  # before importing: modules that register look the registry up
-        try:
-            self._load_all()
-        except BaseException:
-            self._loaded = False  # a failed load is not a loaded registry: the next use retries and fails alike
-            raise
+        """Built-ins and the built-in folder (once per process), then the entry points (once, when
+        the registry is not pinned to its built-ins)."""
+        if not self._loaded:
+            self._loaded = True  # before importing: modules that register look the registry up
+            try:
+                self._load_builtins()
+            except BaseException:
+                self._loaded = False  # a failed load is not a loaded registry: the next use retries and fails alike
+                raise
+        if not self._eps_loaded and not pinned():
+            self._eps_loaded = True
+            self._load_entry_points()
 
-    def _load_all(self) -> None:
+    def _load_builtins(self) -> None:
         pkg = importlib.import_module(self.builtin)
         for info in sorted(pkgutil.iter_modules(getattr(pkg, "__path__", [])), key=lambda i: i.name):
             if not info.name.startswith("_"):
                 importlib.import_module(f"{self.builtin}.{info.name}")
+
+    def _load_entry_points(self) -> None:
         from importlib.metadata import entry_points
 
         for ep in sorted(entry_points(group=self.group), key=lambda e: e.name):
+            if (self.group, ep.name) in FAILED:
+                continue
             before = set(self._entries)
             try:
                 obj = ep.load()
-            except Exception as e:  # noqa: BLE001 - re-raised naming the entry point
-                raise RegistryError(f"entry point {ep.name!r} = {ep.value!r} of group {self.group!r} "
-                                    f"does not load: {type(e).__name__}: {e}") from e
-            if set(self._entries) == before and not inspect.ismodule(obj) and self._adopt is not None:
-                self._adopt(ep.name, obj, ep.value.partition(":")[0].strip())
+                if set(self._entries) == before and not inspect.ismodule(obj) and self._adopt is not None:
+                    self._adopt(ep.name, obj, ep.value.partition(":")[0].strip())
+            except KeyboardInterrupt:
+                raise
+            except BaseException as e:  # noqa: BLE001 - SystemExit too: contained, named, kept
+                for name in set(self._entries) - before:   # what it registered before failing goes too
+                    self.remove(name)
+                why = (f"{GROUP_KINDS.get(self.group, self.kind)} entry point {ep.name!r} = {ep.value!r} of group "
+                       f"{self.group!r} does not load: {type(e).__name__}: {e}")
+                FAILED[(self.group, ep.name)] = why
+                log.warning("%s (skipped; the stages that use it refuse to run)", why)
+                continue
+            self._from_eps |= set(self._entries) - before
+
+    def failures(self) -> dict[str, str]:
+        """{entry point name: why it does not load} of this registry's group (empty when pinned)."""
+        self.load()
+        return {} if pinned() else {n: why for (g, n), why in FAILED.items() if g == self.group}
+
+    def check_loaded(self, names=None) -> None:
+        """``ExtensionError`` naming the entry points of this group that do not load (those named in
+        ``names``, when given: the entries a run uses)."""
+        bad = [why for n, why in self.failures().items() if names is None or n in names]
+        if bad:
+            raise RegistryError("; ".join(bad), kind=self.kind, key=", ".join(self.failures()), hook="import",
+                                cause=bad[0])
 
     # -- the mapping (loads on first use) ---------------------------------------------------------
-    def _order(self) -> list[str]:
+    def _visible(self) -> list[str]:
         self.load()
-        names = list(self._entries)
+        hidden = self._from_eps if pinned() else set()
+        return [n for n in self._entries if n not in hidden]
+
+    def _order(self) -> list[str]:
+        names = self._visible()
         return [n for n in names if self.is_builtin(n)] + [n for n in names if not self.is_builtin(n)]
 
     def __getitem__(self, name: str) -> T:
         self.load()
+        if pinned() and name in self._from_eps:
+            raise KeyError(name)
         return self._entries[name]
 
     def __contains__(self, name: object) -> bool:
         self.load()
-        return name in self._entries
+        return name in self._entries and not (pinned() and name in self._from_eps)
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._order())
 
     def __len__(self) -> int:
-        self.load()
-        return len(self._entries)
+        return len(self._visible())
 
     def __repr__(self) -> str:
         return f"Registry({self.kind!r}, {self._order()})"

@@ -54,8 +54,8 @@ class TrackInput:
 class FusionMethod:
     """One fusion method. Subclasses set the class attributes and implement ``fuse``."""
     key: ClassVar[str]                 # stored in every results row and summary.json
-    label: ClassVar[str]               # display name (tables, legends)
-    short: ClassVar[str]               # short display name
+    label: ClassVar[str]               # display name (tables, legends); default: the key
+    short: ClassVar[str]               # short display name; default: the label
     color: ClassVar[str] = "#555555"   # figures' colour
     note: ClassVar[str] = ""           # one line for the report's method table
     needs: ClassVar[frozenset] = frozenset({"gp"})
@@ -122,27 +122,62 @@ _REGISTRY: Registry[FusionMethod] = Registry("fusion method", ENTRY_POINT_GROUP,
                                              adopt=_adopt)
 
 
-def register(cls: type[FusionMethod]) -> type[FusionMethod]:
-    """Class decorator: add a method under ``cls.key`` (a key registered twice is an error)."""
-    if not (isinstance(cls, type) and issubclass(cls, FusionMethod)):
-        raise TypeError(f"register: cls must be a FusionMethod subclass, got {cls!r:.80}")
+def problems(cls) -> list[str]:
+    """Every breach of the method contract ``cls`` declares (empty: none): a plain key without
+    '-', text labels, a colour matplotlib can draw, ``needs`` a set of known names, the hooks its
+    flags promise, and ``fuse(t)`` (and the others it overrides) callable with one track input."""
+    from pipeline.infra import extension as X
+
+    out = []
     key = getattr(cls, "key", None)
     if not isinstance(key, str) or not key or "-" in key:
-        raise ValueError(f"{cls.__name__}: a fusion method needs a non-empty key without '-' (comparison keys "
-                         f"join two with '-'), got {key!r}")
-    if isinstance(cls.needs, str) or not isinstance(cls.needs, (set, frozenset, tuple, list)) or \
-            not all(isinstance(n, str) for n in cls.needs):
-        raise TypeError(f"{cls.__name__}: needs must be a set of names (of {sorted(NEEDS)}), got {cls.needs!r:.80}")
+        out.append(f"a fusion method needs a non-empty key without '-' (comparison keys join two with '-'), "
+                   f"got {key!r:.60}")
+    else:
+        out.append(X.plain_name_problem(key))
+    for attr in ("label", "short"):     # default: the key, the label
+        out.append(X.text_problem(attr, getattr(cls, attr, None) or "x"))
+    out.append(X.text_problem("note", getattr(cls, "note", None)))
+    out.append(X.color_problem(getattr(cls, "color", None)))
+    needs = getattr(cls, "needs", None)
+    if isinstance(needs, str) or not isinstance(needs, (set, frozenset, tuple, list)) or \
+            not all(isinstance(n, str) for n in needs):
+        out.append(f"needs must be a set of names (of {sorted(NEEDS)}), got {needs!r:.80}")
+    else:
+        bad = {n for n in needs if n not in NEEDS and not _provider.known(n)}
+        if bad:
+            out.append(f"unknown needs {sorted(bad)} (known: {sorted(NEEDS)} and the registered model providers; "
+                       "register a method's provider before the method)")
     for flag, hook in (("simulation", "simulate"), ("planning", "fuse_tracks")):
         if getattr(cls, flag) and getattr(cls, hook) is getattr(FusionMethod, hook):
-            raise ValueError(f"{cls.__name__}: {flag} = True needs {hook}() (optional otherwise)")
-    bad = {n for n in cls.needs if n not in NEEDS and not _provider.known(n)}
-    if bad:
-        raise ValueError(f"{cls.__name__}: unknown needs {sorted(bad)} (known: {sorted(NEEDS)} and the registered "
-                         "model providers; register a method's provider before the method)")
+            out.append(f"{flag} = True needs {hook}() (optional otherwise)")
+    for hook, args, call in (("fuse", 1, "fuse(t)"), ("single_view", 1, "single_view(t)"),
+                             ("fuse_with_extras", 1, "fuse_with_extras(t)"), ("fuse_tracks", 1, "fuse_tracks(t)"),
+                             ("simulate", 3, "simulate(models, draws, sim)"),
+                             ("population_block", 2, "population_block(cfg, pairs)"),
+                             ("report_note", 1, "report_note(block)")):
+        fn = getattr(cls, hook, None)
+        if fn is not getattr(FusionMethod, hook):
+            out.append(X.signature_problem(fn, hook, call, None, *([None] * args)))
+    return [p for p in out if p]
+
+
+def register(cls: type[FusionMethod]) -> type[FusionMethod]:
+    """Class decorator: add a method under ``cls.key`` (a key registered twice is an error). Every
+    breach of the contract (``problems``) is one ``ExtensionError`` naming the method."""
+    from pipeline.infra.extension import ExtensionError, raise_problems
+
+    if not (isinstance(cls, type) and issubclass(cls, FusionMethod)):
+        raise ExtensionError.of("fusion method", getattr(cls, "key", repr(cls)[:60]), "register",
+                                f"register: cls must be a FusionMethod subclass, got {cls!r:.80}")
+    key = getattr(cls, "key", None)
+    raise_problems("fusion method", key if isinstance(key, str) else cls.__name__, "register", problems(cls))
     old = _REGISTRY.peek(key)
     if old is not None and type(old) is not cls:
-        raise ValueError(f"fusion method {key!r} is registered twice ({type(old).__name__}, {cls.__name__})")
+        raise ExtensionError.of("fusion method", key, "register",
+                                f"registered twice ({type(old).__name__}, {cls.__name__})")
+    cls.label = getattr(cls, "label", None) or key
+    cls.short = getattr(cls, "short", None) or cls.label
     _REGISTRY.add(key, cls(), module=cls.__module__, replace=True)
     return cls
 

@@ -4,8 +4,12 @@ method is called (``viewfuse.fuse``, the population grid's fusion and single-vie
 A method returns log posteriors over its C candidates after each of K steps. What comes back is
 checked once, here: its shape, its values (NaN and +inf refused; -inf allowed, it is a probability
 that underflowed) and that each posterior is normalised in probability space (logsumexp over
-the classes within ``TOLERANCE`` of 0). A method that raises is named too. Every failure is a
-``MethodOutputError`` naming the method key, the hook and what was wrong, so a researcher's method
+the classes within ``TOLERANCE`` of 0); only real floating-point arrays are log posteriors (a
+complex, string, object, integer or boolean array is refused, not coerced). A method that raises
+(``SystemExit`` and any other ``BaseException`` but ``KeyboardInterrupt``, which stops the run as
+the user asked) or that runs past its time limit is named too; it reads its input through
+read-only views (``pipeline.method.call_guard``). Every failure is a ``MethodOutputError`` (an
+``ExtensionError``) naming the method key, the hook and what was wrong, so a researcher's method
 fails where it is called, not as a KeyError or a P(truth) of 20 three stages later.
 """
 from __future__ import annotations
@@ -14,13 +18,31 @@ from typing import Callable
 
 import numpy as np
 
+from pipeline.infra.extension import ExtensionError
+from pipeline.method.call_guard import MethodTimeout, read_only, time_limit
+from pipeline.method import call_guard
+
 # |logsumexp over classes| allowed: float64 rounding of a normalised posterior is ~1e-15; a method
 # that normalises in float32 is within ~1e-6. Larger is a posterior that does not sum to one.
 TOLERANCE = 1e-6
 
 
-class MethodOutputError(ValueError):
+class MethodOutputError(ExtensionError):
     """A fusion method raised, or returned what no posterior can be (names the method key)."""
+
+
+def _floats(where: str, out, what: str) -> np.ndarray:
+    """``out`` as a real floating-point array, or ``MethodOutputError``: other dtypes are refused,
+    not coerced (a complex posterior would lose its imaginary part, text would be parsed)."""
+    try:
+        raw = np.asarray(out)
+    except (TypeError, ValueError) as e:
+        raise MethodOutputError(f"{where} returned {type(out).__name__}, not an array of {what} ({e})") from None
+    if raw.dtype.kind != "f":
+        raise MethodOutputError(f"{where} returned an array of dtype {raw.dtype} ({type(out).__name__}), not "
+                                f"real floating-point {what}")
+    a = raw.astype(float, copy=False)
+    return a if a.flags.writeable else a.copy()
 
 
 def n_classes(t) -> int | None:
@@ -76,10 +98,7 @@ def check_output(key: str, out, shape: tuple[int | None, ...], *, hook: str = "f
     """``out`` as a float array when it is log posteriors of ``shape``; else ``MethodOutputError``
     naming ``key``, the hook and the problem."""
     where = f"fusion method {key!r} ({hook})"
-    try:
-        a = np.asarray(out, dtype=float)
-    except (TypeError, ValueError) as e:
-        raise MethodOutputError(f"{where} returned {type(out).__name__}, not an array of log posteriors ({e})") from None
+    a = _floats(where, out, "log posteriors")
     bad = problem(a, shape, tol=tol)
     if bad is not None:
         raise MethodOutputError(f"{where}: its output {bad}")
@@ -87,18 +106,24 @@ def check_output(key: str, out, shape: tuple[int | None, ...], *, hook: str = "f
 
 
 def call_checked(m, hook: str, t, *, shape: tuple[int | None, ...] | None = None,
-                 call: Callable | None = None):
-    """``m.<hook>(t)`` (or ``call(t)``), its error or its output named by the method's key. The
-    output (the first element for ``fuse_with_extras``) is checked against ``shape`` (default
-    ``expected_shape``; ``simulate``'s, probabilities, by ``check_probabilities``); a
-    ``single_view`` that returns None (no single-view reading) passes."""
+                 call: Callable | None = None, seconds: float | None = None,
+                 setting: str = "run.method_seconds"):
+    """``m.<hook>(t)`` (or ``call(t)``) on read-only views of ``t``'s arrays, stopped after
+    ``seconds`` (default ``call_guard.TIME_LIMIT``; ``setting`` names where the limit is set), its
+    error or its output named by the method's key. The output (the first element for
+    ``fuse_with_extras``) is checked against ``shape`` (default ``expected_shape``;
+    ``simulate``'s, probabilities, by ``check_probabilities``); a ``single_view`` that returns None
+    (no single-view reading) passes."""
     fn = call or getattr(m, hook)
+    limit = call_guard.TIME_LIMIT if seconds is None else seconds
     try:
-        out = fn(t)
-    except MemoryError:   # the budget's business, not the method's contract: kept as it is
-        raise
-    except Exception as e:  # noqa: BLE001 - re-raised with the method's key
-        raise MethodOutputError(f"fusion method {m.key!r} ({hook}) failed: {type(e).__name__}: {e}") from e
+        with time_limit(limit, "fusion method", m.key, hook, setting):
+            out = fn(read_only(t))
+    except (MemoryError, KeyboardInterrupt, MethodTimeout):
+        raise   # the budget's, the user's and the limit's: kept as they are (the last names the method)
+    except BaseException as e:  # noqa: BLE001 - SystemExit too: re-raised with the method's key
+        raise MethodOutputError(f"fusion method {m.key!r} ({hook}) failed: {type(e).__name__}: {e}",
+                                kind="fusion method", key=m.key, hook=hook, cause=f"{type(e).__name__}: {e}") from e
     if hook == "single_view" and out is None:
         return None
     if hook == "simulate":   # the simulation's posteriors are probabilities
@@ -117,10 +142,7 @@ def check_probabilities(key: str, out, shape: tuple[int | None, ...], *, hook: s
     """``out`` as it is when it is posteriors in probability space (the simulation's ``simulate``)
     of ``shape``: no negative entry, and their logs pass ``problem``; else ``MethodOutputError``."""
     where = f"fusion method {key!r} ({hook})"
-    try:
-        a = np.asarray(out, dtype=float)
-    except (TypeError, ValueError) as e:
-        raise MethodOutputError(f"{where} returned {type(out).__name__}, not an array of posteriors ({e})") from None
+    a = _floats(where, out, "posteriors")
     if (a < 0).any():
         raise MethodOutputError(f"{where}: its output holds negative probabilities")
     with np.errstate(divide="ignore"):

@@ -19,6 +19,7 @@ import numpy as np
 
 from pipeline.method import registry
 from pipeline.method.fusion import log_prior
+from pipeline.method.output_check import call_checked
 from pipeline.method.provider import providers
 from pipeline.planning.world import World
 from pipeline.infra import seeds
@@ -85,7 +86,8 @@ class Belief:
         est = np.stack([np.stack([self.estimate(n) for n in t]) for t in tracks])         # (R, K, 2)
         t = registry.TrackInput(dropout=Z, gp=self.models, estimates=est, samples=X, inputs=self.world.inputs,
                                 var_floor=self.var_floor, threads=1, models=self.provided)
-        return self.method.fuse_tracks(t)[:, -1]
+        # checked, time-limited and on read-only views like every method call (output_check.call_checked)
+        return call_checked(self.method, "fuse_tracks", t, shape=(len(tracks), Z.shape[1], None))[:, -1]
 
     def update(self, node: str) -> np.ndarray:
         """Move to ``node`` and fuse its recorded scores: the new log posterior (C,)."""

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.infra.extension import ExtensionError
 from pipeline.planning.belief import Belief
 from pipeline.planning.graph import candidate_paths
 
@@ -25,6 +26,21 @@ class Episode:
     log_post: np.ndarray             # (budget, C) log posterior after every step
     measured: np.ndarray             # (budget,) bool: a measurement was taken at this step
     decision_s: list[float]          # seconds of each planning decision
+
+
+def choose(planner, belief: Belief, cands: dict, rng: np.random.Generator) -> str:
+    """``planner.choose``, its error or a choice that is no candidate named as the planner's
+    (``ExtensionError``: kind, key, hook, cause), never an internal error."""
+    try:
+        nxt = planner.choose(belief, cands, rng)
+    except (MemoryError, KeyboardInterrupt):
+        raise
+    except BaseException as e:  # noqa: BLE001 - SystemExit too: re-raised naming the planner
+        raise ExtensionError.of("planner", planner.key, "choose", f"{type(e).__name__}: {e}") from e
+    if not isinstance(nxt, str) or nxt not in cands:
+        raise ExtensionError.of("planner", planner.key, "choose", f"returned {nxt!r:.60}, not one of the candidate "
+                                f"nodes it was given ({', '.join(sorted(cands)[:5])}{', ...' if len(cands) > 5 else ''})")
+    return nxt
 
 
 def run_episode(belief: Belief, planner, start: str, *, budget: int, confidence: float | None, horizon: int,
@@ -41,7 +57,7 @@ def run_episode(belief: Belief, planner, start: str, *, budget: int, confidence:
         if confidence is not None and np.max(out[k - 1]) >= np.log(confidence):
             out[k:] = out[k - 1]
             break
-        if planner.name == "fixed":
+        if planner.key == "fixed":
             nxt = track.pop(0) if track else None
             path = (nxt,)
         else:
@@ -49,7 +65,7 @@ def run_episode(belief: Belief, planner, start: str, *, budget: int, confidence:
             nxt = None
             if cands:
                 t0 = time.perf_counter()
-                nxt = planner.choose(belief, cands, rng)
+                nxt = choose(planner, belief, cands, rng)
                 times.append(time.perf_counter() - t0)
                 path = cands[nxt]
         if nxt is None:
@@ -59,4 +75,4 @@ def run_episode(belief: Belief, planner, start: str, *, budget: int, confidence:
         paths.append(path)
         out[k] = belief.update(nxt)
         measured[k] = True
-    return Episode(planner.name, nodes, paths, out, measured, times)
+    return Episode(planner.key, nodes, paths, out, measured, times)

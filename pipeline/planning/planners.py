@@ -16,24 +16,33 @@
 Ties go to the first candidate in name order.
 
 ``PLANNERS`` is the planner registry (``pipeline.infra.registry``): these six first, then any
-registered with ``@register_planner`` (``vf.register_planner``) or through an entry point of the
-group ``viewfuse.planners``, in registration order. A planner is a class with a ``name`` and
-``choose(belief, candidates, rng)``; ``make(eps, table)`` builds it (default: no arguments).
+registered with ``vf.register`` (``register_planner``) or through an entry point of the group
+``viewfuse.planners``, in registration order. A planner is a class with a ``key``, a ``label``, a
+``color`` and a ``note`` (the report's planning section shows them) and
+``choose(belief, candidates, rng)``; ``make(eps, table)`` builds it (default: no arguments). The
+contract is checked at registration (``problems``): one ``ExtensionError`` names every breach.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline.infra.registry import Registry, RegistryError
+from pipeline.infra import extension as X
+from pipeline.infra.registry import Registry
 from pipeline.planning.eig import expected_information_gain
 
 ENTRY_POINT_GROUP = "viewfuse.planners"
 
 
 class Planner:
-    """What a planner declares: its ``name`` (the population's tables and figures show it), how it
-    is built and how it chooses the next node (``rng``: the episode's own stream)."""
-    name = ""
+    """What a planner declares: its ``key`` (the population's tables and figures name it by it),
+    ``label``, ``color`` and ``note`` (the report's), how it is built and how it chooses the next
+    node (``rng``: the episode's own stream). ``name`` is the older spelling of ``key``, accepted
+    and kept equal to it at registration."""
+    key = ""
+    label = ""          # the report's name (default: the key with spaces)
+    color = "#CC79A7"   # its curves' colour in the report's figures
+    note = ""           # one line on what it does
+    name = ""           # deprecated spelling of ``key``
 
     @classmethod
     def make(cls, eps: np.ndarray, table=None) -> "Planner":
@@ -44,17 +53,40 @@ class Planner:
         raise NotImplementedError
 
 
+_key_of = X.declared_key
+
+
+def problems(cls) -> list[str]:
+    """Every breach of the planner contract ``cls`` declares (empty: none)."""
+    if not isinstance(cls, type):
+        return [f"a planner is a class (a Planner subclass), got {type(cls).__name__}"]
+    key = _key_of(cls)
+    out = [None if isinstance(key, str) and key.isidentifier() else
+           f"a planner needs a key that is an identifier, got {key!r:.60}",
+           X.plain_name_problem(key) if isinstance(key, str) and key else None,
+           X.text_problem("label", getattr(cls, "label", "")), X.text_problem("note", getattr(cls, "note", "")),
+           X.color_problem(getattr(cls, "color", None))]
+    choose = getattr(cls, "choose", None)
+    out.append("has no choose(belief, candidates, rng)" if not callable(choose) else
+               X.signature_problem(choose, "choose", "choose(belief, candidates, rng)", None, None, {}, None))
+    make = getattr(cls, "make", None)
+    out.append(X.signature_problem(make, "make", "make(eps, table)", None, None))
+    return [p for p in out if p]
+
+
 def register_planner(cls: type) -> type:
-    """Class decorator: add a planner under ``cls.name`` (a name registered twice is an error)."""
-    name = getattr(cls, "name", None)
-    if not isinstance(name, str) or not name.isidentifier():
-        raise ValueError(f"{cls!r}: a planner needs a name that is an identifier, got {name!r}")
-    if not callable(getattr(cls, "choose", None)):
-        raise ValueError(f"planner {name!r} has no choose(belief, candidates, rng)")
-    old = PLANNERS.peek(name)
+    """Class decorator: add a planner under ``cls.key`` (a key registered twice is an error; every
+    breach of the contract, ``problems``, is one ``ExtensionError``)."""
+    key = _key_of(cls) if isinstance(cls, type) else ""
+    X.raise_problems("planner", key or getattr(cls, "__name__", repr(cls)[:40]), "register", problems(cls))
+    old = PLANNERS.peek(key)
     if old is not None and old is not cls:
-        raise RegistryError(f"planner {name!r} is registered twice ({old.__module__}, {cls.__module__})")
-    PLANNERS.add(name, cls, module=cls.__module__, replace=True)
+        raise X.ExtensionError.of("planner", key, "register",
+                                  f"registered twice ({old.__module__}, {cls.__module__})")
+    cls.key = cls.name = key
+    if not getattr(cls, "label", ""):
+        cls.label = key.replace("_", " ")
+    PLANNERS.add(key, cls, module=cls.__module__, replace=True)
     return cls
 
 
@@ -73,7 +105,10 @@ PLANNERS: Registry[type] = Registry("planner", ENTRY_POINT_GROUP, __name__, stat
 
 
 class InfoGain(Planner):
-    name = "info_gain"
+    key = "info_gain"
+    label = "information gain"
+    color = "#0072B2"
+    note = "the candidate of largest expected information gain, predicted with the belief's localization samples"
     known_pose = False
 
     def __init__(self, eps: np.ndarray, table=None):
@@ -94,12 +129,18 @@ class InfoGain(Planner):
 
 
 class KnownPose(InfoGain):
-    name = "known_pose"
+    key = "known_pose"
+    label = "information gain, known pose"
+    color = "#56B4E9"
+    note = "the same with the samples collapsed onto the pose estimate (sigma = 0)"
     known_pose = True
 
 
 class RandomWalk(Planner):
-    name = "random"
+    key = "random"
+    label = "random walk"
+    color = "#999999"
+    note = "a uniform choice among the candidates"
 
     def choose(self, belief, candidates: dict, rng) -> str:
         nodes = sorted(candidates)
@@ -107,7 +148,10 @@ class RandomWalk(Planner):
 
 
 class Orbit(Planner):
-    name = "orbit"
+    key = "orbit"
+    label = "orbit"
+    color = "#E69F00"
+    note = "the candidate that advances most counter-clockwise about the object"
 
     def choose(self, belief, candidates: dict, rng) -> str:
         nodes = sorted(candidates)
@@ -119,7 +163,10 @@ class Orbit(Planner):
 
 
 class Hindsight(Planner):
-    name = "hindsight"
+    key = "hindsight"
+    label = "hindsight (true class)"
+    color = "#009E73"
+    note = "the candidate whose real scores give the truth the largest posterior: an upper bound"
 
     def choose(self, belief, candidates: dict, rng) -> str:
         nodes = sorted(candidates)
@@ -128,7 +175,10 @@ class Hindsight(Planner):
 
 class Fixed(Planner):
     """Not a chooser: ``episode`` walks the world's track."""
-    name = "fixed"
+    key = "fixed"
+    label = "fixed track"
+    color = "#000000"
+    note = "the existing fixed track from the same start"
 
 
 # registered in the order tables show them: info_gain, known_pose, random, fixed, orbit, hindsight

@@ -10,20 +10,24 @@ from typing import Any
 import numpy as np
 
 from pipeline.evaluation.statistics.records import record
+from pipeline.planning.planners import PLANNERS
 from reports.main.context import ReportContext
 from reports.shared.figures import mgr_axis, new_subplots, step_ticks
 from reports.shared.numbers import Estimate, fmt
 from reports.shared.records import sentence
 
-COLOURS = {"info_gain": "#0072B2", "known_pose": "#56B4E9", "random": "#999999", "fixed": "#000000",
-           "orbit": "#E69F00", "hindsight": "#009E73"}
-# Plain names for the planners (the summary's keys stay stable).
-NAMES = {"info_gain": "information gain", "known_pose": "information gain, known pose", "random": "random walk",
-         "fixed": "fixed track", "orbit": "orbit", "hindsight": "hindsight (true class)"}
+# A planner's label and colour are its registry entry's (``Planner.label``, ``Planner.color``); a
+# planner not registered in this process (a run read back after its package was removed) shows as
+# its key with spaces, in this colour.
+UNKNOWN_COLOUR = "#CC79A7"
 
 
 def name(p: str) -> str:
-    return NAMES.get(p, p.replace("_", " "))
+    return PLANNERS[p].label if p in PLANNERS else p.replace("_", " ")
+
+
+def colour(p: str) -> str:
+    return PLANNERS[p].color if p in PLANNERS else UNKNOWN_COLOUR
 
 
 def scope(block: dict) -> str:
@@ -88,8 +92,8 @@ def fig_curves(block: dict) -> Any:
             v = np.array([e["value"] for e in est], float)
             lo = np.array([e["ci_low"] for e in est], float)
             hi = np.array([e["ci_high"] for e in est], float)
-            ax.plot(steps, v, "-o", ms=3, color=COLOURS.get(p, "#CC79A7"), label=name(p), lw=1.4)
-            ax.fill_between(steps, lo, hi, color=COLOURS.get(p, "#CC79A7"), alpha=0.12, lw=0)
+            ax.plot(steps, v, "-o", ms=3, color=colour(p), label=name(p), lw=1.4)
+            ax.fill_between(steps, lo, hi, color=colour(p), alpha=0.12, lw=0)
             seen.extend([*v, *lo, *hi])
         ax.set_title(label)
         if key == "nll":   # unbounded: a few confidently wrong targets would flatten a linear axis
@@ -113,8 +117,8 @@ def fig_map(example: dict) -> Any:
             continue
         xy = np.asarray(path["xy"], float).reshape(-1, 2)
         jitter = 0.01 if key == "fixed" else 0.0     # the two paths share their start
-        ax.plot(xy[:, 0] + jitter, xy[:, 1] + jitter, style, marker="o", ms=4, color=COLOURS[key],
-                label=f"{NAMES[key]} ({len(xy)} measurements)", zorder=3)
+        ax.plot(xy[:, 0] + jitter, xy[:, 1] + jitter, style, marker="o", ms=4, color=colour(key),
+                label=f"{name(key)} ({len(xy)} measurements)", zorder=3)
     o = example["object_xy"]
     ax.scatter([o[0]], [o[1]], marker="X", s=90, color="#D55E00", label="object (estimate)", zorder=4)
     start = np.asarray(example["paths"]["info_gain"]["xy"][0] if "info_gain" in example["paths"] else views[0])

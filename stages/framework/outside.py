@@ -19,6 +19,20 @@ KINDS = {
 }
 
 
+def check_loaded(cfg, stage: str, methods: bool) -> None:
+    """Refuse ``stage`` (an ``ExtensionError``, one line at the command line) when an entry point of
+    a kind it uses does not load (``Registry.failures``): a classifier or dataset source only when the
+    config names it, every planner, metric and provider, and the fusion methods for the stages
+    that run them. The other stages, ``status`` and ``--help`` run."""
+    for kind, (module, attr, stages, used) in KINDS.items():
+        if stage in stages:
+            getattr(importlib.import_module(module), attr).check_loaded(used(cfg))
+    if methods:
+        from pipeline.method.registry import registered
+
+        registered().check_loaded()
+
+
 def outside_parts(cfg, stage: str) -> dict[str, str]:
     """``{kind: fingerprint}`` of the kinds with outside entries that change ``stage`` (a
     classifier only when ``classifier.arch`` names it, a dataset source only when ``data.source``
@@ -30,3 +44,24 @@ def outside_parts(cfg, stage: str) -> dict[str, str]:
             if fp:
                 out[kind] = fp
     return out
+
+
+def banner(cfg, stage: str, help_text: str) -> str:
+    """What the stage's "running" line says: the registered source or classifier the config names
+    (its label), not the built-in's words, for the data and classifier stages; else ``help_text``."""
+    if stage == "data":
+        from pipeline.infra.datasets import described
+
+        src = described(cfg.data.source)
+        return f"write the data of source '{cfg.data.source}' ({src.describe({}, {})})"
+    if stage == "classifier":
+        from pipeline.scoring.classifiers import UnknownClassifier, classifier
+
+        try:
+            entry = classifier(cfg.classifier.arch)
+        except UnknownClassifier:
+            return help_text
+        if cfg.classifier.weights == "synthetic" and entry.trains:
+            return f"train {entry.label} on the synthetic source domain"
+        return f"resolve {entry.label}'s weights (classifier.weights = '{cfg.classifier.weights}')"
+    return help_text

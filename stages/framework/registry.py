@@ -33,9 +33,9 @@ class StageSpec:
 
 STAGES: dict[str, StageSpec] = {s.name: s for s in (
     StageSpec("data", "stages.data", (), ("data", "models.min_views"),
-              help="render the synthetic BigBIRD/AVD stand-ins, or validate the real dataset paths"),
+              help="write the run's data from the source data.source names (its own words when it runs), or validate the real dataset paths"),
     StageSpec("classifier", "stages.classifier", (), ("classifier",),
-              help="resolve the network's weights (train the synthetic source-domain AlexNet, or load ImageNet weights)"),
+              help="resolve the weights of the network classifier.arch names (train it on the synthetic source domain, or load a weights file)"),
     StageSpec("features", "stages.features", ("data", "classifier"), ("features",),
               help="crop every needed view and score it (deterministic pass + MC dropout) -> Parquet"),
     StageSpec("models", "stages.models", ("data", "features"),

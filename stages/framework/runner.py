@@ -32,7 +32,7 @@ from pipeline.infra.outputs import read_manifest as outputs_manifest
 from pipeline.infra.progress import echo
 from pipeline.infra.workers import pid_file, stop_leftovers
 from stages.framework import stage_cache
-from stages.framework.outside import outside_parts
+from stages.framework.outside import banner, check_loaded, outside_parts
 from stages.framework.registry import STAGES, StageSpec, code_version, defines
 from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
                                stage_lock, stage_paths, swap_in)
@@ -83,6 +83,7 @@ def digest(manifest: dict) -> str:
 
 
 def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[str, dict]:
+    check_loaded(cfg, spec.name, spec.methods)   # an outside entry it uses that does not load: refused, named
     code, per_module = code_version(spec)
     parts = {
         "stage": spec.name,
@@ -308,7 +309,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     set_max_megapixels(cfg.data.max_image_megapixels)  # the dataset readers' image size limit
     ctx = StageContext(cfg=cfg, stage=spec.name, out=tmp, device_request=device, threads=threads,
                        skips=SkipPolicy.from_config(cfg))
-    echo(f"[{spec.name}] running: {spec.help}")
+    echo(f"[{spec.name}] running: {banner(cfg, spec.name, spec.help)}")
     t0, c0 = time.perf_counter(), cpu_seconds()
     try:
         mark_owned(tmp)  # inside: a full disk here too names the folder and removes it

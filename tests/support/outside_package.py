@@ -25,9 +25,16 @@ def write_package(where: Path, name: str, module_source: str, entry_points: dict
     return where
 
 
+def unpinned(env: dict) -> dict:
+    """``env`` without the test session's pin of the registries to their built-ins
+    (tests/conftest.py): an interpreter started with an outside package loads its entry points."""
+    return {k: v for k, v in env.items() if k != "VIEWFUSE_BUILTINS_ONLY"}
+
+
 def run_with(site: Path | None, code: str, cwd: Path, timeout: int = 600) -> subprocess.CompletedProcess:
-    """``python -c code`` in a fresh interpreter with ``site`` (if any) ahead of the repository on PYTHONPATH."""
+    """``python -c code`` in a fresh interpreter with ``site`` (if any) ahead of the repository on
+    PYTHONPATH, its registries loading the entry points installed there (``unpinned``)."""
     path = os.pathsep.join(str(p) for p in (site, ROOT) if p is not None)
-    env = {**os.environ, "PYTHONPATH": path, "OMP_NUM_THREADS": "1"}
+    env = unpinned({**os.environ, "PYTHONPATH": path, "OMP_NUM_THREADS": "1"})
     return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True,
                           timeout=timeout)

@@ -73,6 +73,8 @@ def run_evaluate(artifacts: Path, launcher: list[str], site: Path, sets: dict[st
     cmd = [sys.executable, *launcher, "evaluate", "--config", str(SMOKE), "--device", DEVICE, "--progress", "off"]
     for k, v in {"run.artifacts": str(artifacts), **SMALL_EVALUATE, **(sets or {})}.items():
         cmd += ["--set", f"{k}={v}"]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(site)]),
-           "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
+    from tests.support.outside_package import unpinned
+
+    env = unpinned({**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(site)]),
+                    "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")})
     return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500)

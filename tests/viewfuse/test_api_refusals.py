@@ -182,7 +182,7 @@ def test_evaluate_population_refuses_bad_arguments_and_tables(data):
 def test_method_and_registration_refuse_bad_arguments(key):
     refused(lambda: vf.method(key), "key")
     refused(lambda: vf.unregister(key), "key")
-    refused(lambda: vf.register(key), "cls")
+    refused(lambda: vf.register(key), "obj")
     refused(lambda: vf.methods(attribution=key), "attribution")
 
 

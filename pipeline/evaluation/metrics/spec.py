@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.infra.registry import Registry, RegistryError, caller_module
+from pipeline.infra.registry import Registry, caller_module
 
 LN10 = float(np.log(10.0))
 
@@ -202,6 +202,9 @@ class Metric:
     best: float | None = None
     worst: float | None = None
     pool: str = "mean"               # over targets: "mean" | "median" (settings and tracks: always the mean)
+    key: str = ""                    # the identifying attribute (summary.json's key); set by register_metric
+    color: str = "#555555"           # where a figure draws it
+    note: str = ""                   # one line on what it measures
 
     @property
     def bounded(self) -> bool:
@@ -211,24 +214,54 @@ class Metric:
 ENTRY_POINT_GROUP = "viewfuse.metrics"
 
 
-def register_metric(key: str, metric: Metric, *, module: str | None = None) -> Metric:
-    """Add ``metric`` under ``key`` (after the built-ins; a key registered twice is an error):
-    every results table, cell, population summary and simulation scenario then reports it.
-    ``module``: where it is defined (default: the caller's module), whose source enters the
-    evaluate and simulate stages' cache key when it is not this module."""
+def problems(metric) -> list[str]:
+    """Every breach of the metric contract ``metric`` declares (empty: none): an identifier key
+    (not a pooled metric's), text labels, known per-step columns, ``steps`` and ``pool`` among
+    the choices, a colour, and ``reduce`` callable as ``reduce(x, params=)`` (one array per column)."""
+    from pipeline.infra import extension as X
+
     if not isinstance(metric, Metric):
-        raise TypeError(f"metric {key!r}: {metric!r} is not a Metric")
+        return [f"{metric!r:.60} is not a Metric"]
+    key, out = metric.key, []
     if not isinstance(key, str) or not key.isidentifier() or key in POOLED_METRICS:
-        raise ValueError(f"metric key {key!r}: an identifier, not one of {sorted(POOLED_METRICS)}")
+        out.append(f"metric key {key!r:.60}: an identifier, not one of {sorted(POOLED_METRICS)}")
+    for attr in ("label", "short"):
+        out.append(X.text_problem(attr, getattr(metric, attr), empty=False))
+    out.append(X.text_problem("note", metric.note))
+    out.append(X.color_problem(metric.color))
     cols = (metric.column,) if isinstance(metric.column, str) else tuple(metric.column)
     bad = [c for c in cols if c not in STEP_COLUMNS]
-    if bad or metric.steps not in ("final", "all") or metric.pool not in POOLS:
-        raise ValueError(f"metric {key!r}: column(s) {bad} not in {sorted(STEP_COLUMNS)}, or steps "
-                         f"{metric.steps!r} not 'final'/'all', or pool {metric.pool!r} not in {POOLS}")
+    if bad:
+        out.append(f"column(s) {bad} not in {sorted(STEP_COLUMNS)}")
+    if metric.steps not in ("final", "all"):
+        out.append(f"steps {metric.steps!r} not 'final'/'all'")
+    if metric.pool not in POOLS:
+        out.append(f"pool {metric.pool!r} not in {POOLS}")
+    call = f"reduce({', '.join(['x'] * len(cols))}, params=Params)"
+    out.append(X.signature_problem(metric.reduce, "reduce", call, *([None] * len(cols)), params=None))
+    return [p for p in out if p]
+
+
+def register_metric(key: str | Metric, metric: Metric | None = None, *, module: str | None = None) -> Metric:
+    """Add a metric (after the built-ins; a key registered twice is an error): every results
+    table, cell, population summary and simulation scenario then reports it. One spelling:
+    ``register_metric(Metric(..., key="mine"))`` (``vf.register``); ``register_metric(key, metric)``
+    is the older one, kept. ``module``: where it is defined (default: the caller's module), whose
+    source enters the evaluate and simulate stages' cache key when it is not this module. Every
+    breach of the contract (``problems``) is one ``ExtensionError`` naming the metric."""
+    import dataclasses
+
+    from pipeline.infra.extension import ExtensionError, raise_problems
+
+    if metric is None:
+        key, metric = getattr(key, "key", ""), key
+    if isinstance(metric, Metric) and metric.key != key:
+        metric = dataclasses.replace(metric, key=key)
+    raise_problems("metric", key, "register", problems(metric))
     old = METRICS.peek(key)
     if old is not None and old != metric:
-        raise RegistryError(f"metric {key!r} is registered twice "
-                            f"({METRICS.module_of(key)}, {module or caller_module()})")
+        raise ExtensionError.of("metric", key, "register",
+                                f"registered twice ({METRICS.module_of(key)}, {module or caller_module()})")
     return METRICS.add(key, metric, module=module or caller_module(), replace=True)
 
 

@@ -93,6 +93,10 @@ class RunConfig:
                                    "whose key matches one any run finished reuses its outputs (hard links, "
                                    "verified by sha256); at most this many GiB, least recently used entries "
                                    "removed first; 0 = off. Not part of any stage's key")
+    method_seconds: float = _f(600.0, lo=0.0, hi=1e6,
+                               doc="a fusion method's call on one track still running after this many seconds is "
+                                   "stopped and named (evaluate's cells and planning, local executor); 0 = no "
+                                   "limit. Not part of any stage's key")
     max_minutes: float = _f(120.0, lo=0.0, hi=1e6,
                             doc="a stage whose estimate (pipeline/infra/cost.py: every setting that multiplies its "
                                 "work, per-unit seconds measured on a 2-core machine) is longer than this is refused "

@@ -8,8 +8,8 @@ from pipeline.scoring.classifiers.registry import Classifier, register_classifie
 
 @register_classifier
 class AlexNet(Classifier):
-    name = "alexnet"
-    display = "torchvision's AlexNet"
+    key = "alexnet"
+    label = "torchvision's AlexNet"
     architecture = "torchvision.models.alexnet"
     trains = True
     imagenet = True

@@ -13,8 +13,8 @@ MEAN, STD = 127.0 / 255.0, 128.0 / 255.0
 
 @register_classifier
 class EfficientNetLite0(Classifier):
-    name = "efficientnet_lite0"
-    display = "EfficientNet-Lite0"
+    key = "efficientnet_lite0"
+    label = "EfficientNet-Lite0"
     architecture = "viewfuse.efficientnet_lite0 (own module, lukemelas key layout)"
     imagenet = True
     card_fields = ("drop_connect",)

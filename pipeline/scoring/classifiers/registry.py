@@ -33,8 +33,12 @@ class UnknownClassifier(ValueError):
 class Classifier:
     """One classifier architecture. Subclasses set the names and override what differs."""
 
-    name = ""           # the classifier.arch value
-    display = ""        # in messages and on the report
+    key = ""            # the classifier.arch value (the identifying attribute)
+    label = ""          # in messages and on the report (default: the key)
+    color = "#555555"   # where a figure draws it
+    note = ""           # one line on what it is
+    name = ""           # the older spellings of ``key`` and ``label``, kept equal to them at registration
+    display = ""
     architecture = ""   # the card's "architecture" string (part of the card hash)
     trains = False      # weights = 'synthetic' trains it on the synthetic source domain
     imagenet = False    # weights = 'imagenet' has a local file (never downloaded)
@@ -130,17 +134,58 @@ _FAMILIES: dict[str, Callable[[str], Classifier]] = {}
 _MADE: dict[str, Classifier] = {}   # family members built so far
 
 
+def problems(entry) -> list[str]:
+    """Every breach of the classifier contract (empty: none): a plain key (no ':', families use it),
+    text labels, a colour, ``last_linear_key()`` (required), ``build(num_classes, dropout,
+    drop_connect)``, and ``for_training(num_classes, dropout, seed)`` when it ``trains``."""
+    from pipeline.infra import extension as X
+
+    inst = entry
+    if isinstance(entry, type):
+        if not issubclass(entry, Classifier):
+            return [f"{entry!r:.60} is not a Classifier"]
+        inst = entry.__new__(entry)     # the class's declarations, without running an __init__
+    elif not isinstance(entry, Classifier):
+        return [f"{entry!r:.60} is not a Classifier"]
+    key, cls = X.declared_key(inst), type(inst)
+    out = [None if ARCH_NAME.fullmatch(key or "") and ":" not in key else
+           f"classifier key {key!r:.60}: letters, digits and '_.-', no ':' (families use it)",
+           X.plain_name_problem(key) if key else None]
+    for attr in ("label", "display", "note"):
+        out.append(X.text_problem(attr, getattr(inst, attr, "")))
+    out.append(X.color_problem(getattr(inst, "color", None)))
+    if cls.last_linear_key is Classifier.last_linear_key:
+        out.append("last_linear_key() is required (the state-dict key of the last Linear layer's weight)")
+    else:
+        out.append(X.signature_problem(cls.last_linear_key, "last_linear_key", "last_linear_key()", inst))
+    if cls.build is Classifier.build:
+        out.append("build(num_classes, dropout, drop_connect=0.0) is not implemented")
+    else:
+        out.append(X.signature_problem(cls.build, "build", "build(num_classes, dropout, drop_connect)",
+                                       inst, 3, 0.5, 0.0))
+    if getattr(inst, "trains", False):
+        if cls.for_training is Classifier.for_training:
+            out.append("trains = True needs for_training(num_classes, dropout, seed)")
+        else:
+            out.append(X.signature_problem(cls.for_training, "for_training", "for_training(num_classes, dropout, seed)",
+                                           inst, 3, 0.5, 0))
+    return [p for p in out if p]
+
+
 def register_classifier(entry):
-    """Register a ``Classifier`` subclass (usable as a class decorator) or instance under its name."""
+    """Register a ``Classifier`` subclass (usable as a class decorator) or instance under its key;
+    every breach of the contract (``problems``) is one ``ExtensionError`` naming it."""
+    from pipeline.infra.extension import ExtensionError, declared_key, raise_problems
+
+    key = declared_key(entry) if isinstance(entry, (type, Classifier)) else ""
+    raise_problems("classifier", key or repr(entry)[:60], "register", problems(entry))
     inst = entry() if isinstance(entry, type) else entry
-    if not isinstance(inst, Classifier):
-        raise TypeError(f"{entry!r} is not a Classifier")
-    if not ARCH_NAME.fullmatch(inst.name or "") or ":" in inst.name:
-        raise ValueError(f"classifier name {inst.name!r}: letters, digits and '_.-', no ':' (families use it)")
-    old = REGISTRY.peek(inst.name)
+    inst.key = inst.name = key
+    inst.label = inst.display = inst.label or inst.display or key
+    old = REGISTRY.peek(key)
     if old is not None and type(old) is not type(inst):
-        raise ValueError(f"classifier {inst.name!r} is already registered ({type(old).__name__})")
-    REGISTRY.add(inst.name, inst, module=type(inst).__module__, replace=True)
+        raise ExtensionError.of("classifier", key, "register", f"already registered ({type(old).__name__})")
+    REGISTRY.add(key, inst, module=type(inst).__module__, replace=True)
     return entry
 
 

@@ -43,6 +43,7 @@ class TorchvisionClassifier(Classifier):
         self.model = model
         self.name = f"{FAMILY}:{model}"
         self.display = f"torchvision's {model}"
+        self.key, self.label = self.name, self.display
         self.architecture = f"torchvision.models.{model}"
 
     def build(self, num_classes, dropout, drop_connect=0.0):

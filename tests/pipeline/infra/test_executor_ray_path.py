@@ -9,8 +9,10 @@ import subprocess
 import sys
 import types
 
+import pytest
+
 from tests.support.outside_kinds import ENTRY_POINTS, MODULE, PACKAGE
-from tests.support.outside_package import write_package
+from tests.support.outside_package import unpinned, write_package
 
 
 def _fake_ray(monkeypatch) -> dict:
@@ -47,6 +49,7 @@ print("WORKER", out[0], out2[1], "p_truth_squared_final" in METRICS, out[2])
 '''
 
 
+@pytest.mark.plugins
 def test_a_local_ray_worker_gets_the_drivers_path_and_loads_the_outside_entry_points(monkeypatch, tmp_path):
     from pipeline.infra.executor_ray import RayExecutor, code_root
 
@@ -58,6 +61,6 @@ def test_a_local_ray_worker_gets_the_drivers_path_and_loads_the_outside_entry_po
     assert path.split(os.pathsep) == [str(code_root()), str(site)]   # the checkout first, then the driver's path
     # a worker: a fresh interpreter with that environment
     r = subprocess.run([sys.executable, "-c", WORKER], cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                       env={**os.environ, "PYTHONPATH": path, "OMP_NUM_THREADS": "1"})
+                       env=unpinned({**os.environ, "PYTHONPATH": path, "OMP_NUM_THREADS": "1"}))
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.split() == ["WORKER", "True", "True", "True", "outside_vote"]

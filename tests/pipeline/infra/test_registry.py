@@ -3,12 +3,17 @@ first, a name registered twice refused, entry points loaded once and adopted, ou
 alone in the fingerprint."""
 from __future__ import annotations
 
+import re
 import sys
 import types
 
 import pytest
 
+from pipeline.infra import registry as registry_module
+from pipeline.infra.extension import ExtensionError
 from pipeline.infra.registry import Registry, RegistryError
+
+pytestmark = pytest.mark.plugins   # these registries load (monkeypatched) entry points
 
 REG: Registry | None = None   # the registry the discovery test's modules register into
 
@@ -26,7 +31,7 @@ class EP:
 
     def load(self):
         self.loads += 1
-        if isinstance(self._obj, Exception):
+        if isinstance(self._obj, BaseException):
             raise self._obj
         return self._obj
 
@@ -61,13 +66,39 @@ def test_entry_points_load_once_in_name_order_and_unregistered_objects_are_adopt
     assert z.loads == 1
 
 
-def test_a_broken_entry_point_is_named(monkeypatch):
+@pytest.mark.parametrize("cause, words", [(ImportError("no module named nothere"), "ImportError: no module named nothere"),
+                                          (SystemExit(0), "SystemExit: 0")])
+def test_a_broken_entry_point_is_contained_and_named(monkeypatch, caplog, cause, words):
+    """Any exception at an entry point's import, SystemExit included: the registry loads the rest,
+    warns once naming the kind, the entry point and the cause, and ``check_loaded`` refuses with it."""
     monkeypatch.setitem(sys.modules, "fake_builtins", types.ModuleType("fake_builtins"))
-    _entry_points(monkeypatch, [EP("test.things", "bad", "pkg.bad:X", ImportError("no module named nothere"))])
+    monkeypatch.setattr(registry_module, "FAILED", {})
+    reg = Registry("thing", "test.things", "fake_builtins",
+                   adopt=lambda n, o, m: reg.add(n, o, module=m))
+    _entry_points(monkeypatch, [EP("test.things", "bad", "pkg.bad:X", cause), EP("test.things", "good", "pkg.g:Y", 1)])
+    assert list(reg) == ["good"]
+    why = "thing entry point 'bad' = 'pkg.bad:X' of group 'test.things' does not load: " + words
+    assert reg.failures() == {"bad": why} and why in caplog.text
+    with pytest.raises(ExtensionError, match=re.escape(why)):
+        reg.check_loaded()
+    reg.check_loaded({"good"})                         # a run that does not use it is not refused
+
+
+def test_an_entry_point_that_registers_then_fails_leaves_nothing(monkeypatch):
+    monkeypatch.setitem(sys.modules, "fake_builtins", types.ModuleType("fake_builtins"))
+    monkeypatch.setattr(registry_module, "FAILED", {})
     reg = Registry("thing", "test.things", "fake_builtins")
-    with pytest.raises(RegistryError, match=r"entry point 'bad' = 'pkg.bad:X' of group 'test.things' does not "
-                                            r"load: ImportError: no module named nothere"):
-        list(reg)
+
+    class Half:
+        name, value = "half", "pkg.half"
+
+        def load(self):
+            reg.add("first", 1, module="pkg.half")
+            reg.add("with_uncertainty", 2, module="pkg.half")
+            reg.add("with_uncertainty", 3, module="pkg.half")       # a key registered twice
+    monkeypatch.setattr(Half, "group", "test.things", raising=False)
+    _entry_points(monkeypatch, [Half()])
+    assert list(reg) == [] and "registered twice" in reg.failures()["half"]
 
 
 def test_the_fingerprint_holds_the_entries_the_code_key_cannot_see(monkeypatch):
@@ -83,12 +114,12 @@ def test_the_fingerprint_holds_the_entries_the_code_key_cannot_see(monkeypatch):
     assert reg.outside_fingerprint() == ""
 
 
-def test_a_failed_load_is_retried_not_taken_as_loaded(monkeypatch):
-    monkeypatch.setitem(sys.modules, "fake_builtins", types.ModuleType("fake_builtins"))
-    _entry_points(monkeypatch, [EP("test.things", "bad", "pkg.bad:X", ImportError("nothere"))])
-    reg = Registry("thing", "test.things", "fake_builtins")
+def test_a_failed_builtin_load_is_retried_not_taken_as_loaded(monkeypatch):
+    _entry_points(monkeypatch, [])
+    monkeypatch.delitem(sys.modules, "fake_missing_builtins", raising=False)
+    reg = Registry("thing", "test.things", "fake_missing_builtins")
     for _ in range(2):
-        with pytest.raises(RegistryError, match="nothere"):
+        with pytest.raises(ModuleNotFoundError, match="fake_missing_builtins"):
             len(reg)
 
 

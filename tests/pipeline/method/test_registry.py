@@ -100,6 +100,7 @@ def test_without_what_it_needs_a_method_is_skipped():
     assert "simple_bayes" not in E.fuse_track(models, bare, est, smp, var_floor=1e-6)
 
 
+@pytest.mark.plugins
 def test_entry_points_of_the_group_are_loaded_on_first_use(monkeypatch):
     """A package of one's own registers through the entry-point group (loaded once, in every
     process that asks the registry)."""
@@ -117,6 +118,7 @@ def test_entry_points_of_the_group_are_loaded_on_first_use(monkeypatch):
     monkeypatch.setattr(importlib.metadata, "entry_points",
                         lambda group=None: [EP()] if group == registry.ENTRY_POINT_GROUP else [])
     monkeypatch.setattr(registry.registered(), "_loaded", False)
+    monkeypatch.setattr(registry.registered(), "_eps_loaded", False)
     try:
         assert KEY in registry.keys() and loaded == [True]
         registry.keys()

@@ -58,7 +58,7 @@ def test_registered_names_resolve_and_unknown_ones_are_named():
     with pytest.raises(UnknownClassifier, match="no classification model 'resnet_unknown'"):
         classifier("torchvision:resnet_unknown")
     with pytest.raises(ValueError, match="already registered"):
-        register_classifier(type("Other", (Classifier,), {"name": "toy_from_tests"}))
+        register_classifier(type("Other", (Toy,), {"name": "toy_from_tests"}))
 
 
 def _cfg(tmp_path, classifier_section: dict):
@@ -178,7 +178,7 @@ def test_an_entry_declares_its_card_fields_and_training_footprint(tmp_path):
     from pipeline.scoring.classifiers import unregister_classifier
 
     @register_classifier
-    class Knobbed(Classifier):
+    class Knobbed(Toy):
         name = "knobbed_from_tests"
         card_fields = ("knob",)
         params, activations_224 = 1e6, 2e6

@@ -113,7 +113,7 @@ def test_adding_a_metric_is_one_entry(request):
     two = M.Metric("wrong and unsure", "wrong, unsure", False, ("correct", "p_truth"), "all",
                    lambda ok, p, params: ((ok == 0) & (p < 0.5)).mean(axis=-1), best=0.0, worst=1.0)
     M.register_metric("wrong_unsure", two)
-    with pytest.raises(ValueError, match="'wrong_unsure' is registered twice"):
+    with pytest.raises(ValueError, match=r"metric 'wrong_unsure' \(register\): registered twice"):
         M.register_metric("wrong_unsure", extra)
     with pytest.raises(ValueError, match=r"column\(s\) \['nope'\]"):
         M.register_metric("bad", dataclasses.replace(extra, column="nope"))
