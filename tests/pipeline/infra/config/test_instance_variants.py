@@ -1,6 +1,7 @@
 """The category benchmark with the instance term and its two documented variants (clutter on both
 sides, every fold class a candidate) load and pass the config checks, each differing from the base
-in the keys it names only."""
+in the keys it names only (and the instance config's declared primary comparison: the term against
+itself without it)."""
 from pathlib import Path
 
 import pytest
@@ -27,7 +28,8 @@ def test_the_instance_config_is_the_category_benchmark_with_the_term():
     cfg, base = load_config(CONFIG), load_config(BASE)
     assert cfg.models.instance_term and not base.models.instance_term
     diff = {k for k, v in _flat(cfg).items() if _flat(base).get(k) != v}
-    assert diff == {"models.instance_term", "run.name"}
+    assert diff == {"models.instance_term", "run.name", "evaluate.primary.methods"}
+    assert cfg.evaluate.primary.methods[0] == "with_uncertainty_instance"
 
 
 @pytest.mark.parametrize("over,changed", [
