@@ -15,23 +15,25 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from pipeline.infra import seeds
 from loaders.synthetic.textures import CATEGORY_NAMES, N_CATEGORIES, texture
 
 TRAIN_STREAM = 0
 VAL_STREAM = 1
 
+LABEL_ORDER = 2**31 - 1  # the labels' order: a name past every image index
 SHAPES = ("polygon", "ellipse", "prism", "cylinder")
 
 
 def _rng(seed: int, stream: int, index: int) -> np.random.Generator:
     # One generator per image: an image does not depend on which others are drawn, or in what order.
-    return np.random.default_rng([int(seed), int(stream), int(index)])
+    return seeds.stream(int(seed), int(stream), int(index))
 
 
 def labels_for(n: int, categories: int, seed: int, stream: int) -> np.ndarray:
     """Balanced labels (each category n/categories times, +-1), in a seeded random order."""
     lab = np.arange(n) % categories
-    np.random.default_rng([int(seed), int(stream), 2**31 - 1]).shuffle(lab)
+    seeds.stream(int(seed), int(stream), LABEL_ORDER).shuffle(lab)
     return lab.astype(np.int64)
 
 

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from pipeline.infra import seeds
 from pipeline.infra.config import ModelsConfig, bounds_problem
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
@@ -211,7 +212,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                     "noise": float(np.clip(0.1 * v if v > 0 else nb[0], *nb))}
             specs.append(FitSpec(c, f, X, y, m, {"amplitude": tuple(amplitude_bounds),
                                                  "length_scale": tuple(length_scale_bounds), "noise": tuple(nb)},
-                                 priors, init, int(np.random.SeedSequence([seed, c, f]).generate_state(1)[0])))
+                                 priors, init, seeds.integer(seed, int(c), int(f))))
     if route == "sklearn":
         fitted = [fit_sklearn(s, restarts) for s in _progress(specs, progress)]
     else:

@@ -22,6 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from pipeline.infra import seeds
 from pipeline.infra.config import ModelsConfig
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.gp_instance import InstanceGPClassModels, same_instance
@@ -188,7 +189,7 @@ def _starts(plain, c: int, f: int, bounds, restarts: int, seed: int) -> np.ndarr
     lo, hi = np.log(np.array(bounds, float)).T
     a, ell, sn2 = plain.amplitude[c, f], plain.length_scale[c, f], plain.noise[c, f]
     starts = [np.log([a, ell, sn2 / 2, sn2 / 2, ell]), np.log([a, ell, sn2 / 2, sn2 / 2, np.exp(hi[4]) / 2])]
-    rng = np.random.default_rng(np.random.SeedSequence([seed, c, f, 46]))
+    rng = seeds.stream(seed, int(c), int(f), 46)  # 46: the restarts' stream
     starts += [rng.uniform(lo, hi) for _ in range(restarts)]
     return np.clip(np.array(starts), lo, hi)
 

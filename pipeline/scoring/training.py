@@ -11,6 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from pipeline.infra import seeds
 from pipeline.infra.config.learning import early_epochs_run
 
 
@@ -46,7 +47,7 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     from pipeline.infra.progress import bar as progress_bar
 
     torch.manual_seed(seed)
-    gen = np.random.default_rng([seed, 7])
+    gen = seeds.stream(seed, 7)  # the minibatch order's stream
     use_bf16 = resolve_precision(precision, device) == "bf16"
     # channels_last: oneDNN's fast convolution layout on CPU (and tensor-core friendly on GPU).
     model.to(device).to(memory_format=torch.channels_last).train()
