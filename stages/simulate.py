@@ -28,6 +28,9 @@ from pipeline.infra.cache import write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
+from pipeline.evaluation.metrics.results import frame, metadata, write_results
+from pipeline.evaluation.metrics.spec import Params
+from pipeline.method.gp_files import save_bank
 
 log = logging.getLogger("viewfuse.simulate")
 
@@ -47,11 +50,8 @@ def _fit_budget(sim, limit: int):
 def run(ctx) -> str:
     cfg: Config = ctx.cfg
     sim = _fit_budget(cfg.simulate, budget(cfg))  # before the heavy imports below: a refusal is immediate
-    from pipeline.evaluation.metrics.results import frame, metadata, write_results
-    from pipeline.evaluation.metrics.spec import Params
     from pipeline.evaluation.simulation import scenarios as S
     from pipeline.evaluation.simulation import sweep as SW
-    from pipeline.method.gp_files import save_bank
     from reports.simulate.findings import findings
     from reports.simulate.page import build_simulate_report
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from pipeline.scoring.classifiers import classifier
 
 
 def mc_dropout_scores(arch: str, weights: str | Path, images, *, num_classes: int, dropout: float,
@@ -16,7 +17,6 @@ def mc_dropout_scores(arch: str, weights: str | Path, images, *, num_classes: in
     from its own stream (``seed``, ``i``), as each crop's do in the features stage."""
     import torch
 
-    from pipeline.scoring.classifiers import classifier
     from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed
     from pipeline.scoring.weight_files import load_into, load_state_dict_file
 

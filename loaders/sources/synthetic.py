@@ -15,6 +15,8 @@ from pipeline.infra.datasets import DatasetSource, Work, register_dataset
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
 from pipeline.infra.workers import worker_pool
+from loaders.synthetic.objects import make_instance
+from loaders.synthetic.objects import CATEGORY_NAMES, make_instance
 
 CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
 
@@ -80,7 +82,6 @@ def _work(task: tuple):
     if kind == "bigbird-views":
         from loaders.synthetic.bigbird_writer import make_rig, write_view
         from loaders.synthetic.nuisance import RigNuisance
-        from loaders.synthetic.objects import make_instance
         _, folder, syn, seed, name, views = task
         rig = make_rig(syn.bigbird_width, syn.bigbird_height)
         inst = make_instance(name, seed)
@@ -108,7 +109,6 @@ def _init_worker() -> None:
 def write_synthetic(ctx) -> str:
     from loaders.synthetic.avd_writer import plan_scan, truth, write_scan_metadata
     from loaders.synthetic.bigbird_writer import angles
-    from loaders.synthetic.objects import CATEGORY_NAMES, make_instance
     from loaders.synthetic.scene import scan_instances
 
     cfg = ctx.cfg

@@ -17,6 +17,8 @@ import numpy as np
 
 from pipeline.infra import seeds
 from loaders.synthetic.textures import CATEGORY_NAMES, N_CATEGORIES, texture
+from pipeline.infra.progress import bar as progress_bar
+from pipeline.infra.workers import worker_pool
 
 TRAIN_STREAM = 0
 VAL_STREAM = 1
@@ -225,7 +227,6 @@ def render(category: int, rng: np.random.Generator, size: int = 128, categories:
 def render_set(n: int, size: int, categories: int, seed: int, stream: int,
                start: int = 0, progress: bool = False, desc: str = "source images") -> tuple[np.ndarray, np.ndarray]:
     """Images ``start..start+n-1`` of a stream: (uint8 (n, size, size, 3), int64 labels (n,))."""
-    from pipeline.infra.progress import bar as progress_bar
 
     labels = labels_for(start + n, categories, seed, stream)[start:]
     images = np.empty((n, size, size, 3), np.uint8)
@@ -264,7 +265,6 @@ def render_set_parallel(n: int, size: int, categories: int, seed: int, stream: i
         if progress is not None:
             progress.update(n)
         return images, labels
-    from pipeline.infra.workers import worker_pool
 
     images = np.empty((n, size, size, 3), np.uint8)
     tasks = [(labels[s:s + chunk], size, categories, seed, stream, s) for s in range(0, n, chunk)]

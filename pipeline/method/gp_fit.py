@@ -19,6 +19,8 @@ from pipeline.infra import seeds
 from pipeline.infra.config import ModelsConfig, bounds_problem
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
+from pipeline.method.gp_batch import Problem, fit_problems, prior_rows, starts_for
+from pipeline.infra.progress import bar as progress_bar
 
 
 # The defaults are the config's ([models] in pipeline/infra/config/learning.py): one source.
@@ -90,8 +92,6 @@ def fit_batched(specs: list[FitSpec], restarts: int, prior_index: tuple[int, int
     from scipy.optimize import OptimizeResult
     from sklearn.exceptions import ConvergenceWarning
 
-    from pipeline.method.gp_batch import Problem, fit_problems, prior_rows, starts_for
-
     if tuple(theta_index(n) for n in ("k1__k1__constant_value", "k1__k2__length_scale", "k2__noise_level")) != (0, 1, 2):
         raise RuntimeError("fit_batched: scikit-learn's kernel.theta order is not (amplitude, length scale, noise)")
     problems = []
@@ -135,8 +135,6 @@ def _lbfgs_warning(res) -> None:
 
 
 def _progress(items, enabled: bool):
-    from pipeline.infra.progress import bar as progress_bar
-
     bar = progress_bar(total=len(items), desc="GP fits", unit="fit", enabled=enabled)
     for it in items:
         yield it

@@ -28,6 +28,8 @@ from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.gp_instance import InstanceGPClassModels, same_instance
 from pipeline.method.gp_instance_batch import laplace_from_hessian
 from pipeline.method.gp_prior import LogInverseGamma, input_range
+from pipeline.method.gp_batch import prior_rows
+from pipeline.method.gp_instance_batch import InstanceProblem, fit_instance_problems
 
 _DEFAULTS = ModelsConfig()
 NAMES = ("amplitude", "length_scale", "noise", "instance_amplitude", "instance_length_scale")
@@ -207,8 +209,6 @@ def _fit_each(jobs, labels):
 def _fit_batched(jobs, labels):
     """Every fit at once (``gp_instance_batch``); a run that did not converge is a warning, as
     the per-fit route's best run is."""
-    from pipeline.method.gp_batch import prior_rows
-    from pipeline.method.gp_instance_batch import InstanceProblem, fit_instance_problems
 
     problems = [InstanceProblem(obj.X, obj.y, labels[c], np.log(np.array(bounds, float)),
                                 prior_rows(obj.priors, 1, 2), starts) for c, f, obj, bounds, starts in jobs]

@@ -19,6 +19,9 @@ import numpy as np
 from pipeline.infra.cache import atomic_path
 from pipeline.scoring.feature_schema import CROP_COLS, schema
 from pipeline.scoring.table_checks import check_finite_scores
+from pipeline.scoring.table_checks import check_table, kind_of
+from pipeline.scoring.classifiers import classifier
+from pipeline.scoring.classifiers import card_arch
 
 
 def metadata(*, config_hash: str, classifier_hash: str, seed: int, output_names: list[str],
@@ -95,8 +98,6 @@ def read_features_table(path: str | Path, kind: str | None = None, required: Ite
     ``scores`` (which the file must still have; ``read_scores`` streams it)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from pipeline.scoring.table_checks import check_table, kind_of
 
     path = Path(path)
     fail = error or (lambda p, m: ValueError(f"{p}: {m}"))
@@ -246,8 +247,6 @@ class ScoringModel:
 
     @classmethod
     def from_model(cls, model, card: dict, policy, device: str, *, with_weights: bool) -> "ScoringModel":
-        from pipeline.scoring.classifiers import card_arch
-
         w = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()} if with_weights else None
         return cls(key=f"{card['hash']}@{device}", num_classes=int(card["num_classes"]),
                    dropout=float(card["dropout"]), mean=tuple(policy.mean), std=tuple(policy.std),
@@ -274,7 +273,6 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.scoring.classifiers import classifier
         from pipeline.scoring.weight_files import load_into
         from pipeline.scoring.mc_dropout import MCDropoutScorer
 

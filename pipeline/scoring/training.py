@@ -13,6 +13,8 @@ from torch import nn
 
 from pipeline.infra import seeds
 from pipeline.infra.config.learning import early_epochs_run
+from pipeline.infra.memory import reuse_freed_memory
+from pipeline.infra.progress import bar as progress_bar
 
 
 def lr_at(step: int, total: int, base: float, warmup: int) -> float:
@@ -43,8 +45,6 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     runs at full size with the model's own forward, and an ``early_size`` not below the images' side
     changes nothing.
     """
-    from pipeline.infra.memory import reuse_freed_memory
-    from pipeline.infra.progress import bar as progress_bar
 
     torch.manual_seed(seed)
     gen = seeds.stream(seed, 7)  # the minibatch order's stream
@@ -208,7 +208,6 @@ def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int 
             device: str = "cpu", progress: bool = False) -> np.ndarray:
     """Eval-mode logits (n, D) for uint8 images."""
     from pipeline.scoring.crops import to_tensor
-    from pipeline.infra.progress import bar as progress_bar
 
     model.eval().to(device)
     outs = []

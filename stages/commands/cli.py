@@ -17,6 +17,16 @@ from concurrent.futures.process import BrokenProcessPool
 from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
 from pipeline.infra.config.own import own_items, registered as own_key_of
 from stages.framework.registry import ORDER, STAGES
+from stages.framework.checkout import other_checkout
+from pipeline.evaluation.metrics.spec import check_primary
+from pipeline.scoring.classifiers import check_config
+from stages.framework.runner import plan
+from pipeline.infra.workers import raise_on_sigterm
+from pipeline.infra.workers import Terminated
+from pipeline.infra import progress
+from stages.framework.runner import ensure, remove_orphans
+from stages.commands.compare import run as compare_runs
+from stages.commands.study import run_study
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
 
@@ -136,8 +146,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _load(args) -> Config:
-    from stages.framework.checkout import other_checkout
-
     foreign = other_checkout()
     if foreign:
         logging.getLogger("viewfuse").warning("%s", foreign)
@@ -152,8 +160,6 @@ def _load(args) -> Config:
     if getattr(args, "executor", None) is not None:
         overrides = merge(overrides, {"run": {"executor": args.executor}})
     cfg = load_config(args.config, overrides or None)
-    from pipeline.evaluation.metrics.spec import check_primary
-    from pipeline.scoring.classifiers import check_config
 
     # The checks that live above the config's floor (the arch's own, in the classifier registry;
     # metric names, with the metrics), run here at load so `status` refuses as the stages would.
@@ -181,7 +187,6 @@ def _checked(args, cfg: Config, prefix: str, check) -> None:
 
 def status(cfg: Config) -> int:
     """The status table on stdout; exit 1 when a stage's state cannot be determined."""
-    from stages.framework.runner import plan
     print(f"run folder: {cfg.run_dir}", file=sys.stderr)
     memo: dict = {}
     width = max(map(len, ORDER))
@@ -266,7 +271,6 @@ def main(argv: list[str] | None = None) -> int:
 def _run(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     where = f"viewfuse {args.stage}"
-    from pipeline.infra.workers import raise_on_sigterm
 
     main_thread = threading.current_thread() is threading.main_thread()
     before = signal.getsignal(signal.SIGTERM) if main_thread else None
@@ -280,8 +284,6 @@ def _run(argv: list[str] | None) -> int:
 
 
 def _boundary(args, where: str) -> int:
-    from pipeline.infra.workers import Terminated
-
     try:
         rc = _main(args)
         sys.stdout.flush()  # a closed pipe shows here, inside the boundary, not at exit
@@ -316,19 +318,15 @@ def _main(args) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     if args.stage == "compare":  # not a stage: reads finished runs only (stages/commands/compare.py)
-        from stages.commands.compare import run as compare_runs
         return compare_runs(args.runs, args.out)
-    from pipeline.infra import progress
     progress.set_mode(args.progress)
     cfg = _load(args)
     if args.stage == "status":
         return status(cfg)
-    from stages.framework.runner import ensure, remove_orphans
     print(f"run folder: {cfg.run_dir}", file=sys.stderr)
     with progress.redirect_logging():
         remove_orphans(cfg)
         if args.stage == "study":  # not a stage: the chain once per seed (stages/commands/study.py)
-            from stages.commands.study import run_study
             run_study(cfg, device=cfg.run.device, threads=cfg.run.threads, force=args.force)
             return 0
         keys: dict[str, str] = {}

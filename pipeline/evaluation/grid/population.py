@@ -21,6 +21,7 @@ from pipeline.evaluation.grid.track import TrackPlan, select_tracks
 from pipeline.scene.rays import TrackError, facing_error
 from pipeline.infra import seeds
 from pipeline.method.provider import calibrated, providers
+from pipeline.method.fusion import engine_device
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -277,7 +278,6 @@ def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None, "seconds":
     {method: wall seconds in its fusion calls}, "extras": {method: the pose-free methods' extras}}."""
-    from pipeline.method.fusion import engine_device
 
     with engine_device(cell.device):
         return _run_cell(banks, cell)

@@ -18,6 +18,7 @@ from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile 
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.resampler import LEVEL
 from pipeline.infra.config.evaluation import cluster_of
+from pipeline.method import registry as method_registry
 
 
 def cell_table(kept: list[dict]) -> pd.DataFrame:
@@ -142,10 +143,8 @@ def method_blocks(cfg, cells: list[P.Cell], results: list[dict], population: dic
     """summary.json's block of each method that reports one beside its posterior
     (``FusionMethod.population_block``), from its extras in the default cells' ``reduce_cell``
     summaries ``results``; keyed by the method."""
-    from pipeline.method.registry import methods
-
     out = {}
-    for m in methods():
+    for m in method_registry.methods():
         pairs = [(c, r["extras"][m.key]) for c, r in zip(cells, results)
                  if c.variant == DEFAULT and m.key in r.get("extras", {})]
         block = m.population_block(cfg, pairs) if pairs else None
