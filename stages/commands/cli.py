@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import dataclasses
 import errno
+import json
 import logging
 import os
 import signal
@@ -13,9 +14,11 @@ import sys
 import threading
 import traceback
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
 from pipeline.infra.config.own import own_items, registered as own_key_of
+from pipeline.infra.config.schema import json_schema
 from stages.framework.registry import ORDER, STAGES
 from stages.framework.checkout import other_checkout
 from pipeline.evaluation.metrics.spec import check_primary
@@ -142,6 +145,12 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--out", default=None, help="folder for index.html (default: <first run>/compare)")
     cp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     cp.add_argument("--debug", action="store_true", help="on an error, print the Python traceback too")
+    sc = sub.add_parser("schema", help="a JSON Schema of the config file, for editors (stdout or --out)",
+                        description="Write a JSON Schema of the config file from the declarations the loader "
+                                    "checks (types, ranges, choices, docs, registered sections).")
+    sc.add_argument("--out", default=None, help="file to write (default: stdout)")
+    sc.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sc.add_argument("--debug", action="store_true", help="on an error, print the Python traceback too")
     return p
 
 
@@ -319,6 +328,13 @@ def _main(args) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     if args.stage == "compare":  # not a stage: reads finished runs only (stages/commands/compare.py)
         return compare_runs(args.runs, args.out)
+    if args.stage == "schema":   # not a stage: the config's declarations as a JSON Schema
+        text = json.dumps(json_schema(), indent=1, ensure_ascii=False) + "\n"
+        if args.out:
+            Path(args.out).write_text(text)
+        else:
+            sys.stdout.write(text)
+        return 0
     progress.set_mode(args.progress)
     cfg = _load(args)
     if args.stage == "status":
