@@ -58,7 +58,7 @@ def extra_key(cfg) -> str:
     if c.weights == "path":
         p = cfg.path("classifier.path")
     else:
-        from pipeline.scoring.weight_files import WeightsNotFoundError
+        from pipeline.scoring.weight_files import WeightsNotFoundError  # heavy: torch
 
         try:
             p = classifier(c.arch).imagenet_location()
@@ -118,8 +118,8 @@ def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: st
 def _file_weights(ctx, device: str) -> str:
     import torch
 
-    from pipeline.scoring.card import card_hash, read_card
-    from pipeline.scoring.weight_files import load_into, load_state_dict_file
+    from pipeline.scoring.card import card_hash, read_card  # heavy: torch
+    from pipeline.scoring.weight_files import load_into, load_state_dict_file  # heavy: torch
 
     cfg, c = ctx.cfg, ctx.cfg.classifier
     entry = classifier(c.arch)
@@ -128,7 +128,7 @@ def _file_weights(ctx, device: str) -> str:
     state = load_state_dict_file(path)
     n = entry.num_classes_of(state, path)
     if c.weights == "path" and c.num_classes and c.num_classes != n:
-        from pipeline.scoring.weight_files import WeightsError
+        from pipeline.scoring.weight_files import WeightsError  # heavy: torch
         raise WeightsError(path, f"has {n} outputs but 'classifier.num_classes' = {c.num_classes}")
     for note in entry.notes(c):
         log.warning("%s", note)
@@ -151,7 +151,7 @@ def _file_weights(ctx, device: str) -> str:
             except (ValueError, FileNotFoundError):
                 pass
     card = _base_card(c, n, names, str(Path(path).resolve()), sha)
-    from pipeline.infra.fingerprint import machine_fingerprint
+    from pipeline.infra.fingerprint import machine_fingerprint  # heavy: torch
 
     card.update({"accuracy": None, "seconds": round(time.perf_counter() - t0, 2), "device": device,
                  "torch": torch.__version__, "determinism": machine_fingerprint()})
@@ -171,7 +171,7 @@ def _cpu_s() -> float:
 
 def _render_sets(c, t) -> tuple:
     """Train and validation images, rendered by ``training.render_workers`` processes."""
-    from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, render_set_parallel
+    from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, render_set_parallel  # heavy: cv2
 
     with progress_bar(total=t.train_images + t.val_images, desc="classifier: render source domain", unit="img") as bar:
         xtr, ytr = render_set_parallel(t.train_images, c.input_size, t.categories, c.seed, TRAIN_STREAM,
@@ -191,11 +191,11 @@ def _train_synthetic(ctx, device: str) -> str:
 
     import torch
 
-    from loaders.synthetic.source_domain import category_names
-    from pipeline.infra.fingerprint import machine_fingerprint
-    from pipeline.scoring.card import WEIGHTS_NPZ, card_hash
-    from pipeline.scoring.training import confusion_matrix, predict, resolve_precision, train_classifier
-    from pipeline.scoring.weight_files import save_state_dict_npz
+    from loaders.synthetic.source_domain import category_names  # heavy: cv2
+    from pipeline.infra.fingerprint import machine_fingerprint  # heavy: torch
+    from pipeline.scoring.card import WEIGHTS_NPZ, card_hash  # heavy: torch
+    from pipeline.scoring.training import confusion_matrix, predict, resolve_precision, train_classifier  # heavy: torch
+    from pipeline.scoring.weight_files import save_state_dict_npz  # heavy: torch
 
     c = ctx.cfg.classifier
     t = c.training

@@ -94,7 +94,7 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     view planning's). The scan is read under the same skip policy
     as the features stage, so an entry features skipped does not stop this stage; geometry needs
     no frames, so a metadata-only copy (no jpg_rgb/) is read as one."""
-    from loaders.avd import AVDScan
+    from loaders.avd import AVDScan  # heavy: scipy
 
     _, avd_root = data_roots(cfg)
     intr, steps, grids, moves = {}, {}, {}, {}
@@ -287,7 +287,7 @@ def run(ctx) -> str:
             cells = [dataclasses.replace(c, device=device) for c in cells]
             plan_tasks, t_plan = None, 0.0
             if cfg.plan.enabled:   # built before the workers fork, so that they inherit them
-                from pipeline.planning.population import build_tasks
+                from pipeline.planning.population import build_tasks  # heavy: pandas
 
                 t1 = time.perf_counter()
                 plan_tasks = build_tasks(cells, tracks, avd, scores, moves, ev, cfg.plan)
@@ -319,7 +319,7 @@ def run(ctx) -> str:
             # gives the same bytes either way.
             with ThreadPoolExecutor(1) as beside:
                 if cfg.plan.enabled:
-                    from pipeline.planning.evaluation import run_planning
+                    from pipeline.planning.evaluation import run_planning  # heavy: pandas
 
                     def plan_part():
                         t1 = time.perf_counter()

@@ -55,7 +55,7 @@ def bigbird_objects(cfg, root, skips) -> list:
     """The object folders to score. A folder with views but no calibration.h5 is one skip naming
     the file (an error with skips off); a calibration that lacks a key the views need is one error
     naming the file and key (every view of the object would fail the same way)."""
-    from loaders.bigbird import BigBirdObject, list_objects, uncalibrated_objects
+    from loaders.bigbird import BigBirdObject, list_objects, uncalibrated_objects  # heavy: cv2
 
     f = cfg.features
     present = list_objects(root)
@@ -169,8 +169,8 @@ def _threads_for_scoring(ctx, executor):
 
 def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
-    from pipeline.scoring.card import load_classifier
-    from pipeline.scoring.mc_dropout import MCDropoutScorer
+    from pipeline.scoring.card import load_classifier  # heavy: torch
+    from pipeline.scoring.mc_dropout import MCDropoutScorer  # heavy: torch
 
     if executor.name == "local":
         device = ctx.device
@@ -189,8 +189,8 @@ def prepare_scoring(ctx, executor, policy):
 
 
 def run(ctx) -> str:
-    from loaders.avd import AVDScan
-    from pipeline.scoring.crops import CropPolicy
+    from loaders.avd import AVDScan  # heavy: scipy
+    from pipeline.scoring.crops import CropPolicy  # heavy: cv2
 
     cfg = ctx.cfg
     f = cfg.features

@@ -39,7 +39,7 @@ def _fit_budget(sim, limit: int):
     """The results of every realization are kept (refused when they cannot fit); a fused batch
     holds ``simulate.chunk`` realizations (capped to a quarter of the budget; the results do not
     depend on it: every realization draws from its own generator)."""
-    from pipeline.evaluation.simulation.scenarios import methods
+    from pipeline.evaluation.simulation.scenarios import methods  # heavy: pandas
     rows = sim.realizations * len(sim.scenarios) * len(methods()) * sim.track_steps  # (method, realization, step)
     require("simulate.realizations", sim.realizations, footprints.simulate_results(sim, len(methods())), limit,
             f"the results table ({rows} rows, kept in memory until written)")
@@ -50,10 +50,10 @@ def _fit_budget(sim, limit: int):
 def run(ctx) -> str:
     cfg: Config = ctx.cfg
     sim = _fit_budget(cfg.simulate, budget(cfg))  # before the heavy imports below: a refusal is immediate
-    from pipeline.evaluation.simulation import scenarios as S
-    from pipeline.evaluation.simulation import sweep as SW
-    from reports.simulate.findings import findings
-    from reports.simulate.page import build_simulate_report
+    from pipeline.evaluation.simulation import scenarios as S  # heavy: pandas
+    from pipeline.evaluation.simulation import sweep as SW  # heavy: scipy
+    from reports.simulate.findings import findings  # heavy: pandas
+    from reports.simulate.page import build_simulate_report  # heavy: pandas
 
     S.validate(sim, cfg.source_path or "config")
     t_start = time.perf_counter()

@@ -74,7 +74,7 @@ def input_key(cfg) -> str:
 
 
 def check_roots(ctx) -> str:
-    from loaders.bigbird import list_objects
+    from loaders.bigbird import list_objects  # heavy: cv2
 
     cfg = ctx.cfg
     bb, avd = roots(cfg)
@@ -115,8 +115,8 @@ def _validate_real(ctx, bb: Path, avd: Path, objects: list[str]) -> None:
     minutes of scoring: the instance map, annotations.json, image_structs.mat and every box
     (malformed files always raise; bad single entries follow data.skip_bad_views), and each
     object's calibration (folders with views but no calibration.h5 follow the skip policy)."""
-    from loaders.avd import AVDScan
-    from loaders.bigbird import BigBirdObject, uncalibrated_objects
+    from loaders.avd import AVDScan  # heavy: scipy
+    from loaders.bigbird import BigBirdObject, uncalibrated_objects  # heavy: cv2
 
     cfg = ctx.cfg
     for calib in uncalibrated_objects(bb):

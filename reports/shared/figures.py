@@ -153,7 +153,7 @@ def tick_overlaps(fig: Figure, arts=None, boxes=None) -> list[str]:
 def check(fig: Figure, dpi: int = 110, name: str = "figure", drawn: bool = False) -> FigureCheck:
     """The legibility check and the self-check's text problems, from one placement of the text
     (``drawn``: the figure's last draw placed it and nothing changed since)."""
-    from reports.shared import layout
+    from reports.shared import layout  # heavy: matplotlib
     sizes = text_sizes_px(fig, dpi)
     # the finishing draw's measured boxes when it was the last draw: the texts are not measured twice
     boxes = layout.last_boxes(fig) if drawn else None
@@ -167,7 +167,7 @@ def save(fig: Figure, path, dpi: int = 110) -> FigureCheck:
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"{path}: figures are written as .png")
-    from reports.shared import layout
+    from reports.shared import layout  # heavy: matplotlib
     layout.finish_figure(fig)   # no text overlaps or leaves the canvas, whatever the data (see layout.py)
     freeze_layout(fig, relayout=not layout.ended_on_draw(fig))
     # checked as placed by that last draw: the PNG below draws the same frozen layout

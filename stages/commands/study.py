@@ -105,7 +105,7 @@ def outcomes(result: dict) -> dict[str, str] | None:
 def summarize(results: dict[int, dict]) -> dict:
     """Side by side: per seed the pooled values and the verdict; whether the verdict agrees; and
     the verdict pooled over the seeds (the engine's one seed pool, at the seeds' own resample count)."""
-    from pipeline.evaluation.statistics.engine import seed_pool
+    from pipeline.evaluation.statistics.engine import seed_pool  # heavy: pandas
 
     seeds = sorted(results)
     pooled = seed_pool({str(s): results[s] for s in seeds})

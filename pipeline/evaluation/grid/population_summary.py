@@ -68,7 +68,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences
     and verdicts (whole population, per setting, per ablation), difficulty, per-cell values and
     the tracks."""
-    from pipeline.evaluation.grid import population_calibration as PC
+    from pipeline.evaluation.grid import population_calibration as PC  # heavy: pandas
 
     ev = cfg.evaluate
     metrics = list(METRICS)
