@@ -18,6 +18,7 @@ from loaders.avd import MOVES, AVDBox, AVDScan
 from loaders.avd_boxes import BoxNotes
 from loaders.errors import SkipLog
 from pipeline.scene.location import locate_all
+from pipeline.scene.rays import grid_step
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,6 @@ def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_resi
     ``instance_id_map.txt``). ``frames=None`` reads frames where ``jpg_rgb/`` exists, metadata
     only otherwise. Boxes up to ``max_difficulty`` locate an instance; ``max_residual_m`` is
     ``evaluate.max_ray_residual_m``."""
-    from pipeline.scene.rays import grid_step
 
     root = Path(root)
     if frames is None:
@@ -92,7 +92,6 @@ def scan_paths(root: str | Path, scan: str, *, max_difficulty: int = 4, max_resi
 def summary_rows(root: str | Path, max_difficulty: int = 4, max_residual_m: float = 0.25) -> tuple[list[dict], list[float]]:
     """Per scan under ``root``: what the reader read, refused and repaired, the grid, the located
     and excluded instances; and the residuals of every located instance (no limit applied)."""
-    from pipeline.scene.rays import grid_step
 
     rows, residuals = [], []
     root = Path(root)

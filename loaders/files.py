@@ -21,6 +21,7 @@ from pathlib import Path
 from loaders.errors import BadInputError
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.decoder_limits import ENV as CAP_ENV, cap_megapixels
+from pipeline.infra.cache import within
 from pipeline.infra.filekind import not_regular
 
 DEFAULT_MAX_MEGAPIXELS = 64.0  # real BigBIRD views are 1.3 MP (1280x1024), AVD images 2.1 MP
@@ -80,7 +81,7 @@ def checked_file(path: str | Path, root: str | Path | None = None, what: str = "
         raise BadInputError(path, problem[1])
     if root is not None:
         real, real_root = os.path.realpath(path), os.path.realpath(root)
-        if os.path.commonpath([real, real_root]) != real_root:
+        if not within(real, real_root):
             raise BadInputError(path, f"{what} resolves to {real}, outside the dataset root {root}; refused")
     return path
 

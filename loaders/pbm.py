@@ -15,6 +15,7 @@ from loaders.files import read_checked
 from loaders.image_format import pnm_tokens
 from loaders.image_gate import checked_image
 from pipeline.infra.cache import note_read
+from pipeline.infra.cache import write_bytes
 
 
 def read_pbm(path: str | Path, root: str | Path | None = None) -> np.ndarray:
@@ -45,5 +46,4 @@ def encode_pbm(mask: np.ndarray) -> bytes:
 
 
 def write_pbm(path: str | Path, mask: np.ndarray) -> None:
-    from pipeline.infra.cache import write_bytes
     write_bytes(path, encode_pbm(mask))

@@ -34,6 +34,13 @@ import numpy as np
 from pipeline.infra.cache import sha256_file, write_json
 from pipeline.infra.config import to_dict
 from pipeline.infra.outputs import name as out_name
+from pipeline.scoring.classifiers import classifier
+from pipeline.scoring.classifiers import check_config
+from pipeline.infra import footprints
+from pipeline.infra.budget import budget, require
+from pipeline.infra.progress import bar as progress_bar
+from pipeline.infra.budget import cap_workers
+from pipeline.evaluation.statistics.resampler import wilson_interval
 
 log = logging.getLogger("viewfuse.classifier")
 
@@ -51,8 +58,7 @@ def extra_key(cfg) -> str:
     if c.weights == "path":
         p = cfg.path("classifier.path")
     else:
-        from pipeline.scoring.classifiers import classifier
-        from pipeline.scoring.weight_files import WeightsNotFoundError
+        from pipeline.scoring.weight_files import WeightsNotFoundError  # heavy: torch
 
         try:
             p = classifier(c.arch).imagenet_location()
@@ -73,8 +79,6 @@ def extra_key(cfg) -> str:
 
 
 def run(ctx) -> str:
-    from pipeline.scoring.classifiers import check_config
-
     c = ctx.cfg.classifier
     check_config(c, ctx.cfg.source_path or "config")
     if c.weights == "synthetic":
@@ -87,7 +91,6 @@ def run(ctx) -> str:
 
 def _footprint(c) -> tuple[float, float]:
     """The arch's declared training footprint: (parameters, activations per image at 224 px)."""
-    from pipeline.scoring.classifiers import classifier
 
     entry = classifier(c.arch)
     return entry.params, entry.activations_224
@@ -95,8 +98,6 @@ def _footprint(c) -> tuple[float, float]:
 
 def _check_budget(cfg) -> None:
     """The training set lives in memory whole (it is reshuffled every epoch): refuse before rendering."""
-    from pipeline.infra import footprints
-    from pipeline.infra.budget import budget, require
 
     c, t = cfg.classifier, cfg.classifier.training
     require("classifier.training.train_images", t.train_images, footprints.classifier_training(c, *_footprint(c)),
@@ -105,8 +106,6 @@ def _check_budget(cfg) -> None:
 
 
 def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: str) -> dict:
-    from pipeline.scoring.classifiers import classifier
-
     entry = classifier(c.arch)
     card = {"architecture": entry.architecture, "weights": c.weights, "weights_file": weights_file,
             "weights_sha256": sha, "num_classes": int(num_classes), "output_names": names,
@@ -119,9 +118,8 @@ def _base_card(c, num_classes: int, names: list[str], weights_file: str, sha: st
 def _file_weights(ctx, device: str) -> str:
     import torch
 
-    from pipeline.scoring.card import card_hash, read_card
-    from pipeline.scoring.classifiers import classifier
-    from pipeline.scoring.weight_files import load_into, load_state_dict_file
+    from pipeline.scoring.card import card_hash, read_card  # heavy: torch
+    from pipeline.scoring.weight_files import load_into, load_state_dict_file  # heavy: torch
 
     cfg, c = ctx.cfg, ctx.cfg.classifier
     entry = classifier(c.arch)
@@ -130,7 +128,7 @@ def _file_weights(ctx, device: str) -> str:
     state = load_state_dict_file(path)
     n = entry.num_classes_of(state, path)
     if c.weights == "path" and c.num_classes and c.num_classes != n:
-        from pipeline.scoring.weight_files import WeightsError
+        from pipeline.scoring.weight_files import WeightsError  # heavy: torch
         raise WeightsError(path, f"has {n} outputs but 'classifier.num_classes' = {c.num_classes}")
     for note in entry.notes(c):
         log.warning("%s", note)
@@ -153,7 +151,7 @@ def _file_weights(ctx, device: str) -> str:
             except (ValueError, FileNotFoundError):
                 pass
     card = _base_card(c, n, names, str(Path(path).resolve()), sha)
-    from pipeline.infra.fingerprint import machine_fingerprint
+    from pipeline.infra.fingerprint import machine_fingerprint  # heavy: torch
 
     card.update({"accuracy": None, "seconds": round(time.perf_counter() - t0, 2), "device": device,
                  "torch": torch.__version__, "determinism": machine_fingerprint()})
@@ -173,8 +171,7 @@ def _cpu_s() -> float:
 
 def _render_sets(c, t) -> tuple:
     """Train and validation images, rendered by ``training.render_workers`` processes."""
-    from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, render_set_parallel
-    from pipeline.infra.progress import bar as progress_bar
+    from loaders.synthetic.source_domain import TRAIN_STREAM, VAL_STREAM, render_set_parallel  # heavy: cv2
 
     with progress_bar(total=t.train_images + t.val_images, desc="classifier: render source domain", unit="img") as bar:
         xtr, ytr = render_set_parallel(t.train_images, c.input_size, t.categories, c.seed, TRAIN_STREAM,
@@ -207,16 +204,11 @@ def _train_synthetic(ctx, device: str) -> str:
 
     import torch
 
-    from pipeline.infra import footprints
-    from pipeline.infra.budget import budget, cap_workers
-
-    from loaders.synthetic.source_domain import category_names
-    from pipeline.infra.fingerprint import machine_fingerprint
-    from pipeline.scoring.card import WEIGHTS_NPZ, card_hash
-    from pipeline.scoring.classifiers import classifier
-    from pipeline.scoring.training import confusion_matrix, predict, resolve_precision, train_classifier
-    from pipeline.scoring.weight_files import save_state_dict_npz
-    from pipeline.evaluation.statistics.resampler import wilson_interval
+    from loaders.synthetic.source_domain import category_names  # heavy: cv2
+    from pipeline.infra.fingerprint import machine_fingerprint  # heavy: torch
+    from pipeline.scoring.card import WEIGHTS_NPZ, card_hash  # heavy: torch
+    from pipeline.scoring.training import confusion_matrix, predict, resolve_precision, train_classifier  # heavy: torch
+    from pipeline.scoring.weight_files import save_state_dict_npz  # heavy: torch
 
     c = ctx.cfg.classifier
     t = c.training

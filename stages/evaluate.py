@@ -44,6 +44,19 @@ from pipeline.scene.rays import TrackError, grid_step
 from pipeline.evaluation.statistics.power import power_block
 from pipeline.evaluation.grid.paper55 import paper_block
 from pipeline.evaluation.grid.primary import check_declared, declared_block, paired_table
+from stages.framework.roots import data_roots
+from stages.framework.runner import stage_timings
+from pipeline.evaluation.metrics.labels import comparisons, methods
+from pipeline.evaluation.metrics.spec import METRICS
+from pipeline.evaluation.statistics.resampler import draw_seconds
+from pipeline.infra.cost import Counts, Term, check
+from pipeline.infra.progress import echo
+from pipeline.method.registry import model_providers
+from pipeline.infra.budget import budget, cap_workers, cores
+from pipeline.infra.device import free_cores
+from pipeline.infra.executor import executor_for
+from pipeline.infra.executor_pool import LocalPool
+from pipeline.method.fusion import engine_device
 
 log = logging.getLogger("viewfuse.evaluate")
 # The avd.parquet columns evaluate uses (checked present and typed on read).
@@ -85,8 +98,7 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
     view planning's). The scan is read under the same skip policy
     as the features stage, so an entry features skipped does not stop this stage; geometry needs
     no frames, so a metadata-only copy (no jpg_rgb/) is read as one."""
-    from loaders.avd import AVDScan
-    from stages.framework.roots import data_roots
+    from loaders.avd import AVDScan  # heavy: scipy
 
     _, avd_root = data_roots(cfg)
     intr, steps, grids, moves = {}, {}, {}, {}
@@ -105,7 +117,6 @@ def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tu
 def _chain_seconds(cfg: Config) -> float:
     """Seconds the upstream stages whose work grows with the population took (their manifests):
     with this stage's own so far, the measured cost that the power block scales."""
-    from stages.framework.runner import stage_timings
 
     return float(sum(v for k, v in stage_timings(cfg).items() if k in ("data", "features", "models") and v == v))
 
@@ -156,11 +167,6 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
     """The cost model's check (``pipeline.infra.cost``) again, with the targets and tracks the
     features hold and the bootstrap's time from a timed small draw: refused, before the grid, when
     its memory or time does not fit. Returns (and says) how long the bootstrap's intervals will take."""
-    from pipeline.evaluation.metrics.labels import comparisons, methods
-    from pipeline.evaluation.metrics.spec import METRICS
-    from pipeline.evaluation.statistics.resampler import draw_seconds
-    from pipeline.infra.cost import Counts, Term, check
-    from pipeline.infra.progress import echo
 
     ev = cfg.evaluate
     counts = Counts(targets=n_targets, tracks=width)
@@ -190,7 +196,6 @@ def load_provided(models_dir: Path, cfg: Config, variant: bool = False) -> dict:
     """{provider key: its models} of every provider the registered methods need and the config
     enables (``models/<key>/``); of a ``variant``'s folder, without those that follow the default
     bank only."""
-    from pipeline.method.registry import model_providers
 
     return {p.key: p.load(models_dir / p.key, cfg) for p in model_providers(cfg) if not (variant and p.default_only)}
 
@@ -216,9 +221,6 @@ def local_processes(ctx) -> int:
     most about this process's size). The outputs do not depend on the count."""
     import psutil
 
-    from pipeline.infra.budget import budget, cap_workers, cores
-    from pipeline.infra.device import free_cores
-
     if ctx.device_request != "cpu" and ctx.device != "cpu":
         return 1   # the cells fuse on the GPU: its context does not survive a fork, and it is one device
     want = min(int(ctx.threads or ctx.cfg.run.threads or free_cores()), cores())
@@ -243,9 +245,6 @@ def population_statistics(cfg: Config, kept: list[dict], cells, tracks, skipped,
 
 
 def run(ctx) -> str:
-    from pipeline.infra.executor import executor_for
-    from pipeline.infra.executor_pool import LocalPool
-
     cfg: Config = ctx.cfg
     ev = cfg.evaluate
     t_start = time.perf_counter()
@@ -299,7 +298,7 @@ def run(ctx) -> str:
             plan_tasks, t_plan = None, 0.0
             if cfg.plan.enabled:   # built before the workers fork, so that they inherit them
                 from pipeline.method.score_space import of_models
-                from pipeline.planning.population import build_tasks
+                from pipeline.planning.population import build_tasks  # heavy: pandas
 
                 t1 = time.perf_counter()
                 plan_tasks = build_tasks(cells, tracks, avd, scores, moves, ev, cfg.plan, of_models(banks[DEFAULT]))
@@ -331,7 +330,7 @@ def run(ctx) -> str:
             # gives the same bytes either way.
             with ThreadPoolExecutor(1) as beside:
                 if cfg.plan.enabled:
-                    from pipeline.planning.evaluation import run_planning
+                    from pipeline.planning.evaluation import run_planning  # heavy: pandas
 
                     def plan_part():
                         t1 = time.perf_counter()
@@ -362,7 +361,6 @@ def run(ctx) -> str:
         summary: dict = {}
         for (experiment, label), tables in kept[at]["tables"].items():
             summary.setdefault(experiment, {})[label] = tables
-        from pipeline.method.fusion import engine_device
 
         with engine_device("cpu" if ctx.device_request == "cpu" else "auto"):
             blocks, entries, times = single_track(cfg, ctx, banks, first, domain)

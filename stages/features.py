@@ -26,6 +26,19 @@ from typing import Iterator
 import numpy as np
 
 from pipeline.infra.progress import bar as progress_bar
+from pipeline.infra.outputs import read
+from loaders.errors import BadInputError
+from pipeline.method.geometry import project_unit_circle
+from pipeline.scoring.features import CropJob
+from pipeline.scoring.features import forget_scorers
+from pipeline.infra.device import available_cores, free_of, runnable_others
+from pipeline.scoring.classifiers import card_arch, classifier
+from pipeline.scoring.features import ScoringModel, register_scorer
+from pipeline.infra.cost import Counts, check
+from pipeline.infra.executor import executor_for
+from pipeline.scoring.features import build_table, metadata, score_jobs, viewpoint_spread, write_table
+from pipeline.infra.outputs import name as out_name
+from stages.framework.roots import data_roots
 
 log = logging.getLogger("viewfuse.features")
 
@@ -33,7 +46,6 @@ log = logging.getLogger("viewfuse.features")
 def extra_key(cfg) -> str:
     """The weights' identity: the classifier card hash. The runner brings the classifier stage up
     to date before it computes this stage's key, so the card read here is the one used."""
-    from pipeline.infra.outputs import read
 
     card = read(cfg.stage_dir("classifier"), "classifier", "card", missing=None, invalid=None)
     return "classifier=" + str(card.get("hash")) if isinstance(card, dict) else "classifier=missing"
@@ -43,8 +55,7 @@ def bigbird_objects(cfg, root, skips) -> list:
     """The object folders to score. A folder with views but no calibration.h5 is one skip naming
     the file (an error with skips off); a calibration that lacks a key the views need is one error
     naming the file and key (every view of the object would fail the same way)."""
-    from loaders.bigbird import BigBirdObject, list_objects, uncalibrated_objects
-    from loaders.errors import BadInputError
+    from loaders.bigbird import BigBirdObject, list_objects, uncalibrated_objects  # heavy: cv2
 
     f = cfg.features
     present = list_objects(root)
@@ -66,9 +77,6 @@ def bigbird_objects(cfg, root, skips) -> list:
 
 
 def bigbird_jobs(cfg, root, skips, bar) -> Iterator:
-    from pipeline.method.geometry import project_unit_circle
-    from pipeline.scoring.features import CropJob
-
     f = cfg.features
     skip = skips.log("bigbird", "BigBIRD view")
     objs = bigbird_objects(cfg, root, skips)
@@ -110,9 +118,6 @@ def avd_boxes(cfg, scan) -> list:
 
 
 def avd_jobs(cfg, scan, skips, bar) -> Iterator:
-    from loaders.errors import BadInputError
-    from pipeline.scoring.features import CropJob
-
     todo = avd_boxes(cfg, scan)
     bar.reset(total=len(todo))
     for img, boxes in todo:
@@ -135,8 +140,6 @@ def avd_jobs(cfg, scan, skips, bar) -> Iterator:
 
 @contextmanager
 def _scorer_released():
-    from pipeline.scoring.features import forget_scorers
-
     try:
         yield
     finally:
@@ -150,7 +153,6 @@ def _threads_for_scoring(ctx, executor):
     scored (``pipeline.infra.threads``), the count restored after. Yields the starting count."""
     import torch
 
-    from pipeline.infra.device import available_cores, free_of, runnable_others
     from pipeline.infra.threads import INTERVAL_S, torch_following
 
     auto = executor.name == "local" and ctx.device == "cpu" and not (ctx.threads or ctx.cfg.run.threads)
@@ -173,10 +175,8 @@ def _threads_for_scoring(ctx, executor):
 
 def prepare_scoring(ctx, executor, policy):
     """(ScoringModel for the tasks, card, whether tasks want a GPU, device named in the summary)."""
-    from pipeline.scoring.card import load_classifier
-    from pipeline.scoring.classifiers import card_arch, classifier
-    from pipeline.scoring.mc_dropout import MCDropoutScorer
-    from pipeline.scoring.features import ScoringModel, register_scorer
+    from pipeline.scoring.card import load_classifier  # heavy: torch
+    from pipeline.scoring.mc_dropout import MCDropoutScorer  # heavy: torch
 
     if executor.name == "local":
         device = ctx.device
@@ -195,13 +195,8 @@ def prepare_scoring(ctx, executor, policy):
 
 
 def run(ctx) -> str:
-    from loaders.avd import AVDScan
-    from pipeline.scoring.crops import CropPolicy
-    from pipeline.infra.cost import Counts, check
-    from pipeline.infra.executor import executor_for
-    from pipeline.scoring.features import build_table, metadata, score_jobs, viewpoint_spread, write_table
-    from pipeline.infra.outputs import name as out_name
-    from stages.framework.roots import data_roots
+    from loaders.avd import AVDScan  # heavy: scipy
+    from pipeline.scoring.crops import CropPolicy  # heavy: cv2
 
     cfg = ctx.cfg
     f = cfg.features

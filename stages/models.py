@@ -22,6 +22,9 @@ from pipeline.method.gp_files import save_bank
 from pipeline.infra.config import ablation_config, is_model_ablation
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import read as read_artifact
+from pipeline.infra.budget import budget
+from pipeline.infra.device import free_cores
+from pipeline.method.gp_workers import fit_workers
 
 log = logging.getLogger("viewfuse.models")
 
@@ -38,10 +41,6 @@ def contrast_check(first: dict, second: dict) -> None:
 
 
 def run(ctx) -> str:
-    from pipeline.infra.budget import budget
-    from pipeline.infra.device import free_cores
-    from pipeline.method.gp_workers import fit_workers
-
     # the GP fits go to worker processes: run.threads of them, or (0) as many as cores are free
     # now; the models do not depend on the count (pipeline/method/gp_workers.py)
     with fit_workers(ctx.threads or free_cores(), budget(ctx.cfg)):

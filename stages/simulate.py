@@ -28,6 +28,9 @@ from pipeline.infra.cache import write_json
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
+from pipeline.evaluation.metrics.results import frame, metadata, write_results
+from pipeline.evaluation.metrics.spec import Params
+from pipeline.method.gp_files import save_bank
 
 log = logging.getLogger("viewfuse.simulate")
 
@@ -36,7 +39,7 @@ def _fit_budget(sim, limit: int):
     """The results of every realization are kept (refused when they cannot fit); a fused batch
     holds ``simulate.chunk`` realizations (capped to a quarter of the budget; the results do not
     depend on it: every realization draws from its own generator)."""
-    from pipeline.evaluation.simulation.scenarios import methods
+    from pipeline.evaluation.simulation.scenarios import methods  # heavy: pandas
     rows = sim.realizations * len(sim.scenarios) * len(methods()) * sim.track_steps  # (method, realization, step)
     require("simulate.realizations", sim.realizations, footprints.simulate_results(sim, len(methods())), limit,
             f"the results table ({rows} rows, kept in memory until written)")
@@ -47,13 +50,10 @@ def _fit_budget(sim, limit: int):
 def run(ctx) -> str:
     cfg: Config = ctx.cfg
     sim = _fit_budget(cfg.simulate, budget(cfg))  # before the heavy imports below: a refusal is immediate
-    from pipeline.evaluation.metrics.results import frame, metadata, write_results
-    from pipeline.evaluation.metrics.spec import Params
-    from pipeline.evaluation.simulation import scenarios as S
-    from pipeline.evaluation.simulation import sweep as SW
-    from pipeline.method.gp_files import save_bank
-    from reports.simulate.findings import findings
-    from reports.simulate.page import build_simulate_report
+    from pipeline.evaluation.simulation import scenarios as S  # heavy: pandas
+    from pipeline.evaluation.simulation import sweep as SW  # heavy: scipy
+    from reports.simulate.findings import findings  # heavy: pandas
+    from reports.simulate.page import build_simulate_report  # heavy: pandas
 
     S.validate(sim, cfg.source_path or "config")
     t_start = time.perf_counter()

@@ -243,7 +243,8 @@ def _module_name(root: Path, path: Path) -> str:
 
 def import_graph(root: Path) -> dict[str, set[str]]:
     """{module: project modules it imports}, also inside functions; ``from a.b import c`` is an
-    arrow to ``a.b.c`` when that is a module, else to ``a.b``."""
+    arrow to ``a.b.c`` when that is a module, else to ``a.b``, and to the packages above it that
+    the import runs (``a/__init__.py``, ``a/b/__init__.py``)."""
     paths = {_module_name(root, p): p for floor in FLOORS for p in sorted((root / floor).rglob("*.py"))}
     graph: dict[str, set[str]] = {m: set() for m in paths}
     for mod, path in paths.items():
@@ -255,7 +256,14 @@ def import_graph(root: Path) -> dict[str, set[str]]:
                            for a in node.names]
             else:
                 continue
-            graph[mod].update(t for t in targets if t in paths and t != mod)
+            for t in targets:
+                # importing a.b.c first runs the packages a/ and a/b/ that hold it: an arrow to each
+                # (but to the importer's own packages, which are running already)
+                parts = t.split(".")
+                for i in range(1, len(parts) + 1):
+                    up = ".".join(parts[:i])
+                    if up in paths and up != mod and not mod.startswith(up + "."):
+                        graph[mod].add(up)
     return graph
 
 

@@ -10,6 +10,8 @@ import numbers
 from typing import Any
 
 import numpy as np
+from pipeline.infra.budget import machine_memory
+from pipeline.infra.budget import gib
 
 # A call may take this share of the memory available now (the rest is the interpreter's, the
 # caller's arrays', the engine's temporaries beyond the estimate).
@@ -86,8 +88,6 @@ def available_memory() -> int:
     ``pipeline.infra.budget.machine_memory``) times ``MEMORY_SHARE``."""
     import psutil
 
-    from pipeline.infra.budget import machine_memory
-
     return int(MEMORY_SHARE * min(int(psutil.virtual_memory().available), machine_memory()))
 
 
@@ -95,7 +95,6 @@ def affordable(fn: str, names: str, nbytes: float, seconds: float | None = None,
                max_seconds: float | None = None) -> None:
     """Refuse (``ValueError`` naming the arguments ``names``) a call estimated to need more than
     ``available_memory()`` bytes or more than ``max_seconds`` seconds."""
-    from pipeline.infra.budget import gib
 
     limit = available_memory()
     if nbytes > limit:

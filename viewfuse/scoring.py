@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from pipeline.scoring.classifiers import classifier
 
 
 def mc_dropout_scores(arch: str, weights: str | Path, images, *, num_classes: int, dropout: float,
@@ -16,9 +17,8 @@ def mc_dropout_scores(arch: str, weights: str | Path, images, *, num_classes: in
     from its own stream (``seed``, ``i``), as each crop's do in the features stage."""
     import torch
 
-    from pipeline.scoring.classifiers import classifier
-    from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed
-    from pipeline.scoring.weight_files import load_into, load_state_dict_file
+    from pipeline.scoring.mc_dropout import MCDropoutScorer, crop_seed  # heavy: torch
+    from pipeline.scoring.weight_files import load_into, load_state_dict_file  # heavy: torch
 
     entry = classifier(arch)
     net = load_into(entry.build(int(num_classes), float(dropout)), load_state_dict_file(weights), weights,

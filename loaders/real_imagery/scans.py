@@ -32,6 +32,8 @@ from loaders.synthetic.bigbird_writer import encode_jpeg
 from pipeline.infra.cache import confined_dir, copy_file, link_file, write_bytes, write_json
 from pipeline.infra.workers import can_fork, forked_pool, inherited
 from pipeline.scene.rays import facing_error
+from pipeline.infra.budget import budget, cap_workers
+from pipeline.infra.footprints import PROCESS
 
 log = logging.getLogger("viewfuse.loaders")
 
@@ -130,9 +132,6 @@ def writer_count(cfg, key: str, requested: int) -> int:
     """``requested`` scan writers (the config's ``key``), capped by the cores and the memory budget:
     each a forked process that draws one full frame at a time (~10 frame-sized buffers)."""
     import psutil
-
-    from pipeline.infra.budget import budget, cap_workers
-    from pipeline.infra.footprints import PROCESS
 
     rss = float(psutil.Process().memory_info().rss)
     return cap_workers(key, requested, PROCESS + 10 * 3 * 1920 * 1080, budget(cfg), parent=rss)

@@ -3,11 +3,10 @@ data stage only checks that the configured roots hold what the readers need (rea
 to read, so a malformed file stops the run here) and writes ``roots.json``; nothing is copied."""
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 from loaders.errors import BadInputError
-from pipeline.infra.cache import load_memo, memo_record, save_memo, tree_digest, write_json
+from pipeline.infra.cache import load_memo, memo_record, save_memo, sha256_stream, tree_digest, write_json
 from pipeline.infra.datasets import AVD_BOXES_PER_SCAN, DatasetSource, Work, register_dataset
 from pipeline.infra.outputs import name as out_name
 
@@ -55,7 +54,7 @@ def input_key(cfg) -> str:
     bb, avd = roots(cfg)
     memo_path = cfg.run_dir / DIGEST_MEMO
     memo, used = load_memo(memo_path), {}
-    h = hashlib.sha256()
+    h = sha256_stream()
     for name in cfg.data.scans:
         scan = avd / name
         h.update(f"scan {name}:{tree_digest(scan, memo, into=used) if scan.is_dir() else 'missing'}\n".encode())
@@ -75,7 +74,7 @@ def input_key(cfg) -> str:
 
 
 def check_roots(ctx) -> str:
-    from loaders.bigbird import list_objects
+    from loaders.bigbird import list_objects  # heavy: cv2
 
     cfg = ctx.cfg
     bb, avd = roots(cfg)
@@ -116,8 +115,8 @@ def _validate_real(ctx, bb: Path, avd: Path, objects: list[str]) -> None:
     minutes of scoring: the instance map, annotations.json, image_structs.mat and every box
     (malformed files always raise; bad single entries follow data.skip_bad_views), and each
     object's calibration (folders with views but no calibration.h5 follow the skip policy)."""
-    from loaders.avd import AVDScan
-    from loaders.bigbird import BigBirdObject, uncalibrated_objects
+    from loaders.avd import AVDScan  # heavy: scipy
+    from loaders.bigbird import BigBirdObject, uncalibrated_objects  # heavy: cv2
 
     cfg = ctx.cfg
     for calib in uncalibrated_objects(bb):

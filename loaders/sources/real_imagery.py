@@ -89,8 +89,8 @@ class RealImagery(DatasetSource):
 
     def write(self, ctx) -> str:
         """COIL-100 photographs on real AVD geometry (loaders/real_imagery/, docs/real_data.md)."""
-        from loaders.real_imagery.category import write_real_category
-        from loaders.real_imagery.write import write_real_imagery
+        from loaders.real_imagery.category import write_real_category  # heavy: cv2
+        from loaders.real_imagery.write import write_real_imagery  # heavy: cv2
 
         cfg = ctx.cfg
         t0 = time.perf_counter()

@@ -15,6 +15,8 @@ from pipeline.infra.datasets import DatasetSource, Work, register_dataset
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.progress import bar as progress_bar
 from pipeline.infra.workers import worker_pool
+from loaders.synthetic.objects import make_instance
+from loaders.synthetic.objects import CATEGORY_NAMES
 
 CHUNK = 12  # views per worker task: one AVD cluster, a few BigBIRD angles
 
@@ -73,14 +75,13 @@ def _work(task: tuple):
     """One worker task (module-level so processes can import it)."""
     kind = task[0]
     if kind == "bigbird-meta":
-        from loaders.synthetic.bigbird_writer import make_rig, write_object_metadata
+        from loaders.synthetic.bigbird_writer import make_rig, write_object_metadata  # heavy: cv2
         _, folder, syn, _seed = task
         write_object_metadata(Path(folder), make_rig(syn.bigbird_width, syn.bigbird_height), syn.angle_step_deg)
         return kind, 0, None
     if kind == "bigbird-views":
-        from loaders.synthetic.bigbird_writer import make_rig, write_view
-        from loaders.synthetic.nuisance import RigNuisance
-        from loaders.synthetic.objects import make_instance
+        from loaders.synthetic.bigbird_writer import make_rig, write_view  # heavy: cv2
+        from loaders.synthetic.nuisance import RigNuisance  # heavy: cv2
         _, folder, syn, seed, name, views = task
         rig = make_rig(syn.bigbird_width, syn.bigbird_height)
         inst = make_instance(name, seed)
@@ -89,7 +90,7 @@ def _work(task: tuple):
             write_view(Path(folder), inst, rig, c, a, seed=seed, nuisance=nz, write_depth=syn.write_depth)
         return kind, len(views), None
     if kind == "avd-shots":
-        from loaders.synthetic.avd_writer import plan_scan, write_shot
+        from loaders.synthetic.avd_writer import plan_scan, write_shot  # heavy: cv2
         _, folder, syn, scan, seed, instances, indices = task
         plan = plan_scan(syn, scan, seed, instances)
         boxes = {}
@@ -106,10 +107,9 @@ def _init_worker() -> None:
 
 
 def write_synthetic(ctx) -> str:
-    from loaders.synthetic.avd_writer import plan_scan, truth, write_scan_metadata
-    from loaders.synthetic.bigbird_writer import angles
-    from loaders.synthetic.objects import CATEGORY_NAMES, make_instance
-    from loaders.synthetic.scene import scan_instances
+    from loaders.synthetic.avd_writer import plan_scan, truth, write_scan_metadata  # heavy: cv2
+    from loaders.synthetic.bigbird_writer import angles  # heavy: cv2
+    from loaders.synthetic.scene import scan_instances  # heavy: cv2
 
     cfg = ctx.cfg
     syn, seed = cfg.data.synthetic, cfg.data.seed

@@ -22,6 +22,7 @@ import numpy as np
 from loaders.synthetic.textures import CATEGORY_NAMES, N_CATEGORIES, palette, texture
 from pipeline.infra.config.inputs import AVD_INSTANCES
 from pipeline.infra import seeds
+from loaders.synthetic.textures import hsv_to_rgb
 
 # The real AVD instance map (docs/formats/avd_instance_id_map.txt; its names live with the config,
 # which checks data.synthetic.instances against them), embedded: readers of a synthetic root find
@@ -216,7 +217,6 @@ def _region_of(normal_xy: np.ndarray) -> str:
 
 
 def _hsv(h: float, s: float, v: float) -> tuple:
-    from loaders.synthetic.textures import hsv_to_rgb
     return tuple(float(c) for c in hsv_to_rgb(h, s, v))
 
 

@@ -15,23 +15,27 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from pipeline.infra import seeds
 from loaders.synthetic.textures import CATEGORY_NAMES, N_CATEGORIES, texture
+from pipeline.infra.progress import bar as progress_bar
+from pipeline.infra.workers import worker_pool
 
 TRAIN_STREAM = 0
 VAL_STREAM = 1
 
+LABEL_ORDER = 2**31 - 1  # the labels' order: a name past every image index
 SHAPES = ("polygon", "ellipse", "prism", "cylinder")
 
 
 def _rng(seed: int, stream: int, index: int) -> np.random.Generator:
     # One generator per image: an image does not depend on which others are drawn, or in what order.
-    return np.random.default_rng([int(seed), int(stream), int(index)])
+    return seeds.stream(int(seed), int(stream), int(index))
 
 
 def labels_for(n: int, categories: int, seed: int, stream: int) -> np.ndarray:
     """Balanced labels (each category n/categories times, +-1), in a seeded random order."""
     lab = np.arange(n) % categories
-    np.random.default_rng([int(seed), int(stream), 2**31 - 1]).shuffle(lab)
+    seeds.stream(int(seed), int(stream), LABEL_ORDER).shuffle(lab)
     return lab.astype(np.int64)
 
 
@@ -223,7 +227,6 @@ def render(category: int, rng: np.random.Generator, size: int = 128, categories:
 def render_set(n: int, size: int, categories: int, seed: int, stream: int,
                start: int = 0, progress: bool = False, desc: str = "source images") -> tuple[np.ndarray, np.ndarray]:
     """Images ``start..start+n-1`` of a stream: (uint8 (n, size, size, 3), int64 labels (n,))."""
-    from pipeline.infra.progress import bar as progress_bar
 
     labels = labels_for(start + n, categories, seed, stream)[start:]
     images = np.empty((n, size, size, 3), np.uint8)
@@ -262,7 +265,6 @@ def render_set_parallel(n: int, size: int, categories: int, seed: int, stream: i
         if progress is not None:
             progress.update(n)
         return images, labels
-    from pipeline.infra.workers import worker_pool
 
     images = np.empty((n, size, size, 3), np.uint8)
     tasks = [(labels[s:s + chunk], size, categories, seed, stream, s) for s in range(0, n, chunk)]

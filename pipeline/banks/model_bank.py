@@ -26,6 +26,7 @@ from pipeline.method import score_space
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.provider import TrainingViews
+from pipeline.scoring.features import check_scores, read_features_table
 
 log = logging.getLogger("viewfuse.models")
 
@@ -70,8 +71,6 @@ def read_training_views(path: str | Path, camera: int, members=None):
     numpy dict, scores (n, D)), the Parquet metadata, and its MC-dropout rows (pass >= 0) as a
     table for ``dropout_passes``; with ``members``, the rows as classes (``assemble_classes``)."""
     import pyarrow as pa
-
-    from pipeline.scoring.features import check_scores, read_features_table
 
     path = Path(path)
     table, meta = read_features_table(path, "bigbird", [c for c in REQUIRED if c != "scores"], FeaturesError)

@@ -1,4 +1,8 @@
-"""Content hashes and atomic writes: the pieces stage manifests are built from."""
+"""Content hashes and atomic writes: the pieces stage manifests are built from.
+
+The one home of sha256 (of bytes, files, JSON, file trees, and a running digest built piece by
+piece: ``sha256_stream``); digests of arrays are ``pipeline.method.bank_index.content_digest``'s
+and the crop seeds' ``pipeline.infra.seeds``'. tests/test_one_of_each.py walks the code."""
 from __future__ import annotations
 
 import contextlib
@@ -13,6 +17,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+from pipeline.infra.outputs import read_json
 
 
 def _current_umask() -> int:
@@ -26,6 +31,12 @@ _UMASK = _current_umask()
 
 def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def sha256_stream():
+    """A running sha256 (``update`` the pieces, then ``hexdigest``) for a digest built piece by
+    piece: a code object's parts, a data set's file records."""
+    return hashlib.sha256()
 
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -244,7 +255,6 @@ def remember(records: dict[str, dict], memo: dict) -> None:
 
 def load_memo(path: str | Path) -> dict:
     """A digest memo written by ``save_memo``; {} when missing or unreadable (it is only a memo)."""
-    from pipeline.infra.outputs import read_json
 
     try:
         data = read_json(path, missing={}, invalid={})
@@ -293,6 +303,13 @@ def confine_process(root: str | None) -> None:
         _write_roots.append(os.path.realpath(root))
 
 
+def within(real: str, real_root: str) -> bool:
+    """Whether resolved path ``real`` is ``real_root`` or lies below it (both already resolved,
+    symlinks followed: ``os.path.realpath``): the one containment test of the project (a stage's
+    writes, a dataset file under its root, a bank index's entries)."""
+    return os.path.commonpath([real, real_root]) == real_root
+
+
 def confined(path: str | Path) -> Path:
     """``path`` if it resolves (symlinked folders followed) inside the innermost ``confined_writes``
     root, or when none is active; OutsideFolderError naming both otherwise."""
@@ -302,7 +319,7 @@ def confined(path: str | Path) -> Path:
     root = _write_roots[-1]
     # The target itself may not exist yet (or be a link we replace): resolve its folder.
     real = os.path.join(os.path.realpath(path.parent), path.name)
-    if path.name in ("", ".", "..") or os.path.commonpath([real, root]) != root or real == root:
+    if path.name in ("", ".", "..") or not within(real, root) or real == root:
         raise OutsideFolderError(f"{path}: resolves to {real}, outside the stage's temporary folder {root}; "
                                  f"refused (nothing written)")
     return path
@@ -314,7 +331,7 @@ def confined_dir(path: str | Path) -> Path:
     if _write_roots:
         root = _write_roots[-1]
         real = os.path.realpath(path)
-        if os.path.commonpath([real, root]) != root:
+        if not within(real, root):
             raise OutsideFolderError(f"{path}: resolves to {real}, outside the stage's temporary folder {root}; "
                                      f"refused (nothing written)")
     path.mkdir(parents=True, exist_ok=True)

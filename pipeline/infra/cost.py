@@ -32,7 +32,9 @@ from pipeline.infra.budget import (GIB, MemoryBudgetError, address_space_left, b
 from pipeline.infra.config.checks import modelled_classes
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.learning import early_epochs_run
+from pipeline.infra.progress import duration
 from pipeline.infra.registry import Registry
+from pipeline.infra.datasets import dataset_source
 
 log = logging.getLogger("viewfuse")
 
@@ -286,7 +288,6 @@ def classifier_terms(cfg, counts: Counts = Counts()) -> list[Term]:
 
 def source_work(cfg):
     """What ``data.source`` declares it will write and score (``DatasetSource.work``), or None."""
-    from pipeline.infra.datasets import dataset_source
 
     return dataset_source(cfg.data.source).work(cfg)
 
@@ -416,9 +417,9 @@ def check(cfg, stage: str, counts: Counts = Counts(), extra: tuple[Term, ...] = 
     minutes = float(cfg.run.max_minutes)
     if minutes and est.seconds > 60 * minutes:
         top = sorted(est.terms, key=lambda t: -t.seconds)
-        parts = "; ".join(f"{t.what}: about {_dur(t.seconds)} ({_keys(cfg, t)})" for t in top if t.seconds >= 0.1 * est.seconds)
+        parts = "; ".join(f"{t.what}: about {duration(t.seconds)} ({_keys(cfg, t)})" for t in top if t.seconds >= 0.1 * est.seconds)
         raise ConfigError(
-            f"the {stage} stage would take about {_dur(est.seconds)}, over 'run.max_minutes' = {minutes:g}: {parts}. "
+            f"the {stage} stage would take about {duration(est.seconds)}, over 'run.max_minutes' = {minutes:g}: {parts}. "
             f"Lower those keys or raise 'run.max_minutes' (0 = no limit); the estimate is pipeline/infra/cost.py's "
             "(per-unit seconds measured on a 2-core machine)")
     return est
@@ -432,16 +433,8 @@ def _keys(cfg, t: Term) -> str:
     return ", ".join(f"'{k}' = {_value(cfg, k)}" for k in t.keys)
 
 
-def _dur(s: float) -> str:
-    if s < 120:
-        return f"{s:.0f} s"
-    if s < 2 * 3600:
-        return f"{s / 60:.0f} min"
-    return f"{s / 3600:.1f} h" if s < 48 * 3600 else f"{s / 86400:.0f} days"
-
-
 def describe(est: Estimate) -> str:
     """One line: the estimate's seconds and peak, for the log before a long stage."""
-    return f"about {_dur(est.seconds)} and {gib(est.peak)} at its peak (pipeline/infra/cost.py)"
+    return f"about {duration(est.seconds)} and {gib(est.peak)} at its peak (pipeline/infra/cost.py)"
 
 

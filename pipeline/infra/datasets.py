@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline.infra.errors import ConfigError
 from pipeline.infra.registry import Registry
 
 ENTRY_POINT_GROUP = "viewfuse.datasets"
@@ -122,8 +123,6 @@ class DatasetSource:
 
     def path(self, cfg, key: str) -> Path:
         """The path setting ``data.<name>.<key>`` resolved against the config's project root."""
-        from pipeline.infra.config.fields import ConfigError
-
         value = getattr(self.options(cfg), key)
         if not value:
             raise ConfigError(f"{cfg.source_path or 'config'}: 'data.{self.name}.{key}' must be set")
@@ -199,8 +198,6 @@ def names() -> list[str]:
 
 def dataset_source(name: str, where: str = "config") -> DatasetSource:
     """The source ``data.source`` names, or a ConfigError listing the registered ones."""
-    from pipeline.infra.config.fields import ConfigError   # here: the config package imports this module
-
     if name not in SOURCES:
         raise ConfigError(f"{where}: 'data.source' = {name!r} is not a registered dataset source (registered: "
                           f"{', '.join(SOURCES)}; add one with vf.register_dataset or a viewfuse.datasets entry point)")

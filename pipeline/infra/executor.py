@@ -21,6 +21,8 @@ from typing import Any, Callable, Iterable, Iterator, Protocol, Sequence
 
 from pipeline.infra.device import task_cpus  # noqa: F401 (re-exported: executors' public API)
 from pipeline.infra.tasks import STATS, TransientError, item_label, record  # noqa: F401 (re-exported)
+from pipeline.infra.executor_ray import RayExecutor
+from pipeline.infra.progress import bar as progress_bar
 
 KINDS = ("local", "ray")
 
@@ -45,8 +47,6 @@ class LocalExecutor:
 
     def imap(self, fn, items, *, shared=None, desc: str = "", unit: str = "task", total=None,
              gpu: bool = False) -> Iterator:
-        from pipeline.infra.progress import bar as progress_bar
-
         times: list[float] = []
         with progress_bar(total=total, desc=desc, unit=unit, leave=False) as bar:
             for item in items:
@@ -77,7 +77,6 @@ def make_executor(kind: str = "local", *, address: str = "", workers: int = 0) -
     if kind == "local":
         return LocalExecutor()
     if kind == "ray":
-        from pipeline.infra.executor_ray import RayExecutor  # optional extra: pip install -e '.[ray]'
         return RayExecutor(address=address, workers=workers)
     raise ValueError(f"unknown executor {kind!r} (known: {', '.join(KINDS)})")
 

@@ -25,11 +25,14 @@ from typing import Any, Callable, Iterable, Iterator
 
 from pipeline.infra.tasks import record
 from pipeline.infra.workers import can_fork, forked_pool, inherited
+import pipeline.infra.device as dev
+from pipeline.infra.device import available_cores
+from pipeline.infra.executor import LocalExecutor
+from pipeline.infra.progress import bar as progress_bar
 
 def _run(fn: Callable[[Any, Any], Any], item: Any, cpus: int, which: int | None) -> list[tuple[Any, float]]:
     """In a worker: [(``fn(shared, item)``, its seconds)], with ``task_cpus()`` = ``cpus``; where
     ``which`` is not None, ``item`` is a range of that inherited list and each of its items runs."""
-    import pipeline.infra.device as dev
 
     dev._TASK_CPUS = cpus
     items = [item] if which is None else [inherited("pool_lists")[which][i] for i in item]
@@ -147,16 +150,11 @@ class LocalPool:
     gpus = 0
 
     def __init__(self, processes: int):
-        from pipeline.infra.device import available_cores
-
         self.processes = max(1, int(processes)) if can_fork() else 1
         self._pool = ForkPool(self.processes, max(1, available_cores() // self.processes))
 
     def imap(self, fn, items, *, shared=None, desc: str = "", unit: str = "task", total=None,
              gpu: bool = False) -> Iterator:
-        from pipeline.infra.executor import LocalExecutor
-        from pipeline.infra.progress import bar as progress_bar
-
         if self.processes == 1:
             yield from LocalExecutor().imap(fn, items, shared=shared, desc=desc, unit=unit, total=total)
             return

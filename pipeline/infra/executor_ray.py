@@ -24,6 +24,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 from pipeline.infra.tasks import TransientError, item_label, record
+import pipeline
+import pipeline.infra.device as ex
+from pipeline.infra.device import available_cores
+from pipeline.infra.progress import bar as progress_bar
 
 log = logging.getLogger("viewfuse.executor")
 
@@ -37,7 +41,6 @@ _LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 
 def code_root() -> Path:
     """The folder holding the packages this process imported (the checkout, or site-packages)."""
-    import pipeline
 
     return Path(pipeline.__file__).resolve().parent.parent
 
@@ -45,7 +48,6 @@ def code_root() -> Path:
 def _run_task(fn: Callable[[Any, Any], Any], shared: Any, item: Any, cpus: int) -> Any:
     """Runs inside a Ray worker: (``fn(shared, item)``, seconds it took), ``task_cpus()`` telling
     ``fn`` its CPUs."""
-    import pipeline.infra.device as ex
 
     ex._TASK_CPUS = cpus
     t0 = time.perf_counter()
@@ -98,7 +100,6 @@ class RayExecutor:
                 mods = [str(code_root() / p) for p in PACKAGES if (code_root() / p).is_dir()]
                 ray.init(address=address, runtime_env={"py_modules": mods}, **kw)
             else:
-                from pipeline.infra.device import available_cores
                 # Workers import the same checkout as this process, whatever is installed.
                 path = os.pathsep.join(p for p in (str(code_root()), os.environ.get("PYTHONPATH", "")) if p)
                 with _loopback():
@@ -136,7 +137,6 @@ class RayExecutor:
              total: int | None = None, gpu: bool = False, window: int = 0) -> Iterator:
         """Results in item order. At most ``window`` tasks (default twice the slots) are submitted
         and not yet yielded, so items are read as the cluster keeps up."""
-        from pipeline.infra.progress import bar as progress_bar
 
         ray = self._ray
         what = desc or getattr(fn, "__name__", "task")

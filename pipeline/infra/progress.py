@@ -8,7 +8,7 @@ iteration, whatever the mode:
   so a redirected log holds no carriage returns or cursor codes.
 - ``on``: tqdm even when redirected; ``off``: nothing.
 
-``redirect_logging()`` wraps a run so log records and ``echo`` lines print above live bars
+``duration(seconds)`` writes a span of time for those lines. ``redirect_logging()`` wraps a run so log records and ``echo`` lines print above live bars
 instead of being glued onto them (tqdm's ``logging_redirect_tqdm``).
 """
 from __future__ import annotations
@@ -121,6 +121,18 @@ class LogBar:
         extra = f", {self._postfix}" if self._postfix else ""
         log.info("%s: %s (%d%s %s, %.0f s%s)", self.desc or "progress", what, self.n, of, self.unit,
                  time.perf_counter() - self._t0, extra)
+
+
+def duration(seconds: float, decimals: int = 0) -> str:
+    """A span of seconds for a console line, in the one style of the stages' banners and the cost
+    model's estimates: seconds below 2 min, minutes below 2 h, hours below 2 days, else days.
+    (Numbers on report pages: ``reports.shared.numbers``, the floor above.)"""
+    s, d = float(seconds), int(decimals)
+    if s < 120:
+        return f"{s:.{d}f} s"
+    if s < 2 * 3600:
+        return f"{s / 60:.{d}f} min"
+    return f"{s / 3600:.1f} h" if s < 48 * 3600 else f"{s / 86400:.0f} days"
 
 
 def echo(msg: str) -> None:

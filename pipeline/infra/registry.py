@@ -30,7 +30,6 @@ removed or edited.
 """
 from __future__ import annotations
 
-import hashlib
 import importlib
 import inspect
 import logging
@@ -41,6 +40,7 @@ from collections.abc import Callable, Iterator, Mapping
 from typing import Any, Generic, TypeVar
 
 from pipeline.infra.extension import ExtensionError
+from pipeline.infra.cache import sha256_bytes
 
 T = TypeVar("T")
 log = logging.getLogger("viewfuse")
@@ -223,4 +223,4 @@ def source_digest(module: str, entry: Any) -> str:
     except (KeyError, OSError, TypeError):
         cls = entry if isinstance(entry, type) else type(entry)
         src = repr(sorted((k, repr(v)) for k, v in vars(cls).items()))
-    return hashlib.sha256(src.encode()).hexdigest()[:16]
+    return sha256_bytes(src.encode())[:16]

@@ -11,7 +11,8 @@ number of names.
 
 One older derivation stays beside it, ``crop_seed`` (64 bits of blake2b): every features table's
 MC-dropout masks, real-data ones included, are drawn from it, so moving it to ``stream`` would
-change every feature. Nothing outside this module turns a name into a seed
+change every feature. Nothing outside this module turns a name into a seed or derives a stream
+of its own from a seed (``[seed, 7]``, ``seed + 1``): it names it, ``stream(seed, 7)``
 (tests/pipeline/infra/test_seeds.py walks the code).
 """
 from __future__ import annotations
@@ -34,6 +35,12 @@ def key(seed: int, *names: str | int) -> list[int]:
 def stream(seed: int, *names: str | int) -> np.random.Generator:
     """The generator named by (seed, names...): equal in every process for equal arguments."""
     return np.random.default_rng(key(seed, *names))
+
+
+def integer(seed: int, *names: str | int) -> int:
+    """One 32-bit integer of the stream named by (seed, names...), for code that takes an integer
+    seed (an optimiser's ``random_state``): the first word ``SeedSequence`` generates from ``key``."""
+    return int(np.random.SeedSequence(key(seed, *names)).generate_state(1)[0])
 
 
 def crop_seed(seed: int, key: str) -> int:

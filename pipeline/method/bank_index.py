@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.infra.cache import write_json
+from pipeline.infra.cache import within, write_json
 from pipeline.infra.outputs import ArtifactError, read_json
 
 
@@ -73,6 +73,6 @@ def inside(folder: Path, rel, ipath: Path, error, what: str) -> Path:
         raise error(ipath, f"{what} {rel!r:.80} is an absolute path; an index names files inside its own folder")
     real_folder = os.path.realpath(folder)
     real = os.path.realpath(os.path.join(real_folder, rel))
-    if real == real_folder or os.path.commonpath([real, real_folder]) != real_folder:
+    if real == real_folder or not within(real, real_folder):
         raise error(ipath, f"{what} {rel!r:.80} resolves to {real}, outside {folder}; refused")
     return Path(folder) / rel

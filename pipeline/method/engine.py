@@ -20,7 +20,7 @@ import weakref
 import numpy as np
 
 from pipeline.method import circle_basis as cb
-from pipeline.method.gp import GPClassModels
+from pipeline.method.gp import GPClassModels, predictive_covariance
 from pipeline.method.gp_instance import instance_term
 
 _PLANS: "weakref.WeakKeyDictionary[GPClassModels, Plan]" = weakref.WeakKeyDictionary()
@@ -160,7 +160,7 @@ def per_gp(models: GPClassModels, X: np.ndarray):
     val (P, r) (w empty); or, diagonal, Z = Φ and w = diag(Q)² (z_i·z_j = Σ_p w_p Φ_ip Φ_jp); or
     Z = Φ Qᵀ and w = 1. On the exact route it is S (B, K, K) + add·I (w and idx empty). The
     arrays are scratch space, valid until the next item."""
-    from pipeline.method import kernels
+    from pipeline.method import kernels   # heavy: numba compiles on first use
 
     pl = plan(models)
     X = np.ascontiguousarray(X, dtype=float)
@@ -212,24 +212,13 @@ def _exact_class(models, pl: Plan, c: int, fs, flat, B, K, D2tt):
     V = np.empty_like(D2)
     kk = np.empty((B, K, K))
     cov = np.empty((B, K, K))
-    diag = np.arange(K)
     for f in fs:
         models._kernel_from_sqdist(c, f, D2, out=V)
         mu = (V @ fc.alpha[f] + models.mean[c, f]).reshape(B, K)
         out = dtrmm(1.0, pl.linv(c, f), V.T, side=0, lower=1, trans_a=0, diag=0, overwrite_b=1)
         if not np.shares_memory(out, V):  # pragma: no cover - BLAS wrapper made a copy after all
             V[...] = out.T
-        V3 = V.reshape(B, K, N)
-        S = np.matmul(V3, V3.transpose(0, 2, 1))
-        ell = models.length_scale[c, f]
-        np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
-        np.exp(kk, out=kk)
-        kk *= models.amplitude[c, f]
-        kk[:, diag, diag] += models.test_noise[c, f]   # σ_n² + the test-domain δ² (gp.py)
-        inst = instance_term(models, c, f)
-        if inst is not None:   # an unseen instance's deviation, shared by every view (gp_instance.py)
-            kk += inst[0] * np.exp(D2tt * (-0.5 / (inst[1] * inst[1])))
-        np.subtract(kk, S, out=cov)
+        predictive_covariance(models, c, f, V.reshape(B, K, N), D2tt, kk, cov, instance_term(models, c, f))
         yield c, f, mu, cov, _NONE, _NO_W, pl.no_idx, pl.no_val, 0.0
 
 

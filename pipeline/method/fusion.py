@@ -37,6 +37,10 @@ import numpy as np
 
 from pipeline.method import engine
 from pipeline.method.gp import GPClassModels
+from pipeline.infra.device import resolve_device
+from pipeline.method import engine_torch   # torch itself is imported inside it, on use
+from pipeline.infra.device import available_cores
+from pipeline.infra.progress import bar as progress_bar
 
 # Elements per working array in one block (a few such arrays live at once): ~2 MB each, about 180
 # trajectories at 4 x 4 GPs, K = 9, N_s = 10. Blocks this size keep the basis GEMMs and Grams in
@@ -59,12 +63,10 @@ def engine_device(device: str):
     """Run the fusion calls inside on ``device``: "cpu", "cuda", "torch-cpu", or "auto" (cuda when
     torch sees a GPU, else cpu). Results agree to rounding (tests/test_engine_torch.py)."""
     if device == "auto":
-        from pipeline.infra.device import resolve_device
         device = resolve_device("auto")
     if device not in DEVICES:
         raise ValueError(f"engine_device: unknown device {device!r}; use auto, {', '.join(DEVICES)}")
     if device == "cuda":
-        from pipeline.infra.device import resolve_device
         resolve_device("cuda")          # a clear error without a GPU
     old = current_device()
     _STATE.device = device
@@ -125,7 +127,7 @@ def _mwu_block(models: GPClassModels, X: np.ndarray, mu_z: np.ndarray, v_z: np.n
     the dropout samples (Eq. 17, module docstring: mean μ_z,k - L_kk y_k, variance L_kk² (1 + q_k));
     the -log(2π)/2 per component is the same for every class and cancels in the normalisation.
     """
-    from pipeline.method import kernels
+    from pipeline.method import kernels   # heavy: numba
 
     r, n, K, d = X.shape
     C = models.n_classes
@@ -193,7 +195,6 @@ def fuse_with_uncertainty(models: GPClassModels, inputs, dropout, *, prior=None,
     def work(span):
         r0, r1, x0, x1 = span
         if device != "cpu":
-            from pipeline.method import engine_torch
             return engine_torch.mwu_block(models, _torch_device(device), X[r0:r1, x0:x1], mu_z[r0:r1],
                                           v_z[r0:r1], Z[r0:r1], logp0, nu)
         return _mwu_block(models, X[r0:r1, x0:x1], mu_z[r0:r1], v_z[r0:r1], Z[r0:r1], logp0, nu)
@@ -241,9 +242,8 @@ def fuse_model_based(models: GPClassModels, inputs, measurements, *, prior=None,
         r0, r1 = span[:2]
         b = r1 - r0
         if device != "cpu":
-            from pipeline.method import engine_torch
             return engine_torch.mb_block(models, _torch_device(device), X[r0:r1], Z[r0:r1], logp0, nu)
-        from pipeline.method import kernels
+        from pipeline.method import kernels   # heavy: numba
 
         z = np.ascontiguousarray(np.moveaxis(Z[r0:r1], -1, 0))      # (F, b, K)
         ll = np.zeros((C, b, K, 1))
@@ -330,9 +330,6 @@ def _run_blocks(models: GPClassModels, work, spans, threads: int | None, progres
     """
     from concurrent.futures import ThreadPoolExecutor
     from contextlib import nullcontext
-
-    from pipeline.infra.device import available_cores
-    from pipeline.infra.progress import bar as progress_bar
 
     n = max(1, min(int(threads or available_cores()), len(spans)))
     prepare(models)  # the shared routes and factors, built before any worker reads them

@@ -29,6 +29,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.infra.outputs import name as out_name
+from pipeline.method.bank_index import content_digest
 
 INDEX = out_name("models", "index")  # a model bank folder's index (models/, its ablations, simulate/models)
 
@@ -53,6 +54,25 @@ class _ClassFactors:
     alpha: np.ndarray       # (F, N) H (y - m)
     L: list[np.ndarray]     # F Fortran-ordered lower Cholesky factors of K_T + σ_n² I
 
+
+
+def predictive_covariance(models, c: int, f: int, V3: np.ndarray, D2tt: np.ndarray, kk: np.ndarray,
+                          out: np.ndarray, inst: tuple[float, float] | None = None) -> np.ndarray:
+    """The joint predictive covariance of (class c, component f) at B trajectories of K views, the
+    one place it is assembled (``GPClassModels.joint``, the engine's exact route):
+    ``a·exp(-D²/2ℓ²) + (σ_n² + δ²) I [+ an unseen instance's a_i·exp(-D²/2λ²)] - V3 V3ᵀ`` into
+    ``out`` (B, K, K). V3 (B, K, N): the test rows whitened by the training factor; D2tt (B, K, K):
+    within-trajectory squared distances; kk (B, K, K): scratch; ``inst``: (a_i, λ) or None."""
+    S = np.matmul(V3, V3.transpose(0, 2, 1))
+    ell = models.length_scale[c, f]
+    np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
+    np.exp(kk, out=kk)
+    kk *= models.amplitude[c, f]
+    diag = np.arange(kk.shape[-1])
+    kk[:, diag, diag] += models.test_noise[c, f]   # σ_n² + the test-domain δ²
+    if inst is not None:   # an unseen instance's deviation, shared by every view
+        kk += inst[0] * np.exp(D2tt * (-0.5 / (inst[1] * inst[1])))
+    return np.subtract(kk, S, out=out)
 
 class GPClassModels:
     """C classes × F components of GPs; each class has its own training inputs.
@@ -222,6 +242,11 @@ class GPClassModels:
         ell = self.length_scale[c, f]
         return self.amplitude[c, f] * np.exp(-D2 / (2.0 * ell * ell))
 
+    def instance_parameters(self, c: int, f: int) -> tuple[float, float] | None:
+        """(a_i, λ) of GP (c, f)'s unseen-instance term, or None: plain models have none
+        (models with an instance term override it)."""
+        return None
+
     def _describe(self, c: int, f: int) -> str:
         return (f"amplitude {self.amplitude[c, f]:g}, length scale {self.length_scale[c, f]:g}, "
                 f"noise {self.noise[c, f]:g}")
@@ -286,7 +311,6 @@ class GPClassModels:
         cov = np.empty((B, C, F, K, K))
         diff = flat3[:, :, None, :] - flat3[:, None, :, :]
         D2tt = np.einsum("bkld,bkld->bkl", diff, diff)          # within-trajectory distances
-        diag = np.arange(K)
         kk = np.empty((B, K, K))
         for c in range(C):
             fc = self.factors()[c]
@@ -297,14 +321,8 @@ class GPClassModels:
                 self._kernel_from_sqdist(c, f, D2, out=V)
                 mu[:, c, f, :] = (V @ fc.alpha[f] + self.mean[c, f]).reshape(B, K)
                 _whiten_rows(fc.L[f], V)                          # the dominant cost: O(B·K·N²)
-                V3 = V.reshape(B, K, N)
-                S = np.matmul(V3, V3.transpose(0, 2, 1))
-                ell = self.length_scale[c, f]
-                np.multiply(D2tt, -0.5 / (ell * ell), out=kk)
-                np.exp(kk, out=kk)
-                kk *= self.amplitude[c, f]
-                kk[:, diag, diag] += self.test_noise[c, f]
-                np.subtract(kk, S, out=cov[:, c, f])
+                predictive_covariance(self, c, f, V.reshape(B, K, N), D2tt, kk, cov[:, c, f],
+                                      self.instance_parameters(c, f))
         return mu.reshape(lead + (C, F, K)), cov.reshape(lead + (C, F, K, K))
 
     def marginal(self, X) -> tuple[np.ndarray, np.ndarray]:
@@ -336,7 +354,6 @@ class GPClassModels:
         unless ``trained_only``: what depends on the fit alone is shared by the calibrated variant)
         or, without ``c``, of every GP. The key of any cache that must not serve other models under
         the same names."""
-        from pipeline.method.bank_index import content_digest
 
         parts = []
         for ci in range(self.n_classes) if c is None else [c]:

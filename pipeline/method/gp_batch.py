@@ -20,11 +20,13 @@ optimum is scikit-learn's or, where scikit-learn stopped early on a flat ridge, 
 """
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+
+from pipeline.method.bank_index import content_digest
+from pipeline.method.gp_workers import shared
 
 LOG_2PI = float(np.log(2 * np.pi))
 BLOCK = 128          # runs per stacked evaluation: (BLOCK, n, n) arrays stay a few tens of MB
@@ -48,12 +50,8 @@ class Problem:
     key: str = field(default="")
 
     def __post_init__(self):
-        h = hashlib.sha256()
-        for a in (self.X, self.y, self.log_bounds, self.prior, self.starts):
-            a = np.ascontiguousarray(a, dtype=float)
-            h.update(str(a.shape).encode())
-            h.update(a.tobytes())
-        self.key = h.hexdigest()[:16]
+        self.key = content_digest(*(np.asarray(a, float) for a in
+                                    (self.X, self.y, self.log_bounds, self.prior, self.starts)))[:16]
 
 
 @dataclass
@@ -334,8 +332,6 @@ def fit_problems(problems: list[Problem], *, polish: bool = True, lockstep: bool
     todo = list({p.key: p for p in problems if p.key not in cache}.values())
     if todo:
         from threadpoolctl import threadpool_limits
-
-        from pipeline.method.gp_workers import shared
 
         # One BLAS thread: the parallel axis is the stack of small matrices (its evaluations shared
         # out over processes: gp_workers), and BLAS threads on (n <= a few hundred) matrices only

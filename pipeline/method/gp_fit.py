@@ -15,9 +15,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from pipeline.infra import seeds
 from pipeline.infra.config import ModelsConfig, bounds_problem
 from pipeline.method.gp import GPClassModels
 from pipeline.method.gp_prior import LogInverseGamma, input_range, log_prior, map_optimizer
+from pipeline.method.gp_batch import Problem, fit_problems, prior_rows, starts_for
+from pipeline.infra.progress import bar as progress_bar
 
 
 # The defaults are the config's ([models] in pipeline/infra/config/learning.py): one source.
@@ -89,8 +92,6 @@ def fit_batched(specs: list[FitSpec], restarts: int, prior_index: tuple[int, int
     from scipy.optimize import OptimizeResult
     from sklearn.exceptions import ConvergenceWarning
 
-    from pipeline.method.gp_batch import Problem, fit_problems, prior_rows, starts_for
-
     if tuple(theta_index(n) for n in ("k1__k1__constant_value", "k1__k2__length_scale", "k2__noise_level")) != (0, 1, 2):
         raise RuntimeError("fit_batched: scikit-learn's kernel.theta order is not (amplitude, length scale, noise)")
     problems = []
@@ -134,8 +135,6 @@ def _lbfgs_warning(res) -> None:
 
 
 def _progress(items, enabled: bool):
-    from pipeline.infra.progress import bar as progress_bar
-
     bar = progress_bar(total=len(items), desc="GP fits", unit="fit", enabled=enabled)
     for it in items:
         yield it
@@ -211,7 +210,7 @@ def fit_class_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[np.n
                     "noise": float(np.clip(0.1 * v if v > 0 else nb[0], *nb))}
             specs.append(FitSpec(c, f, X, y, m, {"amplitude": tuple(amplitude_bounds),
                                                  "length_scale": tuple(length_scale_bounds), "noise": tuple(nb)},
-                                 priors, init, int(np.random.SeedSequence([seed, c, f]).generate_state(1)[0])))
+                                 priors, init, seeds.integer(seed, int(c), int(f))))
     if route == "sklearn":
         fitted = [fit_sklearn(s, restarts) for s in _progress(specs, progress)]
     else:

@@ -28,6 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.method.gp import GPClassModels
+from pipeline.method.bank_index import content_digest
 
 
 def same_instance(labels: np.ndarray) -> np.ndarray:
@@ -101,16 +102,9 @@ class InstanceGPClassModels(GPClassModels):
     def _describe(self, c: int, f: int) -> str:
         return f"{super()._describe(c, f)}, instance amplitude {self.instance_amplitude[c, f]:g}"
 
-    def predict(self, Xs):
-        mu, cov = super().predict(Xs)
-        Xs = np.asarray(Xs, dtype=float)
-        diff = Xs[..., :, None, :] - Xs[..., None, :, :]
-        D2 = np.einsum("...kld,...kld->...kl", diff, diff)
-        for c in range(self.n_classes):
-            for f in range(self.n_components):
-                if self.has_instance(c, f):
-                    cov[..., c, f, :, :] += self.instance_kernel(c, f, D2)
-        return mu, cov
+    def instance_parameters(self, c: int, f: int) -> tuple[float, float] | None:
+        # predict's joint covariance takes the term through gp.predictive_covariance
+        return instance_term(self, c, f)
 
     def marginal(self, X):
         mu, var = super().marginal(X)
@@ -125,8 +119,6 @@ class InstanceGPClassModels(GPClassModels):
         return out
 
     def digest(self, c: int | None = None, f: int | None = None, *, trained_only: bool = False) -> str:
-        from pipeline.method.bank_index import content_digest
-
         parts = [super().digest(c, f, trained_only=trained_only)]
         for ci in range(self.n_classes) if c is None else [c]:
             fs = range(self.n_components) if f is None else [f]

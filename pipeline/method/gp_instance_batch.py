@@ -22,11 +22,11 @@ A factorisation that fails scores -1e300 with a zero gradient, the per-fit objec
 """
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.method.bank_index import content_digest
 from pipeline.method.gp_batch import BLOCK, LOG_2PI, Result, add_log_prior, cholesky_inverses, fit_stack, \
     setulb_available
 
@@ -44,15 +44,10 @@ class InstanceProblem:
     log_bounds: np.ndarray
     prior: np.ndarray
     starts: np.ndarray
-    structure: bytes = field(default=b"", repr=False)
+    structure: str = field(default="", repr=False)
 
     def __post_init__(self):
-        h = hashlib.sha256()
-        for a in (np.asarray(self.X, float), np.asarray(self.labels, np.int64)):
-            a = np.ascontiguousarray(a)
-            h.update(str(a.shape).encode())
-            h.update(a.tobytes())
-        self.structure = h.digest()
+        self.structure = content_digest(np.asarray(self.X, float), np.asarray(self.labels, np.int64))
 
 
 def balanced_order(X: np.ndarray, labels: np.ndarray) -> np.ndarray | None:

@@ -22,11 +22,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from pipeline.infra import seeds
 from pipeline.infra.config import ModelsConfig
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.gp_instance import InstanceGPClassModels, same_instance
 from pipeline.method.gp_instance_batch import laplace_from_hessian
 from pipeline.method.gp_prior import LogInverseGamma, input_range
+from pipeline.method.gp_batch import prior_rows
+from pipeline.method.gp_instance_batch import InstanceProblem, fit_instance_problems
 
 _DEFAULTS = ModelsConfig()
 NAMES = ("amplitude", "length_scale", "noise", "instance_amplitude", "instance_length_scale")
@@ -188,7 +191,7 @@ def _starts(plain, c: int, f: int, bounds, restarts: int, seed: int) -> np.ndarr
     lo, hi = np.log(np.array(bounds, float)).T
     a, ell, sn2 = plain.amplitude[c, f], plain.length_scale[c, f], plain.noise[c, f]
     starts = [np.log([a, ell, sn2 / 2, sn2 / 2, ell]), np.log([a, ell, sn2 / 2, sn2 / 2, np.exp(hi[4]) / 2])]
-    rng = np.random.default_rng(np.random.SeedSequence([seed, c, f, 46]))
+    rng = seeds.stream(seed, int(c), int(f), 46)  # 46: the restarts' stream
     starts += [rng.uniform(lo, hi) for _ in range(restarts)]
     return np.clip(np.array(starts), lo, hi)
 
@@ -206,8 +209,6 @@ def _fit_each(jobs, labels):
 def _fit_batched(jobs, labels):
     """Every fit at once (``gp_instance_batch``); a run that did not converge is a warning, as
     the per-fit route's best run is."""
-    from pipeline.method.gp_batch import prior_rows
-    from pipeline.method.gp_instance_batch import InstanceProblem, fit_instance_problems
 
     problems = [InstanceProblem(obj.X, obj.y, labels[c], np.log(np.array(bounds, float)),
                                 prior_rows(obj.priors, 1, 2), starts) for c, f, obj, bounds, starts in jobs]

@@ -20,6 +20,9 @@ import contextlib
 from typing import Iterator
 
 import numpy as np
+from pipeline.infra.workers import inherited
+from pipeline.infra.workers import can_fork, forked_pool
+from pipeline.infra.budget import AUTO_SHARE, cap_workers, machine_memory
 
 _WORKERS = [1, 0]   # worker count, memory budget in bytes (0: AUTO_SHARE of the machine's)
 # bytes a worker holds beyond what it shares with this process: the stacked (BLOCK, u, u) arrays
@@ -57,8 +60,6 @@ def parts(rows: np.ndarray, n: int) -> list[np.ndarray]:
 
 
 def _block(idx: np.ndarray, theta: np.ndarray):
-    from pipeline.infra.workers import inherited
-
     return inherited("gp_stack").block(idx, theta)
 
 
@@ -89,14 +90,11 @@ def shared(stack, block: int, workers: int | None = None) -> Iterator:
     ``workers`` processes (this one and forked ones; default ``current_workers()``) within the
     block. Call it with one BLAS thread set (``threadpoolctl``), as the workers run with: a
     threaded product may sum in another order (other bits)."""
-    from pipeline.infra.workers import can_fork, forked_pool
 
     runs = sum(len(p.starts) for p in stack.problems)
     n = min(current_workers() if workers is None else max(1, int(workers)), max(runs // 2, 1))
     if n > 1:
         import psutil
-
-        from pipeline.infra.budget import AUTO_SHARE, cap_workers, machine_memory
 
         limit = _WORKERS[1] or int(AUTO_SHARE * machine_memory())
         n = cap_workers("run.threads (the GP fit's worker processes)", n, worker_bytes(int(stack.u.max()), block),

@@ -30,6 +30,7 @@ import numpy as np
 from pipeline.infra.config.own import register_sections, unregister_sections
 from pipeline.infra.cost import EXTRA_TERMS, register_terms
 from pipeline.infra.registry import Registry
+from pipeline.infra.outputs import CATALOG
 
 # Built-ins register from the method files (``pipeline.method.methods``); outside providers come
 # with their method's entry point (the same group).
@@ -189,7 +190,6 @@ def register_provider(cls: type[ModelProvider]) -> type[ModelProvider]:
     if not isinstance(key, str) or not key.isidentifier():
         raise ValueError(f"{cls.__name__}: a model provider needs a key that is a name (a folder and a needs "
                          f"entry), got {key!r}")
-    from pipeline.infra.outputs import CATALOG
 
     taken = {a.name for a in CATALOG["models"].values() if not a.pattern}
     if key in taken:   # its folder models/<key>/ would be another output's

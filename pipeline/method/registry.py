@@ -24,7 +24,7 @@ from pipeline.method.provider import ModelProvider, providers
 def _load() -> None:
     """The built-ins (their listed modules are in the stages' code key already), the folder's other
     modules and the entry points of ``viewfuse.methods``: once per process, on first use."""
-    from pipeline.method.methods import LISTED
+    from pipeline.method.methods import LISTED  # heavy: scipy
 
     registered().static = frozenset(f"pipeline.method.methods.{n}" for n in LISTED)
     registered().load()

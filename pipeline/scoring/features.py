@@ -19,6 +19,9 @@ import numpy as np
 from pipeline.infra.cache import atomic_path
 from pipeline.scoring.feature_schema import CROP_COLS, schema
 from pipeline.scoring.table_checks import check_finite_scores
+from pipeline.scoring.table_checks import check_table, kind_of
+from pipeline.scoring.classifiers import classifier
+from pipeline.scoring.classifiers import card_arch
 
 
 def metadata(*, config_hash: str, classifier_hash: str, seed: int, output_names: list[str],
@@ -95,8 +98,6 @@ def read_features_table(path: str | Path, kind: str | None = None, required: Ite
     ``scores`` (which the file must still have; ``read_scores`` streams it)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from pipeline.scoring.table_checks import check_table, kind_of
 
     path = Path(path)
     fail = error or (lambda p, m: ValueError(f"{p}: {m}"))
@@ -246,8 +247,6 @@ class ScoringModel:
 
     @classmethod
     def from_model(cls, model, card: dict, policy, device: str, *, with_weights: bool) -> "ScoringModel":
-        from pipeline.scoring.classifiers import card_arch
-
         w = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()} if with_weights else None
         return cls(key=f"{card['hash']}@{device}", num_classes=int(card["num_classes"]),
                    dropout=float(card["dropout"]), mean=tuple(policy.mean), std=tuple(policy.std),
@@ -274,9 +273,8 @@ def _scorer(model: ScoringModel):
     if sc is None:
         import torch
 
-        from pipeline.scoring.classifiers import classifier
-        from pipeline.scoring.weight_files import load_into
-        from pipeline.scoring.mc_dropout import MCDropoutScorer
+        from pipeline.scoring.weight_files import load_into  # heavy: torch
+        from pipeline.scoring.mc_dropout import MCDropoutScorer  # heavy: torch
 
         if model.weights is None:
             raise RuntimeError(f"no scorer registered for classifier {model.key} and no weights sent")
@@ -292,7 +290,7 @@ def _scorer(model: ScoringModel):
 def score_batch(model: ScoringModel, batch: CropBatch) -> tuple[np.ndarray, np.ndarray | None]:
     """Executor task: (det (B, D), dropout samples (B, N_s, D) or None) as float32 arrays."""
     from pipeline.infra.threads import pace
-    from pipeline.scoring.crops import to_tensor
+    from pipeline.scoring.crops import to_tensor  # heavy: cv2
 
     pace()   # the torch threads the free cores allow now (where the stage follows them)
     det, mc = _scorer(model).score(to_tensor(batch.crops, model.mean, model.std), batch.seeds, batch.n_samples)
@@ -327,7 +325,7 @@ def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_s
                  batch_size: int) -> Iterator[CropBatch]:
     """Crop every job with ``policy`` into batches of ``batch_size``; each crop's table columns
     (crop box included) go to ``out`` in the same order."""
-    from pipeline.scoring.mc_dropout import crop_seed
+    from pipeline.scoring.mc_dropout import crop_seed  # heavy: torch
 
     pending: list[tuple[CropJob, np.ndarray, tuple]] = []
     start = 0

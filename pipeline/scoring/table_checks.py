@@ -9,6 +9,8 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from pipeline.scoring import feature_schema
+
 # Pose columns: a NaN heading or camera position has no meaning downstream (angles, SVD frames).
 POSE_COLS = {"bigbird": ("cam_x", "cam_y", "cam_z", "u_x", "u_y"), "avd": ("cam_x", "cam_y", "heading")}
 
@@ -41,9 +43,7 @@ def check_table(table, kind: str, path: str | Path, error: Callable[[str, str], 
     feature-table contract (``pipeline.scoring.feature_schema``): one of ``required`` (the
     columns the reader uses) missing, or a contract column present but of another type, null,
     or (a pose) not finite."""
-    from pipeline.scoring.feature_schema import columns
-
-    contract = dict(columns(kind))
+    contract = dict(feature_schema.columns(kind))
     for name in required:
         if name not in table.column_names:
             t = contract[name]

@@ -11,8 +11,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from pipeline.infra import seeds
 from pipeline.infra.config.learning import early_epochs_run
 from pipeline.infra.threads import pace
+from pipeline.infra.memory import reuse_freed_memory
+from pipeline.infra.progress import bar as progress_bar
 
 
 def lr_at(step: int, total: int, base: float, warmup: int) -> float:
@@ -43,11 +46,9 @@ def train_classifier(model: nn.Module, images: np.ndarray, labels: np.ndarray, *
     runs at full size with the model's own forward, and an ``early_size`` not below the images' side
     changes nothing.
     """
-    from pipeline.infra.memory import reuse_freed_memory
-    from pipeline.infra.progress import bar as progress_bar
 
     torch.manual_seed(seed)
-    gen = np.random.default_rng([seed, 7])
+    gen = seeds.stream(seed, 7)  # the minibatch order's stream
     use_bf16 = resolve_precision(precision, device) == "bf16"
     # channels_last: oneDNN's fast convolution layout on CPU (and tensor-core friendly on GPU).
     model.to(device).to(memory_format=torch.channels_last).train()
@@ -193,7 +194,7 @@ def resolve_precision(precision: str, device: str, flags: set[str] | None = None
     if device == "cuda":
         return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
     if flags is None:
-        from pipeline.infra.fingerprint import cpu_flags
+        from pipeline.infra.fingerprint import cpu_flags  # heavy: torch
 
         flags = cpu_flags()
     if not any(f in flags for f in NATIVE_BF16_FLAGS):
@@ -208,8 +209,7 @@ def resolve_precision(precision: str, device: str, flags: set[str] | None = None
 def predict(model: nn.Module, images: np.ndarray, *, mean, std, batch_size: int = 128,
             device: str = "cpu", progress: bool = False) -> np.ndarray:
     """Eval-mode logits (n, D) for uint8 images."""
-    from pipeline.scoring.crops import to_tensor
-    from pipeline.infra.progress import bar as progress_bar
+    from pipeline.scoring.crops import to_tensor  # heavy: cv2
 
     model.eval().to(device)
     outs = []

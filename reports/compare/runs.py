@@ -192,7 +192,7 @@ def seed_pool(runs: list[Run]) -> dict | None:
     """The engine's seed pool (``pipeline.evaluation.statistics.engine.seed_pool``) over a seed
     group's runs: pooled values and records over seeds, then targets, then tracks; None when a
     run's summary holds no cells."""
-    from pipeline.evaluation.statistics.engine import seed_pool as pool
+    from pipeline.evaluation.statistics.engine import seed_pool as pool  # heavy: pandas
 
     return pool({r.name: r.population for r in runs})
 

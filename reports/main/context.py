@@ -7,6 +7,7 @@ from typing import Any
 from reports.shared.artifacts import RunArtifacts
 from reports.shared.checks import Ledger, caption_problem
 from reports.shared.html import HtmlReport
+from pipeline.infra.datasets import described
 
 
 # sections that report no result besides the declared primary comparison
@@ -57,7 +58,6 @@ class ReportContext:
     def source(self):
         """The registered ``DatasetSource`` of ``data_source``: what the page says of the data (its
         ``describe``, ``badge``, ``rendered``) is the source's own, so one from outside gets its wording."""
-        from pipeline.infra.datasets import described
 
         return described(self.data_source)
 

@@ -23,6 +23,7 @@ from reports.main.calibration import paired_value, pooled_value
 from reports.shared.figures import (mgr_axis, mgr_scale_label, new_figure, new_subplots, percentile_bands, step_ticks,
                              wrap_label)
 from reports.shared.numbers import fmt, plain
+from reports.main.bottom_line import counts
 
 FOREST_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
 PER_TARGET_METRICS = ("correct_final", "log10_mgr95_final")
@@ -77,7 +78,6 @@ def fig_forest(pop: dict) -> Any:
 
 def _row_labels(pop: dict, targets: list[str]) -> list[str]:
     """Target names with their track count (a 1-track target's point has no CI bar: say why)."""
-    from reports.main.bottom_line import counts
     n = counts(pop)["tracks_per_target"]
     lab = [wrap_label(t, 24) + (f"\n({n[t]} track{'s' if n[t] != 1 else ''}"
                                 + (": no CI)" if n[t] == 1 else ")") if t in n else "") for t in targets]

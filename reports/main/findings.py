@@ -160,7 +160,7 @@ def reliability(block: dict, where: str = "final") -> str:
 
 def pit(domain: dict) -> str:
     """Per variance model: share of |z| > 3 (3e-3 when the model fits) and which is closest to flat."""
-    from reports.main.figures_calibration import KIND_TITLES
+    from reports.main.figures_calibration import KIND_TITLES  # heavy: matplotlib
     rows = [(float(o.get("share_gt3") or 0), k) for k in ("gp", "gp_plus_dropout", "gp_calibrated")
             for o in [((domain.get(k) or {}).get("overall") or {})] if o]
     if not rows:

@@ -43,6 +43,7 @@ from reports.main.glossary import glossary_section
 from reports.shared.html import HtmlReport
 from reports.shared.stats import BOOTSTRAP, metric_params, track_summary
 from reports.shared.tables import component_labels
+from reports.main.bottom_line import counts, tracks_text
 
 log = logging.getLogger("viewfuse.report")
 
@@ -173,7 +174,6 @@ def _scans(pop: dict, track: dict) -> str:
 def _subtitle(ctx: ReportContext) -> str:
     pop, track = ctx.population, ctx.ev.track or {}
     if pop:
-        from reports.main.bottom_line import counts, tracks_text
         c = counts(pop)
         size = (f"{c['n_targets']} targets · {tracks_text(c)} · {c['n_settings']} settings"
                 + (f" · {c['n_cells']} cells" if c.get("n_cells") else ""))

@@ -5,7 +5,6 @@ and each method's pooled values in the ``biased_randomized`` setting beside the 
 Nothing is recomputed here."""
 from __future__ import annotations
 
-import math
 
 from pipeline.evaluation.metrics.labels import comparison_label, method_label
 from pipeline.evaluation.metrics.spec import metric_label

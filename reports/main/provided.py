@@ -8,6 +8,7 @@ from pipeline.method.provider import Interval, Section, Spread
 from reports.main.context import ReportContext
 from reports.main.instances import category
 from reports.shared.numbers import fmt
+from pipeline.method.registry import model_providers
 
 
 def value_text(v):
@@ -26,7 +27,6 @@ def filled(template: str, values: dict) -> str:
 
 def _of(ctx: ReportContext) -> list[tuple[str, list[Section]]]:
     """(provider key, its sections) of every provider with an index in the run."""
-    from pipeline.method.registry import model_providers
 
     out = []
     for p in model_providers():

@@ -16,6 +16,7 @@ from reports.main.context import ReportContext
 from reports.shared.figures import MGR_SATURATION
 from reports.shared.numbers import plain
 from reports.shared.records import varies_text
+from pipeline.infra.config import Config, to_dict
 
 def data_extra(ctx: ReportContext) -> dict:
     """The data stage manifest's extras (what the real-imagery writer measured), or {}."""
@@ -160,7 +161,6 @@ def seeds_section(ctx: ReportContext) -> None:
 
 def config_diff(config: dict) -> list[list[str]]:
     """(key, default, this run) for every key this run sets differently from the defaults."""
-    from pipeline.infra.config import Config, to_dict
     default = to_dict(Config())
     rows: list[list[str]] = []
     _diff(default, config, "", rows)

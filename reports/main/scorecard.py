@@ -29,6 +29,7 @@ from reports.main.context import ReportContext
 from reports.shared.checks import outcome_of
 from reports.shared.numbers import Estimate, plain
 from reports.shared.records import varies_text
+from pipeline.infra.outputs import read
 
 CLAIM_WORDS = ("holds", "fails", "inconclusive")
 EQUIVALENCE_WORDS = {"equivalent": "holds", "different": "fails", "not distinguishable": "inconclusive"}
@@ -121,7 +122,6 @@ def simulate_claims(run_dir: Path | None) -> list[dict]:
     """The §5.3 claims the simulate stage checked ([] where it did not run in this run folder)."""
     if run_dir is None:
         return []
-    from pipeline.infra.outputs import read
     try:
         claims = read(Path(run_dir) / "simulate", "simulate", "summary").get("claims") or []
     except (OSError, ValueError, AttributeError):

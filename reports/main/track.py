@@ -100,7 +100,7 @@ def bias_maps_section(ctx: ReportContext) -> None:
     if "bias_maps.png" not in ctx.figures:
         return
     ctx.section("Bias maps (one track)", "bias-maps")
-    from reports.main.findings import bias_caption
+    from reports.main.findings import bias_caption  # heavy: pandas
     ctx.page.paragraph("For each view of the detailed track alone, the Model Based class posterior when its pose "
                        "estimate is off by a 2D bias (x, y): the hue and the letter give the most probable class "
                        "(black lines separate the classes, so the map also reads in greyscale), the brightness that "

@@ -19,6 +19,7 @@ from reports.main.calibration import paired_value, pooled_value
 from reports.main.reviewer import data_extra
 from reports.main.scorecard import scorecard
 from reports.shared.tables import bound_counts, hyperparameter_table
+from pipeline.method.registry import get
 
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
 # in a collapsed list right under the pooled table.
@@ -231,7 +232,6 @@ def _paired_rows(pop: dict) -> list[list]:
 def method_notes(pop: dict) -> list[str]:
     """Each run method's note beside the paired comparisons (``FusionMethod.report_note``, from its
     summary.json block), its numbers formatted here."""
-    from pipeline.method.registry import get
 
     out = []
     for key in pop.get("methods") or ():

@@ -22,6 +22,7 @@ from pipeline.infra.outputs import MANIFEST
 from pipeline.infra.outputs import path as out_path
 from pipeline.evaluation.metrics.labels import ATTRIBUTION, methods
 from pipeline.evaluation.metrics.spec import STEP_COLUMNS
+from pipeline.method.registry import model_providers
 
 log = logging.getLogger("viewfuse.report")
 
@@ -242,7 +243,6 @@ def load_run(run_dir: str | Path) -> RunArtifacts:
 
 def provided_indexes(models_dir: Path) -> dict[str, dict]:
     """{provider key: its index.json} of every method's own models the run's models stage saved."""
-    from pipeline.method.registry import model_providers
 
     out = {}
     for p in model_providers():

@@ -18,6 +18,8 @@ from matplotlib.figure import Figure
 
 from pipeline.infra.cache import atomic_path
 from reports.shared.numbers import plain
+from reports.shared.checks import text_artists
+from reports.shared.checks import figure_text_problems
 
 DEFAULT_LEVELS = (10, 20, 30, 40, 50, 60, 70, 80, 90)
 MAX_WIDTH_IN = 10.8      # widest figure (at 110 dpi: 1188 px + margins; the page's content is 1276 px at 1400 px)
@@ -130,7 +132,6 @@ def tick_overlaps(fig: Figure, arts=None, boxes=None) -> list[str]:
     """Pairs of tick labels on one axis whose drawn boxes overlap (after layout). ``arts``: the
     checker's ``text_artists(fig)`` if just made (its tick groups are the labels matplotlib draws);
     ``boxes``: their (group, text, axes, box) if measured since (``layout.last_boxes``)."""
-    from reports.shared.checks import text_artists
     if boxes is None:
         arts = text_artists(fig) if arts is None else arts
         renderer = fig.canvas.get_renderer()
@@ -152,8 +153,7 @@ def tick_overlaps(fig: Figure, arts=None, boxes=None) -> list[str]:
 def check(fig: Figure, dpi: int = 110, name: str = "figure", drawn: bool = False) -> FigureCheck:
     """The legibility check and the self-check's text problems, from one placement of the text
     (``drawn``: the figure's last draw placed it and nothing changed since)."""
-    from reports.shared import layout
-    from reports.shared.checks import figure_text_problems, text_artists
+    from reports.shared import layout  # heavy: matplotlib
     sizes = text_sizes_px(fig, dpi)
     # the finishing draw's measured boxes when it was the last draw: the texts are not measured twice
     boxes = layout.last_boxes(fig) if drawn else None
@@ -167,7 +167,7 @@ def save(fig: Figure, path, dpi: int = 110) -> FigureCheck:
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"{path}: figures are written as .png")
-    from reports.shared import layout
+    from reports.shared import layout  # heavy: matplotlib
     layout.finish_figure(fig)   # no text overlaps or leaves the canvas, whatever the data (see layout.py)
     freeze_layout(fig, relayout=not layout.ended_on_draw(fig))
     # checked as placed by that last draw: the PNG below draws the same frozen layout

@@ -16,6 +16,7 @@ from pipeline.evaluation.metrics.labels import ordered_methods
 from pipeline.evaluation.metrics.spec import Params, matrices
 from pipeline.evaluation.statistics.engine import over_realizations
 from reports.shared.numbers import Estimate
+from pipeline.infra.config.evaluation import EvaluateConfig
 
 BOOTSTRAP = 1000
 
@@ -24,7 +25,6 @@ def metric_params(summary: Mapping, config: Mapping | None = None) -> Params:
     """The run's ``Params``: from a summary block that records them (``population`` or the
     simulate summary's ``claim_params``), else the resolved config's evaluate section, else the
     config's defaults."""
-    from pipeline.infra.config.evaluation import EvaluateConfig
 
     src = dict((config or {}).get("evaluate") or {})
     src.update({k: v for k, v in (summary.get("claim_params") or {}).items() if k == "confident_threshold"})

@@ -35,6 +35,8 @@ from reports.shared.numbers import MISSING, plain
 from reports.simulate.claims import claims_section, fig_confident_errors, fig_sweep
 from reports.simulate.findings import OURS, findings_text, matrix
 from reports.shared.stats import BOOTSTRAP, metric_params, track_summary
+from pipeline.method.registry import methods, model_providers
+from pipeline.infra.progress import bar as progress_bar
 
 log = logging.getLogger("viewfuse.simulate")
 
@@ -274,7 +276,6 @@ def _overview(page: HtmlReport, so, R: int, K: int, written: list[str]) -> None:
 
 def _own_model_methods() -> str:
     """The methods left out because they read a model of their own (``pipeline.method.provider``)."""
-    from pipeline.method.registry import methods, model_providers
 
     own = {p.key for p in model_providers()}
     return "".join(f"'{m.label}' does not apply here: it reads its own model of the classifier's outputs, and "
@@ -307,7 +308,6 @@ def _scenario_section(page: HtmlReport, s: str, summ: dict, R: int, n_boot: int,
 def build_simulate_report(sim_dir: str | Path, out_dir: str | Path, *, dpi: int = 110, run_name: str = "",
                           progress: bool = True, n_boot: int = BOOTSTRAP) -> ReportResult:
     """Render ``out_dir/index.html`` and its PNGs from the simulate stage's outputs."""
-    from pipeline.infra.progress import bar as progress_bar
 
     sim_dir, out = Path(sim_dir), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ from typing import Any
 
 from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import metric_label
-from reports.shared.numbers import fmt
+from reports.shared.html import format_cell
 from reports.shared.records import holm_text, outcome_clauses, records_of, sentences
 
 
@@ -41,25 +41,21 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
     return text
 
 
-def _fmt(v: Any) -> str:
-    if v is None:
-        return fmt(None)   # numbers.MISSING
-    if isinstance(v, float):
-        return fmt(v)
-    return html.escape(str(v))
+def _text(v: Any) -> str:
+    return html.escape(format_cell(v)[0])
 
 
 def _cell(entry: Any) -> str:
     if not isinstance(entry, dict):
-        return _fmt(entry)
-    return f"{_fmt(entry.get('value'))} <small>[{_fmt(entry.get('ci_low'))}, {_fmt(entry.get('ci_high'))}]</small>"
+        return _text(entry)
+    return f"{_text(entry.get('value'))} <small>[{_text(entry.get('ci_low'))}, {_text(entry.get('ci_high'))}]</small>"
 
 
 def _accuracy(seed: dict) -> str:
     """Held-out top-1 with its 95 % CI over the held-out images, where the card has one."""
     ci = seed.get("classifier_accuracy_ci95")
     if not ci:
-        return _fmt(seed.get("classifier_accuracy"))
+        return _text(seed.get("classifier_accuracy"))
     return _cell({"value": seed.get("classifier_accuracy"), "ci_low": ci[0], "ci_high": ci[1]})
 
 
@@ -72,8 +68,8 @@ def adjusted_outcomes(block: dict | None) -> dict[str, str]:
 def _outcome_cell(outcome: Any, holm: str | None) -> str:
     """A seed's verdict, and beside it its Holm-adjusted one where the record is in the primary family."""
     if not holm:
-        return _fmt(outcome)
-    return f"{_fmt(outcome)}<br><small>Holm-adjusted outcome: {html.escape(holm)}</small>"
+        return _text(outcome)
+    return f"{_text(outcome)}<br><small>Holm-adjusted outcome: {html.escape(holm)}</small>"
 
 
 def holm_table(block: dict | None) -> str:
@@ -83,7 +79,7 @@ def holm_table(block: dict | None) -> str:
         return ""
     fam = recs[0].get("family")
     rows = "".join(f"<tr><td>{html.escape(entry_label(r['comparison'] + ' / ' + r['metric']))}</td>"
-                   f"<td>{_fmt(r['outcome'])}</td><td>{html.escape(holm_text(r))}</td></tr>" for r in recs)
+                   f"<td>{_text(r['outcome'])}</td><td>{html.escape(holm_text(r))}</td></tr>" for r in recs)
     return (f"<table><tr><th>comparison, metric</th><th>outcome</th><th>Holm-adjusted outcome</th></tr>{rows}"
             f"</table><p><small>Holm-adjusted: the {fam} primary comparisons (With Uncertainty against each baseline "
             "on the primary metrics) as one family, familywise 95 % (each interval widened to its Holm step's "
@@ -105,12 +101,12 @@ def render_html(summary: dict, run_name: str) -> str:
     rows = [f"<tr><td>classifier held-out top-1 <small>[95 % CI over the held-out images]</small></td>"
             + "".join(f"<td>{_accuracy(per[s])}</td>" for s in seeds) + "</tr>",
             "<tr><td>GP fits with varying scores (std over views &gt; 0.01) · at a bound</td>"
-            + "".join(f"<td>{_fmt(per[s].get('varying_fits'))} · {_fmt(per[s].get('varying_fits_at_bound'))}</td>"
+            + "".join(f"<td>{_text(per[s].get('varying_fits'))} · {_text(per[s].get('varying_fits_at_bound'))}</td>"
                       for s in seeds) + "</tr>"]
     chain = (summary.get("timings_s") or {}).get("chain_per_seed") or {}
     if chain:
         rows.append("<tr><td>seconds to compute the chain (classifier + features + models + evaluate)</td>"
-                    + "".join(f"<td>{_fmt(sum(v for v in (chain.get(s) or {}).values() if v is not None) or None)}</td>"
+                    + "".join(f"<td>{_text(sum(v for v in (chain.get(s) or {}).values() if v is not None) or None)}</td>"
                               for s in seeds) + "</tr>")
     pooled = [per[s].get("pooled") or {} for s in seeds]
     methods = ordered_methods({m for p in pooled for m in p})

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import dataclasses
 import errno
+import json
 import logging
 import os
 import signal
@@ -13,10 +14,22 @@ import sys
 import threading
 import traceback
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 from pipeline.infra.config import Config, ConfigError, load_config, merge, parse_override
 from pipeline.infra.config.own import own_items, registered as own_key_of
+from pipeline.infra.config.schema import json_schema
 from stages.framework.registry import ORDER, STAGES
+from stages.framework.checkout import other_checkout
+from pipeline.evaluation.metrics.spec import check_primary
+from pipeline.scoring.classifiers import check_config
+from stages.framework.runner import plan
+from pipeline.infra.workers import raise_on_sigterm
+from pipeline.infra.workers import Terminated
+from pipeline.infra import progress
+from stages.framework.runner import ensure, remove_orphans
+from stages.commands.compare import run as compare_runs
+from stages.commands.study import run_study
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
 
@@ -132,12 +145,16 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--out", default=None, help="folder for index.html (default: <first run>/compare)")
     cp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     cp.add_argument("--debug", action="store_true", help="on an error, print the Python traceback too")
+    sc = sub.add_parser("schema", help="a JSON Schema of the config file, for editors (stdout or --out)",
+                        description="Write a JSON Schema of the config file from the declarations the loader "
+                                    "checks (types, ranges, choices, docs, registered sections).")
+    sc.add_argument("--out", default=None, help="file to write (default: stdout)")
+    sc.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sc.add_argument("--debug", action="store_true", help="on an error, print the Python traceback too")
     return p
 
 
 def _load(args) -> Config:
-    from stages.framework.checkout import other_checkout
-
     foreign = other_checkout()
     if foreign:
         logging.getLogger("viewfuse").warning("%s", foreign)
@@ -152,8 +169,6 @@ def _load(args) -> Config:
     if getattr(args, "executor", None) is not None:
         overrides = merge(overrides, {"run": {"executor": args.executor}})
     cfg = load_config(args.config, overrides or None)
-    from pipeline.evaluation.metrics.spec import check_primary
-    from pipeline.scoring.classifiers import check_config
 
     # The checks that live above the config's floor (the arch's own, in the classifier registry;
     # metric names, with the metrics), run here at load so `status` refuses as the stages would.
@@ -181,7 +196,6 @@ def _checked(args, cfg: Config, prefix: str, check) -> None:
 
 def status(cfg: Config) -> int:
     """The status table on stdout; exit 1 when a stage's state cannot be determined."""
-    from stages.framework.runner import plan
     print(f"run folder: {cfg.run_dir}", file=sys.stderr)
     memo: dict = {}
     width = max(map(len, ORDER))
@@ -279,7 +293,6 @@ def main(argv: list[str] | None = None) -> int:
 def _run(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     where = f"viewfuse {args.stage}"
-    from pipeline.infra.workers import raise_on_sigterm
 
     main_thread = threading.current_thread() is threading.main_thread()
     before = signal.getsignal(signal.SIGTERM) if main_thread else None
@@ -293,8 +306,6 @@ def _run(argv: list[str] | None) -> int:
 
 
 def _boundary(args, where: str) -> int:
-    from pipeline.infra.workers import Terminated
-
     try:
         rc = _main(args)
         sys.stdout.flush()  # a closed pipe shows here, inside the boundary, not at exit
@@ -330,19 +341,22 @@ def _main(args) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     if args.stage == "compare":  # not a stage: reads finished runs only (stages/commands/compare.py)
-        from stages.commands.compare import run as compare_runs
         return compare_runs(args.runs, args.out)
-    from pipeline.infra import progress
+    if args.stage == "schema":   # not a stage: the config's declarations as a JSON Schema
+        text = json.dumps(json_schema(), indent=1, ensure_ascii=False) + "\n"
+        if args.out:
+            Path(args.out).write_text(text)
+        else:
+            sys.stdout.write(text)
+        return 0
     progress.set_mode(args.progress)
     cfg = _load(args)
     if args.stage == "status":
         return status(cfg)
-    from stages.framework.runner import ensure, remove_orphans
     print(f"run folder: {cfg.run_dir}", file=sys.stderr)
     with progress.redirect_logging():
         remove_orphans(cfg)
         if args.stage == "study":  # not a stage: the chain once per seed (stages/commands/study.py)
-            from stages.commands.study import run_study
             run_study(cfg, device=cfg.run.device, threads=cfg.run.threads, force=args.force)
             return 0
         keys: dict[str, str] = {}

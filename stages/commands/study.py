@@ -22,6 +22,9 @@ from pipeline.infra.cache import write_json, write_text
 from reports.study.page import render_html, study_sentence
 from pipeline.infra.outputs import path as out_path
 from pipeline.infra.outputs import read, read_manifest
+from reports.compare.runs import CompareError, compare
+from reports.compare.page import write_page
+from stages.framework.runner import ensure as ensure_stage
 
 log = logging.getLogger("viewfuse.study")
 
@@ -102,7 +105,7 @@ def outcomes(result: dict) -> dict[str, str] | None:
 def summarize(results: dict[int, dict]) -> dict:
     """Side by side: per seed the pooled values and the verdict; whether the verdict agrees; and
     the verdict pooled over the seeds (the engine's one seed pool, at the seeds' own resample count)."""
-    from pipeline.evaluation.statistics.engine import seed_pool
+    from pipeline.evaluation.statistics.engine import seed_pool  # heavy: pandas
 
     seeds = sorted(results)
     pooled = seed_pool({str(s): results[s] for s in seeds})
@@ -122,8 +125,7 @@ def summarize(results: dict[int, dict]) -> dict:
 def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = False,
               ensure: Callable | None = None) -> dict:
     """Run (or reuse) every seed's chain, then write study/summary.json and study/index.html."""
-    if ensure is None:
-        from stages.framework.runner import ensure
+    ensure = ensure_stage if ensure is None else ensure
     t0 = time.perf_counter()
     ensure(cfg, "data", device=device, threads=threads)
     results, timings = {}, {}
@@ -154,8 +156,6 @@ def run_study(cfg, *, device: str = "auto", threads: int = 0, force: bool = Fals
 
 def write_compare(out: Path, run_name: str, sentence: str) -> bool:
     """``study/compare/index.html``: ``viewfuse compare`` over the seed folders (a seed group)."""
-    from reports.compare.runs import CompareError, compare
-    from reports.compare.page import write_page
     try:
         c = compare([out])
     except CompareError as e:

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import dis
 import functools
-import hashlib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline.infra.cache import sha256_bytes, sha256_stream
 
 PACKAGES = ("pipeline", "loaders", "stages", "reports")   # the project's import floors
 ROOT = Path(__file__).resolve().parents[2]                 # the source tree they live in
@@ -152,8 +152,8 @@ def _parse(path: str, size: int, mtime_ns: int) -> _Source:
         # _code_digest skips.
         code = compile(data, path, "exec", dont_inherit=True, optimize=2)
     except (SyntaxError, ValueError):
-        return _Source(hashlib.sha256(data).hexdigest(), (), frozenset())
-    h = hashlib.sha256()
+        return _Source(sha256_bytes(data), (), frozenset())
+    h = sha256_stream()
     _code_digest(code, h)
     return _Source(h.hexdigest(), scan_imports(data.decode("utf-8", "replace")), frozenset(code.co_names))
 
@@ -232,7 +232,7 @@ def code_version(spec: StageSpec) -> tuple[str, dict[str, str]]:
         if path is None:
             raise ValueError(f"stage {spec.name!r}: code module {m!r} is not a project module")
         per[m] = source_fingerprint(path)
-    h = hashlib.sha256("".join(f"{k}={v}\n" for k, v in sorted(per.items())).encode()).hexdigest()
+    h = sha256_bytes("".join(f"{k}={v}\n" for k, v in sorted(per.items())).encode())
     return h, per
 
 

@@ -29,13 +29,17 @@ from pipeline.infra.cache import (confined_writes, folder_records, hash_json, lo
 from pipeline.infra.config import Config, to_dict
 from pipeline.infra.outputs import MANIFEST, undeclared
 from pipeline.infra.outputs import read_manifest as outputs_manifest
-from pipeline.infra.progress import echo
+from pipeline.infra.progress import duration, echo
 from pipeline.infra.workers import pid_file, stop_leftovers
 from stages.framework import stage_cache
 from stages.framework.outside import banner, check_loaded, outside_parts
 from stages.framework.registry import STAGES, StageSpec, code_version, defines
 from stages.framework.run_folder import (OWNER, mark_owned, recover_swap, remove_leftover, remove_orphans,  # noqa: F401
                                stage_lock, stage_paths, swap_in)
+from pipeline.method.registry import outside_fingerprint
+from pipeline.infra.cost import check
+from pipeline.infra.cost import describe
+from pipeline.infra.device import configure_threads, resolve_device
 
 log = logging.getLogger("viewfuse")
 
@@ -64,7 +68,6 @@ class StageContext:
     @property
     def device(self) -> str:
         if self._device is None:
-            from pipeline.infra.device import configure_threads, resolve_device
             self._device = resolve_device(self.device_request)
             configure_threads(self.threads)
         return self._device
@@ -97,7 +100,6 @@ def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[s
     if extra_key is not None:
         parts["inputs"] = extra_key(cfg)
     if spec.methods:  # a fusion method registered from outside (entry point, test): new or edited reruns the stage
-        from pipeline.method.registry import outside_fingerprint
 
         parts["methods"] = outside_fingerprint()
     parts.update(outside_parts(cfg, spec.name))   # classifiers, planners, metrics from outside
@@ -276,7 +278,6 @@ def check_costs(cfg: Config, name: str, *, force: bool = False, checked: set | N
     work) and one over ``run.max_minutes`` or the memory budget is refused, a config error naming
     the keys, unless it is up to date (then it will not run). Pure formulas: this takes
     milliseconds, so a refusal comes before minutes of upstream work, not after."""
-    from pipeline.infra.cost import check
 
     checked = set() if checked is None else checked
     memo: dict = {}
@@ -293,7 +294,6 @@ def check_costs(cfg: Config, name: str, *, force: bool = False, checked: set | N
 
 def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: str, threads: int) -> dict:
     """Run one stage into its temporary folder and swap it in; the caller holds the stage's lock."""
-    from pipeline.infra.cost import check, describe
 
     est = check(cfg, spec.name)  # again, with this process as it is now (an address-space limit)
     if est.seconds > 60:
@@ -352,7 +352,7 @@ def run_stage(cfg: Config, spec: StageSpec, key: str, parts: dict, *, device: st
     }
     write_json(tmp / MANIFEST, manifest)
     swap_in(paths)
-    echo(f"[{spec.name}] done in {_fmt(elapsed)}: {summary} -> {final}")
+    echo(f"[{spec.name}] done in {duration(elapsed, 1)}: {summary} -> {final}")
     if ctx.skips.count:
         echo(f"[{spec.name}] {ctx.skips.count} bad entr{'y' if ctx.skips.count == 1 else 'ies'} skipped "
              f"(data.skip_bad_views); see {final / MANIFEST} 'extra.skipped'")
@@ -365,10 +365,6 @@ def cpu_seconds() -> float:
 
     a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
-
-
-def _fmt(s: float) -> str:
-    return f"{s:.1f} s" if s < 120 else f"{s / 60:.1f} min"
 
 
 def stage_timings(cfg: Config) -> dict[str, float]:

@@ -17,6 +17,7 @@ from pipeline.evaluation.domain import tails
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.domain import variance as V
 from pipeline.infra.config import domain_variance_mode
+from pipeline.scoring.classifiers import classifier
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -124,7 +125,6 @@ class TargetDomain:
 def mc_sources(cfg) -> dict:
     """What produced the MC samples: head dropout always; drop-connect only where the run scored
     with it (then the spread is the two sources' joint one: they are not scored apart)."""
-    from pipeline.scoring.classifiers import classifier
 
     c = cfg.classifier
     entry = classifier(c.arch)

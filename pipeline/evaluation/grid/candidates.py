@@ -29,6 +29,7 @@ import numpy as np
 from pipeline.method.components import choose_components
 from pipeline.scene.folds import FOLD_SEP, fold_of  # noqa: F401 - public here
 from pipeline.infra import seeds
+from pipeline.infra.config.fields import ConfigError
 
 
 def nearest_classes(target: str, others: Sequence[str], class_means: Mapping[str, np.ndarray],
@@ -78,8 +79,6 @@ def candidate_sets(pool: Sequence[str], targets: Sequence[str], n_candidates: in
             picked = others
         elif candidates in ("sampled", "hard"):
             if n_candidates - 1 > len(others):
-                from pipeline.infra.config.fields import ConfigError  # a config problem: exit 2
-
                 raise ConfigError(f"'evaluate.n_candidates' = {n_candidates} but only {len(pool)} classes are "
                                   f"modelled ({', '.join(pool)})")
             if candidates == "hard":

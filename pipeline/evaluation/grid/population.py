@@ -22,6 +22,7 @@ from pipeline.scene.rays import TrackError, facing_error
 from pipeline.infra import seeds
 from pipeline.method.provider import calibrated, providers
 from pipeline.method.score_space import of_meta, to_space
+from pipeline.method.fusion import engine_device
 
 log = logging.getLogger("viewfuse.evaluate")
 
@@ -279,7 +280,6 @@ def run_cell(banks, cell: Cell) -> dict:
     """Every setting of one cell: {"posts": {(experiment, label): {method: log posteriors (R, K, C)}},
     "difficulty": {method: share of views that alone rank the truth first} or None, "seconds":
     {method: wall seconds in its fusion calls}, "extras": {method: the pose-free methods' extras}}."""
-    from pipeline.method.fusion import engine_device
 
     with engine_device(cell.device):
         return _run_cell(banks, cell)

@@ -18,6 +18,7 @@ from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile 
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.resampler import LEVEL
 from pipeline.infra.config.evaluation import cluster_of
+from pipeline.method import registry as method_registry
 
 
 def cell_table(kept: list[dict]) -> pd.DataFrame:
@@ -67,7 +68,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
     cell table and the cells' reduced results (``reduce_cell``): pooled values, paired differences
     and verdicts (whole population, per setting, per ablation), difficulty, per-cell values and
     the tracks."""
-    from pipeline.evaluation.grid import population_calibration as PC
+    from pipeline.evaluation.grid import population_calibration as PC  # heavy: pandas
 
     ev = cfg.evaluate
     metrics = list(METRICS)
@@ -142,10 +143,8 @@ def method_blocks(cfg, cells: list[P.Cell], results: list[dict], population: dic
     """summary.json's block of each method that reports one beside its posterior
     (``FusionMethod.population_block``), from its extras in the default cells' ``reduce_cell``
     summaries ``results``; keyed by the method."""
-    from pipeline.method.registry import methods
-
     out = {}
-    for m in methods():
+    for m in method_registry.methods():
         pairs = [(c, r["extras"][m.key]) for c, r in zip(cells, results)
                  if c.variant == DEFAULT and m.key in r.get("extras", {})]
         block = m.population_block(cfg, pairs) if pairs else None

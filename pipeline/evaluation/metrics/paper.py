@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pipeline.infra.datasets import described
 
 LN10 = math.log(10.0)
 TABLES_NOTE = ("The paper's Tables 1 and 2 report the rendered 3-D (UnrealEngine) experiments of §5.4: Table 1 "
@@ -109,7 +110,6 @@ def run_setting(config: dict | None) -> str:
     it: rendered images are synthetic; photographs with category targets (real_imagery's ETH-80)
     category level; any other photographs (COIL-100 objects, BigBIRD instances on AVD, a source
     of one's own that declares neither) instance level."""
-    from pipeline.infra.datasets import described
 
     data = (config or {}).get("data") or {}
     source = described(data.get("source") or "synthetic")

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.infra.registry import Registry, caller_module
+from pipeline.infra.config.fields import ConfigError
+from pipeline.infra.config.evaluation import EvaluateConfig
 
 LN10 = float(np.log(10.0))
 
@@ -166,7 +168,6 @@ class Params:
     def of(cls, section) -> Params:
         """From a config section with ``confident_threshold`` (and ``ece_bins``: the evaluate
         section; the simulate section has no ECE and takes the evaluate default's field)."""
-        from pipeline.infra.config.evaluation import EvaluateConfig
 
         bins = getattr(section, "ece_bins", EvaluateConfig.__dataclass_fields__["ece_bins"].default)
         return cls(float(section.confident_threshold), int(bins))
@@ -463,7 +464,6 @@ def confident_error_rate(log_post, truth, threshold: float, axis=None) -> np.nda
 
 def check_primary(keys) -> None:
     """``evaluate.primary_metrics`` must name metrics of the spec (or the pooled ECE), each once."""
-    from pipeline.infra.config.fields import ConfigError
 
     bad = [k for k in keys if k not in METRICS and k not in POOLED_METRICS]
     dup = sorted({k for k in keys if list(keys).count(k) > 1})

@@ -28,6 +28,7 @@ from pipeline.evaluation.simulation import claims as CL
 from pipeline.evaluation.simulation import scenarios as S
 from pipeline.infra.config import SimulateConfig
 from pipeline.method.gp import GPClassModels
+from pipeline.infra.progress import bar as progress_bar
 
 MU, LB = CL.MU, CL.LB
 
@@ -239,7 +240,6 @@ def claims_block(fitted: GPClassModels, models: GPClassModels, sim: SimulateConf
     on the stage's own posteriors ``posts`` ({scenario: {method: (R, K, C)}}, from ``models``),
     the confident-error rate per step, the sweep (unless ``simulate.sweep = "off"``) and, where
     the sweep's best point is not the default, the claims rerun there at ``sim.realizations``."""
-    from pipeline.infra.progress import bar as progress_bar
 
     truth = sim.truth_class - 1
     p = CL.ClaimParams(step=sim.claim_step, confident_threshold=sim.confident_threshold, seed=sim.seed)

@@ -24,12 +24,14 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.metrics import spec as M
-from pipeline.evaluation.metrics.labels import comparison_key
+from pipeline.evaluation.metrics.labels import comparison_key, comparisons, ordered_methods
 from pipeline.evaluation.statistics import records as REC
 from pipeline.evaluation.statistics.design import estimate as design_estimate
 from pipeline.evaluation.statistics.hierarchy import Hierarchy, leave_one_out
 from pipeline.evaluation.statistics.multiplicity import holm
 from pipeline.evaluation.statistics.resampler import draws, estimate, interval
+from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
+from pipeline.infra.config.evaluation import EvaluateConfig
 
 KEYS = ["target", "track", "setting"]
 
@@ -185,8 +187,6 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
                                                                                            "loto_flips") if x in extra},
                                              **{x: est[x] for x in DESIGN_FIELDS if x in est}))
     if ece is not None and single:
-        from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
-
         e = pooled_ece(h, ece["sums"], methods, comparisons, per_target=per_target, loto=loto)
         over = [x for x in over if x == "seeds"] + ["targets", "tracks"]   # the pooled ECE: targets, then tracks
         for m, per in e["pooled"].items():
@@ -250,9 +250,6 @@ def seed_pool(populations: Mapping[str, Mapping]) -> dict | None:
     the metrics every seed's cells hold, the runs' own resample count (``population.bootstrap``, the
     ``evaluate.bootstrap`` default where a summary lacks it) and primary metrics. None without a
     population, or when one of them holds no cells (a pool without a seed would overstate)."""
-    from pipeline.evaluation.metrics.labels import comparisons, ordered_methods
-    from pipeline.infra.config.evaluation import EvaluateConfig
-
     pops = {str(k): p for k, p in populations.items()}
     if not pops or not all(p.get("cells") for p in pops.values()):
         return None

@@ -57,7 +57,7 @@ def hierarchy_of(sums: dict, n_boot: int, seed):
     gives it: the evaluate stage's blocks take the one of their cells)."""
     import pandas as pd
 
-    from pipeline.evaluation.statistics.hierarchy import Hierarchy
+    from pipeline.evaluation.statistics.hierarchy import Hierarchy  # heavy: pandas
 
     units = sorted({(t, tr) for (_, t, tr) in sums})
     return Hierarchy({"run": pd.DataFrame(units, columns=["target", "track"])}, n_boot, seed)
@@ -136,7 +136,7 @@ def pooled_ece(h, sums: dict, methods: Sequence[str], comparisons, per_target: b
 def _loto(h, pa: np.ndarray, pb: np.ndarray, i: int, full: dict, loo_w: np.ndarray) -> dict:
     """The ECE difference with each target left out (``hierarchy.leave_one_out``): ``full`` its
     estimate on every target, ``loo_w`` the leaf weights of the draws' first T - 1 target slots."""
-    from pipeline.evaluation.statistics.hierarchy import leave_one_out
+    from pipeline.evaluation.statistics.hierarchy import leave_one_out  # heavy: pandas
 
     if loo_w is None:                                    # under 3 targets: no check (leave_one_out says so)
         return leave_one_out(h, full, np.array([]), np.array([]), False)

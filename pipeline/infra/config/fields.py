@@ -7,12 +7,9 @@ import dataclasses
 from dataclasses import field
 from typing import Any
 
+from pipeline.infra.errors import ConfigError  # noqa: F401 - its home: raised below the config package too
 
 SEED_MAX = 2**32 - 1  # numpy, torch and Parquet metadata all take it
-
-
-class ConfigError(ValueError):
-    """A config file is malformed; the message names the file and the key."""
 
 
 def setting(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,

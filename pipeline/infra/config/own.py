@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from pipeline.infra.datasets import source_config
 from pipeline.infra.registry import Registry
 
 # The sections extensions may add tables to (each a dataclass deriving from Extendable).
@@ -103,8 +104,6 @@ def sections(parent: str, table: dict, where: str) -> dict[str, type]:
     registered ones and, under ``data``, the section of the source it names)."""
     out = registered(parent)
     if parent == "data":
-        from pipeline.infra.datasets import source_config
-
         name, config = source_config(table, where)
         if config is not None:
             out[name] = config

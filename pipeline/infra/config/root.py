@@ -3,13 +3,13 @@ canonical forms a config is hashed and written in."""
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pipeline.infra.cache import sha256_bytes
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
 from pipeline.infra.config.evaluation import TEST_DOMAIN_MODES, EvaluateConfig, ReportConfig
 from pipeline.infra.config.fields import ConfigError
@@ -96,7 +96,7 @@ class Config:
         return obj
 
     def section_hash(self, name: str) -> str:
-        return hashlib.sha256(canonical_json(to_dict(self.section(name))).encode()).hexdigest()
+        return sha256_bytes(canonical_json(to_dict(self.section(name))).encode())
 
 
 def domain_variance_mode(cfg: Config, ablation: str | None) -> str:

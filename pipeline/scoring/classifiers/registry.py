@@ -70,7 +70,7 @@ class Classifier:
         raise NotImplementedError
 
     def num_classes_of(self, state: dict, path) -> int:
-        from pipeline.scoring.weight_files import num_classes_of
+        from pipeline.scoring.weight_files import num_classes_of  # heavy: torch
 
         return num_classes_of(state, path, key=self.last_linear_key(), what=f"a {self.display}")
 

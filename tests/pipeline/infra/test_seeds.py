@@ -70,6 +70,20 @@ def _name_derived(arg) -> str | None:
     return None
 
 
+def _ad_hoc(arg) -> str | None:
+    """Why an RNG constructor's argument is a derivation of its own, or None: a seed is handed on
+    as it is (a name, an attribute, an integer, ``int(...)`` of one); a list of seed material
+    (``[seed, 7]``) or arithmetic (``seed + 1``, ``2**31 - 1``) names a stream, which
+    ``seeds.stream(seed, *names)`` does."""
+    if isinstance(arg, ast.Call) and _dotted(arg.func) == "int" and len(arg.args) == 1:
+        arg = arg.args[0]
+    if isinstance(arg, (ast.List, ast.Tuple, ast.ListComp, ast.GeneratorExp)):
+        return "a list of seed material (name the stream: seeds.stream(seed, *names))"
+    if isinstance(arg, (ast.BinOp, ast.UnaryOp)):
+        return "arithmetic on a seed (name the stream: seeds.stream(seed, *names))"
+    return None
+
+
 def offences(path: Path) -> list[str]:
     tree, out = ast.parse(path.read_text(), str(path)), []
     for n in ast.walk(tree):
@@ -80,13 +94,13 @@ def offences(path: Path) -> list[str]:
             out.append(f"{path}:{n.lineno}: a hash digest turned into an integer")
         if isinstance(n, ast.Call) and _dotted(n.func).split(".")[-1] in RNG_CALLS:
             for a in [*n.args, *(k.value for k in n.keywords)]:
-                why = _name_derived(a)
+                why = _name_derived(a) or _ad_hoc(a)
                 if why:
                     out.append(f"{path}:{n.lineno}: {_dotted(n.func)} seeded from {why}")
     return out
 
 
-def test_no_name_derived_seed_outside_the_seeds_module():
+def test_no_name_derived_or_ad_hoc_seed_outside_the_seeds_module():
     own = ROOT / "pipeline" / "infra" / "seeds.py"
     found = [o for d in CODE for p in sorted((ROOT / d).rglob("*.py")) if p != own for o in offences(p)]
     assert not found, "derive named streams with pipeline.infra.seeds.stream / key:\n" + "\n".join(found)
@@ -100,11 +114,15 @@ def test_the_walk_catches_each_kind_of_private_derivation(tmp_path):
         "np.random.default_rng(f'{seed}/{name}')": "formatted",
         "int.from_bytes(hashlib.sha256(b'x').digest()[:8], 'little')": "digest",
         "torch.manual_seed('7')": "text",
+        "np.random.default_rng([seed, 7])": "list of seed material",
+        "np.random.SeedSequence([seed, c, f, 46]).generate_state(1)": "list of seed material",
+        "np.random.default_rng(int(seed) + 1)": "arithmetic",
     }
     for code, why in cases.items():
         f = tmp_path / "m.py"
         f.write_text(code + "\n")
         assert any(why in o for o in offences(f)), code
     ok = tmp_path / "ok.py"
-    ok.write_text("np.random.default_rng([int(seed), stream, 2**31 - 1])\nseeds.stream(seed, 'a', scan)\n")
+    ok.write_text("np.random.default_rng(int(seed))\nseeds.stream(seed, 'a', scan, 2**31 - 1)\n"
+                  "torch.manual_seed(seed)\nnp.random.RandomState(self.random_state)\n")
     assert offences(ok) == []
