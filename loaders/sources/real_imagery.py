@@ -49,9 +49,9 @@ class RealImagery(DatasetSource):
             check_eth80(cfg, need)
         else:
             need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
-            need(ri.background == "black" and ri.train_background in ("same", "black"),
-                 f"'data.real_imagery.background' = {ri.background!r}, 'train_background' = {ri.train_background!r}: "
-                 "COIL-100 photographs are on black on both sides (clutter needs data.real_imagery.dataset = 'eth80')")
+            need(ri.train_background != "original",
+                 "'data.real_imagery.train_background' = 'original' is ETH-80's blue cloth (COIL-100's own ground "
+                 "is black: 'black')")
             need(ri.class_level == "category" and ri.view_split == "none" and not ri.contrast,
                  "'data.real_imagery.class_level', 'view_split' and 'contrast' are for dataset = 'eth80' (COIL classes are "
                  "instances, split by data.real_imagery.train_step_deg)")
@@ -119,11 +119,12 @@ def backgrounds(ri: dict, extra: dict) -> str:
         return "backgrounds: COIL-100's own black on both sides"     # a run from before the key
     frames = bg.get("frames") or ri.get("background", "black")
     train = bg.get("training") or (frames if ri.get("train_background", "same") == "same" else ri["train_background"])
-    pad = PADS.get(bg.get("train_pad") or ri.get("train_pad", "none"), "")
+    pad_key = bg.get("train_pad") or ri.get("train_pad")
+    pad = f"; {PADS[pad_key]}" if pad_key in PADS else ""    # a record from before the key says nothing
     if frames == train:
-        return f"backgrounds: frames and training views alike {BACKGROUNDS.get(frames, frames)}; {pad}"
+        return f"backgrounds: frames and training views alike {BACKGROUNDS.get(frames, frames)}{pad}"
     return (f"backgrounds: frames {BACKGROUNDS.get(frames, frames)}, training views {BACKGROUNDS.get(train, train)} "
-            f"(a deliberate mismatch, data.real_imagery.train_background); {pad}")
+            f"(a deliberate mismatch, data.real_imagery.train_background){pad}")
 
 
 def check_eth80(cfg, need) -> None:
