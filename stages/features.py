@@ -254,6 +254,8 @@ def run(ctx) -> str:
     timings["total_s"] = round(time.perf_counter() - t0, 2)
     ctx.extra.update({
         "bigbird_crops": bb.n, "avd_crops": av.n, "n_samples": f.n_samples,
+        # crops that ran off their photograph or frame, padded with features.pad (the data page shows them)
+        "crops_off_image": {"bigbird": bb.off_image, "avd": av.off_image, "pad": f.pad},
         "bigbird_samples": f.bigbird_samples, "score_dim": dim,
         "classifier_hash": card["hash"], "crop_policy": policy.as_dict(),
         "bigbird_viewpoint_spread": spread, "timings": timings, "torch_threads": threads,
@@ -261,4 +263,4 @@ def run(ctx) -> str:
     })
     n_skip = skips.count
     return (f"{bb.n} BigBIRD crops (1 + {f.bigbird_samples} passes) + {av.n} AVD crops (1 + {f.n_samples} passes), D = {dim}, "
-            f"{n_skip} skipped; BigBIRD {timings['bigbird_s']:.0f} s, AVD {timings['avd_s']:.0f} s on {device}")
+            f"{n_skip} skipped; off their image (padded '{f.pad}'): {bb.off_image} BigBIRD, {av.off_image} AVD; BigBIRD {timings['bigbird_s']:.0f} s, AVD {timings['avd_s']:.0f} s on {device}")

@@ -22,7 +22,8 @@ Training folders (BigBIRD format, camera NP1), one per usable instance, ``eth80_
 ``NP1_<360 n + round(a)>.jpg`` (the "angle" is a view code, unique within any class: its remainder
 mod 360 is the name's azimuth, its quotient the instance) with a pose file of that code that puts
 NP1 at exactly ``a`` (22.5-degree multiples, not the rounded name), its mask (map >= 128) and the
-photograph on the training background (``clutter.training_view``: by default the frames' kind).
+photograph on the training background (``clutter.on_surround``: by default the frames' kind, the
+photograph extended so that no training crop runs off it, ``data.real_imagery.train_pad``).
 
 Scenes, as for COIL (``write``): the real AVD boxes, instances located from their real rays, then
 a seeded pairing (``pairing_seed``) that spreads the held-out instances over the located instances
@@ -42,9 +43,10 @@ import numpy as np
 from loaders.errors import BadInputError
 from loaders.eth80 import STEP_DEG, Eth80Folder, class_object
 from loaders.pbm import encode_pbm
-from loaders.real_imagery.clutter import read_backgrounds, render_category_frame, training_view
-from loaders.real_imagery.scans import Frames, Placed, locate, summaries, write_scans, writer_count
+from loaders.real_imagery.clutter import on_surround, read_backgrounds
+from loaders.real_imagery.scans import Placed, locate, summaries, write_scans, writer_count
 from loaders.real_imagery.training import modellable
+from loaders.real_imagery.write import plain_frames, training_crop
 from loaders.synthetic.bigbird_writer import calibration_datasets, encode_jpeg, make_rig, write_h5
 from pipeline.scene.folds import category_of, fold_class, fold_of
 from pipeline.infra.cache import write_bytes, write_json
@@ -206,11 +208,10 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
     train_bg = ri.background if ri.train_background == "same" else ri.train_background
     need_bg = "avd_frames" in (ri.background, train_bg)
     backgrounds = read_backgrounds(cfg.path("data.avd_frames_root"), skips) if need_bg else None
-    n_views = 0
+    n_views, borders, crop = 0, {}, training_crop(cfg)
     for (c, i), v in sorted(train.items()):
-        on_bg = {a: (training_view(rgb, alpha, train_bg, backgrounds,
-                                   seeds.stream(ri.background_seed, "train-background", c, str(i), f"{a:g}")), mask, alpha)
-                 for a, (rgb, mask, alpha) in v.items()}
+        on_bg, borders[class_object(c, i)] = on_surround(v, train_bg, backgrounds, lambda a: seeds.stream(
+            ri.background_seed, "train-background", c, str(i), f"{a:g}"), crop)
         n_views += write_training_class(bb_out, class_object(c, i), {i: on_bg}, ri.train_jpeg_quality)
     classes = fold_classes(set(train), ri.categories, ri.instances, ri.class_level)
     for cls, members in classes.items():
@@ -224,16 +225,15 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
     backgrounds = backgrounds if ri.background == "avd_frames" else None
     scans = {scan: locate(avd_root, scan, ri.max_difficulty, ri.max_ray_residual_m, skips) for scan in cfg.data.scans}
     placed = assign_targets({scan: sorted(loc.loc) for scan, loc in scans.items()}, sorted(targets), ri.pairing_seed)
-    frames = Frames(nearest=nearest_azimuth, item=lambda scan, image, p, photo, box: _item(ri, scan, image, p, photo, box),
-                    render=lambda scan, name, items, size: _render(cfg, backgrounds, scan, name, items, size),
-                    jpeg_quality=ri.jpeg_quality, used_key="azimuths_used", max_key="max_view_offset_deg")
+    frames = plain_frames(cfg.data.seed, ri, backgrounds, nearest=nearest_azimuth, used_key="azimuths_used",
+                          max_key="max_view_offset_deg")
     truth, counts = write_scans(avd_root, avd_out, {scan: (loc, _place(ri, loc, placed[scan], targets, test, ids))
                                                     for scan, loc in scans.items()}, frames, ri.frames,
                                 ri.max_view_error_deg, writer_count(cfg, "data.real_imagery.workers", ri.workers))
     view_error, box_fit = summaries(truth, ri.max_view_error_deg, "real imagery (ETH-80)", "frame azimuth")
     times = {t: sum(1 for p in placed.values() if t in p.values()) for t in targets}
     left_out = sorted(class_object(c, i) for c in ri.categories for i in ri.instances if (c, i) not in train)
-    background = {"frames": ri.background, "training": train_bg}
+    background = {"frames": ri.background, "training": train_bg, "train_pad": ri.train_pad}
     write_json(truth_path, {
         "source": "real_imagery", "dataset": "eth80",
         "pairing": "synthetic: seeded (data.real_imagery.pairing_seed, yaws_seed)",
@@ -244,7 +244,7 @@ def write_real_category(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skip
         "targets": {t: {"category": c, "instance": i, "placements": times[t],
                         "training_azimuths": sorted(train[(c, i)]), "frame_azimuths": sorted(test[(c, i)])}
                     for t, (c, i) in sorted(targets.items())},
-        "left_out_instances": left_out, "scans": truth, "background": background,
+        "left_out_instances": left_out, "scans": truth, "background": background, "training_border_px": borders,
         "view_error_deg": view_error, "box_fit": box_fit})
     unplaced = sorted(t for t, n in times.items() if n == 0)
     extra = {"classes": len(classes), "targets": len(targets), "training_views": n_views,
@@ -272,18 +272,3 @@ def _place(ri, located, placed: dict[str, str], targets: dict, photos: dict, ids
                           {"name": t, "position": [float(xy[0]), float(xy[1])], "yaw_deg": yaw, "avd_instance": inst,
                            "category": c, "eth80_instance": i, "residual_m": round(float(located.loc[inst][1]), 4)}))
     return out
-
-
-def _item(ri, scan: str, image: str, p: Placed, photo: tuple, box) -> tuple:
-    """One framed box: the photograph cut out at ``box`` and its background's own generator."""
-    rgb, mask, alpha = photo
-    bg_rng = seeds.stream(ri.background_seed, "background", scan, image, p.instance)
-    return (rgb, mask, alpha, box), bg_rng
-
-
-def _render(cfg, backgrounds, scan: str, name: str, items: list, size: tuple[int, int]) -> np.ndarray:
-    ri = cfg.data.real_imagery
-    rng = seeds.stream(cfg.data.seed, f"{scan}/{name}")
-    its = [it for it, _ in items]
-    return render_category_frame(size, its, backgrounds, ri.noise_std, ri.blur_sigma_px, rng,
-                                 [g for _, g in items])

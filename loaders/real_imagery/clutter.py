@@ -24,7 +24,7 @@ import numpy as np
 from loaders.errors import BadInputError
 from loaders.files import read_checked
 from loaders.image_gate import decode_image
-from loaders.real_imagery.frames import apply_sensor, paste, resampled_view
+from loaders.real_imagery.frames import apply_sensor, mask_bbox, paste, paste_cutout, resampled_view
 
 LABEL_ROWS = 24            # the "Step #N" label of the avd_frames copy: about 50 x 20 px, top left
 MIN_REGION_FRACTION = 0.3  # smallest region height, as a fraction of the largest that fits
@@ -95,23 +95,68 @@ def cutout_patch(rgb: np.ndarray, mask: np.ndarray, alpha: np.ndarray, box_w: in
 
 def patch_shape(mask: np.ndarray, box_w: int, box_h: int) -> tuple[int, int]:
     """(H, W) of the patch ``resampled_view`` makes for this mask and box (the background's size)."""
-    probe, _ = resampled_view(mask.astype(np.uint8), mask, box_w, box_h)
-    return probe.shape[:2]
+    return patch_geometry(mask, box_w, box_h)[0]
+
+
+def patch_geometry(mask: np.ndarray, box_w: int, box_h: int) -> tuple[tuple[int, int], tuple[int, int]]:
+    """((H, W), (dx, dy)) of the patch ``resampled_view`` makes for this mask and box."""
+    probe, off = resampled_view(mask.astype(np.uint8), mask, box_w, box_h)
+    return probe.shape[:2], off
 
 
 def render_category_frame(size: tuple[int, int], items, backgrounds, noise_std: float, blur_sigma_px: float,
                           rng: np.random.Generator, bg_rngs) -> np.ndarray:
-    """A black (H, W, 3) frame of ``size`` = (W, H) with each (rgb, mask, alpha, box) cut out and
-    pasted (``box``: where the object's mask box lands, ``frames.fit_in_box``), larger boxes first, over black (``backgrounds`` None) or clutter drawn with the item's
-    own generator of ``bg_rngs`` (same order as ``items``); then the sensor model on each box."""
+    """A (H, W, 3) frame of ``size`` = (W, H): over black (``backgrounds`` None), or first, under
+    every object, a clutter region around each (drawn with the item's own generator of
+    ``bg_rngs``, same order as ``items``) as large as its patch; then each (rgb, mask, alpha, box)
+    cut out by its alpha (``frames.paste_cutout``) in the given order (the farthest first: a nearer
+    object covers a farther one only with its own silhouette, where their real boxes overlap; no
+    object is cut by another's background); then the sensor model on each box."""
     frame = np.zeros((size[1], size[0], 3), np.uint8)
-    order = sorted(range(len(items)), key=lambda i: -(items[i][3][2] - items[i][3][0]) * (items[i][3][3] - items[i][3][1]))
-    for i in order:
-        rgb, mask, alpha, box = items[i]
-        bw, bh = int(box[2]) - int(box[0]), int(box[3]) - int(box[1])
-        bg = None if backgrounds is None else clutter_patch(backgrounds, patch_shape(mask, bw, bh), bg_rngs[i])
-        patch, off = cutout_patch(rgb, mask, alpha, bw, bh, bg)
-        paste(frame, patch, off, box)
+    if backgrounds is not None:
+        for (_, mask, _, box), g in zip(items, bg_rngs):
+            shape, off = patch_geometry(mask, int(box[2]) - int(box[0]), int(box[3]) - int(box[1]))
+            paste(frame, clutter_patch(backgrounds, shape, g), off, box)
+    for rgb, mask, alpha, box in items:
+        paste_cutout(frame, rgb, mask, alpha, box)
     for *_, box in items:
         apply_sensor(frame, box, noise_std, blur_sigma_px, rng)
     return frame
+
+
+def crop_overrun(mask: np.ndarray, margin: float, square: bool) -> int:
+    """Pixels by which the features stage's crop of this photograph can run off it on its worst
+    side (0: inside): its mask box grown by ``margin`` times the longer side on every side and,
+    if ``square``, to a square about the box centre (``pipeline.scoring.crops.crop_box``), plus a
+    pixel for that function's rounding, so the bound holds whichever way it rounds."""
+    x0, y0, x1, y1 = mask_bbox(mask)
+    H, W = mask.shape[:2]
+    long_side = max(x1 - x0, y1 - y0)
+    if square:
+        half = long_side * (0.5 + margin) + 1.0
+        cx, cy = (x0 + x1) / 2.0, (y0 + y1) / 2.0
+        reach = (half - cx, half - cy, cx + half - W, cy + half - H)
+    else:
+        m = margin * long_side + 1.0
+        reach = (m - x0, m - y0, x1 + m - W, y1 + m - H)
+    return max(0, int(np.ceil(max(reach))))
+
+
+def on_surround(views: dict, kind: str, backgrounds, rng_of, crop=None) -> tuple[dict, int]:
+    """A side's training photographs {angle: (rgb, mask, alpha)} on the frames' surround: each
+    cut out by its alpha onto ``kind`` ('black', 'avd_frames': ``training_view`` with the
+    generator ``rng_of(angle)``; 'original' leaves it as it is). ``crop`` = (margin, square): first
+    every view is extended by the same border (so the side keeps one image size and one rig),
+    wide enough that no crop the features stage takes runs off its photograph, and the border
+    gets the surround too: no pad value reaches a training crop. Returns (views, border px)."""
+    border = 0
+    if crop is not None and kind != "original":
+        border = max(crop_overrun(m, *crop) for _, m, _ in views.values())
+    out = {}
+    for a, (rgb, mask, alpha) in views.items():
+        if border:
+            rgb = cv2.copyMakeBorder(rgb, border, border, border, border, cv2.BORDER_CONSTANT, value=0)
+            mask = np.pad(mask, border)
+            alpha = np.pad(np.asarray(alpha, np.float32), border)
+        out[a] = (training_view(rgb, alpha, kind, backgrounds, rng_of(a)), mask, alpha)
+    return out, border

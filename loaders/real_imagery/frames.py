@@ -16,8 +16,9 @@ box), so the crop the features stage takes frames the object as the training cro
 mask box plus the crop margin) and not the real box's padding. The real box decides the frame's
 position and size; its centre, which locates the instance, moves by at most half a pixel.
 ``fit_in_box`` also gives the scale and the box's fill (the object box's share of the real box),
-which the writer records per frame. The patch keeps a surround of the photograph's own black of
-``CONTEXT`` times the object's longer side on every side (enough to fill the square crop). The
+which the writer records per frame. The object is pasted by its mask (``paste_cutout``: its
+photograph's ground never reaches the frame), so the surround of every crop is the frame's own:
+black, or the clutter ``clutter.render_category_frame`` lays under the objects first. The
 sensor model acts on a window around each pasted box (the crop the features stage takes lies
 inside it): Gaussian optical blur (``blur_sigma_px``), Gaussian read noise (``noise_std`` grey
 levels), then the whole frame is JPEG-encoded (``jpeg_quality``) by the writer.
@@ -96,14 +97,49 @@ def resampled_view(rgb: np.ndarray, mask: np.ndarray, box_w: int, box_h: int):
     return patch, (dx, dy)
 
 
-def paste(frame: np.ndarray, patch: np.ndarray, offset: tuple[int, int], box) -> None:
-    """Put ``patch`` into ``frame`` so its object box lands on ``box`` (x0, y0, x1, y1); clipped."""
-    H, W = frame.shape[:2]
+def _placement(frame_shape, patch_shape, offset: tuple[int, int], box):
+    """(frame rows, frame cols, patch rows, patch cols) where a patch whose object box sits at
+    ``offset`` lands with that box on ``box``, clipped to the frame; None when it misses it."""
+    H, W = frame_shape[:2]
     px, py = int(box[0]) - offset[0], int(box[1]) - offset[1]
     fx0, fy0 = max(px, 0), max(py, 0)
-    fx1, fy1 = min(px + patch.shape[1], W), min(py + patch.shape[0], H)
-    if fx1 > fx0 and fy1 > fy0:
-        frame[fy0:fy1, fx0:fx1] = patch[fy0 - py:fy1 - py, fx0 - px:fx1 - px]
+    fx1, fy1 = min(px + patch_shape[1], W), min(py + patch_shape[0], H)
+    if fx1 <= fx0 or fy1 <= fy0:
+        return None
+    return slice(fy0, fy1), slice(fx0, fx1), slice(fy0 - py, fy1 - py), slice(fx0 - px, fx1 - px)
+
+
+def paste(frame: np.ndarray, patch: np.ndarray, offset: tuple[int, int], box) -> None:
+    """Put the whole ``patch`` into ``frame`` so its object box lands on ``box`` (x0, y0, x1, y1);
+    clipped. Only backgrounds are pasted whole: an object goes in by its mask (``paste_cutout``)."""
+    at = _placement(frame.shape, patch.shape, offset, box)
+    if at is not None:
+        frame[at[0], at[1]] = patch[at[2], at[3]]
+
+
+def alpha_of(mask: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
+    """The uint8 alpha (0-255) of a photograph: its soft map where it has one, else its mask."""
+    a = mask.astype(np.float32) if alpha is None else np.clip(alpha, 0.0, 1.0)
+    return np.round(a * 255).astype(np.uint8)
+
+
+def paste_cutout(frame: np.ndarray, rgb: np.ndarray, mask: np.ndarray, alpha: np.ndarray | None, box) -> None:
+    """Blend the object of a photograph into ``frame`` by its alpha (``alpha_of``), its mask box
+    scaled to ``box``: only the object's own pixels change the frame (its ground never does), so
+    an object pasted later covers an earlier one only where its own silhouette overlaps it."""
+    bw, bh = int(box[2]) - int(box[0]), int(box[3]) - int(box[1])
+    a8 = alpha_of(mask, alpha)
+    # premultiplied: the colour resampled with its alpha, so an edge pixel is the object's share
+    # of the photograph's colour over the frame, never its ground's
+    pre = rgb.astype(np.float32) * (a8.astype(np.float32)[:, :, None] / 255.0)
+    patch, off = resampled_view(pre, mask, bw, bh)
+    a, _ = resampled_view(a8, mask, bw, bh)
+    at = _placement(frame.shape, patch.shape, off, box)
+    if at is None:
+        return
+    w = a[at[2], at[3]].astype(np.float32)[:, :, None] / 255.0
+    under = frame[at[0], at[1]].astype(np.float32)
+    frame[at[0], at[1]] = np.clip(np.round(patch[at[2], at[3]] + (1.0 - w) * under), 0, 255).astype(np.uint8)
 
 
 def sensor_window(box, shape) -> tuple[slice, slice]:
@@ -130,14 +166,13 @@ def apply_sensor(frame: np.ndarray, box, noise_std: float, blur_sigma_px: float,
 
 def render_frame(size: tuple[int, int], items, noise_std: float, blur_sigma_px: float,
                  rng: np.random.Generator) -> np.ndarray:
-    """A black (H, W, 3) frame of ``size`` = (W, H) with each (rgb, mask, box) pasted, larger boxes
-    first, then the sensor model on each box's window. ``box`` is where the object's mask box
-    lands (``fit_in_box``'s object box: the caller decides the aspect ratio)."""
+    """A black (H, W, 3) frame of ``size`` = (W, H) with each (rgb, mask, box) cut out by its mask
+    and pasted in the given order (the caller's: the farthest object first, so a nearer one covers
+    it where the real boxes overlap), then the sensor model on each box's window. ``box`` is where
+    the object's mask box lands (``fit_in_box``'s object box: the caller decides the aspect ratio)."""
     frame = np.zeros((size[1], size[0], 3), np.uint8)
-    items = sorted(items, key=lambda it: -(it[2][2] - it[2][0]) * (it[2][3] - it[2][1]))
     for rgb, mask, box in items:
-        patch, off = resampled_view(rgb, mask, int(box[2]) - int(box[0]), int(box[3]) - int(box[1]))
-        paste(frame, patch, off, box)
+        paste_cutout(frame, rgb, mask, None, box)
     for _, _, box in items:
         apply_sensor(frame, box, noise_std, blur_sigma_px, rng)
     return frame

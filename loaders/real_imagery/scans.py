@@ -7,7 +7,9 @@ seeded yaw, the target's photographs by turntable angle and its own truth fields
 is drawn (``Frames``); ``write_scans`` writes, per scan, a frame per view that gets one
 (``frame_views``: per grid point the view facing the instance best, or every box) showing the
 photograph at the angle nearest the real bearing (refused beyond ``max_view_error_deg``,
-counted), the object scaled uniformly into the real box (``frame_fit``), the real move graph with
+counted), the object scaled uniformly into the real box (``frame_fit``, which records the angle
+shown as ``view``) and pasted by its mask, the farthest object of a frame first (its distance from
+the real camera), so that only a nearer object covers it, the real move graph with
 those boxes as the only ones, the real ``image_structs.mat``, a shared black placeholder for every
 other image (``write_scan_files``), and returns the truth record of every scan; ``summaries``
 gives the view-error and box-fit distributions over all scans.
@@ -159,7 +161,9 @@ def _write_scan(job: tuple[Located, list[Placed]], avd_root, avd_out, frames: Fr
                 continue
             photo = p.photos[a]
             box, fit = frame_fit(r.image, (int(r.box_x0), int(r.box_y0), int(r.box_x1), int(r.box_y1)), photo[1])
-            items.setdefault(r.image, []).append(frames.item(scan, r.image, p, photo, box))
+            fit["view"] = a
+            depth = float(np.hypot(float(r.cam_x) - p.xy[0], float(r.cam_y) - p.xy[1]))
+            items.setdefault(r.image, []).append((depth, frames.item(scan, r.image, p, photo, box)))
             boxes.setdefault(r.image, []).append([*box, p.label, int(r.difficulty)])
             used.append(a)
             fits.append(fit)
@@ -170,7 +174,9 @@ def _write_scan(job: tuple[Located, list[Placed]], avd_root, avd_out, frames: Fr
     folder = avd_out / scan
     jpg = confined_dir(folder / "jpg_rgb")
     for name in sorted(items):
-        write_bytes(jpg / name, encode_jpeg(frames.render(scan, name, items[name], s.image_size), frames.jpeg_quality))
+        # the farthest object first: a nearer one covers it (with its own silhouette) where the real boxes overlap
+        drawn = [it for _, it in sorted(items[name], key=lambda di: -di[0])]
+        write_bytes(jpg / name, encode_jpeg(frames.render(scan, name, drawn, s.image_size), frames.jpeg_quality))
     write_scan_files(avd_root, folder, scan, boxes, placeholder, sorted(record))
     unpaired = sorted(set(located.loc) - {p.instance for p in placed})
     info = {"instances": record, "refused": located.refused, "unpaired": unpaired}

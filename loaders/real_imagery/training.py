@@ -1,9 +1,10 @@
 """The COIL training views as BigBIRD object folders (docs/formats/bigbird.md).
 
 Object ``k`` becomes ``coil_obj<k:03d>/``: its views at multiples of ``train_step_deg`` as
-``NP1_<a>.jpg`` (the PNG re-encoded as JPEG: BigBIRD stores JPEG), its mask from the black
-background (``loaders.coil.object_mask``) as ``masks/NP1_<a>_mask.pbm``, and a 128x128 rig
-calibration with reference poses that put camera NP1 at bearing ``a`` around the table axis
+``NP1_<a>.jpg`` (the PNG re-encoded as JPEG: BigBIRD stores JPEG; cut out by its mask onto the
+frames' surround, black or clutter, and extended so that no training crop runs off it:
+``clutter.on_surround``), its mask from the black background (``loaders.coil.object_mask``) as
+``masks/NP1_<a>_mask.pbm``, and a rig calibration of the written size with reference poses that put camera NP1 at bearing ``a`` around the table axis
 (``loaders.synthetic.bigbird_writer``'s rig: the features stage reads the view's GP input from
 that pose, so training view ``a`` sits at angle ``a`` on the unit circle, where the frames'
 held-out views are placed too). Missing and bad views are left out (counted by the caller).
@@ -17,7 +18,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from loaders.coil import SIZE, CoilFolder, object_name
+import numpy as np
+
+from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
 from loaders.pbm import encode_pbm
 from loaders.synthetic.bigbird_writer import (
@@ -45,17 +48,24 @@ def training_angles(train_step_deg: int) -> list[int]:
     return list(range(0, 360, int(train_step_deg)))
 
 
-def write_training_object(root: Path, coil: CoilFolder, k: int, train_step_deg: int, quality: int) -> dict:
-    """Write object k's training folder; returns {"angles": written, "missing": lacking ones}.
-    Nothing is written for an object with no readable training view."""
+def write_training_object(root: Path, coil: CoilFolder, k: int, train_step_deg: int, quality: int,
+                          prepare=None) -> dict:
+    """Write object k's training folder; returns {"angles": written, "missing": lacking ones,
+    "border_px": the surround added}. ``prepare(k, {angle: (rgb, mask, alpha)})`` -> (views,
+    border px) puts the photographs on the frames' surround (``clutter.on_surround``); the rig is
+    the written size's. Nothing is written for an object with no readable training view."""
     want = training_angles(train_step_deg)
     views = coil.read_object(k, set(want))
-    out = {"angles": sorted(views), "missing": [a for a in want if a not in views]}
+    out = {"angles": sorted(views), "missing": [a for a in want if a not in views], "border_px": 0}
     if not views:
         return out
+    photos = {a: (rgb, mask, mask.astype(np.float32)) for a, (rgb, mask) in views.items()}
+    if prepare is not None:
+        photos, out["border_px"] = prepare(k, photos)
+    H, W = next(iter(photos.values()))[0].shape[:2]
     folder = Path(root) / object_name(k)
-    write_object_metadata(folder, make_rig(*SIZE), int(train_step_deg))
-    for a, (rgb, mask) in sorted(views.items()):
+    write_object_metadata(folder, make_rig(W, H), int(train_step_deg))
+    for a, (rgb, mask, _) in sorted(photos.items()):
         write_bytes(folder / f"NP1_{a}.jpg", encode_jpeg(rgb, quality))
         write_bytes(folder / "masks" / f"NP1_{a}_mask.pbm", encode_pbm(mask))
     return out

@@ -2,7 +2,7 @@
 ``name`` and a ``read`` (your photographs: {object: {turntable angle in whole degrees: (rgb, mask)}}),
 and register it (``vf.register_dataset`` or a ``viewfuse.datasets`` entry point). Everything else
 is COIL-100's path (``write``): the training views (angles that are multiples of
-``train_step_deg``) become BigBIRD object folders with a reference pose per angle
+``train_step_deg``), cut out by their masks onto black as the frames show them, become BigBIRD object folders with a reference pose per angle
 (``category.write_training_class``), the other angles are held out and shown at the located
 instances of the real AVD scans of ``data.avd_root`` by the shared scan writer (``scans``), paired
 and turned by the section's seeds, and ``truth.json`` records it as COIL's does.
@@ -21,6 +21,7 @@ import numpy as np
 from loaders.errors import BadInputError
 from loaders.real_imagery.category import write_training_class
 from loaders.real_imagery.read_check import check_photos
+from loaders.real_imagery.clutter import on_surround
 from loaders.real_imagery.scans import locate, summaries, write_scans
 from loaders.real_imagery.training import modellable
 from loaders.real_imagery.write import place_pairs, plain_frames
@@ -82,8 +83,11 @@ class TurntableSource(DatasetSource):
         root, avd_root = self.path(cfg, "root"), cfg.path("data.avd_root")
         train, held = self._split(cfg, o, root, check_photos(self.name, self.read(cfg, skips)), skips)
         bb_out, avd_out = ctx.out / out_name("data", "bigbird"), ctx.out / out_name("data", "avd")
-        n_views = sum(write_training_class(bb_out, n, {0: {a: (rgb, mask, None) for a, (rgb, mask) in v.items()}},
-                                           o.train_jpeg_quality) for n, v in sorted(train.items()))
+        # cut out onto black and extended as the frames show them (clutter.on_surround)
+        crop = (cfg.features.margin, cfg.features.square)
+        n_views = sum(write_training_class(bb_out, n, {0: on_surround(
+            {a: (rgb, mask, mask.astype(np.float32)) for a, (rgb, mask) in v.items()}, "black", None,
+            lambda a: None, crop)[0]}, o.train_jpeg_quality) for n, v in sorted(train.items()))
         names = sorted(held)
         ids = {n: k + 1 for k, n in enumerate(names)}
         avd_out.mkdir(parents=True, exist_ok=True)

@@ -28,7 +28,8 @@ import numpy as np
 
 from loaders.coil import CoilFolder, object_name
 from loaders.errors import BadInputError
-from loaders.real_imagery.frames import heldout_angles, nearest_view, render_frame
+from loaders.real_imagery.clutter import on_surround, read_backgrounds, render_category_frame
+from loaders.real_imagery.frames import heldout_angles, nearest_view
 from loaders.real_imagery.pairing import pair_scan
 from loaders.real_imagery.scans import Frames, Located, Placed, locate, summaries, write_scans, writer_count
 from loaders.real_imagery.training import modellable, write_training_object
@@ -41,7 +42,8 @@ def _heldout(coil: CoilFolder, k: int, step: int, skips) -> dict[int, tuple]:
     out = {}
     for a in heldout_angles([v.angle for v in coil.views(k)], step):
         try:
-            out[a] = coil.read(coil.view(k, a))
+            rgb, mask = coil.read(coil.view(k, a))
+            out[a] = (rgb, mask, mask.astype(np.float32))   # the mask is the alpha it is cut out by
         except BadInputError as err:
             skips.handle(err, "coil", "COIL view")
     return out
@@ -53,12 +55,22 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
     ri = cfg.data.real_imagery
     coil_root, avd_root = cfg.path("data.coil_root"), cfg.path("data.avd_root")
     coil = CoilFolder(coil_root, skip=skips.log("coil", "COIL view"))
-    trained, missing = {}, {}
+    train_bg = ri.background if ri.train_background == "same" else ri.train_background
+    need_bg = "avd_frames" in (ri.background, train_bg)
+    backgrounds = read_backgrounds(cfg.path("data.avd_frames_root"), skips) if need_bg else None
+    crop = training_crop(cfg)
+
+    def prepare(k: int, photos: dict):
+        return on_surround(photos, train_bg, backgrounds, lambda a: seeds.stream(
+            ri.background_seed, "train-background", object_name(k), str(a)), crop)
+
+    trained, missing, borders = {}, {}, {}
     for k in ri.objects:
         if k not in coil.objects:
             raise BadInputError(coil_root / f"obj{k}__0.png",
                                 f"COIL object {k} of 'data.real_imagery.objects' has no view in the folder")
-        info = write_training_object(bb_out, coil, k, ri.train_step_deg, ri.train_jpeg_quality)
+        info = write_training_object(bb_out, coil, k, ri.train_step_deg, ri.train_jpeg_quality, prepare)
+        borders[object_name(k)] = info["border_px"]
         if not modellable(len(info["angles"]), cfg.models.min_views, object_name(k), coil_root / f"obj{k}__0.png",
                           f"data.real_imagery.train_step_deg = {ri.train_step_deg}", skips, "coil", "COIL view"):
             continue
@@ -75,23 +87,26 @@ def write_real_imagery(cfg, bb_out: Path, avd_out: Path, truth_path: Path, skips
     located = {scan: locate(avd_root, scan, ri.max_difficulty, ri.max_ray_residual_m, skips) for scan in cfg.data.scans}
     placed = {scan: (loc, place_pairs(scan, loc, heldout, ri, lambda k: {"name": object_name(k), "coil_object": k}))
               for scan, loc in located.items()}
-    frames = plain_frames(cfg.data.seed, ri)
+    frames = plain_frames(cfg.data.seed, ri, backgrounds if ri.background == "avd_frames" else None)
     truth, counts = write_scans(avd_root, avd_out, placed, frames, ri.frames, ri.max_view_error_deg,
                                 writer_count(cfg, "data.real_imagery.workers", ri.workers))
     view_error, box_fit = summaries(truth, ri.max_view_error_deg, "real imagery", "held-out view")
+    background = {"frames": ri.background, "training": train_bg, "train_pad": ri.train_pad}
     write_json(truth_path, {"source": "real_imagery", "pairing": "synthetic: seeded "
                                     "(data.real_imagery.pairing_seed, yaws_seed)", "scans": truth,
                                     "view_error_deg": view_error, "box_fit": box_fit,
-                                    "train_step_deg": ri.train_step_deg,
+                                    "train_step_deg": ri.train_step_deg, "background": background,
+                                    "training_border_px": borders,
                                     "objects": {object_name(k): {"training_angles": trained[k],
                                                                  "heldout_angles": sorted(heldout[k])}
                                                 for k in sorted(heldout)}})
     extra = {"coil_objects": len(heldout), "training_views": sum(len(trained[k]) for k in heldout),
              "missing_training_views": missing, "scans": counts, "view_error_deg": view_error,
-             "box_fit": box_fit}
+             "box_fit": box_fit, "background": background}
     per_scan = "; ".join(f"{s}: {c['paired']} paired instances, {c['frames']} frames" for s, c in counts.items())
     return extra, (f"real imagery: {len(heldout)} COIL objects x {ri.train_step_deg}-degree training views "
-                   f"({extra['training_views']} views); {per_scan} (pairing synthetic, seeded)")
+                   f"({extra['training_views']} views, on {train_bg}; frames on {ri.background}); {per_scan} "
+                   "(pairing synthetic, seeded)")
 
 
 def place_pairs(scan: str, located: Located, heldout: dict[int, dict], s, own) -> list[Placed]:
@@ -105,11 +120,26 @@ def place_pairs(scan: str, located: Located, heldout: dict[int, dict], s, own) -
             for p in pairs]
 
 
-def plain_frames(data_seed: int, s) -> Frames:
-    """Frames of photographs on black (COIL-100, a turntable source): the held-out view nearest the
-    bearing, pasted and passed through the sensor model of ``s`` (noise, blur, JPEG quality)."""
+def training_crop(cfg) -> tuple[float, bool] | None:
+    """(margin, square) of the features stage's crops, which the training photographs are
+    extended to hold (``data.real_imagery.train_pad = 'surround'``), or None ('none')."""
+    return (cfg.features.margin, cfg.features.square) if cfg.data.real_imagery.train_pad == "surround" else None
+
+
+def plain_frames(data_seed: int, s, backgrounds=None, **keys) -> Frames:
+    """Frames of turntable photographs (COIL-100, ETH-80, a source of your own): the view
+    ``keys['nearest']`` picks (default: the held-out view nearest the bearing), each object cut out
+    by its alpha (its mask where the photograph has no map) over black, or, with ``backgrounds``
+    (real AVD frames), over a clutter region drawn per box from ``s.background_seed`` (0 where the
+    section has none); the sensor model of ``s`` (noise, blur, JPEG quality)."""
+    bg_seed = int(getattr(s, "background_seed", 0))
+
+    def item(scan: str, image: str, p, photo: tuple, box):
+        rgb, mask, alpha = photo if len(photo) > 2 else (*photo, None)
+        return (rgb, mask, alpha, box), seeds.stream(bg_seed, "background", scan, image, p.instance)
+
     def render(scan: str, name: str, items: list, size: tuple[int, int]) -> np.ndarray:
         rng = seeds.stream(data_seed, f"{scan}/{name}")
-        return render_frame(size, items, s.noise_std, s.blur_sigma_px, rng)
-    return Frames(nearest=nearest_view, item=lambda scan, image, p, photo, box: (*photo, box), render=render,
-                  jpeg_quality=s.jpeg_quality)
+        return render_category_frame(size, [it for it, _ in items], backgrounds, s.noise_std, s.blur_sigma_px, rng,
+                                     [g for _, g in items])
+    return Frames(**{"nearest": nearest_view, **keys}, item=item, render=render, jpeg_quality=s.jpeg_quality)

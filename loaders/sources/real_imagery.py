@@ -42,13 +42,16 @@ class RealImagery(DatasetSource):
     def check(self, cfg, need) -> None:
         ri = cfg.data.real_imagery
         need(bool(cfg.data.avd_root), "'data.avd_root' must be set when data.source = 'real_imagery'")
+        for key in ("background", "train_background"):
+            need(getattr(ri, key) != "avd_frames" or bool(cfg.data.avd_frames_root),
+                 f"'data.real_imagery.{key}' = 'avd_frames' needs 'data.avd_frames_root'")
         if ri.dataset == "eth80":
             check_eth80(cfg, need)
         else:
             need(bool(cfg.data.coil_root), "'data.coil_root' must be set when data.source = 'real_imagery'")
-            need(ri.background == "black" and ri.train_background in ("same", "original", "black"),
-                 f"'data.real_imagery.background' = {ri.background!r}, 'train_background' = {ri.train_background!r}: "
-                 "COIL-100 photographs are on black on both sides (clutter needs data.real_imagery.dataset = 'eth80')")
+            need(ri.train_background != "original",
+                 "'data.real_imagery.train_background' = 'original' is ETH-80's blue cloth (COIL-100's own ground "
+                 "is black: 'black')")
             need(ri.class_level == "category" and ri.view_split == "none" and not ri.contrast,
                  "'data.real_imagery.class_level', 'view_split' and 'contrast' are for dataset = 'eth80' (COIL classes are "
                  "instances, split by data.real_imagery.train_step_deg)")
@@ -105,19 +108,23 @@ class RealImagery(DatasetSource):
 
 BACKGROUNDS = {"black": "cut out onto black", "avd_frames": "cut out onto real AVD clutter",
                "original": "on the photographs' own background (ETH-80's blue cloth)"}
+PADS = {"surround": "training photographs extended with that surround, so no training crop is padded",
+        "none": "training crops that run off their photograph padded by features.pad"}
 
 
 def backgrounds(ri: dict, extra: dict) -> str:
     """The background of each side, from the data stage's record (``extra``), else the config's keys."""
-    if ri.get("dataset") != "eth80":
-        return "backgrounds: COIL-100's own black on both sides"
     bg = extra.get("background") or {}
+    if ri.get("dataset") != "eth80" and not bg and "train_pad" not in ri:
+        return "backgrounds: COIL-100's own black on both sides"     # a run from before the key
     frames = bg.get("frames") or ri.get("background", "black")
     train = bg.get("training") or (frames if ri.get("train_background", "same") == "same" else ri["train_background"])
+    pad_key = bg.get("train_pad") or ri.get("train_pad")
+    pad = f"; {PADS[pad_key]}" if pad_key in PADS else ""    # a record from before the key says nothing
     if frames == train:
-        return f"backgrounds: frames and training views alike {BACKGROUNDS.get(frames, frames)}"
+        return f"backgrounds: frames and training views alike {BACKGROUNDS.get(frames, frames)}{pad}"
     return (f"backgrounds: frames {BACKGROUNDS.get(frames, frames)}, training views {BACKGROUNDS.get(train, train)} "
-            "(a deliberate mismatch, data.real_imagery.train_background)")
+            f"(a deliberate mismatch, data.real_imagery.train_background){pad}")
 
 
 def check_eth80(cfg, need) -> None:
@@ -128,9 +135,6 @@ def check_eth80(cfg, need) -> None:
          "'data.real_imagery.categories' must list at least two distinct categories")
     need(len(set(ri.instances)) == len(ri.instances) and len(ri.instances) >= 2,
          "'data.real_imagery.instances' must list at least two distinct instances (one fold each)")
-    for key in ("background", "train_background"):
-        need(getattr(ri, key) != "avd_frames" or bool(cfg.data.avd_frames_root),
-             f"'data.real_imagery.{key}' = 'avd_frames' needs 'data.avd_frames_root'")
     need(ri.class_level != "instance" or ri.view_split == "alternate",
          "'data.real_imagery.class_level' = 'instance' needs 'data.real_imagery.view_split' = 'alternate' (an "
          "instance's class is fitted on its training azimuths; the frames show the held-out ones)")

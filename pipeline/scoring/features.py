@@ -304,6 +304,7 @@ class Scored:
     mc: list[np.ndarray] = field(default_factory=list)
 
     released: int = 0   # crops whose arrays ``arrays(release=True)`` handed over
+    off_image: int = 0  # crops whose crop box ran off their image (filled per the crop policy's pad)
 
     @property
     def n(self) -> int:
@@ -345,6 +346,8 @@ def crop_batches(jobs: Iterator[CropJob], policy, out: Scored, *, what: str, n_s
 
     for job in jobs:
         crop, cb = policy.crop(job.image, job.box)
+        H, W = job.image.shape[:2]
+        out.off_image += int(cb[0] < 0 or cb[1] < 0 or cb[2] > W or cb[3] > H)
         pending.append((job, crop, cb))
         if len(pending) >= batch_size:
             yield batch()

@@ -125,7 +125,8 @@ def planted(tmp_path_factory):
     stage.mkdir(parents=True)
     cfg = load_config(ROOT / "configs" / "real.toml", {
         "run": {"artifacts": str(base / "artifacts")},
-        "data": {"coil_root": str(coil), "avd_root": str(avd), "scans": ["Home_005_1"],
+        "data": {"coil_root": str(coil), "avd_root": str(avd), "avd_frames_root": str(need("avd_frames")),
+                 "scans": ["Home_005_1"],
                  "real_imagery": {"objects": [2, 3]}}, "evaluate": {"n_candidates": 2}})
     skips = SkipPolicy(True)
     with confined_writes(stage):

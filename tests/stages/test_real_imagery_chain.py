@@ -37,7 +37,8 @@ def real_run(tmp_path_factory):
     real = need("coil100").parent
     tmp = tmp_path_factory.mktemp("real")
     over = merge({"run": {"artifacts": str(tmp / "artifacts"), "device": "cpu"},
-                  "data": {"coil_root": str(real / "coil100"), "avd_root": str(real / "avd")}}, SMALL)
+                  "data": {"coil_root": str(real / "coil100"), "avd_root": str(real / "avd"),
+                           "avd_frames_root": str(real / "avd_frames")}}, SMALL)
     cfg = load_config(ROOT / "configs" / "real.toml", over)
     keys: dict = {}
     ensure(cfg, "evaluate", device="cpu", _keys=keys)

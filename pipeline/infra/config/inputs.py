@@ -189,9 +189,15 @@ class RealImageryConfig:
     elevations: tuple[int, ...] = _f(factory=lambda: (90,), lo=0, hi=999,
                                      doc="eth80: the rings read (the name's elevation field; 090 = equatorial)")
     background: str = _f("black", choices=("black", "avd_frames"),
-                         doc="the background of both sides (training views too, unless train_background says "
-                             "otherwise): the object (by its map) on black, or over a region of a real AVD frame "
-                             "(data.avd_frames_root; eth80 only: COIL photographs are on black already)")
+                         doc="the frames' surround, on both sides (training views too, unless train_background "
+                             "says otherwise): the object cut out by its mask (COIL) or map (ETH-80) onto black "
+                             "(the control), or over a region of a real AVD frame (data.avd_frames_root: real "
+                             "clutter, the real configs' setting)")
+    train_pad: str = _f("surround", choices=("surround", "none"),
+                        doc="'surround' = every training photograph is extended with the frames' surround "
+                            "(black or its clutter) until no crop the features stage takes runs off it, so no "
+                            "pad value (features.pad) reaches a training crop; 'none' = the photograph as it is "
+                            "(crops running off it are padded by features.pad, the runs before this key)")
     train_background: str = _f("same", choices=("same", "original", "black", "avd_frames"),
                                doc="the training views' background: 'same' = data.real_imagery.background (the "
                                    "controlled default); 'original' = the photograph's own (ETH-80's blue cloth); "
@@ -208,7 +214,7 @@ class RealImageryConfig:
                          doc="eth80: which azimuths train and which the frames show: 'none' = every azimuth both; "
                              "'alternate' = training on 0, 45, ..., 315, frames on 22.5, 67.5, ... (held out, "
                              "as COIL's 5-degree views)")
-    background_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="eth80, background = avd_frames: which frame and region")
+    background_seed: int = _f(0, lo=0, hi=SEED_MAX, doc="background = avd_frames: which frame and region")
     workers: int = _f(2, lo=1, hi=64, doc="processes writing the scans' frames, a scan each; the files do not depend on it")
 
 

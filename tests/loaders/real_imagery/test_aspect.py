@@ -74,7 +74,7 @@ def test_written_frames_keep_the_source_aspect_ratio(tmp_path):
         "run": {"artifacts": str(tmp_path / "art")},
         "data": {"coil_root": str(coil), "avd_root": str(avd), "scans": ["Home_005_1"],
                  "real_imagery": {"objects": [2, 3], "noise_std": 0.0, "blur_sigma_px": 0.0, "jpeg_quality": 100,
-                                  "frames": "all"}},
+                                  "frames": "all", "background": "black"}},   # read back by colour on black
         "evaluate": {"n_candidates": 2}})
     extra, _ = write_real_imagery(cfg, tmp_path / "bb", tmp_path / "avd", tmp_path / "truth.json", SkipPolicy(True))
     truth = json.loads((tmp_path / "truth.json").read_text())

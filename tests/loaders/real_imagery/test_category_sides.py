@@ -115,7 +115,7 @@ def test_training_background_follows_the_frames_unless_told(tmp_path, background
     root = _tree(tmp_path)
     out, extra, truth, _ = _write(tmp_path, root, background=background, train_background=train_background)
     side = background if train_background == "same" else train_background
-    assert truth["background"] == {"frames": background, "training": side} == extra["background"]
+    assert truth["background"] == {"frames": background, "training": side, "train_pad": "surround"} == extra["background"]
     folder = out / "bigbird" / "eth80_apple1"
     means = [_outside(folder, 360 + a) for a in (0, 90, 180)]
     for mean, std in means:

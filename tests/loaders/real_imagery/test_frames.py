@@ -67,6 +67,25 @@ def test_sensor_model_acts_near_the_box_only():
     assert not frame[300:, 400:].any()           # black far away
 
 
+def test_objects_go_in_by_their_mask_in_the_given_order():
+    """A photograph's ground (grey here, as COIL's near-black) never reaches the frame, and an
+    object pasted later (the nearer) covers an earlier one only where its own silhouette lies."""
+    far = np.full((128, 128, 3), 30, np.uint8)          # a grey ground around a red square
+    far[40:88, 40:88] = (220, 0, 0)
+    near = np.full((128, 128, 3), 30, np.uint8)         # a green bar, its ground over the red one's box
+    near[20:108, 60:68] = (0, 220, 0)
+    fm, nm = far[:, :, 0] > 100, near[:, :, 1] > 100
+    fbox, nbox = (100, 100, 148, 148), (140, 90, 148, 178)
+    frame = render_frame((320, 240), [(far, fm, fbox), (near, nm, nbox)], 0.0, 0.0, np.random.default_rng(0))
+    assert (frame[100:148, 100:140] == (220, 0, 0)).all()    # the far object whole beside the near one
+    assert (frame[90:178, 140:148] == (0, 220, 0)).all()     # the near one on top where they overlap
+    ground = np.ones(frame.shape[:2], bool)
+    ground[100:148, 100:148] = ground[90:178, 140:148] = False
+    assert not frame[ground].any()                           # no pixel of either ground: the frame's black
+    swapped = render_frame((320, 240), [(near, nm, nbox), (far, fm, fbox)], 0.0, 0.0, np.random.default_rng(0))
+    assert (swapped[100:148, 140:148] == (220, 0, 0)).all()  # the order decides who covers whom
+
+
 def test_pairing_is_seeded_distinct_and_drops_extras():
     loc = {f"inst{i}": (np.array([i, 0.0]), 0.01) for i in range(6)}
     a, left = pair_scan("S", loc, [2, 3, 4, 5], 0, 0)

@@ -20,7 +20,7 @@ def _written(tmp: Path, workers: int, monkeypatch) -> dict[str, str]:
     real = need("coil100").parent
     cfg = load_config(ROOT / "configs" / "real.toml", {
         "run": {"artifacts": str(tmp / "artifacts")},
-        "data": {"coil_root": str(real / "coil100"), "avd_root": str(need("avd")),
+        "data": {"coil_root": str(real / "coil100"), "avd_root": str(need("avd")), "avd_frames_root": str(need("avd_frames")),
                  "scans": ["Home_005_1", "Home_014_1"],
                  "real_imagery": {"objects": [2, 3, 4], "workers": workers}},
         "evaluate": {"n_candidates": 2}})

@@ -42,7 +42,8 @@ def test_data_stage_refuses_an_object_with_too_few_views(tmp_path, keep):
         shutil.copy(coil / f"obj4__{a}.png", mine)
     cfg = load_config(ROOT / "configs" / "real.toml", {
         "run": {"artifacts": str(tmp_path / "art")},
-        "data": {"coil_root": str(mine), "avd_root": str(avd), "scans": ["Home_005_1"], "skip_bad_views": False,
+        "data": {"coil_root": str(mine), "avd_root": str(avd), "avd_frames_root": str(need("avd_frames")),
+                 "scans": ["Home_005_1"], "skip_bad_views": False,
                  "real_imagery": {"objects": [2, 3, 4]}}, "evaluate": {"n_candidates": 3}})
     with pytest.raises(BadInputError, match=rf"obj4__0.png: coil_obj004: {keep} readable training views? at "
                                             r"data.real_imagery.train_step_deg = 10, fewer than models.min_views = 8"):

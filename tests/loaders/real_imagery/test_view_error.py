@@ -46,7 +46,8 @@ def _write(tmp_path, bound: float, sparse: bool):
             shutil.copy(p, mine)
     cfg = load_config(ROOT / "configs" / "real.toml", {
         "run": {"artifacts": str(tmp_path / "art")},
-        "data": {"coil_root": str(mine), "avd_root": str(need("avd")), "scans": ["Home_005_1"],
+        "data": {"coil_root": str(mine), "avd_root": str(need("avd")), "avd_frames_root": str(need("avd_frames")),
+                 "scans": ["Home_005_1"],
                  "real_imagery": {"objects": [2, 3], "max_view_error_deg": bound}},
         "evaluate": {"n_candidates": 2}})
     extra, _ = write_real_imagery(cfg, tmp_path / "bb", tmp_path / "avd", tmp_path / "truth.json", SkipPolicy(True))
