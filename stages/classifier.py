@@ -41,6 +41,8 @@ from pipeline.infra.budget import budget, require
 from pipeline.infra.progress import bar as progress_bar
 from pipeline.infra.budget import cap_workers
 from pipeline.evaluation.statistics.resampler import wilson_interval
+from pipeline.infra.device import available_cores
+from pipeline.infra.threads import torch_following
 
 log = logging.getLogger("viewfuse.classifier")
 
@@ -186,8 +188,6 @@ def _following_cores(ctx, device: str):
     threads re-chosen once a second from the cores free then (``pipeline.infra.threads``)."""
     import contextlib
 
-    from pipeline.infra.device import available_cores
-    from pipeline.infra.threads import torch_following
 
     if device != "cpu" or ctx.threads or ctx.cfg.run.threads:
         return contextlib.nullcontext()

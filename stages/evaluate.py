@@ -57,6 +57,7 @@ from pipeline.infra.device import free_cores
 from pipeline.infra.executor import executor_for
 from pipeline.infra.executor_pool import LocalPool
 from pipeline.method.fusion import engine_device
+from pipeline.method.score_space import of_models
 
 log = logging.getLogger("viewfuse.evaluate")
 # The avd.parquet columns evaluate uses (checked present and typed on read).
@@ -297,7 +298,6 @@ def run(ctx) -> str:
             cells = [dataclasses.replace(c, device=device) for c in cells]
             plan_tasks, t_plan = None, 0.0
             if cfg.plan.enabled:   # built before the workers fork, so that they inherit them
-                from pipeline.method.score_space import of_models
                 from pipeline.planning.population import build_tasks  # heavy: pandas
 
                 t1 = time.perf_counter()

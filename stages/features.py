@@ -39,6 +39,7 @@ from pipeline.infra.executor import executor_for
 from pipeline.scoring.features import build_table, metadata, score_jobs, viewpoint_spread, write_table
 from pipeline.infra.outputs import name as out_name
 from stages.framework.roots import data_roots
+from pipeline.infra.threads import INTERVAL_S, torch_following
 
 log = logging.getLogger("viewfuse.features")
 
@@ -153,7 +154,6 @@ def _threads_for_scoring(ctx, executor):
     scored (``pipeline.infra.threads``), the count restored after. Yields the starting count."""
     import torch
 
-    from pipeline.infra.threads import INTERVAL_S, torch_following
 
     auto = executor.name == "local" and ctx.device == "cpu" and not (ctx.threads or ctx.cfg.run.threads)
     before = torch.get_num_threads()   # after ctx.device has configured the stage's threads

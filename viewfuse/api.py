@@ -18,6 +18,9 @@ from pipeline.method.output_check import call_checked, problem
 from pipeline.method.provider import providers
 from viewfuse import _args as A
 from pipeline.method.gp_instance_fit import fit_instance_models
+from pipeline.method.gp_prior import input_range
+from pipeline.infra import footprints
+from pipeline.evaluation.statistics.resampler import draw_seconds
 
 # The evaluate stage's defaults (configs/synthetic.toml [evaluate]): confident error at max P >= 0.99, 15 ECE bins.
 DEFAULT_PARAMS = M.Params(0.99, 15)
@@ -128,7 +131,6 @@ def _spread_enough(fn: str, classes: list[str], X: list[np.ndarray], prior: bool
     and with the length-scale prior (``hyperprior``) at least two distinct distances between them
     (the prior spans the smallest to the largest): named here as the argument, not as the
     internal function that would fail (``input_range``, ``inverse_gamma_for``)."""
-    from pipeline.method.gp_prior import input_range
 
     for c, x in zip(classes, X):
         where = f"{fn}: samples[{c!r}] angles"
@@ -266,7 +268,6 @@ def track_metrics(log_posteriors, truth: int, params: M.Params = DEFAULT_PARAMS)
 # (3 targets x 2 tracks, 2e6 draws: 0.90 GB against 0.86 estimated; 10 x 4, 5e5: 1.13 GB against
 # 1.44; 30 x 8, 1e5: 1.15 GB against 1.73); a count of only the kept arrays said 0.26, 0.23, 0.22.
 def _population_bytes(cells: pd.DataFrame, n_boot: int) -> float:
-    from pipeline.infra import footprints
 
     tracks = cells.drop_duplicates(["target", "track"]).groupby("target").size()
     return footprints.bootstrap(n_boot, len(tracks), int(tracks.max()))
@@ -275,7 +276,6 @@ def _population_bytes(cells: pd.DataFrame, n_boot: int) -> float:
 # its time: one statistic's draws timed (up to 20,000, scaled: resampler.draw_seconds) for each
 # interval drawn, every metric for every method and comparison
 def _population_seconds(cells: pd.DataFrame, n_stats: int, n_boot: int) -> float:
-    from pipeline.evaluation.statistics.resampler import draw_seconds
 
     tracks = cells.drop_duplicates(["target", "track"]).groupby("target").size()
     return n_stats * draw_seconds([list(tracks)], n_boot)

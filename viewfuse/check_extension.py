@@ -29,6 +29,16 @@ from pipeline.infra.extension import ExtensionError, declared_key
 from pipeline.method import method_base
 from pipeline.planning import planners as planner_registry
 from pipeline.scoring.classifiers import registry as classifier_registry
+from pipeline.method.geometry import relative_inputs, sample_localization
+from pipeline.method.output_check import call_checked
+from pipeline.method.gp import GPClassModels
+from pipeline.planning.graph import MoveGraph
+from pipeline.planning.world import World
+from pipeline.planning.belief import Belief
+from pipeline.planning.eig import standard_draws
+from pipeline.planning.episode import run_episode
+from loaders.real_imagery.read_check import check_photos
+from pipeline.infra.config import Config
 
 K, C, N_S, R, N_X = 3, 3, 2, 2, 4
 # A hook still running after this long (wall clock: the first call may compile kernels) is a breach.
@@ -64,8 +74,6 @@ def _simplex(rng, shape) -> np.ndarray:
 
 
 def _method(cls, notes: list[str]) -> list[str]:
-    from pipeline.method.geometry import relative_inputs, sample_localization
-    from pipeline.method.output_check import call_checked
 
     m = cls() if isinstance(cls, type) else cls
     known = {"gp", "scores", "probs"}
@@ -128,9 +136,6 @@ def _classifier(entry, notes: list[str]) -> list[str]:
 
 
 def _ring():
-    from pipeline.method.gp import GPClassModels
-    from pipeline.planning.graph import MoveGraph
-    from pipeline.planning.world import World
 
     th = np.linspace(-np.pi, np.pi, 36, endpoint=False)
     X = np.stack([np.cos(th), np.sin(th)], -1)
@@ -147,9 +152,6 @@ def _ring():
 
 
 def _planner(cls, notes: list[str]) -> list[str]:
-    from pipeline.planning.belief import Belief
-    from pipeline.planning.eig import standard_draws
-    from pipeline.planning.episode import run_episode
 
     key = declared_key(cls)
     models, world = _ring()
@@ -185,14 +187,12 @@ def _metric(metric, notes: list[str]) -> list[str]:
 
 
 def _dataset(entry, notes: list[str], cfg) -> list[str]:
-    from loaders.real_imagery.read_check import check_photos
 
     inst = entry() if isinstance(entry, type) else entry
     if not any(h == "read" for h, _, _ in inst.required_hooks):
         notes.append("write(ctx) not run: it writes a data folder (run the data stage)")
         return []
     if cfg is None:
-        from pipeline.infra.config import Config
 
         cfg = Config()
     skipped: list = []

@@ -19,6 +19,8 @@ from typing import Any
 
 from pipeline.infra.errors import ConfigError
 from pipeline.infra.registry import Registry
+from pipeline.infra import extension as X
+from pipeline.infra.extension import declared_key, raise_problems
 
 ENTRY_POINT_GROUP = "viewfuse.datasets"
 BUILTIN = "loaders.sources"
@@ -146,7 +148,6 @@ def problems(entry, *, complete: bool = False) -> list[str]:
     source's ``read(cfg, skips)`` (``loaders.real_imagery.turntable``), any other's ``write(ctx)``,
     with the right signature; missing only with ``complete`` (``vf.check_extension``: a source
     registered for its report wording alone may leave them out, and the data stage names it)."""
-    from pipeline.infra import extension as X
 
     inst = entry.__new__(entry) if isinstance(entry, type) and issubclass(entry, DatasetSource) else entry
     if not isinstance(inst, DatasetSource):
@@ -173,7 +174,6 @@ def problems(entry, *, complete: bool = False) -> list[str]:
 def register_dataset(entry, *, _module: str | None = None):
     """Register a ``DatasetSource`` subclass (usable as a class decorator) or instance under its
     key; every breach of the contract (``problems``) is one ``ExtensionError`` naming it."""
-    from pipeline.infra.extension import declared_key, raise_problems
 
     key = declared_key(entry) if isinstance(entry, (type, DatasetSource)) else ""
     raise_problems("dataset source", key or repr(entry)[:60], "register", problems(entry))

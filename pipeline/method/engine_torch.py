@@ -17,6 +17,7 @@ import numpy as np
 from pipeline.method import circle_basis as cb
 from pipeline.method import engine
 from pipeline.method.gp_instance import instance_term
+from pipeline.method.student_t import log_const
 
 _CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _LOCK = threading.Lock()
@@ -151,7 +152,6 @@ def _t_terms(resid2, nu: float):
     Gaussian's -resid2/2, with its constant) of squared standardized residuals ``resid2``."""
     import torch
 
-    from pipeline.method.student_t import log_const
 
     return -0.5 * (nu + 1.0) * torch.log1p(resid2 / nu) + log_const(nu)
 

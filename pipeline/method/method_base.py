@@ -10,6 +10,8 @@ import numpy as np
 
 from pipeline.infra.registry import Registry
 from pipeline.method import provider as _provider
+from pipeline.infra import extension as X
+from pipeline.infra.extension import ExtensionError, raise_problems
 
 # What the cell carries itself; a method may also need the models of a registered provider
 # (``pipeline.method.provider``: ``TrackInput.models``).
@@ -126,7 +128,6 @@ def problems(cls) -> list[str]:
     """Every breach of the method contract ``cls`` declares (empty: none): a plain key without
     '-', text labels, a colour matplotlib can draw, ``needs`` a set of known names, the hooks its
     flags promise, and ``fuse(t)`` (and the others it overrides) callable with one track input."""
-    from pipeline.infra import extension as X
 
     out = []
     key = getattr(cls, "key", None)
@@ -165,7 +166,6 @@ def problems(cls) -> list[str]:
 def register(cls: type[FusionMethod]) -> type[FusionMethod]:
     """Class decorator: add a method under ``cls.key`` (a key registered twice is an error). Every
     breach of the contract (``problems``) is one ``ExtensionError`` naming the method."""
-    from pipeline.infra.extension import ExtensionError, raise_problems
 
     if not (isinstance(cls, type) and issubclass(cls, FusionMethod)):
         raise ExtensionError.of("fusion method", getattr(cls, "key", repr(cls)[:60]), "register",

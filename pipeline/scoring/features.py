@@ -22,6 +22,7 @@ from pipeline.scoring.table_checks import check_finite_scores
 from pipeline.scoring.table_checks import check_table, kind_of
 from pipeline.scoring.classifiers import classifier
 from pipeline.scoring.classifiers import card_arch
+from pipeline.infra.threads import pace
 
 
 def metadata(*, config_hash: str, classifier_hash: str, seed: int, output_names: list[str],
@@ -289,7 +290,6 @@ def _scorer(model: ScoringModel):
 
 def score_batch(model: ScoringModel, batch: CropBatch) -> tuple[np.ndarray, np.ndarray | None]:
     """Executor task: (det (B, D), dropout samples (B, N_s, D) or None) as float32 arrays."""
-    from pipeline.infra.threads import pace
     from pipeline.scoring.crops import to_tensor  # heavy: cv2
 
     pace()   # the torch threads the free cores allow now (where the stage follows them)

@@ -30,6 +30,8 @@ from pipeline.infra import progress
 from stages.framework.runner import ensure, remove_orphans
 from stages.commands.compare import run as compare_runs
 from stages.commands.study import run_study
+from stages.framework import stage_cache
+from stages.framework.runner import read_manifest
 
 DEFAULT_CONFIG = "configs/synthetic.toml"
 
@@ -214,8 +216,6 @@ def status(cfg: Config) -> int:
 def _cache_words(cfg: Config, name: str, s: dict) -> str:
     """What the stage cache says of a stage: the run an up-to-date stage's outputs came from, or
     the run whose outputs a stale or missing stage will reuse."""
-    from stages.framework import stage_cache
-    from stages.framework.runner import read_manifest
 
     if s["state"] == "up to date":
         r = (read_manifest(cfg, name) or {}).get("reused")

@@ -6,6 +6,9 @@ stages below them rerun through their upstream digests. The fusion methods are t
 from __future__ import annotations
 
 import importlib
+from pipeline.method.registry import registered
+from pipeline.infra.datasets import described
+from pipeline.scoring.classifiers import UnknownClassifier, classifier
 
 # kind -> (module holding the registry, its attribute, the stages whose output it changes, the
 # entries a run uses given its config: None = every registered one)
@@ -28,7 +31,6 @@ def check_loaded(cfg, stage: str, methods: bool) -> None:
         if stage in stages:
             getattr(importlib.import_module(module), attr).check_loaded(used(cfg))
     if methods:
-        from pipeline.method.registry import registered
 
         registered().check_loaded()
 
@@ -50,12 +52,10 @@ def banner(cfg, stage: str, help_text: str) -> str:
     """What the stage's "running" line says: the registered source or classifier the config names
     (its label), not the built-in's words, for the data and classifier stages; else ``help_text``."""
     if stage == "data":
-        from pipeline.infra.datasets import described
 
         src = described(cfg.data.source)
         return f"write the data of source '{cfg.data.source}' ({src.describe({}, {})})"
     if stage == "classifier":
-        from pipeline.scoring.classifiers import UnknownClassifier, classifier
 
         try:
             entry = classifier(cfg.classifier.arch)

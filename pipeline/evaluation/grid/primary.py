@@ -21,6 +21,7 @@ from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.infra.config.evaluation import cluster_of
 from pipeline.infra.config.fields import ConfigError
+from pipeline.method.registry import keys
 
 ATTRIBUTION_VARIANTS = ("with_uncertainty_poses_only", "with_uncertainty_dropout_only")
 
@@ -28,7 +29,6 @@ ATTRIBUTION_VARIANTS = ("with_uncertainty_poses_only", "with_uncertainty_dropout
 def check_declared(ev) -> None:
     """``evaluate.primary`` names a metric of the spec and two registered methods the run evaluates
     (a ConfigError naming the key otherwise): checked before any cell runs."""
-    from pipeline.method.registry import keys
 
     pm = ev.primary
     if pm.metric not in METRICS:

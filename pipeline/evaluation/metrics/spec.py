@@ -35,6 +35,8 @@ import numpy as np
 from pipeline.infra.registry import Registry, caller_module
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.evaluation import EvaluateConfig
+from pipeline.infra import extension as X
+from pipeline.infra.extension import ExtensionError, raise_problems
 
 LN10 = float(np.log(10.0))
 
@@ -219,7 +221,6 @@ def problems(metric) -> list[str]:
     """Every breach of the metric contract ``metric`` declares (empty: none): an identifier key
     (not a pooled metric's), text labels, known per-step columns, ``steps`` and ``pool`` among
     the choices, a colour, and ``reduce`` callable as ``reduce(x, params=)`` (one array per column)."""
-    from pipeline.infra import extension as X
 
     if not isinstance(metric, Metric):
         return [f"{metric!r:.60} is not a Metric"]
@@ -252,7 +253,6 @@ def register_metric(key: str | Metric, metric: Metric | None = None, *, module: 
     breach of the contract (``problems``) is one ``ExtensionError`` naming the metric."""
     import dataclasses
 
-    from pipeline.infra.extension import ExtensionError, raise_problems
 
     if metric is None:
         key, metric = getattr(key, "key", ""), key

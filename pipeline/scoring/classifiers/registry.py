@@ -24,6 +24,8 @@ from pipeline.infra.config.checks import ARCH_NAME
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.footprints import ACT_PER_IMAGE_224, ALEXNET_PARAMS
 from pipeline.infra.registry import Registry
+from pipeline.infra import extension as X
+from pipeline.infra.extension import ExtensionError, declared_key, raise_problems
 
 
 class UnknownClassifier(ValueError):
@@ -138,7 +140,6 @@ def problems(entry) -> list[str]:
     """Every breach of the classifier contract (empty: none): a plain key (no ':', families use it),
     text labels, a colour, ``last_linear_key()`` (required), ``build(num_classes, dropout,
     drop_connect)``, and ``for_training(num_classes, dropout, seed)`` when it ``trains``."""
-    from pipeline.infra import extension as X
 
     inst = entry
     if isinstance(entry, type):
@@ -175,7 +176,6 @@ def problems(entry) -> list[str]:
 def register_classifier(entry):
     """Register a ``Classifier`` subclass (usable as a class decorator) or instance under its key;
     every breach of the contract (``problems``) is one ``ExtensionError`` naming it."""
-    from pipeline.infra.extension import ExtensionError, declared_key, raise_problems
 
     key = declared_key(entry) if isinstance(entry, (type, Classifier)) else ""
     raise_problems("classifier", key or repr(entry)[:60], "register", problems(entry))
