@@ -92,14 +92,17 @@ def decode_image(data: bytes, path: str | Path, flag: int = cv2.IMREAD_COLOR,
     fmt, w, h = checked_image(data, path, expect)
     if not decoder_limits_active():
         warnings.warn("OpenCV was loaded before viewfuse's pipeline package, so its decoder size limits "
-                      "(OPENCV_IO_MAX_IMAGE_PIXELS) are its defaults: import viewfuse (or pipeline) before cv2",
+                      "(OPENCV_IO_MAX_IMAGE_PIXELS) are its defaults: load viewfuse (or its pipeline package) before cv2",
                       RuntimeWarning, stacklevel=2)
     failure = None
     with c_stderr_captured(echo=False) as lines:
         try:
             img = cv2.imdecode(np.frombuffer(data, np.uint8), flag)
         except cv2.error as e:  # OpenCV asserts on some inputs instead of returning None
-            said = getattr(e, "err", None) or str(e)
+            # str(e), not e.err: OpenCV's bindings set err on the exception type, so it holds the
+            # last error OpenCV raised anywhere in the process, not necessarily this one
+            said = str(e).strip()
+            said = said[said.find("(-"):] if "(-" in said else said
             img, failure = None, (f"OpenCV's decoder reads a size above its limit ({said}), though the header as "
                                   f"read before decoding declares {w}x{h}: the header is ambiguous" if
                                   "CV_IO_MAX_IMAGE" in said else f"OpenCV failed to decode it ({said})")
