@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import re
 
+# '#rgb', '#rgba', '#rrggbb', '#rrggbbaa': forms matplotlib draws, told apart without loading it
+HEX_COLOR = re.compile(r"#(?:[0-9a-fA-F]{3,4}|[0-9a-fA-F]{6}|[0-9a-fA-F]{8})")
+
 KINDS = ("fusion method", "classifier", "planner", "metric", "dataset source", "model provider")
 
 
@@ -56,6 +59,8 @@ def color_problem(color) -> str | None:
     """Why ``color`` is not a colour the report's figures can draw (None: it is)."""
     if not isinstance(color, str) or not color:
         return f"color must be a colour string (a name such as 'tab:blue', or '#rrggbb'), got {color!r:.60}"
+    if HEX_COLOR.fullmatch(color):   # what the built-ins use: no need to load matplotlib at import
+        return None
     from matplotlib.colors import is_color_like   # here: matplotlib is heavy, and only registration asks
 
     if not is_color_like(color):
