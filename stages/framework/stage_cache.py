@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from pipeline.infra.cache import folder_records, record_changed, write_json
-from pipeline.infra.outputs import MANIFEST
+from pipeline.infra.outputs import MANIFEST, read_json
 from pipeline.infra.progress import echo
 from stages.framework.run_folder import OWNER, mark_owned, remove_leftover, stage_paths, swap_in
 
@@ -105,8 +105,8 @@ def entries(cfg) -> list[tuple[float, int, Path]]:
     with contextlib.suppress(OSError):
         for d in root(cfg).iterdir():
             e = d / ENTRY
-            with contextlib.suppress(OSError, ValueError):
-                out.append((e.stat().st_mtime, int(json.loads(e.read_text()).get("size", 0)), d))
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                out.append((e.stat().st_mtime, int(read_json(e, missing=None, invalid=None).get("size", 0)), d))
     return sorted(out)
 
 
@@ -134,8 +134,10 @@ def find(cfg, stage: str, key: str) -> dict | None:
         return None
     d = _entry_dir(cfg, stage, key)
     try:
-        entry = json.loads((d / ENTRY).read_text())
-    except (OSError, ValueError):
+        entry = read_json(d / ENTRY, missing=None, invalid=None)
+    except OSError:
+        return None
+    if not isinstance(entry, dict):
         return None
     return {**entry, "dir": d} if entry.get("key") == key and entry.get("stage") == stage else None
 
