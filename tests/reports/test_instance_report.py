@@ -94,7 +94,8 @@ def test_no_instance_bank_no_section(tmp_path):
 
 
 def test_attribution_and_category_tables_read_the_engine_blocks(tmp_path):
-    out = _blocks(*_population(np.random.default_rng(5)))
+    # 8 targets a category: fewer units get no interval and no verdict (the design interval's floor)
+    out = _blocks(*_population(np.random.default_rng(5), per_cat=8))
     pop = {"ablations": out["ablations"], "by_category": out["by_category"]}
     ctx = _ctx(tmp_path, pop=pop)
     instance_attribution_section(ctx)
@@ -107,7 +108,7 @@ def test_attribution_and_category_tables_read_the_engine_blocks(tmp_path):
     assert rows[comparison_label(key)][1] == "the instance term alone (no pose or dropout sampling)"
     assert rows[comparison_label(key)][2] == Estimate.of(want, signed=True).text()
     correct = {r[0]: r for r in page.table("correct_final")["rows"][1:]}
-    assert sorted(correct) == ["cat0", "cat1", "cat2", "cat3"] and correct["cat0"][1] == "3"
+    assert sorted(correct) == ["cat0", "cat1", "cat2", "cat3"] and correct["cat0"][1] == "8"
     wu = comparison_label(comparison_key(WU_INSTANCE, WITH_UNCERTAINTY))
     # the term gains in cat0 only, in every cell: the finding names cat0 and no other category
     assert (f"{wu}, confident errors: fewer in cat0; more in no category (95 % CI excludes 0, of 4 categories; "
@@ -117,7 +118,7 @@ def test_attribution_and_category_tables_read_the_engine_blocks(tmp_path):
 
 
 def test_the_goal_is_read_off_the_intervals_pooled_and_per_category(tmp_path):
-    out = _blocks(*_population(np.random.default_rng(6)))
+    out = _blocks(*_population(np.random.default_rng(6), per_cat=8))   # 8 a category: intervals given
     ctx = _ctx(tmp_path, pop={"ablations": out["ablations"], "by_category": out["by_category"]})
     instance_attribution_section(ctx)
     category_section(ctx)

@@ -27,7 +27,7 @@ def test_each_side_background_is_named_and_a_mismatch_said():
     assert "frames cut out onto black" in cloth and "blue cloth" in cloth and "deliberate mismatch" in cloth
     # an older manifest without the record: the config's keys
     assert "alike cut out onto black" in background_text(_ctx(background="black", train_background="same"))
-    # COIL cut out over clutter (issue 55), the training photographs extended with it
+    # COIL cut out over clutter, the training photographs extended with it
     coil = background_text(_ctx("coil", extra={"background": {"frames": "avd_frames", "training": "avd_frames",
                                                               "train_pad": "surround"}}))
     assert coil.startswith("backgrounds: frames and training views alike cut out onto real AVD clutter")

@@ -24,11 +24,13 @@ def _ctx(threads=0, run_threads=0, device="cpu"):
 
 def test_worker_count_follows_the_threads_the_free_cores_and_the_device(monkeypatch):
     import pipeline.infra.budget as budget
-    import pipeline.infra.device as device
+    import stages.evaluate as evaluate
     from stages.evaluate import local_processes
 
+    # the budget's own count, and the names the stage module bound at its import
     monkeypatch.setattr(budget, "cores", lambda: 4)
-    monkeypatch.setattr(device, "free_cores", lambda: 3)
+    monkeypatch.setattr(evaluate, "cores", lambda: 4)
+    monkeypatch.setattr(evaluate, "free_cores", lambda: 3)
     assert local_processes(_ctx()) == 3                      # run.threads = 0: the free cores
     assert local_processes(_ctx(run_threads=2)) == 2
     assert local_processes(_ctx(threads=1, run_threads=2)) == 1   # --threads first
