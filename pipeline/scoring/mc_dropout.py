@@ -169,7 +169,7 @@ class MCDropoutScorer:
         keep = np.asarray([1.0 - r for r in self.block_rates], np.float32)
         out = np.empty((len(seeds), n_samples, len(keep)), np.float32)
         for b, s in enumerate(seeds):
-            u = stream(int(s), 1)  # the block masks' stream.random((n_samples, len(keep)), dtype=np.float32)
+            u = stream(int(s), 1).random((n_samples, len(keep)), dtype=np.float32)  # the block masks' stream
             out[b] = (u < keep) / keep
         return torch.from_numpy(out).to(self.device)
 
