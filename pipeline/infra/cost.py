@@ -85,9 +85,16 @@ RENDER_MP_S = 54 / (12 * 120 * 1280 * 1024 / 1e6)
 # idle 69 s for 16,374 training views and frames read, pasted, degraded and encoded, less the
 # stage's fixed work (docs/benchmarks.md, "Current figures"; 4.3 min before the writers were batched).
 WRITE_IMAGE_S = 59 / 16_374
-# The models stage: 8-10 s a seed for 12 classes x 120 views x (5 restarts + 1) (make study); a
-# GP fit's cost grows with the cube of its views.
-MODEL_FIT_S = 9 / (12 * 6)
+# The models stage: 8-10 s a seed for 12 classes x 4 components x 120 views x (5 restarts + 1)
+# (make study): one GP fit a (class, component, start). A fit's cost grows as its views^1.6 over
+# 36-128 views (artifacts/fitbench.py on the 2-core AMD EPYC, load 4.6: 3.1 ms at 36 views, 22 ms
+# at 120, 26 ms at 128, a fit per (class, component, start) of fit_class_models).
+MODEL_FIT_S = 9 / (12 * 4 * 6)
+MODEL_FIT_VIEWS_POWER = 1.6
+# The components fitted are the union of each candidate set's top models.n_components: 11-14 with
+# n_components = 4 over 12 and over 72 candidate sets (the crops and likelihood branches' real runs:
+# the sets' top scores overlap), 5 over the smoke run's 5 sets of 2 (at most n_components x sets).
+UNION_COMPONENTS_SHARE = 3
 
 # --- the stages' processes, before their work ----------------------------------------------------
 # Resident bytes after importing every project module a stage reaches (its code version's module
@@ -357,9 +364,21 @@ def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     declared = work.views_per_class if work is not None else None
     per_class = max(declared if declared is not None else 120, 1)
     variants = 1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
-    return [Term(f"the GP fits ({classes} classes x {per_class:.0f} views x {m.restarts + 1} starts x {variants} bank(s))",
-                 ("models.restarts", "models.classes", "evaluate.ablations"),
-                 seconds=variants * classes * (m.restarts + 1) * MODEL_FIT_S * (per_class / 120) ** 3)]
+    comps = fitted_components(cfg)
+    return [Term(f"the GP fits ({classes} classes x about {comps} components x {per_class:.0f} views x "
+                 f"{m.restarts + 1} starts x {variants} bank(s))",
+                 ("models.restarts", "models.classes", "models.n_components", "models.components", "evaluate.ablations"),
+                 seconds=variants * classes * comps * (m.restarts + 1) * MODEL_FIT_S
+                 * (per_class / 120) ** MODEL_FIT_VIEWS_POWER)]
+
+
+def fitted_components(cfg) -> int:
+    """The score components each class is fitted on: the rule's list, or about the union of the
+    candidate sets' top ``n_components`` (``UNION_COMPONENTS_SHARE``; a set per target)."""
+    m = cfg.models
+    if m.component_rule == "explicit":
+        return max(len(m.components), 1)
+    return m.n_components * min(UNION_COMPONENTS_SHARE, n_targets(cfg))
 
 
 ESTIMATORS = {"data": data_terms, "classifier": classifier_terms, "features": features_terms,
