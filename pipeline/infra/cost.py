@@ -81,9 +81,15 @@ class Estimate:
 EXTRA_TERMS: Registry = Registry("cost term", "viewfuse.methods", "pipeline.method.methods")
 
 
-def register_terms(name: str, fn, *, module: str) -> None:
-    EXTRA_TERMS.add(name, fn, module=module, replace=EXTRA_TERMS.peek(name) is not None
-                    and EXTRA_TERMS.module_of(name) == module)
+# name -> fn(cfg, classes) -> [Term]: what fitting that provider's models adds to the models stage
+# (ModelProvider.fit_cost), ``classes`` the classes the stage models.
+FIT_TERMS: Registry = Registry("fit cost term", "viewfuse.methods", "pipeline.method.methods")
+
+
+def register_terms(name: str, fn, *, module: str, fit=None) -> None:
+    for reg, f in ((EXTRA_TERMS, fn), (FIT_TERMS, fit)):
+        if f is not None:
+            reg.add(name, f, module=module, replace=reg.peek(name) is not None and reg.module_of(name) == module)
 
 
 # --- counts the config implies -------------------------------------------------------------------
@@ -320,11 +326,12 @@ def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     per_class = max(declared if declared is not None else 120, 1)
     variants = 1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
     comps = fitted_components(cfg)
+    extra = [t for fit in FIT_TERMS.values() for t in fit(cfg, classes)]   # each provider's own fits
     return [Term(f"the GP fits ({classes} classes x about {comps} components x {per_class:.0f} views x "
                  f"{m.restarts + 1} starts x {variants} bank(s))",
                  ("models.restarts", "models.classes", "models.n_components", "models.components", "evaluate.ablations"),
                  seconds=variants * classes * comps * (m.restarts + 1) * MODEL_FIT_S
-                 * (per_class / 120) ** MODEL_FIT_VIEWS_POWER)]
+                 * (per_class / 120) ** MODEL_FIT_VIEWS_POWER)] + extra
 
 
 def fitted_components(cfg) -> int:

@@ -72,7 +72,8 @@ def test_the_estimate_is_within_a_factor_of_two_of_the_recorded_run(run, stage):
 def test_the_real_category_estimate_counts_its_72_fold_classes_and_their_components():
     """The misses the record showed: 12 classes (COIL's objects) and no fit per component."""
     cfg = load_config(ROOT / "configs" / "real_category.toml")
-    (fits,) = cost.models_terms(cfg)
-    assert fits.what.startswith("the GP fits (72 classes x about 12 components x 128 views")
+    terms = {t.what.split(" (")[0]: t for t in cost.models_terms(cfg)}
+    assert terms["the GP fits"].what.startswith("the GP fits (72 classes x about 12 components x 128 views")
+    assert "72 classes at 1000 entries + 288 set fits" in terms["the Dirichlet fits"].what   # the provider's own
     parts = {t.what.split(" (")[0] for t in cost.evaluate_terms(cfg)}
     assert {"the cells' own work", "the test-domain fit", "the population statistics"} <= parts
