@@ -52,15 +52,10 @@ RUNS = json.loads("""{
  "smoke_4_steps": {"config": "smoke.toml", "overrides": {}, "stages": {"evaluate": [29.443, 25.925]}}
 }""")
 
-# Known misses, each with its cause (strict: a fix makes the test say so).
-KNOWN = {("smoke_40_steps", "models"): "the models stage's fixed 8 s counts its process's start and imports, "
-                                       "which a chain run in one process paid in an earlier stage (1.9 s recorded)"}
-
 CASES = [(run, stage) for run, r in RUNS.items() for stage in r["stages"]]
 
 
-@pytest.mark.parametrize("run, stage", [pytest.param(*c, marks=pytest.mark.xfail(reason=KNOWN[c], strict=True))
-                                        if c in KNOWN else c for c in CASES])
+@pytest.mark.parametrize("run, stage", CASES)
 def test_the_estimate_is_within_a_factor_of_two_of_the_recorded_run(run, stage):
     r = RUNS[run]
     cfg = load_config(ROOT / "configs" / r["config"], r["overrides"])
