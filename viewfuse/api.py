@@ -147,11 +147,15 @@ def _spread_enough(fn: str, classes: list[str], X: list[np.ndarray], prior: bool
                                  "add a view from another direction, or pass hyperprior='none'")
 
 
-# fuse's cost: the localization samples and the per-sample predictive means and variances,
-# (R, N_x, K) x (2 + C F) float64; time about FUSE_SECONDS per (trajectory, step², class,
-# component), single core (With Uncertainty's joint predictive over the K steps; measured within
-# a small factor of it on the engine bench).
-FUSE_SECONDS = 1e-7
+# fuse's cost, measured (With Uncertainty, after its first call in the process; tracemalloc peak
+# and RSS growth, CPU s; 2-core AMD EPYC at load ~5): about FUSE_WORDS float64 a (realization,
+# sample, step) whatever C and F (101 MB at R N_x K = 1.8e6 for C x F = 4 x 4, 8 x 2 and 2 x 8;
+# 202 MB at 3.6e6), and FUSE_SECONDS per (trajectory, step, class, component) x K (9.4 s at
+# R N_x = 2e5, K = 9, C F = 16; 14.2 s at C = 8, F = 2; 8.2 s at N_x = 2e4, K = 30; 21 s at
+# R = 20, N_x = 2e4): the estimate within 0.6-1.8x of each. The first call in a process also
+# compiles the engine (about 22 s, not counted: once a process).
+FUSE_WORDS = 8
+FUSE_SECONDS = 5e-8
 MAX_SECONDS = 60.0
 # A method call still running after this long is stopped (the evaluate stage's run.method_seconds default).
 TIME_LIMIT = 600.0
@@ -228,8 +232,7 @@ def fuse(key: str, models: GPClassModels | None = None, *, cameras, object_xy=(0
     if time_limit is not None:
         time_limit = A.real(fn, "time_limit", time_limit, lo=0.0, open_lo=True)
     units = float(R) * n_x * K * (C or 1) * drop.shape[2]
-    A.affordable(fn, "n_x and cameras", 8.0 * R * n_x * K * (2 + 2 * (C or 1) * drop.shape[2]),
-                 FUSE_SECONDS * units * K, max_seconds)
+    A.affordable(fn, "n_x and cameras", 8.0 * FUSE_WORDS * R * n_x * K, FUSE_SECONDS * units * K, max_seconds)
     # a bank that is also a provider's model (``ModelProvider.serves``: one with an instance term) serves it too
     served = {p.key: models for p in providers().values() if models is not None and p.serves(models)}
     t = registry.TrackInput(

@@ -9,6 +9,7 @@ import time
 from pipeline.infra.cache import write_json
 from pipeline.infra.datasets import DatasetSource, Work, frames_per_scan, register_dataset
 from pipeline.infra.outputs import name as out_name
+from pipeline.scene.folds import fold_class
 
 
 @register_dataset
@@ -66,10 +67,17 @@ class RealImagery(DatasetSource):
                  f"step of at most {360 // cfg.models.min_views} degrees reaches it)")
 
     def classes(self, cfg):
-        # at most these (the data stage may leave some out)
-        return tuple(f"coil_obj{int(k):03d}" for k in cfg.data.real_imagery.objects)
+        # at most these (the data stage may leave some out): ETH-80's are a class per (category,
+        # fold) at both class levels (loaders/real_imagery/category.py, fold_classes)
+        ri = cfg.data.real_imagery
+        if ri.dataset == "eth80":
+            return tuple(fold_class(c, f) for f in ri.instances for c in ri.categories)
+        return tuple(f"coil_obj{int(k):03d}" for k in ri.objects)
 
     def classes_words(self, cfg):
+        if cfg.data.real_imagery.dataset == "eth80":
+            return ("'models.classes' = 'all': at most a class per category of 'data.real_imagery.categories' and fold "
+                    "of 'data.real_imagery.instances' (<category>__f<fold>)")
         return "'models.classes' = 'all': at most the objects of 'data.real_imagery.objects'"
 
     def work(self, cfg) -> Work:

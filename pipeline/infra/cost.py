@@ -18,7 +18,8 @@ the smallest count (one), so it never refuses what might fit. The data and featu
 the dataset source's (``DatasetSource.work``: views and crops from its config), and so are the
 views a class model is fitted on (``Work.views_per_class``; BigBIRD's 120 where not said); a part
 a source does not declare is a term of 0 seconds that says "not estimated", logged once.
-``tests/bench/bench_cost.py`` re-measures the constants on the machine it runs on.
+The constants live in ``pipeline/infra/cost_units.py``; ``tests/bench/bench_cost.py`` re-measures
+them on the machine it runs on.
 """
 from __future__ import annotations
 
@@ -27,88 +28,25 @@ import resource
 from dataclasses import dataclass
 
 from pipeline.infra import footprints
-from pipeline.infra.budget import (GIB, MemoryBudgetError, address_space_left, budget, budget_words, gib,
+from pipeline.infra.budget import (MemoryBudgetError, address_space_left, budget, budget_words, gib,
                                    more_memory)
 from pipeline.infra.config.checks import modelled_classes
+from pipeline.infra.config.evaluation import cluster_of
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.learning import early_epochs_run
+from pipeline.infra.cost_units import (WU_TRAJECTORY_S, ROW_S, MB_STEP_S, CELL_S, DOMAIN_UNIT_S, STAT_UNIT_S,
+                                        STUDENT_T_SHARE, PLAN_STEP_S, PLAN_DECISION_S, PLAN_MOVES, SIM_MU_S,
+                                        SIM_MU_SAMPLE_S, SIM_LB_SAMPLE_S, SIM_FIT_S, SIM_SWEEP_POINT_S,
+                                        CLASSIFIER_RENDER_IMAGE_S, CLASSIFIER_IMAGE_EPOCH_S,
+                                        CLASSIFIER_EARLY_EPOCH_SHARE, HEAD_ROW_S, BACKBONE_CROP_S,
+                                        ARCH_CROP_SHARE, RENDER_MP_S, WRITE_IMAGE_S, MODEL_FIT_S,
+                                        MODEL_FIT_VIEWS_POWER, UNION_COMPONENTS_SHARE, BASE, BASE_MAPPED,
+                                        TORCH_MAPPED, FIXED_S, FIXED_LOADED_WEIGHTS_S)
 from pipeline.infra.progress import duration
 from pipeline.infra.registry import Registry
 from pipeline.infra.datasets import dataset_source
 
 log = logging.getLogger("viewfuse")
-
-# --- per-unit seconds ---------------------------------------------------------------------------
-# One With Uncertainty trajectory of K = 9 steps over C = 4 candidates: 32,000 trajectories/s in the
-# paper-grade evaluate run (docs/benchmarks.md, "the paper-grade preset"). Cost grows as K^1.5 and
-# linearly in C: bench_cost.py measured 2.8 and 3.2 times the (9, 4) cost at K = 18, and 1.7 and 3.2
-# times at C = 8, in two runs under loads of 9 and 6 on the 2 cores (the ratios, not the level,
-# set the scaling; the level there was 2-3x slower than this constant).
-WU_TRAJECTORY_S = 1 / 32_000
-# Everything else per (cell, realization, step): Model Based and the other methods, metrics, rows,
-# writing: 28 s over 83 tracks x 2001 realizations x 9 steps in the same run.
-ROW_S = 28 / (83 * 2001 * 9)
-# Model Based on one one-step track (the bias maps: steps^2 per view): 15 s over the same run's
-# 83 x 2001 x 9 trajectory-steps.
-MB_STEP_S = 15 / (83 * 2001 * 9)
-# View planning, per episode step (the belief update on the history) at N_x ~ 37 and C = 4: 20.6 s
-# over 540 episodes of at most 10 steps on the default run; one information-gain decision at 64
-# draws per class, horizon 1: 2.8 ms median (docs/benchmarks.md, "View planning"). A step grows with
-# the history as K^1.5 (the budget, calibrated at 10), with N_x and with C; a decision with the draws,
-# C and the nodes within the horizon.
-PLAN_STEP_S = 20.6 / (540 * 10)
-PLAN_DECISION_S = 2.8e-3
-PLAN_MOVES = 6  # moves from an AVD node (forward, backward, left, right, rotate cw, ccw): the horizon's branching
-# simulate (bench_cost.py, load 6 on 2 cores): a model_uncertainty realization of K = 21 steps
-# 1.44 ms at 20 measurement samples (split 1.2 ms + 0.012 ms a sample from 80 samples' 3.9 ms at
-# load 9); a localization_bias realization 34 ms at 100 localization samples (65 and 142 ms at 100
-# and 200 under load 9: linear in them); the GP fits 4.0 s per (restarts + 1); a sweep point 0.5 s
-# on top of its realizations (the small sweep's 20 s, docs/benchmarks.md).
-SIM_MU_S, SIM_MU_SAMPLE_S, SIM_LB_SAMPLE_S, SIM_FIT_S, SIM_SWEEP_POINT_S = 1.2e-3, 1.2e-5, 3.4e-4, 4.0, 0.5
-# The classifier (AlexNet, `viewfuse classifier`, idle Xeon 2.8 GHz, 2 cores, docs/benchmarks.md):
-# 19 s to render 7600 source images; an epoch of 6400 images at 112 px and batch 64, 44 s; an early
-# epoch (80 px crops, the compact head) 26 s, scaled by the area of their sides.
-CLASSIFIER_RENDER_IMAGE_S = 19 / 7600
-CLASSIFIER_IMAGE_EPOCH_S = 44 / 6400
-CLASSIFIER_EARLY_EPOCH_SHARE = 26 / 44
-# The features stage's MC-dropout head: 1.5 ms a (crop, sample) row, and the backbone 9.4 ms a
-# 112 px crop (bench_cost.py: AlexNet, load 6 on 2 cores; 4.3 and 34 ms under load 9).
-HEAD_ROW_S, BACKBONE_CROP_S = 1.5e-3, 9.4e-3
-# Other networks, as a share of AlexNet's cost a crop at the same size and samples: EfficientNet-Lite0's
-# head is one 1280-wide layer, not AlexNet's two 4096-wide ones (real_full idle: 213 s for 16,374
-# crops at 160 px, 1 + 10 passes, with the stage's fixed work: 12 ms a crop against AlexNet's 36).
-ARCH_CROP_SHARE = {"alexnet": 1.0, "efficientnet_lite0": 0.35}
-# The data stage: 54 CPU s for the default synthetic world (the main job's row in docs/benchmarks.md,
-# Xeon idle, 28 s wall), counted against its 1887 BigBIRD megapixels (AVD frames included).
-RENDER_MP_S = 54 / (12 * 120 * 1280 * 1024 / 1e6)
-# The data stage of photographs on real AVD geometry (real_imagery, turntable sources): real_full
-# idle 69 s for 16,374 training views and frames read, pasted, degraded and encoded, less the
-# stage's fixed work (docs/benchmarks.md, "Current figures"; 4.3 min before the writers were batched).
-WRITE_IMAGE_S = 59 / 16_374
-# The models stage: 8-10 s a seed for 12 classes x 120 views x (5 restarts + 1) (make study); a
-# GP fit's cost grows with the cube of its views.
-MODEL_FIT_S = 9 / (12 * 6)
-
-# --- the stages' processes, before their work ----------------------------------------------------
-# Resident bytes after importing every project module a stage reaches (its code version's module
-# list) with their libraries: python -c "import ...; psutil rss" here. The torch stages map about
-# 3.5 GiB of address space for that (what an RLIMIT_AS must leave room for); the others 0.7 GiB.
-BASE = {"data": 0.14 * GIB, "classifier": 0.58 * GIB, "features": 0.60 * GIB, "models": 0.67 * GIB,
-        "evaluate": 0.74 * GIB, "report": 0.72 * GIB, "simulate": 0.24 * GIB}
-BASE_MAPPED = {"data": 0.7 * GIB, "simulate": 0.75 * GIB}
-TORCH_MAPPED = 3.5 * GIB
-
-# --- the stages' fixed work: seconds whatever the settings ---------------------------------------
-# Process start and imports, pools started, models loaded, the outputs written, and per stage what
-# no key multiplies: the smallest chain (configs/smoke.toml), idle, is almost nothing but this
-# (docs/benchmarks.md: data 16 s, classifier 33 s, features 26 s, models 7 s, evaluate 41 s on the
-# Xeon and 63-69 s on the AMD EPYC, report 29 s), and the real chains' stages with little work
-# (real: classifier 3 s with ImageNet weights, models 6 s, report 10 s) bound it from below. Each
-# is set so both sides lie within a factor of two (tests/stages/test_smoke_run.py checks the smoke
-# chain's manifests against the estimates).
-FIXED_S = {"data": 10.0, "classifier": 25.0, "features": 15.0, "models": 8.0, "evaluate": 40.0,
-           "report": 16.0, "simulate": 5.0}
-FIXED_LOADED_WEIGHTS_S = 3.0   # the classifier stage with weights it only loads (imagenet, path)
 
 
 @dataclass(frozen=True)
@@ -143,9 +81,15 @@ class Estimate:
 EXTRA_TERMS: Registry = Registry("cost term", "viewfuse.methods", "pipeline.method.methods")
 
 
-def register_terms(name: str, fn, *, module: str) -> None:
-    EXTRA_TERMS.add(name, fn, module=module, replace=EXTRA_TERMS.peek(name) is not None
-                    and EXTRA_TERMS.module_of(name) == module)
+# name -> fn(cfg, classes) -> [Term]: what fitting that provider's models adds to the models stage
+# (ModelProvider.fit_cost), ``classes`` the classes the stage models.
+FIT_TERMS: Registry = Registry("fit cost term", "viewfuse.methods", "pipeline.method.methods")
+
+
+def register_terms(name: str, fn, *, module: str, fit=None) -> None:
+    for reg, f in ((EXTRA_TERMS, fn), (FIT_TERMS, fit)):
+        if f is not None:
+            reg.add(name, f, module=module, replace=reg.peek(name) is not None and reg.module_of(name) == module)
 
 
 # --- counts the config implies -------------------------------------------------------------------
@@ -232,11 +176,35 @@ def evaluate_terms(cfg, counts: Counts = Counts()) -> list[Term]:
                          "evaluate.biased.n_loc_samples", "evaluate.randomized.n_loc_samples"),
                         seconds=episodes * plan.budget * PLAN_STEP_S * (n_x / 37.5) * (plan.budget / 10) ** 1.5 * C / 4
                         + decisions * PLAN_DECISION_S * (plan.eig_samples / 64) * C / 4))
+    if ev.likelihood_tail == "student_t":
+        out.append(Term("the Student-t variants of With Uncertainty and Model Based", ("evaluate.likelihood_tail",),
+                        seconds=STUDENT_T_SHARE * out[0].seconds))
+    out += fixed_evaluate_parts(cfg, T, tracks)
     for terms in EXTRA_TERMS.values():   # what each method's own model adds (ModelProvider.cost)
         out += terms(cfg, cells * reals * K)
     out.append(Term(f"the two-level bootstrap over {T} targets x up to {tracks} tracks", ("evaluate.bootstrap",),
                     bytes=footprints.bootstrap(ev.bootstrap, T, tracks)))
     return out
+
+
+def fixed_evaluate_parts(cfg, T: int, tracks: int) -> list[Term]:
+    """The evaluate work beside the grid's trajectories: each cell's own, the test-domain fit on the
+    labelled AVD crops and the population statistics (the constants' note: CELL_S, DOMAIN_UNIT_S,
+    STAT_UNIT_S)."""
+    ev = cfg.evaluate
+    work = source_work(cfg)
+    views = max(work.views_per_class if work is not None and work.views_per_class is not None else 120, 1)
+    crops = (work.test_crops if work is not None else None) or 0
+    comps = fitted_components(cfg)
+    cells = T * tracks * (1 + len(ev.ablations))   # attribution runs inside a cell, an ablation is a cell
+    return [Term(f"the cells' own work ({cells} cells: targets x tracks x (1 + ablations))",
+                 ("evaluate.targets", "evaluate.tracks_per_target", "evaluate.ablations"), seconds=cells * CELL_S),
+            Term(f"the test-domain fit ({crops} AVD crops x about {comps} components x {views:.0f} views a class)",
+                 ("data.scans", "models.n_components"), seconds=crops * comps * views * DOMAIN_UNIT_S),
+            Term(f"the population statistics ({T} targets x up to {tracks} tracks x {ev.bootstrap} resamples, "
+                 f"clustered by {cluster_of(ev)})",
+                 ("evaluate.bootstrap", "evaluate.targets", "evaluate.tracks_per_target", "evaluate.statistics.cluster"),
+                 seconds=T * tracks * ev.bootstrap * STAT_UNIT_S * (1 if cluster_of(ev) == "target" else 2))]
 
 
 def simulate_terms(cfg, counts: Counts = Counts()) -> list[Term]:
@@ -357,9 +325,22 @@ def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     declared = work.views_per_class if work is not None else None
     per_class = max(declared if declared is not None else 120, 1)
     variants = 1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
-    return [Term(f"the GP fits ({classes} classes x {per_class:.0f} views x {m.restarts + 1} starts x {variants} bank(s))",
-                 ("models.restarts", "models.classes", "evaluate.ablations"),
-                 seconds=variants * classes * (m.restarts + 1) * MODEL_FIT_S * (per_class / 120) ** 3)]
+    comps = fitted_components(cfg)
+    extra = [t for fit in FIT_TERMS.values() for t in fit(cfg, classes)]   # each provider's own fits
+    return [Term(f"the GP fits ({classes} classes x about {comps} components x {per_class:.0f} views x "
+                 f"{m.restarts + 1} starts x {variants} bank(s))",
+                 ("models.restarts", "models.classes", "models.n_components", "models.components", "evaluate.ablations"),
+                 seconds=variants * classes * comps * (m.restarts + 1) * MODEL_FIT_S
+                 * (per_class / 120) ** MODEL_FIT_VIEWS_POWER)] + extra
+
+
+def fitted_components(cfg) -> int:
+    """The score components each class is fitted on: the rule's list, or about the union of the
+    candidate sets' top ``n_components`` (``UNION_COMPONENTS_SHARE``; a set per target)."""
+    m = cfg.models
+    if m.component_rule == "explicit":
+        return max(len(m.components), 1)
+    return m.n_components * min(UNION_COMPONENTS_SHARE, n_targets(cfg))
 
 
 ESTIMATORS = {"data": data_terms, "classifier": classifier_terms, "features": features_terms,

@@ -28,7 +28,7 @@ from typing import Any, Callable, ClassVar, Mapping
 import numpy as np
 
 from pipeline.infra.config.own import register_sections, unregister_sections
-from pipeline.infra.cost import EXTRA_TERMS, register_terms
+from pipeline.infra.cost import EXTRA_TERMS, FIT_TERMS, register_terms
 from pipeline.infra.registry import Registry
 from pipeline.infra.outputs import CATALOG
 
@@ -136,6 +136,11 @@ class ModelProvider:
         the population grid's (cell, realization, step) rows; [] when it is negligible."""
         return []
 
+    def fit_cost(self, cfg, classes: int) -> list:
+        """The models stage's work fitting these models for ``classes`` classes
+        (``pipeline.infra.cost.Term`` s); [] when it is negligible."""
+        return []
+
     def fit(self, views: TrainingViews, cfg) -> tuple[Any, dict]:
         """(the models, the extras written beside them in their index)."""
         raise NotImplementedError
@@ -201,7 +206,7 @@ def register_provider(cls: type[ModelProvider]) -> type[ModelProvider]:
     inst = PROVIDERS.add(key, cls(), module=cls.__module__, replace=True)
     # the infra floor's hooks (it never imports the method): config sections and the cost model
     register_sections(key, cls.sections, check=inst.check, module=cls.__module__)
-    register_terms(key, inst.cost, module=cls.__module__)
+    register_terms(key, inst.cost, module=cls.__module__, fit=inst.fit_cost)
     return cls
 
 
@@ -209,6 +214,7 @@ def unregister_provider(key: str) -> None:
     PROVIDERS.pop(key, None)
     unregister_sections(key)
     EXTRA_TERMS.remove(key)
+    FIT_TERMS.remove(key)
 
 
 def calibrated(provided: Mapping[str, Any] | None, variance) -> dict:

@@ -202,3 +202,23 @@ def test_the_audits_cases_by_name():
     refused(lambda: vf.track_metrics(np.full((K, C), 5.0), 0), "log_posteriors")
     # the bounds are estimates, not walls: max_seconds=None lifts the time bound
     assert vf.fuse("with_uncertainty", models, **{**track, "n_x": 50}, max_seconds=None).shape == (K, C)
+
+
+def test_the_fuse_memory_estimate_is_within_a_factor_of_two_of_what_the_call_allocates():
+    """vf.fuse refuses by its estimate (viewfuse/api.py FUSE_WORDS a (realization, sample, step)):
+    it must neither refuse calls that fit (the 4-5x over-count it had) nor admit ones that do not."""
+    import tracemalloc
+
+    from viewfuse import api
+
+    _, models, track, _ = world()      # with_uncertainty already ran: its kernels are compiled
+    R, n_x = 4, 20000
+    cams = np.broadcast_to(track["cameras"], (R, K, 2)).copy()
+    est = 8.0 * api.FUSE_WORDS * R * n_x * K
+    tracemalloc.start()
+    try:
+        vf.fuse("with_uncertainty", models, **{**track, "cameras": cams, "n_x": n_x}, max_seconds=None)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert est / 2 <= peak <= 2 * est, (peak, est)

@@ -139,6 +139,8 @@ def test_torchvision_resnet18_from_an_npz_is_scored_with_a_declared_dropout_site
     with torch.no_grad():
         feats = torch.flatten(ref.avgpool(ref.layer4(ref.layer3(ref.layer2(ref.layer1(
             ref.maxpool(ref.relu(ref.bn1(ref.conv1(x))))))))), 1)
+        # the same layers on the same weights and input in one process (the trunk runs the network up to
+        # its head): one computation twice, so a fixed bound far above rounding cannot tip
         torch.testing.assert_close(model.trunk(x), feats, rtol=0, atol=1e-5)
     # the features stage's task: crops in, deterministic scores and N_s dropout samples out
     policy = CropPolicy(size=64, mean=tuple(cfg.classifier.mean), std=tuple(cfg.classifier.std))
@@ -156,7 +158,7 @@ def test_torchvision_resnet18_from_an_npz_is_scored_with_a_declared_dropout_site
     from pipeline.scoring.weight_files import load_into, load_state_dict_file
 
     again = load_into(entry.build(5, 0.5), load_state_dict_file(pt), pt, entry.display).eval()
-    torch.testing.assert_close(again(x), ref(x), rtol=0, atol=1e-6)
+    torch.testing.assert_close(again(x), ref(x), rtol=0, atol=1e-6)   # the same weights, one computation twice
 
 
 def test_a_head_mc_dropout_cannot_serve_is_refused_with_the_layer_named():

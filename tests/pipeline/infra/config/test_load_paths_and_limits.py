@@ -91,3 +91,11 @@ def test_nesting_in_a_base_file_names_that_file(tmp_path):
     (tmp_path / "top.toml").write_text('extends = "base.toml"\n')
     with pytest.raises(ConfigError, match=r"base.toml: a value nests deeper"):
         load_config(tmp_path / "top.toml")
+
+
+@pytest.mark.parametrize("name", [".stage-cache", ".hidden", ".", "..", "a/b", "x" * 129])
+def test_a_run_name_that_is_not_a_plain_visible_folder_is_refused_with_the_key(name):
+    """A leading dot would put the run among the runner's own folders (<artifacts>/.stage-cache)."""
+    with pytest.raises(ConfigError, match=r"'run.name' = .* must be a plain folder name"):
+        load_config(DEFAULT, {"run": {"name": name}})
+    assert load_config(DEFAULT, {"run": {"name": "a.b_c-1"}}).run.name == "a.b_c-1"   # dots inside are fine
