@@ -98,3 +98,28 @@ def test_compare_shows_the_planning_rows(tmp_path, block):
     keys = {(k, m) for k, m, _ in c.planning_paired}
     assert ("info_gain-random", "correct_at_3") in keys
     assert "View planning" in render_text(c)
+
+
+def test_a_planner_from_outside_is_named_and_coloured_by_its_own_declaration():
+    """The report's planning table and figures name and colour a planner by its registry entry, so
+    a planner from outside shows its own label and colour (not a built-in's, not a default)."""
+    import viewfuse as vf
+    from pipeline.planning.planners import PLANNERS
+    from reports.main.planning import colour, name
+
+    class OutsidePick(vf.Planner):
+        key = "outside_pick"
+        label = "Outside pick (a test's planner)"
+        color = "#123456"
+        note = "the first candidate in name order"
+
+        def choose(self, belief, candidates, rng):
+            return sorted(candidates)[0]
+
+    vf.register(OutsidePick)
+    try:
+        assert name("outside_pick") == "Outside pick (a test's planner)" and colour("outside_pick") == "#123456"
+        assert name("random") != name("outside_pick") and colour("random") != "#123456"
+    finally:
+        PLANNERS.remove("outside_pick")
+    assert name("outside_pick") == "outside pick"   # gone from the registry: its key with spaces
