@@ -15,6 +15,9 @@ inflated; CPU seconds are what the lower bound reads), December 7 2026:
 - smoke at 4 and at 40 steps: branch ``estimates`` (e3bad78), ``viewfuse evaluate --config
   configs/smoke.toml --set run.artifacts=artifacts/kk --set run.name=k40 --set
   evaluate.track_length=40`` (then run.name=k4 without the track length), one process for the chain.
+- synthetic (the default, the main job) and real_full: main at 00f475a (every branch merged),
+  ``make features models evaluate ARGS="--progress off"`` then ``viewfuse report``, and ``viewfuse
+  evaluate --config configs/real_full.toml --progress off``, both at nice 10 beside the test suite.
 """
 from __future__ import annotations
 
@@ -49,7 +52,13 @@ RUNS = json.loads("""{
  "smoke_40_steps": {"config": "smoke.toml", "overrides": {"evaluate": {"track_length": 40}},
    "stages": {"data": [16.755, 14.653], "classifier": [16.063, 12.71], "features": [13.991, 11.994],
               "models": [1.897, 1.593], "evaluate": [32.673, 27.144], "report": [74.199, 40.356]}},
- "smoke_4_steps": {"config": "smoke.toml", "overrides": {}, "stages": {"evaluate": [29.443, 25.925]}}
+ "smoke_4_steps": {"config": "smoke.toml", "overrides": {}, "stages": {"evaluate": [29.443, 25.925]}},
+ "synthetic": {"config": "synthetic.toml", "overrides": {},
+   "stages": {"data": [267.78, 97.979], "classifier": [1253.949, 511.466], "features": [79.761, 90.345],
+              "models": [13.18, 21.734], "evaluate": [80.2, 119.355], "report": [38.294, 37.727]}},
+ "real_full": {"config": "real_full.toml", "overrides": {},
+   "stages": {"data": [1360.73, 210.426], "classifier": [12.811, 3.068], "features": [1927.804, 518.851],
+              "models": [33.749, 31.878], "evaluate": [274.116, 280.33], "report": [31.619, 30.882]}}
 }""")
 
 CASES = [(run, stage) for run, r in RUNS.items() for stage in r["stages"]]
