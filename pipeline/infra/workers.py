@@ -115,6 +115,10 @@ def worker_pool(workers: int, initializer: Callable | None = None, initargs: tup
             with contextlib.suppress(Exception):
                 p.join(5)
         if isinstance(e, BrokenProcessPool):
+            for p in getattr(pool, "spawned", ()):   # reap the dead one the broken pool dropped: its exit code
+                if p not in procs:
+                    with contextlib.suppress(Exception):
+                        p.join(5)
             why = worker_deaths(pool.spawned)
             if why:
                 raise BrokenProcessPool(why) from e
