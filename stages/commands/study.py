@@ -4,7 +4,8 @@ For every seed of ``study.seeds`` the chain classifier -> features -> models -> 
 with ``classifier.seed = n`` under ``<run>/study/seed-<n>/`` (a config whose run folder points
 there; the stage runner's manifests make a rerun skip finished seeds). The data stage is shared:
 it is brought up to date once in the run folder and linked into every seed folder (its cache key
-does not depend on the classifier seed). Then ``study/summary.json`` and ``study/index.html`` put
+does not depend on the classifier seed). The seeds share the run's stage cache
+(``run.stage_cache``), so a seed chain identical to one already finished is reused. Then ``study/summary.json`` and ``study/index.html`` put
 each seed's ``population.pooled`` and ``population.records`` (evaluate/summary.json) side by side
 and say whether the verdict is the same for every seed: the same outcome (better / worse / not
 distinguishable) for every (comparison, metric) record.
@@ -24,6 +25,7 @@ from pipeline.infra.outputs import path as out_path
 from pipeline.infra.outputs import read, read_manifest
 from reports.compare.runs import CompareError, compare
 from reports.compare.page import write_page
+from stages.framework import stage_cache
 from stages.framework.runner import ensure as ensure_stage
 
 log = logging.getLogger("viewfuse.study")
@@ -38,7 +40,10 @@ def study_dir(cfg) -> Path:
 
 def seed_config(cfg, seed: int):
     """The run config with classifier.seed = ``seed`` and its run folder at <run>/study/seed-<n>."""
-    run = dataclasses.replace(cfg.run, artifacts=str(study_dir(cfg)), name=f"seed-{seed}")
+    # The seeds keep the run's stage cache (not one under study/): a seed whose chain equals a
+    # finished one anywhere (the run's own classifier seed, another run's study) reuses it.
+    run = dataclasses.replace(cfg.run, artifacts=str(study_dir(cfg)), name=f"seed-{seed}",
+                              stage_cache=str(stage_cache.root(cfg)))
     clf = dataclasses.replace(cfg.classifier, seed=int(seed))
     return dataclasses.replace(cfg, run=run, classifier=clf)
 

@@ -39,6 +39,9 @@ GIB = 1 << 30
 
 
 def root(cfg) -> Path:
+    """``run.stage_cache`` where set (the seed study sets it to its run's), else <artifacts>/.stage-cache."""
+    if cfg.run.stage_cache:
+        return Path(os.path.abspath(cfg.path("run.stage_cache")))
     return cfg.artifacts_dir / FOLDER
 
 

@@ -93,6 +93,9 @@ class RunConfig:
                                    "whose key matches one any run finished reuses its outputs (hard links, "
                                    "verified by sha256); at most this many GiB, least recently used entries "
                                    "removed first; 0 = off. Not part of any stage's key")
+    stage_cache: str = _f("", doc="the stage cache's folder; empty = <artifacts>/.stage-cache. A relative path "
+                                  "resolves against the config's project root. The seed study points every seed's "
+                                  "chain at its run's cache. Not part of any stage's key")
     method_seconds: float = _f(600.0, lo=0.0, hi=1e6,
                                doc="a fusion method's call on one track still running after this many seconds is "
                                    "stopped and named (evaluate's cells and planning, local executor); 0 = no "

@@ -23,7 +23,7 @@ from pipeline.infra.config.simulate import SimulateConfig
 # The settings that name files or folders. A relative one resolves against the project root of the
 # config file that sets it (``project_root``), so a key inherited through ``extends`` from
 # configs/synthetic.toml means the same folder whichever file extends it.
-PATH_KEYS = ("run.artifacts", "data.bigbird_root", "data.avd_root", "classifier.path", "data.coil_root",
+PATH_KEYS = ("run.artifacts", "run.stage_cache", "data.bigbird_root", "data.avd_root", "classifier.path", "data.coil_root",
              "data.eth80_root", "data.avd_frames_root")
 
 

@@ -87,3 +87,35 @@ def test_off_at_zero_and_least_recently_used_entries_go_first(tmp_config, fake_c
     left = stage_cache.entries(_cfg(tmp_config, "x", gb))
     assert len(left) == 2 and held[0][2] not in [d for _, _, d in left]
     assert sum(size for _, size, _ in left) <= 20
+
+
+def test_a_study_seed_reuses_the_runs_finished_chain_through_the_runs_cache(tmp_config, fake_chain):  # noqa: F811
+    from stages.commands.study import seed_config, study_dir
+    from stages.framework import stage_cache
+    from stages.framework.runner import ensure, read_manifest
+
+    calls, _, _ = fake_chain
+    run = _cfg(tmp_config, "run")
+    ensure(run, "b")
+    seed = seed_config(run, 0)                 # stage a's key does not hold classifier.seed
+    assert seed.run_dir.parent == study_dir(run)
+    assert stage_cache.root(seed) == stage_cache.root(run) == run.artifacts_dir / ".stage-cache"
+    calls.clear()
+    ensure(seed, "b")
+    assert calls == []                         # nothing computed again for the seed
+    assert read_manifest(seed, "b")["reused"]["run"] == "run"
+    assert not (study_dir(run) / ".stage-cache").exists()
+
+
+def test_run_stage_cache_names_another_folder(tmp_config, fake_chain, tmp_path):  # noqa: F811
+    from stages.framework.runner import ensure
+
+    calls, _, _ = fake_chain
+    elsewhere = tmp_path / "shared-cache"
+    first = tmp_config({"run": {"name": "first", "stage_cache": str(elsewhere), "stage_cache_gb": 1.0}, "features": {"seed": 0}})
+    ensure(first, "a")
+    assert any(p.name.startswith("a-") for p in elsewhere.iterdir())
+    assert not (first.artifacts_dir / ".stage-cache").exists()
+    calls.clear()
+    ensure(tmp_config({"run": {"name": "second", "stage_cache": str(elsewhere), "stage_cache_gb": 1.0}, "features": {"seed": 0}}), "a")
+    assert calls == []
