@@ -20,7 +20,7 @@ interval: it is never rejected.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -55,13 +55,21 @@ def holm_p(p: Sequence[float]) -> list[float]:
     return out
 
 
-def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None], family=None) -> None:
+def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None], family=None,
+         exclude: Collection[tuple[str, str]] = ()) -> None:
     """Add the Holm fields to each record of the primary family (in place; ``family``: another
     predicate of (comparison, primary), e.g. the class-level contrast's own): ``p`` and ``p_holm``,
     ``level_holm`` (the interval's level), ``lo_holm``/``hi_holm`` (null: unbounded) and
     ``outcome_holm``, and ``family`` (its size). ``draws``: {(comparison, metric): the draws of
-    the record's difference} (missing or None: no interval, never rejected)."""
-    fam = [r for r in records if (family or in_primary_family)(r["comparison"], r.get("primary"))]
+    the record's difference} (missing or None: no interval, never rejected). ``exclude``: the
+    (comparison, metric) of the declared primary comparison where this block's cells are its own:
+    it is tested alone at 0.05 (``grid.primary``), so it leaves the exploratory family and is
+    marked ``declared``."""
+    for r in records:
+        if (r["comparison"], r["metric"]) in exclude:
+            r["declared"] = True
+    fam = [r for r in records if (family or in_primary_family)(r["comparison"], r.get("primary"))
+           and not r.get("declared")]
     if not fam:
         return
     d = [draws.get((r["comparison"], r["metric"])) for r in fam]
@@ -97,5 +105,5 @@ def _set(rec: dict, level: float, est: Mapping | None, outcome: str) -> None:
 
 def adjusted(rec: Mapping) -> str:
     """The verdict the bottom line and the scorecard read: the Holm-adjusted one where the record
-    is in the primary family, else its own."""
+    is in the primary family, else its own (the declared primary comparison's: tested alone)."""
     return str(rec.get("outcome_holm") or rec["outcome"])
