@@ -47,6 +47,16 @@ class Layout:
     labels: Mapping[str, np.ndarray]
 
     @cached_property
+    def terms(self) -> list:
+        """``one_way_terms``, once per layout."""
+        return one_way_terms(self)
+
+    @cached_property
+    def wild_plan(self):
+        """``wild.plan``, once per layout."""
+        return wild.plan(self)
+
+    @cached_property
     def df(self) -> float:
         """``design_df``, once per layout."""
         return design_df(self)
@@ -122,7 +132,7 @@ def variance(values: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray
     levels = layout.levels()
     V = np.zeros(len(y))
     one_way = []
-    for sign, M, G in _terms(layout):
+    for sign, M, G, _ in layout.terms:
         sums = np.asarray(M.T @ u.T).T                                     # (R, G): each unit's sum
         v = G / (G - 1) * (sums ** 2).sum(axis=1)
         V += sign * v
@@ -163,7 +173,7 @@ def t_interval(values: np.ndarray, layout: Layout, level: float = LEVEL, n_boot:
         z = np.where(se > 0, np.abs(theta) / se, np.where(theta == 0, 0.0, np.inf))
     ref, q, p = None, student_t.ppf(0.5 + level / 2, df), 2 * student_t.sf(z, df)
     if n_boot:   # the wider of the two references at every level (``wild``: why)
-        ref = wild.abs_t(values, layout, one_way_terms(layout), n_boot, seed)
+        ref = wild.abs_t(values, layout, n_boot, seed)
         q, p = np.maximum(q, wild.quantile(ref, level)), np.maximum(p, wild.p_value(ref, z))
     return {"value": theta, "se": se, "df": df, "ci_low": theta - q * se, "ci_high": theta + q * se, "p": p,
             "withheld": None, "levels": levels, "ref": ref}
