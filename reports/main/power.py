@@ -70,13 +70,14 @@ def reading_text(power: dict) -> str:
 
 
 def _power_ci(power: dict) -> str:
-    """' (95 % CI 22–61 %: the variance as a chi-square with 10 degrees of freedom)', or why there is none."""
+    """'95 % CI 22–61 %: the variance read as a chi-square with the design's 10 degrees of freedom; ', or
+    why there is none ('' for a summary from before the interval)."""
     ci = power.get("power_ci") or {}
     lo, hi = ci.get("ci_low"), ci.get("ci_high")
     if lo is None or hi is None or lo != lo or hi != hi:
-        return " (no CI: the design has no degrees of freedom for its variance)" if ci else ""
-    return (f" (95 % CI {round(100 * lo)}–{round(100 * hi)} %: the variance read as a chi-square with the "
-            f"design's {plain(round(float(ci['df']), 1))} degrees of freedom)")
+        return "no CI: the design has no degrees of freedom for its variance; " if ci else ""
+    return (f"95 % CI {round(100 * lo)}–{round(100 * hi)} %: the variance read as a chi-square with the "
+            f"design's {plain(round(float(ci['df']), 1))} degrees of freedom; ")
 
 
 def power_section(ctx: ReportContext) -> None:
@@ -94,7 +95,7 @@ def power_section(ctx: ReportContext) -> None:
         return
     ctx.page.paragraph(
         f"Power of the primary comparison, {what}, to detect a true difference of ±{plain(power['effect'])}: "
-        f"{round(100 * power['power_now'])} % at this run's size{_power_ci(power)} (standard error "
+        f"{round(100 * power['power_now'])} % at this run's size ({_power_ci(power)}standard error "
         f"{fmt(power['se_now'])}, two-sided "
         f"test at {plain(power['alpha'])}, not adjusted: the declared comparison alone); 80 % needs a standard error of "
         f"{fmt(power['se_needed'])}. {reading_text(power)}", cls="context")
