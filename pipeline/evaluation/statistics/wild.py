@@ -31,12 +31,12 @@ from pipeline.infra import seeds
 
 STREAM = 4096        # draws made from one random stream (fixed: the draws do not depend on how they are read)
 CHUNK = 4096         # draws read at a time: memory stays bounded at any evaluate.bootstrap
-QUADRATIC_UP_TO = 64 # weight units up to which the quadratic forms (B x G^2) beat the sparse unit sums
+QUADRATIC_UP_TO = 32 # weight units up to which the quadratic forms (B x G^2 / 2) beat the sparse unit sums
 WEBB_BELOW = 12      # Webb's six-point weights at this many units or fewer (2^12 Rademacher draws)
 WEBB = np.array([-math.sqrt(1.5), -1.0, -math.sqrt(0.5), math.sqrt(0.5), 1.0, math.sqrt(1.5)])
 
 
-@lru_cache(maxsize=32)
+@lru_cache(maxsize=16)   # at most 16 x 4096 x G weights held
 def _stream(G: int, seed: tuple, k: int) -> np.ndarray:
     """Draws k STREAM .. (k + 1) STREAM of the weights (cached: every statistic of a population reads them)."""
     rng = seeds.stream(seed[0], *seed[1:], "wild", k)
@@ -46,7 +46,7 @@ def _stream(G: int, seed: tuple, k: int) -> np.ndarray:
     return block
 
 
-@lru_cache(maxsize=32)
+@lru_cache(maxsize=4)    # at most 4 x 4096 x 528 products (G <= QUADRATIC_UP_TO): 70 MB
 def _stream_products(G: int, seed: tuple, k: int) -> np.ndarray:
     """(STREAM, G(G+1)/2) of ``_stream``'s draws: v_i v_j over the upper triangle, off-diagonal doubled."""
     v, (i, j) = _stream(G, seed, k), np.triu_indices(G)

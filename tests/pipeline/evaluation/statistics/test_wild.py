@@ -80,6 +80,8 @@ def test_one_population_chunked_equals_the_replications_path(n_obj, n_scan, trac
     y = (rng.random((2, len(layout.weights))) < 0.3).astype(float) - (rng.random((2, len(layout.weights))) < 0.3)
     many = wild.abs_t(y, layout, 300, (1,))
     monkeypatch.setattr(wild, "CHUNK", 128)              # three chunks, the last one partial
-    for r in range(2):
-        one = wild.abs_t(y[r:r + 1], layout, 300, (1,))
-        assert one[0] == pytest.approx(many[r], rel=1e-9, abs=1e-12)
+    for up_to in (1000, 0):                              # the quadratic forms, then the sparse unit sums
+        monkeypatch.setattr(wild, "QUADRATIC_UP_TO", up_to)
+        for r in range(2):
+            one = wild.abs_t(y[r:r + 1], layout, 300, (1,))
+            assert one[0] == pytest.approx(many[r], rel=1e-9, abs=1e-12)
