@@ -31,8 +31,9 @@ def main(argv=None) -> int:
     secs = time.perf_counter() - t0
     R = a.replications
     mc = 100 * 1.96 * math.sqrt(0.95 * 0.05 / R)
+    cands = "" if list(a.candidates) == list(S.CANDIDATES) else " --candidates " + " ".join(f"'{c}'" for c in a.candidates)
     text = (f"{BEGIN}\n{R} replications a design and regime (seed {a.seed}, bootstrap {a.bootstrap} draws), "
-            f"{secs:.0f} s: `python tools/calibrate.py --replications {R} --seed {a.seed}`. Every share in % with its "
+            f"{secs:.0f} s: `python tools/calibrate.py --replications {R} --seed {a.seed}{cands}`. Every share in % with its "
             f"Wilson 95 % interval over the replications: the Monte Carlo error of a 95 % coverage is ±{mc:.1f} "
             f"points (1.96 sqrt(0.95 × 0.05 / {R})).\n\n{markdown(rows)}{END}")
     out = Path(a.out)

@@ -69,6 +69,17 @@ def reading_text(power: dict) -> str:
             "other counts as run).")
 
 
+def _power_ci(power: dict) -> str:
+    """'95 % CI 22–61 %: the variance read as a chi-square with the design's 10 degrees of freedom; ', or
+    why there is none ('' for a summary from before the interval)."""
+    ci = power.get("power_ci") or {}
+    lo, hi = ci.get("ci_low"), ci.get("ci_high")
+    if lo is None or hi is None or lo != lo or hi != hi:
+        return "no CI: the design has no degrees of freedom for its variance; " if ci else ""
+    return (f"95 % CI {round(100 * lo)}–{round(100 * hi)} %: the variance read as a chi-square with the "
+            f"design's {plain(round(float(ci['df']), 1))} degrees of freedom; ")
+
+
 def power_section(ctx: ReportContext) -> None:
     pop = ctx.population or {}
     power = pop.get("power")
@@ -84,14 +95,17 @@ def power_section(ctx: ReportContext) -> None:
         return
     ctx.page.paragraph(
         f"Power of the primary comparison, {what}, to detect a true difference of ±{plain(power['effect'])}: "
-        f"{round(100 * power['power_now'])} % at this run's size (standard error {fmt(power['se_now'])}, two-sided "
+        f"{round(100 * power['power_now'])} % at this run's size ({_power_ci(power)}standard error "
+        f"{fmt(power['se_now'])}, two-sided "
         f"test at {plain(power['alpha'])}, not adjusted: the declared comparison alone); 80 % needs a standard error of "
         f"{fmt(power['se_needed'])}. {reading_text(power)}", cls="context")
     ctx.page.table(["term", "variance", "divided by", "share of the variance now", "what shrinks it"],
                    component_rows(power), cls="power-components",
                    caption="Variance components of the primary comparison's paired differences (one per object, "
                            "scan and track), moment estimators on the cell means (pipeline/evaluation/statistics/"
-                           "power.py): point estimates without a CI, so the projection is a plan, not a finding. "
+                           "power.py): point estimates; the power's interval above reads their sum's uncertainty "
+                           "(Satterthwaite), the components and the needs below have none of their own, so the "
+                           "projection is a plan, not a finding. "
                            "The track term holds the localization realizations too." +
                            "".join(" " + n[:1].upper() + n[1:] + "." for n in power["components"].get("notes") or []))
     ctx.page.table(["lever", "this run", "for 80 % power (each alone, the rest as run)"], need_rows(power),
@@ -143,5 +157,7 @@ def mgr_over_tracks(ctx: ReportContext, block: dict) -> None:
                    caption=f"Final-step log10 MGR over every track and realization of a method in this setting "
                            f"({', '.join(str(n) for n in block.get('n_values', {}).values())} values), as the paper "
                            f"reads its runs (not a median of per-cell percentiles); 95 % CIs over "
-                           f"{block.get('over', 'targets')}, {block.get('n_targets')} targets. A difference whose "
-                           "CI spans more than one decade gets no verdict.")
+                           f"{block.get('over', 'targets')}, {block.get('n_targets')} targets, following the run's "
+                           "clustering as every mean's interval does. A difference whose CI spans more than one "
+                           "decade gets no verdict."
+                           + (f" No CI and no verdict here: {block['withheld']}." if block.get("withheld") else ""))

@@ -185,7 +185,8 @@ def population_section(ctx: ReportContext) -> None:
                        + (f"Holm-adjusted: the {fam} primary comparisons (With Uncertainty against each baseline on "
                           "the primary metrics) as one family, familywise 95 % (each interval widened to its Holm "
                           "step's level); the bottom line and the scorecard read these; '—': exploratory, "
-                          "unadjusted." if fam else "No primary family: nothing is Holm-adjusted."))
+                          "unadjusted, or the declared primary comparison (evaluate.primary), which is tested alone "
+                          "at 95 % and left out of the family." if fam else "No primary family: nothing is Holm-adjusted."))
     for note in method_notes(pop):
         page.paragraph(note, cls="note")
     if pop.get("per_target"):

@@ -127,6 +127,9 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
     if rec.get("outcome_holm") and rec["outcome_holm"] != rec["outcome"]:
         notes.append(f"{rec['outcome_holm']} after the Holm adjustment over the {rec.get('family')} primary "
                      "comparisons")
+    if rec.get("declared"):
+        notes.append("the declared primary comparison (evaluate.primary): tested alone at 95 %, outside the Holm "
+                     "family")
     if rec.get("primary") is False:
         notes.append("exploratory metric")
     return text + ("; " + "; ".join(notes) if notes else "") + "."

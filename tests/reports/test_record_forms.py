@@ -111,3 +111,15 @@ def test_what_the_intervals_vary_over_follows_the_design():
     assert varies_text({"cluster": "crossed", "records": []}) == "targets and scans, crossed"
     assert varies_text({"cluster": "category"}) == "categories, targets and tracks"
     assert varies_text({}) == "targets and tracks"
+
+
+def test_the_declared_primary_record_says_it_is_tested_alone():
+    from pipeline.evaluation.statistics.multiplicity import holm
+
+    pop = _population(2)
+    recs = [r for r in pop["records"] if r["metric"] == "correct_final"]
+    draws = {(r["comparison"], r["metric"]): None for r in recs}
+    holm(recs, draws, exclude={(WU_MB, "correct_final")})
+    declared, other = recs
+    assert "tested alone" in sentence(declared) and "tested alone" not in sentence(other)
+    assert other["family"] == 1 and "family" not in declared

@@ -53,15 +53,16 @@ class Leaves:
     rows: np.ndarray
     layout: D.Layout
     hierarchy: Hierarchy
+    wild_boot: int = 2000     # the wild bootstrap-t's draws (``evaluate.bootstrap``)
 
     @classmethod
-    def of(cls, design: Design, n_boot: int, seed: int = 0) -> "Leaves":
+    def of(cls, design: Design, n_boot: int, seed: int = 0, wild_boot: int | None = None) -> "Leaves":
         cells = design.cells()
         h = Hierarchy({"run": cells}, n_boot, seed, cluster=design.cluster)
         pos, layout = h.layout()
         idx = cells.assign(row=np.arange(len(cells), dtype=float))
         padded = h.pad([idx], "row")
-        return cls(design, padded.ravel()[pos].astype(np.int64), layout, h)
+        return cls(design, padded.ravel()[pos].astype(np.int64), layout, h, wild_boot or n_boot)
 
     def cells(self):
         return self.design.cells().iloc[self.rows].reset_index(drop=True)
@@ -85,11 +86,18 @@ def bootstrap(leaves: Leaves, d: np.ndarray) -> dict:
 
 
 def cluster_robust(leaves: Leaves, d: np.ndarray) -> dict:
+    """The previous engine interval: the cluster-robust t against t_df."""
     return D.t_interval(d, leaves.layout)
 
 
+def wild_t(leaves: Leaves, d: np.ndarray) -> dict:
+    """The engine's interval: the same t against its wild cluster bootstrap (``statistics.wild``)."""
+    return D.t_interval(d, leaves.layout, n_boot=leaves.wild_boot, seed=leaves.hierarchy.seed)
+
+
 CANDIDATES: dict[str, Callable[[Leaves, np.ndarray], dict]] = {"bootstrap": bootstrap,
-                                                                "cluster-robust t": cluster_robust}
+                                                                D.T_INTERVAL: cluster_robust,
+                                                                D.INTERVAL: wild_t}
 
 
 def share(k: int, n: int) -> dict:
@@ -98,10 +106,11 @@ def share(k: int, n: int) -> dict:
 
 
 def run(design: Design, regime: str, R: int, seed: int, candidates: Sequence[str] = tuple(CANDIDATES),
-        n_boot: int = 2000, leaves: Leaves | None = None) -> dict[str, dict]:
+        n_boot: int = 2000, leaves: Leaves | None = None, wild_boot: int | None = None) -> dict[str, dict]:
     """{candidate: {"coverage": {metric: share}, "type1": share, "fwer": share, "width": {metric:
-    ratio}, "withheld": reason or None}} of R replications of ``design`` in ``regime``."""
-    leaves = leaves or Leaves.of(design, n_boot)
+    ratio}, "withheld": reason or None}} of R replications of ``design`` in ``regime`` (``n_boot``:
+    the bootstrap candidate's draws; ``wild_boot``: the wild bootstrap's, default the same)."""
+    leaves = leaves or Leaves.of(design, n_boot, wild_boot=wild_boot)
     pop = Population(design, leaves.cells(), regime, np.random.default_rng(seed))
     out = {c: {"coverage": {}, "width": {}, "type1": [0, 0], "p_min": np.full(R, np.inf), "withheld": None}
            for c in candidates}

@@ -11,6 +11,8 @@ from pipeline.evaluation.metrics.labels import (ATTRIBUTION, ATTRIBUTION_COMPARI
                                                 MODEL_BASED, WITH_UNCERTAINTY, WU_INSTANCE, comparisons,
                                                 instance_goal_comparisons, methods)
 from pipeline.method.names import INSTANCE_BLOCK
+from pipeline.evaluation.grid.population import population_settings
+from pipeline.evaluation.grid.primary import declared_pair
 from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.pooled_calibration import track_sums
@@ -35,8 +37,9 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
     out = {}
     sums = track_sums(cells, results, default, ev.ece_bins)
     dtab = table[table["variant"] == default]
+    every = [s.label for s in population_settings(ev)]
     out["main"] = population_block(dtab[dtab["method"].isin(main)], main, metrics, comparisons(), ev.bootstrap, ev.seed,
-                                   primary=prim, ece={"sums": sums}, cluster=cl)
+                                   primary=prim, ece={"sums": sums}, cluster=cl, exclude=declared_pair(ev, every))
     abl = {}
     att = [m for m in (WITH_UNCERTAINTY, MODEL_BASED, *ATTRIBUTION) if m in set(dtab["method"])]
     if all(m in att for m in ATTRIBUTION):

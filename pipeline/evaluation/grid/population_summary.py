@@ -13,6 +13,7 @@ import pandas as pd
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid.contrast import contrast_block
 from pipeline.evaluation.grid.population import DEFAULT
+from pipeline.evaluation.grid.primary import declared_pair
 from pipeline.evaluation.metrics.labels import comparisons, methods as method_keys
 from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile  # noqa: F401 - check_primary: public here
 from pipeline.evaluation.statistics.engine import population_block
@@ -90,7 +91,7 @@ def population_summary(cfg, table: pd.DataFrame, cells: list[P.Cell], results: l
         sub = main[main["setting"] == s.label]
         b = population_block(sub, methods, metrics, comparisons(), ev.bootstrap, ev.seed,
                              primary=tuple(ev.primary_metrics), per_target=False, loto=False,
-                             cluster=cluster)
+                             cluster=cluster, exclude=declared_pair(ev, [s.label]))
         by_setting[s.label] = {k: b[k] for k in PC.BLOCK_KEYS}
     difficulty = [{"target": c.target, "track": c.track, "scan": c.scan, "single_view_first": r["difficulty"]}
                   for c, r in zip(cells, results) if r["difficulty"] is not None]

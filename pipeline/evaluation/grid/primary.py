@@ -74,6 +74,18 @@ def comparison_record(ev, table: pd.DataFrame, method: str, baseline: str, metri
     return out
 
 
+def declared_pair(ev, labels) -> set[tuple[str, str]]:
+    """{(comparison, metric)} of the declared comparison where a block's settings (``labels``) are
+    exactly the declared setting's: that block's record of it is the declared test itself, so it
+    leaves the block's exploratory Holm family (``multiplicity.holm``'s ``exclude``); empty otherwise
+    (another setting's record is another statistic and stays in its family)."""
+    pm = ev.primary
+    declared = setting_labels(ev, pm.setting)
+    if not declared or sorted(declared) != sorted(labels):
+        return set()
+    return {(comparison_key(pm.methods[0], pm.methods[1]), pm.metric)}
+
+
 def declared_block(ev, table: pd.DataFrame) -> dict:
     """summary.json's ``population.primary``: the declared comparison's record, not adjusted."""
     pm = ev.primary

@@ -24,17 +24,19 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 from scipy import sparse
 from scipy.stats import t as student_t
 
+from pipeline.evaluation.statistics import wild
 from pipeline.evaluation.statistics.resampler import LEVEL
 
 MIN_CLUSTERS = 8   # fewest units a clustering level needs for an interval (docs/calibration.md: 5-6 cover 89-93 %)
-INTERVAL = "cluster-robust t"
+INTERVAL = "cluster-robust t, wild bootstrap tails"   # the engine's: t_df or the wild bootstrap-t, the wider (``wild``)
+T_INTERVAL = "cluster-robust t"         # the same t against t_df (the previous engine; the calibration suite's baseline)
 
 
 @dataclass(frozen=True)
@@ -43,6 +45,16 @@ class Layout:
     and, per clustering level ("targets", "scans", "categories"), each leaf's unit code (N,)."""
     weights: np.ndarray
     labels: Mapping[str, np.ndarray]
+
+    @cached_property
+    def terms(self) -> list:
+        """``one_way_terms``, once per layout."""
+        return one_way_terms(self)
+
+    @cached_property
+    def wild_plan(self):
+        """``wild.plan``, once per layout."""
+        return wild.plan(self)
 
     @cached_property
     def df(self) -> float:
@@ -105,6 +117,12 @@ def design_df(layout: Layout) -> float:
     return float(max(1.0, min(nu, min(levels.values()) - 1)))
 
 
+def one_way_terms(layout: Layout) -> list[tuple[int, sparse.csr_matrix, int, bool]]:
+    """``_terms`` with whether each is a one-level term (those come first)."""
+    n = len(layout.levels())
+    return [(s, M, G, i < n) for i, (s, M, G) in enumerate(_terms(layout))]
+
+
 def variance(values: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """(theta (R,), V (R,), levels) of R replications' leaf values (R, N) at once."""
     y = np.atleast_2d(np.asarray(values, float))
@@ -114,7 +132,7 @@ def variance(values: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray
     levels = layout.levels()
     V = np.zeros(len(y))
     one_way = []
-    for sign, M, G in _terms(layout):
+    for sign, M, G, _ in layout.terms:
         sums = np.asarray(M.T @ u.T).T                                     # (R, G): each unit's sum
         v = G / (G - 1) * (sums ** 2).sum(axis=1)
         V += sign * v
@@ -137,9 +155,12 @@ def withheld(levels: Mapping[str, int], n_levels: Mapping[str, int] | None = Non
     return None
 
 
-def t_interval(values: np.ndarray, layout: Layout, level: float = LEVEL) -> dict[str, np.ndarray]:
+def t_interval(values: np.ndarray, layout: Layout, level: float = LEVEL, n_boot: int = 0,
+               seed=0) -> dict[str, np.ndarray]:
     """Arrays (R,) of "value", "se", "df", "ci_low", "ci_high" (NaN where withheld) and "p" (two-sided
-    p of 0; NaN where withheld) for R replications' leaf values (R, N); "withheld": the reason or None."""
+    p of 0; NaN where withheld) for R replications' leaf values (R, N); "withheld": the reason or None.
+    ``n_boot`` > 0: the t statistic's quantile and p-value are the larger of t_df's and its wild
+    cluster bootstrap's (``wild``: B draws, "ref" (R, B) |t*|), else t_df's."""
     theta, V, levels = variance(values, layout)
     se = np.sqrt(np.maximum(V, 0.0))
     why = withheld(levels)
@@ -147,48 +168,63 @@ def t_interval(values: np.ndarray, layout: Layout, level: float = LEVEL) -> dict
     if why is not None:
         nan = np.full_like(theta, np.nan)
         return {"value": theta, "se": se, "df": df, "ci_low": nan, "ci_high": nan, "p": nan, "withheld": why,
-                "levels": levels}
-    q = student_t.ppf(0.5 + level / 2, df)
+                "levels": levels, "ref": None}
     with np.errstate(invalid="ignore", divide="ignore"):
         z = np.where(se > 0, np.abs(theta) / se, np.where(theta == 0, 0.0, np.inf))
-    p = 2 * student_t.sf(z, df)
+    ref, q, p = None, student_t.ppf(0.5 + level / 2, df), 2 * student_t.sf(z, df)
+    if n_boot:   # the wider of the two references at every level (``wild``: why)
+        ref = wild.abs_t(values, layout, n_boot, seed)
+        q, p = np.maximum(q, wild.quantile(ref, level)), np.maximum(p, wild.p_value(ref, z))
     return {"value": theta, "se": se, "df": df, "ci_low": theta - q * se, "ci_high": theta + q * se, "p": p,
-            "withheld": None, "levels": levels}
+            "withheld": None, "levels": levels, "ref": ref}
 
 
 @dataclass(frozen=True)
 class TStat:
-    """One estimate's t statistic: what the Holm steps read at any level (``multiplicity``)."""
+    """One estimate's t statistic and its reference: what the Holm steps read at any level
+    (``multiplicity``). ``ref``: its wild bootstrap |t*| draws (``wild``), else t_df."""
     value: float
     se: float
     df: float
     withheld: str | None = None
+    ref: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def p(self) -> float:
         if self.withheld or not math.isfinite(self.se):
             return 1.0
         if self.se <= 0:
             return 0.0 if self.value != 0 else 1.0
-        return float(2 * student_t.sf(abs(self.value) / self.se, self.df))
+        t = abs(self.value) / self.se
+        p = float(2 * student_t.sf(t, self.df))
+        return max(p, float(wild.p_value(self.ref, t))) if self.ref is not None else p
+
+    def q(self, level: float = LEVEL) -> float:
+        """The half-width's multiplier at ``level``: the quantile of |t| under its reference (with a
+        wild bootstrap, the larger of its quantile and t_df's: ``wild``)."""
+        q = float(student_t.ppf(0.5 + level / 2, self.df))
+        return max(q, float(wild.quantile(self.ref, level))) if self.ref is not None else q
 
     def estimate(self, level: float = LEVEL) -> dict[str, float]:
         if self.withheld or not math.isfinite(self.se):
             return {"value": self.value, "ci_low": math.nan, "ci_high": math.nan}
-        h = float(student_t.ppf(0.5 + level / 2, self.df)) * self.se
+        h = self.q(level) * self.se if self.se > 0 else 0.0
         return {"value": self.value, "ci_low": self.value - h, "ci_high": self.value + h}
 
 
-def estimate(values: np.ndarray, layout: Layout, clamp: tuple[float, float] | None = None) -> tuple[dict, TStat]:
+def estimate(values: np.ndarray, layout: Layout, clamp: tuple[float, float] | None = None, n_boot: int = 0,
+             seed=0) -> tuple[dict, TStat]:
     """One population's estimate {"value", "ci_low", "ci_high", "se", "df", "interval", "levels",
     "withheld"?} of its leaf values (N,), and its ``TStat``; ``clamp``: the metric's range (a
-    pooled value's interval never leaves it)."""
-    r = t_interval(np.asarray(values, float)[None, :], layout)
+    pooled value's interval never leaves it); ``n_boot``, ``seed``: the wild bootstrap's draws
+    (0: t_df, the previous engine's reference)."""
+    r = t_interval(np.asarray(values, float)[None, :], layout, n_boot=n_boot, seed=seed)
     value, se, df = float(r["value"][0]), float(r["se"][0]), float(r["df"][0])
     lo, hi = float(r["ci_low"][0]), float(r["ci_high"][0])
     if clamp is not None and not math.isnan(lo):
         lo, hi = max(lo, clamp[0]), min(hi, clamp[1])
-    est = {"value": value, "ci_low": lo, "ci_high": hi, "se": se, "df": df, "interval": INTERVAL,
-           "levels": dict(r["levels"])}
+    est = {"value": value, "ci_low": lo, "ci_high": hi, "se": se, "df": df,
+           "interval": INTERVAL if n_boot else T_INTERVAL, "levels": dict(r["levels"])}
     if r["withheld"]:
         est["withheld"] = r["withheld"]
-    return est, TStat(value, se, df, r["withheld"])
+    ref = None if r["ref"] is None else r["ref"][0]
+    return est, TStat(value, se, df, r["withheld"], ref)

@@ -94,7 +94,7 @@ def _design_estimate(h: Hierarchy, v: np.ndarray, pool: str, clamp=None):
     x = np.asarray(v, float).ravel()[pos]
     if not np.isfinite(x).all():
         return None
-    return design_estimate(x, layout, clamp)
+    return design_estimate(x, layout, clamp, n_boot=h.n_boot, seed=h.seed)
 
 
 def _boot_estimate(est: dict) -> dict:
@@ -118,13 +118,15 @@ def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
 
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,
           n_boot: int, seed, *, primary: Sequence[str] = (), per_target: bool = True, loto: bool = True,
-          ece: Mapping | None = None, by_scan: bool = False, cluster: str = "target", family=None) -> dict:
+          ece: Mapping | None = None, by_scan: bool = False, cluster: str = "target", family=None,
+          exclude=()) -> dict:
     """{"pooled", "per_target", "paired", "paired_per_target", "records"} (+ "reliability" with
     ``ece``) of cell frames per seed (one seed: an evaluate run). ``ece``: {"sums": track bin sums
     (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric. ``cluster``:
     the top level of the draws (``Hierarchy``: target, scan, category, crossed; ``by_scan``: scan);
     every pooled value and record says which (``cluster``) and over what it varies (``over``).
-    ``family``: the Holm family's predicate (``multiplicity.holm``; default the declared primary one)."""
+    ``family``: the Holm family's predicate (``multiplicity.holm``; default the declared primary one);
+    ``exclude``: (comparison, metric) left out of it (the declared primary comparison, tested alone)."""
     h = Hierarchy(frames, n_boot, seed, by_scan=by_scan, cluster=cluster)
     metrics = [k for k in metrics if all(k in f for f in frames.values())]
     tvs = {m: [track_values(f[f["method"] == m], metrics) for f in frames.values()] for m in methods}
@@ -213,7 +215,7 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
     order = {k: i for i, k in enumerate(list(metrics) + list(M.POOLED_METRICS))}
     comps = [comparison_key(a, b) for a, b in comparisons]
     out["records"].sort(key=lambda r: (comps.index(r["comparison"]), order.get(r["metric"], len(order))))
-    holm(out["records"], boot, family)
+    holm(out["records"], boot, family, exclude)
     return out
 
 

@@ -6,21 +6,23 @@ with m records of the family still open, each one's interval is taken at level 1
 exclude 0, the one with the smallest p-value among them is rejected (its adjusted interval is that
 one) and m drops by one; when none does, every open record keeps its interval at that level and is
 "not distinguishable". A record's interval and p-value are one statistic: a mean of one run's tracks
-carries its t statistic from the design (``design.TStat``: the t interval at any level, and
-p = 2 P(t_df > |value| / se), the smallest level whose interval excludes 0), so an adjusted verdict
-rests on the variance estimate, not on the few draws in a bootstrap's tails (at B = 2000 and m = 8,
-the 1 - 0.05/8 percentile interval reads about the 6th draw from each end). A statistic without one
+carries its t statistic from the design (``design.TStat``: value +- q se at any level, q the larger
+of t_df's quantile and its wild cluster bootstrap's, and p the larger of the two p-values, the
+smallest level whose interval excludes 0), so an adjusted verdict rests on the variance estimate
+and the t's own tails (t_df alone let the familywise error reach 7 % where track noise dominates:
+docs/calibration.md), not on the few draws in a percentile bootstrap's tails. A statistic without one
 (a median, the pooled ECE, a seed pool) keeps the percentile interval of its draws and the
 bootstrap p-value (two-sided, 2 min(P(d <= 0), P(d >= 0)) with the +1 correction). Since both kinds
 of interval nest as the level grows, this is Holm's procedure, and the adjusted outcome is
 ``records.outcome`` of the adjusted interval (never a label its interval contradicts). A record
 whose interval is withheld (too few clusters: ``design.withheld``) has p = 1 and no adjusted
-interval: it is never rejected.
+interval: it is never rejected. The declared primary comparison (``evaluate.primary``) is tested
+alone; where a block's cells are its own, ``exclude`` leaves it out of the family.
 """
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -55,13 +57,21 @@ def holm_p(p: Sequence[float]) -> list[float]:
     return out
 
 
-def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None], family=None) -> None:
+def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None], family=None,
+         exclude: Collection[tuple[str, str]] = ()) -> None:
     """Add the Holm fields to each record of the primary family (in place; ``family``: another
     predicate of (comparison, primary), e.g. the class-level contrast's own): ``p`` and ``p_holm``,
     ``level_holm`` (the interval's level), ``lo_holm``/``hi_holm`` (null: unbounded) and
     ``outcome_holm``, and ``family`` (its size). ``draws``: {(comparison, metric): the draws of
-    the record's difference} (missing or None: no interval, never rejected)."""
-    fam = [r for r in records if (family or in_primary_family)(r["comparison"], r.get("primary"))]
+    the record's difference} (missing or None: no interval, never rejected). ``exclude``: the
+    (comparison, metric) of the declared primary comparison where this block's cells are its own:
+    it is tested alone at 0.05 (``grid.primary``), so it leaves the exploratory family and is
+    marked ``declared``."""
+    for r in records:
+        if (r["comparison"], r["metric"]) in exclude:
+            r["declared"] = True
+    fam = [r for r in records if (family or in_primary_family)(r["comparison"], r.get("primary"))
+           and not r.get("declared")]
     if not fam:
         return
     d = [draws.get((r["comparison"], r["metric"])) for r in fam]
@@ -97,5 +107,5 @@ def _set(rec: dict, level: float, est: Mapping | None, outcome: str) -> None:
 
 def adjusted(rec: Mapping) -> str:
     """The verdict the bottom line and the scorecard read: the Holm-adjusted one where the record
-    is in the primary family, else its own."""
+    is in the primary family, else its own (the declared primary comparison's: tested alone)."""
     return str(rec.get("outcome_holm") or rec["outcome"])

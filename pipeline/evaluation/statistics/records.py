@@ -13,8 +13,8 @@ A record is data, never prose: ``reports.shared.records`` renders the sentences.
   level ({"targets": 6, "tracks": 48, "cells": 192, ...});
 - ``better``: "higher" | "lower"; ``outcome``: ``outcome(lo, hi, better)``; ``primary``: the
   metric is one of ``evaluate.primary_metrics`` (the rest are exploratory);
-- ``interval``: how the interval was made: "cluster-robust t" (``design``: a mean of one run's
-  tracks; with ``se``, ``df`` and ``levels``, the units of each level it varies over) or
+- ``interval``: how the interval was made: "cluster-robust t, wild bootstrap tails" (``design``: a
+  mean of one run's tracks; with ``se``, ``df`` and ``levels``, the units of each level it varies over) or
   "percentile bootstrap" (a median, an infinite value, the pooled ECE, a seed pool); ``withheld``:
   why there is no interval where a level has too few units for a calibrated one (no verdict:
   ``outcome`` "not distinguishable", lo/hi NaN);

@@ -42,7 +42,37 @@ def test_percentiles_pool_every_track_and_realization_of_the_setting():
 
 
 def test_an_interval_spanning_decades_gives_no_verdict():
-    cells, kept = _kept(np.random.default_rng(1), targets=5, tracks=1, R=3, sd=20.0, independent=True)
+    cells, kept = _kept(np.random.default_rng(1), targets=8, tracks=1, R=3, sd=20.0, independent=True)
     b = mgr_block(values_by_target(cells, kept, ["br"]), 400, 0, ["br"])
     pair = b["paired"]["with_uncertainty_poses_only-model_based"]
     assert pair["decades"] > 1 and pair["verdict"] is None and "decades" in pair["no_verdict"]
+
+
+def test_too_few_units_of_a_level_withhold_the_interval_as_every_mean_does():
+    cells, kept = _kept(np.random.default_rng(2), targets=6, shift=-0.5)
+    b = mgr_block(values_by_target(cells, kept, ["br"]), 200, 0, ["br"])
+    pair = b["paired"]["with_uncertainty_poses_only-model_based"]
+    assert "6 targets" in b["withheld"] and pair["verdict"] is None and "6 targets" in pair["no_verdict"]
+    assert np.isnan(b["methods"]["model_based"]["p95"]["ci_low"])
+    # scans the cells name are a level: 10 objects crossed with 3 scans withhold; with 8 scans they vary
+    for n_scans, held in ((3, True), (8, False)):
+        cells, kept = _kept(np.random.default_rng(3), targets=10, tracks=n_scans, shift=-0.5)
+        for c in cells:
+            c.scan = f"S{c.track}"
+        b = mgr_block(values_by_target(cells, kept, ["br"]), 200, 0, ["br"], cluster="crossed")
+        assert b["levels"] == {"targets": 10, "scans": n_scans} and ("withheld" in b) == held
+        assert "scans" in b["over"]
+
+
+def test_the_weighted_percentile_is_the_percentile_of_the_repeated_values():
+    from pipeline.evaluation.grid.paper55 import QUANTILES, _weighted_quantiles
+
+    rng = np.random.default_rng(4)
+    x = np.sort(np.concatenate([rng.normal(size=40), [np.inf, -np.inf]]))
+    block = rng.integers(0, 6, size=len(x))
+    w = rng.integers(0, 3, size=(25, 6))
+    got = _weighted_quantiles(x, block, w)
+    for i in range(len(w)):
+        rep = np.repeat(x, w[i][block])
+        want = M.percentile(rep, list(QUANTILES)) if len(rep) else np.full(len(QUANTILES), np.nan)
+        assert got[i] == pytest.approx(want, rel=1e-12, nan_ok=True)

@@ -85,3 +85,19 @@ def test_the_paired_table_holds_one_difference_per_track():
     d = paired_table(t, "with_uncertainty", "model_based", "confident_error_final",
                      [s.label for s in P.population_settings(ev)])
     assert len(d) == 8 * 4 and np.allclose(d["d"], -0.05)
+
+
+def test_the_declared_pair_leaves_only_the_family_of_its_own_cells():
+    from pipeline.evaluation.grid.primary import declared_pair
+
+    ev = _ev(setting="biased")
+    labels = [s.label for s in P.population_settings(ev)]
+    biased = setting_labels_of(ev, "biased")
+    assert declared_pair(ev, biased) == {("with_uncertainty-model_based", "confident_error_final")}
+    assert declared_pair(ev, labels) == set()          # every setting pooled: another statistic, stays in
+    every = dataclasses.replace(ev, primary=PrimaryConfig(setting="all"))
+    assert declared_pair(every, labels) and not declared_pair(every, biased)
+
+
+def setting_labels_of(ev, experiment):
+    return [s.label for s in P.population_settings(ev) if s.experiment == experiment]

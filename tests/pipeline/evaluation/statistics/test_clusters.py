@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 from scipy.stats import t as student_t
 
+from pipeline.evaluation.statistics import design as D
 from pipeline.evaluation.statistics.crossed import weighted_pool
 from pipeline.evaluation.statistics.engine import Hierarchy, population_block
 from tests.pipeline.evaluation.statistics.test_scan_level import scans_population
@@ -40,8 +41,10 @@ def test_categories_on_top_widen_the_interval_the_target_level_understates():
     # the category-level spread: the between-category sd of the difference over sqrt(8 categories)
     per_cat = cells.pivot_table(index=["target", "track"], columns="method", values=METRIC)
     dd = (per_cat["a"] - per_cat["b"]).groupby(lambda i: i[0].split("__f")[0]).mean()
-    want = 2 * 1.96 * dd.std(ddof=0) / math.sqrt(len(dd))
-    assert 0.7 * want < _width(d_cat) < 1.3 * want
+    want = dd.std(ddof=0) / math.sqrt(len(dd))
+    assert 0.7 * want < d_cat["se"] < 1.3 * want
+    # the half-width's multiplier is the wild bootstrap's quantile of |t| (design.TStat): above the normal's
+    assert _width(d_cat) / (2 * d_cat["se"]) > 1.96 and d_cat["interval"] == D.INTERVAL
     rec = cat["records"][0]
     assert rec["cluster"] == "category" and rec["over"] == ["categories", "targets", "tracks"]
     assert rec["n"]["categories"] == 8 and flat["records"][0]["cluster"] == "target"

@@ -126,3 +126,14 @@ def test_a_withheld_interval_is_never_rejected():
                      n={"targets": 12, "scans": 2}, primary=True)
     holm([rec], {(WU_MB, "correct_final"): TStat(0.3, 0.001, 1.0, withheld="2 scans")})
     assert rec["outcome"] == rec["outcome_holm"] == "not distinguishable" and rec["p"] == 1.0
+
+
+def test_the_declared_primary_pair_leaves_the_exploratory_family():
+    # the declared comparison is tested alone at 0.05 (grid.primary): its record in a block of the
+    # same cells is marked declared, keeps its own verdict, and the family shrinks by one
+    recs, draws = _records([0.001, 0.02, 0.03, 0.3])
+    holm(recs, draws, exclude={(WU_MB, "correct_final")})
+    assert recs[0]["declared"] and "outcome_holm" not in recs[0] and adjusted(recs[0]) == recs[0]["outcome"]
+    assert all(r["family"] == 3 and not r.get("declared") for r in recs[1:])
+    # Holm over the other three: 3 x 0.02 = 0.06 stops, where with the pair inside it was the same step
+    assert [r["p_holm"] for r in recs[1:]] == pytest.approx(holm_p([0.02, 0.03, 0.3]), abs=1e-3)

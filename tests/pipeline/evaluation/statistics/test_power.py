@@ -65,3 +65,20 @@ def test_object_variance_beyond_the_data_is_not_reachable():
 def test_a_large_population_is_already_powered():
     d = crossed(np.random.default_rng(4), 100, 10, 3, 0.01, 0.005, 0.0, 0.05)
     assert power_block(d, _primary())["reading"] == "reached"
+
+
+def test_the_power_interval_covers_the_planted_power_on_most_populations():
+    I, J = 20, 8
+    truth = power_at(math.sqrt(0.05 ** 2 / I + 0.02 ** 2 / J + 0.3 ** 2 / (I * J)))
+    hits = 0
+    for seed in range(20):
+        p = power_block(crossed(np.random.default_rng(seed), I, J, 1, 0.05, 0.02, 0.0, 0.3), _primary())
+        ci = p["power_ci"]
+        assert 0.0 <= ci["ci_low"] <= p["power_now"] <= ci["ci_high"] <= 1.0 and ci["df"] == J - 1
+        hits += ci["ci_low"] <= truth <= ci["ci_high"]
+    # a 95 % interval on 20 independent populations: 16 or fewer hits has probability < 2 %
+    assert hits >= 17, hits
+    # the declared record's own degrees of freedom are read where it has them
+    rec = {**_primary(), "record": {"df": 3.0}}
+    narrow = power_block(crossed(np.random.default_rng(0), I, J, 1, 0.05, 0.02, 0.0, 0.3), rec)["power_ci"]
+    assert narrow["df"] == 3.0
