@@ -140,14 +140,16 @@ def test_an_unknown_instance_route_is_an_error():
                             progress=False)
 
 
-def test_the_batched_optimum_is_at_least_the_per_fit_one_on_real_photographs():
+@pytest.mark.parametrize("prior", ["none", "split"])
+def test_the_batched_optimum_is_at_least_the_per_fit_one_on_real_photographs(prior):
     """ETH-80 categories (4 instances x 16 azimuths a class, the balanced evaluation) on score-like
-    targets (``test_gp_batch.eth80_stand_in``): 15 joint fits, each batched optimum within 1e-6 of the
-    per-fit one or higher (skips without ../shared/realdata)."""
+    targets (``test_gp_batch.eth80_stand_in``): 15 joint fits, without and with the instance prior,
+    each batched optimum within 1e-6 of the per-fit one or higher (skips without ../shared/realdata)."""
     from tests.pipeline.method.test_gp_batch import eth80_stand_in
 
     Xs, Ys, labels = eth80_stand_in(instances=(1, 2, 3, 4))
-    kw = dict(classes=["apple", "cow", "cup"], components=list(range(5)), restarts=2, progress=False)
+    kw = dict(classes=["apple", "cow", "cup"], components=list(range(5)), restarts=2, progress=False,
+              instance_prior=prior)
     _, batch = fit_instance_models(Xs, Ys, labels, instance_route="batch", **kw)
     _, each = fit_instance_models(Xs, Ys, labels, instance_route="per_fit", **kw)
     gaps = [(b["log_marginal_likelihood"] + b["log_prior"]) - (e["log_marginal_likelihood"] + e["log_prior"])
