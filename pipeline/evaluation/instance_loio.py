@@ -10,7 +10,9 @@ category's fit: per component, the joint Gaussian predictive of its n views (``G
 the instance term's k_h included) gives the log predictive density of the n scores (per view: the
 joint log density / n) and each view's z = (y - μ) / sd. Components per fold: each category's
 ``top`` highest mean training probabilities, pooled over the categories (so every category is
-fitted on every pooled component, as a candidate set's bank is).
+fitted on every pooled component, as a candidate set's bank is). Summaries: over every pooled
+component ("all": most are other categories' components, near 0 for this one) and over each
+category's own ``top`` ("own": where its scores carry the viewpoint signal).
 
 The unit is a held-out (category, instance): its mean over components and views. Every figure's
 95 % interval is a bootstrap over categories, then their instances (``statistics.resampler``);
@@ -62,19 +64,17 @@ def fold_data(data: Mapping[str, Mapping[str, tuple[np.ndarray, np.ndarray]]], k
     return train, held
 
 
-def fold_components(train: dict, top: int) -> list[int]:
-    """Each category's ``top`` components by mean training probability, pooled (sorted)."""
-    comps = set()
-    for X, S, _ in train.values():
-        comps.update(int(i) for i in np.argsort(-S.mean(axis=0), kind="stable")[:top])
-    return sorted(comps)
+def fold_components(train: dict, top: int) -> dict[str, list[int]]:
+    """Each category's ``top`` components by mean training probability (its own)."""
+    return {cat: [int(i) for i in np.argsort(-S.mean(axis=0), kind="stable")[:top]] for cat, (X, S, _) in train.items()}
 
 
 def judge_fold(train: dict, held: dict, st: Settings) -> tuple[list[dict], list[dict]]:
     """The three variants' fits on one fold and their scores of the held-out instances: (one row per
     (variant, category, component) of the held-out scores, the instance fits' records)."""
     cats = sorted(train)
-    comps = fold_components(train, st.top)
+    own = fold_components(train, st.top)
+    comps = sorted({i for v in own.values() for i in v})
     Xs = [train[c][0] for c in cats]
     Ys = [score_space.to_space(train[c][1], st.space, st.floor)[:, comps].T for c in cats]
     labels = [train[c][2] for c in cats]
@@ -84,7 +84,7 @@ def judge_fold(train: dict, held: dict, st: Settings) -> tuple[list[dict], list[
     for prior, name in (("none", "instance_none"), ("split", "instance_split")):
         models, diags = fit_instance_models(Xs, Ys, labels, instance_prior=prior, split_prior=st.split_prior, **kw)
         fits[name] = models
-        records += [dict(d, variant=name) for d in diags]
+        records += [dict(d, variant=name, own=int(d["component"]) in own[d["class"]]) for d in diags]
     rows = []
     for ci, cat in enumerate(cats):
         name, X, S = held[cat]
@@ -94,7 +94,7 @@ def judge_fold(train: dict, held: dict, st: Settings) -> tuple[list[dict], list[
             for fi, comp in enumerate(comps):
                 lpd, z = _scores(Y[fi], mu[0, ci, fi], cov[0, ci, fi])
                 rows.append({"variant": variant, "category": cat, "instance": name, "component": comp,
-                             "lpd_per_view": lpd / len(z), "z": z})
+                             "own": comp in own[cat], "lpd_per_view": lpd / len(z), "z": z})
     return rows, records
 
 
@@ -114,7 +114,8 @@ def judge(data: Mapping[str, Mapping[str, tuple[np.ndarray, np.ndarray]]], st: S
         r, d = judge_fold(*fold_data(data, k), st)
         rows += r
         records += [dict(x, fold=k) for x in d]
-    return summarise(rows, records, st)
+    return {"all": summarise(rows, records, st),
+            "own": summarise([r for r in rows if r["own"]], [d for d in records if d["own"]], st)}
 
 
 def bound_counts(records: list[dict]) -> dict:

@@ -32,13 +32,15 @@ def test_folds_hold_out_one_instance_of_every_category():
     for cat, (X, S, lab) in train.items():
         assert held[cat][0] == f"{cat}_1" and len(X) == 2 * 12 and sorted(set(lab)) == [0, 1]
         assert not any(np.array_equal(S[lab == k], held[cat][2]) for k in (0, 1))
-    assert fold_components(train, 1) == sorted({int(np.argmax(S.mean(0))) for _, S, _ in train.values()})
+    assert fold_components(train, 1) == {cat: [int(np.argmax(S.mean(0)))] for cat, (_, S, _) in train.items()}
 
 
 @pytest.fixture(scope="module")
 def result():
     st = Settings(top=2, fit=dict(restarts=1, seed=0), n_boot=400)
-    return judge(categories(np.random.default_rng(7)), st)
+    out = judge(categories(np.random.default_rng(7)), st)
+    assert out["own"]["bounds"]["instance_split"]["fits"] == out["all"]["bounds"]["instance_split"]["fits"]
+    return out["all"]       # D = top = 2: every component is every category's own
 
 
 def test_the_split_prior_keeps_the_variance_split_off_its_bounds(result):
