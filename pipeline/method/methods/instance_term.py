@@ -66,10 +66,11 @@ class InstanceTermProvider(ModelProvider):
                    "(models/instance_term/; pipeline/method/gp_instance.py): the methods "
                    "with_uncertainty_instance and model_based_instance read them")),
         f"models.{PRIOR}": Key(str, _f(
-            "none", choices=INSTANCE_PRIORS,
-            doc="the instance fit's prior on its own terms (pipeline/method/gp_instance_fit.py): 'none' = "
-                "none on b and λ (fits run to their bounds); 'split' = a Beta(instance_prior_alpha, "
-                "instance_prior_beta) law on b / (a + b) and the length scale's inverse-gamma range on λ")),
+            "split", choices=INSTANCE_PRIORS,
+            doc="the instance fit's prior on its own terms (pipeline/method/gp_instance_fit.py): 'split' = a "
+                "Beta(instance_prior_alpha, instance_prior_beta) law on b / (a + b) and the length scale's "
+                "inverse-gamma range on λ (the default: docs/results.md, 'Instance term: a prior on the variance "
+                "split'); 'none' = none on b and λ (fits run to their bounds)")),
         f"models.{PRIOR}_alpha": Key(float, _f(2.0, lo=1e-3, hi=1e3, doc="Beta shape alpha of b / (a + b) "
                                                                        "(instance_prior = 'split')")),
         f"models.{PRIOR}_beta": Key(float, _f(2.0, lo=1e-3, hi=1e3, doc="Beta shape beta of b / (a + b) "
