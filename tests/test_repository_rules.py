@@ -121,7 +121,7 @@ def test_no_product_module_is_named_or_shaped_like_a_test(tmp_path):
 def test_tools_holds_no_one_off_migration_scripts():
     # tools/ keeps reusable helpers; a script written for one migration lives in the git history
     assert sorted(p.name for p in (ROOT / "tools").iterdir() if not p.name.startswith((".", "__"))) == \
-        ["calibrate.py", "gen_docs.py", "hard_failures.py", "peak_rss.py", "uv_flags.py"]
+        ["calibrate.py", "gen_docs.py", "hard_failures.py", "instance_loio.py", "peak_rss.py", "uv_flags.py"]
 
 
 # The Dirichlet method lives behind its model provider: its name is in its own files and in the
@@ -156,7 +156,8 @@ def test_the_dirichlet_is_named_only_in_its_own_files(tmp_path):
 # The class models with an instance term live behind their model provider too: the stages, the grid,
 # planning, the banks, the config and the report reach them through the provider registry. Their
 # identifiers stay in their own files, the methods' listing and keys, the GP layer that reads such a
-# bank as one GP bank (its files and the fusion engines) and the public fit_models(instances=).
+# bank as one GP bank (its files and the fusion engines), the public fit_models(instances=) and its
+# leave-one-instance-out judgement (pipeline/evaluation/instance_loio.py, run by tools/instance_loio.py).
 INSTANCE_WORDS = ("gp_instance", "instance_term", "instance_bank", "instance_models", "instancegpclassmodels",
                   "fit_instance_models")
 INSTANCE_OWN = {"pipeline/method/gp_instance.py", "pipeline/method/gp_instance_fit.py",
@@ -165,7 +166,7 @@ INSTANCE_OWN = {"pipeline/method/gp_instance.py", "pipeline/method/gp_instance_f
                 "pipeline/method/methods/model_based_instance.py", "pipeline/method/methods/__init__.py",
                 "pipeline/method/names.py",
                 "pipeline/method/gp_files.py", "pipeline/method/engine.py", "pipeline/method/engine_torch.py",
-                "viewfuse/api.py"}
+                "viewfuse/api.py", "pipeline/evaluation/instance_loio.py"}
 
 
 def test_the_instance_term_is_named_only_in_its_own_files(tmp_path):

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.method.bank_index import content_digest
+from pipeline.method.gp_prior import LogInverseGamma, LogitBeta
 from pipeline.method.gp_batch import BLOCK, LOG_2PI, Result, add_log_prior, cholesky_inverses, fit_stack, \
     setulb_available
 
@@ -37,13 +38,15 @@ FAILED = -1e300
 class InstanceProblem:
     """One (class, component) instance-term fit: centred inputs (n, d), centred targets (n,),
     integer instance labels (n,), log bounds (5, 2), prior rows (2, 2) (alpha, beta) of log ℓ and
-    log σ² (NaN: none), starts (S, 5)."""
+    log σ² (NaN: none), starts (S, 5), and the instance term's prior rows (2, 2)
+    (``instance_prior_rows``: the Beta law of b / (a + b), the inverse-gamma law of λ; NaN: none)."""
     X: np.ndarray
     y: np.ndarray
     labels: np.ndarray
     log_bounds: np.ndarray
     prior: np.ndarray
     starts: np.ndarray
+    instance_prior: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
     structure: str = field(default="", repr=False)
 
     def __post_init__(self):
@@ -167,6 +170,7 @@ class InstanceStack:
             self.z.append(z)
             self.R.append(R)
         self.prior = np.stack([pb.prior for pb in problems]) if problems else np.empty((0, 2, 2))
+        self.iprior = np.stack([pb.instance_prior for pb in problems]) if problems else np.empty((0, 2, 2))
 
     def evaluate(self, which: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         lml, grad = np.empty(len(which)), np.empty((len(which), 5))
@@ -181,7 +185,7 @@ class InstanceStack:
                 R = None if st.order is None else np.stack([self.R[i] for i in idx])
                 with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
                     lml[r], grad[r] = objective(st, z, R, theta[r])
-        lp = add_log_prior(self.prior[which], theta, grad)
+        lp = add_log_prior(self.prior[which], theta, grad) + add_instance_prior(self.iprior[which], theta, grad)
         failed = lml <= FAILED           # the per-fit objective's 1e300 and zero gradient there
         lp[failed], grad[failed] = 0.0, 0.0
         return lml, lp, grad
@@ -197,6 +201,35 @@ class InstanceStack:
             gp_, gm = (_objective_gradient(self.evaluate(which, theta + sgn * e)) for sgn in (1, -1))
             H[:, j] = (gp_ - gm) / (2 * step)
         return [laplace_from_hessian(h) for h in H]
+
+
+def instance_prior_rows(split, lam_law) -> np.ndarray:
+    """(2, 2) rows (alpha, beta): the split's ``gp_prior.LogitBeta`` and λ's
+    ``gp_prior.LogInverseGamma`` (NaN where none)."""
+    out = np.full((2, 2), np.nan)
+    for j, law in enumerate((split, lam_law)):
+        if law is not None:
+            out[j] = (law.alpha, law.beta)
+    return out
+
+
+def add_instance_prior(prior: np.ndarray, theta: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """The instance term's log priors (B,), their slopes added to ``grad`` (B, 5) in place: row 0
+    of ``prior`` (B, 2, 2) the Beta(alpha, beta) law of r = b / (a + b) as a law of u = log b -
+    log a (``gp_prior.LogitBeta``), row 1 the inverse-gamma law of log λ; NaN where none."""
+    lp = np.zeros(len(theta))
+    has = np.isfinite(prior[:, 0, 0])
+    if has.any():   # the laws' own arithmetic, on arrays of shapes
+        du_lp, du = LogitBeta(prior[has, 0, 0], prior[has, 0, 1])(theta[has, 3] - theta[has, 0])
+        lp[has] += du_lp
+        grad[has, 3] += du
+        grad[has, 0] -= du
+    has = np.isfinite(prior[:, 1, 0])
+    if has.any():
+        t_lp, dt = LogInverseGamma(prior[has, 1, 0], prior[has, 1, 1], np.nan, np.nan)(theta[has, 4])
+        lp[has] += t_lp
+        grad[has, 4] += dt
+    return lp
 
 
 def _objective_gradient(ev) -> np.ndarray:

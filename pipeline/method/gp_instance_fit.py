@@ -6,8 +6,11 @@ with one training instance keeps it bit for bit, and the record says why it has 
 Then, per (class, component) of a class with two or more training instances, the five log
 hyperparameters t = log(a, ℓ, σ², b, λ) maximise the marginal likelihood of the joint covariance
 over all the class's training views, ``K = a·E_ℓ + B ∘ b·E_λ + σ² I`` (B: same instance), times the
-plain fit's weak priors on ℓ and σ² (``models.hyperprior``; none on b and λ: a vanishing b and a
-constant offset, λ at its upper bound, are both answers the data may give). Starts: the plain fit
+plain fit's weak priors on ℓ and σ² (``models.hyperprior``) and, with ``instance_prior = "split"``
+(``models.instance_prior``), a Beta prior on the variance split b / (a + b) (``split_prior``, through
+its logit log b - log a) and ℓ's inverse-gamma law on λ; with "none" no prior on b and λ: a
+vanishing b and a constant offset, λ at its upper bound, are both answers the data may give
+(measured on ETH-80: docs/results.md, "Instance term: a prior on the variance split"). Starts: the plain fit
 with its noise split in half between σ² and b (λ = ℓ, and λ long), then ``restarts`` draws
 log-uniform in the bounds. The record adds b, λ, b / a, the plain (pooled) fit it started from, and a
 95 % Laplace interval of b (from the curvature of the log objective in t at the optimum: over
@@ -27,26 +30,29 @@ from pipeline.infra.config import ModelsConfig
 from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.gp_instance import InstanceGPClassModels, same_instance
 from pipeline.method.gp_instance_batch import laplace_from_hessian
-from pipeline.method.gp_prior import LogInverseGamma, input_range
+from pipeline.method.gp_prior import LogInverseGamma, LogitBeta, input_range
 from pipeline.method.gp_batch import prior_rows
-from pipeline.method.gp_instance_batch import InstanceProblem, fit_instance_problems
+from pipeline.method.gp_instance_batch import InstanceProblem, fit_instance_problems, instance_prior_rows
 
 _DEFAULTS = ModelsConfig()
 NAMES = ("amplitude", "length_scale", "noise", "instance_amplitude", "instance_length_scale")
 Z95 = 1.959963984540054
 NO_TERM = "one training instance: no identifiable instance term"
 INSTANCE_ROUTES = ("batch", "per_fit")
+INSTANCE_PRIORS = ("none", "split")
 
 
 class JointObjective:
     """-(log marginal likelihood + log prior) of one (class, component) and its gradient in t."""
 
-    def __init__(self, X: np.ndarray, y: np.ndarray, labels: np.ndarray, priors: dict[int, LogInverseGamma]):
+    def __init__(self, X: np.ndarray, y: np.ndarray, labels: np.ndarray, priors: dict[int, LogInverseGamma],
+                 split: LogitBeta | None = None):
         self.X = X
         self.D2 = np.sum((X[:, None, :] - X[None, :, :]) ** 2, axis=-1)
         self.B = same_instance(labels)
         self.y = y
-        self.priors = priors
+        self.priors = priors       # index of t -> its law (1: ℓ, 2: σ², 4: λ)
+        self.split = split         # the law of log b - log a, or None
 
     def lml(self, t: np.ndarray, grad: bool = True):
         from scipy.linalg import cho_solve
@@ -78,7 +84,19 @@ class JointObjective:
             value += lp
             g = g.copy()
             g[i] += dlp
+        if self.split is not None:
+            lp, dlp = self.split(t[3] - t[0])
+            value += lp
+            g = g.copy()
+            g[3] += dlp
+            g[0] -= dlp
         return -value, -g
+
+    def log_prior(self, t: np.ndarray) -> float | None:
+        if not self.priors and self.split is None:
+            return None
+        return float(sum(p(t[i])[0] for i, p in self.priors.items())
+                     + (self.split(t[3] - t[0])[0] if self.split is not None else 0.0))
 
     def laplace_sd(self, t: np.ndarray, step: float = 1e-4) -> np.ndarray | None:
         """Standard deviations of t from the inverse Hessian of the objective (central differences
@@ -99,7 +117,8 @@ def fit_instance_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[n
                         noise_bounds: tuple[float, float] = _DEFAULTS.noise_bounds, seed: int = _DEFAULTS.seed,
                         noise_floor: np.ndarray | None = None, hyperprior: str = _DEFAULTS.hyperprior,
                         noise_prior: tuple[float, float] = _DEFAULTS.noise_prior, route: str = "batch",
-                        instance_route: str | None = None, **plain_kw
+                        instance_route: str | None = None, instance_prior: str = "none",
+                        split_prior: tuple[float, float] = (2.0, 2.0), **plain_kw
                         ) -> tuple[InstanceGPClassModels, list[dict[str, Any]]]:
     """The plain fit (``fit_class_models``, ``route`` and every other keyword passed on) plus, where
     a class has two or more training instances, the joint fit with the instance term.
@@ -107,12 +126,18 @@ def fit_instance_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[n
     folder names, integers). ``instance_route``: "batch" (every joint fit at once,
     ``pipeline/method/gp_instance_batch.py``) or "per_fit" (one scipy L-BFGS-B at a time, the
     reference the tests and ``tests/bench/bench_gp_instance.py`` compare against); by default "batch"
-    with ``route = "batch"``, else "per_fit". Returns ``InstanceGPClassModels`` and one record per
+    with ``route = "batch"``, else "per_fit". ``instance_prior``: "none" or "split" (a
+    Beta(``split_prior``) law on b / (a + b) and ℓ's inverse-gamma range on λ). Returns ``InstanceGPClassModels`` and one record per
     fit (the plain record extended)."""
     C, F = len(classes), len(components)
     instance_route = instance_route or ("batch" if route == "batch" else "per_fit")
     if instance_route not in INSTANCE_ROUTES:
         raise ValueError(f"fit_instance_models: instance_route must be one of {INSTANCE_ROUTES}, got {instance_route!r}")
+    if instance_prior not in INSTANCE_PRIORS:
+        raise ValueError(f"fit_instance_models: instance_prior must be one of {INSTANCE_PRIORS}, got {instance_prior!r}")
+    split_prior = tuple(float(v) for v in split_prior)
+    if len(split_prior) != 2 or not all(np.isfinite(v) and v > 0 for v in split_prior):
+        raise ValueError(f"fit_instance_models: split_prior must be two positive Beta shapes, got {split_prior}")
     if len(instances_by_class) != C:
         raise ValueError(f"fit_instance_models: {C} classes but {len(instances_by_class)} instance label sets")
     labels = []
@@ -133,7 +158,11 @@ def fit_instance_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[n
     for c in range(C):
         n_inst = int(labels[c].max()) + 1
         X = np.asarray(X_by_class[c], float)
-        priors = {} if noise_law is None or n_inst < 2 else {1: LogInverseGamma.between(*input_range(X)), 2: noise_law}
+        ell_law = LogInverseGamma.between(*input_range(X)) if n_inst > 1 else None
+        priors = {} if noise_law is None or n_inst < 2 else {1: ell_law, 2: noise_law}
+        split = None
+        if instance_prior == "split" and n_inst > 1:
+            priors[4], split = ell_law, LogitBeta(*split_prior)
         for f in range(F):
             d = diags[c * F + f]
             d.update(n_instances=n_inst, instance_term=n_inst > 1)
@@ -144,7 +173,7 @@ def fit_instance_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[n
             bounds = [amplitude_bounds, length_scale_bounds, tuple(d["noise_bounds"]), amplitude_bounds,
                       length_scale_bounds]
             obj = JointObjective(X - X.mean(axis=0), np.asarray(Y_by_class[c], float)[f] - plain.mean[c, f],
-                                 labels[c], priors)
+                                 labels[c], priors, split)
             jobs.append((c, f, obj, bounds, _starts(plain, c, f, bounds, restarts, seed)))
     from threadpoolctl import threadpool_limits
 
@@ -166,7 +195,9 @@ def fit_instance_models(X_by_class: Sequence[np.ndarray], Y_by_class: Sequence[n
             instance_amplitude_ci=_laplace_ci(t[3], sd),
             instance_ci_over="training sets from the fitted model (Laplace, log scale)",
             log_marginal_likelihood=lml,
-            log_prior=float(sum(p(t[i])[0] for i, p in obj.priors.items())) if obj.priors else None,
+            log_prior=obj.log_prior(t),
+            instance_prior=None if obj.split is None else {"split": obj.split.describe(),
+                                                           "instance_length_scale": obj.priors[4].describe()},
             at_bound=at_bound, warnings=d["warnings"] + warn, instance_optimizer=record,
         )
     models = InstanceGPClassModels(plain.classes, plain.components, plain.X, plain.Y, plain.mean, amp, ell, noise,
@@ -211,7 +242,9 @@ def _fit_batched(jobs, labels):
     the per-fit route's best run is."""
 
     problems = [InstanceProblem(obj.X, obj.y, labels[c], np.log(np.array(bounds, float)),
-                                prior_rows(obj.priors, 1, 2), starts) for c, f, obj, bounds, starts in jobs]
+                                prior_rows({i: p for i, p in obj.priors.items() if i in (1, 2)}, 1, 2), starts,
+                                instance_prior_rows(obj.split, obj.priors.get(4)))
+                for c, f, obj, bounds, starts in jobs]
     results, stack = fit_instance_problems(problems)
     sds = stack.laplace_sd(np.stack([r.theta for r in results])) if results else []
     out = []

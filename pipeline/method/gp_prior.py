@@ -76,6 +76,29 @@ class LogInverseGamma:
                 "mass_below_lo": TAIL, "lo": self.lo, "mass_above_hi": TAIL, "hi": self.hi}
 
 
+@dataclass(frozen=True)
+class LogitBeta:
+    """The instance term's variance split (``models.instance_prior = "split"``): r = b / (a + b) ~
+    Beta(alpha, beta), as a density of u = logit r = log b - log a (the Jacobian r(1 - r) included,
+    so the law is proper in u), up to a constant, and its slope in u. Why: with no prior the joint
+    fit runs b to either bound (r -> 0: no instance term; r -> 1: no viewpoint curve), ends the data
+    of a few training instances cannot tell apart from the middle."""
+    alpha: float
+    beta: float
+
+    def __call__(self, u):
+        from scipy.special import expit
+
+        # log r = -log(1 + e^-u), log(1 - r) = -log(1 + e^u), both without overflow
+        lp = -self.alpha * np.logaddexp(0.0, -u) - self.beta * np.logaddexp(0.0, u)
+        r = expit(u)
+        return lp, self.alpha * (1.0 - r) - self.beta * r
+
+    def describe(self) -> dict:
+        return {"law": "beta", "of": "instance_amplitude / (amplitude + instance_amplitude)",
+                "alpha": self.alpha, "beta": self.beta}
+
+
 def input_range(X: np.ndarray) -> tuple[float, float]:
     """Smallest non-zero and largest distance between training inputs (N, d)."""
     X = np.asarray(X, float)

@@ -24,12 +24,13 @@ from pipeline.infra.config.own import Key
 from pipeline.method.gp import INDEX
 from pipeline.method.gp_files import load_bank, read_bank_index, save_bank
 from pipeline.method.gp_instance import InstanceGPClassModels
-from pipeline.method.gp_instance_fit import fit_instance_models
+from pipeline.method.gp_instance_fit import INSTANCE_PRIORS, fit_instance_models
 from pipeline.method.method_base import TrackInput
 from pipeline.method.provider import Interval, ModelProvider, Section, Spread, register_provider
 
 INSTANCE_TERM = "instance_term"   # the provider's key: TrackInput.models, models/instance_term/, [models] key
 FITTED = "instance_term"          # a fit record's flag: the class fitted a term (gp_instance_fit)
+PRIOR = "instance_prior"          # [models] instance_prior, instance_prior_alpha, instance_prior_beta
 
 
 @dataclass(frozen=True)
@@ -40,15 +41,16 @@ class InstanceBank:
     plan: dict
 
 
-def fit_with_term(fit_bank) -> tuple[InstanceGPClassModels, dict]:
+def fit_with_term(fit_bank, **prior) -> tuple[InstanceGPClassModels, dict]:
     """The candidate plan's bank with an instance term: ``fit_bank`` (``TrainingViews.fit_bank``)
     with the joint instance fit (``pipeline.method.gp_instance_fit``; a class of one training object
-    gets no term) -> (the bank, its index extras with ``instances``: each class's member objects)."""
+    gets no term; ``prior``: its ``instance_prior`` and ``split_prior``) -> (the bank, its index
+    extras with ``instances``: each class's member objects)."""
     instances: dict[str, list[str]] = {}
 
     def fit(Xs, Ys, *, classes, members, **settings):
         instances.update({c: sorted(set(map(str, m))) for c, m in zip(classes, members)})
-        return fit_instance_models(Xs, Ys, instances_by_class=members, classes=classes, **settings)
+        return fit_instance_models(Xs, Ys, instances_by_class=members, classes=classes, **settings, **prior)
 
     models, extra = fit_bank(fit)
     extra["instances"] = instances
@@ -62,7 +64,17 @@ class InstanceTermProvider(ModelProvider):
     sections = {f"models.{INSTANCE_TERM}": Key(bool, _f(
         False, doc="also fit class models with an instance term on each class's member objects "
                    "(models/instance_term/; pipeline/method/gp_instance.py): the methods "
-                   "with_uncertainty_instance and model_based_instance read them"))}
+                   "with_uncertainty_instance and model_based_instance read them")),
+        f"models.{PRIOR}": Key(str, _f(
+            "split", choices=INSTANCE_PRIORS,
+            doc="the instance fit's prior on its own terms (pipeline/method/gp_instance_fit.py): 'split' = a "
+                "Beta(instance_prior_alpha, instance_prior_beta) law on b / (a + b) and the length scale's "
+                "inverse-gamma range on λ (the default: docs/results.md, 'Instance term: a prior on the variance "
+                "split'); 'none' = none on b and λ (fits run to their bounds)")),
+        f"models.{PRIOR}_alpha": Key(float, _f(2.0, lo=1e-3, hi=1e3, doc="Beta shape alpha of b / (a + b) "
+                                                                       "(instance_prior = 'split')")),
+        f"models.{PRIOR}_beta": Key(float, _f(2.0, lo=1e-3, hi=1e3, doc="Beta shape beta of b / (a + b) "
+                                                                      "(instance_prior = 'split')"))}
     default_only = True
 
     def enabled(self, cfg) -> bool:
@@ -72,7 +84,9 @@ class InstanceTermProvider(ModelProvider):
         if views.fit_bank is None:
             raise views.error("the class models with an instance term need the GP bank's training sets "
                               "(TrainingViews.fit_bank)")
-        return fit_with_term(views.fit_bank)
+        m = cfg.models
+        return fit_with_term(views.fit_bank, instance_prior=getattr(m, PRIOR),
+                             split_prior=(getattr(m, f"{PRIOR}_alpha"), getattr(m, f"{PRIOR}_beta")))
 
     def save(self, models, folder: Path, extra: dict) -> None:
         save_bank(models, folder, extra=extra)

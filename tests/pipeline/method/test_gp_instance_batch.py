@@ -1,14 +1,16 @@
 """Every instance-term fit at once (pipeline/method/gp_instance_batch.py): its stacked objective
-equals the per-fit JointObjective (balanced and dense evaluations, with and without priors), and
+equals the per-fit JointObjective (balanced and dense evaluations, with and without priors, the
+instance term's split and λ priors among them), and
 over many random generated hierarchical fits its optimum is at least the per-fit route's (LML + log
 prior within 1e-6 or higher), with every fit's record kept."""
 import numpy as np
 import pytest
 
 from pipeline.method.gp_batch import prior_rows
-from pipeline.method.gp_instance_batch import FAILED, InstanceProblem, InstanceStack, balanced_order
+from pipeline.method.gp_instance_batch import FAILED, InstanceProblem, InstanceStack, balanced_order, \
+    instance_prior_rows
 from pipeline.method.gp_instance_fit import JointObjective, fit_instance_models
-from pipeline.method.gp_prior import LogInverseGamma, input_range
+from pipeline.method.gp_prior import LogInverseGamma, LogitBeta, input_range
 
 
 def hierarchical_class(rng, n_inst, n_views, F, balanced=True):
@@ -32,22 +34,28 @@ def hierarchical_class(rng, n_inst, n_views, F, balanced=True):
 
 
 @pytest.mark.parametrize("balanced", [True, False])
-@pytest.mark.parametrize("with_prior", [True, False])
+@pytest.mark.parametrize("with_prior", [True, False, "split"])
 def test_stacked_objective_equals_the_per_fit_objective(balanced, with_prior):
-    rng = np.random.default_rng(3 + balanced + 2 * with_prior)
+    rng = np.random.default_rng(3 + balanced + 2 * (with_prior is True) + 4 * (with_prior == "split"))
     X, Y, lab = hierarchical_class(rng, 4, 6, 1, balanced)
     y = Y[0] - Y[0].mean()
     priors = {1: LogInverseGamma.between(*input_range(X)), 2: LogInverseGamma.between(1e-5, 0.1)} if with_prior else {}
-    obj = JointObjective(X, y, lab, priors)
+    split = LogitBeta(2.0, 3.0) if with_prior == "split" else None
+    inst = np.full((2, 2), np.nan)
+    if split is not None:
+        priors[4] = priors[1]
+        inst = instance_prior_rows(split, priors[4])
+    obj = JointObjective(X, y, lab, priors, split)
     T = np.log([[0.02, 0.7, 1e-3, 0.01, 3.0], [0.1, 0.3, 1e-2, 0.05, 0.5], [1e-3, 2.0, 1e-4, 1e-3, 0.1]])
-    stack = InstanceStack([InstanceProblem(X, y, lab, np.zeros((5, 2)), prior_rows(priors, 1, 2), T)])
+    rows = prior_rows({i: p for i, p in priors.items() if i in (1, 2)}, 1, 2)
+    stack = InstanceStack([InstanceProblem(X, y, lab, np.zeros((5, 2)), rows, T, inst)])
     assert (stack.structures[0].order is not None) == balanced
     lml, lp, grad = stack.evaluate(np.zeros(len(T), int), T)
     for k, t in enumerate(T):
         f, g = obj(t)
         assert lml[k] + lp[k] == pytest.approx(-f, rel=1e-11, abs=1e-9)
         np.testing.assert_allclose(grad[k], -g, rtol=1e-9, atol=1e-9)
-    three = InstanceStack([InstanceProblem(X, y, lab, np.zeros((5, 2)), prior_rows(priors, 1, 2), T)] * len(T))
+    three = InstanceStack([InstanceProblem(X, y, lab, np.zeros((5, 2)), rows, T, inst)] * len(T))
     both = [(s, obj.laplace_sd(t)) for s, t in zip(three.laplace_sd(T), T)]
     assert all((s is None) == (r is None) for s, r in both)
     for s, r in both:
@@ -85,7 +93,8 @@ def test_a_covariance_that_is_not_positive_definite_scores_as_the_per_fit_object
 
 def test_the_batched_optimum_is_at_least_the_per_fit_one_on_random_fits():
     """Eight generated banks (classes of 2-4 instances, balanced and not, one class of a single
-    instance, with and without hyperpriors): 96 joint fits, each batched optimum within 1e-6 of
+    instance, with and without hyperpriors, half with the instance prior "split"): 96 joint fits,
+    each batched optimum within 1e-6 of
     the per-fit one or higher, and the records of both routes carry the same fields."""
     worst, n = np.inf, 0
     for seed in range(8):
@@ -97,7 +106,8 @@ def test_the_batched_optimum_is_at_least_the_per_fit_one_on_random_fits():
         X, Y, _ = hierarchical_class(rng, 1, 7, 3)
         Xs.append(X), Ys.append(Y), labs.append(np.zeros(len(X), int))
         kw = dict(classes=[f"c{i}" for i in range(5)], components=[0, 1, 2], restarts=2, seed=seed,
-                  hyperprior="inverse_gamma" if seed % 2 else "none", progress=False)
+                  hyperprior="inverse_gamma" if seed % 2 else "none", progress=False,
+                  instance_prior="split" if seed % 4 >= 2 else "none", split_prior=(1.5, 2.5))
         _, batch = fit_instance_models(Xs, Ys, labs, instance_route="batch", **kw)
         _, each = fit_instance_models(Xs, Ys, labs, instance_route="per_fit", **kw)
         for b, e in zip(batch, each):
@@ -107,10 +117,20 @@ def test_the_batched_optimum_is_at_least_the_per_fit_one_on_random_fits():
                 continue
             n += 1
             assert b["instance_optimizer"]["route"] == "batch" and len(b["instance_optimizer"]["runs"]) == 4
+            assert (b["instance_prior"] is not None) == (seed % 4 >= 2) and b["instance_prior"] == e["instance_prior"]
             obj_b = b["log_marginal_likelihood"] + (b["log_prior"] or 0.0)
             obj_e = e["log_marginal_likelihood"] + (e["log_prior"] or 0.0)
             worst = min(worst, obj_b - obj_e)
     assert n == 8 * 4 * 3 and worst >= -1e-6, (n, worst)
+
+
+def test_an_unknown_instance_prior_or_bad_split_shapes_are_errors():
+    X = np.c_[np.cos(np.arange(4.0)), np.sin(np.arange(4.0))]
+    args = ([X], [np.arange(4.0)[None]], [np.array([0, 0, 1, 1])], ["c"], [0])
+    with pytest.raises(ValueError, match="instance_prior"):
+        fit_instance_models(*args, instance_prior="beta", progress=False)
+    with pytest.raises(ValueError, match="split_prior"):
+        fit_instance_models(*args, instance_prior="split", split_prior=(0.0, 2.0), progress=False)
 
 
 def test_an_unknown_instance_route_is_an_error():
@@ -120,14 +140,16 @@ def test_an_unknown_instance_route_is_an_error():
                             progress=False)
 
 
-def test_the_batched_optimum_is_at_least_the_per_fit_one_on_real_photographs():
+@pytest.mark.parametrize("prior", ["none", "split"])
+def test_the_batched_optimum_is_at_least_the_per_fit_one_on_real_photographs(prior):
     """ETH-80 categories (4 instances x 16 azimuths a class, the balanced evaluation) on score-like
-    targets (``test_gp_batch.eth80_stand_in``): 15 joint fits, each batched optimum within 1e-6 of the
-    per-fit one or higher (skips without ../shared/realdata)."""
+    targets (``test_gp_batch.eth80_stand_in``): 15 joint fits, without and with the instance prior,
+    each batched optimum within 1e-6 of the per-fit one or higher (skips without ../shared/realdata)."""
     from tests.pipeline.method.test_gp_batch import eth80_stand_in
 
     Xs, Ys, labels = eth80_stand_in(instances=(1, 2, 3, 4))
-    kw = dict(classes=["apple", "cow", "cup"], components=list(range(5)), restarts=2, progress=False)
+    kw = dict(classes=["apple", "cow", "cup"], components=list(range(5)), restarts=2, progress=False,
+              instance_prior=prior)
     _, batch = fit_instance_models(Xs, Ys, labels, instance_route="batch", **kw)
     _, each = fit_instance_models(Xs, Ys, labels, instance_route="per_fit", **kw)
     gaps = [(b["log_marginal_likelihood"] + b["log_prior"]) - (e["log_marginal_likelihood"] + e["log_prior"])

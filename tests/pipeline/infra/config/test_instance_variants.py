@@ -29,6 +29,7 @@ def test_the_instance_config_is_the_category_benchmark_with_the_term():
     assert cfg.models.instance_term and not base.models.instance_term
     diff = {k for k, v in _flat(cfg).items() if _flat(base).get(k) != v}
     assert diff == {"models.instance_term", "run.name", "evaluate.primary.methods"}
+    assert cfg.models.instance_prior == "split"   # the default, written out there with its reason
     assert cfg.evaluate.primary.methods[0] == "with_uncertainty_instance"
 
 

@@ -17,6 +17,8 @@ SMOKE = ROOT / "configs" / "smoke.toml"
 @pytest.mark.parametrize("text, message", [
     ("[models]\ninstance_term = 3", "'models.instance_term' must be true or false, got 3"),
     ("[models.instance_term]\nx = 1", "'models.instance_term' must be true or false, got {'x': 1}"),
+    ("[models]\ninstance_prior = \"beta\"", "'models.instance_prior' = 'beta' is not one of 'none', 'split'"),
+    ("[models]\ninstance_prior_alpha = 0.0", "'models.instance_prior_alpha' = 0.0 is below the minimum 0.001"),
 ])
 def test_a_bad_value_is_refused_naming_the_key(tmp_path, text, message):
     path = tmp_path / "c.toml"
