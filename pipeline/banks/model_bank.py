@@ -258,14 +258,17 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
     comp_names = None if names is None else [str(names[i]) for i in comps]
     # the plan above reads the probabilities; the GPs model them in models.score_space
     Y_by, passes = fit_targets(path, mcfg, S_by, passes, angles, pool)
-    floor = dropout_noise_floor(path, passes, pool, comps, mcfg.noise_bounds) if mcfg.noise_floor == "dropout" else None
+    # the variance bounds and prior are stated for a range-1 score; in the space's units here
+    amp_b, noise_b, noise_p = (score_space.variance_bounds(getattr(mcfg, k), mcfg.score_space, mcfg.score_floor)
+                               for k in ("amplitude_bounds", "noise_bounds", "noise_prior"))
+    floor = dropout_noise_floor(path, passes, pool, comps, noise_b) if mcfg.noise_floor == "dropout" else None
     fit, members = (fit_class_models, {}) if fit is None else (fit, {"members": [members_by[c] for c in pool]})
     models, diags = fit(
         [X_by[c] for c in pool], [Y_by[c][:, comps].T for c in pool], classes=pool, components=comps, **members,
         restarts=mcfg.restarts,
-        amplitude_bounds=tuple(mcfg.amplitude_bounds), length_scale_bounds=tuple(mcfg.length_scale_bounds),
-        noise_bounds=tuple(mcfg.noise_bounds), seed=mcfg.seed, component_names=comp_names, progress=progress,
-        noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=tuple(mcfg.noise_prior), route=route,
+        amplitude_bounds=amp_b, length_scale_bounds=tuple(mcfg.length_scale_bounds),
+        noise_bounds=noise_b, seed=mcfg.seed, component_names=comp_names, progress=progress,
+        noise_floor=floor, hyperprior=mcfg.hyperprior, noise_prior=noise_p, route=route,
         cache=fit_cache)
     models.meta[score_space.META_KEY] = score_space.record(mcfg.score_space, mcfg.score_floor)
     for d in diags:
@@ -283,11 +286,13 @@ def fit_from_features(path: str | Path, mcfg: ModelsConfig, *, targets: str | Se
         "training_angles_deg": angles,
         "features": {"file": path.name, "rows_used": int(sum(len(x) for x in X_by.values())),
                      "score_dim": int(S_by[pool[0]].shape[1]), "metadata": meta},
-        "fit": {"restarts": mcfg.restarts, "amplitude_bounds": list(mcfg.amplitude_bounds),
+        # the bounds and prior as fitted, in the space's units (the config's x variance_scale)
+        "fit": {"restarts": mcfg.restarts, "amplitude_bounds": list(amp_b),
                 "length_scale_bounds": list(mcfg.length_scale_bounds),
-                "noise_bounds": list(mcfg.noise_bounds), "noise_floor": mcfg.noise_floor, "seed": mcfg.seed,
+                "noise_bounds": list(noise_b), "noise_floor": mcfg.noise_floor, "seed": mcfg.seed,
                 "targets": mcfg.targets, "score_space": mcfg.score_space, "score_floor": mcfg.score_floor,
-                "hyperprior": mcfg.hyperprior, "noise_prior": list(mcfg.noise_prior)},
+                "variance_scale": score_space.variance_scale(mcfg.score_space, mcfg.score_floor),
+                "hyperprior": mcfg.hyperprior, "noise_prior": list(noise_p)},
         "config": to_dict(mcfg),
         "diagnostics": diags,
         "fits_with_warnings": sum(1 for d in diags if d["warnings"] or d["at_bound"]),

@@ -21,6 +21,14 @@ spacing just below 1 is 6e-8, so 1 - p under ~1e-7 is rounding and logit needs a
 and a 1000-way softmax puts most outputs at 1e-8..1e-12, where the log of rounding noise would
 dominate a component's variance. 1e-6 keeps every log score within [-13.8, 0] and log-odds within
 ±13.8, below every score a top component of the real configs takes.
+
+The GP bounds and priors on variances (``models.amplitude_bounds``, ``noise_bounds``,
+``noise_prior``) are stated for a score of range 1 (the probability space) and each space maps them
+by its range squared (``variance_scale``): a log score spans log(1/floor) = 13.8, so the noise
+bound 1.0 (a std of the whole range in probability) becomes 191 (a std of 13.8) and keeps its
+meaning. Scaling by the range, not by the data's spread, keeps the bounds a property of the space:
+the same config means the same for every class, fold and dataset, and the probability space (the
+paper's, the synthetic default) is unchanged (scale 1).
 """
 from __future__ import annotations
 
@@ -59,6 +67,32 @@ def to_space(p, space: str = DEFAULT, floor: float = DEFAULT_FLOOR) -> np.ndarra
     if space == "clr":
         return lg - lg.mean(axis=-1, keepdims=True)
     return lg
+
+
+def width(space: str, floor: float = DEFAULT_FLOOR) -> float:
+    """The width of the interval a score takes in ``space``: 1 (probability), log(1/floor) (log; clr,
+    whose level shift moves the interval, not its width), 2 log((1 - floor)/floor) (logit)."""
+    check(space, floor)
+    if space == DEFAULT:
+        return 1.0
+    lg = float(np.log1p(-floor) - np.log(floor))   # log((1 - floor) / floor)
+    return 2.0 * lg if space == "logit" else float(-np.log(floor))
+
+
+def variance_scale(space: str, floor: float = DEFAULT_FLOOR) -> float:
+    """The factor that maps a variance stated for a range-1 score (the bounds and priors of
+    ``models``) into ``space``: its width squared; exactly 1 for probability."""
+    return width(space, floor) ** 2
+
+
+def variance_bounds(bounds, space: str, floor: float = DEFAULT_FLOOR) -> tuple[float, ...]:
+    """(low, high) variance bounds or prior range of ``models`` in ``space``'s units; probability's
+    returned as given (the paper's space and every existing run unchanged)."""
+    if space == DEFAULT:
+        check(space, floor)
+        return tuple(float(b) for b in bounds)
+    k = variance_scale(space, floor)
+    return tuple(float(b) * k for b in bounds)
 
 
 def record(space: str, floor: float) -> dict:

@@ -9,6 +9,7 @@ from pipeline.banks.model_bank import fit_from_features, read_training_views
 from pipeline.method import score_space as SS
 from pipeline.method.fusion import fuse_model_based, fuse_with_uncertainty
 from pipeline.method.gp import GPClassModels
+from pipeline.method.gp_fit import fit_class_models
 from pipeline.method.methods.view_independent import ViewIndependent
 from pipeline.method.method_base import TrackInput
 from tests.stages.test_models_stage import mcfg, write_features
@@ -108,3 +109,58 @@ def test_engine_equals_the_literal_oracles_in_every_space(space):
     assert np.allclose(mb, literal_model_based(*_literal(models), est, meas), rtol=0, atol=TOL)
     vi = np.exp(ViewIndependent().fuse(TrackInput(dropout=dropout, gp=models)))
     assert np.allclose(vi, literal_view_independent(models.Y, dropout), rtol=0, atol=TOL)
+
+
+def test_variance_bounds_follow_the_space_width():
+    """The bounds and priors of models are stated for a range-1 score; each space maps them by its
+    width squared, and the probability space (the paper's, the synthetic default) keeps them as given."""
+    b = (1e-6, 1.0)
+    assert SS.variance_bounds(b, "probability", 1e-6) == b
+    lg = -math.log(1e-6)
+    assert SS.variance_bounds(b, "log", 1e-6) == pytest.approx((1e-6 * lg ** 2, lg ** 2), rel=1e-12)
+    assert SS.variance_bounds(b, "clr", 1e-6) == SS.variance_bounds(b, "log", 1e-6)
+    assert SS.width("logit", 1e-6) == pytest.approx(2 * math.log((1 - 1e-6) / 1e-6), rel=1e-12)
+    # the width is the range the transform really spans (the test of the definition, not of the formula)
+    p = np.array([0.0, 0.5, 1.0])
+    for space in ("log", "logit"):
+        y = SS.to_space(p, space, 1e-6)
+        assert SS.width(space, 1e-6) == pytest.approx(y.max() - y.min(), rel=1e-9)
+
+
+def test_a_bursty_log_space_fit_is_not_pinned_at_a_bound():
+    """A component that jumps between 1e-5 and 1e-2 over the views (a real softmax's far output) has
+    a log-score noise variance of log(1e3)^2 / 4 = 11.9: under the probability space's noise bound 1.0
+    the fit cannot reach it (it pins the noise, or here threads a curve through the bursts with a
+    length scale under the views' spacing); the bounds mapped into log units leave every
+    hyperparameter inside and recover the noise."""
+    rng = np.random.default_rng(0)
+    th = np.radians(np.arange(0, 360, 10))
+    X = np.stack([np.cos(th), np.sin(th)], axis=1)
+    p = np.where(rng.random(th.size) < 0.5, 1e-5, 1e-2) * np.exp(0.5 * np.cos(th))
+    y = SS.to_space(p, "log", 1e-6)[None, :]
+
+    def fit(bound_space):
+        a, n, pr = (SS.variance_bounds(b, bound_space, 1e-6) for b in ((1e-6, 1e2), (1e-6, 1.0), (1e-5, 0.1)))
+        return fit_class_models([X], [y], ["c"], [0], restarts=0, amplitude_bounds=a, noise_bounds=n,
+                                noise_prior=pr, progress=False)[1][0]
+
+    burst = math.log(1e3) ** 2 / 4
+    squeezed = fit("probability")
+    assert squeezed["noise"] <= 1.0 < burst / 2
+    inside = fit("log")
+    assert inside["at_bound"] == [] and burst / 2 < inside["noise"] < 2 * burst
+    assert inside["length_scale"] > squeezed["length_scale"]
+
+
+def test_models_stage_fits_within_the_mapped_bounds(tmp_path):
+    path = tmp_path / "bigbird.parquet"
+    write_features(path)
+    cfg = mcfg(score_space="log", score_floor=1e-5, noise_bounds=(1e-6, 1.0), noise_prior=(1e-5, 0.1))
+    _, extra = fit_from_features(path, cfg, progress=False)
+    k = SS.variance_scale("log", 1e-5)
+    assert extra["fit"]["variance_scale"] == k
+    assert extra["fit"]["noise_bounds"] == pytest.approx([1e-6 * k, k], rel=1e-12)
+    assert extra["fit"]["noise_prior"] == pytest.approx([1e-5 * k, 0.1 * k], rel=1e-12)
+    assert max(d["noise"] for d in extra["diagnostics"]) <= k
+    _, prob = fit_from_features(path, mcfg(), progress=False)
+    assert prob["fit"]["variance_scale"] == 1.0 and prob["fit"]["noise_bounds"] == list(mcfg().noise_bounds)
