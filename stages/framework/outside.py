@@ -5,6 +5,7 @@ stages below them rerun through their upstream digests. The fusion methods are t
 ``StageSpec.methods`` part; a kind with no outside entry adds nothing, so keys stay as they were."""
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from pipeline.method.registry import registered
 from pipeline.infra.datasets import described
@@ -54,7 +55,9 @@ def banner(cfg, stage: str, help_text: str) -> str:
     if stage == "data":
 
         src = described(cfg.data.source)
-        return f"write the data of source '{cfg.data.source}' ({src.describe({}, {})})"
+        # the config's own data keys: an empty table read as "a run from before the key" (black on both sides)
+        data = dataclasses.asdict(cfg.data) if dataclasses.is_dataclass(cfg.data) else {}
+        return f"write the data of source '{cfg.data.source}' ({src.describe(data, {})})"
     if stage == "classifier":
 
         try:

@@ -44,3 +44,17 @@ def test_the_banner_names_the_registered_source_and_classifier():
     finally:
         vf.unregister_dataset("banner_photos")
         vf.unregister_classifier("banner_net")
+
+
+def test_the_data_banner_reads_the_configs_backgrounds():
+    """The running line said "COIL-100's own black on both sides" (the words for a run from before the
+    background keys) for every real_imagery config, clutter included: it was given an empty data table."""
+    from pathlib import Path
+
+    from pipeline.infra.config.load import load_config
+
+    configs = Path(__file__).resolve().parents[3] / "configs"
+    clutter = banner(load_config(configs / "real.toml"), "data", "help")
+    assert "real AVD clutter" in clutter and "own black" not in clutter
+    black = banner(load_config(configs / "real_black.toml"), "data", "help")
+    assert "cut out onto black" in black and "clutter" not in black
