@@ -35,7 +35,7 @@ DESIGNS = (
     Design("scans 8 > 6 targets", "cluster = scan", "scan", objects=6, scans=8, tracks=2, layout="nested"),
     Design("category 8 x 9, one scan", "real_category (one scan)", "category", objects=72, scans=1, tracks=2,
            categories=8),
-    Design("category 8 x 9 in 3 scans", "real_category", "category", objects=24, scans=3, tracks=2,
+    Design("category 8 x 9 in 8 scans", "real_category", "category", objects=9, scans=8, tracks=2,
            layout="nested", categories=8),
     Design("crossed 75 x 15", "real_full", "crossed", objects=75, scans=15, tracks=1),
     Design("crossed 40 x 12", "crossed, 12 scans", "crossed", objects=40, scans=12, tracks=1),
