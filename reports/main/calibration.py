@@ -84,6 +84,34 @@ def calibration_section(ctx: ReportContext) -> None:
         ctx.figure("reliability_calibrated.png", "The same with the calibrated likelihood.")
 
 
+DOMAIN_KINDS = (("gp", "GP predictive (Model Based)"), ("gp_plus_dropout", "+ dropout variance (With Uncertainty)"),
+                ("gp_calibrated", "+ test-domain variance (calibrated, cross-fitted)"),
+                ("gp_t", "GP predictive as a Student-t (ν cross-fitted)"),
+                ("gp_plus_dropout_t", "+ dropout variance as a Student-t (ν cross-fitted)"))
+
+
+def domain_rows(dom: dict) -> list[list]:
+    """The fit table's rows of one model bank: one per likelihood (variance kind) it holds."""
+    rows = []
+    for k, title in DOMAIN_KINDS:
+        o = (dom.get(k) or {}).get("overall") or {}
+        if o.get("n"):
+            rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
+                         fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
+    return rows
+
+
+def domain_banks(dom: dict) -> list[tuple[str, dict]]:
+    """(label, fit) of the main bank, then of each models.* ablation's bank (``domain_fit.by_ablation``)."""
+    def space(d):
+        return f" ({d['score_space']} scores)" if d.get("score_space") else ""
+    out = [("main" + space(dom), dom)]
+    for a, d in sorted((dom.get("by_ablation") or {}).items()):
+        if d.get("n_crops"):
+            out.append((a + space(d), d))
+    return out
+
+
 def domain_section(ctx: ReportContext) -> None:
     pop = ctx.population
     dom = (pop or {}).get("domain_fit") or {}
@@ -96,21 +124,17 @@ def domain_section(ctx: ReportContext) -> None:
         "mean dropout score against its own class's GP predictive at the true viewing direction, per component. "
         "A model that describes the room would leave 4.6 % of the standardized residuals beyond 2, 0.3 % beyond 3 "
         "and 95 % inside its 95 % interval.")
-    rows = []
-    for k, title in (("gp", "GP predictive (Model Based)"), ("gp_plus_dropout", "+ dropout variance (With Uncertainty)"),
-                     ("gp_calibrated", "+ test-domain variance (calibrated, cross-fitted)"),
-                     ("gp_t", "GP predictive as a Student-t (ν cross-fitted)"),
-                     ("gp_plus_dropout_t", "+ dropout variance as a Student-t (ν cross-fitted)")):
-        o = (dom.get(k) or {}).get("overall") or {}
-        if o.get("n"):
-            rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
-                         fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
-    page.table(["variance", "(crop, component)", "|z| > 2", "|z| > 3", "95 % coverage", "|z| p90", "|z| p99"], rows,
+    banks = domain_banks(dom)
+    rows = [([bank] if len(banks) > 1 else []) + row for bank, d in banks for row in domain_rows(d)]
+    page.table((["models (score space)"] if len(banks) > 1 else []) +
+               ["variance", "(crop, component)", "|z| > 2", "|z| > 3", "95 % coverage", "|z| p90", "|z| p99"], rows,
                cls="domain-fit", caption="Standardized residuals z = (score − GP mean) / sd, pooled over classes "
                                          "and components, in the models' score space (a Student-t row: each "
                                          "residual's t PIT on the Gaussian scale, so its coverage is the t's own "
                                          "95 % interval; per class and component in the results file "
-                                         "evaluate/summary.json).")
+                                         "evaluate/summary.json)." +
+                                         (" One row group per model bank: the main one, then each models.* "
+                                          "ablation's own, on the same crops." if len(banks) > 1 else ""))
     per = (dom.get("gp") or {}).get("per_class") or {}
     crow = []
     for c, comps in per.items():

@@ -16,7 +16,8 @@ from pipeline.evaluation.domain import source as U
 from pipeline.evaluation.domain import tails
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.domain import variance as V
-from pipeline.infra.config import domain_variance_mode
+from pipeline.infra.config import domain_variance_mode, is_model_ablation
+from pipeline.method.score_space import of_models
 from pipeline.scoring.classifiers import classifier
 
 log = logging.getLogger("viewfuse.evaluate")
@@ -48,6 +49,7 @@ class TargetDomain:
 
     def __init__(self, cfg, avd, scores, bank, truth, intr, targets, scans):
         self.poses, self.pose_source = instance_poses(cfg, avd, truth, intr, bank.classes)
+        self.score_space = of_models(bank)[0]
         self.table = D.crop_residuals(avd, scores, bank, self.poses, cfg.evaluate.max_difficulty,
                                       cfg.evaluate.variance_floor)
         self.components = list(bank.components)
@@ -73,7 +75,8 @@ class TargetDomain:
         est = self.est.get(str(V.cell_fold(self.by, scan, target)), {})
         return tuple(float(est.get(int(c), 0.0)) for c in components)
 
-    def summary(self) -> dict:
+    def summary(self, source: bool = True) -> dict:
+        """The domain fit; ``source`` False leaves out the uncertainty-source bootstrap (an ablation bank's)."""
         t = self.table
         if t.empty:
             return {"n_crops": 0, "note": "no labelled AVD crop of a modelled class with a known pose"}
@@ -82,7 +85,8 @@ class TargetDomain:
         z.update(tails.t_kinds(t, z, self.by, self.tails))   # the Student-t likelihood, read on the Gaussian scale
         out = D.summarize(t, z)
         n_crops = int(t.groupby(["scan", "instance", "image"]).ngroups)
-        return {**out, "n_crops": n_crops, "uncertainty_source": self.source_summary(), "pose_source": self.pose_source,
+        return {**out, "n_crops": n_crops, "uncertainty_source": self.source_summary() if source else {}, "pose_source": self.pose_source,
+                "score_space": self.score_space,
                 "observed": "mean of the crop's MC-dropout scores; z = (observed - GP mean) / sqrt(variance)",
                 "kinds": {"gp": "GP predictive variance (sigma_n^2 included): what Model Based uses",
                           "gp_plus_dropout": "plus the view's dropout variance: what With Uncertainty adds",
@@ -120,6 +124,25 @@ class TargetDomain:
                 if fi == 0:
                     th[ci, : len(s)] = np.arctan2(s["x1"].to_numpy(float), s["x0"].to_numpy(float))
         return {"obs_theta": th, "obs_y": y}
+
+
+KINDS = ("gp", "gp_plus_dropout", "gp_calibrated", "gp_t", "gp_plus_dropout_t")
+
+
+def bank_fits(cfg, avd, scores, banks: dict, truth, intr, targets, scans) -> dict:
+    """{ablation: the domain fit's pooled rows} for every ``models.*`` ablation's own model bank (a
+    score space, a component rule ...): the same crops and the same code path as the main bank's
+    summary, so that the report shows each bank's 95 % coverage per likelihood (issue 55). Only
+    each kind's ``overall`` is kept (the per-class tables are the main bank's)."""
+    out = {}
+    for a in cfg.evaluate.ablations:
+        if not is_model_ablation(a) or a not in banks:
+            continue
+        dom = TargetDomain(cfg, avd, scores, banks[a], truth, intr, targets, scans)
+        s = dom.summary(source=False)
+        out[a] = {"n_crops": s["n_crops"], "score_space": dom.score_space, "pose_source": dom.pose_source,
+                  **{k: {"overall": s[k]["overall"]} for k in KINDS if k in s}}
+    return out
 
 
 def mc_sources(cfg) -> dict:

@@ -1,0 +1,58 @@
+"""The report's test-domain fit table (reports/main/calibration.py, issue 55): with the models.*
+ablations' fits in ``domain_fit.by_ablation`` it gains a models (score space) column and one row
+group per bank, each with its Gaussian and Student-t rows and its own 95 % coverage; without them it
+keeps its columns."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from reports.main.calibration import DOMAIN_KINDS, domain_section
+from reports.shared.numbers import fmt
+
+LOG = "models.score_space=log"
+
+
+def _fit(rng, space: str) -> dict:
+    out = {"n_crops": 80, "score_space": space}
+    for k, _ in DOMAIN_KINDS:
+        q = np.sort(rng.uniform(0, 4, 3))
+        out[k] = {"overall": {"n": 160, "share_gt2": float(rng.uniform(0, 0.1)),
+                              "share_gt3": float(rng.uniform(0, 0.01)), "coverage95": float(rng.uniform(0.8, 1.0)), "abs_z_p90": float(q[1]),
+                              "abs_z_p99": float(q[2])}}
+    return out
+
+
+def _render(dom: dict):
+    tables = []
+    page = SimpleNamespace(paragraph=lambda *a, **k: None,
+                           table=lambda header, rows, **k: tables.append((header, rows, k)))
+    ctx = SimpleNamespace(population={"domain_fit": dom}, page=page, section=lambda *a: None,
+                          figure=lambda *a, **k: None)
+    domain_section(ctx)
+    return next((h, r) for h, r, k in tables if k.get("cls") == "domain-fit")
+
+
+def test_one_row_group_per_bank_with_its_own_coverage():
+    rng = np.random.default_rng(0)
+    dom = {**_fit(rng, "probability"), "pose_source": "sidecar", "by_ablation": {LOG: _fit(rng, "log")}}
+    header, rows = _render(dom)
+    assert header[0] == "models (score space)" and "95 % coverage" in header
+    cov = header.index("95 % coverage")
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault(r[0], []).append(r)
+    assert list(groups) == ["main (probability scores)", f"{LOG} (log scores)"]
+    for (label, grp), fit in zip(groups.items(), (dom, dom["by_ablation"][LOG])):
+        assert [r[1] for r in grp] == [t for _, t in DOMAIN_KINDS]          # Gaussian and Student-t rows
+        assert [r[cov] for r in grp] == [fmt(fit[k]["overall"]["coverage95"]) for k, _ in DOMAIN_KINDS], label
+
+
+def test_without_ablation_banks_the_table_keeps_its_columns():
+    dom = {**_fit(np.random.default_rng(1), "probability"), "by_ablation": {}}
+    header, rows = _render(dom)
+    assert header[0] == "variance" and len(rows) == len(DOMAIN_KINDS)
+    dom["by_ablation"] = {LOG: {"n_crops": 0, "note": "no crop"}}   # an empty bank adds no group
+    header, rows = _render(dom)
+    assert header[0] == "variance"
