@@ -112,6 +112,31 @@ def domain_banks(dom: dict) -> list[tuple[str, dict]]:
     return out
 
 
+COVERAGE_BAND = (0.92, 0.98)   # issue 55's band for a 95 % predictive interval that fits (viewfuse's reading)
+
+
+def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
+    """Whether the default likelihood (the main bank's With Uncertainty predictive: GP + dropout
+    variance, Gaussian) covers 92-98 %, and if not, which way it misses and which bank and
+    likelihood of this run do fall inside."""
+    lo, hi = COVERAGE_BAND
+    main = banks[0][1]
+    o = (main.get("gp_plus_dropout") or {}).get("overall") or {}
+    c = o.get("coverage95")
+    if c is None:
+        return ""
+    where = "inside" if lo <= c <= hi else ("above: its intervals are wider than the scores spread"
+                                           if c > hi else "below: the scores spread wider than its intervals")
+    text = (f"The run's default predictive (+ dropout variance, {banks[0][0]}) covers {fmt(c)} of the residuals "
+            f"in its 95 % interval: {where} the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit.")
+    if not lo <= c <= hi:
+        inside = [f"{bank}, {title}" for bank, d in banks for k, title in DOMAIN_KINDS
+                  if lo <= (((d.get(k) or {}).get("overall") or {}).get("coverage95") or -1) <= hi]
+        text += (" Inside it in this run: " + "; ".join(inside) + "." if inside
+                 else " No bank or likelihood of this run falls inside it.")
+    return text
+
+
 def domain_section(ctx: ReportContext) -> None:
     pop = ctx.population
     dom = (pop or {}).get("domain_fit") or {}
@@ -135,6 +160,9 @@ def domain_section(ctx: ReportContext) -> None:
                                          "evaluate/summary.json)." +
                                          (" One row group per model bank: the main one, then each models.* "
                                           "ablation's own, on the same crops." if len(banks) > 1 else ""))
+    sentence = coverage_sentence(banks)
+    if sentence:
+        page.paragraph(sentence)
     per = (dom.get("gp") or {}).get("per_class") or {}
     crow = []
     for c, comps in per.items():

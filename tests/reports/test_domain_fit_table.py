@@ -56,3 +56,28 @@ def test_without_ablation_banks_the_table_keeps_its_columns():
     dom["by_ablation"] = {LOG: {"n_crops": 0, "note": "no crop"}}   # an empty bank adds no group
     header, rows = _render(dom)
     assert header[0] == "variance"
+
+
+def _cover(space: str, **cov) -> dict:
+    out = {"n_crops": 10, "score_space": space}
+    for k, c in cov.items():
+        out[k] = {"overall": {"n": 20, "share_gt2": 0.0, "share_gt3": 0.0, "coverage95": c, "abs_z_p90": 1.0,
+                              "abs_z_p99": 2.0}}
+    return out
+
+
+def test_the_default_predictives_coverage_is_read_against_the_band_and_the_banks_inside_are_named():
+    from reports.main.calibration import coverage_sentence, domain_banks
+
+    wide = {**_cover("probability", gp=0.97, gp_plus_dropout=0.988),
+            "by_ablation": {LOG: _cover("log", gp_plus_dropout=0.87, gp_plus_dropout_t=0.944)}}
+    s = coverage_sentence(domain_banks(wide))
+    assert "above" in s and fmt(0.988) in s
+    # the two inside the band, by bank and likelihood; the log Gaussian (0.87) is not named
+    assert "main (probability scores), GP predictive (Model Based)" in s
+    assert f"{LOG} (log scores), + dropout variance as a Student-t" in s
+    assert s.count(";") == 1
+    fits = coverage_sentence(domain_banks(_cover("probability", gp_plus_dropout=0.95)))
+    assert "inside the band" in fits and "Inside it in this run" not in fits
+    narrow = coverage_sentence(domain_banks(_cover("log", gp_plus_dropout=0.80, gp=0.70)))
+    assert "below" in narrow and "No bank or likelihood of this run falls inside it." in narrow
