@@ -273,7 +273,7 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     domain = TargetDomain(cfg, avd, scores, banks[DEFAULT], truth, intr, sorted({c.target for c in cells}), scans)
     cells = target_variances(cells, domain, cfg)
-    domain_fit = domain.summary()   # and each models.* ablation's own bank's pooled rows (issue 55)
+    domain_fit = domain.summary()   # and each models.* ablation's own bank's pooled rows
     domain_fit["by_ablation"] = bank_fits(cfg, avd, scores, banks, truth, intr, sorted({c.target for c in cells}),
                                           scans)
     domain_s = time.perf_counter() - t0

@@ -197,7 +197,7 @@ def fixed_evaluate_parts(cfg, T: int, tracks: int) -> list[Term]:
     crops = (work.test_crops if work is not None else None) or 0
     comps = fitted_components(cfg)
     cells = T * tracks * (1 + len(ev.ablations))   # attribution runs inside a cell, an ablation is a cell
-    banks = 1 + sum(1 for a in ev.ablations if is_model_ablation(a))   # each fits the test domain (issue 55)
+    banks = 1 + sum(1 for a in ev.ablations if is_model_ablation(a))   # each fits the test domain
     return [Term(f"the cells' own work ({cells} cells: targets x tracks x (1 + ablations))",
                  ("evaluate.targets", "evaluate.tracks_per_target", "evaluate.ablations"), seconds=cells * CELL_S),
             Term(f"the test-domain fit ({crops} AVD crops x about {comps} components x {views:.0f} views a class"

@@ -112,7 +112,7 @@ def domain_banks(dom: dict) -> list[tuple[str, dict]]:
     return out
 
 
-COVERAGE_BAND = (0.92, 0.98)   # issue 55's band for a 95 % predictive interval that fits (viewfuse's reading)
+COVERAGE_BAND = (0.92, 0.98)   # the band read as a fitting 95 % predictive interval (viewfuse's choice)
 
 
 def coverage_sentence(banks: list[tuple[str, dict]]) -> str:

@@ -1,4 +1,4 @@
-"""The report's test-domain fit table (reports/main/calibration.py, issue 55): with the models.*
+"""The report's test-domain fit table (reports/main/calibration.py): with the models.*
 ablations' fits in ``domain_fit.by_ablation`` it gains a models (score space) column and one row
 group per bank, each with its Gaussian and Student-t rows and its own 95 % coverage; without them it
 keeps its columns."""

@@ -132,7 +132,7 @@ KINDS = ("gp", "gp_plus_dropout", "gp_calibrated", "gp_t", "gp_plus_dropout_t")
 def bank_fits(cfg, avd, scores, banks: dict, truth, intr, targets, scans) -> dict:
     """{ablation: the domain fit's pooled rows} for every ``models.*`` ablation's own model bank (a
     score space, a component rule ...): the same crops and the same code path as the main bank's
-    summary, so that the report shows each bank's 95 % coverage per likelihood (issue 55). Only
+    summary, so that the report shows each bank's 95 % coverage per likelihood. Only
     each kind's ``overall`` is kept (the per-class tables are the main bank's)."""
     out = {}
     for a in cfg.evaluate.ablations:

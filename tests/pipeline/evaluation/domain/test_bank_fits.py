@@ -1,4 +1,4 @@
-"""The test-domain fit of every model bank (``target_domain.bank_fits``, issue 55): a models.*
+"""The test-domain fit of every model bank (``target_domain.bank_fits``): a models.*
 ablation's own bank (here a log score space) gets the main bank's pooled rows, Gaussian and
 Student-t, from the same crops; an evaluate.* ablation (same bank) gets none (the report's table:
 tests/reports/test_domain_fit_table.py)."""
