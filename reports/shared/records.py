@@ -120,7 +120,7 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
         text += f"; better in {percent(rec['wins'])} of {unit}, worse in {percent(rec['losses'])}"
     text += ")"
     notes = []
-    flips = rec.get("loto_flips") or []
+    flips = [] if rec.get("withheld") else rec.get("loto_flips") or []   # withheld: no outcome to change
     if flips:
         more = f" (or another of {len(flips)})" if len(flips) > 3 else ""
         notes.append(f"leaving out {' or '.join(flips[:3])}{more} alone changes the outcome")
