@@ -212,4 +212,5 @@ def evidence_text(pop: dict, n_targets: int, scans: list[str]) -> str:
     n = f"all {len(recs)}" if len(held) == len(recs) else f"{len(held)} of {len(recs)}"
     return (f"{where}: too few units for a calibrated interval ({held[0]['withheld']}), so {n} paired differences "
             "and the pooled values resting on the same design carry no CI and no verdict: their numbers are point "
-            "values of these scans only, not evidence about other homes or other objects.")
+            f"values of {'this scan' if len(scans) == 1 else 'these scans'} only, not evidence about other homes or "
+            "other objects.")
