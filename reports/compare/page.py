@@ -14,6 +14,7 @@ from reports.compare.read import printable
 from reports.compare.runs import Comparison
 from reports.shared.html import HtmlReport
 from reports.shared.numbers import Estimate, fmt
+from reports.shared.records import outcome_text
 
 
 def _value(v: Any) -> str:
@@ -32,7 +33,7 @@ def _verdict_text(d: dict | None) -> str:
     if not d:
         return "—"
     holm = f"; Holm-adjusted outcome: {d['holm']}" if d.get("holm") else ""
-    return f"{d['outcome']} ({Estimate.of(d, signed=True).text()}){holm}"
+    return f"{outcome_text(d)} ({Estimate.of(d, signed=True).text()}){holm}"
 
 
 def headline(c: Comparison) -> str:

@@ -229,6 +229,8 @@ def _verdicts(pop: dict) -> dict[tuple[str, str], dict]:
             # the primary family's Holm-adjusted verdict beside it, worded as on the main report
             out[(str(r["comparison"]), str(r["metric"]))] = {"outcome": r.get("outcome"), "value": r.get("value"),
                                                              "ci_low": r.get("lo"), "ci_high": r.get("hi"),
+                                                             **({"withheld": r["withheld"]} if r.get("withheld")
+                                                                else {}),
                                                              **({"outcome_holm": r["outcome_holm"],
                                                                  "holm": holm_text(r)} if r.get("outcome_holm") else {})}
         return out

@@ -76,9 +76,10 @@ def primary_line(pop: dict) -> str:
         return (f"Primary comparison (declared before the run in evaluate.primary): {p.get('comparison')} on "
                 f"{metric_label(str(p.get('metric')))} {where}: not measured ({p.get('missing', 'no cells')}).")
     # the record sits outside the primary_metrics family (no Holm): not "exploratory" here, it is the primary
+    how = ("It has no verdict: its CI is withheld (the sentence says why)." if rec.get("withheld")
+           else "Its verdict is read off its own 95 % CI, not adjusted: it is the one comparison declared.")
     return (f"Primary comparison (declared before the run in evaluate.primary, {where}): "
-            f"{sentence({**rec, 'primary': None})} "
-            "Its verdict is read off its own 95 % CI, not adjusted: it is the one comparison declared.")
+            f"{sentence({**rec, 'primary': None})} {how}")
 
 
 def bottom_line(pop: dict, card: dict | None = None) -> list[str]:

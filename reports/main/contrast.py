@@ -12,7 +12,7 @@ from reports.shared.records import holm_text, join_words, over_text, statistic_t
 
 # The outcome of instance − category in the arms' words (the record's own label beside it).
 ARM_WORDS = {"better": "instance level better", "worse": "category level better",
-             "not distinguishable": "not distinguishable"}
+             "not distinguishable": "not distinguishable", "withheld": "no CI, no verdict (too few units)"}
 
 
 def contrast_rows(block: dict, primary_only: bool = True) -> list[list]:
@@ -42,7 +42,11 @@ def contrast_sentence(block: dict) -> str:
     moved = [f"{method_label(r['method'], short=True)} on {metric_label(r['metric'], short=True)} "
              f"({ARM_WORDS[r['difference'].get('outcome_holm') or r['difference']['outcome']]})"
              for r in block.get("rows") or [] if r.get("primary")
-             and (r["difference"].get("outcome_holm") or r["difference"]["outcome"]) != "not distinguishable"]
+             and (r["difference"].get("outcome_holm") or r["difference"]["outcome"]) in ("better", "worse")]
+    held = [r for r in block.get("rows") or [] if r.get("primary") and r["difference"].get("withheld")]
+    if held and not moved:
+        return ("No primary metric has a verdict on the class models' training set (instance against category "
+                f"level): {len(held)} of the comparisons carry no CI, no verdict ({held[0]['difference']['withheld']}).")
     if not moved:
         return ("On no primary metric does the class models' training set (instance against category level) "
                 "change any method's result distinguishably, after the Holm adjustment over this contrast's family.")

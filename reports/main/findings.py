@@ -24,7 +24,7 @@ def forest(pop: dict, ledger: Ledger | None = None) -> str:
                 continue
             if ledger is not None:
                 ledger.register(("paired", key, metric), rec.get("value"), rec.get("lo"), rec.get("hi"),
-                                label=rec["outcome"], where="forest plot caption",
+                                label="" if rec.get("withheld") else rec["outcome"], where="forest plot caption",
                                 higher_is_better=higher_is_better(metric))
             excl = sum(1 for t in (ppt.get(key) or {}).values()
                        if Estimate.of((t or {}).get(metric)).excludes_zero())

@@ -75,9 +75,7 @@ def limitations(ctx: ReportContext) -> list[str]:
                        f"({', '.join(single)}): {'it has' if one else 'they have'} no interval of "
                        f"{'its' if one else 'their'} own and {'weighs' if one else 'weigh'} on the pooled value like "
                        "the others.")
-        out.append(f"The evidence covers {c['n_targets']} targets in {len(scans) or '?'} "
-                   f"scan{'s' if len(scans) != 1 else ''}: the intervals vary over {varies_text(pop)} of these "
-                   "scans, not over other homes or other objects.")
+        out.append(evidence_text(pop, c["n_targets"], scans))
     gone = [s for s in pop.get("skipped_targets") or [] if isinstance(s, dict) and not s.get("scan")]
     if gone:
         out.append(f"{len(gone)} target{'s were' if len(gone) != 1 else ' was'} skipped for want of a usable track "
@@ -199,3 +197,20 @@ def reproduce_section(ctx: ReportContext) -> None:
     ctx.page.table(["what", "file (relative to the run folder)"],
                    [[w, str(p.relative_to(run))] for w, p in files if p.exists()], cls="json-paths",
                    caption="The files every number on this page is read from.")
+
+
+def evidence_text(pop: dict, n_targets: int, scans: list[str]) -> str:
+    """What the run's intervals vary over, from its design: where the engine withheld them (a level
+    the design varies over with too few units: ``design.withheld``), which and why, never a claim
+    that they vary."""
+    where = f"The evidence covers {n_targets} targets in {len(scans) or '?'} scan{'s' if len(scans) != 1 else ''}"
+    recs = [r for r in pop.get("records") or [] if isinstance(r, dict)]
+    held = [r for r in recs if r.get("withheld")]
+    if not held:
+        return (f"{where}: the intervals vary over {varies_text(pop)} of these scans, not over other homes or "
+                "other objects.")
+    n = f"all {len(recs)}" if len(held) == len(recs) else f"{len(held)} of {len(recs)}"
+    return (f"{where}: too few units for a calibrated interval ({held[0]['withheld']}), so {n} paired differences "
+            "and the pooled values resting on the same design carry no CI and no verdict: their numbers are point "
+            f"values of {'this scan' if len(scans) == 1 else 'these scans'} only, not evidence about other homes or "
+            "other objects.")

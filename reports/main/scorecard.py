@@ -46,8 +46,8 @@ def verdict_entry(pop: dict, comparison: str, metric: str) -> dict | None:
             hi = number(r.get("hi"), math.inf if unb else None, None)
             out = {"value": r.get("value"), "lo": lo, "hi": hi, "n": r.get("n") or {},
                    "over": r.get("over") or ["targets", "tracks"]}
-            if r.get("outcome_holm") and r.get("withheld"):   # no calibrated interval: none to widen
-                out["holm"] = (None, None)
+            if r.get("withheld"):   # no calibrated interval: no verdict (``withheld_status``)
+                out["withheld"] = r["withheld"]
             elif r.get("outcome_holm"):   # a primary-family verdict: read off its Holm-widened interval
                 out["holm"] = (number(r.get("lo_holm"), -math.inf, None), number(r.get("hi_holm"), math.inf, None))
             return out
@@ -72,7 +72,13 @@ def setting_entry(pop: dict, c: Claim) -> tuple[dict | None, str]:
     if not r:
         return None, p.get("missing") or "no cells"
     return {"value": r.get("value"), "lo": number(r.get("lo"), -math.inf, None),
-            "hi": number(r.get("hi"), math.inf, None), "n": r.get("n") or {}, "over": r.get("over") or []}, ""
+            "hi": number(r.get("hi"), math.inf, None), "n": r.get("n") or {}, "over": r.get("over") or [],
+            **({"withheld": r["withheld"]} if r.get("withheld") else {})}, ""
+
+
+def withheld_status(entry: dict | None) -> str:
+    """'no verdict: no CI: <reason>' where the engine withheld the entry's interval, else ''."""
+    return f"{NO_VERDICT}: no CI: {entry['withheld']}" if entry and entry.get("withheld") else ""
 
 
 def tracks_entry(pop: dict, c: Claim) -> dict | None:
@@ -163,8 +169,9 @@ def claim_row(ctx: ReportContext, c: Claim, pop: dict, margin: float) -> tuple[s
         e, why = setting_entry(pop, c)
         if e is None:
             return f"{NOT_TESTED} ({why})", Estimate(None)
-        status = claim_status(e, c.metric)
-        ctx.ledger.register(("paired", key, c.metric, c.setting), e["value"], e["lo"], e["hi"], label=status,
+        status = withheld_status(e) or claim_status(e, c.metric)
+        ctx.ledger.register(("paired", key, c.metric, c.setting), e["value"], e["lo"], e["hi"],
+                            label="" if e.get("withheld") else status,
                             where="claims scorecard", higher_is_better=higher_is_better(c.metric))
         return status, Estimate(e["value"], e["lo"], e["hi"], signed=True)
     t = tracks_entry(pop, c) if c.over_tracks else None
@@ -176,14 +183,14 @@ def claim_row(ctx: ReportContext, c: Claim, pop: dict, margin: float) -> tuple[s
         return status, Estimate(t["value"], t["lo"], t["hi"], signed=True)
     e = verdict_entry(pop, key, c.metric)
     equiv = c.reading == "equivalence"
-    status = equivalence_status(e, margin) if equiv else claim_status(e, c.metric)
+    status = withheld_status(e) or (equivalence_status(e, margin) if equiv else claim_status(e, c.metric))
     est = Estimate(e["value"], e["lo"], e["hi"], signed=True) if e else Estimate(None)
     if e:
         # An equivalence verdict is about ±margin, not the side of 0: the number is registered
         # (one statistic across the page) without the directional label the ledger checks.
         holm = e.get("holm") if not equiv else None
         ctx.ledger.register(("paired", key, c.metric), e["value"], e["lo"], e["hi"],
-                            label="" if equiv or holm else status, where="claims scorecard",
+                            label="" if equiv or holm or e.get("withheld") else status, where="claims scorecard",
                             higher_is_better=higher_is_better(c.metric))
         if holm:
             ctx.ledger.register(("holm", key, c.metric), e["value"], *holm, label=status,

@@ -13,7 +13,7 @@ from reports.main.bottom_line import bottom_line, counts, no_ci_reason, scope_te
 from reports.main.context import ReportContext
 from reports.main.provided import filled, notes as provided_notes
 from reports.shared.numbers import Estimate, fmt, percent
-from reports.shared.records import (find, holm_text, outcome_clauses, records_of, select, sentence,
+from reports.shared.records import (find, holm_text, outcome_clauses, outcome_text, records_of, select, sentence,
                                     sentences as render)
 from reports.main.calibration import paired_value, pooled_value
 from reports.main.reviewer import data_extra
@@ -213,7 +213,7 @@ def comparison_keys(pop: dict) -> list[str]:
 
 
 def _paired_rows(pop: dict) -> list[list]:
-    outcome = {(r.get("comparison"), r.get("metric")): r.get("outcome") for r in records_of(pop)}
+    outcome = {(r.get("comparison"), r.get("metric")): outcome_text(r) for r in records_of(pop)}
     holm = {(r.get("comparison"), r.get("metric")): holm_text(r) for r in records_of(pop) if r.get("outcome_holm")}
     rows = []
     for key in comparison_keys(pop):

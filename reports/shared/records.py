@@ -17,7 +17,8 @@ from pipeline.evaluation.metrics.labels import method_label
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.shared.numbers import fmt, percent, plain
 
-PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguishable": "is not distinguishable from"}
+PHRASE = {"better": "is better than", "worse": "is worse than", "not distinguishable": "is not distinguishable from",
+          "withheld": "vs"}   # withheld: no verdict; the interval text says why (``interval_text``)
 STATISTIC = {"mean": "mean over targets of the differences",
              "median": "median over targets of the target differences",
              "pooled posteriors": "difference of the pooled-posterior values"}
@@ -66,12 +67,20 @@ def interval_text(rec: Mapping) -> str:
     """'95 % CI [lo, hi]'; 'no CI' without one, with the reason where the engine withheld it (too
     few clusters for a calibrated interval: no verdict follows)."""
     if rec.get("withheld"):
-        return f"no CI, no verdict ({rec['withheld']})"
+        return f"no CI, no verdict: {rec['withheld']}"
     lo, hi = rec.get("lo"), rec.get("hi")
     nan = lambda x: isinstance(x, float) and math.isnan(x)
     if (lo is None and hi is None and not rec.get("unbounded")) or nan(lo) or nan(hi):
         return "no CI"
     return f"95 % CI [{_end(lo, -1)}, {_end(hi, +1)}]"
+
+
+def outcome_text(rec: Mapping) -> str:
+    """The record's outcome as a table cell prints it: better / worse / not distinguishable, or
+    'no CI, no verdict: <too few units>' where the engine withheld its interval."""
+    if rec.get("withheld"):
+        return f"no CI, no verdict: {str(rec['withheld']).split(':')[0]} (too few units)"
+    return str(rec.get("outcome"))
 
 
 def over_text(rec: Mapping) -> str:
@@ -111,7 +120,7 @@ def sentence(rec: Mapping, *, name: Callable[[str], str] | None = None,
         text += f"; better in {percent(rec['wins'])} of {unit}, worse in {percent(rec['losses'])}"
     text += ")"
     notes = []
-    flips = rec.get("loto_flips") or []
+    flips = [] if rec.get("withheld") else rec.get("loto_flips") or []   # withheld: no outcome to change
     if flips:
         more = f" (or another of {len(flips)})" if len(flips) > 3 else ""
         notes.append(f"leaving out {' or '.join(flips[:3])}{more} alone changes the outcome")
@@ -141,7 +150,8 @@ def clause(rec: Mapping, *, name: Callable[[str], str] | None = None,
     <metric>: <value>, 95 % CI [lo, hi] (<outcome>)', the value, interval and outcome of ``sentence``."""
     a, b = sides(rec, name)
     what = (metric_name or metric_label)(rec["metric"])
-    return f"{a} − {b}, {what}: {fmt(rec.get('value'), signed=True)}, {interval_text(rec)} ({rec['outcome']})"
+    tail = "" if rec.get("withheld") else f" ({rec['outcome']})"   # withheld: the interval text says no verdict
+    return f"{a} − {b}, {what}: {fmt(rec.get('value'), signed=True)}, {interval_text(rec)}{tail}"
 
 
 def holm_text(rec: Mapping) -> str:
@@ -195,6 +205,12 @@ def outcome_clauses(records: Iterable[Mapping], *, subject: bool = True,
     for recs in by.values():
         a, b = sides(recs[0], name)
         g = _grouped({str(r["metric"]): str(r["outcome"]) for r in recs})
+        if g["withheld"]:   # no CI, no verdict: said as such, never as "not distinguishable"
+            held = "no verdict (no CI: too few units) on " + (
+                "any metric" if len(g["withheld"]) == len(recs) else join_words(g["withheld"]))
+            said = "; ".join([f"{o} on {join_words(g[o])}" for o in PHRASE if o != "withheld" and g.get(o)] + [held])
+            out.append(f"{a} vs {b}: {said}" if subject else said)
+            continue
         if not g["better"] and not g["worse"]:
             out.append(f"{a} is not distinguishable from {b} on any metric" if subject
                        else "not distinguishable on any metric")

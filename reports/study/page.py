@@ -29,6 +29,9 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
     if missing:
         return (f"Seed(s) {', '.join(map(str, missing))} have no population verdict (evaluate/summary.json "
                 f"lacks 'population'); the verdicts cannot be compared yet.")
+    if not differ and n_entries and sum(o == "withheld" for o in held.values()) == n_entries:
+        return (f"No seed ({', '.join(map(str, seeds))}) reaches a verdict to compare: every entry's CI is withheld "
+                "(too few units of a level the design varies over).")
     if not differ:
         text = f"The verdict is the same for every seed ({', '.join(map(str, seeds))})."
     else:

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from pipeline.infra.outputs import path as out_path
-from reports.main.scorecard import claim_status, simulate_claims, verdict_entry
+from reports.main.scorecard import claim_status, simulate_claims, verdict_entry, verdict_word, withheld_status
 
 KEY = "with_uncertainty-model_based"
 
@@ -23,13 +23,17 @@ def test_records_come_first_and_a_null_end_is_unbounded():
 
 
 def test_a_withheld_interval_has_no_holm_interval_and_no_verdict():
-    # too few clusters: the engine gives no interval (JSON null, not unbounded) and Holm none to widen
-    pop = {"records": [{"comparison": KEY, "metric": "correct_final", "value": 0.2, "lo": None, "hi": None,
-                        "unbounded": False, "withheld": "2 scans: ...", "outcome_holm": "not distinguishable",
-                        "lo_holm": None, "hi_holm": None}]}
+    # too few clusters: the engine gives no interval (JSON null, not unbounded), no Holm step, and
+    # the scorecard says so instead of "inconclusive" (real.toml's 2 scans printed "+0.0854 inconclusive")
+    pop = {"records": [{"comparison": KEY, "metric": "correct_final", "value": 0.0854, "lo": None, "hi": None,
+                        "unbounded": False, "withheld": "2 scans: too few", "outcome": "withheld"}]}
     e = verdict_entry(pop, KEY, "correct_final")
-    assert e["holm"] == (None, None) and (e["lo"], e["hi"]) == (None, None)
-    assert claim_status(e, "correct_final") == "inconclusive"
+    assert "holm" not in e and (e["lo"], e["hi"]) == (None, None)
+    status = withheld_status(e)
+    assert status == "no verdict: no CI: 2 scans: too few" and "inconclusive" not in status
+    assert verdict_word(status, True) == verdict_word(status, False) == status
+    assert withheld_status(verdict_entry({"records": [{**pop["records"][0], "withheld": None, "lo": 0.01,
+                                                        "hi": 0.2}]}, KEY, "correct_final")) == ""
 
 
 def test_without_records_the_paired_entry_is_read():

@@ -36,7 +36,8 @@ STATISTICS = {
     "infinity": "infinite values are kept; an interval end that is infinite is unbounded (null in JSON); an "
                 "undefined resampled statistic (inf - inf) gives no interval",
     "outcome": "better / worse when the 95 % interval of method - baseline excludes 0 on that side, else not "
-               "distinguishable",
+               "distinguishable; withheld (no CI, no verdict) where a level the design varies over has fewer "
+               "than 8 units",
     "pooling": "per metric (spec): the mean over targets of the target means, or the median over targets for "
                "unbounded metrics (log10 MGR percentiles, NLL); ECE from the pooled posteriors",
     "multiplicity": "Holm over the primary family (With Uncertainty against each baseline on each primary metric), "

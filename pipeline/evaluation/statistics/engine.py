@@ -97,8 +97,16 @@ def _design_estimate(h: Hierarchy, v: np.ndarray, pool: str, clamp=None):
     return design_estimate(x, layout, clamp, n_boot=h.n_boot, seed=h.seed)
 
 
-def _boot_estimate(est: dict) -> dict:
-    return {**est, "interval": "percentile bootstrap"}
+def _boot_estimate(est: dict, why: str | None = None) -> dict:
+    """A percentile-bootstrap estimate; ``why`` (``Hierarchy.withheld``): its interval is withheld by
+    the same rule as a mean's (no CI, no verdict), the point value kept."""
+    out = {**est, "interval": "percentile bootstrap"}
+    return withhold(out, why) if why else out
+
+
+def withhold(est: dict, why: str) -> dict:
+    """``est`` without its interval, saying why (``design.withheld``)."""
+    return {**est, "ci_low": float("nan"), "ci_high": float("nan"), "withheld": why}
 
 
 def over_of(a, over: list[str]) -> list[str]:
@@ -135,11 +143,12 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
     out: dict = {"pooled": {}, "per_target": {}, "paired": {}, "paired_per_target": {}, "records": []}
     boot: dict[tuple[str, str], np.ndarray | None] = {}   # each record's draws, for the Holm steps
     single = len(h.seeds) == 1
+    why = h.withheld()   # the one rule: a level the run varies over with too few units
     for m in methods:
         for k in metrics:
             v = h.pad(tvs[m], k)
             a = _design_estimate(h, v, M.pool_of(k), _range(k))
-            out["pooled"].setdefault(m, {})[k] = {**(a[0] if a else _boot_estimate(h.rs.estimate(v, M.pool_of(k)))),
+            out["pooled"].setdefault(m, {})[k] = {**(a[0] if a else _boot_estimate(h.rs.estimate(v, M.pool_of(k)), why)),
                                                   "pooling": M.pool_of(k), "over": over_of(a, over), "cluster": h.cluster,
                                                   "n": n}
             if per_target and single:
@@ -166,8 +175,8 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
             if a:
                 base, boot[(key, k)] = a
             else:
-                boot[(key, k)] = h.rs.draws(v, pool) if h.rs.spread() else None
-                base = _boot_estimate(estimate(h.rs.point(v, pool), boot[(key, k)]))
+                boot[(key, k)] = h.rs.draws(v, pool) if h.rs.spread() and not why else None
+                base = _boot_estimate(estimate(h.rs.point(v, pool), boot[(key, k)]), why)
             est = {**base, "wins": float(wins.mean()), "losses": float(losses.mean()),
                    "n_cells": len(d), "unit": "cells", "better": "higher" if higher else "lower",
                    "pooling": pool, "over": over_of(a, over), "cluster": h.cluster, "n": n}
@@ -193,20 +202,22 @@ def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: S
         over = [x for x in over if x == "seeds"] + ["targets", "tracks"]   # the pooled ECE: targets, then tracks
         for m, per in e["pooled"].items():
             for k, est in per.items():
-                out["pooled"].setdefault(m, {})[k] = {**est, "pooling": M.pool_of(k), "over": over,
+                out["pooled"].setdefault(m, {})[k] = {**(withhold(est, why) if why else est),
+                                                      "pooling": M.pool_of(k), "over": over,
                                                       "cluster": "target", "n": n}
         for t, per in e["per_target"].items():
             for m, vals in per.items():
                 out["per_target"].setdefault(t, {}).setdefault(m, {}).update(vals)
         for key, per in e["paired"].items():
             for k, est in per.items():
-                est.update({"pooling": M.pool_of(k), "over": over, "cluster": "target", "n": n})
+                est.update({"pooling": M.pool_of(k), "over": over, "cluster": "target", "n": n},
+                           **(withhold(est, why) if why else {}))
                 out["paired"].setdefault(key, {})[k] = est
                 out["records"].append(REC.record(key, k, est, pooling=M.pool_of(k), better="lower", over=over,
                                                  cluster="target", n={**n, "cells": n_cells}, primary=k in primary, wins=est["wins"],
                                                  losses=est["losses"], unit="targets",
-                                                 **{x: est[x] for x in ("loto_min", "loto_max", "loto_flips")
-                                                    if x in est}))
+                                                 **{x: est[x] for x in ("loto_min", "loto_max", "loto_flips",
+                                                                        "withheld") if x in est}))
         for key, per in e["paired_per_target"].items():
             for t, vals in per.items():
                 out["paired_per_target"].setdefault(key, {}).setdefault(t, {}).update(vals)

@@ -11,6 +11,7 @@ import pandas as pd
 from pipeline.evaluation.statistics import records as REC
 from pipeline.evaluation.statistics.crossed import crossed_draws
 from pipeline.evaluation.statistics.design import Layout
+from pipeline.evaluation.statistics.design import withheld as design_withheld
 from pipeline.evaluation.statistics.resampler import Resampler, draws, estimate
 from pipeline.scene.folds import category_of
 
@@ -119,6 +120,15 @@ class Hierarchy:
             labels = {k: np.unique(np.asarray(v), return_inverse=True)[1].ravel() for k, v in lab.items()}
             self._layout = (np.asarray(pos, dtype=np.int64), Layout(np.asarray(w), labels))
         return self._layout
+
+    def withheld(self) -> str | None:
+        """Why no interval of this run's pooled statistics is calibrated (``design.withheld`` of the
+        levels its design varies over: a level with fewer than ``design.MIN_CLUSTERS`` units), else
+        None. The one rule for every pooled statistic of one run: the design's t interval of a mean
+        and the percentile interval of a median, an infinite value or the pooled ECE alike. None for
+        a seed pool (seeds on top: the draws keep them)."""
+        lay = self.layout()
+        return None if lay is None else design_withheld(lay[1].levels())
 
     @property
     def by_scan(self) -> bool:

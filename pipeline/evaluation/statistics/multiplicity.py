@@ -15,8 +15,8 @@ docs/calibration.md), not on the few draws in a percentile bootstrap's tails. A 
 bootstrap p-value (two-sided, 2 min(P(d <= 0), P(d >= 0)) with the +1 correction). Since both kinds
 of interval nest as the level grows, this is Holm's procedure, and the adjusted outcome is
 ``records.outcome`` of the adjusted interval (never a label its interval contradicts). A record
-whose interval is withheld (too few clusters: ``design.withheld``) has p = 1 and no adjusted
-interval: it is never rejected. The declared primary comparison (``evaluate.primary``) is tested
+whose interval is withheld (too few clusters: ``design.withheld``) was never tested: it stays out
+of the family (no p, no adjusted interval) and does not count in its size. The declared primary comparison (``evaluate.primary``) is tested
 alone; where a block's cells are its own, ``exclude`` leaves it out of the family.
 """
 from __future__ import annotations
@@ -71,7 +71,7 @@ def holm(records: list[dict], draws: Mapping[tuple[str, str], np.ndarray | None]
         if (r["comparison"], r["metric"]) in exclude:
             r["declared"] = True
     fam = [r for r in records if (family or in_primary_family)(r["comparison"], r.get("primary"))
-           and not r.get("declared")]
+           and not r.get("declared") and not r.get("withheld")]
     if not fam:
         return
     d = [draws.get((r["comparison"], r["metric"])) for r in fam]

@@ -16,8 +16,9 @@ A record is data, never prose: ``reports.shared.records`` renders the sentences.
 - ``interval``: how the interval was made: "cluster-robust t, wild bootstrap tails" (``design``: a
   mean of one run's tracks; with ``se``, ``df`` and ``levels``, the units of each level it varies over) or
   "percentile bootstrap" (a median, an infinite value, the pooled ECE, a seed pool); ``withheld``:
-  why there is no interval where a level has too few units for a calibrated one (no verdict:
-  ``outcome`` "not distinguishable", lo/hi NaN);
+  why there is no interval where a level the run clusters on has too few units for a calibrated one
+  (``design.withheld``; the same rule for a mean's t interval and a bootstrap one): no verdict,
+  ``outcome`` "withheld", lo/hi NaN, and the record stays out of the Holm family;
 - optional: ``wins``/``losses`` (shares of ``unit``: cells or targets), the leave-one-target-out
   range ``loto_min``/``loto_max`` and ``loto_flips``, ``ceiling_cells``/``floor_cells``;
 - the primary family only (``metrics.labels.in_primary_family``; ``multiplicity.holm``):
@@ -33,7 +34,8 @@ from typing import Any
 
 from pipeline.infra.outputs import number
 
-OUTCOMES = ("better", "worse", "not distinguishable")
+OUTCOMES = ("better", "worse", "not distinguishable", "withheld")
+WITHHELD = "withheld"   # no interval, hence no verdict (the record's ``withheld`` says why)
 
 
 def outcome(lo: float | None, hi: float | None, higher_is_better: bool) -> str:
@@ -59,13 +61,16 @@ def record(comparison: str, metric: str, est: Mapping[str, float], *, pooling: s
             "pooling": pooling, "value": number(est["value"]), "lo": lo, "hi": hi,
             "unbounded": bool(math.isinf(lo) or math.isinf(hi)), "over": list(over),
             "n": {k: int(v) for k, v in n.items()}, "better": better,
-            "outcome": outcome(lo, hi, better == "higher"), "primary": bool(primary), **extra}
+            "outcome": WITHHELD if extra.get("withheld") else outcome(lo, hi, better == "higher"),
+            "primary": bool(primary), **extra}
 
 
 def consistent(rec: Mapping[str, Any]) -> bool:
     """The record's label agrees with its interval (the outcome rule) and its value lies in it."""
     if rec.get("outcome") not in OUTCOMES or rec.get("better") not in ("higher", "lower"):
         return False
+    if rec["outcome"] == WITHHELD or rec.get("withheld"):
+        return rec["outcome"] == WITHHELD and bool(rec.get("withheld"))   # lo/hi: NaN, null in JSON
     if rec["outcome"] != outcome(rec.get("lo"), rec.get("hi"), rec["better"] == "higher"):
         return False
     v, lo, hi = rec.get("value"), rec.get("lo"), rec.get("hi")

@@ -118,14 +118,19 @@ def test_design_t_statistics_step_down_on_their_own_p_values_at_full_resolution(
         assert r["outcome_holm"] == REC.outcome(r["lo_holm"], r["hi_holm"], True)
 
 
-def test_a_withheld_interval_is_never_rejected():
+def test_a_withheld_record_is_no_verdict_and_stays_out_of_the_family():
     from pipeline.evaluation.statistics.design import TStat
 
     e = {"value": 0.3, "ci_low": float("nan"), "ci_high": float("nan")}
-    rec = REC.record(WU_MB, "correct_final", e, pooling="mean", better="higher", over=["targets", "tracks"],
-                     n={"targets": 12, "scans": 2}, primary=True)
-    holm([rec], {(WU_MB, "correct_final"): TStat(0.3, 0.001, 1.0, withheld="2 scans")})
-    assert rec["outcome"] == rec["outcome_holm"] == "not distinguishable" and rec["p"] == 1.0
+    rec = REC.record(WU_MB, "msde_final", e, pooling="mean", better="lower", over=["targets", "tracks"],
+                     n={"targets": 12, "scans": 2}, primary=True, withheld="2 scans: too few")
+    assert rec["outcome"] == "withheld" and REC.consistent(rec)
+    assert not REC.consistent({**rec, "outcome": "not distinguishable"})
+    recs, draws = _records([0.001, 0.02])
+    holm([rec, *recs], {**draws, (WU_MB, "msde_final"): TStat(0.3, 0.001, 1.0, withheld="2 scans")})
+    # never tested: no p, no adjusted verdict, and the family is the two records that were tested
+    assert "outcome_holm" not in rec and "p" not in rec and "family" not in rec
+    assert all(r["family"] == 2 for r in recs)
 
 
 def test_the_declared_primary_pair_leaves_the_exploratory_family():

@@ -101,3 +101,27 @@ def test_a_target_split_over_scans_is_one_unit_per_scan():
     bad.loc[(bad["scan"] == "S001") & (bad["track"] == 2), "track"] = 0   # one (target, track) in two scans
     with pytest.raises(ValueError, match="more than one scan"):
         Hierarchy({"run": bad}, 200, 0, by_scan=True)
+
+
+def test_two_scans_withhold_the_median_as_the_mean_one_rule():
+    # real.toml's design: 2 scans. The mean's t interval was withheld while the median over targets
+    # (log10 MGR percentiles, NLL) still got a bootstrap CI and a verdict; one rule now withholds both.
+    mgr = "log10_mgr95_final"
+    assert M.pool_of(mgr) == "median"
+    cells = scans_population(np.random.default_rng(5), n_scans=2, targets=6, effect=0.3)
+    cells[mgr] = cells[METRIC] * 2.0
+    b = population_block(cells, ["a", "b"], [METRIC, mgr], AB, 300, 0, primary=[METRIC, mgr])
+    for metric in (METRIC, mgr):
+        pooled = b["pooled"]["a"][metric]
+        assert "2 scans" in pooled["withheld"] and math.isnan(pooled["ci_low"]) and math.isnan(pooled["ci_high"])
+    recs = {r["metric"]: r for r in b["records"]}
+    assert recs[mgr]["interval"] == "percentile bootstrap"
+    for r in recs.values():   # no verdict, not "not distinguishable"; never entered Holm as if tested
+        assert r["outcome"] == "withheld" and "2 scans" in r["withheld"]
+        assert "outcome_holm" not in r and "p" not in r
+    # with 8 scans the same median has its interval and verdict
+    many = scans_population(np.random.default_rng(5), n_scans=8, targets=2, effect=0.3)
+    many[mgr] = many[METRIC] * 2.0
+    r = next(r for r in population_block(many, ["a", "b"], [METRIC, mgr], AB, 300, 0)["records"]
+             if r["metric"] == mgr)
+    assert "withheld" not in r and r["outcome"] == "worse" and r["lo"] > 0
