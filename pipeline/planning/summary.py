@@ -6,7 +6,8 @@ confidence on a wrong class), ``nll`` (-ln P(truth)), each as the metric specifi
 step with a confident correct decision (P(truth) >= the confidence), budget + 1 when there is
 none (a missed or wrong decision costs more than the whole budget). The unit is a (target, start):
 its value is the mean over the localization settings; the pooled value is the mean over targets
-of their starts' mean, with the hierarchical bootstrap CI over targets, then starts. A paired
+of their starts' mean, with the hierarchical bootstrap CI over targets, then starts (withheld, with
+its reason, under the engine's minimum number of targets: ``design.withheld``). A paired
 difference is computed the same way on the per-episode differences (same target, start, setting).
 
 All statistics go through ``_estimate`` (one call site for the statistics engine); the block holds
@@ -18,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.metrics import spec as M   # the one definition of each per-step quantity
+from pipeline.evaluation.statistics.design import withheld
 from pipeline.evaluation.statistics.records import outcome
 
 # Each step metric is the spec's all-steps metric of that column (its label without ", all steps",
@@ -42,9 +44,13 @@ def _estimate(groups, n_boot: int, seed, higher: bool | None = None) -> dict:
     est = over_groups(groups, n_boot, seed)
     est.update(pooling="mean", over=["targets", "starts"],
                n={"targets": len(groups), "starts": int(sum(len(g) for g in groups))})
+    # The engine's one rule: too few targets for a calibrated interval -> no CI, no verdict, say why.
+    why = withheld({"targets": len(groups)}) if groups else None
+    if why:
+        est.update(ci_low=None, ci_high=None, withheld=why)
     if higher is not None:
         est["better"] = "higher" if higher else "lower"
-        est["outcome"] = outcome(est["ci_low"], est["ci_high"], higher)
+        est["outcome"] = "withheld" if why else outcome(est["ci_low"], est["ci_high"], higher)
     return est
 
 

@@ -47,7 +47,8 @@ def verdict_records(block: dict) -> list[dict]:
             if m != "steps_to_decision" and not m.startswith("correct_at"):
                 continue
             out.append(record(comp, m, est, pooling=est.get("pooling", "mean"), better=est.get("better", "higher"),
-                              over=est.get("over") or ["targets", "starts"], n=est.get("n") or {}, primary=True))
+                              over=est.get("over") or ["targets", "starts"], n=est.get("n") or {}, primary=True,
+                              **({"withheld": est["withheld"]} if est.get("withheld") else {})))
     return out
 
 
