@@ -1,24 +1,11 @@
 """The bootstrap's time is said up front: one statistic's draws timed on a small run and scaled
-linearly, which holds (every resampler array grows linearly with the draws)."""
+linearly, which holds (every resampler array grows linearly with the draws). How close the estimate
+comes to the measured time is a timing: `python tests/bench/bench_bootstrap_estimate.py`."""
 from __future__ import annotations
 
-import time
-
-import numpy as np
 import pytest
 
-from pipeline.evaluation.statistics.resampler import Resampler, draw_seconds
-
-
-@pytest.mark.parametrize("structure", [[[4] * 12], [[1, 3, 4, 2, 4, 4]]])
-def test_scaled_estimate_is_within_a_factor_of_the_measured_time(structure):
-    n = 100_000
-    est = min(draw_seconds(structure, n) for _ in range(2))
-    t0 = time.perf_counter()
-    r = Resampler(structure, n, [1])
-    r.draws(np.random.default_rng(1).random(r.shape), "mean")
-    real = time.perf_counter() - t0
-    assert real / 4 < est < real * 4, (est, real)   # timings on a shared machine: a loose factor
+from pipeline.evaluation.statistics.resampler import draw_seconds
 
 
 def test_estimate_grows_with_the_draws():
