@@ -51,7 +51,9 @@ def test_both_arms_run_on_the_same_cells_and_the_report_pairs_them(run):
     assert {r["metric"] for r in prim} == set(pop["primary_metrics"])
     for r in prim:
         d = r["difference"]
-        assert d["outcome"] in ("better", "worse", "not distinguishable") and "outcome_holm" in d
+        # a few categories on one scan: under the engine's 8 units, so no CI, no verdict, the reason,
+        # and no place in a Holm family
+        assert d["outcome"] == "withheld" and d["withheld"] and "outcome_holm" not in d
         assert d["value"] == pytest.approx(r["instance"]["value"] - r["category"]["value"], abs=1e-9)
     html = (run.stage_dir("report") / "index.html").read_text()
     assert "Instance vs category class models" in html and "instance − category" in html
