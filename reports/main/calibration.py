@@ -125,10 +125,11 @@ def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     c = o.get("coverage95")
     if c is None:
         return ""
-    where = "inside" if lo <= c <= hi else ("above: its intervals are wider than the scores spread"
-                                           if c > hi else "below: the scores spread wider than its intervals")
+    where, why = (("inside", "") if lo <= c <= hi else
+                  ("above", " (its intervals are wider than the scores spread)") if c > hi else
+                  ("below", " (the scores spread wider than its intervals)"))
     text = (f"The run's default predictive (+ dropout variance, {banks[0][0]}) covers {fmt(c)} of the residuals "
-            f"in its 95 % interval: {where} the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit.")
+            f"in its 95 % interval: {where} the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit{why}.")
     if not lo <= c <= hi:
         inside = [f"{bank}, {title}" for bank, d in banks for k, title in DOMAIN_KINDS
                   if lo <= (((d.get(k) or {}).get("overall") or {}).get("coverage95") or -1) <= hi]
