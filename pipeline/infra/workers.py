@@ -119,6 +119,7 @@ def worker_pool(workers: int, initializer: Callable | None = None, initargs: tup
                 if p not in procs:
                     with contextlib.suppress(Exception):
                         p.join(5)
+            _await_exit_codes(pool.spawned)
             why = worker_deaths(pool.spawned)
             if why:
                 raise BrokenProcessPool(why) from e
@@ -137,6 +138,16 @@ class _Pool(ProcessPoolExecutor):
     def _spawn_process(self):
         super()._spawn_process()
         self.spawned.extend(p for p in self._processes.values() if p not in self.spawned)
+
+
+def _await_exit_codes(procs, seconds: float = 2.0) -> None:
+    """Wait briefly until each dead worker's exit code can be read. The executor's own thread reaps
+    the workers of a broken pool too; while it holds a reaped child's status, our poll gets ECHILD
+    and reads None (a race seen under load), so poll again for a moment."""
+    deadline = time.monotonic() + seconds
+    for p in procs:
+        while getattr(p, "exitcode", 0) is None and time.monotonic() < deadline:
+            time.sleep(0.01)
 
 
 def worker_deaths(procs) -> str:
