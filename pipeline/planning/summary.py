@@ -20,7 +20,7 @@ import pandas as pd
 
 from pipeline.evaluation.metrics import spec as M   # the one definition of each per-step quantity
 from pipeline.evaluation.statistics.design import withheld
-from pipeline.evaluation.statistics.records import outcome
+from pipeline.evaluation.statistics.records import WITHHELD, outcome
 
 # Each step metric is the spec's all-steps metric of that column (its label without ", all steps",
 # its direction): planning keeps no list of its own.
@@ -50,7 +50,7 @@ def _estimate(groups, n_boot: int, seed, higher: bool | None = None) -> dict:
         est.update(ci_low=None, ci_high=None, withheld=why)
     if higher is not None:
         est["better"] = "higher" if higher else "lower"
-        est["outcome"] = "withheld" if why else outcome(est["ci_low"], est["ci_high"], higher)
+        est["outcome"] = WITHHELD if why else outcome(est["ci_low"], est["ci_high"], higher)
     return est
 
 

@@ -5,8 +5,8 @@ with ``classifier.seed = n`` under ``<run>/study/seed-<n>/`` (a config whose run
 there; the stage runner's manifests make a rerun skip finished seeds). The data stage is shared:
 it is brought up to date once in the run folder and linked into every seed folder (its cache key
 does not depend on the classifier seed). The seeds share the run's stage cache
-(``run.stage_cache``), so a seed chain identical to one already finished is reused. Then ``study/summary.json`` and ``study/index.html`` put
-each seed's ``population.pooled`` and ``population.records`` (evaluate/summary.json) side by side
+(``run.stage_cache``), so a seed chain identical to one already finished is reused. Then
+``study/summary.json`` and ``study/index.html`` put each seed's ``population.pooled`` and ``population.records`` (evaluate/summary.json) side by side
 and say whether the verdict is the same for every seed: the same outcome (better / worse / not
 distinguishable) for every (comparison, metric) record.
 """
