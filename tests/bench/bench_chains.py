@@ -94,6 +94,24 @@ def table(rows: list[tuple[str, dict, dict | None]]) -> list[str]:
     return lines
 
 
+def estimate_lines(cfg, split: dict[str, tuple[float, float]]) -> list[str]:
+    """Each stage's cost estimate (pipeline/infra/cost.py) against what it took here, and whether it
+    lies within a factor of two (tests/support/estimates.py). A machine-dependent check, so it lives
+    here: the estimates stand for the reference machine, and a faster one runs a small stage in
+    under half the estimate (a 1.4 s models stage against 3.5 s on CI's machine)."""
+    from pipeline.infra.cost import estimate
+    from pipeline.infra.device import available_cores
+    from tests.support.estimates import misfit
+
+    out = []
+    for st, (wall, cpu) in split.items():
+        est = estimate(cfg, st).seconds
+        problem = misfit(st, est, wall, cpu, available_cores()) if cpu == cpu else None
+        out.append(f"    {st:<10} estimate {est:8.1f} s, took {wall:8.1f} s wall ({cpu:6.1f} CPU s): "
+                   f"{problem or 'within a factor of two'}")
+    return out
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", action="append", default=[], help="a chain to run (repeatable); default: the main job")
@@ -122,6 +140,8 @@ def main(argv=None) -> dict:
         print(f"  {path.name}: {chain['wall_s']:.0f} s wall (goal {goal:.0f} s: ratio {chain['wall_s'] / goal:.2f}), "
               f"{chain['cpu_s']:.0f} CPU s, peak RSS {chain['peak_gb']:.2f} GB; load average {load0:.1f} before, "
               f"{os.getloadavg()[0]:.1f} after", flush=True)
+        for line in estimate_lines(load_config(path), split):
+            print(line)
         rows.append((path.name, split, chain))
         results[path.name] = {**chain, "stages": split}
     if rows:

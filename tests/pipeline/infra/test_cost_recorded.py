@@ -3,7 +3,8 @@ estimated within a factor of two of what its manifest recorded (tests/support/es
 <= 2 x wall, and >= CPU s / cores / 2, so a loaded machine's inflated wall seconds cannot hide an
 underestimate). The figures are the manifests' ``seconds`` and ``cpu_seconds``; the config is the
 file named with the overrides that run's manifest (``parts.sections``) differs from it by.
-tests/stages/test_smoke_run.py applies the same check to the smoke chain it runs itself.
+tests/bench/bench_chains.py applies the same check to the chains it runs, on the machine at hand
+(machine-dependent, so in ``make bench``: a faster machine runs a small stage in under half the estimate).
 
 Recorded on the 2-core AMD EPYC shared with 7 other sessions (load 4-20, so the wall seconds are
 inflated; CPU seconds are what the lower bound reads), December 7 2026:
