@@ -16,7 +16,7 @@ from pipeline.evaluation.metrics.labels import ordered_methods
 from pipeline.evaluation.metrics.spec import Params, matrices
 from pipeline.evaluation.statistics.engine import over_realizations
 from reports.shared.numbers import Estimate
-from pipeline.infra.config.evaluation import EvaluateConfig
+from pipeline.infra.config.evaluation import CONFIDENT_THRESHOLD, ECE_BINS
 
 BOOTSTRAP = 1000
 
@@ -29,8 +29,7 @@ def metric_params(summary: Mapping, config: Mapping | None = None) -> Params:
     src = dict((config or {}).get("evaluate") or {})
     src.update({k: v for k, v in (summary.get("claim_params") or {}).items() if k == "confident_threshold"})
     src.update({k: v for k, v in summary.items() if k in ("confident_threshold", "ece_bins") and v is not None})
-    d = EvaluateConfig()
-    return Params(float(src.get("confident_threshold", d.confident_threshold)), int(src.get("ece_bins", d.ece_bins)))
+    return Params(float(src.get("confident_threshold", CONFIDENT_THRESHOLD)), int(src.get("ece_bins", ECE_BINS)))
 
 
 def bootstrap_track(mats: dict, params: Params, n_boot: int = BOOTSTRAP, seed: int = 0) -> dict[str, Estimate]:

@@ -8,6 +8,7 @@ inside functions) — so an edit anywhere a stage can reach reruns it.
 """
 from __future__ import annotations
 
+import ast
 import dis
 import functools
 import re
@@ -15,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipeline.infra.cache import sha256_bytes, sha256_stream
+from stages.framework.declarations import declares_settings, without_declarations
 
 PACKAGES = ("pipeline", "loaders", "stages", "reports")   # the project's import floors
 ROOT = Path(__file__).resolve().parents[2]                 # the source tree they live in
@@ -29,6 +31,7 @@ class StageSpec:
     help: str = ""
     after: tuple[str, ...] = field(default=())  # stages run right after this one by the CLI
     methods: bool = False                # the fusion methods registered from outside enter the key
+    defaults: bool = False               # every setting's default enters the key (the stage writes them)
 
 
 STAGES: dict[str, StageSpec] = {s.name: s for s in (
@@ -45,7 +48,7 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
     StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate", "plan"), methods=True,
               help="the population evaluation (targets x tracks x localization settings x methods, CIs, "
                    "verdict) and the detailed track's experiments", after=("report",)),
-    StageSpec("report", "stages.report", ("models", "evaluate"), ("report",),
+    StageSpec("report", "stages.report", ("models", "evaluate"), ("report",), defaults=True,
               help="render the HTML + PNG report from existing results"),
     StageSpec("simulate", "stages.simulate", (), ("simulate",), methods=True,
               help="simulation scenarios of the paper's section 5.3 (synthetic GP measurements)"),
@@ -108,7 +111,7 @@ class _Source:
 
 def _source(path: Path) -> _Source:
     st = path.stat()
-    return _parse(str(path), st.st_size, st.st_mtime_ns)
+    return _parse(str(path), st.st_size, st.st_mtime_ns, declares_settings(path, ROOT))
 
 
 # Import statements, found in the source text: ``import a.b as c, d`` and ``from .x import (y, z)``
@@ -142,7 +145,7 @@ _DOTTED = re.compile(r"[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*")
 
 
 @functools.lru_cache(maxsize=1024)
-def _parse(path: str, size: int, mtime_ns: int) -> _Source:
+def _parse(path: str, size: int, mtime_ns: int, settings: bool = False) -> _Source:
     # Read once per (file, size, mtime): every stage's dependency walk visits most project
     # modules, and ``viewfuse status`` computes every stage's key.
     data = Path(path).read_bytes()
@@ -154,7 +157,10 @@ def _parse(path: str, size: int, mtime_ns: int) -> _Source:
     except (SyntaxError, ValueError):
         return _Source(sha256_bytes(data), (), frozenset())
     h = sha256_stream()
-    _code_digest(code, h)
+    # A config module (``settings``): its settings' declarations enter the key as resolved values,
+    # not as code (stages.framework.declarations).
+    _code_digest(compile(without_declarations(ast.parse(data, path)), path, "exec", dont_inherit=True, optimize=2)
+                 if settings else code, h)
     return _Source(h.hexdigest(), scan_imports(data.decode("utf-8", "replace")), frozenset(code.co_names))
 
 
@@ -190,7 +196,9 @@ def _const_repr(c) -> str:
 def source_fingerprint(path: str | Path) -> str:
     """sha256 of what a Python file's code does (its compiled byte code and constants) without
     comments, docstrings or line numbers: editing what code says about itself does not make a
-    stage stale; editing what it does does. A file that does not compile is hashed as bytes."""
+    stage stale; editing what it does does. In the config package the settings' declarations are
+    left out too (their resolved values are in the keys: ``stages.framework.declarations``). A
+    file that does not compile is hashed as bytes."""
     return _source(Path(path)).fingerprint
 
 

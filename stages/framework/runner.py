@@ -102,6 +102,8 @@ def stage_key(cfg: Config, spec: StageSpec, upstream: dict[str, str]) -> tuple[s
     if spec.methods:  # a fusion method registered from outside (entry point, test): new or edited reruns the stage
 
         parts["methods"] = outside_fingerprint()
+    if spec.defaults:  # the report lists the keys a run sets apart from the defaults (declarations.py)
+        parts["defaults"] = hash_json(to_dict(Config()))
     parts.update(outside_parts(cfg, spec.name))   # classifiers, planners, metrics from outside
     return hash_json(parts), {**parts, "code_modules": per_module}
 
@@ -128,6 +130,8 @@ def _key_reason(old: dict, new: dict) -> str:
         return "code changed" + (f" ({', '.join(changed[:4])}{', ...' if len(changed) > 4 else ''})" if changed else "")
     if oldp.get("inputs") != newp.get("inputs"):
         return "its dataset or weights inputs changed"
+    if oldp.get("defaults") != newp.get("defaults"):
+        return "a setting's default changed"
     return "cache key changed"
 
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from pipeline.infra.registry import Registry, caller_module
 from pipeline.infra.config.fields import ConfigError
-from pipeline.infra.config.evaluation import EvaluateConfig
+from pipeline.infra.config.evaluation import ECE_BINS
 from pipeline.infra import extension as X
 from pipeline.infra.extension import ExtensionError, raise_problems
 
@@ -169,9 +169,9 @@ class Params:
     @classmethod
     def of(cls, section) -> Params:
         """From a config section with ``confident_threshold`` (and ``ece_bins``: the evaluate
-        section; the simulate section has no ECE and takes the evaluate default's field)."""
+        section; the simulate section has no ECE and takes the evaluate default, ``ECE_BINS``)."""
 
-        bins = getattr(section, "ece_bins", EvaluateConfig.__dataclass_fields__["ece_bins"].default)
+        bins = getattr(section, "ece_bins", ECE_BINS)
         return cls(float(section.confident_threshold), int(bins))
 
 

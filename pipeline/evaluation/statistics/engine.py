@@ -31,7 +31,7 @@ from pipeline.evaluation.statistics.hierarchy import Hierarchy, leave_one_out
 from pipeline.evaluation.statistics.multiplicity import holm
 from pipeline.evaluation.statistics.resampler import draws, estimate, interval
 from pipeline.evaluation.statistics.pooled_calibration import pooled_ece
-from pipeline.infra.config.evaluation import EvaluateConfig
+from pipeline.infra.config.evaluation import BOOTSTRAP
 
 KEYS = ["target", "track", "setting"]
 
@@ -270,7 +270,7 @@ def seed_pool(populations: Mapping[str, Mapping]) -> dict | None:
     metrics = [k for k in M.METRICS if all(k in (p["cells"][0].get("values") or {}).get(methods[0], {})
                                            for p in pops.values())]
     first = next(iter(pops.values()))
-    n_boot = int(first.get("bootstrap") or EvaluateConfig.__dataclass_fields__["bootstrap"].default)
+    n_boot = int(first.get("bootstrap") or BOOTSTRAP)
     primary = next((p.get("primary_metrics") for p in pops.values() if p.get("primary_metrics")), ())
     return seed_block({k: p["cells"] for k, p in pops.items()}, methods, metrics, comparisons(), n_boot,
                       primary=tuple(primary or ()))

@@ -72,6 +72,14 @@ class PrimaryConfig:
                                  "with one setting: 'biased', 'biased_randomized', 'randomized' (one sigma only)")
 
 
+# Defaults that code outside the section reads too (the simulate stage's ECE, a summary that lacks
+# them): module constants, so they stay in the stage keys' code hash; a setting's own default is in
+# the keys only as the resolved value of the sections a stage declares (stages/framework/declarations.py).
+BOOTSTRAP = 2000
+CONFIDENT_THRESHOLD = 0.99
+ECE_BINS = 15
+
+
 def cluster_of(ev) -> str:
     """The clustering in force: ``evaluate.statistics.cluster``, or "scan" where only the former
     key ``evaluate.resample_scans`` asks for it."""
@@ -112,7 +120,7 @@ class EvaluateConfig(Extendable):
     experiments: tuple[str, ...] = _f(
         factory=lambda: ("gp_models", "biased", "randomized", "sensitivity", "bias_maps"))
     seed: int = _f(0, lo=0, hi=SEED_MAX)
-    bootstrap: int = _f(2000, lo=100, hi=1000000, doc="bootstrap resamples for every 95 % confidence interval")
+    bootstrap: int = _f(BOOTSTRAP, lo=100, hi=1000000, doc="bootstrap resamples for every 95 % confidence interval")
     resample_scans: bool = _f(False, doc="the former spelling of statistics.cluster = 'scan': the population's CIs "
                                          "resample scans, then targets within each scan, then tracks (pooled: the "
                                          "mean over scans of each scan's pool over its targets)")
@@ -131,9 +139,9 @@ class EvaluateConfig(Extendable):
                                   "a Student-t whose degrees of freedom are ML-fitted per fold on the standardized "
                                   "residuals of the other folds' labelled crops (as test_domain_variance's folds; "
                                   "pipeline/evaluation/domain/tails.py); none: they do not run")
-    confident_threshold: float = _f(0.99, lo=0.5, hi=1.0,
+    confident_threshold: float = _f(CONFIDENT_THRESHOLD, lo=0.5, hi=1.0,
                                     doc="a confident error: max P >= this on a wrong class")
-    ece_bins: int = _f(15, lo=2, hi=1000, doc="equal-width confidence bins of the top-label ECE and the reliability "
+    ece_bins: int = _f(ECE_BINS, lo=2, hi=1000, doc="equal-width confidence bins of the top-label ECE and the reliability "
                                               "diagram")
     primary_metrics: tuple[str, ...] = _f(factory=lambda: ("correct_final", "confident_error_final"),
                                           doc="the metrics the verdict's bottom line speaks of (keys of "
