@@ -223,3 +223,10 @@ def test_the_methods_registered_from_outside_still_enter_the_keys_of_the_stages_
         keys[fp] = {n: runner.stage_key(cfg, s, {})[0] for n, s in STAGES.items()}
     moved = {n for n in STAGES if keys["outside_vote=aaaa"][n] != keys["outside_vote=bbbb"][n]}
     assert moved == {n for n, s in STAGES.items() if s.methods} == {"evaluate", "simulate"}
+
+
+def test_a_stage_stale_by_a_new_default_alone_says_so():
+    from stages.framework.runner import _key_reason
+
+    old = {"stage": "report", "sections": {"report": {}}, "code": "c", "upstream": {}, "defaults": "d1"}
+    assert _key_reason({"parts": old}, {**old, "defaults": "d2"}) == "a setting's default changed"
