@@ -38,20 +38,37 @@ def _holm(d: dict) -> str:
 
 
 def contrast_sentence(block: dict) -> str:
-    """Which methods the instance level moves, on which primary metric, as the adjusted verdicts say."""
-    moved = [f"{method_label(r['method'], short=True)} on {metric_label(r['metric'], short=True)} "
-             f"({ARM_WORDS[r['difference'].get('outcome_holm') or r['difference']['outcome']]})"
-             for r in block.get("rows") or [] if r.get("primary")
+    """Which methods the instance level moves, on which primary metric, as the adjusted verdicts say;
+    the comparisons withheld (no CI: ``design.withheld``) named with their reason, never counted
+    among the not distinguishable ones."""
+    prim = [r for r in block.get("rows") or [] if r.get("primary")]
+    held = [r for r in prim if r["difference"].get("withheld")]
+    moved = [r for r in prim if r not in held
              and (r["difference"].get("outcome_holm") or r["difference"]["outcome"]) in ("better", "worse")]
-    held = [r for r in block.get("rows") or [] if r.get("primary") and r["difference"].get("withheld")]
-    if held and not moved:
+    rest = [r for r in prim if r not in held and r not in moved]
+    said = [f"{_name(r)} ({ARM_WORDS[r['difference'].get('outcome_holm') or r['difference']['outcome']]})"
+            for r in moved]
+    if not held:
+        if not moved:
+            return ("On no primary metric does the class models' training set (instance against category level) "
+                    "change any method's result distinguishably, after the Holm adjustment over this contrast's family.")
+        return ("After the Holm adjustment over this contrast's family, the training set changes "
+                + join_words(said) + "; every other primary comparison is not distinguishable.")
+    why = join_words(list(dict.fromkeys(str(r["difference"]["withheld"]) for r in held)))
+    no_verdict = (f"{'all ' + str(len(held)) + ' primary comparisons' if len(held) == len(prim) else join_words([_name(r) for r in held])} "
+                  f"carr{'ies' if len(held) == 1 else 'y'} no CI and no verdict ({why})")
+    if not moved and not rest:
         return ("No primary metric has a verdict on the class models' training set (instance against category "
-                f"level): {len(held)} of the comparisons carry no CI, no verdict ({held[0]['difference']['withheld']}).")
-    if not moved:
-        return ("On no primary metric does the class models' training set (instance against category level) "
-                "change any method's result distinguishably, after the Holm adjustment over this contrast's family.")
-    return ("After the Holm adjustment over this contrast's family, the training set changes "
-            + join_words(moved) + "; every other primary comparison is not distinguishable.")
+                f"level): {no_verdict}.")
+    tested = (f"the training set changes {join_words(said)}" if moved else
+              "the training set (instance against category level) changes no method's result distinguishably")
+    others = (f"; {join_words([_name(r) for r in rest])} {'is' if len(rest) == 1 else 'are'} not distinguishable"
+              if moved and rest else "")
+    return f"After the Holm adjustment over this contrast's family, {tested}{others}; {no_verdict}."
+
+
+def _name(r: dict) -> str:
+    return f"{method_label(r['method'], short=True)} on {metric_label(r['metric'], short=True)}"
 
 
 def contrast_section(ctx: ReportContext) -> None:

@@ -205,8 +205,8 @@ def outcome_clauses(records: Iterable[Mapping], *, subject: bool = True,
     for recs in by.values():
         a, b = sides(recs[0], name)
         g = _grouped({str(r["metric"]): str(r["outcome"]) for r in recs})
-        if g["withheld"]:   # no CI, no verdict: said as such, never as "not distinguishable"
-            held = "no verdict (no CI: too few units) on " + (
+        if g["withheld"]:   # no CI, no verdict: said as such, never as "not distinguishable", with which level
+            held = f"no verdict (no CI: {too_few(recs)}) on " + (
                 "any metric" if len(g["withheld"]) == len(recs) else join_words(g["withheld"]))
             said = "; ".join([f"{o} on {join_words(g[o])}" for o in PHRASE if o != "withheld" and g.get(o)] + [held])
             out.append(f"{a} vs {b}: {said}" if subject else said)
@@ -218,6 +218,13 @@ def outcome_clauses(records: Iterable[Mapping], *, subject: bool = True,
         said = "; ".join(f"{o} on {join_words(g[o])}" for o in PHRASE if g.get(o))
         out.append(f"{a} vs {b}: {said}" if subject else said)
     return out
+
+
+def too_few(records: Iterable[Mapping]) -> str:
+    """'2 scans, too few units' from the withheld records' reasons (``design.withheld``: the level
+    and its count before the colon); 'too few units' where a record does not carry its reason."""
+    why = list(dict.fromkeys(str(r["withheld"]).split(":")[0] for r in records if r.get("withheld")))
+    return ", ".join(why + ["too few units"])
 
 
 def find(records: Iterable[Mapping], comparison: str, metric: str) -> Mapping | None:

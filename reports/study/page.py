@@ -41,6 +41,11 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
                for k, o in held.items() if o in ("better", "worse")]
     if decided:
         text += " Held for every seed: " + "; ".join(outcome_clauses(decided)) + "."
+    n_held = sum(o == "withheld" for o in held.values())
+    if n_held:   # never counted among the verdicts: said apart, with why
+        text += (f" {n_held} of {n_entries} entries carr{'ies' if n_held == 1 else 'y'} no CI and no verdict in every "
+                 "seed (too few units of a "
+                 "level the design varies over).")
     return text
 
 
