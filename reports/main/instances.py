@@ -14,7 +14,7 @@ from pipeline.evaluation.metrics.spec import metric_label
 from pipeline.scene.folds import category_of
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate
-from reports.shared.records import records_of, sentences
+from reports.shared.records import find, records_of, sentences
 
 INSTANCE = INSTANCE_KEY      # the block's key in summary.json's ablations
 KEYS = ("correct_final", "confident_error_final", "ece_final", "nll_final")
@@ -41,7 +41,7 @@ def instance_attribution_section(ctx: ReportContext) -> None:
         per = paired.get(comparison_key(a, b))
         if per:
             rows.append([comparison_label(comparison_key(a, b)), INSTANCE_ATTRIBUTION[(a, b)]]
-                        + [Estimate.of(per.get(k), signed=True) for k in KEYS])
+                        + _shown(ctx, block, comparison_key(a, b), KEYS, "instance-term table"))
     page.table(["comparison", "what it isolates"] + [metric_label(k, short=True) for k in KEYS], rows,
                cls="instance-attribution",
                caption="Paired differences [95 % CI] on the same cells and realizations, from the statistics engine "
@@ -51,13 +51,23 @@ def instance_attribution_section(ctx: ReportContext) -> None:
     goal = instance_goal_comparisons(block.get("methods") or [])
     if not goal:
         return
-    rows = [[method_label(b, short=True)] + [Estimate.of((paired.get(comparison_key(a, b)) or {}).get(k), signed=True)
-                                             for k in CATEGORY_KEYS] for a, b in goal]
+    rows = [[method_label(b, short=True)] + _shown(ctx, block, comparison_key(a, b), CATEGORY_KEYS,
+                                                   "instance goal table") for a, b in goal]
     page.table(["baseline"] + [f"{method_label(WU_INSTANCE, short=True)} − baseline: {metric_label(k, short=True)}"
                                for k in CATEGORY_KEYS], rows, cls="instance-goal",
                caption="The instance term's goal, pooled: paired differences [95 % CI over the design's clusters, "
                        "unadjusted] of With Uncertainty + instance against every baseline.")
     page.paragraph(goal_sentence(paired, goal), cls="instance-goal-verdict")
+
+
+def _shown(ctx: ReportContext, block: dict, key: str, metrics, where: str) -> list[Estimate]:
+    """The block's paired differences of ``key`` as the table shows them, each registered in the
+    page's ledger against its verdict record (one statistic per number)."""
+    per = (block.get("paired") or {}).get(key) or {}
+    out = [Estimate.of(per.get(k), signed=True) for k in metrics]
+    for k, e in zip(metrics, out):
+        ctx.ledger.register_record(("ablation", INSTANCE, key, k), e, find(records_of(block), key, k), where=where)
+    return out
 
 
 def goal_misses(paired: dict, goal) -> list[str]:
