@@ -14,7 +14,7 @@ from reports.compare.read import printable
 from reports.compare.runs import Comparison
 from reports.shared.html import HtmlReport
 from reports.shared.numbers import Estimate, fmt
-from reports.shared.records import outcome_text
+from reports.shared.records import outcome_text, pool_note
 
 
 def _value(v: Any) -> str:
@@ -114,6 +114,7 @@ def build_page(c: Comparison, title: str = "viewfuse compare", intro: list[str] 
     how = (" Seed-group columns pool the seeds' cells in one bootstrap over seeds, then targets, then tracks (the "
            "statistics engine, as `viewfuse study`): the CI covers classifier training runs; each metric pooled "
            "over targets as in the main report."
+           + "".join(f" {n}" for n in dict.fromkeys(pool_note(col.pool) for col in pooled_cols) if n)
            if pooled_cols else "")
     page.table(["metric", "method"] + names,
                [[metric_label(k), method_label(m, short=True)] + [Estimate.of(v) if v else None for v in c.pooled[(m, k)]]

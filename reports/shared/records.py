@@ -227,6 +227,18 @@ def too_few(records: Iterable[Mapping]) -> str:
     return ", ".join(why + ["too few units"])
 
 
+def pool_note(block: Mapping | None) -> str:
+    """Why a seed pool (``engine.seed_pool``) has no CI and no verdict, '' where it has them: its
+    draws resample the seeds on top, then each seed's targets, so the rule for every interval
+    (``design.withheld``) counts the seeds as a level."""
+    held = [r for r in records_of(block) if r.get("withheld")]
+    if not held:
+        return ""
+    return (f"Pooled over the seeds, these values carry no CI and no verdict ({held[0]['withheld']}): the bootstrap "
+            "resamples the seeds on top, then each seed's targets, so the seeds are a level the interval varies over "
+            "and need at least 8 units, as every level does.")
+
+
 def find(records: Iterable[Mapping], comparison: str, metric: str) -> Mapping | None:
     """The record of (comparison, metric), or None."""
     return next((r for r in records if r.get("comparison") == comparison and r.get("metric") == metric), None)
