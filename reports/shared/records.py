@@ -234,9 +234,9 @@ def pool_note(block: Mapping | None) -> str:
     held = [r for r in records_of(block) if r.get("withheld")]
     if not held:
         return ""
-    return (f"Pooled over the seeds, these values carry no CI and no verdict ({held[0]['withheld']}): the bootstrap "
-            "resamples the seeds on top, then each seed's targets, so the seeds are a level the interval varies over "
-            "and need at least 8 units, as every level does.")
+    return (f"Pooled over the seeds, these values carry no CI and no verdict ({too_few(held[:1])}): the bootstrap "
+            "resamples the seeds on top, then each seed's targets, so the seeds are a level the interval varies over, "
+            "and a calibrated interval needs at least 8 units of every level (docs/calibration.md).")
 
 
 def find(records: Iterable[Mapping], comparison: str, metric: str) -> Mapping | None:

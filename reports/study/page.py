@@ -125,8 +125,8 @@ def render_html(summary: dict, run_name: str) -> str:
                         + "".join(f"<td>{_cell((p.get(m) or {}).get(k))}</td>" for p in pooled) + "</tr>")
     sp = summary.get("pooled_over_seeds") or {}
     note = pool_note(sp)
-    seed_verdict = ("<h2>Pooled over seeds</h2><p>One bootstrap over seeds, then targets, then tracks: these CIs "
-                    "cover classifier training runs." + (f" {html.escape(note)}" if note else "") + "</p><ul>"
+    seed_verdict = ("<h2>Pooled over seeds</h2><p>" + (html.escape(note) if note else "One bootstrap over seeds, then "
+                    "targets, then tracks: these CIs cover classifier training runs.") + "</p><ul>"
                     + "".join(f"<li>{html.escape(v)}</li>" for v in sentences(records_of(sp))) + "</ul>"
                     + holm_table(sp)) if sp else ""
     verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"

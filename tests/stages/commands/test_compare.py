@@ -109,7 +109,7 @@ def test_three_runs_with_a_seed_group_pool_over_seeds(tmp_path):
     from reports.shared.records import pool_note
 
     note = pool_note(c.columns[-1].pool)
-    assert "no CI and no verdict (3 seeds, 4 targets:" in note and "resamples the seeds on top" in note
+    assert "no CI and no verdict (3 seeds, 4 targets, too few units)" in note and "resamples the seeds on top" in note
     assert _same(study_pool["pooled"], c.columns[-1].pool["pooled"])
     assert _same(study_pool["records"], c.columns[-1].pool["records"])
 

@@ -154,7 +154,8 @@ def test_a_pool_over_fewer_than_eight_seeds_has_no_ci_and_the_page_says_why():
     (r,) = few["pooled_over_seeds"]["records"]
     assert r["outcome"] == "withheld" and r["withheld"].startswith("3 seeds: ")
     page = render_html(few, "r")
-    assert "no CI and no verdict (3 seeds: " in page and "resamples the seeds on top" in page
+    assert "no CI and no verdict (3 seeds, too few units)" in page and "resamples the seeds on top" in page
+    assert "these CIs cover" not in page
     enough = summarize({s: {**_population("better", 0.2), "cells": _cells(0.5 + s / 100), "bootstrap": 300}
                         for s in range(8)})
     (r,) = enough["pooled_over_seeds"]["records"]
