@@ -6,13 +6,14 @@ from __future__ import annotations
 
 from pipeline.evaluation.metrics.labels import method_label
 from pipeline.evaluation.metrics.spec import higher_is_better, metric_label
+from pipeline.evaluation.statistics.records import WITHHELD
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate
 from reports.shared.records import holm_text, join_words, over_text, statistic_text, varies_text
 
 # The outcome of instance − category in the arms' words (the record's own label beside it).
 ARM_WORDS = {"better": "instance level better", "worse": "category level better",
-             "not distinguishable": "not distinguishable", "withheld": "no CI, no verdict (too few units)"}
+             "not distinguishable": "not distinguishable", WITHHELD: "no CI, no verdict (too few units)"}
 
 
 def contrast_rows(block: dict, primary_only: bool = True) -> list[list]:
@@ -26,14 +27,20 @@ def contrast_rows(block: dict, primary_only: bool = True) -> list[list]:
         diff = {"value": d.get("value"), "ci_low": d.get("lo"), "ci_high": d.get("hi")}
         rows.append([method_label(r["method"], short=True), metric_label(r["metric"], short=True),
                      Estimate.of(r["instance"]), Estimate.of(r["category"]), Estimate.of(diff, signed=True),
-                     ARM_WORDS.get(d["outcome"], d["outcome"]),
+                     ARM_WORDS.get(_outcome(d), _outcome(d)),
                      _holm(d)])
     return rows
 
 
+def _outcome(d: dict) -> str:
+    """The difference's outcome; "withheld" wherever it carries a reason (a summary from before the
+    outcome said so kept "not distinguishable" beside it)."""
+    return WITHHELD if d.get("withheld") else d["outcome"]
+
+
 def _holm(d: dict) -> str:
     """``holm_text`` with the adjusted outcome in the arms' words; '—' outside the family."""
-    oh = d.get("outcome_holm")
+    oh = None if d.get("withheld") else d.get("outcome_holm")
     return ARM_WORDS.get(oh, oh) + holm_text(d)[len(oh):] if oh else "—"
 
 
@@ -81,9 +88,9 @@ def contrast_section(ctx: ReportContext) -> None:
         d = r["difference"]
         key = ("contrast", r["method"], r["metric"])
         hib = higher_is_better(r["metric"])
-        ctx.ledger.register(key, d.get("value"), d.get("lo"), d.get("hi"), label=d["outcome"],
+        ctx.ledger.register(key, d.get("value"), d.get("lo"), d.get("hi"), label=_outcome(d),
                             where="class-level contrast", higher_is_better=hib)
-        if d.get("outcome_holm"):
+        if d.get("outcome_holm") and not d.get("withheld"):
             ctx.ledger.register(("contrast-holm", r["method"], r["metric"]), d.get("value"), d.get("lo_holm"),
                                 d.get("hi_holm"), label=d["outcome_holm"], where="class-level contrast (Holm)",
                                 higher_is_better=hib)

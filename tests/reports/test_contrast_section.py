@@ -94,3 +94,15 @@ def test_a_design_with_too_few_units_withholds_every_comparison_and_the_sentence
     s = contrast_sentence(block)
     assert s.startswith("No primary metric has a verdict") and "all 4 primary comparisons" in s
     assert "7 categories" in s and "not distinguishable" not in s
+
+
+def test_a_row_with_a_reason_is_worded_withheld_even_where_an_older_summary_kept_a_verdict_beside_it():
+    block = contrast_block(_ev(), _table(shift=0.3))
+    row = next(r for r in block["rows"] if r["primary"])
+    row["difference"].update(lo=None, hi=None, withheld=WHY)    # outcome and Holm outcome left as they were
+    ctx, _ = _ctx({"contrast": block})
+    contrast_section(ctx)
+    _, header, rows, caption = ctx.page.items[1]
+    first = rows[0]
+    assert first[5] == "no CI, no verdict (too few units)" and first[6] == "—"
+    assert not ctx.ledger.problems()
