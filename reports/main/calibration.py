@@ -101,24 +101,19 @@ DOMAIN_KINDS = (("gp", "GP predictive (Model Based)"), ("gp_plus_dropout", "+ dr
                 ("gp_plus_dropout_t", "+ dropout variance as a Student-t (ν cross-fitted)"))
 
 
-# The fit table's number columns, in order (each row: the likelihood's title, then these).
-DOMAIN_STATS = ("n", "share_gt2", "share_gt3", "coverage95", "abs_z_p90", "abs_z_p99")
-KIND_OF = {title: k for k, title in DOMAIN_KINDS}
-
-
-def fit_overall(dom: dict, kind: str) -> dict:
-    """A bank's pooled fit of one likelihood (variance kind): ``domain_fit[kind].overall``."""
-    return (dom.get(kind) or {}).get("overall") or {}
+def overall(fit: dict, kind: str) -> dict:
+    """One bank's pooled row of one likelihood (variance kind); {} where it has none."""
+    return (fit.get(kind) or {}).get("overall") or {}
 
 
 def domain_rows(dom: dict) -> list[list]:
-    """The fit table's rows of one model bank: one per likelihood (variance kind) it holds, the
-    numbers as summary.json holds them (the page writes them with ``fmt``)."""
+    """The fit table's rows of one model bank: one per likelihood (variance kind) it holds."""
     rows = []
     for k, title in DOMAIN_KINDS:
-        o = fit_overall(dom, k)
+        o = overall(dom, k)
         if o.get("n"):
-            rows.append([title] + [o[x] for x in DOMAIN_STATS])
+            rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
+                         fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
     return rows
 
 
@@ -141,8 +136,7 @@ def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     variance, Gaussian) covers 92-98 %, and if not, which way it misses and which bank and
     likelihood of this run do fall inside."""
     lo, hi = COVERAGE_BAND
-    main = banks[0][1]
-    c = fit_overall(main, "gp_plus_dropout").get("coverage95")
+    c = overall(banks[0][1], "gp_plus_dropout").get("coverage95")
     if c is None:
         return ""
     where, why = (("inside", "") if lo <= c <= hi else
@@ -152,10 +146,23 @@ def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
             f"in its 95 % interval: {where} the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit{why}.")
     if not lo <= c <= hi:
         inside = [f"{bank}, {title}" for bank, d in banks for k, title in DOMAIN_KINDS
-                  if lo <= (fit_overall(d, k).get("coverage95") or -1) <= hi]
+                  if lo <= (((d.get(k) or {}).get("overall") or {}).get("coverage95") or -1) <= hi]
         text += (" Inside it in this run: " + "; ".join(inside) + "." if inside
                  else " No bank or likelihood of this run falls inside it.")
     return text
+
+
+# The fit table's number columns, in order (each row: the likelihood's title, then these).
+DOMAIN_STATS = ("n", "share_gt2", "share_gt3", "coverage95", "abs_z_p90", "abs_z_p99")
+KIND_OF = {title: k for k, title in DOMAIN_KINDS}
+
+
+def register_fit_row(ledger, bank: str, fit: dict, row: list) -> None:
+    """A fit-table row's numbers in the page's ledger beside its bank's pooled row in summary.json,
+    both as the page writes them (``fmt``: the row holds text), one statistic per number."""
+    kind = KIND_OF[row[0]]
+    source = {k: v if k == "n" else fmt(v) for k, v in overall(fit, kind).items()}
+    ledger.register_row(("domain fit", bank, kind), DOMAIN_STATS, row[1:], source, where="domain-fit table")
 
 
 def domain_section(ctx: ReportContext) -> None:
@@ -174,8 +181,7 @@ def domain_section(ctx: ReportContext) -> None:
     rows = []
     for bank, d in banks:
         for row in domain_rows(d):   # each shown number against its bank's fit in summary.json
-            ctx.ledger.register_row(("domain fit", bank, KIND_OF[row[0]]), DOMAIN_STATS, row[1:],
-                                    fit_overall(d, KIND_OF[row[0]]), where="domain-fit table")
+            register_fit_row(ctx.ledger, bank, d, row)
             rows.append(([bank] if len(banks) > 1 else []) + row)
     page.table((["models (score space)"] if len(banks) > 1 else []) +
                ["variance", "(crop, component)", "|z| > 2", "|z| > 3", "95 % coverage", "|z| p90", "|z| p99"], rows,

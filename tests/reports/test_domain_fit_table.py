@@ -48,7 +48,7 @@ def test_one_row_group_per_bank_with_its_own_coverage():
     assert list(groups) == ["main (probability scores)", f"{LOG} (log scores)"]
     for (label, grp), fit in zip(groups.items(), (dom, dom["by_ablation"][LOG])):
         assert [r[1] for r in grp] == [t for _, t in DOMAIN_KINDS]          # Gaussian and Student-t rows
-        assert [fmt(r[cov]) for r in grp] == [fmt(fit[k]["overall"]["coverage95"]) for k, _ in DOMAIN_KINDS], label
+        assert [r[cov] for r in grp] == [fmt(fit[k]["overall"]["coverage95"]) for k, _ in DOMAIN_KINDS], label
 
 
 def test_without_ablation_banks_the_table_keeps_its_columns():
@@ -58,6 +58,38 @@ def test_without_ablation_banks_the_table_keeps_its_columns():
     dom["by_ablation"] = {LOG: {"n_crops": 0, "note": "no crop"}}   # an empty bank adds no group
     header, rows = _render(dom)
     assert header[0] == "variance"
+
+
+def test_every_number_of_every_banks_rows_is_checked_against_its_fit():
+    rng = np.random.default_rng(2)
+    dom = {**_fit(rng, "probability"), "by_ablation": {LOG: _fit(rng, "log")}}
+    led = Ledger()
+    _render(dom, led)
+    assert led.problems() == []
+    table = [e for e in led.entries if e.where == "domain-fit table"]
+    assert len(table) == 2 * len(DOMAIN_KINDS) * len(DOMAIN_STATS)          # one entry per shown number
+    assert {e.key[1] for e in table} == {"main (probability scores)", f"{LOG} (log scores)"}
+
+
+def test_a_planted_mismatch_in_an_ablation_banks_row_is_caught(monkeypatch):
+    rng = np.random.default_rng(3)
+    dom = {**_fit(rng, "probability"), "by_ablation": {LOG: _fit(rng, "log")}}
+    real = calibration.domain_rows
+
+    def shifted(d):   # the ablation bank's Student-t row shows another coverage than its fit holds
+        rows = real(d)
+        if d.get("score_space") == "log":
+            i = [r[0] for r in rows].index(dict(DOMAIN_KINDS)["gp_plus_dropout_t"])
+            j = 1 + DOMAIN_STATS.index("coverage95")
+            rows[i][j] = fmt(float(rows[i][j]) + 0.01)
+        return rows
+
+    monkeypatch.setattr(calibration, "domain_rows", shifted)
+    led = Ledger()
+    _render(dom, led)
+    (p,) = led.problems()
+    assert p.startswith(f"domain fit / {LOG} (log scores) / gp_plus_dropout_t / coverage95: evaluate/summary.json "
+                        "shows") and "domain-fit table shows" in p, p
 
 
 def _cover(space: str, **cov) -> dict:
@@ -83,34 +115,3 @@ def test_the_default_predictives_coverage_is_read_against_the_band_and_the_banks
     assert "inside the band" in fits and "Inside it in this run" not in fits
     narrow = coverage_sentence(domain_banks(_cover("log", gp_plus_dropout=0.80, gp=0.70)))
     assert "below" in narrow and "No bank or likelihood of this run falls inside it." in narrow
-
-
-def test_every_number_of_every_banks_rows_is_checked_against_its_fit():
-    rng = np.random.default_rng(2)
-    dom = {**_fit(rng, "probability"), "by_ablation": {LOG: _fit(rng, "log")}}
-    led = Ledger()
-    _render(dom, led)
-    assert led.problems() == []
-    table = [e for e in led.entries if e.where == "domain-fit table"]
-    assert len(table) == 2 * len(DOMAIN_KINDS) * len(DOMAIN_STATS)          # one entry per shown number
-    assert {e.key[1] for e in table} == {"main (probability scores)", f"{LOG} (log scores)"}
-
-
-def test_a_planted_mismatch_in_an_ablation_banks_row_is_caught(monkeypatch):
-    rng = np.random.default_rng(3)
-    dom = {**_fit(rng, "probability"), "by_ablation": {LOG: _fit(rng, "log")}}
-    real = calibration.domain_rows
-
-    def shifted(d):   # the ablation bank's Student-t row shows another coverage than its fit holds
-        rows = real(d)
-        if d.get("score_space") == "log":
-            i = [r[0] for r in rows].index(dict(DOMAIN_KINDS)["gp_plus_dropout_t"])
-            rows[i][1 + DOMAIN_STATS.index("coverage95")] += 0.01
-        return rows
-
-    monkeypatch.setattr(calibration, "domain_rows", shifted)
-    led = Ledger()
-    _render(dom, led)
-    (p,) = led.problems()
-    assert p.startswith(f"domain fit / {LOG} (log scores) / gp_plus_dropout_t / coverage95: evaluate/summary.json "
-                        "shows") and "domain-fit table shows" in p, p
