@@ -14,7 +14,7 @@ from reports.compare.read import printable
 from reports.compare.runs import Comparison
 from reports.shared.html import HtmlReport
 from reports.shared.numbers import Estimate, fmt
-from reports.shared.records import outcome_text
+from reports.shared.records import outcome_text, pool_note
 
 
 def _value(v: Any) -> str:
@@ -111,10 +111,11 @@ def build_page(c: Comparison, title: str = "viewfuse compare", intro: list[str] 
         page.paragraph("No config key differs between the runs." if len(c.runs) > 1 else "One run: nothing to diff.")
     page.section("Pooled values", anchor="pooled")
     pooled_cols = [col for col in c.columns if col.pooled_over_seeds]
+    notes = [n.rstrip(".") for n in dict.fromkeys(pool_note(col.pool) for col in pooled_cols) if n]
     how = (" Seed-group columns pool the seeds' cells in one bootstrap over seeds, then targets, then tracks (the "
-           "statistics engine, as `viewfuse study`): the CI covers classifier training runs; each metric pooled "
-           "over targets as in the main report."
-           if pooled_cols else "")
+           "statistics engine, as `viewfuse study`): " + ("; ".join(notes) if notes else
+                                                          "the CI covers classifier training runs") +
+           "; each metric pooled over targets as in the main report." if pooled_cols else "")
     page.table(["metric", "method"] + names,
                [[metric_label(k), method_label(m, short=True)] + [Estimate.of(v) if v else None for v in c.pooled[(m, k)]]
                 for k in c.metrics for m in c.methods], cls="pooled-compare",

@@ -11,7 +11,7 @@ from collections import Counter
 
 from pipeline.evaluation.metrics.spec import higher_is_better as _higher, metric_label
 from pipeline.evaluation.statistics.multiplicity import adjusted
-from reports.shared.records import join_words, outcome_clauses, records_of, sentence, varies_text
+from reports.shared.records import join_words, outcome_clauses, records_of, sentence, too_few, varies_text
 
 
 def counts(pop: dict) -> dict:
@@ -114,8 +114,16 @@ def bottom_line(pop: dict, card: dict | None = None) -> list[str]:
     n_top = (r0.get("n") or {}).get(group) if group else None
     scans = (f"{n_top} {group}" + (" crossed with " if r0.get("cluster") == "crossed" else ", ")) if n_top else ""
     levels = varies_text(r0) if r0.get("cluster") or not n_top else "scans, targets and tracks"
-    second = (f"Each outcome is read off the 95 % CI of a paired difference over {scans}{c['n_targets']} targets and "
-              f"{tracks_text(c)}; it varies over {levels} only, with {seeds} (the seed study, viewfuse study, repeats "
+    held = [r for r in table if r.get("withheld")]   # no CI, no verdict: never counted among the outcomes
+    head = ("Each outcome is read off the 95 % CI of a paired difference" if not held else
+            f"No difference here has a CI or a verdict ({too_few(held)}): each is the point value of a paired "
+            "difference" if len(held) == len(table) else
+            f"{len(held)} of these {len(table)} differences carr{'ies' if len(held) == 1 else 'y'} no CI and no verdict "
+            f"({too_few(held)}); each other "
+            "outcome is read off the 95 % CI of a paired difference")
+    second = (f"{head} over {scans}{c['n_targets']} targets and "
+              f"{tracks_text(c)}{'' if len(held) == len(table) else f'; it varies over {levels} only'}, with {seeds} "
+              "(the seed study, viewfuse study, repeats "
               "it over training seeds).")
     return [x for x in (lead, first, second) if x]
 

@@ -7,7 +7,7 @@ from pipeline.evaluation.metrics.labels import comparison_label, method_label, o
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.main.context import ReportContext
 from reports.shared.numbers import Estimate, fmt, plain
-from reports.shared.records import records_of, sentences
+from reports.shared.records import find, records_of, sentences
 
 CALIBRATED = "evaluate.test_domain_variance=cross_fit"
 ATTRIBUTION = "attribution"
@@ -18,6 +18,12 @@ TABLE = ("correct_final", "confident_error_final", "ece_final", "msde_final", "n
 def pooled_value(block: dict, method: str, metric: str) -> dict | None:
     """The pooled value: the statistic the verdict uses (summary.json holds only that one)."""
     return ((block.get("pooled") or {}).get(method) or {}).get(metric)
+
+
+def pooled_of(block: dict, method: str) -> dict:
+    """A method's pooled entries as summary.json holds them (the source the ledger checks the
+    calibration table's cells against)."""
+    return ((block or {}).get("pooled") or {}).get(method) or {}
 
 
 def paired_value(block: dict, comparison: str, metric: str) -> dict | None:
@@ -58,7 +64,12 @@ def calibration_section(ctx: ReportContext) -> None:
     page = ctx.page
     thr, bins = pop.get("confident_threshold"), pop.get("ece_bins")
     cal = (pop.get("ablations") or {}).get(CALIBRATED)
-    rows = _rows("paper (GP predictive)", pop) + (_rows("calibrated (+ test-domain variance)", cal) if cal else [])
+    paper = _rows("paper (GP predictive)", pop)
+    calibrated = _rows("calibrated (+ test-domain variance)", cal) if cal else []
+    for key, block, part in ((("pooled",), pop, paper), (("ablation", CALIBRATED, "pooled"), cal, calibrated)):
+        for m, row in zip(ordered_methods(((block or {}).get("pooled") or {}).keys()), part):
+            ctx.ledger.register_row((*key, m), TABLE, row[2:], pooled_of(block, m), where="calibration table")
+    rows = paper + calibrated
     page.table(_header(), rows, cls="calibration pooled",
                caption=f"Pooled over the population, value [95 % CI] (targets, then tracks). Confident errors: share "
                        f"of posteriors with max P ≥ {plain(thr)} on a wrong class. ECE: top-label, {bins} equal-width bins "
@@ -90,11 +101,16 @@ DOMAIN_KINDS = (("gp", "GP predictive (Model Based)"), ("gp_plus_dropout", "+ dr
                 ("gp_plus_dropout_t", "+ dropout variance as a Student-t (ν cross-fitted)"))
 
 
+def overall(fit: dict, kind: str) -> dict:
+    """One bank's pooled row of one likelihood (variance kind); {} where it has none."""
+    return (fit.get(kind) or {}).get("overall") or {}
+
+
 def domain_rows(dom: dict) -> list[list]:
     """The fit table's rows of one model bank: one per likelihood (variance kind) it holds."""
     rows = []
     for k, title in DOMAIN_KINDS:
-        o = (dom.get(k) or {}).get("overall") or {}
+        o = overall(dom, k)
         if o.get("n"):
             rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
                          fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
@@ -120,9 +136,7 @@ def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     variance, Gaussian) covers 92-98 %, and if not, which way it misses and which bank and
     likelihood of this run do fall inside."""
     lo, hi = COVERAGE_BAND
-    main = banks[0][1]
-    o = (main.get("gp_plus_dropout") or {}).get("overall") or {}
-    c = o.get("coverage95")
+    c = overall(banks[0][1], "gp_plus_dropout").get("coverage95")
     if c is None:
         return ""
     where, why = (("inside", "") if lo <= c <= hi else
@@ -138,6 +152,19 @@ def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     return text
 
 
+# The fit table's number columns, in order (each row: the likelihood's title, then these).
+DOMAIN_STATS = ("n", "share_gt2", "share_gt3", "coverage95", "abs_z_p90", "abs_z_p99")
+KIND_OF = {title: k for k, title in DOMAIN_KINDS}
+
+
+def register_fit_row(ledger, bank: str, fit: dict, row: list) -> None:
+    """A fit-table row's numbers in the page's ledger beside its bank's pooled row in summary.json,
+    both as the page writes them (``fmt``: the row holds text), one statistic per number."""
+    kind = KIND_OF[row[0]]
+    source = {k: v if k == "n" else fmt(v) for k, v in overall(fit, kind).items()}
+    ledger.register_row(("domain fit", bank, kind), DOMAIN_STATS, row[1:], source, where="domain-fit table")
+
+
 def domain_section(ctx: ReportContext) -> None:
     pop = ctx.population
     dom = (pop or {}).get("domain_fit") or {}
@@ -151,7 +178,11 @@ def domain_section(ctx: ReportContext) -> None:
         "A model that describes the room would leave 4.6 % of the standardized residuals beyond 2, 0.3 % beyond 3 "
         "and 95 % inside its 95 % interval.")
     banks = domain_banks(dom)
-    rows = [([bank] if len(banks) > 1 else []) + row for bank, d in banks for row in domain_rows(d)]
+    rows = []
+    for bank, d in banks:
+        for row in domain_rows(d):   # each shown number against its bank's fit in summary.json
+            register_fit_row(ctx.ledger, bank, d, row)
+            rows.append(([bank] if len(banks) > 1 else []) + row)
     page.table((["models (score space)"] if len(banks) > 1 else []) +
                ["variance", "(crop, component)", "|z| > 2", "|z| > 3", "95 % coverage", "|z| p90", "|z| p99"], rows,
                cls="domain-fit", caption="Standardized residuals z = (score − GP mean) / sd, pooled over classes "
@@ -190,7 +221,11 @@ def attribution_section(ctx: ReportContext) -> None:
     rows = []
     keys = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
     for comp, per in (att.get("paired") or {}).items():
-        rows.append([comparison_label(comp)] + [Estimate.of(per.get(k), signed=True) for k in keys])
+        shown = [Estimate.of(per.get(k), signed=True) for k in keys]
+        for k, e in zip(keys, shown):
+            ctx.ledger.register_record(("ablation", ATTRIBUTION, comp, k), e, find(records_of(att), comp, k),
+                                       where="attribution table")
+        rows.append([comparison_label(comp)] + shown)
     page.table(["comparison"] + [metric_label(k, short=True) for k in keys], rows, cls="attribution",
                caption="With Uncertainty with one ingredient each, on the same cells and realizations: poses only "
                        "(dropout samples replaced by their mean) and dropout only (no pose sampling: σ = 0, one pose sample). "

@@ -24,6 +24,7 @@ from pipeline.method.registry import get
 # The verdict sentences shown on the first screen; the others (one per comparison and metric) sit
 # in a collapsed list right under the pooled table.
 HEADLINE = ("correct_final", "confident_error_final", "nll_final", "log10_mgr95_final")
+ABLATION_SHOWN = ("correct_final", "log10_mgr95_final")   # the ablation table's two number columns
 VERDICT_METRICS = ("correct_final", "confident_error_final", "nll_final", "correct_overall", "prob_truth_final",
                    "msde_final", "log10_mgr95_final")
 TARGET_METRICS = ("correct_final", "prob_truth_final", "log10_mgr95_final")
@@ -336,14 +337,13 @@ def _ablations(ctx: ReportContext) -> None:
         over = "; ".join(override_words(k, v) for k, v in (a.get("override") or {}).items()) or name
         ests = {m: paired_value(a, key, m) for m in HEADLINE}
         recs = [r for r in (find(records_of(a), key, m) for m in HEADLINE) if r is not None]
-        for r in recs:
-            ctx.ledger.register(("ablation", name, key, r["metric"]), r.get("value"), r.get("lo"), r.get("hi"),
-                                label=r["outcome"], where="ablation table",
-                                higher_is_better=higher_is_better(r["metric"]))
+        shown = {m: Estimate.of(ests.get(m), True) for m in ABLATION_SHOWN}
+        for m in HEADLINE:   # each shown number against its record; the others' outcome words too
+            ctx.ledger.register_record(("ablation", name, key, m), shown.get(m), find(recs, key, m),
+                                       where="ablation table")
         # short and computed: the headline metrics' outcomes, as the ablation's records word them
         said = "; ".join(outcome_clauses(recs, subject=False))
-        rows.append([over, Estimate.of(ests.get("correct_final"), True), Estimate.of(ests.get("log10_mgr95_final"), True),
-                     said or "—"])
+        rows.append([over, *shown.values(), said or "—"])
     ctx.page.table(["ablation", "Δ correct, final", "Δ log10 MGR 95 %, final", "outcomes with it"],
                    rows, cls="ablations", caption=f"Ablations on the same population: "
                    f"{comparison_label(key)}, 95 % CIs; each outcome is read off its paired difference's CI as in "

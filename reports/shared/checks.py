@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -205,6 +205,30 @@ class Ledger:
         d = d or {}
         self.register(key, d.get("value"), d.get("ci_low"), d.get("ci_high"), **kw)
 
+    def register_row(self, key, names, shown, source: Mapping | None, *, where: str,
+                     source_where: str = "evaluate/summary.json") -> None:
+        """A table row's numbers, each against its source (one statistic per number): cell i
+        (``shown[i]``: a number or an ``Estimate``) and ``source[names[i]]`` (a number or an
+        estimate mapping) under ``key + (names[i],)``, so a cell that is not its source's number
+        is a problem."""
+        source = source or {}
+        for name, cell in zip(names, shown):
+            k = (*key, name)
+            self.register(k, *_triple_of(source.get(name)), where=source_where)
+            self.register(k, *_triple_of(cell), where=where)
+
+    def register_record(self, key, shown, rec: Mapping | None, *, where: str,
+                        record_where: str = "its verdict record (evaluate/summary.json)") -> None:
+        """A shown paired difference (an ``Estimate`` or estimate mapping) against the verdict
+        record it is read with (value, lo, hi, outcome: the record's label is checked against its
+        interval), both under ``key``; ``shown`` None: the record's label alone (an outcome word)."""
+        if rec is not None:
+            better = rec.get("better")
+            self.register(key, rec.get("value"), rec.get("lo"), rec.get("hi"), label=str(rec.get("outcome") or ""),
+                          where=record_where, higher_is_better=None if better is None else better == "higher")
+        if shown is not None:
+            self.register(key, *_triple_of(shown), where=where)
+
     def problems(self) -> list[str]:
         out = [p for e in self.entries for p in label_problems(e)]
         first: dict[tuple, Entry] = {}
@@ -218,6 +242,16 @@ class Ledger:
             elif e.label and f.label and _kind(e.label) != _kind(f.label):
                 out.append(f"{_key(e.key)}: {f.where} says {f.label!r} but {e.where} says {e.label!r}")
         return out
+
+
+def _triple_of(x) -> tuple:
+    """(value, low, high) of a shown or stored number: an ``Estimate``, an estimate mapping
+    (ci_low / ci_high, or a record's lo / hi) or a bare number (no interval)."""
+    if isinstance(x, Mapping):
+        return x.get("value"), x.get("ci_low", x.get("lo")), x.get("ci_high", x.get("hi"))
+    if hasattr(x, "low") and hasattr(x, "high"):
+        return x.value, x.low, x.high
+    return x, None, None
 
 
 def _kind(label: str) -> str:

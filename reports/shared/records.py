@@ -205,8 +205,8 @@ def outcome_clauses(records: Iterable[Mapping], *, subject: bool = True,
     for recs in by.values():
         a, b = sides(recs[0], name)
         g = _grouped({str(r["metric"]): str(r["outcome"]) for r in recs})
-        if g["withheld"]:   # no CI, no verdict: said as such, never as "not distinguishable"
-            held = "no verdict (no CI: too few units) on " + (
+        if g["withheld"]:   # no CI, no verdict: said as such, never as "not distinguishable", with which level
+            held = f"no verdict (no CI: {too_few(recs)}) on " + (
                 "any metric" if len(g["withheld"]) == len(recs) else join_words(g["withheld"]))
             said = "; ".join([f"{o} on {join_words(g[o])}" for o in PHRASE if o != "withheld" and g.get(o)] + [held])
             out.append(f"{a} vs {b}: {said}" if subject else said)
@@ -218,6 +218,25 @@ def outcome_clauses(records: Iterable[Mapping], *, subject: bool = True,
         said = "; ".join(f"{o} on {join_words(g[o])}" for o in PHRASE if g.get(o))
         out.append(f"{a} vs {b}: {said}" if subject else said)
     return out
+
+
+def too_few(records: Iterable[Mapping]) -> str:
+    """'2 scans, too few units' from the withheld records' reasons (``design.withheld``: the level
+    and its count before the colon); 'too few units' where a record does not carry its reason."""
+    why = list(dict.fromkeys(str(r["withheld"]).split(":")[0] for r in records if r.get("withheld")))
+    return ", ".join(why + ["too few units"])
+
+
+def pool_note(block: Mapping | None) -> str:
+    """Why a seed pool (``engine.seed_pool``) has no CI and no verdict, '' where it has them: its
+    draws resample the seeds on top, then each seed's targets, so the rule for every interval
+    (``design.withheld``) counts the seeds as a level."""
+    held = [r for r in records_of(block) if r.get("withheld")]
+    if not held:
+        return ""
+    return (f"Pooled over the seeds, these values carry no CI and no verdict ({too_few(held[:1])}): the bootstrap "
+            "resamples the seeds on top, then each seed's targets, so the seeds are a level the interval varies over, "
+            "and a calibrated interval needs at least 8 units of every level (docs/calibration.md).")
 
 
 def find(records: Iterable[Mapping], comparison: str, metric: str) -> Mapping | None:

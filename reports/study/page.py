@@ -9,7 +9,7 @@ from typing import Any
 from pipeline.evaluation.metrics.labels import method_label, ordered_methods
 from pipeline.evaluation.metrics.spec import metric_label
 from reports.shared.html import format_cell
-from reports.shared.records import holm_text, outcome_clauses, records_of, sentences
+from reports.shared.records import holm_text, outcome_clauses, pool_note, records_of, sentences
 
 
 def entry_label(key: str) -> str:
@@ -41,6 +41,11 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
                for k, o in held.items() if o in ("better", "worse")]
     if decided:
         text += " Held for every seed: " + "; ".join(outcome_clauses(decided)) + "."
+    n_held = sum(o == "withheld" for o in held.values())
+    if n_held:   # never counted among the verdicts: said apart, with why
+        text += (f" {n_held} of {n_entries} entries carr{'ies' if n_held == 1 else 'y'} no CI and no verdict in every "
+                 "seed (too few units of a "
+                 "level the design varies over).")
     return text
 
 
@@ -119,8 +124,9 @@ def render_html(summary: dict, run_name: str) -> str:
             rows.append(f"<tr><td>{html.escape(metric_label(k))} · {html.escape(method_label(m, short=True))}</td>"
                         + "".join(f"<td>{_cell((p.get(m) or {}).get(k))}</td>" for p in pooled) + "</tr>")
     sp = summary.get("pooled_over_seeds") or {}
-    seed_verdict = ("<h2>Pooled over seeds</h2><p>One bootstrap over seeds, then targets, then tracks: these CIs "
-                    "cover classifier training runs.</p><ul>"
+    note = pool_note(sp)
+    seed_verdict = ("<h2>Pooled over seeds</h2><p>" + (html.escape(note) if note else "One bootstrap over seeds, then "
+                    "targets, then tracks: these CIs cover classifier training runs.") + "</p><ul>"
                     + "".join(f"<li>{html.escape(v)}</li>" for v in sentences(records_of(sp))) + "</ul>"
                     + holm_table(sp)) if sp else ""
     verdicts = "".join(f"<h3>seed {s}{' (reused)' if per[s].get('reused') else ''}</h3><ul>"

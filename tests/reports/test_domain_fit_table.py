@@ -8,7 +8,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from reports.main.calibration import DOMAIN_KINDS, domain_section
+from reports.main import calibration
+from reports.main.calibration import DOMAIN_KINDS, DOMAIN_STATS, domain_section
+from reports.shared.checks import Ledger
 from reports.shared.numbers import fmt
 
 LOG = "models.score_space=log"
@@ -24,12 +26,12 @@ def _fit(rng, space: str) -> dict:
     return out
 
 
-def _render(dom: dict):
+def _render(dom: dict, ledger: Ledger | None = None):
     tables = []
     page = SimpleNamespace(paragraph=lambda *a, **k: None,
                            table=lambda header, rows, **k: tables.append((header, rows, k)))
     ctx = SimpleNamespace(population={"domain_fit": dom}, page=page, section=lambda *a: None,
-                          figure=lambda *a, **k: None)
+                          figure=lambda *a, **k: None, ledger=Ledger() if ledger is None else ledger)
     domain_section(ctx)
     return next((h, r) for h, r, k in tables if k.get("cls") == "domain-fit")
 
@@ -56,6 +58,38 @@ def test_without_ablation_banks_the_table_keeps_its_columns():
     dom["by_ablation"] = {LOG: {"n_crops": 0, "note": "no crop"}}   # an empty bank adds no group
     header, rows = _render(dom)
     assert header[0] == "variance"
+
+
+def test_every_number_of_every_banks_rows_is_checked_against_its_fit():
+    rng = np.random.default_rng(2)
+    dom = {**_fit(rng, "probability"), "by_ablation": {LOG: _fit(rng, "log")}}
+    led = Ledger()
+    _render(dom, led)
+    assert led.problems() == []
+    table = [e for e in led.entries if e.where == "domain-fit table"]
+    assert len(table) == 2 * len(DOMAIN_KINDS) * len(DOMAIN_STATS)          # one entry per shown number
+    assert {e.key[1] for e in table} == {"main (probability scores)", f"{LOG} (log scores)"}
+
+
+def test_a_planted_mismatch_in_an_ablation_banks_row_is_caught(monkeypatch):
+    rng = np.random.default_rng(3)
+    dom = {**_fit(rng, "probability"), "by_ablation": {LOG: _fit(rng, "log")}}
+    real = calibration.domain_rows
+
+    def shifted(d):   # the ablation bank's Student-t row shows another coverage than its fit holds
+        rows = real(d)
+        if d.get("score_space") == "log":
+            i = [r[0] for r in rows].index(dict(DOMAIN_KINDS)["gp_plus_dropout_t"])
+            j = 1 + DOMAIN_STATS.index("coverage95")
+            rows[i][j] = fmt(float(rows[i][j]) + 0.01)
+        return rows
+
+    monkeypatch.setattr(calibration, "domain_rows", shifted)
+    led = Ledger()
+    _render(dom, led)
+    (p,) = led.problems()
+    assert p.startswith(f"domain fit / {LOG} (log scores) / gp_plus_dropout_t / coverage95: evaluate/summary.json "
+                        "shows") and "domain-fit table shows" in p, p
 
 
 def _cover(space: str, **cov) -> dict:

@@ -111,10 +111,25 @@ def test_attribution_and_category_tables_read_the_engine_blocks(tmp_path):
     assert sorted(correct) == ["cat0", "cat1", "cat2", "cat3"] and correct["cat0"][1] == "8"
     wu = comparison_label(comparison_key(WU_INSTANCE, WITH_UNCERTAINTY))
     # the term gains in cat0 only, in every cell: the finding names cat0 and no other category
-    assert (f"{wu}, confident errors: fewer in cat0; more in no category (95 % CI excludes 0, of 4 categories; "
-            "unadjusted).") in page.verdict
+    assert (f"{wu}, confident errors: fewer in cat0; more in no category (95 % CI excludes 0, of 4 categories "
+            "with a CI; unadjusted).") in page.verdict
     assert any(s.startswith(f"{wu}, correct answers: more in cat0;") for s in page.verdict)
     assert len(page.table("instance-paired")["rows"][0]) == 1 + 3 * 2
+
+
+def test_categories_without_a_ci_are_named_apart_never_counted_as_no_category(tmp_path):
+    # 7 targets a category: every category's interval withheld (the design interval's floor)
+    out = _blocks(*_population(np.random.default_rng(5), per_cat=7))
+    ctx = _ctx(tmp_path, pop={"ablations": out["ablations"], "by_category": out["by_category"]})
+    category_section(ctx)
+    page = _render(ctx, tmp_path)
+    wu = comparison_label(comparison_key(WU_INSTANCE, WITH_UNCERTAINTY))
+    (line,) = [s for s in page.verdict if s.startswith(f"{wu}, confident errors:")]
+    assert "fewer in no category with a CI" in line and "of 0 categories with a CI" in line, line
+    assert "no CI, no verdict in cat0 (7 targets), cat1 (7 targets)" in line, line
+    # the goal per category: neither met nor missed where its differences carry no CI
+    goal = page.table("instance-goal-category")["rows"][1:]
+    assert goal and all(r[1] == "not judged" and "no CI, no verdict" in r[2] for r in goal), goal
 
 
 def test_the_goal_is_read_off_the_intervals_pooled_and_per_category(tmp_path):

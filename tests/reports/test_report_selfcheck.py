@@ -48,6 +48,24 @@ def test_a_planted_label_that_its_ci_contradicts_fails_the_build(fake_run, tmp_p
     assert not (tmp_path / "out" / "index.html").exists()   # nothing contradictory is published
 
 
+def test_a_planted_mismatch_in_an_ablation_row_fails_the_build(fake_run, tmp_path, monkeypatch):
+    # the ablation table shows a difference its verdict record does not hold
+    from reports.main import verdict
+
+    only_figures(monkeypatch)
+    real = verdict.paired_value
+
+    def shifted(block, comparison, metric):
+        d = real(block, comparison, metric)
+        return {**d, "value": d["value"] + 0.05} if d and "override" in block and metric == "correct_final" else d
+
+    monkeypatch.setattr(verdict, "paired_value", shifted)
+    with pytest.raises(ReportCheckError, match=r"ablation / models.noise_floor=dropout / .* / correct_final: its "
+                                               r"verdict record .* but ablation table shows"):
+        _build(fake_run, tmp_path / "out")
+    assert not (tmp_path / "out" / "index.html").exists()
+
+
 def _overlapping_titles(pop):
     fig, ax = new_figure(4.0, 3.0)
     ax.set_title("a title placed by hand")

@@ -46,12 +46,12 @@ def test_the_record_sentence_and_clause_say_no_ci_no_verdict_with_the_reason():
 
 def test_outcome_clauses_name_withheld_metrics_as_no_verdict():
     all_held = outcome_clauses([_rec(), _rec("log10_mgr95_final")])
-    assert len(all_held) == 1 and all_held[0].endswith(": no verdict (no CI: too few units) on any metric")
+    assert len(all_held) == 1 and all_held[0].endswith(": no verdict (no CI: 2 scans, too few units) on any metric")
     _clean(all_held[0])
     tested = record(KEY, "log10_mgr95_final", {"value": -0.5, "ci_low": -0.9, "ci_high": -0.1}, pooling="median",
                     better="lower", over=["targets"], n={"targets": 12}, primary=False)
     mixed = outcome_clauses([_rec(), tested])[0]
-    assert "better on log10 MGR" in mixed and "no verdict (no CI: too few units) on correct ratio" in mixed
+    assert "better on log10 MGR" in mixed and "no verdict (no CI: 2 scans, too few units) on correct ratio" in mixed
 
 
 def test_the_primary_line_does_not_read_a_verdict_off_a_ci_it_lacks():
@@ -90,3 +90,31 @@ def test_the_limitations_sentence_follows_the_design():
                     better="higher", over=["targets", "tracks"], n={"targets": 12}, primary=True)
     free = evidence_text({"records": [tested], "cluster": "target"}, 12, ["s1"])
     assert "the intervals vary over" in free and "no CI" not in free
+
+
+def _tested(metric="log10_mgr95_final"):
+    return record(KEY, metric, {"value": -0.5, "ci_low": -0.9, "ci_high": -0.1}, pooling="median",
+                  better="lower", over=["targets", "tracks"], n={"targets": 12, "tracks": 30}, primary=True)
+
+
+def test_the_bottom_lines_summary_counts_the_withheld_differences_apart_with_why():
+    from reports.main.bottom_line import bottom_line
+
+    pop = {"records": [_rec(), _tested()], "n_targets": 12}
+    second = bottom_line(pop)[-1]
+    assert second.startswith("1 of these 2 differences carries no CI and no verdict (2 scans, too few units); "
+                             "each other outcome is read off"), second
+    every = bottom_line({"records": [_rec(), _rec("log10_mgr95_final")], "n_targets": 12})
+    assert every[-1].startswith("No difference here has a CI or a verdict (2 scans, too few units)")
+    assert "read off" not in every[-1] and "varies over" not in every[-1]
+    _clean(" ".join(every))
+    tested = bottom_line({"records": [_tested()], "n_targets": 12})[-1]
+    assert tested.startswith("Each outcome is read off the 95 % CI") and "no CI" not in tested
+
+
+def test_the_study_sentence_counts_entries_withheld_in_every_seed_apart():
+    held = {f"{KEY} / correct_final": "withheld", f"{KEY} / log10_mgr95_final": "better"}
+    text = study_sentence([1, 2], [], [], 2, held)
+    assert "1 of 2 entries carries no CI and no verdict in every seed" in text
+    assert "Held for every seed" in text and "better on log10 MGR" in text
+    assert "no CI" not in study_sentence([1, 2], [], [], 1, {f"{KEY} / log10_mgr95_final": "better"})

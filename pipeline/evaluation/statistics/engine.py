@@ -127,15 +127,16 @@ def _loto(h: Hierarchy, values: np.ndarray, pool: str, higher: bool) -> dict:
 def block(frames: Mapping[str, pd.DataFrame], methods: Sequence[str], metrics: Sequence[str], comparisons,
           n_boot: int, seed, *, primary: Sequence[str] = (), per_target: bool = True, loto: bool = True,
           ece: Mapping | None = None, by_scan: bool = False, cluster: str = "target", family=None,
-          exclude=()) -> dict:
+          exclude=(), run_levels: Mapping[str, int] | None = None) -> dict:
     """{"pooled", "per_target", "paired", "paired_per_target", "records"} (+ "reliability" with
     ``ece``) of cell frames per seed (one seed: an evaluate run). ``ece``: {"sums": track bin sums
     (``pooled_calibration.track_sums``), "methods"}: the pooled ECE joins as a metric. ``cluster``:
     the top level of the draws (``Hierarchy``: target, scan, category, crossed; ``by_scan``: scan);
     every pooled value and record says which (``cluster``) and over what it varies (``over``).
     ``family``: the Holm family's predicate (``multiplicity.holm``; default the declared primary one);
-    ``exclude``: (comparison, metric) left out of it (the declared primary comparison, tested alone)."""
-    h = Hierarchy(frames, n_boot, seed, by_scan=by_scan, cluster=cluster)
+    ``exclude``: (comparison, metric) left out of it (the declared primary comparison, tested alone).
+    ``run_levels``: a seed pool's runs' own levels beyond targets (``run_levels``), for the withholding rule."""
+    h = Hierarchy(frames, n_boot, seed, by_scan=by_scan, cluster=cluster, run_levels=run_levels)
     metrics = [k for k in metrics if all(k in f for f in frames.values())]
     tvs = {m: [track_values(f[f["method"] == m], metrics) for f in frames.values()] for m in methods}
     n, over = h.n(), h.over()
@@ -249,10 +250,14 @@ def summary_cells(cells: Sequence[Mapping], methods: Sequence[str] | None = None
 
 
 def seed_block(cells_by_seed: Mapping[str, Sequence[Mapping]], methods: Sequence[str], metrics: Sequence[str],
-               comparisons, n_boot: int, seed=0, primary: Sequence[str] = ()) -> dict:
-    """``block`` over several seeds' ``population.cells`` (seeds -> targets -> tracks)."""
+               comparisons, n_boot: int, seed=0, primary: Sequence[str] = (),
+               run_levels: Mapping[str, int] | None = None) -> dict:
+    """``block`` over several seeds' ``population.cells`` (seeds -> targets -> tracks); withheld,
+    as every pooled statistic, where a level it varies over (the seeds, each seed's targets, the
+    runs' own ``run_levels``) has too few units."""
     frames = {str(s): summary_cells(c, methods) for s, c in sorted(cells_by_seed.items())}
-    out = block(frames, methods, metrics, comparisons, n_boot, seed, primary=primary, per_target=False, loto=False)
+    out = block(frames, methods, metrics, comparisons, n_boot, seed, primary=primary, per_target=False, loto=False,
+                run_levels=run_levels)
     out["seeds"] = list(frames)
     return out
 
@@ -272,8 +277,20 @@ def seed_pool(populations: Mapping[str, Mapping]) -> dict | None:
     first = next(iter(pops.values()))
     n_boot = int(first.get("bootstrap") or BOOTSTRAP)
     primary = next((p.get("primary_metrics") for p in pops.values() if p.get("primary_metrics")), ())
+    levels: dict[str, int] = {}
+    for p in pops.values():
+        for k, g in run_levels(p).items():
+            levels[k] = min(g, levels.get(k, g))
     return seed_block({k: p["cells"] for k, p in pops.items()}, methods, metrics, comparisons(), n_boot,
-                      primary=tuple(primary or ()))
+                      primary=tuple(primary or ()), run_levels=levels)
+
+
+def run_levels(pop: Mapping) -> dict[str, int]:
+    """The levels beyond targets a run's own intervals vary over (its records' ``n``: scans,
+    categories), which its summary's cells do not name: a seed pool counts them in the
+    withholding rule (pooling seeds adds no scan or category)."""
+    n = next((r.get("n") for r in pop.get("records") or () if isinstance(r, Mapping) and r.get("n")), None) or {}
+    return {k: int(n[k]) for k in ("scans", "categories") if n.get(k)}
 
 
 def over_realizations(mats: Mapping[str, np.ndarray], params: M.Params, n_boot: int, seed=0) -> dict[str, dict]:

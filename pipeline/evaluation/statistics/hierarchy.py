@@ -36,7 +36,7 @@ class Hierarchy:
     (``target_rs``). ``by_scan``: the former spelling of cluster = "scan"."""
 
     def __init__(self, frames: Mapping[str, pd.DataFrame], n_boot: int, seed, by_scan: bool = False,
-                 cluster: str = "target"):
+                 cluster: str = "target", run_levels: Mapping[str, int] | None = None):
         if cluster not in CLUSTERS:
             raise ValueError(f"evaluate.statistics.cluster = {cluster!r}: one of {', '.join(CLUSTERS)}")
         self.seeds = list(frames)
@@ -46,6 +46,9 @@ class Hierarchy:
             self.units.append([(str(t), sorted(int(x) for x in g["track"].unique()))
                                for t, g in f.groupby("target", sort=True)])
         self.n_boot, self.seed = int(n_boot), seed
+        # levels the pooled runs' own designs vary over that their cells no longer name (a seed pool
+        # reads summary.json's cells: scans, categories); counted by ``withheld``, never resampled
+        self.run_levels = dict(run_levels or {})
         self.target_rs = draws([[len(tr) for _, tr in u] for u in self.units], n_boot, seed)
         self.index = [{(t, tr): (ti, j) for ti, (t, trs) in enumerate(u) for j, tr in enumerate(trs)}
                       for u in self.units]
@@ -122,13 +125,17 @@ class Hierarchy:
         return self._layout
 
     def withheld(self) -> str | None:
-        """Why no interval of this run's pooled statistics is calibrated (``design.withheld`` of the
-        levels its design varies over: a level with fewer than ``design.MIN_CLUSTERS`` units), else
-        None. The one rule for every pooled statistic of one run: the design's t interval of a mean
-        and the percentile interval of a median, an infinite value or the pooled ECE alike. None for
-        a seed pool (seeds on top: the draws keep them)."""
+        """Why no interval of this population's pooled statistics is calibrated (``design.withheld``
+        of the levels it varies over: a level with fewer than ``design.MIN_CLUSTERS`` units), else
+        None. The one rule for every pooled statistic: the design's t interval of a mean and the
+        percentile interval of a median, an infinite value or the pooled ECE alike; a seed pool's
+        percentile interval too, whose draws resample the seeds on top, then each seed's targets
+        (its levels: seeds, targets, and the pooled runs' own ``run_levels``)."""
         lay = self.layout()
-        return None if lay is None else design_withheld(lay[1].levels())
+        levels = dict(lay[1].levels()) if lay is not None else {
+            "seeds": len(self.seeds), "targets": min((len(u) for u in self.units), default=0)}
+        levels.update({k: int(g) for k, g in self.run_levels.items() if k not in levels})
+        return design_withheld({k: g for k, g in levels.items() if g > 1})
 
     @property
     def by_scan(self) -> bool:

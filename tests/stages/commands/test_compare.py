@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -86,25 +87,36 @@ def test_three_runs_with_a_seed_group_pool_over_seeds(tmp_path):
     assert c.config == {"classifier.seed": [0, 0, 1, 2]}
     # the seed group is pooled by the engine (seeds -> targets -> tracks), as `viewfuse study` does
     pooled = c.pooled[("with_uncertainty", "correct_final")][-1]
-    assert pooled["value"] == pytest.approx(0.6) and 0.5 <= pooled["ci_low"] < 0.6 < pooled["ci_high"] <= 0.7
+    # 3 seeds on top of the draws: too few for a calibrated interval, as any level (design.withheld)
+    assert pooled["value"] == pytest.approx(0.6) and math.isnan(pooled["ci_low"]) and math.isnan(pooled["ci_high"])
+    assert pooled["withheld"].startswith("3 seeds, 4 targets: a calibrated interval needs at least 8 units")
     assert pooled["over"] == ["seeds", "targets", "tracks"] and pooled["n"]["seeds"] == 3
     runs = [json.loads((study / f"seed-{s}" / "evaluate" / "summary.json").read_text())["population"] for s in range(3)]
     same = seed_block({f"study/seed-{s}": p["cells"] for s, p in enumerate(runs)}, list(METHODS),
                       ["correct_final", "log10_mgr95_final"], [("with_uncertainty", "model_based"),
                                                                ("with_uncertainty", "simple_bayes")], 300)
-    assert pooled == same["pooled"]["with_uncertainty"]["correct_final"]
+    assert _same(pooled, same["pooled"]["with_uncertainty"]["correct_final"])
     mgr = c.pooled[("with_uncertainty", "log10_mgr95_final")][-1]
     assert mgr["pooling"] == "median" and mgr["value"] == pytest.approx((2.0 + 40.0 + 3.0) / 3)  # mean of seeds' medians
     v = c.verdicts[(KEY, "correct_final")][-1]
-    assert v["outcome"] == "not distinguishable" and not v["held_for_every_seed"]   # +0.2, -0.2, +0.2 over seeds
+    assert v["outcome"] == "withheld" and not v["held_for_every_seed"]   # +0.2, -0.2, +0.2 over 3 seeds: no CI
     assert v["per_seed"] == "better ×2, worse ×1"
     assert c.changed[(KEY, "correct_final")] == [False, False, True, False, True]
     # `viewfuse study` pools the same seeds with the same function: the same numbers
     from stages.commands.study import summarize
 
     study_pool = summarize({s: {**p, "records": None} for s, p in enumerate(runs)})["pooled_over_seeds"]
-    assert study_pool["pooled"] == c.columns[-1].pool["pooled"]
-    assert study_pool["records"] == c.columns[-1].pool["records"]
+    from reports.shared.records import pool_note
+
+    note = pool_note(c.columns[-1].pool)
+    assert "no CI and no verdict (3 seeds, 4 targets, too few units)" in note and "resamples the seeds on top" in note
+    assert _same(study_pool["pooled"], c.columns[-1].pool["pooled"])
+    assert _same(study_pool["records"], c.columns[-1].pool["records"])
+
+
+def _same(a, b) -> bool:
+    """Equal, a withheld interval's NaN ends included."""
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 
 def test_a_seed_group_without_cells_has_no_pooled_value(tmp_path):

@@ -139,3 +139,24 @@ def test_the_page_shows_each_seeds_holm_adjusted_verdict_beside_the_unadjusted_o
     assert table.count("<tr>") == 2 and holm_table({"records": [_record("better", 0.1)]}) == ""
     plain = render_html(summarize({0: _population("better", 0.1)}), "r")
     assert "Holm-adjusted outcome:" not in plain              # no adjusted verdict where the record has none
+
+
+def _cells(level: float, targets: int = 8) -> list[dict]:
+    return [{"target": f"t{t}", "track": k, "setting": "a",
+             "values": {"with_uncertainty": {"correct_final": level + 0.01 * ((t * 3 + k) % 5)},
+                        "model_based": {"correct_final": level - 0.2 + 0.01 * ((t + k) % 3)}}}
+            for t in range(targets) for k in range(3)]
+
+
+def test_a_pool_over_fewer_than_eight_seeds_has_no_ci_and_the_page_says_why():
+    few = summarize({s: {**_population("better", 0.2), "cells": _cells(0.5 + s / 100), "bootstrap": 300}
+                     for s in range(3)})
+    (r,) = few["pooled_over_seeds"]["records"]
+    assert r["outcome"] == "withheld" and r["withheld"].startswith("3 seeds: ")
+    page = render_html(few, "r")
+    assert "no CI and no verdict (3 seeds, too few units)" in page and "resamples the seeds on top" in page
+    assert "these CIs cover" not in page
+    enough = summarize({s: {**_population("better", 0.2), "cells": _cells(0.5 + s / 100), "bootstrap": 300}
+                        for s in range(8)})
+    (r,) = enough["pooled_over_seeds"]["records"]
+    assert r["outcome"] == "better" and "resamples the seeds on top" not in render_html(enough, "r")

@@ -179,7 +179,7 @@ def test_infinities_are_kept_and_an_infinite_end_is_unbounded(tmp_path):
 def test_seed_level_widens_the_ci_and_one_seed_equals_the_run():
     rng = np.random.default_rng(1)
 
-    def cells(level, n_targets=6, n_tracks=3):
+    def cells(level, n_targets=8, n_tracks=3):
         out = []
         for t in range(n_targets):
             for k in range(n_tracks):
@@ -191,15 +191,16 @@ def test_seed_level_widens_the_ci_and_one_seed_equals_the_run():
         return out
 
     meth, comps = ["with_uncertainty", "model_based"], [("with_uncertainty", "model_based")]
-    agree = {"0": cells(0.5), "1": cells(0.5), "2": cells(0.5)}
-    differ = {"0": cells(0.2), "1": cells(0.5), "2": cells(0.8)}
+    levels = np.linspace(0.2, 0.8, 8)
+    agree = {str(i): cells(0.5) for i in range(8)}
+    differ = {str(i): cells(lv) for i, lv in enumerate(levels)}
     a = seed_block(agree, meth, ["correct_final"], comps, 500)["pooled"]["with_uncertainty"]["correct_final"]
     d = seed_block(differ, meth, ["correct_final"], comps, 500)["pooled"]["with_uncertainty"]["correct_final"]
     assert (d["ci_high"] - d["ci_low"]) > 5 * (a["ci_high"] - a["ci_low"]) and d["over"][0] == "seeds"
     out = seed_block(differ, meth, ["correct_final", "nll_final"], comps, 400, primary=("correct_final",))
     recs = {r["metric"]: r for r in out["records"]}
     assert recs["correct_final"]["value"] == pytest.approx(0.1) and recs["correct_final"]["outcome"] == "better"
-    assert recs["nll_final"]["value"] == pytest.approx(-1.0) and recs["nll_final"]["n"]["seeds"] == 3
+    assert recs["nll_final"]["value"] == pytest.approx(-1.0) and recs["nll_final"]["n"]["seeds"] == 8
     # the study / compare pool of one run is the run's own statistic (same draws, same values)
     from pipeline.evaluation.statistics.engine import summary_cells
     one = seed_block({"0": differ["0"]}, meth, ["correct_final", "nll_final"], comps, 400)
@@ -209,6 +210,35 @@ def test_seed_level_widens_the_ci_and_one_seed_equals_the_run():
             x, y = one["pooled"][m][k], run["pooled"][m][k]
             assert np.array_equal([x["value"], x["ci_low"], x["ci_high"]], [y["value"], y["ci_low"], y["ci_high"]],
                                   equal_nan=True)
+            assert np.isfinite([x["ci_low"], x["ci_high"]]).all()
+
+
+def test_a_seed_pool_under_eight_seeds_or_over_runs_with_too_few_scans_is_withheld():
+    """The pool's draws resample the seeds on top: with fewer than 8 the percentile interval is not
+    calibrated, as for any level; the runs' own scans (which the cells no longer name) count too."""
+    from pipeline.evaluation.statistics.engine import seed_pool
+
+    rng = np.random.default_rng(2)
+
+    def pop(level, scans=None):
+        cells = [{"target": f"t{t}", "track": k, "setting": "a",
+                  "values": {"with_uncertainty": {"correct_final": level + rng.normal(0, 0.05)},
+                             "model_based": {"correct_final": level - 0.2 + rng.normal(0, 0.05)}}}
+                 for t in range(8) for k in range(3)]
+        n = {"targets": 8, "tracks": 24, **({"scans": scans} if scans else {})}
+        return {"cells": cells, "bootstrap": 400, "records": [{"n": n}]}
+
+    few = seed_pool({str(i): pop(0.5) for i in range(3)})
+    r = next(x for x in few["records"] if x["metric"] == "correct_final")
+    assert r["outcome"] == "withheld" and r["withheld"].startswith("3 seeds: ") and np.isnan(r["lo"])
+    assert "family" not in r and np.isnan(few["pooled"]["with_uncertainty"]["correct_final"]["ci_low"])
+    eight = seed_pool({str(i): pop(0.5) for i in range(8)})
+    r = next(x for x in eight["records"] if x["metric"] == "correct_final")
+    assert r["outcome"] == "better" and not r.get("withheld") and r["lo"] > 0.1
+    scans = seed_pool({str(i): pop(0.5, scans=2) for i in range(8)})
+    r = next(x for x in scans["records"] if x["metric"] == "correct_final")
+    assert r["outcome"] == "withheld" and r["withheld"].startswith("2 scans: ")
+    assert seed_pool({str(i): pop(0.5, scans=8) for i in range(8)})["records"][0]["outcome"] != "withheld"
 
 
 def test_over_members_and_wilson():
