@@ -101,12 +101,17 @@ def domain_rows(dom: dict) -> list[list]:
     return rows
 
 
+FIT_ONLY = "fit only, no method results"   # the label of an evaluate.fit_spaces bank's rows
+
+
 def domain_banks(dom: dict) -> list[tuple[str, dict]]:
-    """(label, fit) of the main bank, then of each models.* ablation's bank (``domain_fit.by_ablation``)."""
+    """(label, fit) of the main bank, then of each models.* ablation's bank, then of each fit-only
+    bank (``evaluate.fit_spaces``: labelled so, no cell ran on it) (``domain_fit.by_ablation``)."""
     def space(d):
-        return f" ({d['score_space']} scores)" if d.get("score_space") else ""
+        tags = ([f"{d['score_space']} scores"] if d.get("score_space") else []) + ([FIT_ONLY] if d.get("fit_only") else [])
+        return f" ({', '.join(tags)})" if tags else ""
     out = [("main" + space(dom), dom)]
-    for a, d in sorted((dom.get("by_ablation") or {}).items()):
+    for a, d in sorted((dom.get("by_ablation") or {}).items(), key=lambda kv: (bool(kv[1].get("fit_only")), kv[0])):
         if d.get("n_crops"):
             out.append((a + space(d), d))
     return out
@@ -159,8 +164,10 @@ def domain_section(ctx: ReportContext) -> None:
                                          "residual's t PIT on the Gaussian scale, so its coverage is the t's own "
                                          "95 % interval; per class and component in the results file "
                                          "evaluate/summary.json)." +
-                                         (" One row group per model bank: the main one, then each models.* "
-                                          "ablation's own, on the same crops." if len(banks) > 1 else ""))
+                                         (" One row group per model bank, on the same crops: the main one, "
+                                          "then each models.* ablation's own, then each score space of "
+                                          "evaluate.fit_spaces (" + FIT_ONLY + ": fitted for this table, no "
+                                          "method ran on it)." if len(banks) > 1 else ""))
     sentence = coverage_sentence(banks)
     if sentence:
         page.paragraph(sentence)

@@ -72,3 +72,17 @@ def test_each_model_ablation_gets_the_fit_rows_of_its_own_bank():
         assert fit[k]["overall"]["coverage95"] < main[k]["overall"]["coverage95"]
     assert fit["gp"]["overall"]["pit"] != main["gp"]["overall"]["pit"]
 
+
+
+def test_a_fit_only_bank_gets_the_same_rows_loaded_once_and_marked():
+    """An ``evaluate.fit_spaces`` bank: no ablation, no cell, only its loader; its rows are those the
+    same bank gets as an ablation, and the entry says it is fit-only."""
+    cfg, avd, scores, banks, truth = _scene()
+    as_ablation = bank_fits(cfg, avd, scores, banks, truth, {}, ["a", "b"], ["S"])[LOG]
+    calls = []
+    cfg.evaluate.ablations = []
+    out = bank_fits(cfg, avd, scores, {"default": banks["default"]}, truth, {}, ["a", "b"], ["S"],
+                    fit_only={LOG: lambda: calls.append(1) or banks[LOG]})
+    assert list(out) == [LOG] and len(calls) == 1
+    assert out[LOG].pop("fit_only") is True and "fit_only" not in as_ablation
+    assert out[LOG] == as_ablation
