@@ -166,8 +166,8 @@ def domain_section(ctx: ReportContext) -> None:
                                          "evaluate/summary.json)." +
                                          (" One row group per model bank, on the same crops: the main one, "
                                           "then each models.* ablation's own, then each score space of "
-                                          "evaluate.fit_spaces (" + FIT_ONLY + ": fitted for this table, no "
-                                          "method ran on it)." if len(banks) > 1 else ""))
+                                          "evaluate.fit_spaces (labelled \"fit only\": fitted for this "
+                                          "table alone, no method ran on it)." if len(banks) > 1 else ""))
     sentence = coverage_sentence(banks)
     if sentence:
         page.paragraph(sentence)
