@@ -48,8 +48,8 @@ def test_the_models_stage_declares_the_key_and_the_cost_model_counts_the_banks()
     assert "x 3 model bank(s)" in dom[1].what and "x 1 model bank(s)" in dom[0].what
 
 
-def test_every_shipped_real_config_lists_the_log_type_spaces():
-    for path in sorted((ROOT / "configs").glob("real*.toml")):
+def test_every_shipped_config_on_real_scores_lists_the_log_type_spaces():
+    for path in sorted((ROOT / "configs").glob("real*.toml")) + [ROOT / "configs" / "avd.toml"]:
         cfg = load_config(path)
         spaces = {a.split("=", 1)[1] for a in fit_only_banks(cfg)} | {cfg.models.score_space}
         assert {"log", "logit", "clr"} <= spaces, path.name
