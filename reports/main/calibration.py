@@ -90,11 +90,16 @@ DOMAIN_KINDS = (("gp", "GP predictive (Model Based)"), ("gp_plus_dropout", "+ dr
                 ("gp_plus_dropout_t", "+ dropout variance as a Student-t (ν cross-fitted)"))
 
 
+def overall(fit: dict, kind: str) -> dict:
+    """One bank's pooled row of one likelihood (variance kind); {} where it has none."""
+    return (fit.get(kind) or {}).get("overall") or {}
+
+
 def domain_rows(dom: dict) -> list[list]:
     """The fit table's rows of one model bank: one per likelihood (variance kind) it holds."""
     rows = []
     for k, title in DOMAIN_KINDS:
-        o = (dom.get(k) or {}).get("overall") or {}
+        o = overall(dom, k)
         if o.get("n"):
             rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
                          fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
@@ -106,14 +111,14 @@ FIT_ONLY = "fit only, no method results"   # the label of an evaluate.fit_spaces
 
 def domain_banks(dom: dict) -> list[tuple[str, dict]]:
     """(label, fit) of the main bank, then of each models.* ablation's bank, then of each fit-only
-    bank (``evaluate.fit_spaces``: labelled so, no cell ran on it) (``domain_fit.by_ablation``)."""
+    bank (``evaluate.fit_spaces``: named by its space and labelled so, no cell ran on it)
+    (``domain_fit.by_ablation``)."""
     def space(d):
-        tags = ([f"{d['score_space']} scores"] if d.get("score_space") else []) + ([FIT_ONLY] if d.get("fit_only") else [])
-        return f" ({', '.join(tags)})" if tags else ""
+        return f" ({d['score_space']} scores)" if d.get("score_space") else ""
     out = [("main" + space(dom), dom)]
     for a, d in sorted((dom.get("by_ablation") or {}).items(), key=lambda kv: (bool(kv[1].get("fit_only")), kv[0])):
         if d.get("n_crops"):
-            out.append((a + space(d), d))
+            out.append((f"{d.get('score_space') or a} scores ({FIT_ONLY})" if d.get("fit_only") else a + space(d), d))
     return out
 
 
@@ -122,12 +127,10 @@ COVERAGE_BAND = (0.92, 0.98)   # the band read as a fitting 95 % predictive inte
 
 def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     """Whether the default likelihood (the main bank's With Uncertainty predictive: GP + dropout
-    variance, Gaussian) covers 92-98 %, and if not, which way it misses and which bank and
-    likelihood of this run do fall inside."""
+    variance, Gaussian) covers 92-98 %, and if not, which way it misses and which likelihoods of
+    which bank of this run do fall inside (grouped by bank)."""
     lo, hi = COVERAGE_BAND
-    main = banks[0][1]
-    o = (main.get("gp_plus_dropout") or {}).get("overall") or {}
-    c = o.get("coverage95")
+    c = overall(banks[0][1], "gp_plus_dropout").get("coverage95")
     if c is None:
         return ""
     where, why = (("inside", "") if lo <= c <= hi else
@@ -136,8 +139,9 @@ def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     text = (f"The run's default predictive (+ dropout variance, {banks[0][0]}) covers {fmt(c)} of the residuals "
             f"in its 95 % interval: {where} the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit{why}.")
     if not lo <= c <= hi:
-        inside = [f"{bank}, {title}" for bank, d in banks for k, title in DOMAIN_KINDS
-                  if lo <= (((d.get(k) or {}).get("overall") or {}).get("coverage95") or -1) <= hi]
+        inside = [(bank, [t for k, t in DOMAIN_KINDS if lo <= (overall(d, k).get("coverage95") or -1) <= hi])
+                  for bank, d in banks]
+        inside = [f"{bank}: {', '.join(titles)}" for bank, titles in inside if titles]
         text += (" Inside it in this run: " + "; ".join(inside) + "." if inside
                  else " No bank or likelihood of this run falls inside it.")
     return text
