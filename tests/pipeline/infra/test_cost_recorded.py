@@ -17,6 +17,8 @@ inflated; CPU seconds are what the lower bound reads), December 7 2026:
   configs/smoke.toml --set run.artifacts=artifacts/kk --set run.name=k40 --set
   evaluate.track_length=40`` (then run.name=k4 without the track length), one process for the chain.
 - The real runs above predate ``evaluate.fit_spaces``: their overrides turn it off (no fit-only bank).
+- real with its fit-only banks (log, logit, clr): branch ``fitbanks``, ``viewfuse report --config
+  configs/real.toml`` from an empty run folder, nice 5, load 7-9.
 - synthetic (the default, the main job) and real_full: main at 00f475a (every branch merged),
   ``make features models evaluate ARGS="--progress off"`` then ``viewfuse report``, and ``viewfuse
   evaluate --config configs/real_full.toml --progress off``, both at nice 10 beside the test suite.
@@ -52,6 +54,9 @@ RUNS = json.loads("""{
  "real_clutter": {"config": "real.toml", "overrides": {"evaluate": {"fit_spaces": []}},
    "stages": {"data": [346.297, 22.286], "classifier": [80.316, 5.908], "features": [792.081, 53.754],
               "models": [78.525, 4.788], "evaluate": [753.615, 81.999], "report": [191.344, 47.496]}},
+ "real_fit_banks": {"config": "real.toml", "overrides": {},
+   "stages": {"data": [98.203, 17.329], "classifier": [15.302, 2.458], "features": [186.524, 43.647],
+              "models": [25.229, 6.034], "evaluate": [151.791, 68.534], "report": [72.0, 32.7]}},
  "smoke_40_steps": {"config": "smoke.toml", "overrides": {"evaluate": {"track_length": 40}},
    "stages": {"data": [16.755, 14.653], "classifier": [16.063, 12.71], "features": [13.991, 11.994],
               "models": [1.897, 1.593], "evaluate": [32.673, 27.144], "report": [74.199, 40.356]}},
