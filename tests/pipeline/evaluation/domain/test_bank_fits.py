@@ -86,3 +86,20 @@ def test_a_fit_only_bank_gets_the_same_rows_loaded_once_and_marked():
     assert list(out) == [LOG] and len(calls) == 1
     assert out[LOG].pop("fit_only") is True and "fit_only" not in as_ablation
     assert out[LOG] == as_ablation
+
+
+def test_a_clr_banks_residuals_are_the_same_read_in_row_blocks(monkeypatch):
+    """clr reads each pass's whole score vector, so the crops' residuals are computed in blocks of
+    rows (memory); clr is row-wise, so any block size gives the same table to the bit."""
+    from pipeline.evaluation.domain import fit as D
+
+    cfg, avd, scores, banks, truth = _scene()
+    b = banks[LOG]
+    clr = GPClassModels(b.classes, b.components, b.X, b.Y, b.mean, b.amplitude, b.length_scale, b.noise,
+                        meta={"score_space": {"space": "clr", "floor": 1e-6}})
+    poses = TargetDomain(cfg, avd, scores, clr, truth, {}, ["a", "b"], ["S"]).poses
+    whole = D.crop_residuals(avd, scores, clr, poses, 4, 1e-6)
+    monkeypatch.setattr(D, "CLR_BLOCK", 7)   # 480 passes: 69 blocks, the last one short
+    blocks = D.crop_residuals(avd, scores, clr, poses, 4, 1e-6)
+    assert len(whole) == 160 and np.isfinite(whole["obs"]).all()
+    pd.testing.assert_frame_equal(blocks, whole, check_exact=True)
