@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import time
 from collections import Counter
@@ -28,7 +29,7 @@ from pipeline.method.gp_files import load_bank
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
-from pipeline.infra.config import Config, ConfigError, is_model_ablation
+from pipeline.infra.config import Config, ConfigError, fit_only_banks, is_model_ablation
 from pipeline.scoring.features import read_features
 from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
@@ -83,6 +84,19 @@ def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict
     if arm.is_dir():   # data.real_imagery.contrast: the instance arm runs as one more variant on the same tracks
         banks[CONTRAST_ARM], indexes[CONTRAST_ARM] = load_bank(arm), read_bank_index(arm)
     return banks, indexes
+
+
+def fit_bank_loaders(models_dir: Path, cfg: Config, index: dict) -> dict:
+    """{fit-only bank: a function that loads it} for every ``evaluate.fit_spaces`` bank the run
+    fits (``fit_only_banks``), from ``models/index.json``'s ``fit_banks``; loaded one at a time by
+    the test-domain fit, never held beside the cells."""
+    where, out = index.get("fit_banks") or {}, {}
+    for a in fit_only_banks(cfg):
+        if a not in where:
+            raise ValueError(f"{models_dir / out_name('models', 'index')}: no fit-only model bank {a!r} for "
+                             "evaluate.fit_spaces (rerun the models stage)")
+        out[a] = functools.partial(load_bank, models_dir / where[a])
+    return out
 
 
 def variant_provided(models_dir: Path, cfg: Config) -> dict:
@@ -273,9 +287,9 @@ def run(ctx) -> str:
     t0 = time.perf_counter()
     domain = TargetDomain(cfg, avd, scores, banks[DEFAULT], truth, intr, sorted({c.target for c in cells}), scans)
     cells = target_variances(cells, domain, cfg)
-    domain_fit = domain.summary()   # and each models.* ablation's own bank's pooled rows
+    domain_fit = domain.summary()   # and each models.* ablation's and fit-only bank's pooled rows
     domain_fit["by_ablation"] = bank_fits(cfg, avd, scores, banks, truth, intr, sorted({c.target for c in cells}),
-                                          scans)
+                                          scans, fit_bank_loaders(ctx.input("models"), cfg, indexes[DEFAULT]))
     domain_s = time.perf_counter() - t0
 
     timings: dict[str, float] = {"domain_fit": domain_s}

@@ -5,7 +5,8 @@ checks, training sets, candidate plan, noise floor and fits) and writes one mode
 ``models/index.json`` + one ``<class>.npz`` per class (``pipeline.method.gp.GPClassModels``):
 every modelled class x every component that some target's candidate set uses, with the plan in
 the index (``candidate_sets``). Each ``evaluate.ablations`` entry gets its own bank under
-``models/ablations/``. Beside the bank, the models of every provider a registered method needs
+``models/ablations/``, and so does each ``evaluate.fit_spaces`` bank (index ``fit_banks``: fitted for
+the test-domain fit alone, no cell runs on it). Beside the bank, the models of every provider a registered method needs
 (``pipeline.method.provider``; those the config enables), each in ``models/<provider key>/``. With
 ``data.real_imagery.contrast``, the contrast's instance arm (``models/contrast/``: a bank on the same
 plan keys and features, each class fitted on its own instance, and its methods' own models but
@@ -19,7 +20,7 @@ from loaders.real_imagery.category import class_members, contrast_members
 from pipeline.banks.model_bank import ablation_dir, fit_from_features, training_views
 from pipeline.method.registry import model_providers
 from pipeline.method.gp_files import save_bank
-from pipeline.infra.config import ablation_config, is_model_ablation
+from pipeline.infra.config import ablation_config, fit_only_banks, is_model_ablation
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import read as read_artifact
 from pipeline.infra.budget import budget
@@ -60,6 +61,8 @@ def _run(ctx) -> str:
     models, extra = fit_from_features(feats, cfg.models, **plan_keys)
     model_ablations = [a for a in ev.ablations if is_model_ablation(a)]  # others reuse the default bank
     extra["ablations"] = {a: ablation_dir(a) for a in model_ablations}
+    fit_only = fit_only_banks(cfg)   # evaluate.fit_spaces: read by the test-domain fit only
+    extra["fit_banks"] = {a: ablation_dir(a) for a in fit_only}
     save_bank(models, ctx.out, extra=extra)
     provided = fit_providers(ctx, feats, models.classes, extra["candidate_sets"], members, plan_keys)
     arm = contrast_members(cfg, truth)
@@ -72,11 +75,11 @@ def _run(ctx) -> str:
         fit_providers(ctx, feats, cm.classes, cextra["candidate_sets"], arm, {**plan_keys, "class_members": arm},
                       folder=cdir, prefix="contrast_")
         ctx.extra["contrast_classes"] = len(arm)
-    for a in model_ablations:
+    for a in (*model_ablations, *fit_only):
         vcfg = ablation_config(cfg, a)
-        log.info("ablation %s: fitting its model bank", a)
+        log.info("%s %s: fitting its model bank", "fit-only bank" if a in fit_only else "ablation", a)
         vm, vextra = fit_from_features(feats, vcfg.models, **plan_keys)
-        save_bank(vm, ctx.out / ablation_dir(a), extra={**vextra, "ablation": a})
+        save_bank(vm, ctx.out / ablation_dir(a), extra={**vextra, "ablation": a, "fit_only": a in fit_only})
     ctx.extra.update({"classes": models.classes, "components": models.components,
                       "component_names": models.component_names,
                       "candidate_sets": len(extra["candidate_sets"]),
@@ -87,6 +90,8 @@ def _run(ctx) -> str:
             f"{extra['features']['rows_used']} views; {extra['fits_with_warnings']} fit(s) with warnings, "
             f"{extra['varying_fits_at_bound']} varying component(s) at a bound"
             + (f"; {len(model_ablations)} ablation bank(s)" if model_ablations else "")
+            + (f"; {len(fit_only)} fit-only bank(s) ({', '.join(a.split('=', 1)[1] for a in fit_only)})"
+               if fit_only else "")
             + "".join(f"; {p}" for p in provided))
 
 

@@ -31,7 +31,7 @@ from pipeline.infra import footprints
 from pipeline.infra.budget import (MemoryBudgetError, address_space_left, budget, budget_words, gib,
                                    more_memory)
 from pipeline.infra.config.checks import modelled_classes
-from pipeline.infra.config.evaluation import cluster_of, is_model_ablation
+from pipeline.infra.config.evaluation import cluster_of, fit_only_banks, is_model_ablation
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.learning import early_epochs_run
 from pipeline.infra.cost_units import (WU_TRAJECTORY_S, ROW_S, MB_STEP_S, CELL_S, DOMAIN_UNIT_S, STAT_UNIT_S,
@@ -197,12 +197,13 @@ def fixed_evaluate_parts(cfg, T: int, tracks: int) -> list[Term]:
     crops = (work.test_crops if work is not None else None) or 0
     comps = fitted_components(cfg)
     cells = T * tracks * (1 + len(ev.ablations))   # attribution runs inside a cell, an ablation is a cell
-    banks = 1 + sum(1 for a in ev.ablations if is_model_ablation(a))   # each fits the test domain
+    # each fits the test domain, the fit-only banks of evaluate.fit_spaces too
+    banks = 1 + sum(1 for a in ev.ablations if is_model_ablation(a)) + len(fit_only_banks(cfg))
     return [Term(f"the cells' own work ({cells} cells: targets x tracks x (1 + ablations))",
                  ("evaluate.targets", "evaluate.tracks_per_target", "evaluate.ablations"), seconds=cells * CELL_S),
             Term(f"the test-domain fit ({crops} AVD crops x about {comps} components x {views:.0f} views a class"
-                 f" x {banks} model bank(s): the main one and each models.* ablation's)",
-                 ("data.scans", "models.n_components", "evaluate.ablations"),
+                 f" x {banks} model bank(s): the main one, each models.* ablation's and each fit-only one)",
+                 ("data.scans", "models.n_components", "evaluate.ablations", "evaluate.fit_spaces"),
                  seconds=crops * comps * views * banks * DOMAIN_UNIT_S),
             Term(f"the population statistics ({T} targets x up to {tracks} tracks x {ev.bootstrap} resamples, "
                  f"clustered by {cluster_of(ev)})",
@@ -327,12 +328,14 @@ def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     # what the source declares a class is fitted on; undeclared: a BigBIRD ring's 120 angles
     declared = work.views_per_class if work is not None else None
     per_class = max(declared if declared is not None else 120, 1)
-    variants = 1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
+    variants = (1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
+                + len(fit_only_banks(cfg)))
     comps = fitted_components(cfg)
     extra = [t for fit in FIT_TERMS.values() for t in fit(cfg, classes)]   # each provider's own fits
     return [Term(f"the GP fits ({classes} classes x about {comps} components x {per_class:.0f} views x "
                  f"{m.restarts + 1} starts x {variants} bank(s))",
-                 ("models.restarts", "models.classes", "models.n_components", "models.components", "evaluate.ablations"),
+                 ("models.restarts", "models.classes", "models.n_components", "models.components", "evaluate.ablations",
+                  "evaluate.fit_spaces"),
                  seconds=variants * classes * comps * (m.restarts + 1) * MODEL_FIT_S
                  * (per_class / 120) ** MODEL_FIT_VIEWS_POWER)] + extra
 

@@ -117,14 +117,19 @@ def domain_rows(dom: dict) -> list[list]:
     return rows
 
 
+FIT_ONLY = "fit only, no method results"   # the label of an evaluate.fit_spaces bank's rows
+
+
 def domain_banks(dom: dict) -> list[tuple[str, dict]]:
-    """(label, fit) of the main bank, then of each models.* ablation's bank (``domain_fit.by_ablation``)."""
+    """(label, fit) of the main bank, then of each models.* ablation's bank, then of each fit-only
+    bank (``evaluate.fit_spaces``: named by its space and labelled so, no cell ran on it)
+    (``domain_fit.by_ablation``)."""
     def space(d):
         return f" ({d['score_space']} scores)" if d.get("score_space") else ""
     out = [("main" + space(dom), dom)]
-    for a, d in sorted((dom.get("by_ablation") or {}).items()):
+    for a, d in sorted((dom.get("by_ablation") or {}).items(), key=lambda kv: (bool(kv[1].get("fit_only")), kv[0])):
         if d.get("n_crops"):
-            out.append((a + space(d), d))
+            out.append((f"{d.get('score_space') or a} scores ({FIT_ONLY})" if d.get("fit_only") else a + space(d), d))
     return out
 
 
@@ -133,8 +138,8 @@ COVERAGE_BAND = (0.92, 0.98)   # the band read as a fitting 95 % predictive inte
 
 def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     """Whether the default likelihood (the main bank's With Uncertainty predictive: GP + dropout
-    variance, Gaussian) covers 92-98 %, and if not, which way it misses and which bank and
-    likelihood of this run do fall inside."""
+    variance, Gaussian) covers 92-98 %, and if not, which way it misses and which likelihoods of
+    which bank of this run do fall inside (grouped by bank)."""
     lo, hi = COVERAGE_BAND
     c = overall(banks[0][1], "gp_plus_dropout").get("coverage95")
     if c is None:
@@ -145,8 +150,9 @@ def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     text = (f"The run's default predictive (+ dropout variance, {banks[0][0]}) covers {fmt(c)} of the residuals "
             f"in its 95 % interval: {where} the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit{why}.")
     if not lo <= c <= hi:
-        inside = [f"{bank}, {title}" for bank, d in banks for k, title in DOMAIN_KINDS
-                  if lo <= (((d.get(k) or {}).get("overall") or {}).get("coverage95") or -1) <= hi]
+        inside = [(bank, [t for k, t in DOMAIN_KINDS if lo <= (overall(d, k).get("coverage95") or -1) <= hi])
+                  for bank, d in banks]
+        inside = [f"{bank}: {', '.join(titles)}" for bank, titles in inside if titles]
         text += (" Inside it in this run: " + "; ".join(inside) + "." if inside
                  else " No bank or likelihood of this run falls inside it.")
     return text
@@ -190,8 +196,10 @@ def domain_section(ctx: ReportContext) -> None:
                                          "residual's t PIT on the Gaussian scale, so its coverage is the t's own "
                                          "95 % interval; per class and component in the results file "
                                          "evaluate/summary.json)." +
-                                         (" One row group per model bank: the main one, then each models.* "
-                                          "ablation's own, on the same crops." if len(banks) > 1 else ""))
+                                         (" One row group per model bank, on the same crops: the main one, "
+                                          "then each models.* ablation's own, then each score space of "
+                                          "evaluate.fit_spaces (labelled \"fit only\": fitted for this "
+                                          "table alone, no method ran on it)." if len(banks) > 1 else ""))
     sentence = coverage_sentence(banks)
     if sentence:
         page.paragraph(sentence)

@@ -43,7 +43,8 @@ STAGES: dict[str, StageSpec] = {s.name: s for s in (
               help="crop every needed view and score it (deterministic pass + MC dropout) -> Parquet"),
     StageSpec("models", "stages.models", ("data", "features"),
               ("models", "evaluate.targets", "evaluate.n_candidates", "evaluate.candidates",
-               "evaluate.candidate_seed", "evaluate.candidate_folds", "evaluate.ablations"),
+               "evaluate.candidate_seed", "evaluate.candidate_folds", "evaluate.ablations",
+               "evaluate.fit_spaces"),
               help="choose feature components and fit one GP per (class, component)"),
     StageSpec("evaluate", "stages.evaluate", ("data", "features", "models"), ("evaluate", "plan"), methods=True,
               help="the population evaluation (targets x tracks x localization settings x methods, CIs, "

@@ -104,14 +104,36 @@ def test_the_default_predictives_coverage_is_read_against_the_band_and_the_banks
     from reports.main.calibration import coverage_sentence, domain_banks
 
     wide = {**_cover("probability", gp=0.97, gp_plus_dropout=0.988),
-            "by_ablation": {LOG: _cover("log", gp_plus_dropout=0.87, gp_plus_dropout_t=0.944)}}
+            "by_ablation": {LOG: _cover("log", gp_plus_dropout=0.87, gp_t=0.95, gp_plus_dropout_t=0.944)}}
     s = coverage_sentence(domain_banks(wide))
     assert "above" in s and fmt(0.988) in s
-    # the two inside the band, by bank and likelihood; the log Gaussian (0.87) is not named
-    assert "main (probability scores), GP predictive (Model Based)" in s
-    assert f"{LOG} (log scores), + dropout variance as a Student-t" in s
-    assert s.count(";") == 1
+    # those inside the band, grouped by bank; the log Gaussian (0.87) is not named
+    assert "main (probability scores): GP predictive (Model Based);" in s
+    assert (f"{LOG} (log scores): GP predictive as a Student-t (ν cross-fitted), "
+            "+ dropout variance as a Student-t (ν cross-fitted).") in s
+    assert s.count(";") == 1 and "With Uncertainty), " not in s
     fits = coverage_sentence(domain_banks(_cover("probability", gp_plus_dropout=0.95)))
     assert "inside the band" in fits and "Inside it in this run" not in fits
     narrow = coverage_sentence(domain_banks(_cover("log", gp_plus_dropout=0.80, gp=0.70)))
     assert "below" in narrow and "No bank or likelihood of this run falls inside it." in narrow
+
+
+def test_a_fit_only_bank_has_its_own_rows_after_the_ablations_and_says_it_ran_no_method():
+    from reports.main.calibration import FIT_ONLY, coverage_sentence, domain_banks
+
+    rng = np.random.default_rng(2)
+    clr = "models.score_space=clr"
+    dom = {**_fit(rng, "probability"), "by_ablation": {clr: {**_fit(rng, "clr"), "fit_only": True},
+                                                      LOG: _fit(rng, "log")}}
+    header, rows = _render(dom)
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault(r[0], []).append(r)
+    assert list(groups) == ["main (probability scores)", f"{LOG} (log scores)", f"clr scores ({FIT_ONLY})"]
+    cov = header.index("95 % coverage")
+    assert [r[cov] for r in groups[f"clr scores ({FIT_ONLY})"]] == \
+        [fmt(dom["by_ablation"][clr][k]["overall"]["coverage95"]) for k, _ in DOMAIN_KINDS]
+    # the coverage sentence names a fit-only bank inside the band with its label
+    wide = {**_cover("probability", gp_plus_dropout=0.99),
+            "by_ablation": {clr: {**_cover("clr", gp_t=0.95), "fit_only": True}}}
+    assert f"clr scores ({FIT_ONLY}): GP predictive as a Student-t" in coverage_sentence(domain_banks(wide))

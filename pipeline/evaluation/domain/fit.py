@@ -21,6 +21,10 @@ from pipeline.method.score_space import of_models, to_space
 
 Z95 = 1.959963984540054
 PIT_BINS = 10
+# clr reads each pass's whole score vector: in blocks of this many rows, so that its float64 logs of a
+# 1000-way output never hold every labelled pass at once (real_full: 124,400 passes, 1 GB a copy);
+# clr is row-wise, so the blocks give the same numbers
+CLR_BLOCK = 8192
 
 
 def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping[tuple[str, str], tuple],
@@ -44,8 +48,11 @@ def crop_residuals(avd: pd.DataFrame, scores: np.ndarray, models, poses: Mapping
     # in the bank's score space (pipeline/method/score_space.py), each dropout pass before the mean
     sp, floor = of_models(models)
     at, whole = rows.index.to_numpy(), sp == "clr"    # clr reads the whole score vector
-    s = to_space(np.asarray(scores)[at] if whole else np.asarray(scores)[np.ix_(at, comps)], sp, floor)
-    s = s[:, comps] if whole else s
+    if whole:
+        s = np.concatenate([to_space(np.asarray(scores)[at[i:i + CLR_BLOCK]], sp, floor)[:, comps]
+                            for i in range(0, len(at), CLR_BLOCK)])
+    else:
+        s = to_space(np.asarray(scores)[np.ix_(at, comps)], sp, floor)
     n = np.bincount(code).astype(float)
     G, F = len(uniq), len(comps)
     s1, s2 = np.zeros((G, F)), np.zeros((G, F))

@@ -129,19 +129,22 @@ class TargetDomain:
 KINDS = ("gp", "gp_plus_dropout", "gp_calibrated", "gp_t", "gp_plus_dropout_t")
 
 
-def bank_fits(cfg, avd, scores, banks: dict, truth, intr, targets, scans) -> dict:
+def bank_fits(cfg, avd, scores, banks: dict, truth, intr, targets, scans, fit_only: dict | None = None) -> dict:
     """{ablation: the domain fit's pooled rows} for every ``models.*`` ablation's own model bank (a
-    score space, a component rule ...): the same crops and the same code path as the main bank's
-    summary, so that the report shows each bank's 95 % coverage per likelihood. Only
-    each kind's ``overall`` is kept (the per-class tables are the main bank's)."""
+    score space, a component rule ...) and every fit-only bank (``fit_only``: {name: a function
+    that loads it}, the ``evaluate.fit_spaces`` banks no cell runs on; each is loaded, fitted and
+    dropped in turn, so that at most one is held): the same crops and the same code path as the
+    main bank's summary, so that the report shows each bank's 95 % coverage per likelihood. Only
+    each kind's ``overall`` is kept (the per-class tables are the main bank's); a fit-only bank's
+    entry says so (``fit_only``)."""
+    todo = [(a, banks[a], False) for a in cfg.evaluate.ablations if is_model_ablation(a) and a in banks]
+    todo += [(a, load, True) for a, load in (fit_only or {}).items()]
     out = {}
-    for a in cfg.evaluate.ablations:
-        if not is_model_ablation(a) or a not in banks:
-            continue
-        dom = TargetDomain(cfg, avd, scores, banks[a], truth, intr, targets, scans)
+    for a, bank, only in todo:
+        dom = TargetDomain(cfg, avd, scores, bank() if only else bank, truth, intr, targets, scans)
         s = dom.summary(source=False)
         out[a] = {"n_crops": s["n_crops"], "score_space": dom.score_space, "pose_source": dom.pose_source,
-                  **{k: {"overall": s[k]["overall"]} for k in KINDS if k in s}}
+                  **({"fit_only": True} if only else {}), **{k: {"overall": s[k]["overall"]} for k in KINDS if k in s}}
     return out
 
 

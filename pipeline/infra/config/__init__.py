@@ -17,7 +17,8 @@ from __future__ import annotations
 from pipeline.infra.config.checks import bounds_problem, check_simulate, cross_checks
 from pipeline.infra.config.load import ablation_config, load_config, merge, parse_override
 from pipeline.infra.config.evaluation import (ABLATION_KEYS, BiasedConfig, BiasedRandomizedConfig, BiasMapsConfig, EvaluateConfig,
-                                             RandomizedConfig, ReportConfig, SensitivityConfig, is_model_ablation)
+                                             RandomizedConfig, ReportConfig, SensitivityConfig, fit_only_banks,
+                                             is_model_ablation)
 from pipeline.infra.config.fields import ConfigError
 from pipeline.infra.config.inputs import DEFAULT_INSTANCES, DataConfig, RunConfig, SyntheticDataConfig
 from pipeline.infra.config.learning import ClassifierConfig, FeaturesConfig, ModelsConfig, TrainingConfig
@@ -31,5 +32,6 @@ __all__ = [
     "ConfigError", "DataConfig", "EvaluateConfig", "FeaturesConfig", "ModelsConfig", "PlanConfig", "RandomizedConfig",
     "ReportConfig", "RunConfig", "SensitivityConfig", "SimulateConfig", "StudyConfig", "SyntheticDataConfig",
     "TrainingConfig", "ablation_config", "bounds_problem", "canonical_json", "check_simulate", "cross_checks",
+    "fit_only_banks",
     "is_model_ablation", "load_config", "merge", "parse_override", "domain_variance_mode", "to_dict",
 ]

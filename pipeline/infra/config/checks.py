@@ -159,6 +159,8 @@ def cross_checks(cfg: Config, where: str) -> None:
         if key == "evaluate.test_domain_variance":
             need(a.split("=", 1)[1].strip().strip("'\"") in ("none", "cross_fit"),
                  f"'evaluate.ablations' entry {a!r}: the value must be none or cross_fit")
+    dup = sorted({s for s in ev.fit_spaces if ev.fit_spaces.count(s) > 1})
+    need(not dup, f"'evaluate.fit_spaces' lists {', '.join(map(repr, dup))} more than once (each bank is fitted once)")
     known = ("gp_models", "biased", "randomized", "biased_randomized", "sensitivity", "bias_maps")
     for e in cfg.evaluate.experiments:
         need(e in known, f"'evaluate.experiments' names unknown experiment {e!r} (known: {', '.join(known)})")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
+from pipeline.infra.config.learning import SCORE_SPACES
 from pipeline.infra.config.own import Extendable, Own, own_field
 
 
@@ -129,6 +130,12 @@ class EvaluateConfig(Extendable):
                                     doc="'models.KEY=VALUE' or 'evaluate.test_domain_variance=VALUE' variants "
                                         "evaluated on the same population (models KEY: component_rule, "
                                         "noise_floor, n_components, informative_min, score_space)")
+    fit_spaces: tuple[str, ...] = _f(factory=tuple, choices=SCORE_SPACES,
+                                     doc="score spaces whose model bank is fitted only for the test-domain fit "
+                                         "table (95 % coverage per space and likelihood): the models stage fits "
+                                         "each one's bank, the evaluate stage fits it to the labelled crops and "
+                                         "runs no cell on it; the run's own space and a space an ablation "
+                                         "already fits are not fitted again")
     test_domain_variance: str = _f("none", choices=("none", "cross_fit"),
                                    doc="likelihood of the GP-based methods: none = the paper's (GP predictive "
                                        "alone); cross_fit = plus a test-domain variance per score component, "
@@ -177,6 +184,16 @@ class ReportConfig:
 ABLATION_KEYS = ("models.component_rule", "models.noise_floor", "models.n_components", "models.informative_min",
                  "models.score_space", "evaluate.test_domain_variance")
 TEST_DOMAIN_MODES = ("none", "cross_fit")
+
+
+def fit_only_banks(cfg) -> tuple[str, ...]:
+    """The ``models.score_space=<space>`` bank of each ``evaluate.fit_spaces`` entry that no other
+    bank of the run holds (not the run's own space, not a ``models.score_space`` ablation's): named
+    like an ablation, fitted by the models stage, read by the test-domain fit only."""
+    ev = cfg.evaluate
+    have = {cfg.models.score_space} | {a.split("=", 1)[1].strip().strip("'\"") for a in ev.ablations
+                                       if a.split("=", 1)[0].strip() == "models.score_space" and "=" in a}
+    return tuple(f"models.score_space={s}" for s in ev.fit_spaces if s not in have)
 
 
 def is_model_ablation(ablation: str) -> bool:

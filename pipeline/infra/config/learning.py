@@ -8,6 +8,8 @@ from dataclasses import dataclass
 from pipeline.infra.config.fields import SEED_MAX, setting as _f
 from pipeline.infra.config.own import Extendable, Own, own_field
 
+SCORE_SPACES = ("probability", "log", "logit", "clr")   # models.score_space (pipeline/method/score_space.py)
+
 
 @dataclass(frozen=True)
 class TrainingConfig:
@@ -132,7 +134,7 @@ class ModelsConfig(Extendable):
                       doc="GP training scores per view: 'dropout_mean' = mean of the MC-dropout passes "
                           "(features.bigbird_samples > 0; what Model Based measures on AVD), 'deterministic' = the "
                           "eval-mode pass")
-    score_space: str = _f("probability", choices=("probability", "log", "logit", "clr"),
+    score_space: str = _f("probability", choices=SCORE_SPACES,
                           doc="what the GPs model of each softmax probability p (pipeline/method/score_space.py): "
                               "'probability' = p (the paper), 'log' = log p, 'logit' = log-odds, 'clr' = centred "
                               "log-ratio over the whole score vector; every GP method, the view-independent "

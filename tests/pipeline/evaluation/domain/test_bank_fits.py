@@ -72,3 +72,34 @@ def test_each_model_ablation_gets_the_fit_rows_of_its_own_bank():
         assert fit[k]["overall"]["coverage95"] < main[k]["overall"]["coverage95"]
     assert fit["gp"]["overall"]["pit"] != main["gp"]["overall"]["pit"]
 
+
+
+def test_a_fit_only_bank_gets_the_same_rows_loaded_once_and_marked():
+    """An ``evaluate.fit_spaces`` bank: no ablation, no cell, only its loader; its rows are those the
+    same bank gets as an ablation, and the entry says it is fit-only."""
+    cfg, avd, scores, banks, truth = _scene()
+    as_ablation = bank_fits(cfg, avd, scores, banks, truth, {}, ["a", "b"], ["S"])[LOG]
+    calls = []
+    cfg.evaluate.ablations = []
+    out = bank_fits(cfg, avd, scores, {"default": banks["default"]}, truth, {}, ["a", "b"], ["S"],
+                    fit_only={LOG: lambda: calls.append(1) or banks[LOG]})
+    assert list(out) == [LOG] and len(calls) == 1
+    assert out[LOG].pop("fit_only") is True and "fit_only" not in as_ablation
+    assert out[LOG] == as_ablation
+
+
+def test_a_clr_banks_residuals_are_the_same_read_in_row_blocks(monkeypatch):
+    """clr reads each pass's whole score vector, so the crops' residuals are computed in blocks of
+    rows (memory); clr is row-wise, so any block size gives the same table to the bit."""
+    from pipeline.evaluation.domain import fit as D
+
+    cfg, avd, scores, banks, truth = _scene()
+    b = banks[LOG]
+    clr = GPClassModels(b.classes, b.components, b.X, b.Y, b.mean, b.amplitude, b.length_scale, b.noise,
+                        meta={"score_space": {"space": "clr", "floor": 1e-6}})
+    poses = TargetDomain(cfg, avd, scores, clr, truth, {}, ["a", "b"], ["S"]).poses
+    whole = D.crop_residuals(avd, scores, clr, poses, 4, 1e-6)
+    monkeypatch.setattr(D, "CLR_BLOCK", 7)   # 480 passes: 69 blocks, the last one short
+    blocks = D.crop_residuals(avd, scores, clr, poses, 4, 1e-6)
+    assert len(whole) == 160 and np.isfinite(whole["obs"]).all()
+    pd.testing.assert_frame_equal(blocks, whole, check_exact=True)
