@@ -62,7 +62,10 @@ def population_blocks(cfg, table: pd.DataFrame, cells, results, scope: str, defa
         sub = table[(table["variant"] == a) & table["method"].isin(main)]
         if sub.empty:
             continue
-        b = population_block(sub, main, metrics, comparisons(), ev.bootstrap, ev.seed, primary=prim,
+        # a method whose models follow the default bank only (ModelProvider.default_only: the instance
+        # term) skips in a variant with a bank of its own: pair only the methods the variant ran
+        ran = [m for m in main if m in set(sub["method"])]
+        b = population_block(sub, ran, metrics, comparisons(), ev.bootstrap, ev.seed, primary=prim,
                              ece={"sums": track_sums(cells, results, a, ev.ece_bins)}, per_target=False, cluster=cl)
         key, value = (t.strip() for t in a.split("=", 1))
         abl[a] = {"override": {key: value}, **{k: b[k] for k in (*BLOCK_KEYS, "reliability") if k in b}}

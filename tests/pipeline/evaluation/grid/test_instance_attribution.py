@@ -17,7 +17,7 @@ METHODS = (WITH_UNCERTAINTY, MODEL_BASED, SIMPLE_BAYES, WU_INSTANCE, MB_INSTANCE
 GAIN = 0.1    # what the term adds to the correct ratio, in category cat0 only
 
 
-def _population(rng, methods=METHODS, cats=4, per_cat=3, tracks=2, name="cat{c}__f{t}"):
+def _population(rng, methods=METHODS, cats=4, per_cat=3, tracks=2, name="cat{c}__f{t}", variant="default"):
     rows, cells, results = [], [], []
     for c in range(cats):
         for t in range(per_cat):
@@ -29,17 +29,17 @@ def _population(rng, methods=METHODS, cats=4, per_cat=3, tracks=2, name="cat{c}_
                     if m in values and c == 0:
                         values[m] = base + GAIN
                 for m, v in values.items():
-                    rows.append({"variant": "default", "method": m, "target": target, "track": j, "setting": "x",
+                    rows.append({"variant": variant, "method": m, "target": target, "track": j, "setting": "x",
                                  "correct_final": v, "confident_error_final": 1.0 - v})
                 # posteriors of 3 realizations x 2 steps x 3 classes, for the pooled ECE
                 posts = {("randomized", "x"): {m: np.log(rng.dirichlet(np.ones(3), size=(3, 2))) for m in methods}}
-                cells.append(SimpleNamespace(variant="default", target=target, track=j, truth=0))
+                cells.append(SimpleNamespace(variant=variant, target=target, track=j, truth=0))
                 results.append({"calibration": cell_sums(posts, 0, 10)})
     return pd.DataFrame(rows), cells, results
 
 
-def _blocks(table, cells, results):
-    cfg = SimpleNamespace(evaluate=EvaluateConfig(bootstrap=200))
+def _blocks(table, cells, results, ablations=()):
+    cfg = SimpleNamespace(evaluate=EvaluateConfig(bootstrap=200, ablations=tuple(ablations)))
     return population_blocks(cfg, table, cells, results, "", "default")
 
 
@@ -93,3 +93,17 @@ def test_no_instance_methods_no_block_and_no_categories_no_breakdown():
     assert INSTANCE_KEY not in out["ablations"] and out["by_category"] == {}
     assert categories(["a__f0", "a__f1"]) is None            # one category: nothing to break down
     assert categories(["a__f0", "b__f1", "loose"]) is None   # a target outside any category
+
+
+def test_a_model_ablation_without_the_instance_methods_pairs_the_methods_it_ran():
+    # the instance term's models follow the default bank only, so a models.* ablation runs without them
+    rng = np.random.default_rng(3)
+    log = "models.score_space=log"
+    parts = [_population(rng), _population(rng, methods=METHODS[:3], variant=log)]
+    table = pd.concat([p[0] for p in parts], ignore_index=True)
+    out = _blocks(table, parts[0][1] + parts[1][1], parts[0][2] + parts[1][2], ablations=[log])
+    block = out["ablations"][log]
+    assert sorted(block["pooled"]) == sorted(METHODS[:3])
+    assert comparison_key(WITH_UNCERTAINTY, SIMPLE_BAYES) in block["paired"]
+    assert not any(WU_INSTANCE in k or MB_INSTANCE in k for k in block["paired"])
+    assert comparison_key(WITH_UNCERTAINTY, WU_INSTANCE) in out["main"]["paired"]
