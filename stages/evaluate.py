@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import logging
 import time
 from collections import Counter
@@ -25,18 +24,16 @@ import pandas as pd
 
 from pipeline.evaluation.grid import experiments as E
 from pipeline.method import call_guard
-from pipeline.method.gp_files import load_bank
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.grid import showcase as S
 from pipeline.infra.cache import atomic_path, write_json
-from pipeline.infra.config import Config, ConfigError, fit_only_banks, is_model_ablation
+from pipeline.infra.config import Config, ConfigError
 from pipeline.scoring.features import read_features
-from pipeline.method.gp_files import read_bank_index
 from pipeline.infra.outputs import name as out_name
 from pipeline.infra.outputs import read as read_artifact
 from pipeline.evaluation.grid.population import DEFAULT
+from pipeline.evaluation.grid.banks import fit_bank_loaders, load_banks, load_provided, variant_provided
 from pipeline.evaluation.grid.cell_reduce import reduce_cell
-from pipeline.evaluation.grid.contrast import ARM as CONTRAST_ARM
 from pipeline.evaluation.grid.population_summary import cell_table, check_primary, method_blocks, population_summary
 from pipeline.evaluation.metrics.results import ResultsWriter, metadata, result_block
 from pipeline.evaluation.metrics.spec import Params
@@ -52,7 +49,6 @@ from pipeline.evaluation.metrics.spec import METRICS
 from pipeline.evaluation.statistics.resampler import draw_seconds
 from pipeline.infra.cost import Counts, Term, check
 from pipeline.infra.progress import echo
-from pipeline.method.registry import model_providers
 from pipeline.infra.budget import budget, cap_workers, cores
 from pipeline.infra.device import free_cores
 from pipeline.infra.executor import executor_for
@@ -63,48 +59,6 @@ from pipeline.method.score_space import of_models
 log = logging.getLogger("viewfuse.evaluate")
 # The avd.parquet columns evaluate uses (checked present and typed on read).
 AVD_COLUMNS = ("scan", "image", "instance", "difficulty", "box_x0", "box_x1", "cam_x", "cam_y", "heading", "pass")
-
-
-def load_banks(models_dir: Path, ablations: tuple[str, ...]) -> tuple[dict, dict]:
-    """{variant: model bank} and {variant: models/index.json} for the default and every ablation (an
-    evaluate.* ablation shares the default's bank and index: the same objects) and the contrast's arm."""
-    index = read_bank_index(models_dir)
-    banks, indexes = {DEFAULT: load_bank(models_dir)}, {DEFAULT: index}
-    for a in ablations:
-        if not is_model_ablation(a):  # an evaluate.* variant: same models, another likelihood
-            banks[a], indexes[a] = banks[DEFAULT], index
-            continue
-        sub = index.get("ablations", {}).get(a)
-        if sub is None:
-            raise ValueError(f"{models_dir / out_name('models', 'index')}: no model bank for ablation {a!r} "
-                             "(rerun the models stage)")
-        banks[a] = load_bank(models_dir / sub)
-        indexes[a] = read_bank_index(models_dir / sub)
-    arm = models_dir / out_name("models", "contrast")
-    if arm.is_dir():   # data.real_imagery.contrast: the instance arm runs as one more variant on the same tracks
-        banks[CONTRAST_ARM], indexes[CONTRAST_ARM] = load_bank(arm), read_bank_index(arm)
-    return banks, indexes
-
-
-def fit_bank_loaders(models_dir: Path, cfg: Config, index: dict) -> dict:
-    """{fit-only bank: a function that loads it} for every ``evaluate.fit_spaces`` bank the run
-    fits (``fit_only_banks``), from ``models/index.json``'s ``fit_banks``; loaded one at a time by
-    the test-domain fit, never held beside the cells."""
-    where, out = index.get("fit_banks") or {}, {}
-    for a in fit_only_banks(cfg):
-        if a not in where:
-            raise ValueError(f"{models_dir / out_name('models', 'index')}: no fit-only model bank {a!r} for "
-                             "evaluate.fit_spaces (rerun the models stage)")
-        out[a] = functools.partial(load_bank, models_dir / where[a])
-    return out
-
-
-def variant_provided(models_dir: Path, cfg: Config) -> dict:
-    """{variant: {provider key: its models}} where a variant's classes were fitted on another
-    training set (the contrast's instance arm, ``models/contrast/<key>/``; a provider that follows
-    the default bank only has none there)."""
-    d = models_dir / out_name("models", "contrast")
-    return {CONTRAST_ARM: load_provided(d, cfg, variant=True)} if d.is_dir() else {}
 
 
 def scan_geometry(cfg: Config, scans: list[str], avd: pd.DataFrame, skips) -> tuple[dict, dict, dict, dict]:
@@ -205,14 +159,6 @@ def check_budget(cfg: Config, n_targets: int, width: int, tracks: Sequence[int] 
         echo(f"[evaluate] evaluate.bootstrap = {ev.bootstrap}: the {n_stats}+ bootstrap intervals will take about "
              f"{seconds / 60:.0f} min (scaled from a timed run of 20000 draws; lower evaluate.bootstrap to shorten)")
     return seconds
-
-
-def load_provided(models_dir: Path, cfg: Config, variant: bool = False) -> dict:
-    """{provider key: its models} of every provider the registered methods need and the config
-    enables (``models/<key>/``); of a ``variant``'s folder, without those that follow the default
-    bank only."""
-
-    return {p.key: p.load(models_dir / p.key, cfg) for p in model_providers(cfg) if not (variant and p.default_only)}
 
 
 def fusion_device(ctx, executor) -> tuple[str, bool]:

@@ -11,7 +11,7 @@ import pytest
 
 from pipeline.infra.config import fit_only_banks
 from pipeline.method.gp_files import load_bank, read_bank_index
-from stages.evaluate import fit_bank_loaders
+from pipeline.evaluation.grid.banks import fit_bank_loaders
 from stages.framework.registry import STAGES
 from stages.framework.runner import read_manifest, run_stage
 from tests.stages.test_models_stage import CLASSES, write_features

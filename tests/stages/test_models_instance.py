@@ -11,7 +11,7 @@ from pipeline.method.gp_files import load_bank
 from pipeline.method.gp_instance import InstanceGPClassModels
 from pipeline.method.gp_instance_fit import NO_TERM
 from pipeline.method.methods.instance_term import INSTANCE_TERM
-from stages.evaluate import load_provided
+from pipeline.evaluation.grid.banks import load_provided
 from stages.framework.registry import STAGES
 from stages.framework.runner import run_stage
 from tests.stages.test_models_stage import CLASSES, write_features

@@ -11,7 +11,7 @@ import pytest
 from pipeline.banks.model_bank import ablation_dir
 from pipeline.method.gp import ModelFileError
 from pipeline.method.gp_files import load_bank, read_bank_index, save_bank
-from stages.evaluate import load_banks
+from pipeline.evaluation.grid.banks import load_banks
 from tests.pipeline.method.test_gp import make_models
 
 ABL = "models.component_rule=top_mean"
