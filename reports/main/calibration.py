@@ -112,9 +112,16 @@ def domain_rows(dom: dict) -> list[list]:
     for k, title in DOMAIN_KINDS:
         o = overall(dom, k)
         if o.get("n"):
-            rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), fmt(o["coverage95"]),
+            rows.append([title, o["n"], fmt(o["share_gt2"]), fmt(o["share_gt3"]), coverage_estimate(o),
                          fmt(o["abs_z_p90"]), fmt(o["abs_z_p99"])])
     return rows
+
+
+def coverage_estimate(o: dict) -> Estimate:
+    """A pooled row's 95 % coverage with its clustered 95 % CI (``domain.coverage``; none where
+    withheld, or in a summary written before the CI existed)."""
+    lo, hi = o.get("coverage95_ci") or (None, None)
+    return Estimate(o.get("coverage95"), lo, hi)
 
 
 FIT_ONLY = "fit only, no method results"   # the label of an evaluate.fit_spaces bank's rows
@@ -134,27 +141,47 @@ def domain_banks(dom: dict) -> list[tuple[str, dict]]:
 
 
 COVERAGE_BAND = (0.92, 0.98)   # the band read as a fitting 95 % predictive interval (viewfuse's choice)
+# The band verdict is read off the coverage's 95 % CI, never off the share alone.
+BAND_RULE = ("inside when its whole 95 % CI lies in the band, above or below when its whole CI lies beyond it, "
+             "else undecided")
+
+
+def band_verdict(o: dict) -> str | None:
+    """"inside" | "above" | "below" | "undecided" (the CI straddles an edge of ``COVERAGE_BAND``), or
+    None without a CI (withheld: no verdict)."""
+    lo, hi = COVERAGE_BAND
+    ci = o.get("coverage95_ci")
+    if not ci or any(x is None or x != x for x in ci):
+        return None
+    a, b = float(ci[0]), float(ci[1])
+    return ("inside" if lo <= a and b <= hi else "above" if a > hi else "below" if b < lo else "undecided")
 
 
 def coverage_sentence(banks: list[tuple[str, dict]]) -> str:
     """Whether the default likelihood (the main bank's With Uncertainty predictive: GP + dropout
-    variance, Gaussian) covers 92-98 %, and if not, which way it misses and which likelihoods of
-    which bank of this run do fall inside (grouped by bank)."""
+    variance, Gaussian) covers 92-98 %, read off its coverage's 95 % CI (``BAND_RULE``), and if not
+    inside, which likelihoods of which bank of this run are (grouped by bank)."""
     lo, hi = COVERAGE_BAND
-    c = overall(banks[0][1], "gp_plus_dropout").get("coverage95")
-    if c is None:
+    o = overall(banks[0][1], "gp_plus_dropout")
+    if o.get("coverage95") is None:
         return ""
-    where, why = (("inside", "") if lo <= c <= hi else
-                  ("above", " (its intervals are wider than the scores spread)") if c > hi else
-                  ("below", " (the scores spread wider than its intervals)"))
-    text = (f"The run's default predictive (+ dropout variance, {banks[0][0]}) covers {fmt(c)} of the residuals "
-            f"in its 95 % interval: {where} the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit{why}.")
-    if not lo <= c <= hi:
-        inside = [(bank, [t for k, t in DOMAIN_KINDS if lo <= (overall(d, k).get("coverage95") or -1) <= hi])
-                  for bank, d in banks]
+    verdict = band_verdict(o)
+    head = (f"The run's default predictive (+ dropout variance, {banks[0][0]}) covers {coverage_estimate(o).text()} "
+            f"of the residuals in its 95 % interval")
+    if verdict is None:
+        why = o.get("coverage95_withheld") or "the results file holds no interval of it (a run before the CI)"
+        return f"{head}; against the band {fmt(lo)}–{fmt(hi)} viewfuse reads as a fit: no CI, no verdict: {why}."
+    where = {"inside": "inside the band", "above": "above the band", "below": "below the band",
+             "undecided": "not distinguishable from an edge of the band"}[verdict]
+    why = {"above": " (its intervals are wider than the scores spread)",
+           "below": " (the scores spread wider than its intervals)"}.get(verdict, "")
+    text = (f"{head} (95 % CI resampling {o.get('coverage95_over', 'the run')}): {where} "
+            f"{fmt(lo)}–{fmt(hi)} viewfuse reads as a fit{why}; the rule: {BAND_RULE}.")
+    if verdict != "inside":
+        inside = [(bank, [t for k, t in DOMAIN_KINDS if band_verdict(overall(d, k)) == "inside"]) for bank, d in banks]
         inside = [f"{bank}: {', '.join(titles)}" for bank, titles in inside if titles]
-        text += (" Inside it in this run: " + "; ".join(inside) + "." if inside
-                 else " No bank or likelihood of this run falls inside it.")
+        text += (" Inside it by that rule in this run: " + "; ".join(inside) + "." if inside
+                 else " No bank or likelihood of this run lies inside it by that rule.")
     return text
 
 
@@ -167,8 +194,17 @@ def register_fit_row(ledger, bank: str, fit: dict, row: list) -> None:
     """A fit-table row's numbers in the page's ledger beside its bank's pooled row in summary.json,
     both as the page writes them (``fmt``: the row holds text), one statistic per number."""
     kind = KIND_OF[row[0]]
-    source = {k: v if k == "n" else fmt(v) for k, v in overall(fit, kind).items()}
+    o = overall(fit, kind)
+    source = {k: o.get(k) if k == "n" else fmt(o.get(k)) for k in DOMAIN_STATS}
+    ci = o.get("coverage95_ci") or (None, None)
+    source["coverage95"] = {"value": o.get("coverage95"), "ci_low": ci[0], "ci_high": ci[1]}   # the cell: an Estimate
     ledger.register_row(("domain fit", bank, kind), DOMAIN_STATS, row[1:], source, where="domain-fit table")
+
+
+def _over(dom: dict) -> str:
+    """What the main bank's coverage CIs resample (``coverage95_over``), or where none was made."""
+    o = overall(dom, "gp_plus_dropout") or overall(dom, "gp")
+    return o.get("coverage95_over") or "the run's units (this results file holds none)"
 
 
 def domain_section(ctx: ReportContext) -> None:
@@ -195,7 +231,9 @@ def domain_section(ctx: ReportContext) -> None:
                                          "and components, in the models' score space (a Student-t row: each "
                                          "residual's t PIT on the Gaussian scale, so its coverage is the t's own "
                                          "95 % interval; per class and component in the results file "
-                                         "evaluate/summary.json)." +
+                                         "evaluate/summary.json). 95 % coverage: the share [95 % CI], the CI "
+                                         f"resampling {_over(dom)}, never the residuals (those of one crop, "
+                                         "instance or scan are correlated); none where a level has under 8 units." +
                                          (" One row group per model bank, on the same crops: the main one, "
                                           "then each models.* ablation's own, then each score space of "
                                           "evaluate.fit_spaces (labelled \"fit only\": fitted for this "

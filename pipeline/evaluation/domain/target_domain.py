@@ -12,11 +12,13 @@ import numpy as np
 import pandas as pd
 
 from pipeline.evaluation.domain import fit as D
+from pipeline.evaluation.domain.coverage import coverage_cis
 from pipeline.evaluation.domain import source as U
 from pipeline.evaluation.domain import tails
 from pipeline.evaluation.grid import population as P
 from pipeline.evaluation.domain import variance as V
 from pipeline.infra.config import domain_variance_mode, is_model_ablation
+from pipeline.infra.config.evaluation import cluster_of
 from pipeline.method.score_space import of_models
 from pipeline.scoring.classifiers import classifier
 
@@ -54,6 +56,7 @@ class TargetDomain:
                                       cfg.evaluate.variance_floor)
         self.components = list(bank.components)
         self.n_boot, self.seed = int(cfg.evaluate.bootstrap), int(cfg.evaluate.seed)
+        self.cluster = cluster_of(cfg.evaluate)   # the units the pooled coverage's CI resamples
         self.sources = mc_sources(cfg)
         keys = scans if len(scans) >= 2 else targets
         by = "scan" if len(scans) >= 2 else "instance"
@@ -84,6 +87,8 @@ class TargetDomain:
         z = self._z(("gp", "gp_plus_dropout", "gp_calibrated"), delta)
         z.update(tails.t_kinds(t, z, self.by, self.tails))   # the Student-t likelihood, read on the Gaussian scale
         out = D.summarize(t, z)
+        for kind, ci in coverage_cis(t, z, self.cluster, self.n_boot, self.seed).items():
+            out[kind]["overall"].update(ci)   # beside the share: its CI over the run's units
         n_crops = int(t.groupby(["scan", "instance", "image"]).ngroups)
         return {**out, "n_crops": n_crops, "uncertainty_source": self.source_summary() if source else {}, "pose_source": self.pose_source,
                 "score_space": self.score_space,

@@ -65,6 +65,9 @@ def test_each_model_ablation_gets_the_fit_rows_of_its_own_bank():
         o, m = fit[k]["overall"], main[k]["overall"]
         assert o["n"] == m["n"] == 160 and 0.0 <= o["coverage95"] <= 1.0
         assert set(fit[k]) == {"overall"}            # the per-class tables are the main bank's only
+        for row in (o, m):                           # two instances: the coverage's CI is withheld, saying why
+            assert row["coverage95_ci"] is None and row["coverage95_withheld"].startswith("2 instances: ")
+            assert row["coverage95_units"] == {"instances": 2}
     # another space, other residuals: log stretches a residual by about 1/p (p <= 0.6 here) while both
     # banks carry the same GP variances, so the log bank's |z| are larger and its coverage lower
     for k in ("gp", "gp_plus_dropout"):
