@@ -143,11 +143,12 @@ def domain_banks(dom: dict) -> list[tuple[str, dict]]:
 COVERAGE_BAND = (0.92, 0.98)   # the band read as a fitting 95 % predictive interval (viewfuse's choice)
 # The band verdict is read off the coverage's 95 % CI, never off the share alone.
 BAND_RULE = ("inside when its whole 95 % CI lies in the band, above or below when its whole CI lies beyond it, "
-             "else undecided")
+             "else not distinguishable from an edge")
 
 
 def band_verdict(o: dict) -> str | None:
-    """"inside" | "above" | "below" | "undecided" (the CI straddles an edge of ``COVERAGE_BAND``), or
+    """"inside" | "above" | "below" | "undecided" (the CI straddles an edge of ``COVERAGE_BAND``: "not
+    distinguishable from an edge of the band"), or
     None without a CI (withheld: no verdict)."""
     lo, hi = COVERAGE_BAND
     ci = o.get("coverage95_ci")
