@@ -99,6 +99,9 @@ def coverage_cis(table: pd.DataFrame, z_by_kind: Mapping[str, np.ndarray], clust
         elif n.sum() > 0:
             with np.errstate(invalid="ignore", divide="ignore"):
                 est = estimate(k.sum() / n.sum(), (w @ k) / (w @ n))
-            entry["coverage95_ci"] = [est["ci_low"], est["ci_high"]]
+            if np.isfinite([est["ci_low"], est["ci_high"]]).all():
+                entry["coverage95_ci"] = [est["ci_low"], est["ci_high"]]
+            else:   # a draw that kept no residual (crossed: no drawn instance in a drawn scan): undefined
+                entry["coverage95_withheld"] = "a resample kept no residual: the interval is undefined"
         out[kind] = entry
     return out

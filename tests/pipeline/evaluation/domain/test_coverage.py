@@ -82,3 +82,20 @@ def test_non_finite_residuals_count_in_neither_the_share_nor_its_draws():
     z[::7] = np.nan
     lo, hi = coverage_cis(t, {"gp": z}, "target", 500, 0)["gp"]["coverage95_ci"]
     assert math.isfinite(lo) and math.isfinite(hi) and lo <= fit_summary(z)["coverage95"] <= hi
+
+
+def test_a_resample_that_keeps_no_residual_leaves_no_interval_and_says_so(monkeypatch):
+    from pipeline.evaluation.domain import coverage
+
+    t, z = _table(np.random.default_rng(7))
+    real = coverage._weights
+
+    def one_empty(*a):   # the first draw keeps no cluster (as a crossed draw can)
+        w, over = real(*a)
+        w = w.copy()
+        w[0] = 0.0
+        return w, over
+
+    monkeypatch.setattr(coverage, "_weights", one_empty)
+    e = coverage_cis(t, {"gp": z}, "target", 500, 0)["gp"]
+    assert e["coverage95_ci"] is None and "undefined" in e["coverage95_withheld"]
