@@ -103,10 +103,10 @@ def estimate_lines(cfg, split: dict[str, tuple[float, float]]) -> list[str]:
     from pipeline.infra.device import available_cores
     from tests.support.estimates import misfit
 
-    out = []
+    out, cores = [], available_cores()
     for st, (wall, cpu) in split.items():
         est = estimate(cfg, st).seconds
-        problem = misfit(st, est, wall, cpu, available_cores()) if cpu == cpu else None
+        problem = misfit(st, est, wall, cpu, cores) if cpu == cpu else None
         out.append(f"    {st:<10} estimate {est:8.1f} s, took {wall:8.1f} s wall ({cpu:6.1f} CPU s): "
                    f"{problem or 'within a factor of two'}")
     return out
