@@ -55,10 +55,15 @@ def _stream_products(G: int, seed: tuple, k: int) -> np.ndarray:
     return out
 
 
+def _read(stream, G: int, B: int, seed: tuple, start: int) -> list[np.ndarray]:
+    """Rows ``start`` .. ``start + B`` of ``stream(G, seed, k)``'s blocks of ``STREAM``, block by block."""
+    return [stream(G, seed, k)[max(start - k * STREAM, 0): min(start + B - k * STREAM, STREAM)]
+            for k in range(start // STREAM, (start + B - 1) // STREAM + 1)]
+
+
 def products(G: int, B: int, seed: tuple, start: int = 0) -> np.ndarray:
     """``weights``' quadratic products (B, G(G+1)/2), the same draws."""
-    out = [_stream_products(G, seed, k)[max(start - k * STREAM, 0): min(start + B - k * STREAM, STREAM)]
-           for k in range(start // STREAM, (start + B - 1) // STREAM + 1)]
+    out = _read(_stream_products, G, B, seed, start)
     return np.concatenate(out) if len(out) > 1 else out[0]
 
 
@@ -67,10 +72,7 @@ def weights(G: int, B: int, seed: tuple, start: int = 0) -> np.ndarray:
     ``STREAM`` from their own streams, so a chunked reader gets the same draws), shared by every
     statistic of one population (common random numbers); Webb's where ``G <= WEBB_BELOW``, else
     Rademacher."""
-    out = []
-    for k in range(start // STREAM, (start + B - 1) // STREAM + 1):
-        lo, hi = max(start - k * STREAM, 0), min(start + B - k * STREAM, STREAM)
-        out.append(_stream(G, seed, k)[lo:hi])
+    out = _read(_stream, G, B, seed, start)
     return np.concatenate(out) if len(out) > 1 else (out[0] if out else np.zeros((0, G)))
 
 
