@@ -16,6 +16,7 @@ from pipeline.evaluation.grid.population import DEFAULT
 from pipeline.evaluation.grid.primary import declared_pair
 from pipeline.evaluation.metrics.labels import comparisons, methods as method_keys
 from pipeline.evaluation.metrics.spec import METRICS, check_primary, percentile  # noqa: F401 - check_primary: public here
+from pipeline.evaluation.statistics.design import MIN_CLUSTERS
 from pipeline.evaluation.statistics.engine import population_block
 from pipeline.evaluation.statistics.resampler import LEVEL
 from pipeline.infra.config.evaluation import cluster_of
@@ -37,7 +38,7 @@ STATISTICS = {
                 "undefined resampled statistic (inf - inf) gives no interval",
     "outcome": "better / worse when the 95 % interval of method - baseline excludes 0 on that side, else not "
                "distinguishable; withheld (no CI, no verdict) where a level the design varies over has fewer "
-               "than 8 units",
+               f"than {MIN_CLUSTERS} units",
     "pooling": "per metric (spec): the mean over targets of the target means, or the median over targets for "
                "unbounded metrics (log10 MGR percentiles, NLL); ECE from the pooled posteriors",
     "multiplicity": "Holm over the primary family (With Uncertainty against each baseline on each primary metric), "

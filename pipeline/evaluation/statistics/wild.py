@@ -55,10 +55,15 @@ def _stream_products(G: int, seed: tuple, k: int) -> np.ndarray:
     return out
 
 
+def _read(stream, G: int, B: int, seed: tuple, start: int) -> list[np.ndarray]:
+    """Rows ``start`` .. ``start + B`` of ``stream(G, seed, k)``'s blocks of ``STREAM``, block by block."""
+    return [stream(G, seed, k)[max(start - k * STREAM, 0): min(start + B - k * STREAM, STREAM)]
+            for k in range(start // STREAM, (start + B - 1) // STREAM + 1)]
+
+
 def products(G: int, B: int, seed: tuple, start: int = 0) -> np.ndarray:
     """``weights``' quadratic products (B, G(G+1)/2), the same draws."""
-    out = [_stream_products(G, seed, k)[max(start - k * STREAM, 0): min(start + B - k * STREAM, STREAM)]
-           for k in range(start // STREAM, (start + B - 1) // STREAM + 1)]
+    out = _read(_stream_products, G, B, seed, start)
     return np.concatenate(out) if len(out) > 1 else out[0]
 
 
@@ -67,10 +72,7 @@ def weights(G: int, B: int, seed: tuple, start: int = 0) -> np.ndarray:
     ``STREAM`` from their own streams, so a chunked reader gets the same draws), shared by every
     statistic of one population (common random numbers); Webb's where ``G <= WEBB_BELOW``, else
     Rademacher."""
-    out = []
-    for k in range(start // STREAM, (start + B - 1) // STREAM + 1):
-        lo, hi = max(start - k * STREAM, 0), min(start + B - k * STREAM, STREAM)
-        out.append(_stream(G, seed, k)[lo:hi])
+    out = _read(_stream, G, B, seed, start)
     return np.concatenate(out) if len(out) > 1 else (out[0] if out else np.zeros((0, G)))
 
 
@@ -127,7 +129,7 @@ def abs_t(values: np.ndarray, layout, n_boot: int, seed) -> np.ndarray:
     we = (y - theta[:, None]) * w[None, :]                                           # (R, N)
     c = np.stack([np.bincount(cw, weights=row, minlength=Gw) for row in we])          # (R, Gw)
     if R == 1 and Gw > QUADRATIC_UP_TO:
-        return _one(we[0], w, c[0], cw, Gw, layout.terms, int(n_boot), seed, abs(theta[0]))[None, :]
+        return _one(we[0], c[0], cw, Gw, pl.terms, int(n_boot), seed, abs(theta[0]))[None, :]
     parts = []                                                                        # (Q, r, k) per term, c_g and sign in
     for c_g, M, G, a, first, (kind, X) in pl.terms:
         if kind == "home":
@@ -166,15 +168,14 @@ def _ratio(d: np.ndarray, V: np.ndarray, scale) -> np.ndarray:
         return np.where(se > 0, np.abs(d) / se, np.where(np.abs(d) > 1e-12 * (scale + 1), np.inf, 0.0))
 
 
-def _one(we: np.ndarray, w: np.ndarray, c: np.ndarray, cw: np.ndarray, Gw: int, terms, B: int, seed,
+def _one(we: np.ndarray, c: np.ndarray, cw: np.ndarray, Gw: int, terms, B: int, seed,
          scale: float) -> np.ndarray:
     """(B,) |t*| of one population (the engine's case): each term's unit sums U = S v - d a with S
-    sparse (at most one entry per leaf), ``CHUNK`` draws at a time (memory bounded at any B)."""
-    N = len(w)
-    parts = []
-    for sign, M, G, first in terms:
-        S = (M.T @ sparse.csr_matrix((we, (np.arange(N), cw)), shape=(N, Gw))).tocsr()   # (G, Gw)
-        parts.append((sign * G / (G - 1), S, np.asarray(M.T @ w).ravel(), first and sign > 0))
+    sparse (at most one entry per leaf), ``CHUNK`` draws at a time (memory bounded at any B);
+    ``terms``: the plan's (c_g, M, G, a, one-level, ...)."""
+    N = len(we)
+    WE = sparse.csr_matrix((we, (np.arange(N), cw)), shape=(N, Gw))
+    parts = [(c_g, (M.T @ WE).tocsr(), a, first) for c_g, M, G, a, first, _ in terms]   # S: (G, Gw)
     out = np.empty(B)
     for k in range(0, B, CHUNK):
         v = weights(Gw, min(CHUNK, B - k), seed, k)                                  # (b, Gw)
