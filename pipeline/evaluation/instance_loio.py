@@ -28,10 +28,9 @@ import numpy as np
 from pipeline.evaluation.statistics.resampler import draws, estimate
 from pipeline.method import score_space
 from pipeline.method.gp_fit import fit_class_models
-from pipeline.method.gp_instance_fit import fit_instance_models
+from pipeline.method.gp_instance_fit import Z95, fit_instance_models
 
 VARIANTS = ("plain", "instance_none", "instance_split")
-Z95 = 1.959963984540054
 QUANTILES = (0.5, 0.9, 0.99)
 
 

@@ -187,6 +187,12 @@ def evaluate_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     return out
 
 
+def model_banks(cfg) -> int:
+    """The model banks a run fits (the models stage) and fits the test domain to (evaluate): the
+    main one, each models.* ablation's and each fit-only one of evaluate.fit_spaces."""
+    return 1 + sum(1 for a in cfg.evaluate.ablations if is_model_ablation(a)) + len(fit_only_banks(cfg))
+
+
 def fixed_evaluate_parts(cfg, T: int, tracks: int) -> list[Term]:
     """The evaluate work beside the grid's trajectories: each cell's own, the test-domain fit on the
     labelled AVD crops and the population statistics (the constants' note: CELL_S, DOMAIN_UNIT_S,
@@ -197,8 +203,7 @@ def fixed_evaluate_parts(cfg, T: int, tracks: int) -> list[Term]:
     crops = (work.test_crops if work is not None else None) or 0
     comps = fitted_components(cfg)
     cells = T * tracks * (1 + len(ev.ablations))   # attribution runs inside a cell, an ablation is a cell
-    # each fits the test domain, the fit-only banks of evaluate.fit_spaces too
-    banks = 1 + sum(1 for a in ev.ablations if is_model_ablation(a)) + len(fit_only_banks(cfg))
+    banks = model_banks(cfg)   # each fits the test domain
     return [Term(f"the cells' own work ({cells} cells: targets x tracks x (1 + ablations))",
                  ("evaluate.targets", "evaluate.tracks_per_target", "evaluate.ablations"), seconds=cells * CELL_S),
             Term(f"the test-domain fit ({crops} AVD crops x about {comps} components x {views:.0f} views a class"
@@ -328,8 +333,7 @@ def models_terms(cfg, counts: Counts = Counts()) -> list[Term]:
     # what the source declares a class is fitted on; undeclared: a BigBIRD ring's 120 angles
     declared = work.views_per_class if work is not None else None
     per_class = max(declared if declared is not None else 120, 1)
-    variants = (1 + sum(1 for a in cfg.evaluate.ablations if a.strip().startswith("models."))
-                + len(fit_only_banks(cfg)))
+    variants = model_banks(cfg)
     comps = fitted_components(cfg)
     extra = [t for fit in FIT_TERMS.values() for t in fit(cfg, classes)]   # each provider's own fits
     return [Term(f"the GP fits ({classes} classes x about {comps} components x {per_class:.0f} views x "

@@ -87,10 +87,7 @@ def variance_scale(space: str, floor: float = DEFAULT_FLOOR) -> float:
 
 def variance_bounds(bounds, space: str, floor: float = DEFAULT_FLOOR) -> tuple[float, ...]:
     """(low, high) variance bounds or prior range of ``models`` in ``space``'s units; probability's
-    returned as given (the paper's space and every existing run unchanged)."""
-    if space == DEFAULT:
-        check(space, floor)
-        return tuple(float(b) for b in bounds)
+    as given (its scale is exactly 1: the paper's space and every existing run unchanged)."""
     k = variance_scale(space, floor)
     return tuple(float(b) * k for b in bounds)
 
