@@ -17,7 +17,7 @@ TABLE = ("correct_final", "confident_error_final", "ece_final", "msde_final", "n
 
 def pooled_value(block: dict, method: str, metric: str) -> dict | None:
     """The pooled value: the statistic the verdict uses (summary.json holds only that one)."""
-    return ((block.get("pooled") or {}).get(method) or {}).get(metric)
+    return pooled_of(block, method).get(metric)
 
 
 def pooled_of(block: dict, method: str) -> dict:
@@ -39,9 +39,15 @@ def _header() -> list[str]:
                                        for k in TABLE]
 
 
-def _rows(name: str, block: dict) -> list[list]:
-    return [[name, method_label(m, short=True)] + [Estimate.of(pooled_value(block, m, k)) for k in TABLE]
-            for m in ordered_methods((block.get("pooled") or {}).keys())]
+def _rows(ctx: ReportContext, name: str, block: dict, key: tuple) -> list[list]:
+    """The calibration table's rows of one block, each cell registered in the page's ledger against
+    its pooled entry in summary.json (under ``key + (method, metric)``)."""
+    rows = []
+    for m in ordered_methods((block.get("pooled") or {}).keys()):
+        shown = [Estimate.of(pooled_value(block, m, k)) for k in TABLE]
+        ctx.ledger.register_row((*key, m), TABLE, shown, pooled_of(block, m), where="calibration table")
+        rows.append([name, method_label(m, short=True)] + shown)
+    return rows
 
 
 def _sentences(block: dict, keys: tuple[str, ...], main: bool | None = None) -> list[str]:
@@ -64,12 +70,8 @@ def calibration_section(ctx: ReportContext) -> None:
     page = ctx.page
     thr, bins = pop.get("confident_threshold"), pop.get("ece_bins")
     cal = (pop.get("ablations") or {}).get(CALIBRATED)
-    paper = _rows("paper (GP predictive)", pop)
-    calibrated = _rows("calibrated (+ test-domain variance)", cal) if cal else []
-    for key, block, part in ((("pooled",), pop, paper), (("ablation", CALIBRATED, "pooled"), cal, calibrated)):
-        for m, row in zip(ordered_methods(((block or {}).get("pooled") or {}).keys()), part):
-            ctx.ledger.register_row((*key, m), TABLE, row[2:], pooled_of(block, m), where="calibration table")
-    rows = paper + calibrated
+    rows = _rows(ctx, "paper (GP predictive)", pop, ("pooled",)) + (
+        _rows(ctx, "calibrated (+ test-domain variance)", cal, ("ablation", CALIBRATED, "pooled")) if cal else [])
     page.table(_header(), rows, cls="calibration pooled",
                caption=f"Pooled over the population, value [95 % CI] (targets, then tracks). Confident errors: share "
                        f"of posteriors with max P ≥ {plain(thr)} on a wrong class. ECE: top-label, {bins} equal-width bins "

@@ -29,7 +29,8 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
     if missing:
         return (f"Seed(s) {', '.join(map(str, missing))} have no population verdict (evaluate/summary.json "
                 f"lacks 'population'); the verdicts cannot be compared yet.")
-    if not differ and n_entries and sum(o == "withheld" for o in held.values()) == n_entries:
+    n_held = sum(o == "withheld" for o in held.values())   # no CI, no verdict: never counted among the verdicts
+    if not differ and n_entries and n_held == n_entries:
         return (f"No seed ({', '.join(map(str, seeds))}) reaches a verdict to compare: every entry's CI is withheld "
                 "(too few units of a level the design varies over).")
     if not differ:
@@ -41,8 +42,7 @@ def study_sentence(seeds: list, missing: list, differ: list[str], n_entries: int
                for k, o in held.items() if o in ("better", "worse")]
     if decided:
         text += " Held for every seed: " + "; ".join(outcome_clauses(decided)) + "."
-    n_held = sum(o == "withheld" for o in held.values())
-    if n_held:   # never counted among the verdicts: said apart, with why
+    if n_held:   # said apart, with why
         text += (f" {n_held} of {n_entries} entries carr{'ies' if n_held == 1 else 'y'} no CI and no verdict in every "
                  "seed (too few units of a "
                  "level the design varies over).")

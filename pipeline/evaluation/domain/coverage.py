@@ -18,13 +18,13 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
+from pipeline.evaluation.domain.fit import Z95   # the same |z| bound as the share itself (fit.fit_summary)
 from pipeline.evaluation.statistics.crossed import crossed_draws
 from pipeline.evaluation.statistics.design import withheld as design_withheld
 from pipeline.evaluation.statistics.resampler import estimate
 from pipeline.evaluation.statistics.resampler import draws as nested_draws
 from pipeline.infra.seeds import key
 
-Z95 = 1.959963984540054
 # what each clustering's interval resamples (a row's ``coverage95_over``)
 OVER = {"target": "instances, then the scans each was seen in", "scan": "scans, then the instances in each",
         "crossed": "instances and scans, crossed"}
